@@ -1,0 +1,38 @@
+# Every dependency is a Debian bookworm package installed by tools/setup.sh.
+# Third-party targets are imported, so their include directories are SYSTEM and their warnings
+# are not ours.
+list(APPEND CMAKE_MODULE_PATH /usr/lib/x86_64-linux-gnu/cmake/OpenVDB)  # Debian's FindOpenVDB
+find_package(OpenVDB REQUIRED)          # OpenVDB::openvdb (needs libboost-iostreams-dev)
+find_package(TBB REQUIRED)              # TBB::tbb
+find_package(Eigen3 3.4 REQUIRED NO_MODULE)
+find_package(embree 3 REQUIRED)         # embree
+find_package(GDCM REQUIRED)             # gdcmMSFF and friends
+find_package(ZLIB REQUIRED)
+find_package(PNG REQUIRED)
+find_package(CLI11 REQUIRED)
+find_package(nlohmann_json REQUIRED)
+find_package(Threads REQUIRED)
+
+# Debian's NIFTIConfig.cmake points at a library that does not exist; find nifticlib directly.
+find_library(PALP_NIFTI2_LIB nifti2 REQUIRED)
+find_library(PALP_ZNZ_LIB znz REQUIRED)
+find_path(PALP_NIFTI_INCLUDE_DIR nifti2_io.h PATH_SUFFIXES nifti REQUIRED)
+add_library(palp_nifti INTERFACE)
+target_include_directories(palp_nifti SYSTEM INTERFACE ${PALP_NIFTI_INCLUDE_DIR})
+target_link_libraries(palp_nifti INTERFACE ${PALP_NIFTI2_LIB} ${PALP_ZNZ_LIB} ZLIB::ZLIB m)
+
+# GDCM's config exports plain target names and an include dir variable.
+add_library(palp_gdcm INTERFACE)
+target_include_directories(palp_gdcm SYSTEM INTERFACE ${GDCM_INCLUDE_DIRS})
+target_link_libraries(palp_gdcm INTERFACE gdcmMSFF gdcmDSED gdcmCommon)
+
+# CHOLMOD (SuiteSparse 5.12) has no CMake config.
+find_library(PALP_CHOLMOD_LIB cholmod)
+find_path(PALP_CHOLMOD_INCLUDE_DIR cholmod.h PATH_SUFFIXES suitesparse)
+
+if(PALP_BUILD_TESTS)
+  find_package(GTest REQUIRED)
+endif()
+if(PALP_BUILD_BENCH)
+  find_package(benchmark REQUIRED)
+endif()

@@ -1,0 +1,22 @@
+# One INTERFACE target carries palp's warnings and sanitizer flags; every palp target links it.
+add_library(palp_options INTERFACE)
+add_library(palp::options ALIAS palp_options)
+target_compile_options(palp_options INTERFACE
+  -Wall -Wextra -Wpedantic -Wshadow -Wconversion -Wsign-conversion
+  $<$<BOOL:${PALP_WARNINGS_AS_ERRORS}>:-Werror>)
+if(PALP_SANITIZE)
+  target_compile_options(palp_options INTERFACE -fsanitize=${PALP_SANITIZE} -fno-omit-frame-pointer
+    -fno-sanitize-recover=all)
+  target_link_options(palp_options INTERFACE -fsanitize=${PALP_SANITIZE})
+endif()
+
+# Adds a palp module: MODULE/include is public, sources listed by the caller.
+function(palp_add_module name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;PUBLIC_DEPS;PRIVATE_DEPS" ${ARGN})
+  add_library(palp_${name} ${ARG_SOURCES})
+  add_library(palp::${name} ALIAS palp_${name})
+  target_include_directories(palp_${name} PUBLIC
+    $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>)
+  target_link_libraries(palp_${name} PUBLIC ${ARG_PUBLIC_DEPS} PRIVATE palp::options ${ARG_PRIVATE_DEPS})
+  set_target_properties(palp_${name} PROPERTIES POSITION_INDEPENDENT_CODE ON)
+endfunction()

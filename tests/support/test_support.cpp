@@ -1,0 +1,60 @@
+#include "test_support.h"
+
+#include <array>
+#include <cstdio>
+#include <cstdlib>
+#include <random>
+
+namespace palp::test {
+
+namespace fs = std::filesystem;
+
+fs::path dataDir() {
+    const char* env = std::getenv("PALP_DATA_DIR");
+    const fs::path dir = env ? fs::path(env) : fs::path(PALP_DEFAULT_DATA_DIR);
+    std::error_code ec;
+    if (fs::is_directory(dir, ec)) return fs::canonical(dir);
+    return {};
+}
+
+fs::path dataPath(const std::string& sub) {
+    const fs::path root = dataDir();
+    if (root.empty()) return {};
+    const fs::path p = root / sub;
+    return fs::exists(p) ? p : fs::path();
+}
+
+TempDir::TempDir() {
+    std::random_device rd;
+    mPath = fs::temp_directory_path() / ("palp-test-" + std::to_string(rd()) + std::to_string(rd()));
+    fs::create_directories(mPath);
+}
+
+TempDir::~TempDir() {
+    std::error_code ec;
+    fs::remove_all(mPath, ec);
+}
+
+RunResult runCommand(const std::string& commandLine) {
+    RunResult r;
+    const std::string full = commandLine + " 2>&1";
+    FILE* pipe = ::popen(full.c_str(), "r");
+    if (!pipe) return r;
+    std::array<char, 4096> buf{};
+    std::size_t n = 0;
+    while ((n = std::fread(buf.data(), 1, buf.size(), pipe)) > 0) r.output.append(buf.data(), n);
+    const int status = ::pclose(pipe);
+    r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    return r;
+}
+
+fs::path palpTool() {
+    const char* bin = std::getenv("PALP_BIN_DIR");
+    return fs::path(bin ? bin : PALP_DEFAULT_BIN_DIR) / "tools" / "palp";
+}
+
+bool haveProgram(const std::string& program) {
+    return runCommand("command -v " + program + " >/dev/null").exitCode == 0;
+}
+
+}  // namespace palp::test

@@ -1,0 +1,77 @@
+#include <gtest/gtest.h>
+
+#include <sys/stat.h>
+#include <filesystem>
+#include <fstream>
+
+#include "palp/error.h"
+#include "palp/volume/load.h"
+#include "test_support.h"
+
+namespace {
+
+palp::volume::Volume smallVolume() {
+    palp::volume::initialize();
+    auto grid = openvdb::FloatGrid::create(-1000.0f);
+    auto xf = openvdb::math::Transform::createLinearTransform(0.5e-3);
+    xf->postTranslate(openvdb::Vec3d(-0.01, 0.02, 0.3));
+    grid->setTransform(xf);
+    for (int i = 0; i < 20; ++i) grid->tree().setValue({i, i / 2, -i}, static_cast<float>(i * 10));
+    palp::volume::Volume v{grid, {}};
+    v.info.modality = "CT";
+    v.info.valueUnits = "HU";
+    v.info.seriesUid = "1.2.3.4";
+    v.info.gantryTiltDeg = 18.5;
+    v.info.originalDims = {512, 512, 28};
+    v.info.originalSpacing = {0.488e-3, 0.488e-3, 3e-3};
+    v.info.rescaleIntercept = -1024;
+    return v;
+}
+
+TEST(VdbIo, RoundTripKeepsValuesTransformAndMetadata) {
+    palp::test::TempDir tmp;
+    const auto v = smallVolume();
+    palp::volume::save(v, tmp / "a.vdb");
+    const auto back = palp::volume::load({tmp / "a.vdb"});
+    EXPECT_EQ(back.grid->getName(), "scan");
+    EXPECT_EQ(back.grid->activeVoxelCount(), v.grid->activeVoxelCount());
+    EXPECT_EQ(back.grid->background(), -1000.0f);
+    EXPECT_TRUE(back.grid->transform() == v.grid->transform());
+    for (auto it = v.grid->cbeginValueOn(); it; ++it)
+        EXPECT_EQ(back.grid->tree().getValue(it.getCoord()), *it);
+    EXPECT_EQ(back.info.modality, "CT");
+    EXPECT_EQ(back.info.seriesUid, "1.2.3.4");
+    EXPECT_DOUBLE_EQ(back.info.gantryTiltDeg, 18.5);
+    EXPECT_EQ(back.info.originalDims[2], 28);
+    EXPECT_DOUBLE_EQ(back.info.rescaleIntercept, -1024);
+    EXPECT_DOUBLE_EQ(back.info.originalSpacing[0], 0.488e-3);
+    // Nothing but the output in the folder: the temporary file was renamed.
+    int files = 0;
+    for ([[maybe_unused]] auto& e : std::filesystem::directory_iterator(tmp.path())) ++files;
+    EXPECT_EQ(files, 1);
+}
+
+TEST(VdbIo, UnwritablePathFailsAndLeavesNothing) {
+    palp::test::TempDir tmp;
+    const auto v = smallVolume();
+    EXPECT_THROW(palp::volume::save(v, tmp / "missing-dir" / "a.vdb"), palp::IoError);
+    std::filesystem::create_directory(tmp / "ro");
+    ::chmod((tmp / "ro").c_str(), 0500);
+    if (::geteuid() != 0) {  // root ignores directory permissions
+        EXPECT_THROW(palp::volume::save(v, tmp / "ro" / "a.vdb"), palp::IoError);
+    }
+    EXPECT_TRUE(std::filesystem::is_empty(tmp / "ro"));
+}
+
+TEST(VdbIo, NotAVdbIsAClearError) {
+    palp::test::TempDir tmp;
+    { std::ofstream(tmp / "x.vdb") << "not a vdb"; }
+    try {
+        palp::volume::loadVdb(tmp / "x.vdb");
+        FAIL();
+    } catch (const palp::Error& e) {
+        EXPECT_NE(std::string(e.what()).find("x.vdb"), std::string::npos);
+    }
+}
+
+}  // namespace

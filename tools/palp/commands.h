@@ -1,0 +1,28 @@
+#pragma once
+/// @file
+/// The palp command's subcommands. Each registers itself on the CLI11 app and runs when chosen.
+
+#include <CLI/CLI.hpp>
+
+#include <functional>
+#include <string>
+
+namespace palp::tool {
+
+/// A registered subcommand: its CLI11 node and what to run when it was given.
+struct Command {
+    CLI::App* app = nullptr;
+    std::function<int()> run;
+};
+
+Command addConvert(CLI::App& root);
+Command addInfo(CLI::App& root);
+Command addPhantom(CLI::App& root);
+
+/// Global flags shared by subcommands.
+struct Globals {
+    bool quiet = false;
+};
+Globals& globals();
+
+}  // namespace palp::tool

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Installs every Debian package palp needs to build, test and benchmark.
+# The one place where dependencies are listed. Safe to run again: it installs only what is missing.
+set -euo pipefail
+
+PACKAGES=(
+  # build
+  cmake g++ ninja-build pkg-config git
+  # libraries
+  libeigen3-dev libopenvdb-dev libboost-iostreams-dev libembree-dev libtbb-dev
+  libgdcm-dev libnifti2-dev zlib1g-dev libpng-dev libstb-dev
+  libsuitesparse-dev libcli11-dev nlohmann-json3-dev libtinyobjloader-dev
+  libgtest-dev libgmock-dev libbenchmark-dev
+  # oracles and baselines used by tests and benchmarks
+  dcm2niix calculix-ccx rt-tests libgdcm-tools unzip time
+  python3-openvdb python3-nibabel python3-pydicom python3-numpy
+  # fuzzing (clang's libFuzzer)
+  clang libfuzzer-14-dev libclang-rt-14-dev
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if ((${#missing[@]} == 0)); then
+  echo "setup: all ${#PACKAGES[@]} packages present"
+  exit 0
+fi
+
+echo "setup: installing ${#missing[@]} packages: ${missing[*]}"
+SUDO=""
+if [[ $(id -u) -ne 0 ]]; then SUDO="sudo"; fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"

@@ -1,0 +1,53 @@
+#pragma once
+/// @file
+/// DICOM series reading (through GDCM) and writing (for phantoms).
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "palp/volume/load.h"
+#include "palp/volume/slice_stack.h"
+
+namespace palp::volume {
+
+/// One series found among DICOM files.
+struct DicomSeriesInfo {
+    std::string uid;          ///< SeriesInstanceUID
+    std::string description;  ///< SeriesDescription (may be empty)
+    std::string modality;     ///< Modality
+    int imageCount = 0;       ///< files with pixel data in the series
+    int positionCount = 0;    ///< distinct slice positions
+    int timePointCount = 1;   ///< imageCount / positionCount when positions repeat
+    std::vector<std::filesystem::path> files;
+};
+
+/// Lists the series in @p inputs (directories are searched recursively; files that are not
+/// DICOM are skipped). Sorted by description, then UID.
+/// @throw IoError when an input does not exist; FormatError when no DICOM file is found.
+std::vector<DicomSeriesInfo> scanDicom(const std::vector<std::filesystem::path>& inputs);
+
+/// Reads one 3D volume of a DICOM series as slices sorted along the slice normal, with the
+/// rescale applied and each slice's own position, orientation and spacing.
+/// Series choice: options.seriesUid, or the only series present (several without a choice are
+/// refused, listing each with description and image count). 4D series (repeated positions)
+/// need options.timePoint (0-based), or are refused with the number of time points.
+/// @throw IoError, FormatError, ValueError naming the file.
+SliceStack readDicom(const std::vector<std::filesystem::path>& inputs, const LoadOptions& options);
+
+/// How writeDicomSeries stores values.
+struct DicomWriteOptions {
+    std::string modality = "CT";
+    std::string seriesDescription = "palp phantom";
+    double rescaleSlope = 1.0;        ///< stored = (value - intercept) / slope, rounded
+    double rescaleIntercept = -1024;  ///< CT convention: unsigned storage, -1024 intercept
+    double gantryTiltDeg = 0;         ///< written to (0018,1120) when non-zero
+};
+
+/// Writes @p stack as one single-frame CT/MR image per slice (uint16 storage) into @p dir,
+/// which is created; files are written to temporary names and renamed.
+/// @throw IoError, ValueError (values that do not fit the storage after rescale).
+void writeDicomSeries(const SliceStack& stack, const std::filesystem::path& dir,
+                      const DicomWriteOptions& options = {});
+
+}  // namespace palp::volume

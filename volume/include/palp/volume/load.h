@@ -1,0 +1,57 @@
+#pragma once
+/// @file
+/// Loading scans of any supported format into a Volume, and saving Volumes as `.vdb`.
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "palp/volume/resample.h"
+#include "palp/volume/volume.h"
+
+namespace palp::volume {
+
+/// Input formats palp recognises.
+enum class Format { Unknown, Dicom, Nifti, Nrrd, MetaImage, Vdb };
+
+/// Human-readable format name.
+const char* formatName(Format f);
+
+/// Detects a file's format from its magic bytes, falling back to its extension. A directory is
+/// DICOM. Does not throw for unreadable files (returns Unknown).
+Format detectFormat(const std::filesystem::path& path);
+
+struct LoadOptions {
+    /// DICOM: SeriesInstanceUID to read when a directory holds several series.
+    std::optional<std::string> seriesUid;
+    /// 4D sources: 0-based index of the volume (time point) to read. Required when the source
+    /// holds more than one volume.
+    std::optional<int> timePoint;
+    /// Largest decoded source size accepted, in bytes; headers claiming more are refused before
+    /// any allocation.
+    std::uint64_t maxSourceBytes = std::uint64_t{8} << 30;
+    /// How the slices become a grid (voxel size, background, crop, progress).
+    ResampleOptions resample;
+};
+
+/// Reads @p inputs (one file, one directory, or several DICOM files of one series) as a
+/// SliceStack without resampling. Not for `.vdb` (use load()).
+/// @throw IoError, FormatError, ValueError with the offending file named.
+SliceStack readStack(const std::vector<std::filesystem::path>& inputs, const LoadOptions& options);
+
+/// Reads and resamples @p inputs into a Volume. A `.vdb` is read as is (resampled only when a
+/// voxel size or crop is requested).
+/// @throw IoError, FormatError, ValueError with the offending file named.
+Volume load(const std::vector<std::filesystem::path>& inputs, const LoadOptions& options = {});
+
+/// Writes @p volume to @p path as a compressed `.vdb` with its metadata. Writes to a temporary
+/// file beside @p path and renames it, so a failure leaves no partial file.
+/// @throw IoError naming the path when it cannot be written.
+void save(const Volume& volume, const std::filesystem::path& path);
+
+/// Reads a palp `.vdb` (the grid named "scan", or the first float grid).
+/// @throw IoError, FormatError.
+Volume loadVdb(const std::filesystem::path& path);
+
+}  // namespace palp::volume

@@ -1,0 +1,57 @@
+#pragma once
+/// @file
+/// Exact slice-aware resampling of a SliceStack into an isotropic, axis-aligned sparse grid.
+
+#include <functional>
+#include <optional>
+
+#include "palp/volume/slice_stack.h"
+#include "palp/volume/volume.h"
+
+namespace palp::volume {
+
+/// Progress callback: @p fraction in [0, 1]. Return false to cancel (the call then throws
+/// palp::Error("cancelled")). Called from the calling thread only.
+using ProgressFn = std::function<bool(double fraction)>;
+
+/// Axis-aligned world box in metres (LPS).
+struct WorldBox {
+    Eigen::Vector3d min = Eigen::Vector3d::Zero();
+    Eigen::Vector3d max = Eigen::Vector3d::Zero();
+};
+
+struct ResampleOptions {
+    /// Output voxel edge in metres; default: the finest input spacing (smallest of the in-plane
+    /// steps and the smallest slice gap).
+    std::optional<double> voxelSize;
+    /// Values below this become inactive background; default -900 for CT, 0 for anything else.
+    std::optional<float> backgroundThreshold;
+    /// Keep only voxels inside this world box.
+    std::optional<WorldBox> crop;
+    /// Refuse outputs whose bounding lattice exceeds this many voxels (protects memory).
+    std::uint64_t maxVoxels = std::uint64_t{2} << 30;
+    ProgressFn progress;
+};
+
+/// Background value written for inactive voxels: -1000 for CT (air), otherwise 0; never above
+/// the threshold.
+float backgroundValueFor(const VolumeInfo& info, float threshold);
+/// Default threshold: -900 HU for CT, 0 otherwise.
+float defaultBackgroundThreshold(const VolumeInfo& info);
+
+/// Resamples @p stack. Each output voxel centre p is located between the two slices that
+/// bracket it along the common slice normal n; each of those slices is sampled bilinearly at
+/// the foot of p on its own plane (using that slice's own position and steps), and the two
+/// values are blended linearly by distance along n. A voxel centre exactly on a slice therefore
+/// reproduces that slice's bilinear interpolation, whatever the tilt or spacing.
+/// Voxels outside the slices' extent are background. Voxels whose value is below the threshold,
+/// or equal to the background value, are inactive.
+///
+/// The output lattice is anchored at the smallest corner of the slices' world bounding box, so
+/// an axis-aligned source with the same voxel size is reproduced exactly.
+/// @throw ValueError for an empty stack, slices of differing orientation or size, repeated
+///        positions, a non-positive voxel size, or a lattice larger than maxVoxels.
+/// @par Threading  Parallel inside (TBB); callable from any thread.
+Volume resample(const SliceStack& stack, const ResampleOptions& options = {});
+
+}  // namespace palp::volume

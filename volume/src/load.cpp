@@ -1,0 +1,197 @@
+#include "palp/volume/load.h"
+
+#include <openvdb/io/File.h>
+#include <openvdb/tools/GridTransformer.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+#include <fstream>
+#include <random>
+
+#include "palp/error.h"
+#include "palp/volume/dicom.h"
+#include "palp/volume/formats.h"
+
+namespace palp::volume {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string lower(std::string s) {
+    std::transform(s.begin(), s.end(), s.begin(),
+                   [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+    return s;
+}
+
+bool endsWith(const std::string& s, const std::string& suffix) {
+    return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+std::string readPrefix(const fs::path& path, std::size_t n) {
+    std::ifstream in(path, std::ios::binary);
+    std::string buf(n, '\0');
+    in.read(buf.data(), static_cast<std::streamsize>(n));
+    buf.resize(static_cast<std::size_t>(std::max<std::streamsize>(in.gcount(), 0)));
+    return buf;
+}
+
+void requireExists(const fs::path& p) {
+    std::error_code ec;
+    if (!fs::exists(p, ec)) throw IoError(p.string() + ": expected an existing file or directory, found nothing");
+}
+
+}  // namespace
+
+const char* formatName(Format f) {
+    switch (f) {
+        case Format::Dicom: return "DICOM";
+        case Format::Nifti: return "NIfTI";
+        case Format::Nrrd: return "NRRD";
+        case Format::MetaImage: return "MetaImage";
+        case Format::Vdb: return "OpenVDB";
+        case Format::Unknown: break;
+    }
+    return "unknown";
+}
+
+Format detectFormat(const fs::path& path) {
+    std::error_code ec;
+    if (fs::is_directory(path, ec)) return Format::Dicom;
+    const std::string head = readPrefix(path, 352);
+    if (head.size() >= 132 && head.compare(128, 4, "DICM") == 0) return Format::Dicom;
+    if (head.rfind("NRRD000", 0) == 0) return Format::Nrrd;
+    if (head.size() >= 4 && static_cast<unsigned char>(head[0]) == 0x20 &&
+        static_cast<unsigned char>(head[1]) == 0xBD && static_cast<unsigned char>(head[2]) == 0xB3 &&
+        static_cast<unsigned char>(head[3]) == 0x56) {
+        return Format::Vdb;
+    }
+    if (head.size() >= 348 && (head.compare(344, 3, "n+1") == 0 || head.compare(344, 3, "ni1") == 0)) {
+        return Format::Nifti;
+    }
+    if (head.size() >= 8 && (head.compare(4, 3, "n+2") == 0 || head.compare(4, 3, "ni2") == 0)) {
+        return Format::Nifti;
+    }
+    const std::string name = lower(path.filename().string());
+    if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr")) return Format::Nifti;
+    if (endsWith(name, ".nrrd") || endsWith(name, ".nhdr")) return Format::Nrrd;
+    if (endsWith(name, ".mha") || endsWith(name, ".mhd")) return Format::MetaImage;
+    if (endsWith(name, ".vdb")) return Format::Vdb;
+    if (endsWith(name, ".dcm") || endsWith(name, ".ima")) return Format::Dicom;
+    // MetaImage headers are text starting with a known key.
+    if (head.rfind("ObjectType", 0) == 0 || head.rfind("NDims", 0) == 0) return Format::MetaImage;
+    return Format::Unknown;
+}
+
+SliceStack readStack(const std::vector<fs::path>& inputs, const LoadOptions& options) {
+    if (inputs.empty()) throw ValueError("load: expected at least one input, found none");
+    for (const fs::path& p : inputs) requireExists(p);
+    const Format f = detectFormat(inputs.front());
+    if (f != Format::Dicom && inputs.size() > 1) {
+        throw ValueError(inputs[1].string() + ": expected one " + formatName(f) +
+                         " file, found " + std::to_string(inputs.size()) + " inputs");
+    }
+    switch (f) {
+        case Format::Dicom: return readDicom(inputs, options);
+        case Format::Nifti: return readNifti(inputs.front(), options);
+        case Format::Nrrd: return readNrrd(inputs.front(), options);
+        case Format::MetaImage: return readMetaImage(inputs.front(), options);
+        case Format::Vdb:
+            throw ValueError(inputs.front().string() + ": a .vdb holds a grid, not slices; use load()");
+        case Format::Unknown: break;
+    }
+    throw FormatError(inputs.front().string() +
+                      ": expected a DICOM file or directory, NIfTI (.nii, .nii.gz), NRRD (.nrrd, "
+                      ".nhdr), MetaImage (.mha, .mhd) or OpenVDB (.vdb), found an unknown format");
+}
+
+Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
+    initialize();
+    if (inputs.size() == 1) {
+        requireExists(inputs.front());
+        if (detectFormat(inputs.front()) == Format::Vdb) {
+            Volume v = loadVdb(inputs.front());
+            const auto& ro = options.resample;
+            if (!ro.voxelSize && !ro.crop) return v;
+            // Re-grid a stored volume: trilinear resample onto the requested lattice.
+            const double voxel = ro.voxelSize.value_or(v.voxelSize());
+            auto target = openvdb::FloatGrid::create(v.grid->background());
+            target->setName(kScanGridName);
+            target->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
+            openvdb::tools::resampleToMatch<openvdb::tools::BoxSampler>(*v.grid, *target);
+            if (ro.crop) {
+                const openvdb::BBoxd box(openvdb::Vec3d(ro.crop->min.data()), openvdb::Vec3d(ro.crop->max.data()));
+                const openvdb::CoordBBox ibox = target->transform().worldToIndexNodeCentered(box);
+                target->clipGrid(target->transform().indexToWorld(ibox));
+            }
+            Volume out{target, v.info};
+            writeInfo(out.info, *target);
+            return out;
+        }
+    }
+    SliceStack stack = readStack(inputs, options);
+    return resample(stack, options.resample);
+}
+
+Volume loadVdb(const fs::path& path) {
+    initialize();
+    openvdb::GridPtrVecPtr grids;
+    try {
+        openvdb::io::File file(path.string());
+        file.open();
+        grids = file.getGrids();
+        file.close();
+    } catch (const openvdb::Exception& e) {
+        throw IoError(path.string() + ": expected a readable OpenVDB file, found an error: " + e.what());
+    }
+    openvdb::FloatGrid::Ptr chosen;
+    for (const auto& g : *grids) {
+        if (auto fg = openvdb::gridPtrCast<openvdb::FloatGrid>(g)) {
+            if (fg->getName() == kScanGridName) {
+                chosen = fg;
+                break;
+            }
+            if (!chosen) chosen = fg;
+        }
+    }
+    if (!chosen) {
+        throw FormatError(path.string() + ": expected a float grid named 'scan', found " +
+                          std::to_string(grids->size()) + " grids and none of type float");
+    }
+    return Volume{chosen, readInfo(*chosen)};
+}
+
+void save(const Volume& volume, const fs::path& path) {
+    initialize();
+    if (!volume.grid) throw ValueError(path.string() + ": expected a volume with a grid, found none");
+    const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+    std::error_code ec;
+    if (!fs::is_directory(dir, ec)) {
+        throw IoError(path.string() + ": expected an existing directory '" + dir.string() +
+                      "' to write into, found none");
+    }
+    std::random_device rd;
+    const fs::path tmp = dir / ("." + path.filename().string() + ".tmp" + std::to_string(::getpid()) +
+                                "-" + std::to_string(rd()));
+    writeInfo(volume.info, *volume.grid);
+    volume.grid->setName(kScanGridName);
+    try {
+        openvdb::io::File file(tmp.string());
+        file.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+        openvdb::MetaMap fileMeta;
+        fileMeta.insertMeta("creator", openvdb::StringMetadata("palp"));
+        file.write({volume.grid}, fileMeta);
+        file.close();
+    } catch (const std::exception& e) {
+        fs::remove(tmp, ec);
+        throw IoError(path.string() + ": expected a writable location, found an error: " + e.what());
+    }
+    fs::rename(tmp, path, ec);
+    if (ec) {
+        fs::remove(tmp, ec);
+        throw IoError(path.string() + ": could not rename the finished file into place: " + ec.message());
+    }
+}
+
+}  // namespace palp::volume

@@ -1,0 +1,307 @@
+#include "palp/volume/resample.h"
+
+#include <openvdb/tools/Prune.h>
+#include <tbb/blocked_range2d.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <numeric>
+#include <sstream>
+
+#include "palp/error.h"
+
+namespace palp::volume {
+
+namespace {
+
+using LeafT = openvdb::FloatTree::LeafNodeType;
+constexpr int kLeafDim = static_cast<int>(LeafT::DIM);
+
+std::string vecStr(const Eigen::Vector3d& v) {
+    std::ostringstream os;
+    os << "(" << v.x() << ", " << v.y() << ", " << v.z() << ")";
+    return os.str();
+}
+
+/// Geometry shared by all slices plus each slice's offset, prepared once per resample.
+struct StackGeometry {
+    Eigen::Vector3d normal;
+    Eigen::Matrix2d gramInverse;  // inverse of [u v]^T [u v]
+    Eigen::Vector3d u, v;         // column and row steps
+    std::vector<std::size_t> order;  // slice indices sorted along the normal
+    std::vector<double> along;       // normal coordinate of each sorted slice
+};
+
+StackGeometry analyse(const SliceStack& stack) {
+    if (stack.slices.empty()) throw ValueError("resample: expected at least one slice, found none");
+    StackGeometry g;
+    const Slice& first = stack.slices.front();
+    g.u = first.colStep;
+    g.v = first.rowStep;
+    for (const Slice& s : stack.slices) {
+        if (s.cols <= 0 || s.rows <= 0 ||
+            s.values.size() != static_cast<std::size_t>(s.cols) * static_cast<std::size_t>(s.rows)) {
+            throw ValueError(s.source + ": expected " + std::to_string(s.cols) + "x" +
+                             std::to_string(s.rows) + " values, found " +
+                             std::to_string(s.values.size()));
+        }
+        if (!s.position.allFinite() || !s.colStep.allFinite() || !s.rowStep.allFinite()) {
+            throw ValueError(s.source + ": slice geometry is not finite");
+        }
+        if (s.cols != first.cols || s.rows != first.rows) {
+            throw ValueError(s.source + ": expected " + std::to_string(first.cols) + "x" +
+                             std::to_string(first.rows) + " pixels like " + first.source +
+                             ", found " + std::to_string(s.cols) + "x" + std::to_string(s.rows));
+        }
+        const double tol = 1e-4 * std::max(g.u.norm(), g.v.norm());
+        if ((s.colStep - g.u).norm() > tol || (s.rowStep - g.v).norm() > tol) {
+            throw ValueError(s.source + ": expected the orientation and spacing of " +
+                             first.source + " (steps " + vecStr(g.u) + ", " + vecStr(g.v) +
+                             " m), found " + vecStr(s.colStep) + ", " + vecStr(s.rowStep));
+        }
+    }
+    const Eigen::Vector3d cross = g.u.cross(g.v);
+    if (cross.norm() < 1e-12 * g.u.norm() * g.v.norm() || g.u.norm() <= 0 || g.v.norm() <= 0) {
+        throw ValueError(first.source + ": expected independent row and column directions, found " +
+                         vecStr(g.u) + " and " + vecStr(g.v));
+    }
+    g.normal = cross.normalized();
+    Eigen::Matrix2d gram;
+    gram << g.u.dot(g.u), g.u.dot(g.v), g.u.dot(g.v), g.v.dot(g.v);
+    g.gramInverse = gram.inverse();
+
+    g.order.resize(stack.slices.size());
+    std::iota(g.order.begin(), g.order.end(), std::size_t{0});
+    std::vector<double> s(stack.slices.size());
+    for (std::size_t i = 0; i < s.size(); ++i) s[i] = stack.slices[i].position.dot(g.normal);
+    std::stable_sort(g.order.begin(), g.order.end(),
+                     [&](std::size_t a, std::size_t b) { return s[a] < s[b]; });
+    g.along.resize(s.size());
+    for (std::size_t i = 0; i < s.size(); ++i) g.along[i] = s[g.order[i]];
+    const double minStep = std::min(g.u.norm(), g.v.norm());
+    for (std::size_t i = 1; i < g.along.size(); ++i) {
+        if (g.along[i] - g.along[i - 1] < 1e-6 * minStep) {
+            throw ValueError(stack.slices[g.order[i]].source +
+                             ": expected distinct slice positions, found the same position as " +
+                             stack.slices[g.order[i - 1]].source +
+                             " (a 4D series needs a time point)");
+        }
+    }
+    return g;
+}
+
+/// Bilinear sample of one slice at continuous (c, r); false when outside the pixel centres.
+inline bool sampleSlice(const Slice& s, double c, double r, double& out) {
+    constexpr double e = 1e-6;
+    const double cmax = s.cols - 1;
+    const double rmax = s.rows - 1;
+    if (!(c >= -e && c <= cmax + e && r >= -e && r <= rmax + e)) return false;
+    c = std::clamp(c, 0.0, cmax);
+    r = std::clamp(r, 0.0, rmax);
+    const int c0 = std::min(static_cast<int>(c), std::max(s.cols - 2, 0));
+    const int r0 = std::min(static_cast<int>(r), std::max(s.rows - 2, 0));
+    const double fc = c - c0;
+    const double fr = r - r0;
+    const int c1 = std::min(c0 + 1, s.cols - 1);
+    const int r1 = std::min(r0 + 1, s.rows - 1);
+    const auto at = [&](int cc, int rr) {
+        return static_cast<double>(s.values[static_cast<std::size_t>(rr) * static_cast<std::size_t>(s.cols) +
+                                            static_cast<std::size_t>(cc)]);
+    };
+    const double top = at(c0, r0) * (1 - fc) + at(c1, r0) * fc;
+    const double bottom = at(c0, r1) * (1 - fc) + at(c1, r1) * fc;
+    out = top * (1 - fr) + bottom * fr;
+    return true;
+}
+
+}  // namespace
+
+float defaultBackgroundThreshold(const VolumeInfo& info) {
+    return info.modality == "CT" ? -900.0f : 0.0f;
+}
+
+float backgroundValueFor(const VolumeInfo& info, float threshold) {
+    const float preferred = info.modality == "CT" ? -1000.0f : 0.0f;
+    return std::min(preferred, threshold);
+}
+
+Volume resample(const SliceStack& stack, const ResampleOptions& options) {
+    const StackGeometry g = analyse(stack);
+    const std::size_t n = g.order.size();
+
+    // Gaps along the normal, tilt and default voxel size.
+    std::vector<double> gaps;
+    for (std::size_t i = 1; i < n; ++i) gaps.push_back(g.along[i] - g.along[i - 1]);
+    double minGap = 0, maxGap = 0, medianGap = 0;
+    if (!gaps.empty()) {
+        std::vector<double> sorted = gaps;
+        std::sort(sorted.begin(), sorted.end());
+        minGap = sorted.front();
+        maxGap = sorted.back();
+        medianGap = sorted[sorted.size() / 2];
+    }
+    double tiltDeg = 0;
+    if (n > 1) {
+        const Eigen::Vector3d stackDir =
+            stack.slices[g.order.back()].position - stack.slices[g.order.front()].position;
+        const double c = std::clamp(std::abs(stackDir.normalized().dot(g.normal)), 0.0, 1.0);
+        tiltDeg = std::acos(c) * 180.0 / M_PI;
+        if (tiltDeg < 1e-3) tiltDeg = 0;
+    }
+    double voxel = std::min(g.u.norm(), g.v.norm());
+    if (minGap > 0) voxel = std::min(voxel, minGap);
+    if (options.voxelSize) voxel = *options.voxelSize;
+    if (!(voxel > 0) || !std::isfinite(voxel)) {
+        throw ValueError("resample: expected a positive voxel size, found " + std::to_string(voxel) + " m");
+    }
+
+    // World bounding box of all pixel centres.
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -lo;
+    for (const Slice& s : stack.slices) {
+        for (int a = 0; a < 2; ++a) {
+            for (int b = 0; b < 2; ++b) {
+                const Eigen::Vector3d p = s.position + a * (s.cols - 1) * g.u + b * (s.rows - 1) * g.v;
+                lo = lo.cwiseMin(p);
+                hi = hi.cwiseMax(p);
+            }
+        }
+    }
+    if (n == 1) {  // a single slice is a slab one voxel thick
+        lo -= 0.5 * voxel * g.normal.cwiseAbs();
+        hi += 0.5 * voxel * g.normal.cwiseAbs();
+    }
+    if (options.crop) {
+        lo = lo.cwiseMax(options.crop->min);
+        hi = hi.cwiseMin(options.crop->max);
+        if ((hi.array() < lo.array()).any()) {
+            throw ValueError("resample: the crop box " + vecStr(options.crop->min) + " - " +
+                             vecStr(options.crop->max) + " m does not overlap the scan (" +
+                             vecStr(lo) + " - " + vecStr(hi) + ")");
+        }
+    }
+    std::array<std::int64_t, 3> dims{};
+    for (int a = 0; a < 3; ++a) {
+        dims[static_cast<std::size_t>(a)] =
+            static_cast<std::int64_t>(std::floor((hi[a] - lo[a]) / voxel + 1e-6)) + 1;
+    }
+    const long double total = static_cast<long double>(dims[0]) * dims[1] * dims[2];
+    if (total > static_cast<long double>(options.maxVoxels)) {
+        throw ValueError("resample: a voxel size of " + std::to_string(voxel * 1e3) + " mm gives " +
+                         std::to_string(dims[0]) + "x" + std::to_string(dims[1]) + "x" +
+                         std::to_string(dims[2]) + " voxels, more than the limit of " +
+                         std::to_string(options.maxVoxels) + "; choose a larger voxel size");
+    }
+
+    const float threshold = options.backgroundThreshold.value_or(defaultBackgroundThreshold(stack.info));
+    const float background = backgroundValueFor(stack.info, threshold);
+
+    auto grid = openvdb::FloatGrid::create(background);
+    grid->setName(kScanGridName);
+    auto xform = openvdb::math::Transform::createLinearTransform(voxel);
+    xform->postTranslate(openvdb::Vec3d(lo.x(), lo.y(), lo.z()));
+    grid->setTransform(xform);
+
+    const double loAlong = g.along.front();
+    const double hiAlong = g.along.back();
+    const double alongTol = n == 1 ? 0.5 * voxel : 1e-7;
+
+    auto valueAt = [&](const Eigen::Vector3d& p, double& out) -> bool {
+        const double sp = p.dot(g.normal);
+        if (sp < loAlong - alongTol || sp > hiAlong + alongTol) return false;
+        std::size_t k1 = static_cast<std::size_t>(
+            std::upper_bound(g.along.begin(), g.along.end(), sp) - g.along.begin());
+        std::size_t k0;
+        if (k1 == 0) {
+            k0 = k1 = 0;
+        } else if (k1 >= n) {
+            k0 = k1 = n - 1;
+        } else {
+            k0 = k1 - 1;
+        }
+        const Slice& s0 = stack.slices[g.order[k0]];
+        const Eigen::Vector3d q0 = p - s0.position;
+        const Eigen::Vector2d cr0 = g.gramInverse * Eigen::Vector2d(g.u.dot(q0), g.v.dot(q0));
+        double v0 = 0;
+        if (!sampleSlice(s0, cr0.x(), cr0.y(), v0)) return false;
+        if (k0 == k1) {
+            out = v0;
+            return true;
+        }
+        const Slice& s1 = stack.slices[g.order[k1]];
+        const Eigen::Vector3d q1 = p - s1.position;
+        const Eigen::Vector2d cr1 = g.gramInverse * Eigen::Vector2d(g.u.dot(q1), g.v.dot(q1));
+        double v1 = 0;
+        if (!sampleSlice(s1, cr1.x(), cr1.y(), v1)) return false;
+        const double f = (sp - g.along[k0]) / (g.along[k1] - g.along[k0]);
+        out = v0 * (1 - f) + v1 * f;
+        return true;
+    };
+
+    const int bx = static_cast<int>((dims[0] + kLeafDim - 1) / kLeafDim);
+    const int by = static_cast<int>((dims[1] + kLeafDim - 1) / kLeafDim);
+    const int bz = static_cast<int>((dims[2] + kLeafDim - 1) / kLeafDim);
+    openvdb::FloatTree& tree = grid->tree();
+    tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
+
+    for (int zb = 0; zb < bz; ++zb) {
+        tbb::parallel_for(tbb::blocked_range2d<int>(0, by, 0, bx), [&](const tbb::blocked_range2d<int>& r) {
+            auto& mine = made.local();
+            for (int yb = r.rows().begin(); yb != r.rows().end(); ++yb) {
+                for (int xb = r.cols().begin(); xb != r.cols().end(); ++xb) {
+                    const openvdb::Coord origin(xb * kLeafDim, yb * kLeafDim, zb * kLeafDim);
+                    auto leaf = std::make_unique<LeafT>(origin, background, false);
+                    bool any = false;
+                    for (int i = 0; i < kLeafDim; ++i) {
+                        const int x = origin.x() + i;
+                        if (x >= dims[0]) break;
+                        for (int j = 0; j < kLeafDim; ++j) {
+                            const int y = origin.y() + j;
+                            if (y >= dims[1]) break;
+                            for (int k = 0; k < kLeafDim; ++k) {
+                                const int z = origin.z() + k;
+                                if (z >= dims[2]) break;
+                                const Eigen::Vector3d p = lo + voxel * Eigen::Vector3d(x, y, z);
+                                double v = 0;
+                                if (!valueAt(p, v)) continue;
+                                const auto fv = static_cast<float>(v);
+                                if (fv < threshold || fv == background) continue;
+                                leaf->setValueOn(LeafT::coordToOffset(openvdb::Coord(x, y, z)), fv);
+                                any = true;
+                            }
+                        }
+                    }
+                    if (any) mine.push_back(std::move(leaf));
+                }
+            }
+        });
+        for (auto& list : made) {
+            for (auto& leaf : list) tree.addLeaf(leaf.release());  // the tree takes ownership
+            list.clear();
+        }
+        if (options.progress && !options.progress(static_cast<double>(zb + 1) / bz)) {
+            throw Error("resample: cancelled");
+        }
+    }
+
+    Volume out;
+    out.grid = grid;
+    out.info = stack.info;
+    out.info.backgroundThreshold = threshold;
+    out.info.minSliceGap = minGap;
+    out.info.maxSliceGap = maxGap;
+    out.info.originalSpacing = {g.u.norm(), g.v.norm(), medianGap};
+    if (out.info.originalDims[0] == 0) {
+        out.info.originalDims = {stack.slices.front().cols, stack.slices.front().rows,
+                                 static_cast<std::int64_t>(n)};
+    }
+    out.info.gantryTiltDeg = tiltDeg;
+    writeInfo(out.info, *grid);
+    return out;
+}
+
+}  // namespace palp::volume

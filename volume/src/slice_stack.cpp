@@ -1,0 +1,32 @@
+#include "palp/volume/slice_stack.h"
+
+#include <algorithm>
+#include <cstddef>
+
+namespace palp::volume {
+
+SliceStack stackFromAffine(const std::vector<float>& values, const std::array<std::int64_t, 3>& dims,
+                           const Eigen::Matrix3d& axes, const Eigen::Vector3d& origin,
+                           const std::string& source) {
+    SliceStack stack;
+    const auto nx = static_cast<std::size_t>(dims[0]);
+    const auto ny = static_cast<std::size_t>(dims[1]);
+    const auto nz = static_cast<std::size_t>(dims[2]);
+    stack.slices.resize(nz);
+    for (std::size_t k = 0; k < nz; ++k) {
+        Slice& s = stack.slices[k];
+        s.position = origin + static_cast<double>(k) * axes.col(2);
+        s.colStep = axes.col(0);
+        s.rowStep = axes.col(1);
+        s.cols = static_cast<std::int32_t>(nx);
+        s.rows = static_cast<std::int32_t>(ny);
+        const auto begin = values.begin() + static_cast<std::ptrdiff_t>(k * nx * ny);
+        s.values.assign(begin, begin + static_cast<std::ptrdiff_t>(nx * ny));
+        s.source = source;
+    }
+    stack.info.originalDims = dims;
+    stack.info.originalSpacing = {axes.col(0).norm(), axes.col(1).norm(), axes.col(2).norm()};
+    return stack;
+}
+
+}  // namespace palp::volume

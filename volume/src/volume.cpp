@@ -1,0 +1,74 @@
+#include "palp/volume/volume.h"
+
+#include <mutex>
+
+namespace palp::volume {
+
+namespace {
+
+template <typename T>
+T metaOr(const openvdb::GridBase& grid, const char* key, T fallback) {
+    if (auto m = grid.getMetadata<openvdb::TypedMetadata<T>>(key)) return m->value();
+    return fallback;
+}
+
+}  // namespace
+
+void initialize() {
+    static std::once_flag once;
+    std::call_once(once, [] { openvdb::initialize(); });
+}
+
+openvdb::BBoxd Volume::worldBounds() const {
+    const openvdb::CoordBBox box = grid->evalActiveVoxelBoundingBox();
+    if (box.empty()) return openvdb::BBoxd();
+    return grid->transform().indexToWorld(box);
+}
+
+void writeInfo(const VolumeInfo& info, openvdb::GridBase& grid) {
+    grid.insertMeta("palp:modality", openvdb::StringMetadata(info.modality));
+    grid.insertMeta("palp:value_units", openvdb::StringMetadata(info.valueUnits));
+    grid.insertMeta("palp:source_format", openvdb::StringMetadata(info.sourceFormat));
+    grid.insertMeta("palp:source_description", openvdb::StringMetadata(info.sourceDescription));
+    grid.insertMeta("palp:series_uid", openvdb::StringMetadata(info.seriesUid));
+    grid.insertMeta("palp:original_dims",
+                    openvdb::Vec3IMetadata(openvdb::Vec3i(static_cast<int>(info.originalDims[0]),
+                                                          static_cast<int>(info.originalDims[1]),
+                                                          static_cast<int>(info.originalDims[2]))));
+    grid.insertMeta("palp:original_spacing_m",
+                    openvdb::Vec3DMetadata(openvdb::Vec3d(info.originalSpacing[0],
+                                                          info.originalSpacing[1],
+                                                          info.originalSpacing[2])));
+    grid.insertMeta("palp:min_slice_gap_m", openvdb::DoubleMetadata(info.minSliceGap));
+    grid.insertMeta("palp:max_slice_gap_m", openvdb::DoubleMetadata(info.maxSliceGap));
+    grid.insertMeta("palp:rescale_slope", openvdb::DoubleMetadata(info.rescaleSlope));
+    grid.insertMeta("palp:rescale_intercept", openvdb::DoubleMetadata(info.rescaleIntercept));
+    grid.insertMeta("palp:gantry_tilt_deg", openvdb::DoubleMetadata(info.gantryTiltDeg));
+    grid.insertMeta("palp:time_point", openvdb::Int32Metadata(info.timePoint));
+    grid.insertMeta("palp:time_point_count", openvdb::Int32Metadata(info.timePointCount));
+    grid.insertMeta("palp:background_threshold", openvdb::FloatMetadata(info.backgroundThreshold));
+}
+
+VolumeInfo readInfo(const openvdb::GridBase& grid) {
+    VolumeInfo info;
+    info.modality = metaOr<std::string>(grid, "palp:modality", "");
+    info.valueUnits = metaOr<std::string>(grid, "palp:value_units", "");
+    info.sourceFormat = metaOr<std::string>(grid, "palp:source_format", "");
+    info.sourceDescription = metaOr<std::string>(grid, "palp:source_description", "");
+    info.seriesUid = metaOr<std::string>(grid, "palp:series_uid", "");
+    const openvdb::Vec3i dims = metaOr(grid, "palp:original_dims", openvdb::Vec3i(0, 0, 0));
+    info.originalDims = {dims[0], dims[1], dims[2]};
+    const openvdb::Vec3d sp = metaOr(grid, "palp:original_spacing_m", openvdb::Vec3d(0, 0, 0));
+    info.originalSpacing = {sp[0], sp[1], sp[2]};
+    info.minSliceGap = metaOr(grid, "palp:min_slice_gap_m", 0.0);
+    info.maxSliceGap = metaOr(grid, "palp:max_slice_gap_m", 0.0);
+    info.rescaleSlope = metaOr(grid, "palp:rescale_slope", 1.0);
+    info.rescaleIntercept = metaOr(grid, "palp:rescale_intercept", 0.0);
+    info.gantryTiltDeg = metaOr(grid, "palp:gantry_tilt_deg", 0.0);
+    info.timePoint = metaOr(grid, "palp:time_point", -1);
+    info.timePointCount = metaOr(grid, "palp:time_point_count", 1);
+    info.backgroundThreshold = metaOr(grid, "palp:background_threshold", -900.0f);
+    return info;
+}
+
+}  // namespace palp::volume
