@@ -122,6 +122,35 @@ TEST(Resample, BackgroundThresholdMakesGridSparse) {
     EXPECT_GT(vol.grid->activeVoxelCount(), 0u);
 }
 
+TEST(Resample, SkippingBackgroundBlocksLosesNoActiveVoxel) {
+    // Mostly air with small bright islands: the block skip (tile maxima) must keep exactly the
+    // voxels that a resample without any skipping (threshold -1e9) finds above the threshold.
+    SliceStack st = tiltedStack(18.5, {1.0, 3.0, 1.0, 7.0, 2.0}, 64, 48);
+    std::uint32_t h = 12345;
+    for (Slice& s : st.slices)
+        for (float& v : s.values) {
+            h = h * 1664525u + 1013904223u;
+            v = (h >> 24) < 6 ? 300.0f + static_cast<float>(h >> 28) : -1000.0f;
+        }
+    palp::volume::ResampleOptions all;
+    all.voxelSize = 0.5e-3;
+    all.backgroundThreshold = -1e9f;
+    palp::volume::ResampleOptions sparse = all;
+    sparse.backgroundThreshold = -900.0f;
+    const auto full = palp::volume::resample(st, all);
+    const auto skip = palp::volume::resample(st, sparse);
+    std::size_t expected = 0;
+    const auto acc = skip.grid->getConstAccessor();
+    for (auto it = full.grid->cbeginValueOn(); it; ++it) {
+        if (*it < -900.0f) continue;
+        ++expected;
+        ASSERT_TRUE(acc.isValueOn(it.getCoord())) << it.getCoord();
+        ASSERT_EQ(acc.getValue(it.getCoord()), *it);
+    }
+    EXPECT_GT(expected, 100u);
+    EXPECT_EQ(skip.grid->activeVoxelCount(), expected);
+}
+
 TEST(Resample, BadStacksAreRefusedWithReasons) {
     palp::volume::SliceStack empty;
     EXPECT_THROW(palp::volume::resample(empty, {}), palp::ValueError);

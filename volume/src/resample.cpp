@@ -8,6 +8,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <numeric>
 #include <sstream>
@@ -210,6 +211,76 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     const double hiAlong = g.along.back();
     const double alongTol = n == 1 ? 0.5 * voxel : 1e-7;
 
+    // In-plane coordinates are affine in the world point: (c, r) = M p - M position_k.
+    Eigen::Matrix<double, 2, 3> uvT;
+    uvT.row(0) = g.u.transpose();
+    uvT.row(1) = g.v.transpose();
+    const Eigen::Matrix<double, 2, 3> M = g.gramInverse * uvT;
+    std::vector<const Slice*> sorted(n);
+    std::vector<Eigen::Vector2d> crOffset(n);
+    for (std::size_t k = 0; k < n; ++k) {
+        sorted[k] = &stack.slices[g.order[k]];
+        crOffset[k] = -(M * sorted[k]->position);
+    }
+
+    // Maxima over tiles of each slice, to skip blocks whose every source pixel is background:
+    // an interpolated value is a convex combination of pixels, so it cannot exceed their maximum.
+    constexpr int kTile = 8;
+    const int cols = sorted.front()->cols;
+    const int rows = sorted.front()->rows;
+    const int tilesX = (cols + kTile - 1) / kTile;
+    const int tilesY = (rows + kTile - 1) / kTile;
+    std::vector<float> tileMax(n * static_cast<std::size_t>(tilesX * tilesY),
+                               -std::numeric_limits<float>::infinity());
+    tbb::parallel_for(std::size_t{0}, n, [&](std::size_t k) {
+        float* tm = tileMax.data() + k * static_cast<std::size_t>(tilesX * tilesY);
+        const std::vector<float>& vals = sorted[k]->values;
+        for (int r = 0; r < rows; ++r) {
+            for (int c = 0; c < cols; ++c) {
+                float& m = tm[(r / kTile) * tilesX + c / kTile];
+                m = std::max(m, vals[static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) +
+                                     static_cast<std::size_t>(c)]);
+            }
+        }
+    });
+
+    auto blockMayBeActive = [&](const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax) -> bool {
+        double smin = std::numeric_limits<double>::infinity(), smax = -smin;
+        Eigen::Vector2d crMin = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity());
+        Eigen::Vector2d crMax = -crMin;
+        for (int corner = 0; corner < 8; ++corner) {
+            const Eigen::Vector3d p((corner & 1) ? bmax.x() : bmin.x(), (corner & 2) ? bmax.y() : bmin.y(),
+                                    (corner & 4) ? bmax.z() : bmin.z());
+            const double sp = p.dot(g.normal);
+            smin = std::min(smin, sp);
+            smax = std::max(smax, sp);
+            const Eigen::Vector2d mp = M * p;
+            crMin = crMin.cwiseMin(mp);
+            crMax = crMax.cwiseMax(mp);
+        }
+        if (smax < loAlong - alongTol || smin > hiAlong + alongTol) return false;
+        auto first = static_cast<std::size_t>(std::upper_bound(g.along.begin(), g.along.end(), smin) -
+                                              g.along.begin());
+        first = first > 0 ? first - 1 : 0;
+        auto last = static_cast<std::size_t>(std::lower_bound(g.along.begin(), g.along.end(), smax) -
+                                             g.along.begin());
+        last = std::min(last, n - 1);
+        for (std::size_t k = first; k <= last; ++k) {
+            const Eigen::Vector2d a = crMin + crOffset[k];
+            const Eigen::Vector2d b = crMax + crOffset[k];
+            if (b.x() < -1 || a.x() > cols || b.y() < -1 || a.y() > rows) continue;
+            const int c0 = std::clamp(static_cast<int>(std::floor(a.x())) - 1, 0, cols - 1) / kTile;
+            const int c1 = std::clamp(static_cast<int>(std::floor(b.x())) + 2, 0, cols - 1) / kTile;
+            const int r0 = std::clamp(static_cast<int>(std::floor(a.y())) - 1, 0, rows - 1) / kTile;
+            const int r1 = std::clamp(static_cast<int>(std::floor(b.y())) + 2, 0, rows - 1) / kTile;
+            const float* tm = tileMax.data() + k * static_cast<std::size_t>(tilesX * tilesY);
+            for (int ty = r0; ty <= r1; ++ty)
+                for (int tx = c0; tx <= c1; ++tx)
+                    if (tm[ty * tilesX + tx] >= threshold) return true;
+        }
+        return false;
+    };
+
     auto valueAt = [&](const Eigen::Vector3d& p, double& out) -> bool {
         const double sp = p.dot(g.normal);
         if (sp < loAlong - alongTol || sp > hiAlong + alongTol) return false;
@@ -223,20 +294,17 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
         } else {
             k0 = k1 - 1;
         }
-        const Slice& s0 = stack.slices[g.order[k0]];
-        const Eigen::Vector3d q0 = p - s0.position;
-        const Eigen::Vector2d cr0 = g.gramInverse * Eigen::Vector2d(g.u.dot(q0), g.v.dot(q0));
+        const Eigen::Vector2d mp = M * p;
+        const Eigen::Vector2d cr0 = mp + crOffset[k0];
         double v0 = 0;
-        if (!sampleSlice(s0, cr0.x(), cr0.y(), v0)) return false;
+        if (!sampleSlice(*sorted[k0], cr0.x(), cr0.y(), v0)) return false;
         if (k0 == k1) {
             out = v0;
             return true;
         }
-        const Slice& s1 = stack.slices[g.order[k1]];
-        const Eigen::Vector3d q1 = p - s1.position;
-        const Eigen::Vector2d cr1 = g.gramInverse * Eigen::Vector2d(g.u.dot(q1), g.v.dot(q1));
+        const Eigen::Vector2d cr1 = mp + crOffset[k1];
         double v1 = 0;
-        if (!sampleSlice(s1, cr1.x(), cr1.y(), v1)) return false;
+        if (!sampleSlice(*sorted[k1], cr1.x(), cr1.y(), v1)) return false;
         const double f = (sp - g.along[k0]) / (g.along[k1] - g.along[k0]);
         out = v0 * (1 - f) + v1 * f;
         return true;
@@ -254,6 +322,9 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
             for (int yb = r.rows().begin(); yb != r.rows().end(); ++yb) {
                 for (int xb = r.cols().begin(); xb != r.cols().end(); ++xb) {
                     const openvdb::Coord origin(xb * kLeafDim, yb * kLeafDim, zb * kLeafDim);
+                    const Eigen::Vector3d bmin = lo + voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
+                    const Eigen::Vector3d bmax = bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
+                    if (!blockMayBeActive(bmin, bmax)) continue;
                     auto leaf = std::make_unique<LeafT>(origin, background, false);
                     bool any = false;
                     for (int i = 0; i < kLeafDim; ++i) {
