@@ -1,8 +1,187 @@
+// NIfTI-1/NIfTI-2 reader through nifticlib: header first, checks, then the data.
+#include <nifti2_io.h>
+
+#include <Eigen/Core>
+
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <mutex>
+
 #include "palp/error.h"
 #include "palp/volume/formats.h"
+#include "palp/volume/raw_data.h"
+#include "reader_util.h"
 
 namespace palp::volume {
-SliceStack readNifti(const std::filesystem::path&, const LoadOptions&) { throw Error("readNifti: not implemented yet"); }
-SliceStack readNrrd(const std::filesystem::path&, const LoadOptions&) { throw Error("readNrrd: not implemented yet"); }
-SliceStack readMetaImage(const std::filesystem::path&, const LoadOptions&) { throw Error("readMetaImage: not implemented yet"); }
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct NiftiDeleter {
+    void operator()(nifti_image* nim) const { nifti_image_free(nim); }
+};
+using NiftiPtr = std::unique_ptr<nifti_image, NiftiDeleter>;
+
+std::optional<ElementType> niftiType(int datatype) {
+    switch (datatype) {
+        case DT_INT8: return ElementType::Int8;
+        case DT_UINT8: return ElementType::UInt8;
+        case DT_INT16: return ElementType::Int16;
+        case DT_UINT16: return ElementType::UInt16;
+        case DT_INT32: return ElementType::Int32;
+        case DT_UINT32: return ElementType::UInt32;
+        case DT_INT64: return ElementType::Int64;
+        case DT_UINT64: return ElementType::UInt64;
+        case DT_FLOAT32: return ElementType::Float32;
+        case DT_FLOAT64: return ElementType::Float64;
+        default: return std::nullopt;
+    }
+}
+
+bool isGzipName(const std::string& s) {
+    return s.size() >= 3 && (s.compare(s.size() - 3, 3, ".gz") == 0 || s.compare(s.size() - 3, 3, ".GZ") == 0);
+}
+
+/// nifticlib keeps global options; serialise our calls into it.
+std::mutex& niftiMutex() {
+    static std::mutex m;
+    return m;
+}
+
+}  // namespace
+
+SliceStack readNifti(const fs::path& path, const LoadOptions& options) {
+    const std::string name = path.string();
+    (void)fileSize(path);  // a clear IoError for a missing or unreadable file
+
+    std::unique_lock<std::mutex> lock(niftiMutex());
+    nifti_set_debug_level(0);
+    NiftiPtr nim(nifti_image_read(name.c_str(), 0));
+    if (!nim) {
+        throw FormatError(name + ": expected a NIfTI-1 or NIfTI-2 header, found one nifticlib cannot read");
+    }
+
+    const auto type = niftiType(nim->datatype);
+    if (!type) {
+        throw FormatError(name + ": expected a scalar NIfTI datatype (int8..uint64, float32, float64), found datatype " +
+                          std::to_string(nim->datatype) + " (" + nifti_datatype_string(nim->datatype) + ")");
+    }
+    if (static_cast<std::size_t>(nim->nbyper) != elementSize(*type)) {
+        throw FormatError(name + ": expected " + std::to_string(elementSize(*type)) + " bytes per voxel for " +
+                          elementTypeName(*type) + ", found " + std::to_string(nim->nbyper));
+    }
+    const std::int64_t ndim = nim->dim[0];
+    if (ndim < 1 || ndim > 7) {
+        throw FormatError(name + ": expected dim[0] between 1 and 7, found " + std::to_string(ndim));
+    }
+    std::vector<std::int64_t> dims;
+    for (std::int64_t d = 1; d <= 7; ++d) dims.push_back(d <= ndim ? nim->dim[d] : 1);
+    for (std::size_t d = 0; d < dims.size(); ++d) {
+        if (dims[d] <= 0) {
+            throw FormatError(name + ": expected positive dimensions, found dim[" + std::to_string(d + 1) +
+                              "] = " + std::to_string(dims[d]));
+        }
+    }
+    for (std::size_t a = 0; a < 3; ++a) {
+        if (dims[a] > std::numeric_limits<std::int32_t>::max()) {
+            throw ValueError(name + ": expected at most 2147483647 samples per spatial axis, found " +
+                             std::to_string(dims[a]));
+        }
+    }
+    const std::uint64_t esize = elementSize(*type);
+    const std::uint64_t total = checkedDataBytes(dims, esize, options.maxSourceBytes, name);
+    if (static_cast<std::uint64_t>(nim->nvox) * esize != total) {
+        throw FormatError(name + ": expected " + std::to_string(total / esize) + " voxels from the dimensions, found nvox " +
+                          std::to_string(nim->nvox));
+    }
+    // dims[3..6] are time and other non-spatial axes, stored as consecutive 3D volumes.
+    std::int64_t volumeCount = 1;
+    for (std::size_t d = 3; d < 7; ++d) volumeCount *= dims[d];
+    const int t = detail::chooseTimePoint(volumeCount, options, name);
+
+    // An uncompressed image file must hold the data before nifticlib allocates for it.
+    const std::string iname = nim->iname ? nim->iname : name;
+    if (!isGzipName(iname)) {
+        const std::uint64_t isize = fileSize(iname);
+        const auto off = static_cast<std::uint64_t>(std::max<std::int64_t>(nim->iname_offset, 0));
+        const std::uint64_t avail = isize > off ? isize - off : 0;
+        if (avail < total) {
+            throw FormatError(iname + ": expected " + std::to_string(total) +
+                              " bytes of voxel data after the header, found " + std::to_string(avail));
+        }
+    }
+
+    // Index-to-world (RAS, file units): sform, else qform, else pixdim scaling.
+    Eigen::Matrix4d ras = Eigen::Matrix4d::Identity();
+    if (nim->sform_code > 0 || nim->qform_code > 0) {
+        const nifti_dmat44& m = nim->sform_code > 0 ? nim->sto_xyz : nim->qto_xyz;
+        for (int r = 0; r < 4; ++r) {
+            for (int c = 0; c < 4; ++c) ras(r, c) = m.m[r][c];
+        }
+    } else {
+        for (int a = 0; a < 3; ++a) {
+            const double d = nim->pixdim[a + 1];
+            ras(a, a) = d != 0 && std::isfinite(d) ? std::abs(d) : 1.0;
+        }
+    }
+    double unit = 1e-3;  // millimetres unless the header says otherwise
+    switch (nim->xyz_units) {
+        case NIFTI_UNITS_METER: unit = 1; break;
+        case NIFTI_UNITS_MICRON: unit = 1e-6; break;
+        default: break;
+    }
+    Eigen::Matrix3d axes = ras.topLeftCorner<3, 3>() * unit;
+    Eigen::Vector3d origin = ras.topRightCorner<3, 1>() * unit;
+    axes.row(0) *= -1;
+    axes.row(1) *= -1;
+    origin[0] *= -1;
+    origin[1] *= -1;
+    if (!axes.allFinite() || !origin.allFinite()) {
+        throw FormatError(name + ": expected a finite orientation (sform/qform/pixdim), found non-finite values");
+    }
+
+    const double slope = nim->scl_slope;
+    const double inter = nim->scl_inter;
+    const bool rescale = slope != 0 && std::isfinite(slope) && std::isfinite(inter);
+
+    const char* descrip = nim->descrip;
+    const std::string description(descrip, strnlen(descrip, sizeof(nim->descrip)));
+    const int niftiKind = nim->nifti_type;
+
+    if (nifti_image_load(nim.get()) != 0 || !nim->data) {
+        throw FormatError(name + ": expected " + std::to_string(total) +
+                          " bytes of voxel data after the header, found a shorter or unreadable data stream");
+    }
+    const std::uint64_t volumeBytes = total / static_cast<std::uint64_t>(volumeCount);
+    const std::uint64_t start = t > 0 ? static_cast<std::uint64_t>(t) * volumeBytes : 0;
+    std::vector<float> values(static_cast<std::size_t>(volumeBytes / esize));
+    const std::span<const std::byte> all(static_cast<const std::byte*>(nim->data), static_cast<std::size_t>(total));
+    decodeElements(all.subspan(static_cast<std::size_t>(start), static_cast<std::size_t>(volumeBytes)), *type,
+                   nativeByteOrder(), values);  // nifticlib swapped to native order
+    nim.reset();
+    lock.unlock();
+
+    if (rescale) {
+        for (float& v : values) v = static_cast<float>(slope * static_cast<double>(v) + inter);
+    }
+
+    const std::array<std::int64_t, 3> dims3{dims[0], dims[1], dims[2]};
+    SliceStack stack = stackFromAffine(values, dims3, axes, origin, name);
+    stack.info.sourceFormat = niftiKind >= NIFTI_FTYPE_NIFTI2_1 ? "NIfTI-2"
+                              : niftiKind == NIFTI_FTYPE_ANALYZE ? "Analyze 7.5"
+                                                                 : "NIfTI-1";
+    stack.info.sourceDescription = detail::trim(description).empty() ? path.filename().string() : std::string(detail::trim(description));
+    stack.info.timePoint = t;
+    stack.info.timePointCount = static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
+    if (rescale) {
+        stack.info.rescaleSlope = slope;
+        stack.info.rescaleIntercept = inter;
+    }
+    return stack;
+}
+
 }  // namespace palp::volume

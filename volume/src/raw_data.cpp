@@ -1,1 +1,349 @@
-// filled in by the reader work
+#include "palp/volume/raw_data.h"
+
+#include <zlib.h>
+
+#include <algorithm>
+#include <bit>
+#include <cctype>
+#include <charconv>
+#include <cstring>
+#include <fstream>
+#include <limits>
+
+#include "palp/error.h"
+
+namespace palp::volume {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+template <typename T>
+void decodeTyped(const std::byte* src, bool swap, std::span<float> out) {
+    constexpr std::size_t kSize = sizeof(T);
+    for (std::size_t i = 0; i < out.size(); ++i) {
+        unsigned char buf[kSize];
+        std::memcpy(buf, src + i * kSize, kSize);
+        if (swap) std::reverse(buf, buf + kSize);
+        T v;
+        std::memcpy(&v, buf, kSize);
+        out[i] = static_cast<float>(v);
+    }
+}
+
+std::ifstream openOrThrow(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw IoError(path.string() + ": expected a readable file, found one that cannot be opened");
+    return in;
+}
+
+}  // namespace
+
+std::size_t elementSize(ElementType type) {
+    switch (type) {
+        case ElementType::Int8:
+        case ElementType::UInt8: return 1;
+        case ElementType::Int16:
+        case ElementType::UInt16: return 2;
+        case ElementType::Int32:
+        case ElementType::UInt32:
+        case ElementType::Float32: return 4;
+        case ElementType::Int64:
+        case ElementType::UInt64:
+        case ElementType::Float64: return 8;
+    }
+    return 1;
+}
+
+const char* elementTypeName(ElementType type) {
+    switch (type) {
+        case ElementType::Int8: return "int8";
+        case ElementType::UInt8: return "uint8";
+        case ElementType::Int16: return "int16";
+        case ElementType::UInt16: return "uint16";
+        case ElementType::Int32: return "int32";
+        case ElementType::UInt32: return "uint32";
+        case ElementType::Int64: return "int64";
+        case ElementType::UInt64: return "uint64";
+        case ElementType::Float32: return "float32";
+        case ElementType::Float64: return "float64";
+    }
+    return "unknown";
+}
+
+ByteOrder nativeByteOrder() {
+    return std::endian::native == std::endian::big ? ByteOrder::Big : ByteOrder::Little;
+}
+
+void decodeElements(std::span<const std::byte> bytes, ElementType type, ByteOrder order,
+                    std::span<float> out) {
+    const std::size_t size = elementSize(type);
+    if (bytes.size() / size < out.size()) {
+        throw ValueError("decodeElements: expected " + std::to_string(out.size() * size) +
+                         " bytes, found " + std::to_string(bytes.size()));
+    }
+    const bool swap = size > 1 && order != nativeByteOrder();
+    const std::byte* src = bytes.data();
+    switch (type) {
+        case ElementType::Int8: decodeTyped<std::int8_t>(src, swap, out); break;
+        case ElementType::UInt8: decodeTyped<std::uint8_t>(src, swap, out); break;
+        case ElementType::Int16: decodeTyped<std::int16_t>(src, swap, out); break;
+        case ElementType::UInt16: decodeTyped<std::uint16_t>(src, swap, out); break;
+        case ElementType::Int32: decodeTyped<std::int32_t>(src, swap, out); break;
+        case ElementType::UInt32: decodeTyped<std::uint32_t>(src, swap, out); break;
+        case ElementType::Int64: decodeTyped<std::int64_t>(src, swap, out); break;
+        case ElementType::UInt64: decodeTyped<std::uint64_t>(src, swap, out); break;
+        case ElementType::Float32: decodeTyped<float>(src, swap, out); break;
+        case ElementType::Float64: decodeTyped<double>(src, swap, out); break;
+    }
+}
+
+std::uint64_t checkedDataBytes(std::span<const std::int64_t> dims, std::uint64_t elementBytes,
+                               std::uint64_t maxBytes, const std::string& item) {
+    std::string claim;
+    for (const std::int64_t d : dims) claim += std::to_string(d) + " x ";
+    claim += std::to_string(elementBytes) + " bytes";
+    std::uint64_t total = elementBytes;
+    bool overflow = false;
+    for (const std::int64_t d : dims) {
+        if (d <= 0) {
+            throw ValueError(item + ": expected positive dimensions, found " + claim);
+        }
+        const auto ud = static_cast<std::uint64_t>(d);
+        if (total > std::numeric_limits<std::uint64_t>::max() / ud) {
+            overflow = true;
+            break;
+        }
+        total *= ud;
+    }
+    if (overflow || total > maxBytes) {
+        throw ValueError(item + ": expected at most " + std::to_string(maxBytes) +
+                         " bytes of voxel data, found a header claiming " + claim +
+                         (overflow ? " (more than 2^64)" : " = " + std::to_string(total)));
+    }
+    return total;
+}
+
+std::uint64_t fileSize(const fs::path& path) {
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec)) {
+        throw IoError(path.string() + ": expected a regular file, found " +
+                      (fs::exists(path, ec) ? "something else" : "nothing"));
+    }
+    const std::uintmax_t size = fs::file_size(path, ec);
+    if (ec) throw IoError(path.string() + ": expected a readable file, found an error: " + ec.message());
+    return static_cast<std::uint64_t>(size);
+}
+
+std::vector<std::byte> readFileRange(const fs::path& path, std::uint64_t offset, std::uint64_t count) {
+    const std::uint64_t size = fileSize(path);
+    const std::uint64_t available = size > offset ? size - offset : 0;
+    if (available < count) {
+        throw FormatError(path.string() + ": expected " + std::to_string(count) +
+                          " bytes of voxel data after the header (at byte " + std::to_string(offset) +
+                          "), found " + std::to_string(available));
+    }
+    std::ifstream in = openOrThrow(path);
+    in.seekg(static_cast<std::streamoff>(offset));
+    std::vector<std::byte> data(static_cast<std::size_t>(count));
+    in.read(reinterpret_cast<char*>(data.data()), static_cast<std::streamsize>(count));
+    if (static_cast<std::uint64_t>(in.gcount()) != count) {
+        throw IoError(path.string() + ": expected " + std::to_string(count) + " readable bytes, found " +
+                      std::to_string(in.gcount()));
+    }
+    return data;
+}
+
+namespace {
+
+/// Streams compressed bytes from @p next (returns a chunk; empty at the end) into a bounded buffer.
+template <typename NextChunk>
+std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedBytes, const std::string& item) {
+    z_stream zs{};
+    if (inflateInit2(&zs, 15 + 32) != Z_OK) {
+        throw Error(item + ": expected zlib to initialise, found an error");
+    }
+    struct Guard {
+        z_stream* s;
+        ~Guard() { inflateEnd(s); }
+    } guard{&zs};
+
+    std::vector<std::byte> out;
+    std::uint64_t produced = 0;
+    constexpr std::uint64_t kFirstChunk = std::uint64_t{1} << 20;
+    bool ended = false;
+    bool inputDone = false;
+    std::byte overflowProbe[1];
+    for (;;) {
+        if (zs.avail_in == 0 && !inputDone) {
+            std::span<const std::byte> chunk = next();
+            if (chunk.empty()) {
+                inputDone = true;
+            } else {
+                zs.next_in = reinterpret_cast<Bytef*>(const_cast<std::byte*>(chunk.data()));
+                zs.avail_in = static_cast<uInt>(chunk.size());
+            }
+        }
+        // Grow the output geometrically, never past the expected size; once it is full, give zlib
+        // a one-byte probe so that a longer stream is detected without allocating.
+        if (produced == out.size() && out.size() < expectedBytes) {
+            const std::uint64_t grown = std::min<std::uint64_t>(
+                expectedBytes, std::max<std::uint64_t>(kFirstChunk, out.size() * 2));
+            out.resize(static_cast<std::size_t>(grown));
+        }
+        const bool probing = produced == out.size();
+        if (!probing) {
+            const std::uint64_t room = std::min<std::uint64_t>(out.size() - produced, std::uint64_t{1} << 30);
+            zs.next_out = reinterpret_cast<Bytef*>(out.data() + produced);
+            zs.avail_out = static_cast<uInt>(room);
+        } else {
+            zs.next_out = reinterpret_cast<Bytef*>(overflowProbe);
+            zs.avail_out = 1;
+        }
+        const uInt availBefore = zs.avail_out;
+        const int rc = inflate(&zs, Z_NO_FLUSH);
+        const uInt written = availBefore - zs.avail_out;
+        if (probing && written > 0) {
+            throw FormatError(item + ": expected " + std::to_string(expectedBytes) +
+                              " bytes of decompressed voxel data, found more");
+        }
+        produced += written;
+        if (rc == Z_STREAM_END) {
+            // Concatenated gzip members continue the data; anything else after the end is ignored.
+            const bool moreInput = zs.avail_in > 0 || !inputDone;
+            if (produced < expectedBytes && moreInput && zs.avail_in > 0) {
+                inflateReset(&zs);
+                continue;
+            }
+            ended = true;
+            break;
+        }
+        if (rc == Z_BUF_ERROR || rc == Z_OK) {
+            if (inputDone && zs.avail_in == 0 && written == 0) break;  // truncated stream
+            continue;
+        }
+        throw FormatError(item + ": expected a valid zlib/gzip stream, found corrupt data (" +
+                          (zs.msg ? std::string(zs.msg) : std::to_string(rc)) + ") after " +
+                          std::to_string(produced) + " decompressed bytes");
+    }
+    if (!ended) {
+        throw FormatError(item + ": expected " + std::to_string(expectedBytes) +
+                          " bytes of decompressed voxel data, found a stream that ends after " +
+                          std::to_string(produced) + " bytes (truncated)");
+    }
+    if (produced != expectedBytes) {
+        throw FormatError(item + ": expected " + std::to_string(expectedBytes) +
+                          " bytes of decompressed voxel data, found " + std::to_string(produced));
+    }
+    return out;
+}
+
+}  // namespace
+
+std::vector<std::byte> inflateFileRange(const fs::path& path, std::uint64_t offset,
+                                        std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes) {
+    const std::uint64_t size = fileSize(path);
+    if (offset > size) {
+        throw FormatError(path.string() + ": expected compressed voxel data at byte " + std::to_string(offset) +
+                          ", found a file of " + std::to_string(size) + " bytes");
+    }
+    std::uint64_t remaining = std::min(size - offset, maxCompressedBytes);
+    if (maxCompressedBytes != std::numeric_limits<std::uint64_t>::max() && remaining < maxCompressedBytes) {
+        throw FormatError(path.string() + ": expected " + std::to_string(maxCompressedBytes) +
+                          " bytes of compressed voxel data after the header, found " + std::to_string(remaining));
+    }
+    std::ifstream in = openOrThrow(path);
+    in.seekg(static_cast<std::streamoff>(offset));
+    std::vector<std::byte> buffer(std::size_t{1} << 18);
+    auto next = [&]() -> std::span<const std::byte> {
+        if (remaining == 0) return {};
+        const auto want = static_cast<std::size_t>(std::min<std::uint64_t>(remaining, buffer.size()));
+        in.read(reinterpret_cast<char*>(buffer.data()), static_cast<std::streamsize>(want));
+        const auto got = static_cast<std::size_t>(std::max<std::streamsize>(in.gcount(), 0));
+        remaining = got == 0 ? 0 : remaining - got;
+        return {buffer.data(), got};
+    };
+    return inflateStream(next, expectedBytes, path.string());
+}
+
+std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed, std::uint64_t expectedBytes,
+                                    const std::string& item) {
+    bool given = false;
+    auto next = [&]() -> std::span<const std::byte> {
+        if (given) return {};
+        given = true;
+        // zlib takes at most 4 GiB per call; hand larger inputs over in pieces.
+        return compressed.first(std::min<std::size_t>(compressed.size(), std::size_t{1} << 30));
+    };
+    if (compressed.size() > (std::size_t{1} << 30)) {
+        std::size_t pos = 0;
+        auto chunked = [&]() -> std::span<const std::byte> {
+            const std::size_t n = std::min<std::size_t>(compressed.size() - pos, std::size_t{1} << 30);
+            std::span<const std::byte> s = compressed.subspan(pos, n);
+            pos += n;
+            return s;
+        };
+        return inflateStream(chunked, expectedBytes, item);
+    }
+    return inflateStream(next, expectedBytes, item);
+}
+
+std::vector<float> readAsciiValues(const fs::path& path, std::uint64_t offset, std::uint64_t count) {
+    const std::uint64_t size = fileSize(path);
+    const std::uint64_t available = size > offset ? size - offset : 0;
+    // Each number takes at least one character and one separator (the last may end the file).
+    if (count > 0 && available < 2 * count - 1) {
+        throw FormatError(path.string() + ": expected " + std::to_string(count) +
+                          " numbers of ASCII voxel data after the header, found only " +
+                          std::to_string(available) + " bytes");
+    }
+    std::vector<std::byte> raw = readFileRange(path, offset, available);
+    const char* p = reinterpret_cast<const char*>(raw.data());
+    const char* end = p + raw.size();
+    std::vector<float> values;
+    values.reserve(static_cast<std::size_t>(count));
+    auto isSep = [](char c) { return std::isspace(static_cast<unsigned char>(c)) != 0 || c == ','; };
+    while (values.size() < count) {
+        while (p < end && isSep(*p)) ++p;
+        if (p == end) break;
+        double v = 0;
+        const auto res = std::from_chars(p, end, v);
+        if (res.ec != std::errc() && res.ec != std::errc::result_out_of_range) {
+            const char* tokEnd = p;
+            while (tokEnd < end && !isSep(*tokEnd) && tokEnd - p < 20) ++tokEnd;
+            throw FormatError(path.string() + ": expected a number as ASCII voxel value " +
+                              std::to_string(values.size()) + ", found '" + std::string(p, tokEnd) + "'");
+        }
+        values.push_back(static_cast<float>(v));
+        p = res.ptr;
+    }
+    if (values.size() < count) {
+        throw FormatError(path.string() + ": expected " + std::to_string(count) +
+                          " ASCII voxel values, found " + std::to_string(values.size()));
+    }
+    return values;
+}
+
+std::uint64_t skipLines(const fs::path& path, std::uint64_t offset, std::int64_t lines) {
+    if (lines <= 0) return offset;
+    std::ifstream in = openOrThrow(path);
+    in.seekg(static_cast<std::streamoff>(offset));
+    std::uint64_t pos = offset;
+    std::int64_t seen = 0;
+    char buf[4096];
+    while (seen < lines) {
+        in.read(buf, sizeof buf);
+        const std::streamsize got = in.gcount();
+        if (got <= 0) {
+            throw FormatError(path.string() + ": expected " + std::to_string(lines) +
+                              " lines to skip before the voxel data, found " + std::to_string(seen));
+        }
+        for (std::streamsize i = 0; i < got; ++i) {
+            if (buf[i] == '\n' && ++seen == lines) return pos + static_cast<std::uint64_t>(i) + 1;
+        }
+        pos += static_cast<std::uint64_t>(got);
+    }
+    return pos;
+}
+
+}  // namespace palp::volume

@@ -1,0 +1,77 @@
+#pragma once
+/// @file
+/// Raw voxel data shared by the NIfTI, NRRD and MetaImage readers: element types, byte order,
+/// decoding to float, bounded file reads, bounded zlib/gzip inflation and overflow-checked size
+/// arithmetic. Every function that reads data checks the claimed size against what the file
+/// holds, or grows its output incrementally, before allocating.
+
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <span>
+#include <string>
+#include <vector>
+
+namespace palp::volume {
+
+/// Scalar element types of the supported formats.
+enum class ElementType { Int8, UInt8, Int16, UInt16, Int32, UInt32, Int64, UInt64, Float32, Float64 };
+
+/// Byte order of multi-byte elements in a file.
+enum class ByteOrder { Little, Big };
+
+/// Size of one element in bytes (1, 2, 4 or 8).
+std::size_t elementSize(ElementType type);
+
+/// Short name ("int16", "float32", ...) for messages.
+const char* elementTypeName(ElementType type);
+
+/// Byte order of this machine.
+ByteOrder nativeByteOrder();
+
+/// Converts @p out.size() elements of @p type stored in @p bytes with byte order @p order to
+/// float. @p bytes must hold at least out.size() * elementSize(type) bytes.
+/// @throw ValueError when @p bytes is too short (a programming error, never a file's fault).
+void decodeElements(std::span<const std::byte> bytes, ElementType type, ByteOrder order,
+                    std::span<float> out);
+
+/// Multiplies @p dims and @p elementBytes with overflow checks. Returns the byte count.
+/// @throw ValueError naming @p item when a dimension is not positive, the product overflows, or
+///        it exceeds @p maxBytes (e.g. `scan.nrrd: expected at most 8589934592 bytes of voxel
+///        data, found a header claiming 100000 x 100000 x 100000 x 2 bytes`).
+std::uint64_t checkedDataBytes(std::span<const std::int64_t> dims, std::uint64_t elementBytes,
+                               std::uint64_t maxBytes, const std::string& item);
+
+/// Size of a regular file in bytes.
+/// @throw IoError naming the file when it does not exist or is not readable.
+std::uint64_t fileSize(const std::filesystem::path& path);
+
+/// Reads @p count bytes at @p offset of @p path. The file size is checked before allocating.
+/// @throw IoError when the file cannot be read, FormatError when it is too short
+///        (`<file>: expected 1234567 bytes of voxel data after the header, found 1000`).
+std::vector<std::byte> readFileRange(const std::filesystem::path& path, std::uint64_t offset,
+                                     std::uint64_t count);
+
+/// Inflates a zlib or gzip stream (auto-detected) starting at @p offset of @p path, reading at
+/// most @p maxCompressedBytes compressed bytes (UINT64_MAX: to the end of the file). The output
+/// grows incrementally and never beyond @p expectedBytes.
+/// @throw IoError when unreadable; FormatError when the stream is corrupt, ends before
+///        @p expectedBytes bytes or holds more than that.
+std::vector<std::byte> inflateFileRange(const std::filesystem::path& path, std::uint64_t offset,
+                                        std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes);
+
+/// In-memory variant of inflateFileRange; @p item names the source in messages.
+std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed, std::uint64_t expectedBytes,
+                                    const std::string& item);
+
+/// Parses @p count numbers (separated by white space or commas) from text at @p offset of
+/// @p path. Refuses before allocating when the remaining file is too short to hold them.
+/// @throw IoError, FormatError naming the file and the first bad token.
+std::vector<float> readAsciiValues(const std::filesystem::path& path, std::uint64_t offset,
+                                   std::uint64_t count);
+
+/// Byte offset just after @p lines newline characters starting at @p offset of @p path.
+/// @throw FormatError when the file ends first.
+std::uint64_t skipLines(const std::filesystem::path& path, std::uint64_t offset, std::int64_t lines);
+
+}  // namespace palp::volume
