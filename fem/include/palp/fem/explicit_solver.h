@@ -1,0 +1,106 @@
+#pragma once
+/// @file
+/// Explicit central-difference time integration with lumped mass and Rayleigh damping,
+/// automatic substepping below the stable step, a real-time single-thread variant and a TBB one.
+
+#include <Eigen/Core>
+
+#include <vector>
+
+#include "palp/fem/constraints.h"
+#include "palp/fem/fem_model.h"
+
+namespace palp::fem {
+
+/// Flags a step may raise; a step never throws and never leaves NaN in the state.
+enum StepFlag : unsigned {
+    kStepOk = 0,
+    kStepSubstepLimit = 1u << 0,  ///< needed more than maxSubsteps: advanced less time than asked
+    kStepBadForce = 1u << 1,      ///< non-finite external force entries were zeroed
+    kStepDiverged = 1u << 2,      ///< state became non-finite and was reset to the constraints
+    kStepBadTimeStep = 1u << 3,   ///< requested step was not finite and > 0: nothing done
+};
+
+/// What one call to step() did.
+struct StepResult {
+    int substeps = 0;              ///< central-difference steps taken
+    double advancedSeconds = 0.0;  ///< simulated time advanced, seconds
+    unsigned flags = kStepOk;      ///< StepFlag bits
+};
+
+/// Options of ExplicitSolver.
+struct ExplicitOptions {
+    double safetyFactor = 0.9;  ///< substep = safetyFactor * model.criticalTimeStep(), in (0, 1]
+    int maxSubsteps = 4096;     ///< bound on substeps per step() call (keeps a tick bounded)
+};
+
+/// Central difference `u(n+1) = [dt^2 (f - K u~) + 2 M u(n) - (M - dt/2 C_M) u(n-1)] / (M + dt/2 C_M)`
+/// with `C_M = alpha M` diagonal and the stiffness-proportional damping folded into the internal
+/// force as `K u~`, `u~ = u(n) + beta (u(n) - u(n-1)) / dt` (velocity lagged half a step).
+/// Constrained dofs follow their prescribed values, interpolated linearly across the substeps of
+/// one step() call.
+///
+/// @par Threading  One thread drives a solver; the model must outlive it and is only read.
+class ExplicitSolver {
+public:
+    /// Allocates all state. @throw palp::ValueError when @p constraints does not match the model
+    /// or options are out of range.
+    ExplicitSolver(const FemModel& model, const Constraints& constraints,
+                   const ExplicitOptions& options = {});
+
+    /// Largest substep used, seconds: safetyFactor * model.criticalTimeStep().
+    double stableTimeStep() const { return mStableDt; }
+
+    /// Advances by @p dtSeconds, split into ceil(dt / stableTimeStep()) equal substeps.
+    /// @par Real-time  noexcept, allocation-free, lock-free, at most maxSubsteps substeps.
+    StepResult step(double dtSeconds) noexcept;
+    /// Same as step() with the element loop and vector updates on TBB worker threads.
+    StepResult stepParallel(double dtSeconds);
+
+    /// External nodal force per dof, newtons (#dofs), applied until changed.
+    Eigen::VectorXd& externalForce() { return mForce; }
+    /// Sets the displacement that constrained dof @p dof reaches at the end of the next step()
+    /// (it must have been constrained at construction). @par Real-time
+    void setPrescribed(int dof, double valueMetres) noexcept { mTarget[dof] = valueMetres; }
+
+    /// Sets the state: displacement @p u (metres) at rest.
+    void setDisplacement(const Eigen::VectorXd& u);
+
+    /// Displacement at the current time, metres (#dofs).
+    const Eigen::VectorXd& displacement() const { return mU; }
+    /// Internal force K u~ of the last substep, newtons (#dofs).
+    const Eigen::VectorXd& internalForce() const { return mInternal; }
+    /// Reaction at constrained dof @p dof, newtons: internal minus external force of the last
+    /// substep (inertia of the constrained node itself is not included).
+    double reaction(int dof) const { return mInternal[dof] - mForce[dof]; }
+    /// Sum of reactions over the x, y, z dofs of @p nodes, newtons.
+    Eigen::Vector3d reactionSum(const std::vector<int>& nodes) const;
+
+    /// Kinetic energy `v^T M v / 2` with the half-step velocity v(n-1/2), joules.
+    double kineticEnergy() const;
+    /// Strain energy at the same instant as kineticEnergy(): `w^T K w / 2`,
+    /// w = (u(n) + u(n-1)) / 2, joules. @par Real-time
+    double strainEnergy() const noexcept;
+    /// Simulated time since construction, seconds.
+    double time() const { return mTime; }
+    /// Substep length of the last step, seconds (0 before the first).
+    double lastSubstep() const { return mDt; }
+
+private:
+    template <bool kParallel>
+    StepResult advance(double dtSeconds) noexcept;
+    void setCoefficients(double dt) noexcept;
+
+    const FemModel& mModel;
+    ExplicitOptions mOptions;
+    double mStableDt = 0.0;
+    double mDt = 0.0;       // current substep, seconds
+    double mTime = 0.0;
+    std::vector<int> mConstrained;  // constrained dofs (including inactive nodes)
+    std::vector<int> mFree;         // free dofs with mass
+    Eigen::VectorXd mU, mUPrev, mForce, mInternal, mWork, mTarget, mStart;
+    Eigen::VectorXd mInvDen, mPrevCoef;  // 1/(m + dt/2 c), (m - dt/2 c) per dof
+    mutable Eigen::VectorXd mEnergyWork, mEnergyForce;
+};
+
+}  // namespace palp::fem

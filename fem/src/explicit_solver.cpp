@@ -1,0 +1,191 @@
+#include "palp/fem/explicit_solver.h"
+
+#include <tbb/parallel_for.h>
+
+#include <cmath>
+#include <sstream>
+
+#include "palp/error.h"
+
+namespace palp::fem {
+
+ExplicitSolver::ExplicitSolver(const FemModel& model, const Constraints& constraints,
+                               const ExplicitOptions& options)
+    : mModel(model), mOptions(options) {
+    const int n = model.dofCount();
+    if (constraints.dofCount() != n) {
+        std::ostringstream s;
+        s << "explicit solver constraints: expected " << n << " dofs, found "
+          << constraints.dofCount();
+        throw ValueError(s.str());
+    }
+    if (!(options.safetyFactor > 0.0 && options.safetyFactor <= 1.0)) {
+        std::ostringstream s;
+        s << "explicit solver safety factor: expected a value in (0, 1], found "
+          << options.safetyFactor;
+        throw ValueError(s.str());
+    }
+    if (options.maxSubsteps < 1) {
+        std::ostringstream s;
+        s << "explicit solver max substeps: expected >= 1, found " << options.maxSubsteps;
+        throw ValueError(s.str());
+    }
+    mStableDt = options.safetyFactor * model.criticalTimeStep();
+    const Eigen::VectorXd& mass = model.lumpedMass();
+    for (int d = 0; d < n; ++d) {
+        if (constraints.isFixed(d) || mass[d] <= 0.0) {
+            mConstrained.push_back(d);
+        } else {
+            mFree.push_back(d);
+        }
+    }
+    mU = Eigen::VectorXd::Zero(n);
+    for (int d : mConstrained) mU[d] = constraints.isFixed(d) ? constraints.values()[d] : 0.0;
+    mUPrev = mU;
+    mForce = Eigen::VectorXd::Zero(n);
+    mInternal = Eigen::VectorXd::Zero(n);
+    mWork = Eigen::VectorXd::Zero(n);
+    mTarget = mU;
+    mStart = mU;
+    mInvDen = Eigen::VectorXd::Zero(n);
+    mPrevCoef = Eigen::VectorXd::Zero(n);
+    mEnergyWork = Eigen::VectorXd::Zero(n);
+    mEnergyForce = Eigen::VectorXd::Zero(n);
+}
+
+void ExplicitSolver::setDisplacement(const Eigen::VectorXd& u) {
+    if (u.size() != mU.size() || !u.allFinite()) {
+        std::ostringstream s;
+        s << "explicit solver displacement: expected " << mU.size() << " finite values, found "
+          << u.size() << (u.allFinite() ? "" : " with non-finite entries");
+        throw ValueError(s.str());
+    }
+    for (int d : mFree) mU[d] = u[d];
+    mUPrev = mU;
+}
+
+void ExplicitSolver::setCoefficients(double dt) noexcept {
+    const Eigen::VectorXd& mass = mModel.lumpedMass();
+    const double alpha = mModel.material().dampingAlpha;
+    for (int d : mFree) {
+        const double m = mass[d];
+        const double c = alpha * m;
+        mInvDen[d] = 1.0 / (m + 0.5 * dt * c);
+        mPrevCoef[d] = m - 0.5 * dt * c;
+    }
+}
+
+template <bool kParallel>
+StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
+    StepResult result;
+    if (!(dtSeconds > 0.0) || !std::isfinite(dtSeconds)) {
+        result.flags |= kStepBadTimeStep;
+        return result;
+    }
+    double want = std::ceil(dtSeconds / mStableDt);
+    int substeps = want > static_cast<double>(mOptions.maxSubsteps)
+                       ? mOptions.maxSubsteps
+                       : static_cast<int>(want);
+    double dt = dtSeconds / substeps;
+    if (want > static_cast<double>(mOptions.maxSubsteps)) {
+        result.flags |= kStepSubstepLimit;
+        dt = mStableDt;
+    }
+    for (int d = 0; d < mForce.size(); ++d) {
+        if (!std::isfinite(mForce[d])) {
+            mForce[d] = 0.0;
+            result.flags |= kStepBadForce;
+        }
+    }
+    if (dt != mDt) {
+        // Keep the half-step velocity (u - uPrev) / dt when the substep changes.
+        if (mDt > 0.0) {
+            const double scale = dt / mDt;
+            for (int d : mFree) mUPrev[d] = mU[d] - (mU[d] - mUPrev[d]) * scale;
+        }
+        setCoefficients(dt);
+        mDt = dt;
+    }
+    for (int d : mConstrained) mStart[d] = mU[d];
+    const double beta = mModel.material().dampingBeta;
+    const double dt2 = dt * dt;
+    const int dofs = static_cast<int>(mU.size());
+    for (int s = 0; s < substeps; ++s) {
+        const double* operand = mU.data();
+        if (beta > 0.0) {
+            const double b = beta / dt;
+            for (int d = 0; d < dofs; ++d) mWork[d] = mU[d] + b * (mU[d] - mUPrev[d]);
+            operand = mWork.data();
+        }
+        if constexpr (kParallel) {
+            mModel.stiffnessTimesParallel(operand, mInternal.data());
+        } else {
+            mInternal.setZero();
+            mModel.addStiffnessTimes(operand, mInternal.data());
+        }
+        // The new displacement overwrites u(n-1), then the two buffers swap (no allocation).
+        auto update = [&](std::size_t begin, std::size_t end) {
+            for (std::size_t q = begin; q < end; ++q) {
+                const int d = mFree[q];
+                mUPrev[d] = (dt2 * (mForce[d] - mInternal[d]) + 2.0 * mModel.lumpedMass()[d] * mU[d] -
+                             mPrevCoef[d] * mUPrev[d]) *
+                            mInvDen[d];
+            }
+        };
+        if constexpr (kParallel) {
+            tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mFree.size(), 4096),
+                              [&](const tbb::blocked_range<std::size_t>& r) {
+                                  update(r.begin(), r.end());
+                              });
+        } else {
+            update(0, mFree.size());
+        }
+        const double t = static_cast<double>(s + 1) / substeps;
+        for (int d : mConstrained) mUPrev[d] = mStart[d] + t * (mTarget[d] - mStart[d]);
+        mU.swap(mUPrev);
+        mTime += dt;
+        result.advancedSeconds += dt;
+        ++result.substeps;
+    }
+    if (!std::isfinite(mU.sum()) || !std::isfinite(mUPrev.sum())) {
+        for (int d : mFree) {
+            mU[d] = 0.0;
+            mUPrev[d] = 0.0;
+        }
+        mInternal.setZero();
+        result.flags |= kStepDiverged;
+    }
+    return result;
+}
+
+StepResult ExplicitSolver::step(double dtSeconds) noexcept { return advance<false>(dtSeconds); }
+
+StepResult ExplicitSolver::stepParallel(double dtSeconds) { return advance<true>(dtSeconds); }
+
+Eigen::Vector3d ExplicitSolver::reactionSum(const std::vector<int>& nodes) const {
+    Eigen::Vector3d r = Eigen::Vector3d::Zero();
+    for (int n : nodes) {
+        for (int c = 0; c < 3; ++c) r[c] += reaction(3 * n + c);
+    }
+    return r;
+}
+
+double ExplicitSolver::kineticEnergy() const {
+    if (mDt <= 0.0) return 0.0;
+    double e = 0.0;
+    const Eigen::VectorXd& mass = mModel.lumpedMass();
+    for (int d : mFree) {
+        const double v = (mU[d] - mUPrev[d]) / mDt;
+        e += mass[d] * v * v;
+    }
+    return 0.5 * e;
+}
+
+double ExplicitSolver::strainEnergy() const noexcept {
+    mEnergyWork = 0.5 * (mU + mUPrev);
+    mEnergyForce.setZero();
+    mModel.addStiffnessTimes(mEnergyWork.data(), mEnergyForce.data());
+    return 0.5 * mEnergyWork.dot(mEnergyForce);
+}
+
+}  // namespace palp::fem
