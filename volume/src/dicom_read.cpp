@@ -1,11 +1,732 @@
+// DICOM series reading through GDCM: a cheap header scan of every file (gdcm::Scanner), series
+// and time point selection from those headers, then pixel decoding (gdcm::ImageReader, so every
+// transfer syntax GDCM decodes works) of the chosen files only.
+#include <gdcmImageReader.h>
+#include <gdcmReader.h>
+#include <gdcmScanner.h>
+#include <gdcmTag.h>
+#include <gdcmTrace.h>
+#include <gdcmTransferSyntax.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <map>
+#include <optional>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
 #include "palp/error.h"
 #include "palp/volume/dicom.h"
 
 namespace palp::volume {
-std::vector<DicomSeriesInfo> scanDicom(const std::vector<std::filesystem::path>&) {
-    throw Error("scanDicom: not implemented yet");
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// Tags read from every file. No patient-identifying tag is read.
+const gdcm::Tag kSopClassUid(0x0008, 0x0016);
+const gdcm::Tag kAcquisitionTime(0x0008, 0x0032);
+const gdcm::Tag kContentTime(0x0008, 0x0033);
+const gdcm::Tag kModality(0x0008, 0x0060);
+const gdcm::Tag kSeriesDescription(0x0008, 0x103e);
+const gdcm::Tag kGantryTilt(0x0018, 0x1120);
+const gdcm::Tag kSeriesUid(0x0020, 0x000e);
+const gdcm::Tag kAcquisitionNumber(0x0020, 0x0012);
+const gdcm::Tag kInstanceNumber(0x0020, 0x0013);
+const gdcm::Tag kImagePosition(0x0020, 0x0032);
+const gdcm::Tag kImageOrientation(0x0020, 0x0037);
+const gdcm::Tag kTemporalPosition(0x0020, 0x0100);
+const gdcm::Tag kSamplesPerPixel(0x0028, 0x0002);
+const gdcm::Tag kPhotometric(0x0028, 0x0004);
+const gdcm::Tag kNumberOfFrames(0x0028, 0x0008);
+const gdcm::Tag kRows(0x0028, 0x0010);
+const gdcm::Tag kColumns(0x0028, 0x0011);
+const gdcm::Tag kPixelSpacing(0x0028, 0x0030);
+const gdcm::Tag kBitsAllocated(0x0028, 0x0100);
+const gdcm::Tag kRescaleIntercept(0x0028, 0x1052);
+const gdcm::Tag kRescaleSlope(0x0028, 0x1053);
+const gdcm::Tag kPixelData(0x7fe0, 0x0010);
+
+std::string trim(const std::string& s) {
+    const auto notSpace = [](char c) { return c != ' ' && c != '\0' && c != '\t' && c != '\r' && c != '\n'; };
+    const auto b = std::find_if(s.begin(), s.end(), notSpace);
+    const auto e = std::find_if(s.rbegin(), s.rend(), notSpace).base();
+    return b < e ? std::string(b, e) : std::string();
 }
-SliceStack readDicom(const std::vector<std::filesystem::path>&, const LoadOptions&) {
-    throw Error("readDicom: not implemented yet");
+
+/// Parses a backslash-separated list of decimal numbers; nullopt when any is not a finite number.
+std::optional<std::vector<double>> parseNumbers(const std::string& text) {
+    std::vector<double> out;
+    std::string item;
+    std::istringstream in(text);
+    while (std::getline(in, item, '\\')) {
+        const std::string t = trim(item);
+        if (t.empty()) return std::nullopt;
+        char* end = nullptr;
+        const double v = std::strtod(t.c_str(), &end);
+        if (end != t.c_str() + t.size() || !std::isfinite(v)) return std::nullopt;
+        out.push_back(v);
+    }
+    if (out.empty()) return std::nullopt;
+    return out;
 }
+
+std::optional<double> parseNumber(const std::string& text) {
+    const auto v = parseNumbers(text);
+    if (!v || v->size() != 1) return std::nullopt;
+    return v->front();
+}
+
+/// DICOM TM ("HHMMSS.FFFFFF", or the old "HH:MM:SS.frac") as seconds since midnight.
+std::optional<double> parseTime(const std::string& text) {
+    std::string t;
+    for (char c : trim(text)) {
+        if (c != ':') t.push_back(c);
+    }
+    if (t.size() < 2) return std::nullopt;
+    const std::size_t dot = t.find('.');
+    const std::string whole = t.substr(0, dot);
+    if (whole.size() % 2 != 0 || whole.size() > 6 ||
+        !std::all_of(whole.begin(), whole.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+        return std::nullopt;
+    }
+    double seconds = 0;
+    const double scale[3] = {3600, 60, 1};
+    for (std::size_t i = 0; i * 2 < whole.size(); ++i) {
+        seconds += scale[i] * std::stod(whole.substr(i * 2, 2));
+    }
+    if (dot != std::string::npos && dot + 1 < t.size()) {
+        const auto frac = parseNumber("0." + t.substr(dot + 1));
+        if (!frac) return std::nullopt;
+        seconds += *frac;
+    }
+    return seconds;
+}
+
+/// What the header scan found in one file.
+struct Header {
+    fs::path path;
+    std::map<gdcm::Tag, std::string> values;  // trimmed values of the scanned tags present
+
+    const std::string* get(const gdcm::Tag& t) const {
+        const auto it = values.find(t);
+        return it == values.end() || it->second.empty() ? nullptr : &it->second;
+    }
+    std::string text(const gdcm::Tag& t) const {
+        const std::string* v = get(t);
+        return v ? *v : std::string();
+    }
+    std::optional<double> number(const gdcm::Tag& t) const {
+        const std::string* v = get(t);
+        return v ? parseNumber(*v) : std::nullopt;
+    }
+    int integer(const gdcm::Tag& t, int fallback) const {
+        const auto v = number(t);
+        if (!v || *v < 0 || *v > 1e9) return fallback;
+        return static_cast<int>(*v);
+    }
+    bool isImage() const { return integer(kRows, 0) > 0 && integer(kColumns, 0) > 0; }
+};
+
+struct Scan {
+    std::string inputsName;  // for messages: the input directory or file(s)
+    std::size_t fileCount = 0;
+    std::vector<Header> headers;  // DICOM files only
+};
+
+std::string describeInputs(const std::vector<fs::path>& inputs) {
+    if (inputs.empty()) return "DICOM input";
+    std::string s = inputs.front().string();
+    if (inputs.size() > 1) s += " (and " + std::to_string(inputs.size() - 1) + " more inputs)";
+    return s;
+}
+
+void quietGdcm() {
+    gdcm::Trace::SetDebug(false);
+    gdcm::Trace::SetWarning(false);
+    gdcm::Trace::SetError(false);
+}
+
+Scan scanHeaders(const std::vector<fs::path>& inputs) {
+    quietGdcm();
+    Scan scan;
+    scan.inputsName = describeInputs(inputs);
+    std::vector<std::string> files;
+    for (const fs::path& in : inputs) {
+        std::error_code ec;
+        if (!fs::exists(in, ec)) {
+            throw IoError(in.string() + ": expected an existing file or directory, found nothing");
+        }
+        if (fs::is_directory(in, ec)) {
+            fs::recursive_directory_iterator it(in, fs::directory_options::skip_permission_denied, ec);
+            if (ec) throw IoError(in.string() + ": expected a readable directory, found an error: " + ec.message());
+            for (const fs::recursive_directory_iterator end; it != end; it.increment(ec)) {
+                if (ec) break;
+                std::error_code fec;
+                if (it->is_regular_file(fec)) files.push_back(it->path().string());
+            }
+            if (ec) throw IoError(in.string() + ": expected a readable directory, found an error: " + ec.message());
+        } else {
+            files.push_back(in.string());
+        }
+    }
+    std::sort(files.begin(), files.end());
+    files.erase(std::unique(files.begin(), files.end()), files.end());
+    scan.fileCount = files.size();
+    if (files.empty()) return scan;
+
+    const gdcm::Tag tags[] = {kSopClassUid,      kAcquisitionTime, kContentTime,       kModality,
+                              kSeriesDescription, kGantryTilt,      kSeriesUid,         kAcquisitionNumber,
+                              kInstanceNumber,    kImagePosition,   kImageOrientation,  kTemporalPosition,
+                              kSamplesPerPixel,   kPhotometric,     kNumberOfFrames,    kRows,
+                              kColumns,           kPixelSpacing,    kBitsAllocated,     kRescaleIntercept,
+                              kRescaleSlope};
+    gdcm::Scanner scanner;
+    for (const gdcm::Tag& t : tags) scanner.AddTag(t);
+    scanner.Scan(files);  // false only when no file at all was DICOM; IsKey tells per file
+    for (const std::string& f : files) {
+        if (!scanner.IsKey(f.c_str())) continue;
+        Header h;
+        h.path = f;
+        for (const auto& [tag, value] : scanner.GetMapping(f.c_str())) {
+            if (value) h.values[tag] = trim(value);
+        }
+        // A file GDCM parsed but that carries none of the tags every DICOM object has is not
+        // DICOM for our purposes (GDCM accepts some raw data sets without preamble).
+        if (!h.get(kSopClassUid) && !h.get(kSeriesUid) && !h.isImage()) continue;
+        scan.headers.push_back(std::move(h));
+    }
+    return scan;
+}
+
+[[noreturn]] void throwNoDicom(const Scan& scan) {
+    if (scan.fileCount == 0) {
+        throw FormatError(scan.inputsName + ": expected DICOM files, found none (no files)");
+    }
+    throw FormatError(scan.inputsName + ": expected DICOM files, found none among " +
+                      std::to_string(scan.fileCount) + " files");
+}
+
+/// The series of a scan, in the order of DicomSeriesInfo (description, then UID).
+struct SeriesGroup {
+    std::string uid;
+    std::vector<const Header*> files;   // all files of the series
+    std::vector<const Header*> images;  // those with Rows and Columns
+};
+
+std::vector<SeriesGroup> groupSeries(const Scan& scan) {
+    std::map<std::string, SeriesGroup> byUid;
+    for (const Header& h : scan.headers) {
+        SeriesGroup& g = byUid[h.text(kSeriesUid)];
+        g.uid = h.text(kSeriesUid);
+        g.files.push_back(&h);
+        if (h.isImage()) g.images.push_back(&h);
+    }
+    std::vector<SeriesGroup> out;
+    for (auto& [uid, g] : byUid) out.push_back(std::move(g));
+    const auto desc = [](const SeriesGroup& g) { return g.files.front()->text(kSeriesDescription); };
+    std::stable_sort(out.begin(), out.end(), [&](const SeriesGroup& a, const SeriesGroup& b) {
+        const std::string da = desc(a), db = desc(b);
+        return da != db ? da < db : a.uid < b.uid;
+    });
+    return out;
+}
+
+/// Unit slice normal from a header's orientation, if it has a usable one.
+std::optional<Eigen::Vector3d> normalOf(const Header& h) {
+    const std::string* iop = h.get(kImageOrientation);
+    if (!iop) return std::nullopt;
+    const auto v = parseNumbers(*iop);
+    if (!v || v->size() != 6) return std::nullopt;
+    const Eigen::Vector3d r((*v)[0], (*v)[1], (*v)[2]);
+    const Eigen::Vector3d c((*v)[3], (*v)[4], (*v)[5]);
+    const Eigen::Vector3d n = r.cross(c);
+    if (!(n.norm() > 0.5)) return std::nullopt;
+    return n.normalized();
+}
+
+std::optional<Eigen::Vector3d> positionOf(const Header& h) {
+    const std::string* ipp = h.get(kImagePosition);
+    if (!ipp) return std::nullopt;
+    const auto v = parseNumbers(*ipp);
+    if (!v || v->size() != 3) return std::nullopt;
+    return Eigen::Vector3d((*v)[0], (*v)[1], (*v)[2]);
+}
+
+/// Tolerance (mm) below which two slice positions along the normal count as the same.
+double positionTolerance(const Header& h) {
+    double spacing = 1.0;
+    if (const std::string* ps = h.get(kPixelSpacing)) {
+        if (const auto v = parseNumbers(*ps); v && v->size() == 2 && (*v)[0] > 0 && (*v)[1] > 0) {
+            spacing = std::min((*v)[0], (*v)[1]);
+        }
+    }
+    return 0.02 * spacing;
+}
+
+/// Groups images by position along the normal @p n; groups in increasing position.
+/// Images without a position each form their own group.
+std::vector<std::vector<const Header*>> groupPositions(const std::vector<const Header*>& images,
+                                                       const Eigen::Vector3d& n, double tolMm) {
+    std::vector<std::pair<double, const Header*>> along;
+    std::vector<std::vector<const Header*>> groups;
+    for (const Header* h : images) {
+        if (const auto p = positionOf(*h)) {
+            along.emplace_back(p->dot(n), h);
+        } else {
+            groups.push_back({h});
+        }
+    }
+    std::stable_sort(along.begin(), along.end(),
+                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    double groupStart = 0;
+    for (std::size_t i = 0; i < along.size(); ++i) {
+        if (i == 0 || along[i].first - groupStart > tolMm) {
+            groups.emplace_back();
+            groupStart = along[i].first;
+        }
+        groups.back().push_back(along[i].second);
+    }
+    return groups;
+}
+
+DicomSeriesInfo describeSeries(const SeriesGroup& g) {
+    DicomSeriesInfo info;
+    info.uid = g.uid;
+    info.description = g.files.front()->text(kSeriesDescription);
+    info.modality = g.files.front()->text(kModality);
+    info.imageCount = static_cast<int>(g.images.size());
+    for (const Header* h : g.files) info.files.push_back(h->path);
+    if (g.images.empty()) {
+        info.positionCount = 0;
+        info.timePointCount = 0;
+        return info;
+    }
+    const auto n = normalOf(*g.images.front());
+    if (!n) {
+        info.positionCount = info.imageCount;
+        return info;
+    }
+    const auto groups = groupPositions(g.images, *n, positionTolerance(*g.images.front()));
+    info.positionCount = static_cast<int>(groups.size());
+    std::size_t most = 0;
+    for (const auto& grp : groups) most = std::max(most, grp.size());
+    info.timePointCount = info.imageCount % info.positionCount == 0 ? info.imageCount / info.positionCount
+                                                                    : static_cast<int>(most);
+    return info;
+}
+
+std::string listSeries(const std::vector<SeriesGroup>& groups) {
+    std::string s;
+    for (const SeriesGroup& g : groups) {
+        const std::string desc = g.files.front()->text(kSeriesDescription);
+        s += "\n  " + (g.uid.empty() ? std::string("(no SeriesInstanceUID)") : g.uid) + "  \"" + desc +
+             "\"  " + std::to_string(g.images.size()) + " images";
+        if (g.images.size() != g.files.size()) {
+            s += ", " + std::to_string(g.files.size() - g.images.size()) + " non-image files";
+        }
+    }
+    return s;
+}
+
+const SeriesGroup& chooseSeries(const Scan& scan, const std::vector<SeriesGroup>& groups,
+                                const LoadOptions& options) {
+    if (options.seriesUid) {
+        for (const SeriesGroup& g : groups) {
+            if (g.uid == *options.seriesUid) return g;
+        }
+        throw ValueError(scan.inputsName + ": expected series " + *options.seriesUid +
+                         ", found only these series:" + listSeries(groups));
+    }
+    std::vector<const SeriesGroup*> withImages;
+    for (const SeriesGroup& g : groups) {
+        if (!g.images.empty()) withImages.push_back(&g);
+    }
+    if (withImages.size() == 1) return *withImages.front();
+    if (withImages.empty()) {
+        const Header& h = *groups.front().files.front();
+        throw FormatError(h.path.string() + ": expected DICOM images (Rows, Columns, Pixel Data), found " +
+                          std::to_string(scan.headers.size()) + " DICOM files without images (SOP class " +
+                          (h.text(kSopClassUid).empty() ? std::string("unknown") : h.text(kSopClassUid)) + ")");
+    }
+    throw ValueError(scan.inputsName + ": expected one DICOM series, found " + std::to_string(withImages.size()) +
+                     "; choose one with --series UID:" + listSeries(groups));
+}
+
+/// Orders the images of one position in time: TemporalPositionIdentifier, AcquisitionNumber,
+/// AcquisitionTime (or ContentTime), InstanceNumber, file name. A key is used only when every
+/// image of the series has it, so the comparison stays a strict weak order.
+struct TimeOrder {
+    bool useTemporal = true, useAcqNumber = true, useAcqTime = true, useContentTime = true,
+         useInstance = true;
+
+    explicit TimeOrder(const std::vector<const Header*>& images) {
+        for (const Header* h : images) {
+            useTemporal = useTemporal && h->number(kTemporalPosition).has_value();
+            useAcqNumber = useAcqNumber && h->number(kAcquisitionNumber).has_value();
+            useAcqTime = useAcqTime && parseTime(h->text(kAcquisitionTime)).has_value();
+            useContentTime = useContentTime && parseTime(h->text(kContentTime)).has_value();
+            useInstance = useInstance && h->number(kInstanceNumber).has_value();
+        }
+    }
+
+    std::vector<double> key(const Header& h) const {
+        std::vector<double> k;
+        if (useTemporal) k.push_back(*h.number(kTemporalPosition));
+        if (useAcqNumber) k.push_back(*h.number(kAcquisitionNumber));
+        if (useAcqTime) {
+            k.push_back(*parseTime(h.text(kAcquisitionTime)));
+        } else if (useContentTime) {
+            k.push_back(*parseTime(h.text(kContentTime)));
+        }
+        if (useInstance) k.push_back(*h.number(kInstanceNumber));
+        return k;
+    }
+};
+
+/// Parsed, checked geometry of one file (mm and unit cosines, as in DICOM).
+struct FileGeometry {
+    Eigen::Vector3d position;
+    Eigen::Vector3d rowCosine, columnCosine;
+    double rowSpacing = 0, columnSpacing = 0;  // PixelSpacing[0], PixelSpacing[1]
+};
+
+FileGeometry geometryOf(const Header& h) {
+    const std::string file = h.path.string();
+    const auto need = [&](const gdcm::Tag& t, const char* name, std::size_t count) {
+        const std::string* v = h.get(t);
+        if (!v) {
+            throw FormatError(file + ": expected " + name + " with " + std::to_string(count) +
+                              " numbers, found none (tag missing)");
+        }
+        const auto nums = parseNumbers(*v);
+        if (!nums || nums->size() != count) {
+            throw FormatError(file + ": expected " + name + " with " + std::to_string(count) +
+                              " numbers, found '" + *v + "'");
+        }
+        return *nums;
+    };
+    const auto ipp = need(kImagePosition, "Image Position (Patient) (0020,0032)", 3);
+    const auto iop = need(kImageOrientation, "Image Orientation (Patient) (0020,0037)", 6);
+    const auto ps = need(kPixelSpacing, "Pixel Spacing (0028,0030)", 2);
+    FileGeometry g;
+    g.position = Eigen::Vector3d(ipp[0], ipp[1], ipp[2]);
+    g.rowCosine = Eigen::Vector3d(iop[0], iop[1], iop[2]);
+    g.columnCosine = Eigen::Vector3d(iop[3], iop[4], iop[5]);
+    const double rn = g.rowCosine.norm(), cn = g.columnCosine.norm();
+    if (std::abs(rn - 1) > 0.01 || std::abs(cn - 1) > 0.01 ||
+        std::abs(g.rowCosine.dot(g.columnCosine)) > 0.01) {
+        throw FormatError(file + ": expected Image Orientation (Patient) (0020,0037) with two orthogonal unit "
+                          "vectors, found '" + h.text(kImageOrientation) + "'");
+    }
+    g.rowCosine /= rn;
+    g.columnCosine /= cn;
+    g.rowSpacing = ps[0];
+    g.columnSpacing = ps[1];
+    if (!(ps[0] > 0) || !(ps[1] > 0)) {
+        throw FormatError(file + ": expected Pixel Spacing (0028,0030) with two positive numbers, found '" +
+                          h.text(kPixelSpacing) + "'");
+    }
+    return g;
+}
+
+std::string pixelDescription(int cols, int rows, int bits) {
+    return std::to_string(cols) + "x" + std::to_string(rows) + "x" + std::to_string(bits) + " bits";
+}
+
+/// Explains why gdcm::ImageReader could not read @p h: no pixel data, or a damaged file.
+[[noreturn]] void throwUnreadable(const Header& h) {
+    const std::string file = h.path.string();
+    std::error_code ec;
+    const auto size = fs::file_size(h.path, ec);
+    const std::string sizeText = ec ? std::string("unknown size") : std::to_string(size) + " bytes";
+    const std::string expectedPixels =
+        pixelDescription(h.integer(kColumns, 0), h.integer(kRows, 0), h.integer(kBitsAllocated, 0));
+    gdcm::Reader reader;
+    reader.SetFileName(file.c_str());
+    if (reader.Read()) {
+        const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
+        if (!ds.FindDataElement(kPixelData)) {
+            throw FormatError(file + ": expected Pixel Data (7fe0,0010) of " + expectedPixels +
+                              ", found none (the file has no pixel data; SOP class " +
+                              (h.text(kSopClassUid).empty() ? std::string("unknown") : h.text(kSopClassUid)) +
+                              ")");
+        }
+        throw FormatError(file + ": expected decodable pixel data of " + expectedPixels +
+                          ", found pixel data GDCM cannot decode");
+    }
+    throw FormatError(file + ": expected complete pixel data of " + expectedPixels +
+                      ", found a truncated or corrupt file (" + sizeText + ")");
+}
+
+/// GDCM accepts a file whose native (uncompressed) pixel data is cut short, with only a
+/// warning, and pads it. Find where the Pixel Data element starts and refuse a file that ends
+/// before its declared length. Encapsulated (compressed) data is left to the decoder, and
+/// deflated files cannot be checked this way (their offsets are in the inflated stream).
+void checkComplete(const Header& h, const gdcm::File& file, int cols, int rows, int bits) {
+    const gdcm::DataSet& ds = file.GetDataSet();
+    const std::string name = h.path.string();
+    if (!ds.FindDataElement(kPixelData)) {
+        throw FormatError(name + ": expected Pixel Data (7fe0,0010) of " + pixelDescription(cols, rows, bits) +
+                          ", found none");
+    }
+    const gdcm::VL vl = ds.GetDataElement(kPixelData).GetVL();
+    const gdcm::TransferSyntax& ts = file.GetHeader().GetDataSetTransferSyntax();
+    if (vl.IsUndefined() || ts.IsEncapsulated() || ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) {
+        return;
+    }
+    std::error_code ec;
+    const auto size = fs::file_size(h.path, ec);
+    if (ec) return;
+    gdcm::Reader headerReader;
+    headerReader.SetFileName(name.c_str());
+    const std::set<gdcm::Tag> skip{kPixelData};
+    if (!headerReader.ReadUpToTag(kPixelData, skip)) return;
+    const std::uint64_t start = headerReader.GetStreamCurrentPosition();
+    const std::uint64_t end = start + (ts.IsExplicit() ? 12u : 8u) + static_cast<std::uint64_t>(vl);
+    if (end > size) {
+        throw FormatError(name + ": expected complete pixel data of " + pixelDescription(cols, rows, bits) +
+                          " (" + std::to_string(static_cast<std::uint32_t>(vl)) + " bytes ending at byte " +
+                          std::to_string(end) + "), found a truncated file of " + std::to_string(size) + " bytes");
+    }
+}
+
+/// Converts one decoded frame to rescaled floats.
+template <typename T>
+void convertPixels(const char* raw, std::size_t count, int bitsStored, int highBit, bool isSigned,
+                   double slope, double intercept, std::vector<float>& out) {
+    out.resize(count);
+    const bool maskBits = std::is_integral_v<T> && bitsStored > 0 &&
+                          bitsStored < static_cast<int>(8 * sizeof(T)) && highBit + 1 == bitsStored;
+    const std::int64_t mask = maskBits ? (std::int64_t{1} << bitsStored) - 1 : 0;
+    const std::int64_t signBit = maskBits ? std::int64_t{1} << (bitsStored - 1) : 0;
+    for (std::size_t i = 0; i < count; ++i) {
+        T v;
+        std::memcpy(&v, raw + i * sizeof(T), sizeof(T));
+        double stored;
+        if constexpr (std::is_integral_v<T>) {
+            std::int64_t s = static_cast<std::int64_t>(v);
+            if (maskBits) {
+                s &= mask;  // drop overlay bits above the high bit
+                if (isSigned && (s & signBit)) s -= std::int64_t{1} << bitsStored;
+            }
+            stored = static_cast<double>(s);
+        } else {
+            stored = static_cast<double>(v);
+        }
+        out[i] = static_cast<float>(slope * stored + intercept);
+    }
+}
+
+/// Decodes one single-frame image into @p slice (values rescaled with the file's own slope and
+/// intercept). Geometry is filled by the caller.
+void decodeSlice(const Header& h, Slice& slice) {
+    const std::string file = h.path.string();
+    const int rows = h.integer(kRows, 0);
+    const int cols = h.integer(kColumns, 0);
+    gdcm::ImageReader reader;
+    reader.SetFileName(file.c_str());
+    if (!reader.Read()) throwUnreadable(h);
+    const gdcm::Image& image = reader.GetImage();
+    checkComplete(h, reader.GetFile(), cols, rows, image.GetPixelFormat().GetBitsAllocated());
+    const gdcm::PixelFormat& pf = image.GetPixelFormat();
+    if (pf.GetSamplesPerPixel() != 1) {
+        throw FormatError(file + ": expected a grayscale image (1 sample per pixel), found " +
+                          std::to_string(pf.GetSamplesPerPixel()) + " samples per pixel (" +
+                          h.text(kPhotometric) + "); colour images are not supported");
+    }
+    if (image.GetDimension(0) != static_cast<unsigned>(cols) || image.GetDimension(1) != static_cast<unsigned>(rows)) {
+        throw FormatError(file + ": expected " + std::to_string(cols) + "x" + std::to_string(rows) +
+                          " pixels as the header says, found " + std::to_string(image.GetDimension(0)) + "x" +
+                          std::to_string(image.GetDimension(1)) + " decoded");
+    }
+    const std::size_t count = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols);
+    const std::size_t pixelBytes = pf.GetPixelSize();
+    const unsigned long length = image.GetBufferLength();
+    if (pixelBytes == 0 || length < count * pixelBytes) {
+        throw FormatError(file + ": expected pixel data of " + pixelDescription(cols, rows, pf.GetBitsAllocated()) +
+                          ", found " + std::to_string(length) + " bytes");
+    }
+    // A decoded buffer of the exact size, and no more: only the first frame is used.
+    std::vector<char> buffer(length);
+    if (!image.GetBuffer(buffer.data())) {
+        const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
+        const char* tsName = gdcm::TransferSyntax::GetTSString(ts);
+        throw FormatError(file + ": expected complete pixel data of " +
+                          pixelDescription(cols, rows, pf.GetBitsAllocated()) + " (transfer syntax " +
+                          (tsName ? std::string(tsName) : std::string("unknown")) +
+                          "), found a truncated file or data that cannot be decoded");
+    }
+    const double slope = h.number(kRescaleSlope).value_or(1.0);
+    const double intercept = h.number(kRescaleIntercept).value_or(0.0);
+    if (slope == 0) {
+        throw FormatError(file + ": expected a non-zero Rescale Slope (0028,1053), found '" + h.text(kRescaleSlope) + "'");
+    }
+    const int bitsStored = pf.GetBitsStored();
+    const int highBit = pf.GetHighBit();
+    const bool isSigned = pf.GetPixelRepresentation() == 1;
+    const char* raw = buffer.data();
+    switch (pf.GetScalarType()) {
+        case gdcm::PixelFormat::UINT8: convertPixels<std::uint8_t>(raw, count, bitsStored, highBit, false, slope, intercept, slice.values); break;
+        case gdcm::PixelFormat::INT8: convertPixels<std::int8_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, slice.values); break;
+        case gdcm::PixelFormat::UINT16: convertPixels<std::uint16_t>(raw, count, bitsStored, highBit, false, slope, intercept, slice.values); break;
+        case gdcm::PixelFormat::INT16: convertPixels<std::int16_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, slice.values); break;
+        case gdcm::PixelFormat::UINT32: convertPixels<std::uint32_t>(raw, count, bitsStored, highBit, false, slope, intercept, slice.values); break;
+        case gdcm::PixelFormat::INT32: convertPixels<std::int32_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, slice.values); break;
+        case gdcm::PixelFormat::FLOAT32: convertPixels<float>(raw, count, 0, 0, true, slope, intercept, slice.values); break;
+        case gdcm::PixelFormat::FLOAT64: convertPixels<double>(raw, count, 0, 0, true, slope, intercept, slice.values); break;
+        default:
+            throw FormatError(file + ": expected 8, 16 or 32-bit integer or float pixels, found " +
+                              std::string(pf.GetScalarTypeAsString()));
+    }
+    slice.cols = cols;
+    slice.rows = rows;
+    slice.source = file;
+}
+
+std::string seriesName(const Scan& scan, const SeriesGroup& g) {
+    const std::string desc = g.files.front()->text(kSeriesDescription);
+    return desc.empty() ? scan.inputsName : scan.inputsName + " (series \"" + desc + "\")";
+}
+
+}  // namespace
+
+std::vector<DicomSeriesInfo> scanDicom(const std::vector<fs::path>& inputs) {
+    const Scan scan = scanHeaders(inputs);
+    if (scan.headers.empty()) throwNoDicom(scan);
+    std::vector<DicomSeriesInfo> out;
+    for (const SeriesGroup& g : groupSeries(scan)) out.push_back(describeSeries(g));
+    return out;
+}
+
+SliceStack readDicom(const std::vector<fs::path>& inputs, const LoadOptions& options) {
+    const Scan scan = scanHeaders(inputs);
+    if (scan.headers.empty()) throwNoDicom(scan);
+    const std::vector<SeriesGroup> groups = groupSeries(scan);
+    const SeriesGroup& series = chooseSeries(scan, groups, options);
+    const std::string name = seriesName(scan, series);
+
+    for (const Header* h : series.files) {
+        if (!h->isImage()) {
+            throw FormatError(h->path.string() + ": expected an image of series " + series.uid +
+                              " (Rows, Columns, Pixel Data), found a file without them (SOP class " +
+                              (h->text(kSopClassUid).empty() ? std::string("unknown") : h->text(kSopClassUid)) +
+                              ")");
+        }
+        const int frames = h->integer(kNumberOfFrames, 1);
+        if (frames > 1) {
+            throw FormatError(h->path.string() + ": expected single-frame images, found a multi-frame image of " +
+                              std::to_string(frames) +
+                              " frames (multi-frame/enhanced DICOM is not supported; export the series as "
+                              "single-frame files)");
+        }
+    }
+    const std::vector<const Header*>& images = series.images;
+    const Header& first = *images.front();
+    const FileGeometry firstGeometry = geometryOf(first);
+    for (const Header* h : images) {
+        geometryOf(*h);  // every file must carry its geometry; throws naming the file and tag
+        if (h->integer(kSamplesPerPixel, 1) != 1) {
+            throw FormatError(h->path.string() + ": expected a grayscale image (1 sample per pixel), found " +
+                              h->text(kSamplesPerPixel) + " samples per pixel (" + h->text(kPhotometric) +
+                              "); colour images are not supported");
+        }
+    }
+    const Eigen::Vector3d normal = firstGeometry.rowCosine.cross(firstGeometry.columnCosine).normalized();
+    const double tolMm = 0.02 * std::min(firstGeometry.rowSpacing, firstGeometry.columnSpacing);
+    std::vector<std::vector<const Header*>> positions = groupPositions(images, normal, tolMm);
+
+    // Time points: every position must hold the same number of images.
+    const std::size_t timePoints = positions.front().size();
+    for (const auto& grp : positions) {
+        if (grp.size() != timePoints) {
+            const auto& other = grp.size() < timePoints ? grp : positions.front();
+            const double at = positionOf(*other.front())->dot(normal);
+            throw ValueError(name + ": expected the same number of images at every slice position (" +
+                             std::to_string(timePoints) + " at the first), found " + std::to_string(other.size()) +
+                             " at position " + std::to_string(at) + " mm along the normal (e.g. " +
+                             other.front()->path.string() + "); the series is incomplete or mixes acquisitions");
+        }
+    }
+    const int timePointCount = static_cast<int>(timePoints);
+    int timePoint = -1;
+    if (timePointCount > 1) {
+        if (!options.timePoint) {
+            throw ValueError(name + ": expected --volume N to choose one of the " + std::to_string(timePointCount) +
+                             " time points (0-" + std::to_string(timePointCount - 1) + "), found none");
+        }
+        timePoint = *options.timePoint;
+    } else if (options.timePoint) {
+        timePoint = *options.timePoint;
+    }
+    if (options.timePoint && (timePoint < 0 || timePoint >= timePointCount)) {
+        throw ValueError(name + ": expected --volume between 0 and " + std::to_string(timePointCount - 1) + " (" +
+                         std::to_string(timePointCount) + " time point" + (timePointCount > 1 ? "s" : "") +
+                         "), found " + std::to_string(timePoint));
+    }
+    const TimeOrder order(images);
+    std::vector<const Header*> chosen;
+    for (auto& grp : positions) {
+        std::stable_sort(grp.begin(), grp.end(), [&](const Header* a, const Header* b) {
+            const auto ka = order.key(*a), kb = order.key(*b);
+            return ka != kb ? ka < kb : a->path < b->path;
+        });
+        chosen.push_back(grp[static_cast<std::size_t>(std::max(timePoint, 0))]);
+    }
+
+    // Refuse before decoding anything that would not fit the memory budget.
+    const int rows = first.integer(kRows, 0);
+    const int cols = first.integer(kColumns, 0);
+    const long double bytes = static_cast<long double>(rows) * cols * static_cast<long double>(chosen.size()) * 4.0L;
+    if (bytes > static_cast<long double>(options.maxSourceBytes)) {
+        throw ValueError(name + ": expected at most " + std::to_string(options.maxSourceBytes) +
+                         " bytes of decoded slices, found " + std::to_string(cols) + "x" + std::to_string(rows) +
+                         "x" + std::to_string(chosen.size()) + " pixels (" +
+                         std::to_string(static_cast<unsigned long long>(bytes)) + " bytes as float)");
+    }
+
+    SliceStack stack;
+    stack.slices.resize(chosen.size());
+    bool rescaleVaries = false;
+    const double slope0 = first.number(kRescaleSlope).value_or(1.0);
+    const double intercept0 = first.number(kRescaleIntercept).value_or(0.0);
+    for (std::size_t i = 0; i < chosen.size(); ++i) {
+        const Header& h = *chosen[i];
+        const FileGeometry g = geometryOf(h);
+        Slice& s = stack.slices[i];
+        decodeSlice(h, s);
+        s.position = g.position * 1e-3;
+        s.colStep = g.rowCosine * (g.columnSpacing * 1e-3);
+        s.rowStep = g.columnCosine * (g.rowSpacing * 1e-3);
+        rescaleVaries = rescaleVaries || h.number(kRescaleSlope).value_or(1.0) != slope0 ||
+                        h.number(kRescaleIntercept).value_or(0.0) != intercept0;
+    }
+
+    VolumeInfo& info = stack.info;
+    info.modality = first.text(kModality);
+    info.valueUnits = info.modality == "CT" ? "HU" : "";
+    info.sourceFormat = "DICOM";
+    info.sourceDescription = first.text(kSeriesDescription);
+    if (info.sourceDescription.empty()) {
+        const fs::path in = inputs.front();
+        info.sourceDescription = (in.has_filename() ? in.filename() : in.parent_path().filename()).string();
+    }
+    if (rescaleVaries) info.sourceDescription += " (rescale slope/intercept vary per slice; applied per slice)";
+    info.seriesUid = series.uid;
+    info.originalDims = {cols, rows, static_cast<std::int64_t>(chosen.size())};
+    info.rescaleSlope = slope0;
+    info.rescaleIntercept = intercept0;
+    info.gantryTiltDeg = first.number(kGantryTilt).value_or(0.0);
+    info.timePoint = timePointCount > 1 ? timePoint : -1;
+    info.timePointCount = timePointCount;
+    return stack;
+}
+
 }  // namespace palp::volume
