@@ -1,0 +1,204 @@
+#pragma once
+/// @file
+/// Ray marching through a FloatGrid for AVC/AVCEC: first-hit (threshold crossing) and
+/// accumulate (integral of a transfer function) modes, for single rays and whole bundles.
+///
+/// The grid is read through a VolumeView: a flat table of the grid's 8^3 leaf blocks built once
+/// at set-up. A trilinear sample then costs one table load and eight float loads when its cell
+/// lies inside one leaf (7 of 8 cases along a ray on average), instead of a tree walk through a
+/// ValueAccessor; and blocks whose values cannot matter (their dilated maximum is below the
+/// threshold, or the transfer function is zero there) are skipped to their exit without
+/// sampling. Skipping never changes a result: samples stay on the lattice t_k = k * step.
+
+#include <openvdb/openvdb.h>
+
+#include <Eigen/Core>
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "palp/kernels/ray_bundle.h"
+
+namespace palp::kernels {
+
+/// Largest number of samples one ray takes (bounds the time of a ray of any length).
+inline constexpr std::int64_t kMaxSamplesPerRay = std::int64_t{1} << 16;
+/// Largest number of 8^3 blocks a VolumeView accepts (its table costs 16 bytes per block).
+inline constexpr std::int64_t kMaxViewBlocks = std::int64_t{1} << 26;
+
+/// Read-only flat view of a FloatGrid for ray marching. Holds a shared pointer to the grid; the
+/// grid must not be modified while views of it exist (they point into its leaf buffers).
+///
+/// @par Threading  Immutable after construction: any number of threads may trace through one
+///      view at the same time, with no per-thread state.
+/// @par Real-time  Construction allocates and is for set-up threads; sampling and tracing are
+///      noexcept and allocation-free.
+class VolumeView {
+public:
+    /// Builds the block table over the bounding box of @p grid's leaves and active tiles, grown
+    /// by one block on each side. Forces delay-loaded leaf buffers into memory.
+    /// @throw palp::ValueError for a null grid, a transform that is not an axis-aligned
+    ///        isotropic scale plus translation, or a table above kMaxViewBlocks blocks.
+    explicit VolumeView(openvdb::FloatGrid::ConstPtr grid);
+
+    /// Trilinear value at index position (x, y, z) (voxel centres at integers); background
+    /// outside the table. Bit-compatible with sampleIndex() through an accessor (same weights,
+    /// evaluated in float here).
+    /// @par Real-time  noexcept, no allocation.
+    float sampleIndex(double x, double y, double z) const noexcept;
+
+    double voxelSize() const noexcept { return mVoxelSize; }
+    float background() const noexcept { return mBackground; }
+    const openvdb::FloatGrid& grid() const noexcept { return *mGrid; }
+    /// True when the grid has no leaves and no active tiles.
+    bool empty() const noexcept { return mEmpty; }
+    /// World position (metres) -> index position.
+    Eigen::Vector3d indexFromWorld(const Eigen::Vector3d& w) const noexcept {
+        return (w - mWorldOrigin) * mInvVoxelSize;
+    }
+
+    // Internal layout, read by the marcher (kept public for the kernels' free functions).
+    struct Table {
+        std::array<std::int32_t, 3> origin{};  ///< index of the first voxel (multiple of 8)
+        std::array<std::int32_t, 3> blocks{};  ///< blocks per axis
+        std::vector<const float*> data;        ///< 512 values per block (x-major, like LeafNode)
+        std::vector<float> maxDilated;         ///< max over the block and its +x/+y/+z neighbours
+        std::vector<float> minDilated;         ///< min over the same
+    };
+    const Table& table() const noexcept { return mTable; }
+
+private:
+    openvdb::FloatGrid::ConstPtr mGrid;
+    Table mTable;
+    std::vector<std::unique_ptr<std::array<float, 512>>> mConstantBlocks;  // tiles, background
+    const float* mBackgroundBlock = nullptr;
+    Eigen::Vector3d mWorldOrigin = Eigen::Vector3d::Zero();
+    double mVoxelSize = 1;
+    double mInvVoxelSize = 1;
+    float mBackground = 0;
+    bool mEmpty = true;
+};
+
+/// Hardness transfer function sigma(value) >= 0 (per metre), piecewise linear through up to
+/// kMaxNodes nodes (value, sigma) with non-decreasing values; two nodes with the same value make
+/// a step. Constant beyond the end nodes.
+/// @par Threading  A plain value.
+class TransferFunction {
+public:
+    static constexpr int kMaxNodes = 16;
+    TransferFunction() = default;
+    /// @throw palp::ValueError for no node, more than kMaxNodes, decreasing values, negative or
+    ///        non-finite sigma.
+    explicit TransferFunction(std::span<const std::array<float, 2>> nodes);
+    /// sigma = 0 below @p threshold and @p height (1/m) from it on.
+    static TransferFunction step(float threshold, float height);
+
+    /// sigma(v), per metre. @par Real-time noexcept.
+    float sigma(float v) const noexcept;
+    /// An antiderivative S(v) = integral of sigma dv (per metre times value units).
+    /// @par Real-time noexcept.
+    double integral(double v) const noexcept;
+    /// sigma(u) == 0 for every u < zeroBelow() (-inf when sigma is positive everywhere).
+    float zeroBelow() const noexcept { return mZeroBelow; }
+
+private:
+    std::array<float, kMaxNodes> mV{}, mS{};
+    std::array<double, kMaxNodes> mCum{};  // S at each node
+    int mCount = 0;
+    float mZeroBelow = 0;
+};
+
+/// First-hit settings.
+struct FirstHitParams {
+    float threshold = 300;  ///< hit where the interpolated value first reaches this (value units)
+    double step = 0.25e-3;  ///< sample spacing along the ray, metres
+    int refineIterations = 4;  ///< regula-falsi steps below the step size (0: linear interpolation)
+    bool skipEmpty = true;  ///< skip blocks whose dilated maximum is below the threshold
+};
+
+/// Accumulate settings.
+struct AccumulateParams {
+    TransferFunction sigma;  ///< hardness per metre as a function of value
+    double tauStop = 1;      ///< stop where the integral of sigma reaches this (dimensionless)
+    double step = 0.25e-3;   ///< sample spacing, metres
+    bool reportFirstHit = false;  ///< also find the first crossing of firstHitThreshold
+    float firstHitThreshold = 300;
+    bool skipEmpty = true;   ///< skip blocks where sigma is zero (and no crossing is possible)
+};
+
+/// Result of one first-hit ray.
+struct RayHit {
+    float t = 0;       ///< metres along the unit direction; the ray length when there is no hit
+    bool hit = false;
+};
+
+/// Result of one accumulate ray.
+struct AccumulateHit {
+    float t = 0;          ///< where the integral reached tauStop, or the ray length (metres)
+    float integral = 0;   ///< integral of sigma up to t (dimensionless)
+    float firstHitT = 0;  ///< first crossing (when reportFirstHit and firstHit), metres
+    bool stopped = false; ///< integral reached tauStop
+    bool firstHit = false;
+};
+
+/// Per-ray results of a bundle, same order as RayBundle. Rays beyond `count` are untouched.
+/// @par Real-time  Fixed capacity.
+struct BundleHits {
+    std::array<float, kMaxBundleRays> t{};              ///< metres (ray length when no hit)
+    std::array<std::uint8_t, kMaxBundleRays> hit{};     ///< 1 = hit
+    std::array<std::uint32_t, kMaxBundleRays> geomId{};  ///< mesh traces: Embree geometry id
+    int count = 0;
+};
+
+/// Per-ray accumulate results of a bundle.
+struct BundleAccumulation {
+    std::array<float, kMaxBundleRays> t{}, integral{}, firstHitT{};
+    std::array<std::uint8_t, kMaxBundleRays> stopped{}, firstHit{};
+    int count = 0;
+};
+
+/// Marches one ray from @p origin (world metres) along @p direction (normalised here) for
+/// @p length metres, sampling at t_k = min(k step, length), and returns the first t where the
+/// trilinear value is >= threshold, refined between the bracketing samples (linear
+/// interpolation, then params.refineIterations regula-falsi steps on the true trilinear
+/// curve). A start inside (value >= threshold at t = 0) hits at t = 0.
+/// Degenerate input (zero or non-finite direction or origin, non-finite or negative length, a
+/// non-positive step, an empty grid) gives {t = max(length, 0) or 0, hit = false}.
+/// Time is bounded by kMaxSamplesPerRay samples (longer rays are cut there).
+/// @par Threading  Any number of threads on one view.
+/// @par Real-time  noexcept, no allocation, no lock.
+RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                double length, const FirstHitParams& params) noexcept;
+
+/// Integrates tau(t) = integral_0^t sigma(v(s)) ds along the ray (v linear between samples, so
+/// each step's integral is exact for a piecewise-linear sigma) and returns the t where tau
+/// reaches tauStop (or the length), tau there, and optionally the first crossing. Same
+/// degenerate-input rules and bounds as firstHit().
+/// @par Threading  Any number of threads on one view.
+/// @par Real-time  noexcept, no allocation, no lock.
+AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
+                         const Eigen::Vector3d& direction, double length,
+                         const AccumulateParams& params) noexcept;
+
+/// First-hit for every ray of @p bundle (an invalid bundle gives count = 0).
+/// @par Threading  Any number of threads on one view, each with its own @p out.
+/// @par Real-time  noexcept, no allocation, no lock; bounded by count * kMaxSamplesPerRay.
+void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstHitParams& params,
+                   BundleHits& out) noexcept;
+
+/// Accumulate for every ray of @p bundle.
+/// @par Threading  Any number of threads on one view, each with its own @p out.
+/// @par Real-time  noexcept, no allocation, no lock.
+void traceAccumulate(const VolumeView& view, const RayBundle& bundle, const AccumulateParams& params,
+                     BundleAccumulation& out) noexcept;
+
+/// Throws palp::ValueError when @p params cannot be used (non-positive or non-finite step,
+/// NaN threshold, negative refine count). Call at set-up; the kernels themselves never throw.
+void validateFirstHitParams(const FirstHitParams& params);
+/// Same for accumulate (also tauStop > 0 and finite).
+void validateAccumulateParams(const AccumulateParams& params);
+
+}  // namespace palp::kernels
