@@ -9,7 +9,7 @@ PACKAGES=(
   # libraries
   libeigen3-dev libopenvdb-dev libboost-iostreams-dev libembree-dev libtbb-dev
   libgdcm-dev libnifti2-dev zlib1g-dev libpng-dev libstb-dev
-  libsuitesparse-dev libcli11-dev nlohmann-json3-dev libtinyobjloader-dev
+  libsuitesparse-dev libcli11-dev nlohmann-json3-dev libtinyobjloader-dev libassimp-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   # oracles and baselines used by tests and benchmarks
   dcm2niix calculix-ccx rt-tests libgdcm-tools unzip time

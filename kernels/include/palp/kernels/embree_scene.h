@@ -1,0 +1,94 @@
+#pragma once
+/// @file
+/// An Embree 3 scene of rigid and deforming triangle meshes, and closest-hit tracing of ray
+/// bundles against it.
+
+#include <embree3/rtcore.h>
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "palp/kernels/mesh.h"
+#include "palp/kernels/ray_bundle.h"
+#include "palp/kernels/volume_ray.h"
+
+namespace palp::kernels {
+
+/// Geometry categories as Embree masks: a ray hits a geometry when (ray mask & geometry mask)
+/// is non-zero.
+inline constexpr unsigned kMaskBone = 1u;
+inline constexpr unsigned kMaskPlate = 2u;
+inline constexpr unsigned kMaskSurface = 4u;
+inline constexpr unsigned kMaskAll = 0xffffffffu;
+
+/// Owns an RTCDevice and an RTCScene. Add meshes, commit(), then trace.
+///
+/// @par Threading  Adding geometry, updateVertices() and commit() are for one thread at a time
+///      and must not overlap with tracing. Tracing a committed scene is safe from any number of
+///      threads at once.
+/// @par Real-time  Tracing is real-time safe. updateVertices() is noexcept and copies into
+///      Embree's buffer; commit() refits deforming meshes (REFIT quality, O(#T)) but lives in
+///      Embree, which may allocate and use TBB: call it on the servo thread only for small
+///      meshes and only after measuring (`palp bench rays` prints refit costs).
+class EmbreeScene {
+public:
+    /// @throw palp::Error when Embree cannot create a device.
+    EmbreeScene();
+    ~EmbreeScene();
+    EmbreeScene(const EmbreeScene&) = delete;
+    EmbreeScene& operator=(const EmbreeScene&) = delete;
+
+    /// Adds a static mesh (high-quality BVH). Returns its geometry id.
+    /// @throw palp::ValueError for an empty mesh, indices out of range or non-finite positions.
+    unsigned addRigidMesh(const TriangleMesh& mesh, unsigned mask = kMaskAll);
+    /// Adds a mesh whose vertices move (refit BVH); topology is fixed. Returns its geometry id.
+    /// @throw palp::ValueError as addRigidMesh.
+    unsigned addDeformingMesh(const TriangleMesh& mesh, unsigned mask = kMaskAll);
+    /// Copies new positions (#V by 3, metres) of deforming mesh @p geomId into Embree; takes
+    /// effect at the next commit(). Returns false (and changes nothing) for an unknown or rigid
+    /// id or a wrong size.
+    bool updateVertices(unsigned geomId, std::span<const float> positions) noexcept;
+    /// Builds or refits the BVH. @throw palp::Error when Embree reports an error.
+    void commit();
+
+    RTCScene handle() const noexcept { return mScene; }
+    /// True when no geometry was added.
+    bool empty() const noexcept { return mGeoms.empty(); }
+    bool committed() const noexcept { return mCommitted; }
+    std::size_t triangleCount() const noexcept { return mTriangles; }
+
+private:
+    struct Geom {
+        RTCGeometry geometry = nullptr;
+        float* vertices = nullptr;  // Embree-owned buffer (deforming meshes)
+        std::size_t vertexCount = 0;
+        bool deforming = false;
+    };
+    unsigned add(const TriangleMesh& mesh, unsigned mask, bool deforming);
+    RTCDevice mDevice = nullptr;
+    RTCScene mScene = nullptr;
+    std::vector<Geom> mGeoms;  // indexed by geometry id
+    std::size_t mTriangles = 0;
+    bool mCommitted = false;
+};
+
+/// How a bundle is handed to Embree.
+enum class MeshTraceMode {
+    Loop1,     ///< one rtcIntersect1 per ray
+    Stream1M,  ///< one rtcIntersect1M call with the coherent flag
+};
+
+/// The mode traceBundle() uses by default (the faster one in bench_rays on x86-64; see
+/// bench/README.md).
+inline constexpr MeshTraceMode kDefaultMeshTraceMode = MeshTraceMode::Loop1;
+
+/// Closest hit of every ray of @p bundle against geometries whose mask shares a bit with
+/// @p mask. out.t: hit distance (metres) or the ray length; out.hit; out.geomId (or
+/// RTC_INVALID_GEOMETRY_ID). An invalid bundle, an empty or uncommitted scene give no hits.
+/// @par Threading  Any number of threads on one committed scene, each with its own @p out.
+/// @par Real-time  noexcept, no allocation (the ray buffer lives on the stack), no lock.
+void traceBundle(const EmbreeScene& scene, const RayBundle& bundle, unsigned mask, BundleHits& out,
+                 MeshTraceMode mode = kDefaultMeshTraceMode) noexcept;
+
+}  // namespace palp::kernels

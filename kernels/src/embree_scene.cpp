@@ -1,0 +1,155 @@
+#include "palp/kernels/embree_scene.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <string>
+
+#include "palp/error.h"
+
+namespace palp::kernels {
+
+namespace {
+
+void checkMesh(const TriangleMesh& m) {
+    if (m.triangleCount() == 0 || m.positions.size() % 3 != 0 || m.indices.size() % 3 != 0)
+        throw ValueError("mesh: expected at least one triangle and 3 floats per vertex, found " +
+                         std::to_string(m.positions.size()) + " position floats and " +
+                         std::to_string(m.indices.size()) + " indices");
+    const std::size_t nv = m.vertexCount();
+    for (std::size_t i = 0; i < m.indices.size(); ++i)
+        if (m.indices[i] >= nv)
+            throw ValueError("mesh index " + std::to_string(i) + ": expected < " + std::to_string(nv) +
+                             ", found " + std::to_string(m.indices[i]));
+    for (std::size_t i = 0; i < m.positions.size(); ++i)
+        if (!std::isfinite(m.positions[i]))
+            throw ValueError("mesh position " + std::to_string(i / 3) + ": expected finite coordinates");
+}
+
+void errorCallback(void*, RTCError, const char*) {}
+
+}  // namespace
+
+EmbreeScene::EmbreeScene() {
+    mDevice = rtcNewDevice(nullptr);
+    if (!mDevice) throw Error("embree: expected a device, found rtcNewDevice error " +
+                              std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))));
+    rtcSetDeviceErrorFunction(mDevice, errorCallback, nullptr);
+    mScene = rtcNewScene(mDevice);
+    rtcSetSceneFlags(mScene, RTC_SCENE_FLAG_DYNAMIC);
+    rtcSetSceneBuildQuality(mScene, RTC_BUILD_QUALITY_MEDIUM);
+}
+
+EmbreeScene::~EmbreeScene() {
+    if (mScene) rtcReleaseScene(mScene);
+    if (mDevice) rtcReleaseDevice(mDevice);
+}
+
+unsigned EmbreeScene::add(const TriangleMesh& mesh, unsigned mask, bool deforming) {
+    checkMesh(mesh);
+    RTCGeometry g = rtcNewGeometry(mDevice, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                          3 * sizeof(float), mesh.vertexCount()));
+    auto* idx = static_cast<std::uint32_t*>(rtcSetNewGeometryBuffer(
+        g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(std::uint32_t), mesh.triangleCount()));
+    if (!v || !idx) {
+        rtcReleaseGeometry(g);
+        throw Error("embree: expected geometry buffers, found an allocation failure");
+    }
+    std::memcpy(v, mesh.positions.data(), mesh.positions.size() * sizeof(float));
+    std::memcpy(idx, mesh.indices.data(), mesh.indices.size() * sizeof(std::uint32_t));
+    rtcSetGeometryMask(g, mask);
+    rtcSetGeometryBuildQuality(g, deforming ? RTC_BUILD_QUALITY_REFIT : RTC_BUILD_QUALITY_HIGH);
+    rtcCommitGeometry(g);
+    const unsigned id = rtcAttachGeometry(mScene, g);
+    rtcReleaseGeometry(g);  // the scene holds it
+    if (mGeoms.size() <= id) mGeoms.resize(id + 1);
+    mGeoms[id] = Geom{g, v, mesh.vertexCount(), deforming};
+    mTriangles += mesh.triangleCount();
+    mCommitted = false;
+    return id;
+}
+
+unsigned EmbreeScene::addRigidMesh(const TriangleMesh& mesh, unsigned mask) { return add(mesh, mask, false); }
+unsigned EmbreeScene::addDeformingMesh(const TriangleMesh& mesh, unsigned mask) { return add(mesh, mask, true); }
+
+bool EmbreeScene::updateVertices(unsigned geomId, std::span<const float> positions) noexcept {
+    if (geomId >= mGeoms.size()) return false;
+    Geom& g = mGeoms[geomId];
+    if (!g.deforming || !g.geometry || positions.size() != 3 * g.vertexCount) return false;
+    std::memcpy(g.vertices, positions.data(), positions.size_bytes());
+    rtcUpdateGeometryBuffer(g.geometry, RTC_BUFFER_TYPE_VERTEX, 0);
+    rtcCommitGeometry(g.geometry);
+    return true;
+}
+
+void EmbreeScene::commit() {
+    rtcCommitScene(mScene);
+    const RTCError e = rtcGetDeviceError(mDevice);
+    if (e != RTC_ERROR_NONE)
+        throw Error("embree scene commit: expected no error, found error code " + std::to_string(static_cast<int>(e)));
+    mCommitted = true;
+}
+
+namespace {
+
+inline void setRay(RTCRayHit& rh, const RayBundle& b, std::size_t r, unsigned mask) noexcept {
+    rh.ray.org_x = b.ox[r];
+    rh.ray.org_y = b.oy[r];
+    rh.ray.org_z = b.oz[r];
+    rh.ray.dir_x = b.dx[r];
+    rh.ray.dir_y = b.dy[r];
+    rh.ray.dir_z = b.dz[r];
+    rh.ray.tnear = 0.0f;
+    const float len = b.length[r];
+    rh.ray.tfar = std::isfinite(len) && len >= 0 ? len : 0.0f;
+    rh.ray.time = 0.0f;
+    rh.ray.mask = mask;
+    rh.ray.id = static_cast<unsigned>(r);
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+}
+
+inline void takeHit(const RTCRayHit& rh, const RayBundle& b, std::size_t r, BundleHits& out) noexcept {
+    const bool hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+    out.hit[r] = hit ? 1 : 0;
+    out.t[r] = hit ? rh.ray.tfar : b.length[r];
+    out.geomId[r] = rh.hit.geomID;
+}
+
+}  // namespace
+
+void traceBundle(const EmbreeScene& scene, const RayBundle& bundle, unsigned mask, BundleHits& out,
+                 MeshTraceMode mode) noexcept {
+    out.count = bundle.valid ? std::clamp(bundle.count, 0, kMaxBundleRays) : 0;
+    if (scene.empty() || !scene.committed()) {
+        for (int i = 0; i < out.count; ++i) {
+            const auto r = static_cast<std::size_t>(i);
+            out.hit[r] = 0;
+            out.t[r] = bundle.length[r];
+            out.geomId[r] = RTC_INVALID_GEOMETRY_ID;
+        }
+        return;
+    }
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    if (mode == MeshTraceMode::Loop1) {
+        for (int i = 0; i < out.count; ++i) {
+            const auto r = static_cast<std::size_t>(i);
+            alignas(16) RTCRayHit rh;
+            setRay(rh, bundle, r, mask);
+            rtcIntersect1(scene.handle(), &ctx, &rh);
+            takeHit(rh, bundle, r, out);
+        }
+        return;
+    }
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    alignas(16) std::array<RTCRayHit, kMaxBundleRays> rays;
+    for (int i = 0; i < out.count; ++i) setRay(rays[static_cast<std::size_t>(i)], bundle, static_cast<std::size_t>(i), mask);
+    rtcIntersect1M(scene.handle(), &ctx, rays.data(), static_cast<unsigned>(out.count), sizeof(RTCRayHit));
+    for (int i = 0; i < out.count; ++i)
+        takeHit(rays[static_cast<std::size_t>(i)], bundle, static_cast<std::size_t>(i), out);
+}
+
+}  // namespace palp::kernels

@@ -1,0 +1,45 @@
+#include "palp/kernels/ray_batch.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <string>
+
+#include "palp/error.h"
+
+namespace palp::kernels {
+
+namespace {
+void checkSizes(std::size_t bundles, std::size_t out) {
+    if (out < bundles)
+        throw ValueError("ray batch output: expected room for " + std::to_string(bundles) + " bundles, found " +
+                         std::to_string(out));
+}
+
+template <class F>
+void forEach(std::size_t n, F&& f) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i != r.end(); ++i) f(i);
+    });
+}
+}  // namespace
+
+void traceFirstHitBatch(const VolumeView& view, std::span<const RayBundle> bundles, const FirstHitParams& params,
+                        std::span<BundleHits> out) {
+    checkSizes(bundles.size(), out.size());
+    forEach(bundles.size(), [&](std::size_t i) { traceFirstHit(view, bundles[i], params, out[i]); });
+}
+
+void traceAccumulateBatch(const VolumeView& view, std::span<const RayBundle> bundles,
+                          const AccumulateParams& params, std::span<BundleAccumulation> out) {
+    checkSizes(bundles.size(), out.size());
+    forEach(bundles.size(), [&](std::size_t i) { traceAccumulate(view, bundles[i], params, out[i]); });
+}
+
+void traceMeshBatch(const EmbreeScene& scene, std::span<const RayBundle> bundles, unsigned mask,
+                    std::span<BundleHits> out) {
+    checkSizes(bundles.size(), out.size());
+    forEach(bundles.size(), [&](std::size_t i) { traceBundle(scene, bundles[i], mask, out[i]); });
+}
+
+}  // namespace palp::kernels

@@ -1,0 +1,389 @@
+#include <gtest/gtest.h>
+
+#include <tbb/task_arena.h>
+
+#include <cmath>
+#include <fstream>
+#include <random>
+#include <vector>
+
+#include "alloc_counter.h"
+#include "palp/error.h"
+#include "palp/kernels/embree_scene.h"
+#include "palp/kernels/mesh.h"
+#include "palp/kernels/ray_batch.h"
+#include "ray_test_shapes.h"
+#include "test_support.h"
+
+namespace {
+
+using namespace palp::kernels;
+using palp::test::kVoxel;
+
+void addVertex(TriangleMesh& m, const Eigen::Vector3d& p) {
+    for (int a = 0; a < 3; ++a) m.positions.push_back(static_cast<float>(p[a]));
+}
+void addTri(TriangleMesh& m, std::uint32_t a, std::uint32_t b, std::uint32_t c) {
+    m.indices.insert(m.indices.end(), {a, b, c});
+}
+
+/// Square of half-size @p s in the plane through @p c with normal @p n.
+TriangleMesh planeMesh(const Eigen::Vector3d& n, const Eigen::Vector3d& c, double s) {
+    Eigen::Vector3d u, v;
+    orthonormalBasis(n, u, v);
+    TriangleMesh m;
+    addVertex(m, c - s * u - s * v);
+    addVertex(m, c + s * u - s * v);
+    addVertex(m, c + s * u + s * v);
+    addVertex(m, c - s * u + s * v);
+    addTri(m, 0, 1, 2);
+    addTri(m, 0, 2, 3);
+    return m;
+}
+
+TriangleMesh boxMesh(const palp::test::Box& b) {
+    TriangleMesh m;
+    for (int k = 0; k < 8; ++k)
+        addVertex(m, b.centre + Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(), (k & 2) ? b.half.y() : -b.half.y(),
+                                                (k & 4) ? b.half.z() : -b.half.z()));
+    const std::uint32_t f[6][4] = {{0, 2, 6, 4}, {1, 5, 7, 3}, {0, 4, 5, 1}, {2, 3, 7, 6}, {0, 1, 3, 2}, {4, 6, 7, 5}};
+    for (const auto& q : f) {
+        addTri(m, q[0], q[1], q[2]);
+        addTri(m, q[0], q[2], q[3]);
+    }
+    return m;
+}
+
+/// Icosphere: icosahedron subdivided @p levels times, vertices on the sphere.
+TriangleMesh icosphere(const palp::test::Sphere& s, int levels) {
+    const double t = (1 + std::sqrt(5.0)) / 2;
+    std::vector<Eigen::Vector3d> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
+                                      {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+    std::vector<std::array<std::uint32_t, 3>> f = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11},
+                                                   {1, 5, 9}, {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                                                   {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8}, {3, 8, 9},
+                                                   {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+    for (auto& p : v) p.normalize();
+    for (int l = 0; l < levels; ++l) {
+        std::vector<std::array<std::uint32_t, 3>> nf;
+        for (const auto& tri : f) {
+            std::uint32_t m[3];
+            for (int e = 0; e < 3; ++e) {
+                v.push_back((v[tri[static_cast<std::size_t>(e)]] + v[tri[static_cast<std::size_t>((e + 1) % 3)]]).normalized());
+                m[e] = static_cast<std::uint32_t>(v.size() - 1);
+            }
+            nf.push_back({tri[0], m[0], m[2]});
+            nf.push_back({tri[1], m[1], m[0]});
+            nf.push_back({tri[2], m[2], m[1]});
+            nf.push_back({m[0], m[1], m[2]});
+        }
+        f = nf;
+    }
+    TriangleMesh out;
+    for (const auto& p : v) addVertex(out, s.centre + s.radius * p);
+    for (const auto& tri : f) addTri(out, tri[0], tri[1], tri[2]);
+    return out;
+}
+
+/// Exact closest hit against a mesh in double precision (brute force, Moller-Trumbore on the
+/// float vertices).
+double bruteForceHit(const TriangleMesh& m, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double tMax) {
+    double best = std::numeric_limits<double>::infinity();
+    auto vert = [&](std::uint32_t i) {
+        return Eigen::Vector3d(m.positions[3 * i], m.positions[3 * i + 1], m.positions[3 * i + 2]);
+    };
+    for (std::size_t t = 0; t < m.triangleCount(); ++t) {
+        const Eigen::Vector3d a = vert(m.indices[3 * t]), b = vert(m.indices[3 * t + 1]), c = vert(m.indices[3 * t + 2]);
+        const Eigen::Vector3d e1 = b - a, e2 = c - a, p = d.cross(e2);
+        const double det = e1.dot(p);
+        if (std::fabs(det) < 1e-300) continue;
+        const Eigen::Vector3d s = o - a;
+        const double u = s.dot(p) / det;
+        if (u < 0 || u > 1) continue;
+        const Eigen::Vector3d q = s.cross(e1);
+        const double w = d.dot(q) / det;
+        if (w < 0 || u + w > 1) continue;
+        const double tt = e2.dot(q) / det;
+        if (tt >= 0 && tt <= tMax) best = std::min(best, tt);
+    }
+    return best;
+}
+
+/// One bundle per proxy pointing at @p target, for tests.
+RayBundle bundleAt(const Eigen::Vector3d& proxy, const Eigen::Vector3d& target, int ring = 0, double len = 20e-3) {
+    BundleParams p;
+    p.length = len;
+    p.ringCount = ring;
+    p.sobelAngle = 0.08;
+    p.surfaceOffset = 0.8e-3;
+    RayBundle b;
+    generateBundle(proxy, target - proxy, Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0), p, b);
+    return b;
+}
+
+// Rays whose origin lies inside the solid (inside(o)) are left out: the exact functions give the
+// entry into the solid from outside.
+template <class Exact, class Inside>
+void checkMeshAgainst(const TriangleMesh& mesh, Exact exact, Inside inside, const Eigen::Vector3d& c, double r0,
+                      double aim) {
+    EmbreeScene scene;
+    scene.addRigidMesh(mesh, kMaskBone);
+    scene.commit();
+    std::mt19937 rng(11);
+    std::normal_distribution<double> n;
+    int hits = 0;
+    for (int k = 0; k < 60; ++k) {
+        const Eigen::Vector3d proxy = c + r0 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized();
+        const Eigen::Vector3d target = c + aim * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized();
+        const RayBundle b = bundleAt(proxy, target, 8, 2 * r0);
+        for (MeshTraceMode mode : {MeshTraceMode::Loop1, MeshTraceMode::Stream1M}) {
+            BundleHits h;
+            traceBundle(scene, b, kMaskAll, h, mode);
+            ASSERT_EQ(h.count, 25);
+            for (int r = 0; r < h.count; ++r) {
+                const auto i = static_cast<std::size_t>(r);
+                const Eigen::Vector3d o(b.ox[i], b.oy[i], b.oz[i]), d(b.dx[i], b.dy[i], b.dz[i]);
+                if (inside(o)) continue;
+                const double e = exact(o, d);
+                if (!(e <= 2 * r0)) {
+                    EXPECT_FALSE(h.hit[i]);
+                    continue;
+                }
+                ASSERT_TRUE(h.hit[i]) << "bundle " << k << " ray " << r;
+                EXPECT_NEAR(h.t[i], e, 1e-6);
+                ++hits;
+            }
+        }
+    }
+    EXPECT_GT(hits, 500);
+}
+
+TEST(EmbreeScene, PlaneBoxAndSphereHitsWithinAMicrometre) {
+    const palp::test::Plane plane{Eigen::Vector3d(0.2, -0.3, 1.0).normalized(), 0.7e-3};
+    checkMeshAgainst(planeMesh(plane.n, plane.c * plane.n, 0.1),
+                     [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) { return plane.hit(o, d); },
+                     [&](const Eigen::Vector3d& o) { return plane.sdf(o) <= 0; },
+                     Eigen::Vector3d::Zero(), 8e-3, 4e-3);
+    const palp::test::Box box{Eigen::Vector3d(0.1e-3, 0.2e-3, -0.3e-3), Eigen::Vector3d(5e-3, 4e-3, 3.5e-3)};
+    checkMeshAgainst(boxMesh(box), [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) { return box.hit(o, d); },
+                     [&](const Eigen::Vector3d& o) { return box.sdf(o) <= 0; },
+                     box.centre, 10e-3, 3e-3);
+    const palp::test::Sphere s{Eigen::Vector3d(0.13e-3, -0.21e-3, 0.07e-3), 6e-3};
+    const TriangleMesh ico = icosphere(s, 3);
+    checkMeshAgainst(ico, [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) { return bruteForceHit(ico, o, d, 1.0); },
+                     [&](const Eigen::Vector3d& o) { return s.sdf(o) <= 0; },
+                     s.centre, 9.5e-3, 4e-3);
+}
+
+// The same shape as a volume and as a mesh (analytic and iso-surface) agrees within half a voxel.
+TEST(EmbreeScene, VolumeAndMeshAgreeWithinHalfAVoxel) {
+    const palp::test::Sphere s{Eigen::Vector3d(0.13e-3, -0.21e-3, 0.07e-3), 6e-3};
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); }, {-20, -20, -20},
+                                        {20, 20, 20});
+    const VolumeView view(grid);
+    EmbreeScene analytic, iso;
+    analytic.addRigidMesh(icosphere(s, 5));
+    analytic.commit();
+    const TriangleMesh isoMesh = isoSurface(*grid, palp::test::kIso);
+    ASSERT_GT(isoMesh.triangleCount(), 1000u);
+    iso.addRigidMesh(isoMesh);
+    iso.commit();
+    FirstHitParams fp;
+    fp.threshold = palp::test::kIso;
+    std::mt19937 rng(13);
+    std::normal_distribution<double> n;
+    int compared = 0;
+    for (int k = 0; k < 40; ++k) {
+        const Eigen::Vector3d proxy = s.centre + 9.5e-3 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized();
+        const RayBundle b = bundleAt(proxy, s.centre, 8);
+        BundleHits hv, ha, hi;
+        traceFirstHit(view, b, fp, hv);
+        traceBundle(analytic, b, kMaskAll, ha);
+        traceBundle(iso, b, kMaskAll, hi);
+        for (int r = 0; r < b.count; ++r) {
+            const auto i = static_cast<std::size_t>(r);
+            ASSERT_TRUE(hv.hit[i] && ha.hit[i] && hi.hit[i]);
+            EXPECT_NEAR(hv.t[i], ha.t[i], 0.5 * kVoxel);
+            EXPECT_NEAR(hv.t[i], hi.t[i], 0.5 * kVoxel);
+            ++compared;
+        }
+    }
+    EXPECT_EQ(compared, 40 * 25);
+}
+
+TEST(EmbreeScene, MasksSelectCategoriesAndRefitMovesADeformingMesh) {
+    EmbreeScene scene;
+    const unsigned bone = scene.addRigidMesh(planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -6e-3), 0.05), kMaskBone);
+    const unsigned plate = scene.addRigidMesh(planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -4e-3), 0.05), kMaskPlate);
+    TriangleMesh skin = planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -2e-3), 0.05);
+    const unsigned surf = scene.addDeformingMesh(skin, kMaskSurface);
+    scene.commit();
+    EXPECT_EQ(scene.triangleCount(), 6u);
+    const RayBundle b = bundleAt(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 0, -1));
+    BundleHits h;
+    traceBundle(scene, b, kMaskBone, h);
+    EXPECT_NEAR(h.t[0], 6e-3, 1e-7);
+    EXPECT_EQ(h.geomId[0], bone);
+    traceBundle(scene, b, kMaskBone | kMaskPlate, h);
+    EXPECT_NEAR(h.t[0], 4e-3, 1e-7);
+    EXPECT_EQ(h.geomId[0], plate);
+    traceBundle(scene, b, kMaskAll, h);
+    EXPECT_NEAR(h.t[0], 2e-3, 1e-7);
+    EXPECT_EQ(h.geomId[0], surf);
+    // Push the skin down to -3 mm and refit.
+    for (std::size_t v = 0; v < skin.vertexCount(); ++v) skin.positions[3 * v + 2] = -3e-3f;
+    EXPECT_TRUE(scene.updateVertices(surf, skin.positions));
+    EXPECT_FALSE(scene.updateVertices(bone, skin.positions));  // rigid
+    EXPECT_FALSE(scene.updateVertices(surf, std::span<const float>(skin.positions).first(3)));
+    scene.commit();
+    traceBundle(scene, b, kMaskSurface, h);
+    EXPECT_NEAR(h.t[0], 3e-3, 1e-7);
+    // Nothing in the mask: no hit, t is the ray length.
+    traceBundle(scene, b, 8u, h);
+    EXPECT_FALSE(h.hit[0]);
+    EXPECT_FLOAT_EQ(h.t[0], b.length[0]);
+}
+
+TEST(EmbreeScene, DegenerateInputAndNoAllocation) {
+    EmbreeScene empty;
+    const RayBundle b = bundleAt(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 0, -1));
+    BundleHits h;
+    traceBundle(empty, b, kMaskAll, h);  // not committed, empty
+    EXPECT_EQ(h.count, 17);
+    EXPECT_FALSE(h.hit[0]);
+    empty.commit();
+    traceBundle(empty, b, kMaskAll, h, MeshTraceMode::Stream1M);
+    EXPECT_FALSE(h.hit[0]);
+    EXPECT_THROW(empty.addRigidMesh(TriangleMesh{}), palp::ValueError);
+    TriangleMesh bad = planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d::Zero(), 1);
+    bad.indices[2] = 99;
+    EXPECT_THROW(empty.addRigidMesh(bad), palp::ValueError);
+
+    EmbreeScene scene;
+    scene.addRigidMesh(planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -5e-3), 0.05));
+    scene.commit();
+    RayBundle invalid;
+    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(std::nan(""), 0, 0), Eigen::Vector3d::UnitX(),
+                   Eigen::Vector3d::UnitY(), BundleParams{}, invalid);
+    traceBundle(scene, invalid, kMaskAll, h);
+    EXPECT_EQ(h.count, 0);
+    // Zero length: no hit.
+    BundleParams zp;
+    zp.length = 0;
+    RayBundle z;
+    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, -1), Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), zp, z);
+    traceBundle(scene, z, kMaskAll, h);
+    EXPECT_FALSE(h.hit[0]);
+    // Huge length: a hit.
+    zp.length = 1e30;
+    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, -1), Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), zp, z);
+    traceBundle(scene, z, kMaskAll, h);
+    EXPECT_NEAR(h.t[0], 5e-3, 1e-7);
+    // No allocation per frame.
+    int hits = 0;
+    const std::uint64_t before = palp::test::allocationCount();
+    for (int frame = 0; frame < 200; ++frame) {
+        const RayBundle fb = bundleAt(Eigen::Vector3d(frame * 1e-5, 0, 0), Eigen::Vector3d(frame * 1e-5, 0, -1), 8);
+        traceBundle(scene, fb, kMaskAll, h, MeshTraceMode::Loop1);
+        hits += h.hit[0];
+        traceBundle(scene, fb, kMaskAll, h, MeshTraceMode::Stream1M);
+        hits += h.hit[0];
+    }
+    EXPECT_EQ(palp::test::allocationCount() - before, 0u);
+    EXPECT_EQ(hits, 400);
+}
+
+TEST(MeshIo, ObjStlPlyRoundTrip) {
+    palp::test::TempDir dir;
+    const TriangleMesh box = boxMesh({Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(0.5, 0.25, 1)});
+    saveObj(box, dir / "box.obj");
+    {
+        std::ofstream stl(dir / "box.stl");
+        stl << "solid box\n";
+        for (std::size_t t = 0; t < box.triangleCount(); ++t) {
+            stl << "facet normal 0 0 0\nouter loop\n";
+            for (int k = 0; k < 3; ++k) {
+                const std::uint32_t v = box.indices[3 * t + static_cast<std::size_t>(k)];
+                stl << "vertex " << box.positions[3 * v] << ' ' << box.positions[3 * v + 1] << ' '
+                    << box.positions[3 * v + 2] << '\n';
+            }
+            stl << "endloop\nendfacet\n";
+        }
+        stl << "endsolid box\n";
+        std::ofstream ply(dir / "box.ply");
+        ply << "ply\nformat ascii 1.0\nelement vertex " << box.vertexCount()
+            << "\nproperty float x\nproperty float y\nproperty float z\nelement face " << box.triangleCount()
+            << "\nproperty list uchar int vertex_indices\nend_header\n";
+        for (std::size_t v = 0; v < box.vertexCount(); ++v)
+            ply << box.positions[3 * v] << ' ' << box.positions[3 * v + 1] << ' ' << box.positions[3 * v + 2] << '\n';
+        for (std::size_t t = 0; t < box.triangleCount(); ++t)
+            ply << "3 " << box.indices[3 * t] << ' ' << box.indices[3 * t + 1] << ' ' << box.indices[3 * t + 2] << '\n';
+    }
+    for (const char* name : {"box.obj", "box.stl", "box.ply"}) {
+        const TriangleMesh m = loadMesh(dir / name, 1e-3);  // millimetres
+        EXPECT_EQ(m.triangleCount(), 12u) << name;
+        // Every loaded vertex is a box corner scaled to metres.
+        for (std::size_t v = 0; v < m.vertexCount(); ++v) {
+            const Eigen::Vector3d p(m.positions[3 * v], m.positions[3 * v + 1], m.positions[3 * v + 2]);
+            const Eigen::Vector3d q = (p * 1e3 - Eigen::Vector3d(1, 2, 3)).cwiseAbs();
+            EXPECT_NEAR(q.x(), 0.5, 1e-5) << name;
+            EXPECT_NEAR(q.y(), 0.25, 1e-5) << name;
+            EXPECT_NEAR(q.z(), 1.0, 1e-5) << name;
+        }
+    }
+    EXPECT_THROW(loadMesh(dir / "missing.stl"), palp::IoError);
+    { std::ofstream junk(dir / "junk.ply"); junk << "not a mesh"; }
+    EXPECT_THROW(loadMesh(dir / "junk.ply"), palp::FormatError);
+}
+
+// The batch API equals the single-thread path, for volumes and meshes (run under tsan too).
+TEST(RayBatch, ParallelEqualsSingleThread) {
+    const palp::test::Sphere s{Eigen::Vector3d(0, 0, 0), 6e-3};
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); }, {-20, -20, -20},
+                                        {20, 20, 20});
+    const VolumeView view(grid);
+    EmbreeScene scene;
+    scene.addRigidMesh(icosphere(s, 3));
+    scene.commit();
+    std::mt19937 rng(17);
+    std::normal_distribution<double> n;
+    std::vector<RayBundle> bundles(400);
+    for (auto& b : bundles)
+        b = bundleAt(9e-3 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized(),
+                     3e-3 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized(), 8);
+    FirstHitParams fp;
+    fp.threshold = palp::test::kIso;
+    AccumulateParams ap;
+    ap.sigma = TransferFunction::step(200.0f, 3000.0f);
+    std::vector<BundleHits> v1(bundles.size()), vN(bundles.size()), m1(bundles.size()), mN(bundles.size());
+    std::vector<BundleAccumulation> a1(bundles.size()), aN(bundles.size());
+    for (std::size_t i = 0; i < bundles.size(); ++i) {
+        traceFirstHit(view, bundles[i], fp, v1[i]);
+        traceAccumulate(view, bundles[i], ap, a1[i]);
+        traceBundle(scene, bundles[i], kMaskAll, m1[i]);
+    }
+    tbb::task_arena arena(2);
+    arena.execute([&] {
+        traceFirstHitBatch(view, bundles, fp, vN);
+        traceAccumulateBatch(view, bundles, ap, aN);
+        traceMeshBatch(scene, bundles, kMaskAll, mN);
+    });
+    int hits = 0;
+    for (std::size_t i = 0; i < bundles.size(); ++i) {
+        ASSERT_EQ(vN[i].count, 25);
+        for (std::size_t r = 0; r < 25; ++r) {
+            EXPECT_EQ(v1[i].t[r], vN[i].t[r]);
+            EXPECT_EQ(v1[i].hit[r], vN[i].hit[r]);
+            EXPECT_EQ(a1[i].t[r], aN[i].t[r]);
+            EXPECT_EQ(a1[i].integral[r], aN[i].integral[r]);
+            EXPECT_EQ(m1[i].t[r], mN[i].t[r]);
+            EXPECT_EQ(m1[i].hit[r], mN[i].hit[r]);
+            hits += vN[i].hit[r];
+        }
+    }
+    EXPECT_GT(hits, 1000);
+    std::vector<BundleHits> small(3);
+    EXPECT_THROW(traceFirstHitBatch(view, bundles, fp, small), palp::ValueError);
+}
+
+}  // namespace
