@@ -489,8 +489,9 @@ void checkComplete(const Header& h, const gdcm::File& file, int cols, int rows, 
     headerReader.SetFileName(name.c_str());
     const std::set<gdcm::Tag> skip{kPixelData};
     if (!headerReader.ReadUpToTag(kPixelData, skip)) return;
+    // Reading up to a skipped tag leaves the stream at the start of that element's value.
     const std::uint64_t start = headerReader.GetStreamCurrentPosition();
-    const std::uint64_t end = start + (ts.IsExplicit() ? 12u : 8u) + static_cast<std::uint64_t>(vl);
+    const std::uint64_t end = start + static_cast<std::uint64_t>(static_cast<std::uint32_t>(vl));
     if (end > size) {
         throw FormatError(name + ": expected complete pixel data of " + pixelDescription(cols, rows, bits) +
                           " (" + std::to_string(static_cast<std::uint32_t>(vl)) + " bytes ending at byte " +
