@@ -4,6 +4,7 @@
 #include <gdcmImageReader.h>
 #include <gdcmReader.h>
 #include <gdcmScanner.h>
+#include <gdcmSequenceOfFragments.h>
 #include <gdcmTag.h>
 #include <gdcmTrace.h>
 #include <gdcmTransferSyntax.h>
@@ -466,10 +467,11 @@ std::string pixelDescription(int cols, int rows, int bits) {
                       ", found a truncated or corrupt file (" + sizeText + ")");
 }
 
-/// GDCM accepts a file whose native (uncompressed) pixel data is cut short, with only a
-/// warning, and pads it. Find where the Pixel Data element starts and refuse a file that ends
-/// before its declared length. Encapsulated (compressed) data is left to the decoder, and
-/// deflated files cannot be checked this way (their offsets are in the inflated stream).
+/// GDCM accepts a file whose pixel data is cut short, with only a warning, and pads it (and
+/// some codecs then decode the padding without complaint). Find where the Pixel Data value
+/// starts and refuse a file that ends before its declared length. Deflated files cannot be
+/// checked this way (their offsets are in the inflated stream); a truncated deflate stream
+/// fails to parse instead.
 void checkComplete(const Header& h, const gdcm::File& file, int cols, int rows, int bits) {
     const gdcm::DataSet& ds = file.GetDataSet();
     const std::string name = h.path.string();
@@ -477,10 +479,18 @@ void checkComplete(const Header& h, const gdcm::File& file, int cols, int rows, 
         throw FormatError(name + ": expected Pixel Data (7fe0,0010) of " + pixelDescription(cols, rows, bits) +
                           ", found none");
     }
-    const gdcm::VL vl = ds.GetDataElement(kPixelData).GetVL();
+    const gdcm::DataElement& pixels = ds.GetDataElement(kPixelData);
     const gdcm::TransferSyntax& ts = file.GetHeader().GetDataSetTransferSyntax();
-    if (vl.IsUndefined() || ts.IsEncapsulated() || ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) {
-        return;
+    if (ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) return;
+    // Bytes of the element's value as declared: the plain length, or for encapsulated data the
+    // offset table, every fragment (with item headers) and the delimiter.
+    std::uint64_t declared = 0;
+    if (pixels.GetVL().IsUndefined()) {
+        const gdcm::SequenceOfFragments* fragments = pixels.GetSequenceOfFragments();
+        if (!fragments) return;
+        declared = static_cast<std::uint32_t>(fragments->ComputeLength());
+    } else {
+        declared = static_cast<std::uint32_t>(pixels.GetVL());
     }
     std::error_code ec;
     const auto size = fs::file_size(h.path, ec);
@@ -491,10 +501,10 @@ void checkComplete(const Header& h, const gdcm::File& file, int cols, int rows, 
     if (!headerReader.ReadUpToTag(kPixelData, skip)) return;
     // Reading up to a skipped tag leaves the stream at the start of that element's value.
     const std::uint64_t start = headerReader.GetStreamCurrentPosition();
-    const std::uint64_t end = start + static_cast<std::uint64_t>(static_cast<std::uint32_t>(vl));
+    const std::uint64_t end = start + declared;
     if (end > size) {
         throw FormatError(name + ": expected complete pixel data of " + pixelDescription(cols, rows, bits) +
-                          " (" + std::to_string(static_cast<std::uint32_t>(vl)) + " bytes ending at byte " +
+                          " (" + std::to_string(declared) + " bytes ending at byte " +
                           std::to_string(end) + "), found a truncated file of " + std::to_string(size) + " bytes");
     }
 }
