@@ -121,9 +121,8 @@ Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
             target->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
             openvdb::tools::resampleToMatch<openvdb::tools::BoxSampler>(*v.grid, *target);
             if (ro.crop) {
-                const openvdb::BBoxd box(openvdb::Vec3d(ro.crop->min.data()), openvdb::Vec3d(ro.crop->max.data()));
-                const openvdb::CoordBBox ibox = target->transform().worldToIndexNodeCentered(box);
-                target->clipGrid(target->transform().indexToWorld(ibox));
+                target->clipGrid(openvdb::BBoxd(openvdb::Vec3d(ro.crop->min.data()),
+                                                openvdb::Vec3d(ro.crop->max.data())));
             }
             Volume out{target, v.info};
             writeInfo(out.info, *target);
