@@ -4,6 +4,7 @@
 #include <gdcmImageReader.h>
 #include <gdcmReader.h>
 #include <gdcmScanner.h>
+#include <gdcmSequenceOfItems.h>
 #include <gdcmSequenceOfFragments.h>
 #include <gdcmTag.h>
 #include <gdcmTrace.h>
@@ -536,18 +537,38 @@ void convertPixels(const char* raw, std::size_t count, int bitsStored, int highB
     }
 }
 
-/// Decodes one single-frame image into @p slice (values rescaled with the file's own slope and
-/// intercept). Geometry is filled by the caller.
-void decodeSlice(const Header& h, Slice& slice) {
+/// Converts one frame of @p pf pixels at @p raw to rescaled floats.
+void convertFrame(const std::string& file, const char* raw, const gdcm::PixelFormat& pf, std::size_t count,
+                  double slope, double intercept, std::vector<float>& out) {
+    const int bitsStored = pf.GetBitsStored();
+    const int highBit = pf.GetHighBit();
+    const bool isSigned = pf.GetPixelRepresentation() == 1;
+    switch (pf.GetScalarType()) {
+        case gdcm::PixelFormat::UINT8: convertPixels<std::uint8_t>(raw, count, bitsStored, highBit, false, slope, intercept, out); break;
+        case gdcm::PixelFormat::INT8: convertPixels<std::int8_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, out); break;
+        case gdcm::PixelFormat::UINT16: convertPixels<std::uint16_t>(raw, count, bitsStored, highBit, false, slope, intercept, out); break;
+        case gdcm::PixelFormat::INT16: convertPixels<std::int16_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, out); break;
+        case gdcm::PixelFormat::UINT32: convertPixels<std::uint32_t>(raw, count, bitsStored, highBit, false, slope, intercept, out); break;
+        case gdcm::PixelFormat::INT32: convertPixels<std::int32_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, out); break;
+        case gdcm::PixelFormat::FLOAT32: convertPixels<float>(raw, count, 0, 0, true, slope, intercept, out); break;
+        case gdcm::PixelFormat::FLOAT64: convertPixels<double>(raw, count, 0, 0, true, slope, intercept, out); break;
+        default:
+            throw FormatError(file + ": expected 8, 16 or 32-bit integer or float pixels, found " +
+                              std::string(pf.GetScalarTypeAsString()));
+    }
+}
+
+/// Reads @p h with @p reader and decodes all of its @p frames frames into @p buffer, checking
+/// the result against the header's Rows and Columns.
+void decodeFile(const Header& h, int frames, gdcm::ImageReader& reader, std::vector<char>& buffer) {
     const std::string file = h.path.string();
     const int rows = h.integer(kRows, 0);
     const int cols = h.integer(kColumns, 0);
-    gdcm::ImageReader reader;
     reader.SetFileName(file.c_str());
     if (!reader.Read()) throwUnreadable(h);
     const gdcm::Image& image = reader.GetImage();
-    checkComplete(h, reader.GetFile(), cols, rows, image.GetPixelFormat().GetBitsAllocated());
     const gdcm::PixelFormat& pf = image.GetPixelFormat();
+    checkComplete(h, reader.GetFile(), cols, rows, pf.GetBitsAllocated());
     if (pf.GetSamplesPerPixel() != 1) {
         throw FormatError(file + ": expected a grayscale image (1 sample per pixel), found " +
                           std::to_string(pf.GetSamplesPerPixel()) + " samples per pixel (" +
@@ -558,15 +579,16 @@ void decodeSlice(const Header& h, Slice& slice) {
                           " pixels as the header says, found " + std::to_string(image.GetDimension(0)) + "x" +
                           std::to_string(image.GetDimension(1)) + " decoded");
     }
-    const std::size_t count = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols);
+    const std::size_t count = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols) *
+                              static_cast<std::size_t>(frames);
     const std::size_t pixelBytes = pf.GetPixelSize();
     const unsigned long length = image.GetBufferLength();
-    if (pixelBytes == 0 || length < count * pixelBytes) {
+    if (pixelBytes == 0 || length < count * pixelBytes || length > 2 * count * pixelBytes) {
         throw FormatError(file + ": expected pixel data of " + pixelDescription(cols, rows, pf.GetBitsAllocated()) +
-                          ", found " + std::to_string(length) + " bytes");
+                          (frames > 1 ? " x " + std::to_string(frames) + " frames" : std::string()) + ", found " +
+                          std::to_string(length) + " bytes");
     }
-    // A decoded buffer of the exact size, and no more: only the first frame is used.
-    std::vector<char> buffer(length);
+    buffer.resize(length);
     if (!image.GetBuffer(buffer.data())) {
         const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
         const char* tsName = gdcm::TransferSyntax::GetTSString(ts);
@@ -575,31 +597,203 @@ void decodeSlice(const Header& h, Slice& slice) {
                           (tsName ? std::string(tsName) : std::string("unknown")) +
                           "), found a truncated file or data that cannot be decoded");
     }
-    const double slope = h.number(kRescaleSlope).value_or(1.0);
+}
+
+double checkedSlope(const std::string& file, const std::optional<double>& slope, const std::string& text) {
+    if (slope && *slope == 0) {
+        throw FormatError(file + ": expected a non-zero Rescale Slope (0028,1053), found '" + text + "'");
+    }
+    return slope.value_or(1.0);
+}
+
+/// Decodes one single-frame image into @p slice (values rescaled with the file's own slope and
+/// intercept). Geometry is filled by the caller.
+void decodeSlice(const Header& h, Slice& slice) {
+    const std::string file = h.path.string();
+    const double slope = checkedSlope(file, h.number(kRescaleSlope), h.text(kRescaleSlope));
     const double intercept = h.number(kRescaleIntercept).value_or(0.0);
-    if (slope == 0) {
-        throw FormatError(file + ": expected a non-zero Rescale Slope (0028,1053), found '" + h.text(kRescaleSlope) + "'");
-    }
-    const int bitsStored = pf.GetBitsStored();
-    const int highBit = pf.GetHighBit();
-    const bool isSigned = pf.GetPixelRepresentation() == 1;
-    const char* raw = buffer.data();
-    switch (pf.GetScalarType()) {
-        case gdcm::PixelFormat::UINT8: convertPixels<std::uint8_t>(raw, count, bitsStored, highBit, false, slope, intercept, slice.values); break;
-        case gdcm::PixelFormat::INT8: convertPixels<std::int8_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, slice.values); break;
-        case gdcm::PixelFormat::UINT16: convertPixels<std::uint16_t>(raw, count, bitsStored, highBit, false, slope, intercept, slice.values); break;
-        case gdcm::PixelFormat::INT16: convertPixels<std::int16_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, slice.values); break;
-        case gdcm::PixelFormat::UINT32: convertPixels<std::uint32_t>(raw, count, bitsStored, highBit, false, slope, intercept, slice.values); break;
-        case gdcm::PixelFormat::INT32: convertPixels<std::int32_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, slice.values); break;
-        case gdcm::PixelFormat::FLOAT32: convertPixels<float>(raw, count, 0, 0, true, slope, intercept, slice.values); break;
-        case gdcm::PixelFormat::FLOAT64: convertPixels<double>(raw, count, 0, 0, true, slope, intercept, slice.values); break;
-        default:
-            throw FormatError(file + ": expected 8, 16 or 32-bit integer or float pixels, found " +
-                              std::string(pf.GetScalarTypeAsString()));
-    }
-    slice.cols = cols;
-    slice.rows = rows;
+    gdcm::ImageReader reader;
+    std::vector<char> buffer;
+    decodeFile(h, 1, reader, buffer);
+    slice.cols = h.integer(kColumns, 0);
+    slice.rows = h.integer(kRows, 0);
     slice.source = file;
+    const std::size_t count = static_cast<std::size_t>(slice.rows) * static_cast<std::size_t>(slice.cols);
+    convertFrame(file, buffer.data(), reader.GetImage().GetPixelFormat(), count, slope, intercept, slice.values);
+}
+
+// Enhanced (functional group) multi-frame tags.
+const gdcm::Tag kSharedGroups(0x5200, 0x9229);
+const gdcm::Tag kPerFrameGroups(0x5200, 0x9230);
+const gdcm::Tag kPixelMeasuresSequence(0x0028, 0x9110);
+const gdcm::Tag kPlanePositionSequence(0x0020, 0x9113);
+const gdcm::Tag kPlaneOrientationSequence(0x0020, 0x9116);
+const gdcm::Tag kValueTransformSequence(0x0028, 0x9145);
+
+std::optional<std::string> elementText(const gdcm::DataSet& ds, const gdcm::Tag& t) {
+    if (!ds.FindDataElement(t)) return std::nullopt;
+    const gdcm::ByteValue* bv = ds.GetDataElement(t).GetByteValue();
+    if (!bv) return std::nullopt;
+    std::string s = trim(std::string(bv->GetPointer(), bv->GetLength()));
+    if (s.empty()) return std::nullopt;
+    return s;
+}
+
+/// Copies position, orientation, spacing and rescale of one functional group item into @p h.
+void applyFunctionalGroup(const gdcm::DataSet& group, Header& h) {
+    const std::pair<gdcm::Tag, gdcm::Tag> wanted[] = {{kPixelMeasuresSequence, kPixelSpacing},
+                                                      {kPlanePositionSequence, kImagePosition},
+                                                      {kPlaneOrientationSequence, kImageOrientation},
+                                                      {kValueTransformSequence, kRescaleSlope},
+                                                      {kValueTransformSequence, kRescaleIntercept}};
+    for (const auto& [sequence, tag] : wanted) {
+        if (!group.FindDataElement(sequence)) continue;
+        const gdcm::SmartPointer<gdcm::SequenceOfItems> items = group.GetDataElement(sequence).GetValueAsSQ();
+        if (!items || items->GetNumberOfItems() == 0) continue;
+        if (auto v = elementText(items->GetItem(1).GetNestedDataSet(), tag)) h.values[tag] = *v;
+    }
+}
+
+/// The time point to read, checked against @p count; -1 for a 3D source without a choice.
+int chooseTimePoint(const std::string& name, int count, const LoadOptions& options) {
+    if (count > 1 && !options.timePoint) {
+        throw ValueError(name + ": expected --volume N to choose one of the " + std::to_string(count) +
+                         " time points (0-" + std::to_string(count - 1) + "), found none");
+    }
+    if (!options.timePoint) return -1;
+    const int t = *options.timePoint;
+    if (t < 0 || t >= count) {
+        throw ValueError(name + ": expected --volume between 0 and " + std::to_string(count - 1) + " (" +
+                         std::to_string(count) + " time point" + (count > 1 ? "s" : "") + "), found " +
+                         std::to_string(t));
+    }
+    return t;
+}
+
+/// Groups @p images by position and checks that every position holds the same number.
+std::vector<std::vector<const Header*>> positionGroups(const std::string& name, const std::vector<const Header*>& images,
+                                                       const FileGeometry& first) {
+    const Eigen::Vector3d normal = first.rowCosine.cross(first.columnCosine).normalized();
+    const double tolMm = 0.02 * std::min(first.rowSpacing, first.columnSpacing);
+    std::vector<std::vector<const Header*>> positions = groupPositions(images, normal, tolMm);
+    const std::size_t timePoints = positions.front().size();
+    for (const auto& grp : positions) {
+        if (grp.size() != timePoints) {
+            const auto& other = grp.size() < timePoints ? grp : positions.front();
+            const double at = positionOf(*other.front())->dot(normal);
+            throw ValueError(name + ": expected the same number of images at every slice position (" +
+                             std::to_string(timePoints) + " at the first), found " + std::to_string(other.size()) +
+                             " at position " + std::to_string(at) + " mm along the normal (e.g. " +
+                             other.front()->path.string() + "); the series is incomplete or mixes acquisitions");
+        }
+    }
+    return positions;
+}
+
+void checkMemory(const std::string& name, int cols, int rows, std::size_t slices, std::uint64_t limit) {
+    const long double bytes = static_cast<long double>(rows) * cols * static_cast<long double>(slices) * 4.0L;
+    if (bytes > static_cast<long double>(limit)) {
+        throw ValueError(name + ": expected at most " + std::to_string(limit) + " bytes of decoded slices, found " +
+                         std::to_string(cols) + "x" + std::to_string(rows) + "x" + std::to_string(slices) +
+                         " pixels (" + std::to_string(static_cast<unsigned long long>(bytes)) + " bytes as float)");
+    }
+}
+
+void setGeometry(const FileGeometry& g, Slice& s) {
+    s.position = g.position * 1e-3;
+    s.colStep = g.rowCosine * (g.columnSpacing * 1e-3);
+    s.rowStep = g.columnCosine * (g.rowSpacing * 1e-3);
+}
+
+void fillInfo(VolumeInfo& info, const Header& first, const std::vector<fs::path>& inputs, const std::string& uid,
+              std::size_t positions, int timePoint, int timePointCount, bool rescaleVaries) {
+    info.modality = first.text(kModality);
+    info.valueUnits = info.modality == "CT" ? "HU" : "";
+    info.sourceFormat = "DICOM";
+    info.sourceDescription = first.text(kSeriesDescription);
+    if (info.sourceDescription.empty()) {
+        const fs::path in = inputs.front();
+        info.sourceDescription = (in.has_filename() ? in.filename() : in.parent_path().filename()).string();
+    }
+    if (rescaleVaries) info.sourceDescription += " (rescale slope/intercept vary per slice; applied per slice)";
+    info.seriesUid = uid;
+    info.originalDims = {first.integer(kColumns, 0), first.integer(kRows, 0), static_cast<std::int64_t>(positions)};
+    info.rescaleSlope = first.number(kRescaleSlope).value_or(1.0);
+    info.rescaleIntercept = first.number(kRescaleIntercept).value_or(0.0);
+    info.gantryTiltDeg = first.number(kGantryTilt).value_or(0.0);
+    info.timePoint = timePointCount > 1 ? timePoint : -1;
+    info.timePointCount = timePointCount;
+}
+
+/// One enhanced multi-frame file: every frame's own position from the per-frame functional
+/// groups (so uneven spacing is kept exactly), orientation, spacing and rescale from the
+/// per-frame or shared groups. Repeated positions are time points in frame order.
+SliceStack readMultiFrame(const Header& h, int frames, const std::string& name, const std::string& uid,
+                          const std::vector<fs::path>& inputs, const LoadOptions& options) {
+    const std::string file = h.path.string();
+    const int rows = h.integer(kRows, 0);
+    const int cols = h.integer(kColumns, 0);
+    // All frames are decoded at once, so the whole file counts against the budget.
+    checkMemory(name, cols, rows, static_cast<std::size_t>(frames), options.maxSourceBytes);
+    gdcm::ImageReader reader;
+    std::vector<char> buffer;
+    decodeFile(h, frames, reader, buffer);
+    const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
+    if (!ds.FindDataElement(kPerFrameGroups)) {
+        throw FormatError(file + ": expected a Per-frame Functional Groups Sequence (5200,9230) giving each of the " +
+                          std::to_string(frames) +
+                          " frames its position, found none (legacy multi-frame images are not supported)");
+    }
+    Header base = h;
+    if (ds.FindDataElement(kSharedGroups)) {
+        const auto shared = ds.GetDataElement(kSharedGroups).GetValueAsSQ();
+        if (shared && shared->GetNumberOfItems() > 0) applyFunctionalGroup(shared->GetItem(1).GetNestedDataSet(), base);
+    }
+    const auto perFrame = ds.GetDataElement(kPerFrameGroups).GetValueAsSQ();
+    const std::size_t items = perFrame ? perFrame->GetNumberOfItems() : 0;
+    if (items != static_cast<std::size_t>(frames)) {
+        throw FormatError(file + ": expected " + std::to_string(frames) +
+                          " items in the Per-frame Functional Groups Sequence (5200,9230), found " +
+                          std::to_string(items));
+    }
+    std::vector<Header> frameHeaders(items, base);
+    std::vector<const Header*> framePtrs;
+    for (std::size_t k = 0; k < items; ++k) {
+        applyFunctionalGroup(perFrame->GetItem(k + 1).GetNestedDataSet(), frameHeaders[k]);
+        frameHeaders[k].path = file + " (frame " + std::to_string(k + 1) + ")";
+        framePtrs.push_back(&frameHeaders[k]);
+    }
+    const FileGeometry firstGeometry = geometryOf(frameHeaders.front());
+    for (const Header& fh : frameHeaders) geometryOf(fh);
+    auto positions = positionGroups(name, framePtrs, firstGeometry);
+    const int timePointCount = static_cast<int>(positions.front().size());
+    const int timePoint = chooseTimePoint(name, timePointCount, options);
+
+    const gdcm::PixelFormat& pf = reader.GetImage().GetPixelFormat();
+    const std::size_t count = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols);
+    const std::size_t frameBytes = count * pf.GetPixelSize();
+    SliceStack stack;
+    stack.slices.resize(positions.size());
+    bool rescaleVaries = false;
+    const Header& first = frameHeaders.front();
+    for (std::size_t i = 0; i < positions.size(); ++i) {
+        auto& grp = positions[i];
+        std::sort(grp.begin(), grp.end(), std::less<const Header*>());  // frame order
+        const Header& fh = *grp[static_cast<std::size_t>(std::max(timePoint, 0))];
+        const auto k = static_cast<std::size_t>(&fh - frameHeaders.data());
+        Slice& s = stack.slices[i];
+        setGeometry(geometryOf(fh), s);
+        s.cols = cols;
+        s.rows = rows;
+        s.source = fh.path.string();
+        const double slope = checkedSlope(s.source, fh.number(kRescaleSlope), fh.text(kRescaleSlope));
+        const double intercept = fh.number(kRescaleIntercept).value_or(0.0);
+        convertFrame(file, buffer.data() + k * frameBytes, pf, count, slope, intercept, s.values);
+        rescaleVaries = rescaleVaries || slope != first.number(kRescaleSlope).value_or(1.0) ||
+                        intercept != first.number(kRescaleIntercept).value_or(0.0);
+    }
+    fillInfo(stack.info, first, inputs, uid, positions.size(), timePoint, timePointCount, rescaleVaries);
+    return stack;
 }
 
 std::string seriesName(const Scan& scan, const SeriesGroup& g) {
@@ -631,57 +825,27 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const LoadOptions& opt
                               (h->text(kSopClassUid).empty() ? std::string("unknown") : h->text(kSopClassUid)) +
                               ")");
         }
-        const int frames = h->integer(kNumberOfFrames, 1);
-        if (frames > 1) {
-            throw FormatError(h->path.string() + ": expected single-frame images, found a multi-frame image of " +
-                              std::to_string(frames) +
-                              " frames (multi-frame/enhanced DICOM is not supported; export the series as "
-                              "single-frame files)");
-        }
-    }
-    const std::vector<const Header*>& images = series.images;
-    const Header& first = *images.front();
-    const FileGeometry firstGeometry = geometryOf(first);
-    for (const Header* h : images) {
-        geometryOf(*h);  // every file must carry its geometry; throws naming the file and tag
         if (h->integer(kSamplesPerPixel, 1) != 1) {
             throw FormatError(h->path.string() + ": expected a grayscale image (1 sample per pixel), found " +
                               h->text(kSamplesPerPixel) + " samples per pixel (" + h->text(kPhotometric) +
                               "); colour images are not supported");
         }
+        const int frames = h->integer(kNumberOfFrames, 1);
+        if (frames > 1) {
+            if (series.images.size() == 1) return readMultiFrame(*h, frames, name, series.uid, inputs, options);
+            throw FormatError(h->path.string() + ": expected single-frame images or one multi-frame file, found a "
+                              "multi-frame image of " + std::to_string(frames) + " frames among " +
+                              std::to_string(series.images.size()) + " images of the series");
+        }
     }
-    const Eigen::Vector3d normal = firstGeometry.rowCosine.cross(firstGeometry.columnCosine).normalized();
-    const double tolMm = 0.02 * std::min(firstGeometry.rowSpacing, firstGeometry.columnSpacing);
-    std::vector<std::vector<const Header*>> positions = groupPositions(images, normal, tolMm);
+    const std::vector<const Header*>& images = series.images;
+    const Header& first = *images.front();
+    const FileGeometry firstGeometry = geometryOf(first);
+    for (const Header* h : images) geometryOf(*h);  // every file must carry its geometry
+    std::vector<std::vector<const Header*>> positions = positionGroups(name, images, firstGeometry);
+    const int timePointCount = static_cast<int>(positions.front().size());
+    const int timePoint = chooseTimePoint(name, timePointCount, options);
 
-    // Time points: every position must hold the same number of images.
-    const std::size_t timePoints = positions.front().size();
-    for (const auto& grp : positions) {
-        if (grp.size() != timePoints) {
-            const auto& other = grp.size() < timePoints ? grp : positions.front();
-            const double at = positionOf(*other.front())->dot(normal);
-            throw ValueError(name + ": expected the same number of images at every slice position (" +
-                             std::to_string(timePoints) + " at the first), found " + std::to_string(other.size()) +
-                             " at position " + std::to_string(at) + " mm along the normal (e.g. " +
-                             other.front()->path.string() + "); the series is incomplete or mixes acquisitions");
-        }
-    }
-    const int timePointCount = static_cast<int>(timePoints);
-    int timePoint = -1;
-    if (timePointCount > 1) {
-        if (!options.timePoint) {
-            throw ValueError(name + ": expected --volume N to choose one of the " + std::to_string(timePointCount) +
-                             " time points (0-" + std::to_string(timePointCount - 1) + "), found none");
-        }
-        timePoint = *options.timePoint;
-    } else if (options.timePoint) {
-        timePoint = *options.timePoint;
-    }
-    if (options.timePoint && (timePoint < 0 || timePoint >= timePointCount)) {
-        throw ValueError(name + ": expected --volume between 0 and " + std::to_string(timePointCount - 1) + " (" +
-                         std::to_string(timePointCount) + " time point" + (timePointCount > 1 ? "s" : "") +
-                         "), found " + std::to_string(timePoint));
-    }
     const TimeOrder order(images);
     std::vector<const Header*> chosen;
     for (auto& grp : positions) {
@@ -693,15 +857,7 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const LoadOptions& opt
     }
 
     // Refuse before decoding anything that would not fit the memory budget.
-    const int rows = first.integer(kRows, 0);
-    const int cols = first.integer(kColumns, 0);
-    const long double bytes = static_cast<long double>(rows) * cols * static_cast<long double>(chosen.size()) * 4.0L;
-    if (bytes > static_cast<long double>(options.maxSourceBytes)) {
-        throw ValueError(name + ": expected at most " + std::to_string(options.maxSourceBytes) +
-                         " bytes of decoded slices, found " + std::to_string(cols) + "x" + std::to_string(rows) +
-                         "x" + std::to_string(chosen.size()) + " pixels (" +
-                         std::to_string(static_cast<unsigned long long>(bytes)) + " bytes as float)");
-    }
+    checkMemory(name, first.integer(kColumns, 0), first.integer(kRows, 0), chosen.size(), options.maxSourceBytes);
 
     SliceStack stack;
     stack.slices.resize(chosen.size());
@@ -710,33 +866,13 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const LoadOptions& opt
     const double intercept0 = first.number(kRescaleIntercept).value_or(0.0);
     for (std::size_t i = 0; i < chosen.size(); ++i) {
         const Header& h = *chosen[i];
-        const FileGeometry g = geometryOf(h);
         Slice& s = stack.slices[i];
         decodeSlice(h, s);
-        s.position = g.position * 1e-3;
-        s.colStep = g.rowCosine * (g.columnSpacing * 1e-3);
-        s.rowStep = g.columnCosine * (g.rowSpacing * 1e-3);
+        setGeometry(geometryOf(h), s);
         rescaleVaries = rescaleVaries || h.number(kRescaleSlope).value_or(1.0) != slope0 ||
                         h.number(kRescaleIntercept).value_or(0.0) != intercept0;
     }
-
-    VolumeInfo& info = stack.info;
-    info.modality = first.text(kModality);
-    info.valueUnits = info.modality == "CT" ? "HU" : "";
-    info.sourceFormat = "DICOM";
-    info.sourceDescription = first.text(kSeriesDescription);
-    if (info.sourceDescription.empty()) {
-        const fs::path in = inputs.front();
-        info.sourceDescription = (in.has_filename() ? in.filename() : in.parent_path().filename()).string();
-    }
-    if (rescaleVaries) info.sourceDescription += " (rescale slope/intercept vary per slice; applied per slice)";
-    info.seriesUid = series.uid;
-    info.originalDims = {cols, rows, static_cast<std::int64_t>(chosen.size())};
-    info.rescaleSlope = slope0;
-    info.rescaleIntercept = intercept0;
-    info.gantryTiltDeg = first.number(kGantryTilt).value_or(0.0);
-    info.timePoint = timePointCount > 1 ? timePoint : -1;
-    info.timePointCount = timePointCount;
+    fillInfo(stack.info, first, inputs, series.uid, chosen.size(), timePoint, timePointCount, rescaleVaries);
     return stack;
 }
 
