@@ -23,17 +23,24 @@ struct Cell {
     bool finite = false;           // false: non-finite or absurd position (value: background)
 };
 
+/// floor() without a libm call (x86-64 baseline has no SSE4.1 round); |x| < kCoordLimit.
+inline std::int64_t fastFloor(double x) noexcept {
+    const auto i = static_cast<std::int64_t>(x);
+    return i - (x < static_cast<double>(i) ? 1 : 0);
+}
+
 inline void locate(const Table& tb, double x, double y, double z, Cell& c) noexcept {
-    const double fx = std::floor(x), fy = std::floor(y), fz = std::floor(z);
-    c.finite = std::fabs(fx) < kCoordLimit && std::fabs(fy) < kCoordLimit && std::fabs(fz) < kCoordLimit;
+    // Written so that NaN fails the test.
+    c.finite = std::fabs(x) < kCoordLimit && std::fabs(y) < kCoordLimit && std::fabs(z) < kCoordLimit;
     c.block = -1;
     if (!c.finite) return;
-    c.ix = static_cast<std::int64_t>(fx) - tb.origin[0];
-    c.iy = static_cast<std::int64_t>(fy) - tb.origin[1];
-    c.iz = static_cast<std::int64_t>(fz) - tb.origin[2];
-    c.tx = static_cast<float>(x - fx);
-    c.ty = static_cast<float>(y - fy);
-    c.tz = static_cast<float>(z - fz);
+    const std::int64_t fx = fastFloor(x), fy = fastFloor(y), fz = fastFloor(z);
+    c.ix = fx - tb.origin[0];
+    c.iy = fy - tb.origin[1];
+    c.iz = fz - tb.origin[2];
+    c.tx = static_cast<float>(x - static_cast<double>(fx));
+    c.ty = static_cast<float>(y - static_cast<double>(fy));
+    c.tz = static_cast<float>(z - static_cast<double>(fz));
     const std::int64_t bx = c.ix >> 3, by = c.iy >> 3, bz = c.iz >> 3;
     if (c.ix < 0 || c.iy < 0 || c.iz < 0 || bx >= tb.blocks[0] || by >= tb.blocks[1] ||
         bz >= tb.blocks[2])

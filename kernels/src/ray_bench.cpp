@@ -1,0 +1,472 @@
+#include "palp/kernels/ray_bench.h"
+
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/RayIntersector.h>
+#include <pthread.h>
+#include <sched.h>
+#include <tbb/info.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <random>
+#include <thread>
+
+#include "palp/error.h"
+#include "palp/kernels/embree_scene.h"
+#include "palp/kernels/ray_batch.h"
+#include "palp/kernels/volume_ray.h"
+
+namespace palp::kernels {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+TimingStats stats(std::vector<double>& us) {
+    TimingStats s;
+    s.samples = us.size();
+    if (us.empty()) return s;
+    double sum = 0;
+    for (double v : us) sum += v;
+    s.meanUs = sum / static_cast<double>(us.size());
+    std::sort(us.begin(), us.end());
+    const auto i99 = static_cast<std::size_t>(std::ceil(0.99 * static_cast<double>(us.size()))) - 1;
+    s.p99Us = us[std::min(i99, us.size() - 1)];
+    s.maxUs = us.back();
+    return s;
+}
+
+template <class F>
+TimingStats timeFrames(int warmUp, std::size_t frames, F&& frame) {
+    for (int i = 0; i < warmUp; ++i) frame(static_cast<std::size_t>(i) % frames);
+    std::vector<double> us(frames);
+    for (std::size_t f = 0; f < frames; ++f) {
+        const auto t0 = Clock::now();
+        frame(f);
+        const auto t1 = Clock::now();
+        us[f] = std::chrono::duration<double, std::micro>(t1 - t0).count();
+    }
+    return stats(us);
+}
+
+BenchComparison compare(std::string name, std::string subject, std::string baseline, TimingStats a,
+                        TimingStats b) {
+    BenchComparison c;
+    c.name = std::move(name);
+    c.subject = std::move(subject);
+    c.baseline = std::move(baseline);
+    c.a = a;
+    c.b = b;
+    c.ratioMean = a.meanUs > 0 ? b.meanUs / a.meanUs : 0;
+    c.ratioP99 = a.p99Us > 0 ? b.p99Us / a.p99Us : 0;
+    return c;
+}
+
+BundleParams bundleParams(const RayBenchOptions& o) {
+    BundleParams p;
+    p.length = o.length;
+    p.ringCount = o.rays - kBundleRaysWithoutRing;
+    p.ringHalfAngle = 0.1;
+    p.ringWeightSigma = 0.1;
+    p.sobelAngle = 0.05;
+    p.surfaceOffset = 0.5e-3;
+    validateBundleParams(p);
+    return p;
+}
+
+/// Proxy path: a Lissajous curve over the box's middle (about 0.05 mm per frame), rays pointing
+/// mostly along -z with a slow 25 degree wobble.
+std::vector<RayBundle> trajectoryBundles(const openvdb::BBoxd& box, std::size_t frames, const BundleParams& p,
+                                         double topOffset) {
+    std::vector<RayBundle> out(frames);
+    const openvdb::Vec3d c = box.getCenter(), e = box.extents();
+    const double ax = 0.3 * e.x(), ay = 0.3 * e.y();
+    const double z = topOffset > 0 ? box.max().z() - topOffset : c.z();
+    const double w = 0.05e-3 / std::max(1e-6, std::max(ax, ay));  // radians per frame
+    for (std::size_t f = 0; f < frames; ++f) {
+        const double s = static_cast<double>(f) * w;
+        const Eigen::Vector3d proxy(c.x() + ax * std::sin(s), c.y() + ay * std::sin(1.3 * s + 0.4), z);
+        const Eigen::Vector3d d(0.45 * std::cos(7 * s), 0.45 * std::sin(5 * s), -1.0);
+        generateBundle(proxy, d, Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), p, out[f]);
+    }
+    return out;
+}
+
+std::vector<RayBundle> randomBundles(const openvdb::BBoxd& box, std::size_t frames, const BundleParams& p,
+                                     std::uint64_t seed) {
+    std::vector<RayBundle> out(frames);
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> u(0, 1);
+    std::normal_distribution<double> n;
+    for (std::size_t f = 0; f < frames; ++f) {
+        const Eigen::Vector3d proxy(box.min().x() + u(rng) * box.extents().x(), box.min().y() + u(rng) * box.extents().y(),
+                                    box.min().z() + u(rng) * box.extents().z());
+        const Eigen::Vector3d d(n(rng), n(rng), n(rng));
+        generateBundle(proxy, d, Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), p, out[f]);
+    }
+    return out;
+}
+
+/// The baseline: OpenVDB's VolumeRayIntersector spans, sampled with BoxSampler through a
+/// ValueAccessor at the same fixed step (samples on the same lattice t_k = k step), refined by
+/// linear interpolation.
+struct OpenVdbBaseline {
+    using Intersector = openvdb::tools::VolumeRayIntersector<openvdb::FloatGrid>;
+    explicit OpenVdbBaseline(const openvdb::FloatGrid& grid) : inter(grid), acc(grid.getConstAccessor()),
+                                                               voxel(grid.voxelSize()[0]) {}
+    Intersector inter;
+    openvdb::FloatGrid::ConstAccessor acc;
+    double voxel;
+
+    float trace(const RayBundle& b, std::size_t r, double step, float thr, bool& hit) {
+        hit = false;
+        const openvdb::Vec3d eye(b.ox[r], b.oy[r], b.oz[r]), dir(b.dx[r], b.dy[r], b.dz[r]);
+        const double len = b.length[r];
+        const openvdb::math::Ray<double> wray(eye, dir.unit(), 0.0, len);  // finite t1 (openvdb#1710)
+        if (!inter.setWorldRay(wray)) return static_cast<float>(len);
+        const double si = step / voxel, leni = len / voxel;
+        double t0 = 0, t1 = 0;
+        while (inter.march(t0, t1)) {
+            double k = std::ceil(t0 / si);
+            double prevT = (k - 1) * si;
+            float prev = openvdb::tools::BoxSampler::sample(acc, inter.getIndexPos(std::max(0.0, prevT)));
+            for (double t = k * si; t <= t1 + 1e-9 && t <= leni + 1e-9; t += si) {
+                const double tc = std::min(t, leni);
+                const float v = openvdb::tools::BoxSampler::sample(acc, inter.getIndexPos(tc));
+                if (v >= thr) {
+                    hit = true;
+                    if (tc <= 0) return 0.0f;
+                    const double th = prevT + (tc - prevT) * (thr - prev) / (v - prev);
+                    return static_cast<float>(th * voxel);
+                }
+                prev = v;
+                prevT = tc;
+            }
+        }
+        return static_cast<float>(len);
+    }
+};
+
+}  // namespace
+
+namespace {
+cpu_set_t gUnpinned;
+bool gHaveUnpinned = false;
+
+/// Runs @p f with the calling thread's original affinity (TBB workers inherit it).
+template <class F>
+void unpinned(F&& f) {
+    cpu_set_t current;
+    CPU_ZERO(&current);
+    const bool restore = gHaveUnpinned && pthread_getaffinity_np(pthread_self(), sizeof(current), &current) == 0;
+    if (restore) pthread_setaffinity_np(pthread_self(), sizeof(gUnpinned), &gUnpinned);
+    f();
+    if (restore) pthread_setaffinity_np(pthread_self(), sizeof(current), &current);
+}
+}  // namespace
+
+bool pinCurrentThread() noexcept {
+    (void)tbb::info::default_concurrency();  // let TBB see every core before the pin
+    cpu_set_t allowed;
+    CPU_ZERO(&allowed);
+    if (sched_getaffinity(0, sizeof(allowed), &allowed) != 0) return false;
+    gUnpinned = allowed;
+    gHaveUnpinned = true;
+    std::size_t last = CPU_SETSIZE;
+    for (std::size_t c = 0; c < CPU_SETSIZE; ++c)
+        if (CPU_ISSET(c, &allowed)) last = c;
+    if (last == CPU_SETSIZE) return false;
+    cpu_set_t one;
+    CPU_ZERO(&one);
+    CPU_SET(last, &one);
+    return pthread_setaffinity_np(pthread_self(), sizeof(one), &one) == 0;
+}
+
+std::string machineDescription() {
+    std::string model = "unknown CPU";
+    std::ifstream f("/proc/cpuinfo");
+    std::string line;
+    while (std::getline(f, line))
+        if (line.rfind("model name", 0) == 0) {
+            const auto p = line.find(':');
+            if (p != std::string::npos) model = line.substr(p + 2);
+            break;
+        }
+    return model + ", nproc " + std::to_string(std::thread::hardware_concurrency());
+}
+
+openvdb::FloatGrid::Ptr makeRayBenchPhantom(double voxelSize) {
+    openvdb::initialize();
+    if (!(voxelSize > 0)) throw ValueError("phantom voxel size: expected > 0 m, found " + std::to_string(voxelSize));
+    auto grid = openvdb::FloatGrid::create(-1000.0f);
+    grid->setName("scan");
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(voxelSize));
+    auto idx = [&](double m) { return static_cast<openvdb::Int32>(std::lround(m / voxelSize)); };
+    // Box: x, y in [-30, 30) mm, z in [-30, 0) mm; plate: z in [-12, -8) mm, x, y in [-20, 20) mm.
+    grid->denseFill(openvdb::CoordBBox(openvdb::Coord(idx(-30e-3), idx(-30e-3), idx(-30e-3)),
+                                       openvdb::Coord(idx(30e-3) - 1, idx(30e-3) - 1, idx(0.0) - 1)),
+                    40.0f, true);
+    grid->denseFill(openvdb::CoordBBox(openvdb::Coord(idx(-20e-3), idx(-20e-3), idx(-12e-3)),
+                                       openvdb::Coord(idx(20e-3) - 1, idx(20e-3) - 1, idx(-8e-3) - 1)),
+                    1000.0f, true);
+    return grid;
+}
+
+void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string& label,
+                     const RayBenchOptions& o, RayBenchReport& report) {
+    if (o.rays < kBundleRaysWithoutRing || o.rays > kMaxBundleRays)
+        throw ValueError("rays: expected 17.." + std::to_string(kMaxBundleRays) + ", found " + std::to_string(o.rays));
+    if (o.frames < 1) throw ValueError("frames: expected >= 1, found " + std::to_string(o.frames));
+    const BundleParams bp = bundleParams(o);
+    const VolumeView view(grid);
+    if (view.empty()) throw ValueError(label + ": expected a grid with active voxels, found an empty grid");
+    const openvdb::CoordBBox ib = grid->evalActiveVoxelBoundingBox();
+    const openvdb::BBoxd box(grid->indexToWorld(ib.min()), grid->indexToWorld(ib.max()));
+    FirstHitParams fp;
+    fp.threshold = o.threshold;
+    fp.step = o.step;
+    validateFirstHitParams(fp);
+    const auto frames = static_cast<std::size_t>(o.frames);
+    const bool phantom = label == "phantom";
+    struct Set {
+        const char* name;
+        std::vector<RayBundle> bundles;
+    };
+    Set sets[2] = {{"trajectory", trajectoryBundles(box, frames, bp, phantom ? 0.5e-3 : 0.0)},
+                   {"random", randomBundles(box, frames, bp, o.seed)}};
+    OpenVdbBaseline base(*grid);
+    for (auto& set : sets) {
+        BundleHits hits;
+        float sink = 0;
+        const TimingStats palp = timeFrames(o.warmUp, frames, [&](std::size_t f) {
+            traceFirstHit(view, set.bundles[f], fp, hits);
+            sink += hits.t[0];
+        });
+        FirstHitParams noSkip = fp;
+        noSkip.skipEmpty = false;
+        const TimingStats palpNoSkip = timeFrames(o.warmUp, frames, [&](std::size_t f) {
+            traceFirstHit(view, set.bundles[f], noSkip, hits);
+            sink += hits.t[0];
+        });
+        const TimingStats baseline = timeFrames(o.warmUp, frames, [&](std::size_t f) {
+            const RayBundle& b = set.bundles[f];
+            for (int r = 0; r < b.count; ++r) {
+                bool hit;
+                sink += base.trace(b, static_cast<std::size_t>(r), o.step, o.threshold, hit);
+            }
+        });
+        // Agreement: palp vs baseline hits within 0.05 voxel.
+        std::size_t agree = 0, total = 0, hitsN = 0;
+        for (std::size_t f = 0; f < frames; f += std::max<std::size_t>(1, frames / 500)) {
+            const RayBundle& b = set.bundles[f];
+            traceFirstHit(view, b, fp, hits);
+            for (int r = 0; r < b.count; ++r) {
+                const auto i = static_cast<std::size_t>(r);
+                bool hit;
+                const float tb = base.trace(b, i, o.step, o.threshold, hit);
+                ++total;
+                hitsN += hits.hit[i];
+                if (hit == (hits.hit[i] != 0) && std::fabs(tb - hits.t[i]) <= 0.05 * view.voxelSize()) ++agree;
+            }
+        }
+        const std::string name =
+            "volume " + std::to_string(o.rays) + " rays, " + label + ", " + set.name;
+        BenchComparison c = compare(name, "palp", "OpenVDB baseline", palp, baseline);
+        char note[256];
+        std::snprintf(note, sizeof(note), "%.0f bundles per 1 ms; %zu/%zu rays agree with the baseline, %zu hits%s",
+                      1000.0 / std::max(1e-9, palp.meanUs), agree, total, hitsN, sink == 12345.f ? " " : "");
+        c.note = note;
+        report.lines.push_back(c);
+        BenchComparison c2 = compare(name + ", no empty-space skipping", "palp", "OpenVDB baseline", palpNoSkip, baseline);
+        report.lines.push_back(c2);
+    }
+}
+
+namespace {
+
+TriangleMesh heightField(int n, double extent, double z0, double phase) {
+    TriangleMesh m;
+    const double h = extent / n;
+    for (int j = 0; j <= n; ++j)
+        for (int i = 0; i <= n; ++i) {
+            const double x = -extent / 2 + i * h, y = -extent / 2 + j * h;
+            const double z = z0 + 1e-3 * std::sin(200 * x + phase) * std::cos(170 * y - phase);
+            m.positions.insert(m.positions.end(), {static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)});
+        }
+    auto id = [&](int i, int j) { return static_cast<std::uint32_t>(j * (n + 1) + i); };
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            m.indices.insert(m.indices.end(), {id(i, j), id(i + 1, j), id(i + 1, j + 1)});
+            m.indices.insert(m.indices.end(), {id(i, j), id(i + 1, j + 1), id(i, j + 1)});
+        }
+    return m;
+}
+
+}  // namespace
+
+void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBenchReport& report) {
+    const BundleParams bp = bundleParams(o);
+    const auto frames = static_cast<std::size_t>(o.frames);
+    struct Case {
+        std::string name;
+        TriangleMesh mesh;
+    };
+    std::vector<Case> cases;
+    cases.push_back({"2k triangles", heightField(32, 60e-3, -6e-3, 0)});
+    cases.push_back({"32k triangles", heightField(128, 60e-3, -6e-3, 0)});
+    if (userMesh) cases.push_back({"user mesh " + std::to_string(userMesh->triangleCount()) + " triangles", *userMesh});
+    for (const auto& cs : cases) {
+        EmbreeScene scene;
+        scene.addRigidMesh(cs.mesh, kMaskBone);
+        scene.commit();
+        openvdb::BBoxd box;
+        for (std::size_t v = 0; v < cs.mesh.vertexCount(); ++v)
+            box.expand(openvdb::Vec3d(cs.mesh.positions[3 * v], cs.mesh.positions[3 * v + 1], cs.mesh.positions[3 * v + 2]));
+        // Proxy path 4 mm above the mesh's top (within the 10 mm rays).
+        openvdb::BBoxd above = box;
+        above.max().z() += 4e-3;
+        const std::vector<RayBundle> bundles = trajectoryBundles(above, frames, bp, 0.0 + 1e-12);
+        BundleHits hits;
+        float sink = 0;
+        auto timed = [&](MeshTraceMode mode) {
+            return timeFrames(o.warmUp, frames, [&](std::size_t f) {
+                traceBundle(scene, bundles[f], kMaskAll, hits, mode);
+                sink += hits.t[0];
+            });
+        };
+        const TimingStats palpDefault = timed(kDefaultMeshTraceMode);
+        const TimingStats palpLoop = timed(MeshTraceMode::Loop1);
+        const TimingStats palpStream = timed(MeshTraceMode::Stream1M);
+        const TimingStats raw1 = timeFrames(o.warmUp, frames, [&](std::size_t f) {
+            const RayBundle& b = bundles[f];
+            RTCIntersectContext ctx;
+            rtcInitIntersectContext(&ctx);
+            for (int r = 0; r < b.count; ++r) {
+                const auto i = static_cast<std::size_t>(r);
+                alignas(16) RTCRayHit rh{};
+                rh.ray.org_x = b.ox[i]; rh.ray.org_y = b.oy[i]; rh.ray.org_z = b.oz[i];
+                rh.ray.dir_x = b.dx[i]; rh.ray.dir_y = b.dy[i]; rh.ray.dir_z = b.dz[i];
+                rh.ray.tnear = 0; rh.ray.tfar = b.length[i]; rh.ray.mask = kMaskAll;
+                rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+                rtcIntersect1(scene.handle(), &ctx, &rh);
+                sink += rh.ray.tfar;
+            }
+        });
+        const TimingStats rawM = timeFrames(o.warmUp, frames, [&](std::size_t f) {
+            const RayBundle& b = bundles[f];
+            RTCIntersectContext ctx;
+            rtcInitIntersectContext(&ctx);
+            ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+            alignas(16) RTCRayHit rays[kMaxBundleRays];
+            for (int r = 0; r < b.count; ++r) {
+                const auto i = static_cast<std::size_t>(r);
+                RTCRayHit& rh = rays[r];
+                rh = RTCRayHit{};
+                rh.ray.org_x = b.ox[i]; rh.ray.org_y = b.oy[i]; rh.ray.org_z = b.oz[i];
+                rh.ray.dir_x = b.dx[i]; rh.ray.dir_y = b.dy[i]; rh.ray.dir_z = b.dz[i];
+                rh.ray.tnear = 0; rh.ray.tfar = b.length[i]; rh.ray.mask = kMaskAll;
+                rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+            }
+            rtcIntersect1M(scene.handle(), &ctx, rays, static_cast<unsigned>(b.count), sizeof(RTCRayHit));
+            sink += rays[0].ray.tfar;
+        });
+        const bool loopFaster = raw1.meanUs <= rawM.meanUs;
+        const std::string prefix = "embree " + std::to_string(o.rays) + " rays, " + cs.name;
+        BenchComparison c = compare(prefix, "palp traceBundle", loopFaster ? "raw rtcIntersect1 loop" : "raw rtcIntersect1M coherent",
+                                    palpDefault, loopFaster ? raw1 : rawM);
+        c.note = "ratio >= 0.83 meets 'within 1.2x'";
+        if (sink == 12345.f) c.note += " ";
+        report.lines.push_back(c);
+        report.lines.push_back(compare(prefix + ", raw calls", "rtcIntersect1 loop", "rtcIntersect1M coherent", raw1, rawM));
+        report.lines.push_back(compare(prefix + ", palp modes", "palp Loop1", "palp Stream1M", palpLoop, palpStream));
+    }
+    // Refit of deforming height fields (vertices rewritten every update).
+    for (int n : {32, 128}) {
+        const TriangleMesh m0 = heightField(n, 60e-3, -6e-3, 0);
+        EmbreeScene scene;
+        const unsigned id = scene.addDeformingMesh(m0, kMaskSurface);
+        scene.commit();
+        std::vector<TriangleMesh> poses;
+        for (int k = 0; k < 8; ++k) poses.push_back(heightField(n, 60e-3, -6e-3, 0.1 * k));
+        const std::size_t updates = n == 32 ? std::min<std::size_t>(frames, 5000) : std::min<std::size_t>(frames, 1000);
+        const TimingStats refit = timeFrames(std::min(o.warmUp, 50), updates, [&](std::size_t f) {
+            scene.updateVertices(id, poses[f % poses.size()].positions);
+            scene.commit();
+        });
+        EmbreeScene rebuildScene;
+        rebuildScene.addRigidMesh(m0);
+        rebuildScene.commit();
+        const TimingStats rebuild = timeFrames(5, std::min<std::size_t>(updates, 200), [&](std::size_t f) {
+            EmbreeScene s;
+            s.addRigidMesh(poses[f % poses.size()]);
+            s.commit();
+        });
+        report.lines.push_back(compare("refit " + std::to_string(2 * n * n) + " triangles per update", "update+refit",
+                                       "full rebuild (new scene)", refit, rebuild));
+    }
+}
+
+void benchBatchRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string& label, const RayBenchOptions& o,
+                    RayBenchReport& report) {
+    const BundleParams bp = bundleParams(o);
+    const VolumeView view(grid);
+    const openvdb::CoordBBox ib = grid->evalActiveVoxelBoundingBox();
+    const openvdb::BBoxd box(grid->indexToWorld(ib.min()), grid->indexToWorld(ib.max()));
+    const auto n = static_cast<std::size_t>(std::max(1, o.batchBundles));
+    const std::vector<RayBundle> bundles = randomBundles(box, n, bp, o.seed + 7);
+    std::vector<BundleHits> out(n);
+    FirstHitParams fp;
+    fp.threshold = o.threshold;
+    fp.step = o.step;
+    auto run = [&](int threads) {
+        tbb::task_arena arena(threads);
+        std::vector<double> secs;
+        for (int rep = 0; rep < 5; ++rep) {
+            const auto t0 = Clock::now();
+            arena.execute([&] { traceFirstHitBatch(view, bundles, fp, out); });
+            secs.push_back(std::chrono::duration<double>(Clock::now() - t0).count());
+        }
+        std::sort(secs.begin(), secs.end());
+        TimingStats s;  // meanUs holds Mrays/s (median of 5 runs)
+        s.meanUs = static_cast<double>(n) * o.rays / secs[secs.size() / 2] * 1e-6;
+        s.samples = 5;
+        return s;
+    };
+    const int all = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+    TimingStats one, many;
+    unpinned([&] {
+        one = run(1);
+        many = run(all);
+    });
+    BenchComparison c;
+    c.name = "batch first-hit, " + label + ", " + std::to_string(n) + " bundles";
+    c.subject = std::to_string(all) + " threads";
+    c.baseline = "1 thread";
+    c.a = many;
+    c.b = one;
+    c.unit = "Mrays/s";
+    c.ratioMean = one.meanUs > 0 ? many.meanUs / one.meanUs : 0;
+    c.ratioP99 = c.ratioMean;
+    report.lines.push_back(c);
+}
+
+std::string formatComparison(const BenchComparison& c) {
+    char buf[512];
+    if (c.unit == "Mrays/s") {
+        std::snprintf(buf, sizeof(buf), "%s: %s %.2f Mrays/s; %s %.2f Mrays/s; %.2fx", c.name.c_str(), c.subject.c_str(),
+                      c.a.meanUs, c.baseline.c_str(), c.b.meanUs, c.ratioMean);
+    } else {
+        std::snprintf(buf, sizeof(buf), "%s: %s %.2f us mean / %.2f us p99 / %.1f max; %s %.2f / %.2f / %.1f us; %.2fx / %.2fx",
+                      c.name.c_str(), c.subject.c_str(), c.a.meanUs, c.a.p99Us, c.a.maxUs, c.baseline.c_str(), c.b.meanUs,
+                      c.b.p99Us, c.b.maxUs, c.ratioMean, c.ratioP99);
+    }
+    std::string s = buf;
+    if (!c.note.empty()) s += " (" + c.note + ")";
+    return s;
+}
+
+}  // namespace palp::kernels
