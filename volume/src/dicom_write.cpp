@@ -1,4 +1,5 @@
 // DICOM series writer (GDCM): one single-frame CT/MR image per slice, uint16 storage.
+#include <Eigen/Geometry>
 #include <gdcmAttribute.h>
 #include <gdcmDataElement.h>
 #include <gdcmDataSet.h>
@@ -98,6 +99,7 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
             // Values are rounded to the nearest stored integer, so half a step beyond is fine.
             const double d = static_cast<double>(v);
             const double q = std::round((d - options.rescaleIntercept) / options.rescaleSlope);
+            if (options.clampToStorage && std::isfinite(d)) continue;
             if (!(q >= 0.0 && q <= 65535.0)) {
                 throw ValueError(name + ": expected values in [" + num(lo) + ", " + num(hi) +
                                  "] to fit uint16 storage with slope " + num(options.rescaleSlope) +
@@ -163,8 +165,8 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
         image.SetSpacing(1, rowSpacing * 1e3);
         image.SetSpacing(2, thickness * 1e3);
         const Eigen::Vector3d originMm = s.position * 1e3;
-        const double origin[3] = {originMm.x(), originMm.y(), originMm.z()};
-        image.SetOrigin(origin);
+        // Per component: the array overload copies only GetNumberOfDimensions() values.
+        for (unsigned int a = 0; a < 3; ++a) image.SetOrigin(a, originMm[static_cast<Eigen::Index>(a)]);
         const double cosines[6] = {rowCosine.x(), rowCosine.y(), rowCosine.z(),
                                    colCosine.x(), colCosine.y(), colCosine.z()};
         image.SetDirectionCosines(cosines);
@@ -182,6 +184,7 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
         setString(ds, 0x0008, 0x0018, gdcm::VR::UI, uid(gen));
         setString(ds, 0x0008, 0x0008, gdcm::VR::CS, "DERIVED\\SECONDARY\\AXIAL");
         setString(ds, 0x0008, 0x0060, gdcm::VR::CS, options.modality);
+        setString(ds, 0x0028, 0x0004, gdcm::VR::CS, "MONOCHROME2");
         setString(ds, 0x0008, 0x103e, gdcm::VR::LO, options.seriesDescription.substr(0, 64));
         setString(ds, 0x0010, 0x0010, gdcm::VR::PN, "PALP^PHANTOM");
         setString(ds, 0x0010, 0x0020, gdcm::VR::LO, "PHANTOM");

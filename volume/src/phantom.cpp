@@ -1,5 +1,6 @@
 #include "palp/volume/phantom.h"
 
+#include <Eigen/Geometry>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 

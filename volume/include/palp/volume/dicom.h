@@ -42,11 +42,19 @@ struct DicomWriteOptions {
     double rescaleSlope = 1.0;        ///< stored = (value - intercept) / slope, rounded
     double rescaleIntercept = -1024;  ///< CT convention: unsigned storage, -1024 intercept
     double gantryTiltDeg = 0;         ///< written to (0018,1120) when non-zero
+    /// Clamp finite values outside the storage range (like a scanner's -1024 HU floor) instead
+    /// of refusing them; non-finite values are always refused.
+    bool clampToStorage = false;
 };
 
 /// Writes @p stack as one single-frame CT/MR image per slice (uint16 storage) into @p dir,
-/// which is created; files are written to temporary names and renamed.
-/// @throw IoError, ValueError (values that do not fit the storage after rescale).
+/// which is created (an existing directory must be empty); files IMG0001.dcm... are written to
+/// temporary names and renamed, and a failure removes what was written. Each file carries
+/// fresh Study/Series/SOP Instance UIDs, the slice's geometry (ImagePositionPatient,
+/// ImageOrientationPatient, PixelSpacing in mm), SliceThickness (the distance to the
+/// neighbouring slice along the normal), InstanceNumber and the dummy patient PALP^PHANTOM.
+/// @throw IoError, ValueError (values that do not fit the storage after rescale, checked before
+///        anything is written; the message names the slice and the value).
 void writeDicomSeries(const SliceStack& stack, const std::filesystem::path& dir,
                       const DicomWriteOptions& options = {});
 
