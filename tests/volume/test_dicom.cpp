@@ -3,6 +3,7 @@
 // errors for damaged or ambiguous input.
 #include <gdcmAttribute.h>
 #include <gdcmImageReader.h>
+#include <gdcmImageWriter.h>
 #include <gdcmReader.h>
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
@@ -146,6 +147,8 @@ TEST(DicomRead, TiltedCtMatchesEveryFilesOwnGeometry) {
     EXPECT_EQ(vol.info.modality, "CT");
     EXPECT_EQ(vol.info.valueUnits, "HU");
     EXPECT_EQ(vol.info.sourceFormat, "DICOM");
+    EXPECT_EQ(vol.info.sourceDescription, "ct-ge-head-tilt");  // no SeriesDescription: the folder
+    EXPECT_EQ(vol.info.timePoint, -1);
     EXPECT_EQ(vol.info.originalDims, (std::array<std::int64_t, 3>{512, 512, 28}));
     EXPECT_NEAR(vol.info.gantryTiltDeg, 18.5, 0.05);
     EXPECT_NEAR(vol.info.originalSpacing[0], 0.4882812e-3, 1e-9);
@@ -203,6 +206,10 @@ TEST(DicomRead, TiltedCtMatchesEveryFilesOwnGeometry) {
         EXPECT_GT(bad.median, 10 * good.median);
     }
 }
+
+void copyFile(const fs::path& from, const fs::path& to);
+template <typename E, typename Fn>
+void expectError(Fn&& fn, const std::vector<std::string>& parts);
 
 /// Reads the dcm2niix reference of mr-ge-epi-4d.
 struct Nifti {
@@ -308,6 +315,16 @@ TEST(DicomRead, FourDimensionalSeriesMatchesDcm2niix) {
         const VolumeMatch other = matchReference(st, ref, t == 9 ? 8 : t + 1);
         EXPECT_GT(other.mismatches, 1000u) << "t=" << t;
     }
+
+    // One image missing: the time point count is no longer consistent, refused by name.
+    TempDir tmp;
+    const std::vector<fs::path> files = dicomFiles(dicomDir);
+    ASSERT_EQ(files.size(), 150u);
+    for (std::size_t i = 0; i + 1 < files.size(); ++i) copyFile(files[i], tmp / files[i].filename());
+    opt.timePoint = 0;
+    expectError<palp::ValueError>([&] { palp::volume::readStack({tmp.path()}, opt); },
+                                  {tmp.path().string(), "expected the same number of images at every slice position",
+                                   "found 9"});
 }
 
 void copyFile(const fs::path& from, const fs::path& to) {
@@ -474,6 +491,67 @@ TEST(DicomRead, CompressedTransferSyntaxesDecodeIdentically) {
         expectError<palp::FormatError>([&] { palp::volume::readStack({tmp.path()}, {}); },
                                        {bad.string(), "expected complete pixel data of 512x512x16 bits", "found"});
     }
+}
+
+/// Writes @p stack (one time point, int16 values) as one enhanced MR multi-frame file through
+/// GDCM's own writer, which stores each frame's position in the per-frame functional groups.
+void writeMultiFrame(const SliceStack& stack, const fs::path& file) {
+    const auto& s0 = stack.slices.front();
+    gdcm::ImageWriter writer;
+    gdcm::Image& image = writer.GetImage();
+    image.SetNumberOfDimensions(3);
+    image.SetDimension(0, static_cast<unsigned>(s0.cols));
+    image.SetDimension(1, static_cast<unsigned>(s0.rows));
+    image.SetDimension(2, static_cast<unsigned>(stack.slices.size()));
+    image.SetPixelFormat(gdcm::PixelFormat(gdcm::PixelFormat::INT16));
+    image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
+    const Eigen::Vector3d u = s0.colStep.normalized(), v = s0.rowStep.normalized();
+    const double dir[6] = {u.x(), u.y(), u.z(), v.x(), v.y(), v.z()};
+    image.SetDirectionCosines(dir);
+    const double gap = (stack.slices[1].position - s0.position).norm() * 1e3;
+    const double spacing[3] = {s0.colStep.norm() * 1e3, s0.rowStep.norm() * 1e3, gap};
+    image.SetSpacing(spacing);
+    const double origin[3] = {s0.position.x() * 1e3, s0.position.y() * 1e3, s0.position.z() * 1e3};
+    image.SetOrigin(origin);
+    std::vector<std::int16_t> pixels;
+    for (const auto& s : stack.slices) {
+        for (float f : s.values) pixels.push_back(static_cast<std::int16_t>(f));
+    }
+    gdcm::DataElement pd(gdcm::Tag(0x7fe0, 0x0010));
+    pd.SetByteValue(reinterpret_cast<const char*>(pixels.data()), static_cast<std::uint32_t>(pixels.size() * 2));
+    image.SetDataElement(pd);
+    gdcm::File& f = writer.GetFile();
+    f.GetHeader().SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
+    gdcm::DataSet& ds = f.GetDataSet();
+    gdcm::Attribute<0x0008, 0x0060> modality{"MR"};
+    ds.Replace(modality.GetAsDataElement());
+    gdcm::Attribute<0x0008, 0x0016> sopClass{gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::EnhancedMRImageStorage)};
+    ds.Replace(sopClass.GetAsDataElement());
+    writer.SetFileName(file.c_str());
+    ASSERT_TRUE(writer.Write());
+}
+
+TEST(DicomRead, EnhancedMultiFrameMatchesSingleFrames) {
+    PALP_REQUIRE_DATA(dir, "mr-ge-epi-4d");
+    LoadOptions opt;
+    opt.timePoint = 3;
+    const SliceStack single = palp::volume::readStack({dir / "dicom"}, opt);
+    ASSERT_EQ(single.slices.size(), 15u);
+    TempDir tmp;
+    const fs::path file = tmp / "enhanced.dcm";
+    writeMultiFrame(single, file);
+    const SliceStack multi = palp::volume::readStack({file}, {});
+    ASSERT_EQ(multi.slices.size(), 15u);
+    EXPECT_EQ(multi.info.timePointCount, 1);
+    EXPECT_EQ(multi.info.originalDims, (std::array<std::int64_t, 3>{64, 64, 15}));
+    for (std::size_t i = 0; i < 15; ++i) {
+        EXPECT_LT((multi.slices[i].position - single.slices[i].position).norm(), 1e-6) << i;
+        EXPECT_LT((multi.slices[i].colStep - single.slices[i].colStep).norm(), 1e-9) << i;
+        EXPECT_LT((multi.slices[i].rowStep - single.slices[i].rowStep).norm(), 1e-9) << i;
+        EXPECT_EQ(multi.slices[i].values, single.slices[i].values) << i;
+    }
+    opt.maxSourceBytes = 64 * 64 * 14 * 4;
+    EXPECT_THROW(palp::volume::readStack({file}, opt), palp::ValueError);
 }
 
 TEST(DicomRead, EmptyOrNonDicomDirectoryIsRefused) {
