@@ -1,0 +1,318 @@
+#include "palp/fem/implicit_solver.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/SparseCholesky>
+#include <cmath>
+#include <sstream>
+
+#include "palp/error.h"
+
+namespace palp::fem {
+
+namespace {
+constexpr double kNewmarkBeta = 0.25;
+constexpr double kNewmarkGamma = 0.5;
+using RowMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
+
+/// y = A x over row blocks on TBB workers.
+void parallelSpmv(const RowMatrix& a, const Eigen::VectorXd& x, Eigen::VectorXd& y) {
+    const int* outer = a.outerIndexPtr();
+    const int* inner = a.innerIndexPtr();
+    const double* val = a.valuePtr();
+    tbb::parallel_for(tbb::blocked_range<int>(0, static_cast<int>(a.rows()), 1024),
+                      [&](const tbb::blocked_range<int>& r) {
+                          for (int i = r.begin(); i != r.end(); ++i) {
+                              double s = 0.0;
+                              for (int p = outer[i]; p < outer[i + 1]; ++p) s += val[p] * x[inner[p]];
+                              y[i] = s;
+                          }
+                      });
+}
+
+double parallelDot(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
+    return tbb::parallel_reduce(
+        tbb::blocked_range<Eigen::Index>(0, a.size(), 4096), 0.0,
+        [&](const tbb::blocked_range<Eigen::Index>& r, double s) {
+            return s + a.segment(r.begin(), r.end() - r.begin())
+                           .dot(b.segment(r.begin(), r.end() - r.begin()));
+        },
+        [](double x, double y) { return x + y; });
+}
+}  // namespace
+
+struct ImplicitSolver::Linear {
+    SparseMatrix matrix;  // effective matrix on the free dofs
+    Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
+    Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
+    RowMatrix rowMatrix;
+    Eigen::VectorXd inverseDiagonal;
+    Eigen::VectorXd r, z, p, q;
+    bool analysed = false;
+};
+
+ImplicitSolver::ImplicitSolver(const FemModel& model, const Constraints& constraints,
+                               const ImplicitOptions& options)
+    : mModel(model), mOptions(options), mLinear(std::make_unique<Linear>()) {
+    const int n = model.dofCount();
+    if (constraints.dofCount() != n) {
+        std::ostringstream s;
+        s << "implicit solver constraints: expected " << n << " dofs, found "
+          << constraints.dofCount();
+        throw ValueError(s.str());
+    }
+    mK = model.assembleStiffness();
+    const Eigen::VectorXd& mass = model.lumpedMass();
+    std::vector<int> freeIndex(static_cast<std::size_t>(n), -1);
+    for (int d = 0; d < n; ++d) {
+        if (constraints.isFixed(d) || mass[d] <= 0.0) {
+            mFixedDofs.push_back(d);
+        } else {
+            freeIndex[static_cast<std::size_t>(d)] = static_cast<int>(mFreeDofs.size());
+            mFreeDofs.push_back(d);
+        }
+    }
+    std::vector<int> fixedIndex(static_cast<std::size_t>(n), -1);
+    for (std::size_t q = 0; q < mFixedDofs.size(); ++q) {
+        fixedIndex[static_cast<std::size_t>(mFixedDofs[q])] = static_cast<int>(q);
+    }
+    const int nf = static_cast<int>(mFreeDofs.size());
+    const int nc = static_cast<int>(mFixedDofs.size());
+    if (nf == 0) {
+        throw ValueError("implicit solver: expected at least one free dof, found every dof "
+                         "constrained");
+    }
+    std::vector<Eigen::Triplet<double, int>> ff, fc;
+    ff.reserve(static_cast<std::size_t>(mK.nonZeros()));
+    for (int col = 0; col < n; ++col) {
+        for (SparseMatrix::InnerIterator it(mK, col); it; ++it) {
+            const int row = static_cast<int>(it.row());
+            const int fr = freeIndex[static_cast<std::size_t>(row)];
+            if (fr < 0) continue;
+            const int fcol = freeIndex[static_cast<std::size_t>(col)];
+            if (fcol >= 0) {
+                ff.emplace_back(fr, fcol, it.value());
+            } else {
+                fc.emplace_back(fr, fixedIndex[static_cast<std::size_t>(col)], it.value());
+            }
+        }
+    }
+    mKff.resize(nf, nf);
+    mKff.setFromTriplets(ff.begin(), ff.end());
+    mKfc.resize(nf, nc);
+    mKfc.setFromTriplets(fc.begin(), fc.end());
+    mMassFree.resize(nf);
+    for (int q = 0; q < nf; ++q) mMassFree[q] = mass[mFreeDofs[static_cast<std::size_t>(q)]];
+
+    mU = Eigen::VectorXd::Zero(n);
+    for (int d : mFixedDofs) mU[d] = constraints.isFixed(d) ? constraints.values()[d] : 0.0;
+    mV = Eigen::VectorXd::Zero(n);
+    mA = Eigen::VectorXd::Zero(n);
+    mForce = Eigen::VectorXd::Zero(n);
+    mReaction = Eigen::VectorXd::Zero(n);
+    mTarget = mU;
+
+    if (options.integrator == Integrator::quasiStatic) {
+        // Supports must remove every rigid-body motion: check the pivots of K_ff once.
+        Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> check(mKff);
+        const Eigen::VectorXd dvec = check.vectorD();
+        const double maxD = dvec.cwiseAbs().maxCoeff();
+        const double minD = dvec.minCoeff();
+        if (check.info() != Eigen::Success || !(minD > 1e-10 * maxD)) {
+            std::ostringstream s;
+            s << "static problem supports: expected constraints that remove all rigid-body "
+                 "motions, found a singular stiffness (smallest pivot "
+              << minD << ", largest " << maxD << "; " << nc << " constrained dofs)";
+            throw ValueError(s.str());
+        }
+        if (!prepare(1.0, 0.0)) {
+            throw ValueError("static problem: expected a positive definite stiffness, found a "
+                             "failed factorisation");
+        }
+    }
+}
+
+ImplicitSolver::~ImplicitSolver() = default;
+
+bool ImplicitSolver::prepare(double stiffnessScale, double massScale) noexcept {
+    if (stiffnessScale == mStiffnessScale && massScale == mMassScale) return true;
+    try {
+        Linear& lin = *mLinear;
+        lin.matrix = stiffnessScale * mKff;
+        for (int q = 0; q < lin.matrix.cols(); ++q) lin.matrix.coeffRef(q, q) += massScale * mMassFree[q];
+        switch (mOptions.solver) {
+            case LinearSolverKind::simplicialLdlt:
+                if (!lin.analysed) lin.ldlt.analyzePattern(lin.matrix);
+                lin.ldlt.factorize(lin.matrix);
+                if (lin.ldlt.info() != Eigen::Success) return false;
+                break;
+            case LinearSolverKind::cholmod:
+                if (!lin.analysed) lin.cholmod.analyzePattern(lin.matrix);
+                lin.cholmod.factorize(lin.matrix);
+                if (lin.cholmod.info() != Eigen::Success) return false;
+                break;
+            case LinearSolverKind::pcg:
+                lin.rowMatrix = lin.matrix;
+                lin.inverseDiagonal = lin.matrix.diagonal().cwiseInverse();
+                break;
+        }
+        lin.analysed = true;
+        ++mFactorisations;
+        mStiffnessScale = stiffnessScale;
+        mMassScale = massScale;
+        return true;
+    } catch (...) {
+        return false;
+    }
+}
+
+bool ImplicitSolver::solve(const Eigen::VectorXd& b, Eigen::VectorXd& x) noexcept {
+    try {
+        Linear& lin = *mLinear;
+        mIterations = 0;
+        switch (mOptions.solver) {
+            case LinearSolverKind::simplicialLdlt:
+                x = lin.ldlt.solve(b);
+                break;
+            case LinearSolverKind::cholmod:
+                x = lin.cholmod.solve(b);
+                break;
+            case LinearSolverKind::pcg: {
+                // x holds the warm start (previous solution).
+                const double bnorm = std::sqrt(parallelDot(b, b));
+                if (bnorm == 0.0) {
+                    x.setZero();
+                    break;
+                }
+                lin.q.resize(b.size());
+                parallelSpmv(lin.rowMatrix, x, lin.q);
+                lin.r = b - lin.q;
+                lin.z = lin.inverseDiagonal.cwiseProduct(lin.r);
+                lin.p = lin.z;
+                double rz = parallelDot(lin.r, lin.z);
+                const double tol = mOptions.pcgRelativeTolerance * bnorm;
+                while (std::sqrt(parallelDot(lin.r, lin.r)) > tol &&
+                       mIterations < mOptions.pcgMaxIterations) {
+                    parallelSpmv(lin.rowMatrix, lin.p, lin.q);
+                    const double alpha = rz / parallelDot(lin.p, lin.q);
+                    x += alpha * lin.p;
+                    lin.r -= alpha * lin.q;
+                    lin.z = lin.inverseDiagonal.cwiseProduct(lin.r);
+                    const double rzNew = parallelDot(lin.r, lin.z);
+                    lin.p = lin.z + (rzNew / rz) * lin.p;
+                    rz = rzNew;
+                    ++mIterations;
+                }
+                break;
+            }
+        }
+        return x.allFinite();
+    } catch (...) {
+        return false;
+    }
+}
+
+StepResult ImplicitSolver::step(double dt) noexcept {
+    StepResult result;
+    if (!(dt > 0.0) || !std::isfinite(dt)) {
+        result.flags |= kStepBadTimeStep;
+        return result;
+    }
+    if (!mForce.allFinite()) {
+        for (Eigen::Index d = 0; d < mForce.size(); ++d) {
+            if (!std::isfinite(mForce[d])) mForce[d] = 0.0;
+        }
+        result.flags |= kStepBadForce;
+    }
+    try {
+        const double alpha = mModel.material().dampingAlpha;
+        const double betaR = mModel.material().dampingBeta;
+        const Eigen::VectorXd& mass = mModel.lumpedMass();
+        const bool dynamic = mOptions.integrator != Integrator::quasiStatic;
+        if (dynamic && !mStarted) {
+            // Initial acceleration from equilibrium: M a0 = f - K u0 - C v0 (lumped M).
+            const Eigen::VectorXd ku = mK * (mU + betaR * mV);
+            for (int d : mFreeDofs) mA[d] = (mForce[d] - ku[d]) / mass[d] - alpha * mV[d];
+        }
+        mStarted = true;
+        // Effective system (K + a0 M + a1 C) with C = alpha M + betaR K.
+        double a0 = 0, a1 = 0, a2 = 0, a3 = 0, a4 = 0, a5 = 0;
+        if (mOptions.integrator == Integrator::newmark) {
+            a0 = 1.0 / (kNewmarkBeta * dt * dt);
+            a1 = kNewmarkGamma / (kNewmarkBeta * dt);
+            a2 = 1.0 / (kNewmarkBeta * dt);
+            a3 = 1.0 / (2.0 * kNewmarkBeta) - 1.0;
+            a4 = kNewmarkGamma / kNewmarkBeta - 1.0;
+            a5 = dt * (kNewmarkGamma / (2.0 * kNewmarkBeta) - 1.0);
+        } else if (mOptions.integrator == Integrator::backwardEuler) {
+            a0 = 1.0 / (dt * dt);
+            a1 = 1.0 / dt;
+            a2 = 1.0 / dt;
+        }
+        const double sK = 1.0 + a1 * betaR;
+        const double sM = a0 + a1 * alpha;
+        if (!prepare(sK, sM)) {
+            result.flags |= kStepDiverged;
+            return result;
+        }
+        Eigen::VectorXd rhs = mForce;
+        if (dynamic) {
+            const Eigen::VectorXd yc = a1 * mU + a4 * mV + a5 * mA;
+            const Eigen::VectorXd ym = a0 * mU + a2 * mV + a3 * mA + alpha * yc;
+            rhs += mass.cwiseProduct(ym);
+            if (betaR > 0.0) rhs += betaR * (mK * yc);
+        }
+        const int nf = static_cast<int>(mFreeDofs.size());
+        Eigen::VectorXd b(nf), x(nf), uc(static_cast<Eigen::Index>(mFixedDofs.size()));
+        for (std::size_t q = 0; q < mFixedDofs.size(); ++q) {
+            uc[static_cast<Eigen::Index>(q)] = mTarget[mFixedDofs[q]];
+        }
+        for (int q = 0; q < nf; ++q) {
+            b[q] = rhs[mFreeDofs[static_cast<std::size_t>(q)]];
+            x[q] = mU[mFreeDofs[static_cast<std::size_t>(q)]];  // warm start for PCG
+        }
+        if (uc.size() > 0) b -= sK * (mKfc * uc);
+        if (!solve(b, x)) {
+            result.flags |= kStepDiverged;
+            return result;
+        }
+        const Eigen::VectorXd uOld = mU;
+        for (int q = 0; q < nf; ++q) mU[mFreeDofs[static_cast<std::size_t>(q)]] = x[q];
+        for (int d : mFixedDofs) mU[d] = mTarget[d];
+        if (mOptions.integrator == Integrator::newmark) {
+            const Eigen::VectorXd aNew = a0 * (mU - uOld) - a2 * mV - a3 * mA;
+            mV += dt * ((1.0 - kNewmarkGamma) * mA + kNewmarkGamma * aNew);
+            mA = aNew;
+        } else if (mOptions.integrator == Integrator::backwardEuler) {
+            const Eigen::VectorXd vNew = (mU - uOld) / dt;
+            mA = (vNew - mV) / dt;
+            mV = vNew;
+        }
+        mReaction = mK * (mU + betaR * mV) + mass.cwiseProduct(mA + alpha * mV) - mForce;
+        mTime += dt;
+        result.substeps = 1;
+        result.advancedSeconds = dt;
+    } catch (...) {
+        result.flags |= kStepDiverged;
+    }
+    return result;
+}
+
+Eigen::Vector3d ImplicitSolver::reactionSum(const std::vector<int>& nodes) const {
+    Eigen::Vector3d r = Eigen::Vector3d::Zero();
+    for (int n : nodes) {
+        for (int c = 0; c < 3; ++c) r[c] += mReaction[3 * n + c];
+    }
+    return r;
+}
+
+double ImplicitSolver::kineticEnergy() const {
+    return 0.5 * mV.dot(mModel.lumpedMass().cwiseProduct(mV));
+}
+
+double ImplicitSolver::strainEnergy() const { return 0.5 * mU.dot(mK * mU); }
+
+}  // namespace palp::fem

@@ -1,0 +1,110 @@
+#include "palp/fem/hex_mesh.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include "palp/error.h"
+#include "palp/fem/fem_model.h"
+#include "palp/fem/material.h"
+
+namespace palp::fem {
+namespace {
+
+TEST(HexMesh, BoxNumberingAndFaces) {
+    const HexMesh m = HexMesh::box(Eigen::Vector3d(0.04, 0.02, 0.03), {5, 3, 4}, 7.0,
+                                   Eigen::Vector3d(1, 2, 3));
+    EXPECT_EQ(m.nodeCount(), 60);
+    EXPECT_EQ(m.elementCount(), 4 * 2 * 3);
+    EXPECT_DOUBLE_EQ(m.edge(), 0.01);
+    EXPECT_EQ(m.node(1, 2, 3), 1 + 5 * (2 + 3 * 3));
+    EXPECT_TRUE(m.nodePosition(m.node(4, 2, 3)).isApprox(Eigen::Vector3d(1.04, 2.02, 3.03)));
+    EXPECT_EQ(m.faceNodes(BoxFace::zMin).size(), 15u);
+    EXPECT_EQ(m.faceNodes(BoxFace::xMax).size(), 12u);
+    for (int n : m.faceNodes(BoxFace::yMax)) EXPECT_EQ(m.nodeCoords(n)[1], 2);
+    const auto nodes = m.cellNodes(m.cell(1, 1, 2));
+    EXPECT_EQ(nodes[0], m.node(1, 1, 2));
+    EXPECT_EQ(nodes[7], m.node(2, 2, 3));
+    EXPECT_EQ(m.connectedComponents(), 1);
+}
+
+TEST(HexMesh, BoundarySurfaceIsClosedAndOutward) {
+    // An L-shaped body: a 3x3x3 block of cells with one corner cell removed.
+    std::vector<double> e(27, 1.0);
+    e[26] = 0.0;
+    const HexMesh m = HexMesh::fromCells({4, 4, 4}, 0.5, Eigen::Vector3d::Zero(), e);
+    const SurfaceMesh s = m.boundarySurface();
+    // 6 faces x 9 quads, minus 3 removed outer quads, plus 3 inner quads = 54.
+    EXPECT_EQ(s.triangles.size(), 2u * 54u);
+    // Divergence theorem: sum of signed tetrahedron volumes equals the body volume.
+    double volume = 0.0;
+    for (const auto& t : s.triangles) {
+        const Eigen::Vector3d a = s.vertices[t[0]].cast<double>();
+        const Eigen::Vector3d b = s.vertices[t[1]].cast<double>();
+        const Eigen::Vector3d c = s.vertices[t[2]].cast<double>();
+        volume += a.dot(b.cross(c)) / 6.0;
+    }
+    EXPECT_NEAR(volume, 26 * 0.125, 1e-6);
+}
+
+TEST(HexMesh, BadInputThrowsWithValue) {
+    EXPECT_THROW(HexMesh::box(Eigen::Vector3d::Constant(1.0), {1, 3, 3}), ValueError);
+    EXPECT_THROW(HexMesh::box(Eigen::Vector3d(1.0, -1.0, 1.0), {3, 3, 3}), ValueError);
+    EXPECT_THROW(HexMesh::box(Eigen::Vector3d(1.0, 2.0, 1.0), {3, 3, 3}), ValueError);
+    EXPECT_THROW(HexMesh::fromCells({3, 3, 3}, 0.1, Eigen::Vector3d::Zero(),
+                                    std::vector<double>(8, 0.0)),
+                 ValueError);  // empty
+    try {
+        HexMesh::fromCells({3, 3, 3}, -0.1, Eigen::Vector3d::Zero(), std::vector<double>(8, 1.0));
+        FAIL() << "expected a ValueError";
+    } catch (const ValueError& e) {
+        EXPECT_NE(std::string(e.what()).find("found -0.1"), std::string::npos) << e.what();
+    }
+}
+
+TEST(HexMesh, DisconnectedMeshIsRejectedByTheModel) {
+    std::vector<double> e(27, 0.0);
+    e[0] = 1.0;
+    e[26] = 1.0;  // opposite corners: no shared node
+    const HexMesh m = HexMesh::fromCells({4, 4, 4}, 0.01, Eigen::Vector3d::Zero(), e);
+    EXPECT_EQ(m.connectedComponents(), 2);
+    try {
+        FemModel model(m, ElasticMaterial{});
+        FAIL() << "expected a ValueError";
+    } catch (const ValueError& err) {
+        EXPECT_NE(std::string(err.what()).find("2 disconnected"), std::string::npos) << err.what();
+    }
+}
+
+TEST(Material, ValidationNamesTheValue) {
+    auto expectBad = [](ElasticMaterial m, const std::string& fragment) {
+        try {
+            validate(m);
+            FAIL() << "expected a ValueError for " << fragment;
+        } catch (const ValueError& e) {
+            EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+        }
+    };
+    ElasticMaterial m;
+    m.poissonRatio = 0.5;
+    expectBad(m, "found 0.5");
+    m.poissonRatio = -1.0;
+    expectBad(m, "Poisson");
+    m = ElasticMaterial{};
+    m.youngsModulus = 0.0;
+    expectBad(m, "Young");
+    m = ElasticMaterial{};
+    m.density = -2.0;
+    expectBad(m, "found -2");
+    m = ElasticMaterial{};
+    m.poissonRatio = 0.499;
+    EXPECT_NO_THROW(validate(m));
+    m.poissonRatio = -0.9;
+    EXPECT_NO_THROW(validate(m));
+    // c_d for soft tissue: sqrt(5000 * 0.55 / (1000 * 1.45 * 0.1)) = 4.3549 m/s.
+    const ElasticMaterial tissue{5e3, 0.45, 1e3, 0, 0};
+    EXPECT_NEAR(tissue.dilatationalWaveSpeed(), std::sqrt(5000 * 0.55 / (1000 * 1.45 * 0.1)), 1e-12);
+}
+
+}  // namespace
+}  // namespace palp::fem
