@@ -9,6 +9,13 @@ if(PALP_SANITIZE)
     -fno-sanitize-recover=all)
   target_link_options(palp_options INTERFACE -fsanitize=${PALP_SANITIZE})
 endif()
+# Fuzzing (preset 'fuzz', clang): instrument every palp library for libFuzzer coverage and
+# ASan/UBSan; the fuzz executables themselves add -fsanitize=fuzzer (tools/fuzz).
+if(PALP_BUILD_FUZZERS)
+  target_compile_options(palp_options INTERFACE -fsanitize=fuzzer-no-link,address,undefined
+    -fno-omit-frame-pointer -fno-sanitize-recover=all)
+  target_link_options(palp_options INTERFACE -fsanitize=address,undefined)
+endif()
 
 # Adds a palp module: MODULE/include is public, sources listed by the caller.
 function(palp_add_module name)

@@ -203,6 +203,8 @@ SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
         throw FormatError(name + ": expected ElementNumberOfChannels 1 (scalar voxels), found " +
                           std::to_string(h.channels));
     }
+    const std::uint64_t esize = elementSize(h.type);
+    const std::uint64_t total = checkedDataBytes(h.dimSize, esize, options.maxSourceBytes, name);
     const auto n = static_cast<std::size_t>(h.nDims);
     for (std::size_t a = 0; a < 3; ++a) {
         if (h.dimSize[a] > std::numeric_limits<std::int32_t>::max()) {
@@ -224,8 +226,6 @@ SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
         origin[static_cast<Eigen::Index>(a)] = h.offset[a] * 1e-3;
     }
 
-    const std::uint64_t esize = elementSize(h.type);
-    const std::uint64_t total = checkedDataBytes(h.dimSize, esize, options.maxSourceBytes, name);
     const std::uint64_t volumeBytes = total / static_cast<std::uint64_t>(volumeCount);
     const std::uint64_t volumeStart = t > 0 ? static_cast<std::uint64_t>(t) * volumeBytes : 0;
 

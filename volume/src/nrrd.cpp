@@ -446,6 +446,10 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
     const NrrdHeader h = parseNrrdHeader(prefix, name);
     const int n = h.dimension;
     const auto un = static_cast<std::size_t>(n);
+    // Refuse impossible sizes before anything else is looked at or allocated.
+    const std::uint64_t esize = elementSize(h.type);
+    const std::uint64_t total = checkedDataBytes(h.sizes, esize, options.maxSourceBytes, name);
+    const std::uint64_t count = total / esize;
 
     // Which axes are spatial.
     std::vector<int> spatial;
@@ -521,9 +525,6 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
     }
 
     // Voxel data.
-    const std::uint64_t esize = elementSize(h.type);
-    const std::uint64_t total = checkedDataBytes(h.sizes, esize, options.maxSourceBytes, name);
-    const std::uint64_t count = total / esize;
     fs::path dataPath = path;
     std::uint64_t offset = 0;
     if (h.dataFile.empty()) {
