@@ -116,7 +116,18 @@ ImplicitSolver::ImplicitSolver(const FemModel& model, const Constraints& constra
     mTarget = mU;
 
     if (options.integrator == Integrator::quasiStatic) {
-        // Supports must remove every rigid-body motion: check the pivots of K_ff once.
+        // Supports must remove every rigid-body motion: check the pivots of K_ff once (an LDLT
+        // of K_ff; with CHOLMOD the failed or near-singular Cholesky is the check instead).
+        if (options.solver == LinearSolverKind::cholmod) {
+            if (!prepare(1.0, 0.0)) {
+                std::ostringstream s;
+                s << "static problem supports: expected constraints that remove all rigid-body "
+                     "motions, found a singular stiffness (CHOLMOD factorisation failed; "
+                  << nc << " constrained dofs)";
+                throw ValueError(s.str());
+            }
+            return;
+        }
         Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> check(mKff);
         const Eigen::VectorXd dvec = check.vectorD();
         const double maxD = dvec.cwiseAbs().maxCoeff();
