@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <functional>
 #include <random>
 #include <thread>
 
@@ -51,6 +52,27 @@ TimingStats timeFrames(int warmUp, std::size_t frames, F&& frame) {
         us[f] = std::chrono::duration<double, std::micro>(t1 - t0).count();
     }
     return stats(us);
+}
+
+/// Times several frame functions interleaved frame by frame (the order rotates every frame), so
+/// that all of them see the same machine load; returns one TimingStats per function.
+std::vector<TimingStats> timeInterleaved(int warmUp, std::size_t frames,
+                                         const std::vector<std::function<void(std::size_t)>>& fns) {
+    const std::size_t n = fns.size();
+    for (int i = 0; i < warmUp; ++i)
+        for (const auto& f : fns) f(static_cast<std::size_t>(i) % frames);
+    std::vector<std::vector<double>> us(n, std::vector<double>(frames));
+    for (std::size_t f = 0; f < frames; ++f)
+        for (std::size_t j = 0; j < n; ++j) {
+            const std::size_t k = (j + f) % n;
+            const auto t0 = Clock::now();
+            fns[k](f);
+            const auto t1 = Clock::now();
+            us[k][f] = std::chrono::duration<double, std::micro>(t1 - t0).count();
+        }
+    std::vector<TimingStats> out;
+    for (auto& u : us) out.push_back(stats(u));
+    return out;
 }
 
 BenchComparison compare(std::string name, std::string subject, std::string baseline, TimingStats a,
@@ -242,23 +264,26 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
     for (auto& set : sets) {
         BundleHits hits;
         float sink = 0;
-        const TimingStats palp = timeFrames(o.warmUp, frames, [&](std::size_t f) {
-            traceFirstHit(view, set.bundles[f], fp, hits);
-            sink += hits.t[0];
-        });
         FirstHitParams noSkip = fp;
         noSkip.skipEmpty = false;
-        const TimingStats palpNoSkip = timeFrames(o.warmUp, frames, [&](std::size_t f) {
-            traceFirstHit(view, set.bundles[f], noSkip, hits);
-            sink += hits.t[0];
-        });
-        const TimingStats baseline = timeFrames(o.warmUp, frames, [&](std::size_t f) {
-            const RayBundle& b = set.bundles[f];
-            for (int r = 0; r < b.count; ++r) {
-                bool hit;
-                sink += base.trace(b, static_cast<std::size_t>(r), o.step, o.threshold, hit);
-            }
-        });
+        const auto t = timeInterleaved(
+            o.warmUp, frames,
+            {[&](std::size_t f) {
+                 traceFirstHit(view, set.bundles[f], fp, hits);
+                 sink += hits.t[0];
+             },
+             [&](std::size_t f) {
+                 traceFirstHit(view, set.bundles[f], noSkip, hits);
+                 sink += hits.t[0];
+             },
+             [&](std::size_t f) {
+                 const RayBundle& b = set.bundles[f];
+                 for (int r = 0; r < b.count; ++r) {
+                     bool hit;
+                     sink += base.trace(b, static_cast<std::size_t>(r), o.step, o.threshold, hit);
+                 }
+             }});
+        const TimingStats palp = t[0], palpNoSkip = t[1], baseline = t[2];
         // Agreement: palp vs baseline hits within 0.05 voxel.
         std::size_t agree = 0, total = 0, hitsN = 0;
         for (std::size_t f = 0; f < frames; f += std::max<std::size_t>(1, frames / 500)) {
@@ -332,16 +357,7 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
         const std::vector<RayBundle> bundles = trajectoryBundles(above, frames, bp, 0.0 + 1e-12);
         BundleHits hits;
         float sink = 0;
-        auto timed = [&](MeshTraceMode mode) {
-            return timeFrames(o.warmUp, frames, [&](std::size_t f) {
-                traceBundle(scene, bundles[f], kMaskAll, hits, mode);
-                sink += hits.t[0];
-            });
-        };
-        const TimingStats palpDefault = timed(kDefaultMeshTraceMode);
-        const TimingStats palpLoop = timed(MeshTraceMode::Loop1);
-        const TimingStats palpStream = timed(MeshTraceMode::Stream1M);
-        const TimingStats raw1 = timeFrames(o.warmUp, frames, [&](std::size_t f) {
+        auto raw1Frame = [&](std::size_t f) {
             const RayBundle& b = bundles[f];
             RTCIntersectContext ctx;
             rtcInitIntersectContext(&ctx);
@@ -355,8 +371,8 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
                 rtcIntersect1(scene.handle(), &ctx, &rh);
                 sink += rh.ray.tfar;
             }
-        });
-        const TimingStats rawM = timeFrames(o.warmUp, frames, [&](std::size_t f) {
+        };
+        auto rawMFrame = [&](std::size_t f) {
             const RayBundle& b = bundles[f];
             RTCIntersectContext ctx;
             rtcInitIntersectContext(&ctx);
@@ -373,7 +389,17 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
             }
             rtcIntersect1M(scene.handle(), &ctx, rays, static_cast<unsigned>(b.count), sizeof(RTCRayHit));
             sink += rays[0].ray.tfar;
-        });
+        };
+        auto palpFrame = [&](MeshTraceMode mode) {
+            return [&, mode](std::size_t f) {
+                traceBundle(scene, bundles[f], kMaskAll, hits, mode);
+                sink += hits.t[0];
+            };
+        };
+        const auto t = timeInterleaved(o.warmUp, frames,
+                                       {palpFrame(kDefaultMeshTraceMode), palpFrame(MeshTraceMode::Loop1),
+                                        palpFrame(MeshTraceMode::Stream1M), raw1Frame, rawMFrame});
+        const TimingStats palpDefault = t[0], palpLoop = t[1], palpStream = t[2], raw1 = t[3], rawM = t[4];
         const bool loopFaster = raw1.meanUs <= rawM.meanUs;
         const std::string prefix = "embree " + std::to_string(o.rays) + " rays, " + cs.name;
         BenchComparison c = compare(prefix, "palp traceBundle", loopFaster ? "raw rtcIntersect1 loop" : "raw rtcIntersect1M coherent",

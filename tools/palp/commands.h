@@ -18,6 +18,7 @@ struct Command {
 Command addConvert(CLI::App& root);
 Command addInfo(CLI::App& root);
 Command addPhantom(CLI::App& root);
+Command addBench(CLI::App& root);
 
 /// Global flags shared by subcommands.
 struct Globals {

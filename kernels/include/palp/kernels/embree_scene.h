@@ -81,7 +81,7 @@ enum class MeshTraceMode {
 
 /// The mode traceBundle() uses by default (the faster one in bench_rays on x86-64; see
 /// bench/README.md).
-inline constexpr MeshTraceMode kDefaultMeshTraceMode = MeshTraceMode::Loop1;
+inline constexpr MeshTraceMode kDefaultMeshTraceMode = MeshTraceMode::Stream1M;
 
 /// Closest hit of every ray of @p bundle against geometries whose mask shares a bit with
 /// @p mask. out.t: hit distance (metres) or the ray length; out.hit; out.geomId (or

@@ -115,7 +115,7 @@ private:
 struct FirstHitParams {
     float threshold = 300;  ///< hit where the interpolated value first reaches this (value units)
     double step = 0.25e-3;  ///< sample spacing along the ray, metres
-    int refineIterations = 4;  ///< regula-falsi steps below the step size (0: linear interpolation)
+    int refineIterations = 2;  ///< regula-falsi steps below the step size (0: linear interpolation)
     bool skipEmpty = true;  ///< skip blocks whose dilated maximum is below the threshold
 };
 
