@@ -373,6 +373,15 @@ TEST(PhantomSlices, TiltedUnevenGeometry) {
             }
         }
     }
+    // Geometries that would need absurd memory or overflow are refused before allocating.
+    SliceGeometry tiny = g;
+    tiny.pixelSpacing = 1e-9;
+    EXPECT_THROW(makePhantomSlices(spec, tiny), palp::ValueError);
+    tiny.pixelSpacing = 0.01 * kMm;  // 11000 x 6000 pixels per slice
+    EXPECT_THROW(makePhantomSlices(spec, tiny), palp::ValueError);
+    SliceGeometry steep = g;
+    steep.tiltDeg = 75;
+    EXPECT_THROW(makePhantomSlices(spec, steep), palp::ValueError);
     EXPECT_NEAR(stack.info.gantryTiltDeg, 15, 1e-12);
     EXPECT_NEAR(stack.info.minSliceGap, 1.5e-3, 1e-12);
     EXPECT_NEAR(stack.info.maxSliceGap, 2.5e-3, 1e-12);

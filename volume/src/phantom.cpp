@@ -357,6 +357,15 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
     if (!(std::abs(geometry.tiltDeg) < 60)) {
         throw ValueError("phantom gantry tilt: expected less than 60 degrees, found " + num(geometry.tiltDeg));
     }
+    // Guards the integer conversions below against absurd spacings.
+    const double smallest = std::min({geometry.pixelSpacing, geometry.sliceSpacing,
+                                      geometry.sliceGaps.empty() ? geometry.sliceSpacing
+                                                                 : *std::min_element(geometry.sliceGaps.begin(),
+                                                                                     geometry.sliceGaps.end())});
+    if (smallest < 1e-6 || geometry.pixelSpacing > 0.1 || spec.margin > 0.1) {
+        throw ValueError("phantom: expected spacings from 0.001 mm to 100 mm and a margin up to 100 mm, found pixel " +
+                         mm(geometry.pixelSpacing) + ", smallest gap " + mm(smallest) + ", margin " + mm(spec.margin));
+    }
     const std::vector<double> gaps =
         geometry.sliceGaps.empty() ? std::vector<double>{geometry.sliceSpacing} : geometry.sliceGaps;
     const double minGap = *std::min_element(gaps.begin(), gaps.end());
