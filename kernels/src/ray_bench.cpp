@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <ctime>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -61,17 +62,35 @@ std::vector<TimingStats> timeInterleaved(int warmUp, std::size_t frames,
     const std::size_t n = fns.size();
     for (int i = 0; i < warmUp; ++i)
         for (const auto& f : fns) f(static_cast<std::size_t>(i) % frames);
+    auto cpuNow = [] {
+        timespec ts{};
+        clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+        return static_cast<double>(ts.tv_sec) * 1e6 + static_cast<double>(ts.tv_nsec) * 1e-3;
+    };
+    // Cost of one pair of CPU-clock reads, subtracted below.
+    double overhead = 0;
+    {
+        const double c0 = cpuNow();
+        for (int i = 0; i < 1000; ++i) (void)cpuNow();
+        overhead = (cpuNow() - c0) / 1000.0;
+    }
     std::vector<std::vector<double>> us(n, std::vector<double>(frames));
+    std::vector<double> cpu(n, 0.0);
     for (std::size_t f = 0; f < frames; ++f)
         for (std::size_t j = 0; j < n; ++j) {
             const std::size_t k = (j + f) % n;
+            const double c0 = cpuNow();
             const auto t0 = Clock::now();
             fns[k](f);
             const auto t1 = Clock::now();
+            cpu[k] += cpuNow() - c0;
             us[k][f] = std::chrono::duration<double, std::micro>(t1 - t0).count();
         }
     std::vector<TimingStats> out;
-    for (auto& u : us) out.push_back(stats(u));
+    for (std::size_t k = 0; k < n; ++k) {
+        out.push_back(stats(us[k]));
+        out.back().cpuMeanUs = std::max(0.0, cpu[k] / static_cast<double>(frames) - overhead);
+    }
     return out;
 }
 
@@ -491,6 +510,11 @@ std::string formatComparison(const BenchComparison& c) {
                       c.b.p99Us, c.b.maxUs, c.ratioMean, c.ratioP99);
     }
     std::string s = buf;
+    if (c.a.cpuMeanUs > 0 && c.b.cpuMeanUs > 0) {
+        std::snprintf(buf, sizeof(buf), "; thread CPU time %.2f vs %.2f us, %.2fx", c.a.cpuMeanUs, c.b.cpuMeanUs,
+                      c.b.cpuMeanUs / c.a.cpuMeanUs);
+        s += buf;
+    }
     if (!c.note.empty()) s += " (" + c.note + ")";
     return s;
 }

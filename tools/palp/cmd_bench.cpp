@@ -22,7 +22,8 @@ namespace {
 
 json stats(const kernels::TimingStats& s, const std::string& unit) {
     if (unit == "Mrays/s") return {{"mrays_per_s", s.meanUs}};
-    return {{"mean_us", s.meanUs}, {"p99_us", s.p99Us}, {"max_us", s.maxUs}, {"frames", s.samples}};
+    return {{"mean_us", s.meanUs}, {"p99_us", s.p99Us}, {"max_us", s.maxUs}, {"cpu_mean_us", s.cpuMeanUs},
+            {"frames", s.samples}};
 }
 
 }  // namespace

@@ -29,7 +29,8 @@ struct RayBenchOptions {
 
 /// Per-frame (or per-call) timing figures in microseconds.
 struct TimingStats {
-    double meanUs = 0, p99Us = 0, maxUs = 0;
+    double meanUs = 0, p99Us = 0, maxUs = 0;  ///< wall clock per frame
+    double cpuMeanUs = 0;  ///< thread CPU time per frame (excludes preemption), 0 when not measured
     std::size_t samples = 0;
 };
 
