@@ -20,6 +20,7 @@ Command addConvert(CLI::App& root) {
         int volume = -1;
         double background = std::numeric_limits<double>::quiet_NaN();
         std::vector<double> cropMm;
+        std::string compression = "blosc";
     };
     auto args = std::make_shared<Args>();
     CLI::App* app = root.add_subcommand(
@@ -36,6 +37,8 @@ Command addConvert(CLI::App& root) {
     app->add_option("--crop", args->cropMm, "World box in mm (LPS): xmin,ymin,zmin,xmax,ymax,zmax")
         ->delimiter(',')
         ->expected(6);
+    app->add_option("--compression", args->compression, "Leaf compression: blosc (default), zip or mask")
+        ->check(CLI::IsMember({"blosc", "zip", "mask"}));
     return {app, [args]() -> int {
                 const fs::path out(args->output);
                 const fs::path dir = out.has_parent_path() ? out.parent_path() : fs::path(".");
@@ -59,7 +62,11 @@ Command addConvert(CLI::App& root) {
                 std::vector<fs::path> inputs(args->inputs.begin(), args->inputs.end());
                 const volume::Volume vol = volume::load(inputs, opt);
                 endProgress();
-                volume::save(vol, out);
+                volume::SaveOptions so;
+                so.compression = args->compression == "zip"    ? volume::Compression::Zip
+                                 : args->compression == "mask" ? volume::Compression::ActiveMask
+                                                               : volume::Compression::Blosc;
+                volume::save(vol, out, so);
                 if (!globals().quiet) {
                     const auto b = vol.worldBounds();
                     std::printf("palp convert: wrote %s: %s %s, voxel %.4g mm, %llu active voxels, "

@@ -161,7 +161,7 @@ Volume loadVdb(const fs::path& path) {
     return Volume{chosen, readInfo(*chosen)};
 }
 
-void save(const Volume& volume, const fs::path& path) {
+void save(const Volume& volume, const fs::path& path, const SaveOptions& options) {
     initialize();
     if (!volume.grid) throw ValueError(path.string() + ": expected a volume with a grid, found none");
     const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
@@ -177,7 +177,13 @@ void save(const Volume& volume, const fs::path& path) {
     volume.grid->setName(kScanGridName);
     try {
         openvdb::io::File file(tmp.string());
-        file.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+        std::uint32_t flags = openvdb::io::COMPRESS_ACTIVE_MASK;
+        if (options.compression == Compression::Blosc && openvdb::io::Archive::hasBloscCompression()) {
+            flags |= openvdb::io::COMPRESS_BLOSC;
+        } else if (options.compression != Compression::ActiveMask) {
+            flags |= openvdb::io::COMPRESS_ZIP;
+        }
+        file.setCompression(flags);
         openvdb::MetaMap fileMeta;
         fileMeta.insertMeta("creator", openvdb::StringMetadata("palp"));
         file.write({volume.grid}, fileMeta);

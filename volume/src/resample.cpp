@@ -216,6 +216,8 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     uvT.row(0) = g.u.transpose();
     uvT.row(1) = g.v.transpose();
     const Eigen::Matrix<double, 2, 3> M = g.gramInverse * uvT;
+    std::vector<double> invGap(n, 0.0);
+    for (std::size_t k = 0; k + 1 < n; ++k) invGap[k] = 1.0 / (g.along[k + 1] - g.along[k]);
     std::vector<const Slice*> sorted(n);
     std::vector<Eigen::Vector2d> crOffset(n);
     for (std::size_t k = 0; k < n; ++k) {
@@ -244,7 +246,12 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
         }
     });
 
-    auto blockMayBeActive = [&](const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax) -> bool {
+    // Returns whether a block may hold active voxels. When the whole block lies within the
+    // slices' range along the normal, sets [bracket, bracketEnd] to the slices that enclose it
+    // (else bracket = n).
+    auto blockMayBeActive = [&](const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax,
+                                std::size_t& bracket, std::size_t& bracketEnd) -> bool {
+        bracket = n;
         double smin = std::numeric_limits<double>::infinity(), smax = -smin;
         Eigen::Vector2d crMin = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity());
         Eigen::Vector2d crMax = -crMin;
@@ -265,6 +272,10 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
         auto last = static_cast<std::size_t>(std::lower_bound(g.along.begin(), g.along.end(), smax) -
                                              g.along.begin());
         last = std::min(last, n - 1);
+        if (n > 1 && smin >= loAlong && smax <= hiAlong) {
+            bracket = std::min(first, n - 2);
+            bracketEnd = std::max(last, bracket + 1);
+        }
         for (std::size_t k = first; k <= last; ++k) {
             const Eigen::Vector2d a = crMin + crOffset[k];
             const Eigen::Vector2d b = crMax + crOffset[k];
@@ -324,9 +335,50 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
                     const openvdb::Coord origin(xb * kLeafDim, yb * kLeafDim, zb * kLeafDim);
                     const Eigen::Vector3d bmin = lo + voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
                     const Eigen::Vector3d bmax = bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
-                    if (!blockMayBeActive(bmin, bmax)) continue;
+                    std::size_t bracket = n, bracketEnd = n;
+                    if (!blockMayBeActive(bmin, bmax, bracket, bracketEnd)) continue;
                     auto leaf = std::make_unique<LeafT>(origin, background, false);
                     bool any = false;
+                    if (bracket < n) {
+                        // Fast path: the block lies within the slices' range, and the along-normal
+                        // and in-plane coordinates are affine in the voxel offset.
+                        const double s0 = bmin.dot(g.normal);
+                        const Eigen::Vector3d ds = voxel * g.normal;
+                        const Eigen::Vector2d m0 = M * bmin;
+                        const Eigen::Matrix<double, 2, 3> dm = voxel * M;
+                        const int ni = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[0] - origin.x()));
+                        const int nj = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[1] - origin.y()));
+                        const int nk = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[2] - origin.z()));
+                        for (int i = 0; i < ni; ++i) {
+                            for (int j = 0; j < nj; ++j) {
+                                const double sij = s0 + ds.x() * i + ds.y() * j;
+                                const double mx = m0.x() + dm(0, 0) * i + dm(0, 1) * j;
+                                const double my = m0.y() + dm(1, 0) * i + dm(1, 1) * j;
+                                const openvdb::Index base = LeafT::coordToOffset(
+                                    openvdb::Coord(origin.x() + i, origin.y() + j, origin.z()));
+                                for (int k = 0; k < nk; ++k) {
+                                    const double sp = sij + ds.z() * k;
+                                    std::size_t ka = bracket;
+                                    while (ka + 1 < bracketEnd && g.along[ka + 1] <= sp) ++ka;
+                                    const double px = mx + dm(0, 2) * k;
+                                    const double py = my + dm(1, 2) * k;
+                                    double va = 0, vb = 0;
+                                    if (!sampleSlice(*sorted[ka], px + crOffset[ka].x(), py + crOffset[ka].y(), va) ||
+                                        !sampleSlice(*sorted[ka + 1], px + crOffset[ka + 1].x(),
+                                                     py + crOffset[ka + 1].y(), vb)) {
+                                        continue;
+                                    }
+                                    const double f = (sp - g.along[ka]) * invGap[ka];
+                                    const auto fv = static_cast<float>(va * (1 - f) + vb * f);
+                                    if (fv < threshold || fv == background) continue;
+                                    leaf->setValueOn(base + static_cast<openvdb::Index>(k), fv);
+                                    any = true;
+                                }
+                            }
+                        }
+                        if (any) mine.push_back(std::move(leaf));
+                        continue;
+                    }
                     for (int i = 0; i < kLeafDim; ++i) {
                         const int x = origin.x() + i;
                         if (x >= dims[0]) break;

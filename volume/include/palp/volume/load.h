@@ -45,10 +45,19 @@ SliceStack readStack(const std::vector<std::filesystem::path>& inputs, const Loa
 /// @throw IoError, FormatError, ValueError with the offending file named.
 Volume load(const std::vector<std::filesystem::path>& inputs, const LoadOptions& options = {});
 
+/// How `.vdb` leaf data is compressed on disk. Every mode drops inactive values (OpenVDB's
+/// active-mask compression); Blosc (LZ4) adds ~15 % smaller files for CT at ~1.6x the write CPU
+/// time, Zip ~8 % smaller at ~20x.
+enum class Compression { ActiveMask, Blosc, Zip };
+
+struct SaveOptions {
+    Compression compression = Compression::Blosc;
+};
+
 /// Writes @p volume to @p path as a compressed `.vdb` with its metadata. Writes to a temporary
 /// file beside @p path and renames it, so a failure leaves no partial file.
 /// @throw IoError naming the path when it cannot be written.
-void save(const Volume& volume, const std::filesystem::path& path);
+void save(const Volume& volume, const std::filesystem::path& path, const SaveOptions& options = {});
 
 /// Reads a palp `.vdb` (the grid named "scan", or the first float grid).
 /// @throw IoError, FormatError.
