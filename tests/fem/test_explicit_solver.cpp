@@ -31,7 +31,7 @@ namespace {
 
 /// Static displacement of the cube under a top patch load of @p newtons.
 Eigen::VectorXd staticPatchSolution(const FemModel& model, const Constraints& c, double newtons) {
-    ImplicitSolver s(model, c, {Integrator::quasiStatic, LinearSolverKind::simplicialLdlt});
+    ImplicitSolver s(model, c, {Integrator::quasiStatic, LinearSolverKind::cholmod});
     s.externalForce() = test::topPatchLoad(model.mesh(), newtons, 0.0101);
     s.step(1.0);
     return s.displacement();
@@ -142,21 +142,24 @@ TEST(ExplicitSolver, BadInputIsFlaggedNeverNaN) {
 }
 
 TEST(ExplicitSolver, AgreesWithImplicitOnADampedStepLoad) {
-    // Mass-proportional damping near critical for the first mode; after 1.5 s both integrators
+    // Rayleigh damping: alpha = 40 /s (zeta ~ 0.6 on the first mode, a clear overshoot remains),
+    // beta = 0.2 ms so that Newmark's undissipated high modes (omega dt >> 1) die out too; it
+    // shortens the explicit stable step by about 25 %. Both integrators advance 5 ms per call
+    // (the explicit one in substeps) and are compared at the same instants; after 0.6 s both
     // sit at the static solution.
-    const FemModel model(test::cube13(), test::softTissue(40.0, 0.0));
+    const FemModel model(test::cube13(), test::softTissue(40.0, 2e-4));
     const Constraints c = test::bottomFixed(model.mesh());
     const Eigen::VectorXd load = test::topPatchLoad(model.mesh(), 0.05, 0.0101);
     ExplicitSolver ex(model, c);
-    ImplicitSolver im(model, c, {Integrator::newmark, LinearSolverKind::simplicialLdlt});
+    ImplicitSolver im(model, c, {Integrator::newmark, LinearSolverKind::cholmod});
     ex.externalForce() = load;
     im.externalForce() = load;
     const int probe = 3 * model.mesh().node(6, 6, 12) + 2;
     double peakEx = 0.0, peakIm = 0.0;
-    const double dt = 1e-3;
-    for (int s = 0; s < 1500; ++s) {
-        ex.step(dt);
-        im.step(dt);
+    const double dt = 5e-3;
+    for (int s = 0; s < 120; ++s) {
+        ASSERT_EQ(ex.step(dt).flags, kStepOk);
+        ASSERT_EQ(im.step(dt).flags, kStepOk);
         peakEx = std::min(peakEx, ex.displacement()[probe]);
         peakIm = std::min(peakIm, im.displacement()[probe]);
     }

@@ -3,7 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <iostream>
 #include <limits>
+#include <numbers>
 
 #include "fem_test_util.h"
 #include "palp/error.h"
@@ -67,25 +69,39 @@ TEST(ImplicitSolver, DirectAndIterativeSolversAgreeAndReuseTheFactorisation) {
 }
 
 TEST(ImplicitSolver, NewmarkAndBackwardEulerSettleToTheStaticSolution) {
-    const FemModel model(test::cube13(), test::softTissue(20.0, 0.0));
+    // A step load, dt = 10 ms (about 16 stable explicit steps). Rayleigh damping with both parts:
+    // alpha = 20 /s damps the low modes (zeta = 0.3 on the first, omega ~ 34 rad/s) and
+    // beta = 1 ms the high ones. Average-acceleration Newmark has no numerical dissipation, and
+    // mass-proportional damping alone barely reaches the mesh modes with omega dt >> 1: their
+    // amplification is |lambda|^2 ~ 1 - 4 alpha / (omega^2 dt), 0.998 per step for omega ~ 2000
+    // rad/s, so with beta = 0 they still ring at about 1 % of the static displacement after
+    // 200 steps (checked: with dt = 1 ms the same alpha-only problem settles as exp(-alpha t / 2)).
+    // That is the integrator's known behaviour, not a solver bug; backward Euler damps them
+    // numerically either way.
+    const FemModel model(test::cube13(), test::softTissue(20.0, 1e-3));
     const Constraints c = test::bottomFixed(model.mesh());
     const Eigen::VectorXd load = test::topPatchLoad(model.mesh(), 0.05, 0.0101);
     ImplicitSolver st(model, c, {Integrator::quasiStatic, LinearSolverKind::cholmod});
     st.externalForce() = load;
-    st.step(1.0);
+    ASSERT_EQ(st.step(1.0).flags, kStepOk);
     const double scale = st.displacement().cwiseAbs().maxCoeff();
     for (auto integ : {Integrator::newmark, Integrator::backwardEuler}) {
         ImplicitSolver s(model, c, {integ, LinearSolverKind::cholmod});
         s.externalForce() = load;
-        for (int i = 0; i < 200; ++i) s.step(1e-2);  // dt = 10 stable explicit steps
-        EXPECT_LT((s.displacement() - st.displacement()).cwiseAbs().maxCoeff(), 0.01 * scale)
+        for (int i = 0; i < 100; ++i) ASSERT_EQ(s.step(1e-2).flags, kStepOk);
+        EXPECT_LT((s.displacement() - st.displacement()).cwiseAbs().maxCoeff(), 1e-4 * scale)
             << "integrator " << static_cast<int>(integ);
-        EXPECT_LT(s.kineticEnergy(), 1e-6 * s.strainEnergy());
+        EXPECT_LT(s.kineticEnergy(), 1e-8 * s.strainEnergy())
+            << "integrator " << static_cast<int>(integ);
+        // Settled: the reactions at the support carry the whole load.
+        EXPECT_NEAR(s.reactionSum(model.mesh().faceNodes(BoxFace::zMin)).z(), 0.05, 1e-5);
     }
 }
 
 TEST(ImplicitSolver, UnsupportedStaticProblemAndBadStepsAreRejected) {
-    const FemModel model(test::cube13(), test::softTissue());
+    // A small cube: the support check does not depend on the size.
+    const FemModel model(HexMesh::box(Eigen::Vector3d::Constant(0.02), {5, 5, 5}, 5e3),
+                         test::softTissue());
     Constraints none(model.dofCount());
     try {
         ImplicitSolver s(model, none, {Integrator::quasiStatic, LinearSolverKind::simplicialLdlt});
@@ -106,37 +122,66 @@ TEST(ImplicitSolver, UnsupportedStaticProblemAndBadStepsAreRejected) {
     EXPECT_TRUE(dyn.displacement().allFinite());
 }
 
-/// Quarter model of a rigid frictionless flat punch of radius a on a block.
-double punchForce(int nodesPerEdge, double block, double radius, double delta) {
+/// Force of a rigid frictionless flat punch on a block, quarter model.
+struct PunchResult {
+    double force = 0.0;            ///< newtons, whole punch
+    double effectiveRadius = 0.0;  ///< metres, radius of the discrete punch's contact area
+};
+
+/// Quarter model (symmetry planes x = 0 and y = 0) of a block of side @p block (half-width and
+/// depth, metres) resting frictionless on a rigid base (uz = 0 on the bottom), indented by
+/// @p delta metres on the top-face nodes within @p radius of the axis.
+PunchResult punch(int nodesPerEdge, double block, double radius, double delta) {
     const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(block),
                                       {nodesPerEdge, nodesPerEdge, nodesPerEdge}, 5e3);
     const FemModel model(mesh, test::softTissue());
     Constraints c(mesh.dofCount());
     c.fixNodes(mesh.faceNodes(BoxFace::xMin), 1u);  // symmetry planes
     c.fixNodes(mesh.faceNodes(BoxFace::yMin), 2u);
-    c.fixNodes(mesh.faceNodes(BoxFace::zMin), 7u);  // block bonded to a rigid base
-    std::vector<int> punch;
+    c.fixNodes(mesh.faceNodes(BoxFace::zMin), 4u);  // frictionless rigid base
+    std::vector<int> nodes;
+    double quarterArea = 0.0;
+    const double h = mesh.edge();
     for (int n : mesh.faceNodes(BoxFace::zMax)) {
         const Eigen::Vector3d p = mesh.nodePosition(n);
-        if (std::hypot(p.x(), p.y()) <= radius * (1 + 1e-9)) punch.push_back(n);
+        if (std::hypot(p.x(), p.y()) > radius * (1 + 1e-9)) continue;
+        nodes.push_back(n);
+        c.prescribe(3 * n + 2, -delta);
+        // Tributary square of the node, halved on each symmetry plane.
+        quarterArea += h * h * (p.x() < 1e-12 ? 0.5 : 1.0) * (p.y() < 1e-12 ? 0.5 : 1.0);
     }
-    for (int n : punch) c.prescribe(3 * n + 2, -delta);
     ImplicitSolver s(model, c, {Integrator::quasiStatic, LinearSolverKind::cholmod});
-    s.step(1.0);
-    return -4.0 * s.reactionSum(punch).z();
+    EXPECT_EQ(s.step(1.0).flags, kStepOk);
+    return {-4.0 * s.reactionSum(nodes).z(), std::sqrt(4.0 * quarterArea / std::numbers::pi)};
 }
 
 TEST(ImplicitSolver, FlatPunchConvergesToSneddon) {
+    // Sneddon: F = 2 a E delta / (1 - nu^2) for a rigid flat punch on an elastic half-space.
+    // Choices, so that the comparison is meaningful at sizes a direct solver handles in about a
+    // second (CHOLMOD, 17^3 nodes = 15k dofs):
+    // * the block is large against the punch: side (half-width and depth) 8 a; it rests on a
+    //   frictionless base, which stiffens it far less than a bonded one (bonded: +4 % here);
+    // * a staircase of lattice nodes cannot be a circle: the punch the mesh models is the set of
+    //   top-face nodes within a, whose contact area is the union of their tributary squares. We
+    //   compare at the radius of that area, a_eff = sqrt(A / pi) (a_eff -> a as h -> 0; at
+    //   a/h = 1, 1.5, 2 it is 1.26 a, 1.13 a, 1.02 a). Against the nominal a the force jumps with
+    //   each ring of nodes added, non-monotonically, and says little about convergence;
+    // * h is refined at fixed geometry, a/h = 1, 1.5, 2. The error falls monotonically towards
+    //   the few per cent left by the finite block and by the mild volumetric locking of full
+    //   integration at nu = 0.45 (which push in opposite directions).
     const double e = 5e3, nu = 0.45, a = 0.01, delta = 1e-4, block = 0.08;
-    const double sneddon = 2.0 * a * e * delta / (1.0 - nu * nu);
     double previousError = 1e9;
-    for (int n : {9, 17, 33}) {
-        const double f = punchForce(n, block, a, delta);
-        const double error = f / sneddon - 1.0;
-        std::cout << "[ Sneddon ] h = " << block / (n - 1) * 1e3 << " mm, a/h = "
-                  << a / (block / (n - 1)) << ": F = " << f << " N, Sneddon " << sneddon
-                  << " N, error " << 100 * error << " %\n";
-        EXPECT_LT(std::abs(error), previousError + 1e-9);
+    for (int n : {9, 13, 17}) {
+        const PunchResult r = punch(n, block, a, delta);
+        const double sneddon = 2.0 * r.effectiveRadius * e * delta / (1.0 - nu * nu);
+        const double error = r.force / sneddon - 1.0;
+        const double h = block / (n - 1);
+        std::cout << "[ Sneddon ] h = " << h * 1e3 << " mm, a/h = " << a / h
+                  << ", a_eff = " << r.effectiveRadius * 1e3 << " mm: F = " << r.force
+                  << " N, Sneddon(a_eff) " << sneddon << " N, error " << 100 * error
+                  << " % (against nominal a: "
+                  << 100 * (r.force / (2.0 * a * e * delta / (1.0 - nu * nu)) - 1.0) << " %)\n";
+        EXPECT_LT(std::abs(error), previousError) << "error must fall with refinement";
         previousError = std::abs(error);
     }
     EXPECT_LT(previousError, 0.10);
