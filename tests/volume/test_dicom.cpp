@@ -102,11 +102,13 @@ ErrorStats compareWithPixels(const palp::volume::Volume& vol, const std::vector<
     for (const DicomPixels& f : files) {
         for (int r = 0; r < f.rows; r += 4) {
             for (int c = 0; c < f.cols; c += 4) {
-                const double v = f.values[static_cast<std::size_t>(r) * static_cast<std::size_t>(f.cols) +
-                                          static_cast<std::size_t>(c)];
+                const double v =
+                    f.values[static_cast<std::size_t>(r) * static_cast<std::size_t>(f.cols) +
+                             static_cast<std::size_t>(c)];
                 if (v <= -500) continue;
                 const Eigen::Vector3d w = (f.worldMm(c, r) + shiftMm) * 1e-3;
-                const float s = palp::kernels::sampleWorld(acc, xf, openvdb::Vec3d(w.x(), w.y(), w.z()));
+                const float s =
+                    palp::kernels::sampleWorld(acc, xf, openvdb::Vec3d(w.x(), w.y(), w.z()));
                 err.push_back(std::abs(static_cast<double>(s) - v));
             }
         }
@@ -157,8 +159,8 @@ TEST(DicomRead, TiltedCtMatchesEveryFilesOwnGeometry) {
     const ErrorStats good = compareWithPixels(vol, files);
     RecordProperty("median_hu", std::to_string(good.median));
     RecordProperty("p95_hu", std::to_string(good.p95));
-    std::printf("ct-ge-head-tilt at 0.5 mm: %zu pixels, median |error| %.2f HU, p95 %.1f HU\n", good.count,
-                good.median, good.p95);
+    std::printf("ct-ge-head-tilt at 0.5 mm: %zu pixels, median |error| %.2f HU, p95 %.1f HU\n",
+                good.count, good.median, good.p95);
     EXPECT_GT(good.count, 50000u);
     EXPECT_LT(good.median, kMedianTolHu);
     EXPECT_LT(good.p95, kP95TolHu);
@@ -168,8 +170,8 @@ TEST(DicomRead, TiltedCtMatchesEveryFilesOwnGeometry) {
     // (a) one voxel (0.5 mm) shift of the transform, along each world axis.
     for (int axis = 0; axis < 3; ++axis) {
         const ErrorStats shifted = compareWithPixels(vol, files, 0.5 * Eigen::Vector3d::Unit(axis));
-        std::printf("  shifted one voxel along axis %d: median %.2f HU, p95 %.1f HU\n", axis, shifted.median,
-                    shifted.p95);
+        std::printf("  shifted one voxel along axis %d: median %.2f HU, p95 %.1f HU\n", axis,
+                    shifted.median, shifted.p95);
         EXPECT_FALSE(meetsCriteria(shifted));
         EXPECT_GT(shifted.median, 1.8 * good.median);
         EXPECT_GT(shifted.p95, 2 * good.p95);
@@ -187,12 +189,14 @@ TEST(DicomRead, TiltedCtMatchesEveryFilesOwnGeometry) {
                 std::reverse(row, row + s.cols);
             }
         }
-        const ErrorStats bad = compareWithPixels(palp::volume::resample(flipped, opt.resample), files);
+        const ErrorStats bad =
+            compareWithPixels(palp::volume::resample(flipped, opt.resample), files);
         std::printf("  flipped columns: median %.2f HU, p95 %.1f HU\n", bad.median, bad.p95);
         EXPECT_FALSE(meetsCriteria(bad));
         EXPECT_GT(bad.median, 10 * good.median);
     }
-    // (c) tilt ignored: every row step replaced by its (renormalised) projection on the axial plane.
+    // (c) tilt ignored: every row step replaced by its (renormalised) projection on the axial
+    // plane.
     {
         SliceStack untilted = stack;
         for (auto& s : untilted.slices) {
@@ -200,7 +204,8 @@ TEST(DicomRead, TiltedCtMatchesEveryFilesOwnGeometry) {
             s.rowStep.z() = 0;
             s.rowStep *= len / s.rowStep.norm();
         }
-        const ErrorStats bad = compareWithPixels(palp::volume::resample(untilted, opt.resample), files);
+        const ErrorStats bad =
+            compareWithPixels(palp::volume::resample(untilted, opt.resample), files);
         std::printf("  tilt ignored: median %.2f HU, p95 %.1f HU\n", bad.median, bad.p95);
         EXPECT_FALSE(meetsCriteria(bad));
         EXPECT_GT(bad.median, 10 * good.median);
@@ -251,8 +256,8 @@ VolumeMatch matchReference(const SliceStack& stack, const Nifti& ref, std::int64
                     idx[a] = std::llround(ijk[a]);
                     ok = ok && std::abs(ijk[a] - static_cast<double>(idx[a])) < 1e-3;
                 }
-                ok = ok && idx[0] >= 0 && idx[0] < im.nx && idx[1] >= 0 && idx[1] < im.ny && idx[2] >= 0 &&
-                     idx[2] < im.nz;
+                ok = ok && idx[0] >= 0 && idx[0] < im.nx && idx[1] >= 0 && idx[1] < im.ny &&
+                     idx[2] >= 0 && idx[2] < im.nz;
                 if (!ok) {
                     ++m.offLattice;
                     continue;
@@ -284,7 +289,8 @@ TEST(DicomRead, FourDimensionalSeriesMatchesDcm2niix) {
         palp::volume::readStack({dicomDir}, opt);
         FAIL() << "a 4D series without a time point must be refused";
     } catch (const palp::ValueError& e) {
-        EXPECT_NE(std::string(e.what()).find("10 time points (0-9)"), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find("10 time points (0-9)"), std::string::npos)
+            << e.what();
         EXPECT_NE(std::string(e.what()).find("--volume"), std::string::npos) << e.what();
     }
     opt.timePoint = 10;
@@ -298,7 +304,8 @@ TEST(DicomRead, FourDimensionalSeriesMatchesDcm2niix) {
     ASSERT_EQ(ref.image->nt, 10);
     ASSERT_GT(ref.image->sform_code, 0);
     // dcm2niix wrote no scaling (slope 0 or 1): raw values compare directly.
-    ASSERT_TRUE(ref.image->scl_slope == 0 || std::isnan(ref.image->scl_slope) || ref.image->scl_slope == 1);
+    ASSERT_TRUE(ref.image->scl_slope == 0 || std::isnan(ref.image->scl_slope) ||
+                ref.image->scl_slope == 1);
 
     for (const int t : {0, 4, 9}) {
         opt.timePoint = t;
@@ -320,11 +327,13 @@ TEST(DicomRead, FourDimensionalSeriesMatchesDcm2niix) {
     TempDir tmp;
     const std::vector<fs::path> files = dicomFiles(dicomDir);
     ASSERT_EQ(files.size(), 150u);
-    for (std::size_t i = 0; i + 1 < files.size(); ++i) copyFile(files[i], tmp / files[i].filename());
+    for (std::size_t i = 0; i + 1 < files.size(); ++i)
+        copyFile(files[i], tmp / files[i].filename());
     opt.timePoint = 0;
-    expectError<palp::ValueError>([&] { palp::volume::readStack({tmp.path()}, opt); },
-                                  {tmp.path().string(), "expected the same number of images at every slice position",
-                                   "found 9"});
+    expectError<palp::ValueError>(
+        [&] { palp::volume::readStack({tmp.path()}, opt); },
+        {tmp.path().string(), "expected the same number of images at every slice position",
+         "found 9"});
 }
 
 void copyFile(const fs::path& from, const fs::path& to) {
@@ -352,7 +361,8 @@ void expectError(Fn&& fn, const std::vector<std::string>& parts) {
         ADD_FAILURE() << "expected an exception";
     } catch (const E& e) {
         const std::string msg = e.what();
-        for (const auto& p : parts) EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
+        for (const auto& p : parts)
+            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
     } catch (const std::exception& e) {
         ADD_FAILURE() << "wrong exception type: " << e.what();
     }
@@ -364,15 +374,16 @@ TEST(DicomRead, TruncatedFileIsNamed) {
     for (const char* n : {"01.dcm", "02.dcm", "03.dcm"}) copyFile(dir / n, tmp / n);
     const fs::path bad = tmp / "02.dcm";
     fs::resize_file(bad, fs::file_size(bad) / 2);
-    expectError<palp::FormatError>([&] { palp::volume::readStack({tmp.path()}, {}); },
-                                   {bad.string(), "expected complete pixel data of 512x512x16 bits", "truncated"});
+    expectError<palp::FormatError>(
+        [&] { palp::volume::readStack({tmp.path()}, {}); },
+        {bad.string(), "expected complete pixel data of 512x512x16 bits", "truncated"});
 
     // Through the tool: non-zero exit, the message, and no output file.
     const fs::path tool = palp::test::palpTool();
     if (!fs::exists(tool)) GTEST_SKIP() << "palp tool not built at " << tool;
     const fs::path out = tmp / "out.vdb";
-    const auto r = palp::test::runCommand("'" + tool.string() + "' convert '" + tmp.path().string() + "' -o '" +
-                                          out.string() + "'");
+    const auto r = palp::test::runCommand("'" + tool.string() + "' convert '" +
+                                          tmp.path().string() + "' -o '" + out.string() + "'");
     EXPECT_NE(r.exitCode, 0);
     EXPECT_NE(r.output.find("palp: error: "), std::string::npos) << r.output;
     EXPECT_NE(r.output.find(bad.string()), std::string::npos) << r.output;
@@ -401,7 +412,8 @@ TEST(DicomRead, FileCutAnywhereIsRefusedWithoutCrashing) {
             EXPECT_EQ(st.slices.size(), 2u);
             ++skipped;
         } catch (const palp::FormatError& e) {
-            EXPECT_NE(std::string(e.what()).find(cut.string() + ": expected"), std::string::npos) << n << ": " << e.what();
+            EXPECT_NE(std::string(e.what()).find(cut.string() + ": expected"), std::string::npos)
+                << n << ": " << e.what();
             ++refused;
         }
     }
@@ -416,23 +428,26 @@ TEST(DicomRead, FileWithoutPixelDataOrGeometryIsNamed) {
         copyFile(dir / "01.dcm", tmp / "01.dcm");
         copyFile(dir / "03.dcm", tmp / "03.dcm");
         writeWithout(dir / "02.dcm", tmp / "02.dcm", gdcm::Tag(0x7fe0, 0x0010));
-        expectError<palp::FormatError>([&] { palp::volume::readStack({tmp.path()}, {}); },
-                                       {(tmp / "02.dcm").string(), "expected Pixel Data (7fe0,0010)", "found none"});
+        expectError<palp::FormatError>(
+            [&] { palp::volume::readStack({tmp.path()}, {}); },
+            {(tmp / "02.dcm").string(), "expected Pixel Data (7fe0,0010)", "found none"});
     }
     {
         TempDir tmp;
         copyFile(dir / "01.dcm", tmp / "01.dcm");
         writeWithout(dir / "02.dcm", tmp / "02.dcm", gdcm::Tag(0x0020, 0x0032));
-        expectError<palp::FormatError>([&] { palp::volume::readStack({tmp.path()}, {}); },
-                                       {(tmp / "02.dcm").string(), "expected Image Position (Patient) (0020,0032)",
-                                        "found none"});
+        expectError<palp::FormatError>(
+            [&] { palp::volume::readStack({tmp.path()}, {}); },
+            {(tmp / "02.dcm").string(), "expected Image Position (Patient) (0020,0032)",
+             "found none"});
     }
     {
         TempDir tmp;
         copyFile(dir / "01.dcm", tmp / "01.dcm");
         writeWithout(dir / "02.dcm", tmp / "02.dcm", gdcm::Tag(0x0028, 0x0030));
-        expectError<palp::FormatError>([&] { palp::volume::readStack({tmp.path()}, {}); },
-                                       {(tmp / "02.dcm").string(), "expected Pixel Spacing (0028,0030)"});
+        expectError<palp::FormatError>(
+            [&] { palp::volume::readStack({tmp.path()}, {}); },
+            {(tmp / "02.dcm").string(), "expected Pixel Spacing (0028,0030)"});
     }
 }
 
@@ -444,7 +459,8 @@ TEST(DicomRead, SeriesChoiceAndNonDicomFiles) {
     fs::create_directories(tmp / "mr" / "deeper");
     for (const char* n : {"01.dcm", "02.dcm", "03.dcm"}) copyFile(ct / n, tmp / "ct" / n);
     const std::vector<fs::path> mrFiles = dicomFiles(mr / "dicom");
-    for (std::size_t i = 0; i < 4; ++i) copyFile(mrFiles[i], tmp / "mr" / "deeper" / mrFiles[i].filename());
+    for (std::size_t i = 0; i < 4; ++i)
+        copyFile(mrFiles[i], tmp / "mr" / "deeper" / mrFiles[i].filename());
     {
         std::ofstream(tmp / "notes.txt") << "not DICOM\n";
         std::ofstream junk(tmp / "ct" / "junk.bin", std::ios::binary);
@@ -452,28 +468,32 @@ TEST(DicomRead, SeriesChoiceAndNonDicomFiles) {
     }
     const auto series = palp::volume::scanDicom({tmp.path()});
     ASSERT_EQ(series.size(), 2u);
-    const auto ctSeries = std::find_if(series.begin(), series.end(), [](const auto& s) { return s.modality == "CT"; });
-    const auto mrSeries = std::find_if(series.begin(), series.end(), [](const auto& s) { return s.modality == "MR"; });
+    const auto ctSeries = std::find_if(series.begin(), series.end(),
+                                       [](const auto& s) { return s.modality == "CT"; });
+    const auto mrSeries = std::find_if(series.begin(), series.end(),
+                                       [](const auto& s) { return s.modality == "MR"; });
     ASSERT_NE(ctSeries, series.end());
     ASSERT_NE(mrSeries, series.end());
     EXPECT_EQ(ctSeries->imageCount, 3);
     EXPECT_EQ(mrSeries->imageCount, 4);
     EXPECT_EQ(mrSeries->description, "Axial EPI-FMRI (Interleaved I to S)");
 
-    expectError<palp::ValueError>([&] { palp::volume::readStack({tmp.path()}, {}); },
-                                  {tmp.path().string(), "expected one DICOM series, found 2", "--series",
-                                   ctSeries->uid, mrSeries->uid, "Axial EPI-FMRI (Interleaved I to S)",
-                                   "3 images", "4 images"});
+    expectError<palp::ValueError>(
+        [&] { palp::volume::readStack({tmp.path()}, {}); },
+        {tmp.path().string(), "expected one DICOM series, found 2", "--series", ctSeries->uid,
+         mrSeries->uid, "Axial EPI-FMRI (Interleaved I to S)", "3 images", "4 images"});
     LoadOptions opt;
     opt.seriesUid = "1.2.3.4";
     expectError<palp::ValueError>([&] { palp::volume::readStack({tmp.path()}, opt); },
                                   {"expected series 1.2.3.4", ctSeries->uid, mrSeries->uid});
     opt.seriesUid = ctSeries->uid;
-    const SliceStack st = palp::volume::readStack({tmp.path()}, opt);  // junk files skipped silently
+    const SliceStack st =
+        palp::volume::readStack({tmp.path()}, opt);  // junk files skipped silently
     ASSERT_EQ(st.slices.size(), 3u);
     EXPECT_EQ(st.info.seriesUid, ctSeries->uid);
     EXPECT_EQ(st.slices[0].cols, 512);
-    // Steps in metres: colStep = row cosine * PixelSpacing[1], rowStep = column cosine * PixelSpacing[0].
+    // Steps in metres: colStep = row cosine * PixelSpacing[1], rowStep = column cosine *
+    // PixelSpacing[0].
     EXPECT_NEAR(st.slices[0].colStep.x(), 0.4882812e-3, 1e-10);
     EXPECT_NEAR(st.slices[0].rowStep.y(), 0.9483237 * 0.4882812e-3, 1e-10);
     EXPECT_NEAR(st.slices[0].rowStep.z(), -0.3173047 * 0.4882812e-3, 1e-10);
@@ -482,41 +502,49 @@ TEST(DicomRead, SeriesChoiceAndNonDicomFiles) {
     opt = {};
     opt.maxSourceBytes = 512 * 512 * 4 * 2;
     expectError<palp::ValueError>(
-        [&] { palp::volume::readStack({tmp / "ct" / "01.dcm", tmp / "ct" / "02.dcm", tmp / "ct" / "03.dcm"}, opt); },
+        [&] {
+            palp::volume::readStack(
+                {tmp / "ct" / "01.dcm", tmp / "ct" / "02.dcm", tmp / "ct" / "03.dcm"}, opt);
+        },
         {"expected at most 2097152 bytes", "512x512x3"});
     opt.maxSourceBytes = 512 * 512 * 4 * 3;
-    EXPECT_EQ(palp::volume::readStack({tmp / "ct" / "01.dcm", tmp / "ct" / "02.dcm", tmp / "ct" / "03.dcm"}, opt)
+    EXPECT_EQ(palp::volume::readStack(
+                  {tmp / "ct" / "01.dcm", tmp / "ct" / "02.dcm", tmp / "ct" / "03.dcm"}, opt)
                   .slices.size(),
               3u);
 }
 
 TEST(DicomRead, CompressedTransferSyntaxesDecodeIdentically) {
     PALP_REQUIRE_DATA(dir, "ct-ge-head-tilt");
-    if (!palp::test::haveProgram("gdcmconv")) GTEST_SKIP() << "gdcmconv (libgdcm-tools) not installed";
+    if (!palp::test::haveProgram("gdcmconv"))
+        GTEST_SKIP() << "gdcmconv (libgdcm-tools) not installed";
     const std::vector<std::string> names = {"10.dcm", "11.dcm", "12.dcm"};
     std::vector<fs::path> originals;
     for (const auto& n : names) originals.push_back(dir / n);
     const SliceStack reference = palp::volume::readStack(originals, {});
     ASSERT_EQ(reference.slices.size(), 3u);
     // Lossless syntaxes only, so values must match exactly.
-    for (const std::string flag : {"--jpeg", "--jpegls", "--j2k", "--rle", "--deflated", "--implicit"}) {
+    for (const std::string flag :
+         {"--jpeg", "--jpegls", "--j2k", "--rle", "--deflated", "--implicit"}) {
         TempDir tmp;
         for (const auto& n : names) {
-            const auto r = palp::test::runCommand("gdcmconv " + flag + " '" + (dir / n).string() + "' '" +
-                                                  (tmp / n).string() + "'");
+            const auto r = palp::test::runCommand("gdcmconv " + flag + " '" + (dir / n).string() +
+                                                  "' '" + (tmp / n).string() + "'");
             ASSERT_EQ(r.exitCode, 0) << flag << ": " << r.output;
         }
         const SliceStack st = palp::volume::readStack({tmp.path()}, {});
         ASSERT_EQ(st.slices.size(), 3u) << flag;
         for (std::size_t i = 0; i < 3; ++i) {
             EXPECT_EQ(st.slices[i].values, reference.slices[i].values) << flag << " slice " << i;
-            EXPECT_TRUE(st.slices[i].position.isApprox(reference.slices[i].position, 1e-12)) << flag;
+            EXPECT_TRUE(st.slices[i].position.isApprox(reference.slices[i].position, 1e-12))
+                << flag;
         }
         // Cut short, the file must be refused by name whatever the codec would make of it.
         const fs::path bad = tmp / "11.dcm";
         fs::resize_file(bad, fs::file_size(bad) / 2);
-        expectError<palp::FormatError>([&] { palp::volume::readStack({tmp.path()}, {}); },
-                                       {bad.string(), "expected complete pixel data of 512x512x16 bits", "found"});
+        expectError<palp::FormatError>(
+            [&] { palp::volume::readStack({tmp.path()}, {}); },
+            {bad.string(), "expected complete pixel data of 512x512x16 bits", "found"});
     }
 }
 
@@ -545,14 +573,16 @@ void writeMultiFrame(const SliceStack& stack, const fs::path& file) {
         for (float f : s.values) pixels.push_back(static_cast<std::int16_t>(f));
     }
     gdcm::DataElement pd(gdcm::Tag(0x7fe0, 0x0010));
-    pd.SetByteValue(reinterpret_cast<const char*>(pixels.data()), static_cast<std::uint32_t>(pixels.size() * 2));
+    pd.SetByteValue(reinterpret_cast<const char*>(pixels.data()),
+                    static_cast<std::uint32_t>(pixels.size() * 2));
     image.SetDataElement(pd);
     gdcm::File& f = writer.GetFile();
     f.GetHeader().SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
     gdcm::DataSet& ds = f.GetDataSet();
     gdcm::Attribute<0x0008, 0x0060> modality{"MR"};
     ds.Replace(modality.GetAsDataElement());
-    gdcm::Attribute<0x0008, 0x0016> sopClass{gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::EnhancedMRImageStorage)};
+    gdcm::Attribute<0x0008, 0x0016> sopClass{
+        gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::EnhancedMRImageStorage)};
     ds.Replace(sopClass.GetAsDataElement());
     writer.SetFileName(file.c_str());
     ASSERT_TRUE(writer.Write());
@@ -590,18 +620,20 @@ TEST(DicomRead, EmptyOrNonDicomDirectoryIsRefused) {
                                    {(tmp / "empty").string(), "expected DICOM files, found none"});
     fs::create_directories(tmp / "text");
     std::ofstream(tmp / "text" / "a.txt") << "hello\n";
-    expectError<palp::FormatError>([&] { palp::volume::readStack({tmp / "text"}, {}); },
-                                   {(tmp / "text").string(), "expected DICOM files, found none among 1 files"});
-    expectError<palp::IoError>([&] { palp::volume::scanDicom({tmp / "missing"}); },
-                               {(tmp / "missing").string(), "expected an existing file or directory"});
+    expectError<palp::FormatError>(
+        [&] { palp::volume::readStack({tmp / "text"}, {}); },
+        {(tmp / "text").string(), "expected DICOM files, found none among 1 files"});
+    expectError<palp::IoError>(
+        [&] { palp::volume::scanDicom({tmp / "missing"}); },
+        {(tmp / "missing").string(), "expected an existing file or directory"});
 }
 
 TEST(DicomRead, ZippedSingleVolumeReads) {
     PALP_REQUIRE_DATA(set, "mr-one-volume-many-formats");
     if (!palp::test::haveProgram("unzip")) GTEST_SKIP() << "unzip not installed";
     TempDir tmp;
-    const auto r = palp::test::runCommand("unzip -q -o '" + (set / "DICOM.zip").string() + "' -d '" +
-                                          tmp.path().string() + "'");
+    const auto r = palp::test::runCommand("unzip -q -o '" + (set / "DICOM.zip").string() +
+                                          "' -d '" + tmp.path().string() + "'");
     ASSERT_EQ(r.exitCode, 0) << r.output;
     const palp::volume::Volume vol = palp::volume::load({tmp.path()});
     EXPECT_EQ(vol.info.originalDims, (std::array<std::int64_t, 3>{64, 64, 37}));

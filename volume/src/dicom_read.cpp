@@ -5,8 +5,8 @@
 #include <gdcmMediaStorage.h>
 #include <gdcmReader.h>
 #include <gdcmScanner.h>
-#include <gdcmSequenceOfItems.h>
 #include <gdcmSequenceOfFragments.h>
+#include <gdcmSequenceOfItems.h>
 #include <gdcmTag.h>
 #include <gdcmTrace.h>
 #include <gdcmTransferSyntax.h>
@@ -59,7 +59,9 @@ const gdcm::Tag kRescaleSlope(0x0028, 0x1053);
 const gdcm::Tag kPixelData(0x7fe0, 0x0010);
 
 std::string trim(const std::string& s) {
-    const auto notSpace = [](char c) { return c != ' ' && c != '\0' && c != '\t' && c != '\r' && c != '\n'; };
+    const auto notSpace = [](char c) {
+        return c != ' ' && c != '\0' && c != '\t' && c != '\r' && c != '\n';
+    };
     const auto b = std::find_if(s.begin(), s.end(), notSpace);
     const auto e = std::find_if(s.rbegin(), s.rend(), notSpace).base();
     return b < e ? std::string(b, e) : std::string();
@@ -118,18 +120,19 @@ std::optional<double> parseTime(const std::string& text) {
 /// for some files that end inside an element header, so files are checked here, by reading
 /// element headers and skipping values, before GDCM sees them.
 struct Walk {
-    bool isPart10 = false;  // "DICM" at byte 128
-    bool complete = false;  // every header and value through the end of Pixel Data fits
+    bool isPart10 = false;     // "DICM" at byte 128
+    bool complete = false;     // every header and value through the end of Pixel Data fits
     bool inPixelData = false;  // the damage lies in the Pixel Data value
     bool noPixelData = false;  // an image file that ends cleanly before Pixel Data
-    std::string problem;    // what is wrong, for messages
-    std::string seriesUid;  // (0020,000e) when it was reached
+    std::string problem;       // what is wrong, for messages
+    std::string seriesUid;     // (0020,000e) when it was reached
     int rows = 0, cols = 0, bitsAllocated = 0;
     std::uint64_t size = 0;
 };
 
 bool isLongVr(const char* vr) {
-    static const char* const kLong[] = {"OB", "OD", "OF", "OL", "OV", "OW", "SQ", "SV", "UC", "UN", "UR", "UT", "UV"};
+    static const char* const kLong[] = {"OB", "OD", "OF", "OL", "OV", "OW", "SQ",
+                                        "SV", "UC", "UN", "UR", "UT", "UV"};
     for (const char* l : kLong) {
         if (vr[0] == l[0] && vr[1] == l[1]) return true;
     }
@@ -149,10 +152,12 @@ Walk walkFile(const fs::path& path) {
     const auto readAt = [&](std::uint64_t at, unsigned char* buf, std::size_t n) {
         if (at + n > size) return false;
         in.seekg(static_cast<std::streamoff>(at));
-        return static_cast<bool>(in.read(reinterpret_cast<char*>(buf), static_cast<std::streamsize>(n)));
+        return static_cast<bool>(
+            in.read(reinterpret_cast<char*>(buf), static_cast<std::streamsize>(n)));
     };
     const auto fail = [&](const std::string& what, std::uint64_t at) {
-        w.problem = what + " at byte " + std::to_string(at) + " of a " + std::to_string(size) + "-byte file";
+        w.problem = what + " at byte " + std::to_string(at) + " of a " + std::to_string(size) +
+                    "-byte file";
         return w;
     };
     bool metaDone = false, explicitVr = true, bigEndian = false, pixelData = false;
@@ -176,9 +181,11 @@ Walk walkFile(const fs::path& path) {
             return static_cast<std::uint32_t>(be ? (b[0] << 8 | b[1]) : (b[1] << 8 | b[0]));
         };
         const auto u32 = [&](const unsigned char* b) {
-            return be ? (static_cast<std::uint32_t>(b[0]) << 24 | static_cast<std::uint32_t>(b[1]) << 16 |
+            return be ? (static_cast<std::uint32_t>(b[0]) << 24 |
+                         static_cast<std::uint32_t>(b[1]) << 16 |
                          static_cast<std::uint32_t>(b[2]) << 8 | b[3])
-                      : (static_cast<std::uint32_t>(b[3]) << 24 | static_cast<std::uint32_t>(b[2]) << 16 |
+                      : (static_cast<std::uint32_t>(b[3]) << 24 |
+                         static_cast<std::uint32_t>(b[2]) << 16 |
                          static_cast<std::uint32_t>(b[1]) << 8 | b[0]);
         };
         const std::uint32_t group = u16(h), element = u16(h + 2);
@@ -193,7 +200,8 @@ Walk walkFile(const fs::path& path) {
             if (!readAt(pos + 4, h, 4)) return fail("a truncated element header", start);
             vr[0] = static_cast<char>(h[0]);
             vr[1] = static_cast<char>(h[1]);
-            if (vr[0] < 'A' || vr[0] > 'Z' || vr[1] < 'A' || vr[1] > 'Z') return fail("an invalid value representation", start);
+            if (vr[0] < 'A' || vr[0] > 'Z' || vr[1] < 'A' || vr[1] > 'Z')
+                return fail("an invalid value representation", start);
             if (isLongVr(vr)) {
                 if (!readAt(pos + 8, h, 4)) return fail("a truncated element header", start);
                 length = u32(h);
@@ -212,7 +220,9 @@ Walk walkFile(const fs::path& path) {
             if (element == 0xE000 && !undefined) {
                 if (pos + length > size) {
                     w.inPixelData = pixelData;
-                    return fail(pixelData ? "a truncated pixel data fragment" : "a truncated sequence item", start);
+                    return fail(
+                        pixelData ? "a truncated pixel data fragment" : "a truncated sequence item",
+                        start);
                 }
                 pos += length;
             } else if (element == 0xE000) {
@@ -252,8 +262,9 @@ Walk walkFile(const fs::path& path) {
         }
         if (pos + length > size) {
             w.inPixelData = group == 0x7FE0 && element == 0x0010;
-            return fail(w.inPixelData ? "a truncated pixel data value of " + std::to_string(length) + " bytes"
-                                      : "a truncated element value",
+            return fail(w.inPixelData
+                            ? "a truncated pixel data value of " + std::to_string(length) + " bytes"
+                            : "a truncated element value",
                         start);
         }
         pos += length;
@@ -264,9 +275,11 @@ Walk walkFile(const fs::path& path) {
     }
     if (!metaDone) return fail("the end of the file within its file meta information", pos);
     // An image storage object that ends cleanly before any Pixel Data was cut short.
-    if (!mediaStorage.empty() && gdcm::MediaStorage::IsImage(gdcm::MediaStorage::GetMSType(mediaStorage.c_str()))) {
+    if (!mediaStorage.empty() &&
+        gdcm::MediaStorage::IsImage(gdcm::MediaStorage::GetMSType(mediaStorage.c_str()))) {
         w.noPixelData = true;
-        return fail("the end of an image file (SOP class " + mediaStorage + ") before any Pixel Data", pos);
+        return fail(
+            "the end of an image file (SOP class " + mediaStorage + ") before any Pixel Data", pos);
     }
     if (depth != 0 || pixelData) return fail("an unterminated sequence", pos);
     w.complete = true;
@@ -301,25 +314,28 @@ struct Header {
 struct Scan {
     std::string inputsName;  // for messages: the input directory or file(s)
     std::size_t fileCount = 0;
-    std::vector<Header> headers;  // DICOM files only
+    std::vector<Header> headers;                     // DICOM files only
     std::vector<std::pair<fs::path, Walk>> damaged;  // DICOM files GDCM must not see
 };
 
 [[noreturn]] void throwDamaged(const fs::path& file, const Walk& w) {
     if (w.noPixelData) {
-        throw FormatError(file.string() + ": expected Pixel Data (7fe0,0010) of " + std::to_string(w.cols) + "x" +
-                          std::to_string(w.rows) + "x" + std::to_string(w.bitsAllocated) + " bits, found none: " +
-                          w.problem + " (the file is truncated or its pixel data was removed)");
+        throw FormatError(file.string() + ": expected Pixel Data (7fe0,0010) of " +
+                          std::to_string(w.cols) + "x" + std::to_string(w.rows) + "x" +
+                          std::to_string(w.bitsAllocated) + " bits, found none: " + w.problem +
+                          " (the file is truncated or its pixel data was removed)");
     }
     if (w.inPixelData) {
-        throw FormatError(file.string() + ": expected complete pixel data of " + std::to_string(w.cols) + "x" +
-                          std::to_string(w.rows) + "x" + std::to_string(w.bitsAllocated) + " bits, found " +
-                          w.problem + " (the file is truncated)");
+        throw FormatError(file.string() + ": expected complete pixel data of " +
+                          std::to_string(w.cols) + "x" + std::to_string(w.rows) + "x" +
+                          std::to_string(w.bitsAllocated) + " bits, found " + w.problem +
+                          " (the file is truncated)");
     }
     throw FormatError(file.string() + ": expected a complete DICOM header, found " + w.problem +
-                      (w.seriesUid.empty() ? std::string(" (its series cannot be told, so it is refused; remove it "
-                                                         "or list the other files explicitly)")
-                                           : std::string(" (series " + w.seriesUid + ")")));
+                      (w.seriesUid.empty()
+                           ? std::string(" (its series cannot be told, so it is refused; remove it "
+                                         "or list the other files explicitly)")
+                           : std::string(" (series " + w.seriesUid + ")")));
 }
 
 std::string describeInputs(const std::vector<fs::path>& inputs) {
@@ -346,14 +362,19 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
             throw IoError(in.string() + ": expected an existing file or directory, found nothing");
         }
         if (fs::is_directory(in, ec)) {
-            fs::recursive_directory_iterator it(in, fs::directory_options::skip_permission_denied, ec);
-            if (ec) throw IoError(in.string() + ": expected a readable directory, found an error: " + ec.message());
+            fs::recursive_directory_iterator it(in, fs::directory_options::skip_permission_denied,
+                                                ec);
+            if (ec)
+                throw IoError(in.string() +
+                              ": expected a readable directory, found an error: " + ec.message());
             for (const fs::recursive_directory_iterator end; it != end; it.increment(ec)) {
                 if (ec) break;
                 std::error_code fec;
                 if (it->is_regular_file(fec)) files.push_back(it->path().string());
             }
-            if (ec) throw IoError(in.string() + ": expected a readable directory, found an error: " + ec.message());
+            if (ec)
+                throw IoError(in.string() +
+                              ": expected a readable directory, found an error: " + ec.message());
         } else {
             files.push_back(in.string());
         }
@@ -363,12 +384,13 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
     scan.fileCount = files.size();
     if (files.empty()) return scan;
 
-    const gdcm::Tag tags[] = {kSopClassUid,      kAcquisitionTime, kContentTime,       kModality,
-                              kSeriesDescription, kGantryTilt,      kSeriesUid,         kAcquisitionNumber,
-                              kInstanceNumber,    kImagePosition,   kImageOrientation,  kTemporalPosition,
-                              kSamplesPerPixel,   kPhotometric,     kNumberOfFrames,    kRows,
-                              kColumns,           kPixelSpacing,    kBitsAllocated,     kRescaleIntercept,
-                              kRescaleSlope};
+    const gdcm::Tag tags[] = {
+        kSopClassUid,       kAcquisitionTime, kContentTime,      kModality,
+        kSeriesDescription, kGantryTilt,      kSeriesUid,        kAcquisitionNumber,
+        kInstanceNumber,    kImagePosition,   kImageOrientation, kTemporalPosition,
+        kSamplesPerPixel,   kPhotometric,     kNumberOfFrames,   kRows,
+        kColumns,           kPixelSpacing,    kBitsAllocated,    kRescaleIntercept,
+        kRescaleSlope};
     // Only DICOM Part 10 files ("DICM" at byte 128) are read, and only those whose structure is
     // complete reach GDCM.
     std::vector<std::string> complete;
@@ -384,7 +406,8 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
     files.swap(complete);
     gdcm::Scanner scanner;
     for (const gdcm::Tag& t : tags) scanner.AddTag(t);
-    if (!files.empty()) scanner.Scan(files);  // false only when no file at all was DICOM; IsKey tells per file
+    if (!files.empty())
+        scanner.Scan(files);  // false only when no file at all was DICOM; IsKey tells per file
     for (const std::string& f : files) {
         if (!scanner.IsKey(f.c_str())) continue;
         Header h;
@@ -425,7 +448,9 @@ std::vector<SeriesGroup> groupSeries(const Scan& scan) {
     }
     std::vector<SeriesGroup> out;
     for (auto& [uid, g] : byUid) out.push_back(std::move(g));
-    const auto desc = [](const SeriesGroup& g) { return g.files.front()->text(kSeriesDescription); };
+    const auto desc = [](const SeriesGroup& g) {
+        return g.files.front()->text(kSeriesDescription);
+    };
     std::stable_sort(out.begin(), out.end(), [&](const SeriesGroup& a, const SeriesGroup& b) {
         const std::string da = desc(a), db = desc(b);
         return da != db ? da < db : a.uid < b.uid;
@@ -512,8 +537,9 @@ DicomSeriesInfo describeSeries(const SeriesGroup& g) {
     info.positionCount = static_cast<int>(groups.size());
     std::size_t most = 0;
     for (const auto& grp : groups) most = std::max(most, grp.size());
-    info.timePointCount = info.imageCount % info.positionCount == 0 ? info.imageCount / info.positionCount
-                                                                    : static_cast<int>(most);
+    info.timePointCount = info.imageCount % info.positionCount == 0
+                              ? info.imageCount / info.positionCount
+                              : static_cast<int>(most);
     return info;
 }
 
@@ -521,8 +547,8 @@ std::string listSeries(const std::vector<SeriesGroup>& groups) {
     std::string s;
     for (const SeriesGroup& g : groups) {
         const std::string desc = g.files.front()->text(kSeriesDescription);
-        s += "\n  " + (g.uid.empty() ? std::string("(no SeriesInstanceUID)") : g.uid) + "  \"" + desc +
-             "\"  " + std::to_string(g.images.size()) + " images";
+        s += "\n  " + (g.uid.empty() ? std::string("(no SeriesInstanceUID)") : g.uid) + "  \"" +
+             desc + "\"  " + std::to_string(g.images.size()) + " images";
         if (g.images.size() != g.files.size()) {
             s += ", " + std::to_string(g.files.size() - g.images.size()) + " non-image files";
         }
@@ -546,11 +572,13 @@ const SeriesGroup& chooseSeries(const Scan& scan, const std::vector<SeriesGroup>
     if (withImages.size() == 1) return *withImages.front();
     if (withImages.empty()) {
         const Header& h = *groups.front().files.front();
-        throw FormatError(h.path.string() + ": expected DICOM images (Rows, Columns, Pixel Data), found " +
-                          std::to_string(scan.headers.size()) + " DICOM files without images (SOP class " +
-                          (h.text(kSopClassUid).empty() ? std::string("unknown") : h.text(kSopClassUid)) + ")");
+        throw FormatError(
+            h.path.string() + ": expected DICOM images (Rows, Columns, Pixel Data), found " +
+            std::to_string(scan.headers.size()) + " DICOM files without images (SOP class " +
+            (h.text(kSopClassUid).empty() ? std::string("unknown") : h.text(kSopClassUid)) + ")");
     }
-    throw ValueError(scan.inputsName + ": expected one DICOM series, found " + std::to_string(withImages.size()) +
+    throw ValueError(scan.inputsName + ": expected one DICOM series, found " +
+                     std::to_string(withImages.size()) +
                      "; choose one with --series UID:" + listSeries(groups));
 }
 
@@ -617,16 +645,20 @@ FileGeometry geometryOf(const Header& h) {
     const double rn = g.rowCosine.norm(), cn = g.columnCosine.norm();
     if (std::abs(rn - 1) > 0.01 || std::abs(cn - 1) > 0.01 ||
         std::abs(g.rowCosine.dot(g.columnCosine)) > 0.01) {
-        throw FormatError(file + ": expected Image Orientation (Patient) (0020,0037) with two orthogonal unit "
-                          "vectors, found '" + h.text(kImageOrientation) + "'");
+        throw FormatError(
+            file +
+            ": expected Image Orientation (Patient) (0020,0037) with two orthogonal unit "
+            "vectors, found '" +
+            h.text(kImageOrientation) + "'");
     }
     g.rowCosine /= rn;
     g.columnCosine /= cn;
     g.rowSpacing = ps[0];
     g.columnSpacing = ps[1];
     if (!(ps[0] > 0) || !(ps[1] > 0)) {
-        throw FormatError(file + ": expected Pixel Spacing (0028,0030) with two positive numbers, found '" +
-                          h.text(kPixelSpacing) + "'");
+        throw FormatError(
+            file + ": expected Pixel Spacing (0028,0030) with two positive numbers, found '" +
+            h.text(kPixelSpacing) + "'");
     }
     return g;
 }
@@ -648,10 +680,11 @@ std::string pixelDescription(int cols, int rows, int bits) {
     if (reader.Read()) {
         const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
         if (!ds.FindDataElement(kPixelData)) {
-            throw FormatError(file + ": expected Pixel Data (7fe0,0010) of " + expectedPixels +
-                              ", found none (the file has no pixel data; SOP class " +
-                              (h.text(kSopClassUid).empty() ? std::string("unknown") : h.text(kSopClassUid)) +
-                              ")");
+            throw FormatError(
+                file + ": expected Pixel Data (7fe0,0010) of " + expectedPixels +
+                ", found none (the file has no pixel data; SOP class " +
+                (h.text(kSopClassUid).empty() ? std::string("unknown") : h.text(kSopClassUid)) +
+                ")");
         }
         throw FormatError(file + ": expected decodable pixel data of " + expectedPixels +
                           ", found pixel data GDCM cannot decode");
@@ -669,8 +702,8 @@ void checkComplete(const Header& h, const gdcm::File& file, int cols, int rows, 
     const gdcm::DataSet& ds = file.GetDataSet();
     const std::string name = h.path.string();
     if (!ds.FindDataElement(kPixelData)) {
-        throw FormatError(name + ": expected Pixel Data (7fe0,0010) of " + pixelDescription(cols, rows, bits) +
-                          ", found none");
+        throw FormatError(name + ": expected Pixel Data (7fe0,0010) of " +
+                          pixelDescription(cols, rows, bits) + ", found none");
     }
     const gdcm::DataElement& pixels = ds.GetDataElement(kPixelData);
     const gdcm::TransferSyntax& ts = file.GetHeader().GetDataSetTransferSyntax();
@@ -696,9 +729,10 @@ void checkComplete(const Header& h, const gdcm::File& file, int cols, int rows, 
     const std::uint64_t start = headerReader.GetStreamCurrentPosition();
     const std::uint64_t end = start + declared;
     if (end > size) {
-        throw FormatError(name + ": expected complete pixel data of " + pixelDescription(cols, rows, bits) +
-                          " (" + std::to_string(declared) + " bytes ending at byte " +
-                          std::to_string(end) + "), found a truncated file of " + std::to_string(size) + " bytes");
+        throw FormatError(name + ": expected complete pixel data of " +
+                          pixelDescription(cols, rows, bits) + " (" + std::to_string(declared) +
+                          " bytes ending at byte " + std::to_string(end) +
+                          "), found a truncated file of " + std::to_string(size) + " bytes");
     }
 }
 
@@ -730,20 +764,42 @@ void convertPixels(const char* raw, std::size_t count, int bitsStored, int highB
 }
 
 /// Converts one frame of @p pf pixels at @p raw to rescaled floats.
-void convertFrame(const std::string& file, const char* raw, const gdcm::PixelFormat& pf, std::size_t count,
-                  double slope, double intercept, std::vector<float>& out) {
+void convertFrame(const std::string& file, const char* raw, const gdcm::PixelFormat& pf,
+                  std::size_t count, double slope, double intercept, std::vector<float>& out) {
     const int bitsStored = pf.GetBitsStored();
     const int highBit = pf.GetHighBit();
     const bool isSigned = pf.GetPixelRepresentation() == 1;
     switch (pf.GetScalarType()) {
-        case gdcm::PixelFormat::UINT8: convertPixels<std::uint8_t>(raw, count, bitsStored, highBit, false, slope, intercept, out); break;
-        case gdcm::PixelFormat::INT8: convertPixels<std::int8_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, out); break;
-        case gdcm::PixelFormat::UINT16: convertPixels<std::uint16_t>(raw, count, bitsStored, highBit, false, slope, intercept, out); break;
-        case gdcm::PixelFormat::INT16: convertPixels<std::int16_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, out); break;
-        case gdcm::PixelFormat::UINT32: convertPixels<std::uint32_t>(raw, count, bitsStored, highBit, false, slope, intercept, out); break;
-        case gdcm::PixelFormat::INT32: convertPixels<std::int32_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept, out); break;
-        case gdcm::PixelFormat::FLOAT32: convertPixels<float>(raw, count, 0, 0, true, slope, intercept, out); break;
-        case gdcm::PixelFormat::FLOAT64: convertPixels<double>(raw, count, 0, 0, true, slope, intercept, out); break;
+        case gdcm::PixelFormat::UINT8:
+            convertPixels<std::uint8_t>(raw, count, bitsStored, highBit, false, slope, intercept,
+                                        out);
+            break;
+        case gdcm::PixelFormat::INT8:
+            convertPixels<std::int8_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept,
+                                       out);
+            break;
+        case gdcm::PixelFormat::UINT16:
+            convertPixels<std::uint16_t>(raw, count, bitsStored, highBit, false, slope, intercept,
+                                         out);
+            break;
+        case gdcm::PixelFormat::INT16:
+            convertPixels<std::int16_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept,
+                                        out);
+            break;
+        case gdcm::PixelFormat::UINT32:
+            convertPixels<std::uint32_t>(raw, count, bitsStored, highBit, false, slope, intercept,
+                                         out);
+            break;
+        case gdcm::PixelFormat::INT32:
+            convertPixels<std::int32_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept,
+                                        out);
+            break;
+        case gdcm::PixelFormat::FLOAT32:
+            convertPixels<float>(raw, count, 0, 0, true, slope, intercept, out);
+            break;
+        case gdcm::PixelFormat::FLOAT64:
+            convertPixels<double>(raw, count, 0, 0, true, slope, intercept, out);
+            break;
         default:
             throw FormatError(file + ": expected 8, 16 or 32-bit integer or float pixels, found " +
                               std::string(pf.GetScalarTypeAsString()));
@@ -766,9 +822,11 @@ void decodeFile(const Header& h, int frames, gdcm::ImageReader& reader, std::vec
                           std::to_string(pf.GetSamplesPerPixel()) + " samples per pixel (" +
                           h.text(kPhotometric) + "); colour images are not supported");
     }
-    if (image.GetDimension(0) != static_cast<unsigned>(cols) || image.GetDimension(1) != static_cast<unsigned>(rows)) {
+    if (image.GetDimension(0) != static_cast<unsigned>(cols) ||
+        image.GetDimension(1) != static_cast<unsigned>(rows)) {
         throw FormatError(file + ": expected " + std::to_string(cols) + "x" + std::to_string(rows) +
-                          " pixels as the header says, found " + std::to_string(image.GetDimension(0)) + "x" +
+                          " pixels as the header says, found " +
+                          std::to_string(image.GetDimension(0)) + "x" +
                           std::to_string(image.GetDimension(1)) + " decoded");
     }
     const std::size_t count = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols) *
@@ -776,24 +834,29 @@ void decodeFile(const Header& h, int frames, gdcm::ImageReader& reader, std::vec
     const std::size_t pixelBytes = pf.GetPixelSize();
     const unsigned long length = image.GetBufferLength();
     if (pixelBytes == 0 || length < count * pixelBytes || length > 2 * count * pixelBytes) {
-        throw FormatError(file + ": expected pixel data of " + pixelDescription(cols, rows, pf.GetBitsAllocated()) +
-                          (frames > 1 ? " x " + std::to_string(frames) + " frames" : std::string()) + ", found " +
-                          std::to_string(length) + " bytes");
+        throw FormatError(
+            file + ": expected pixel data of " +
+            pixelDescription(cols, rows, pf.GetBitsAllocated()) +
+            (frames > 1 ? " x " + std::to_string(frames) + " frames" : std::string()) + ", found " +
+            std::to_string(length) + " bytes");
     }
     buffer.resize(length);
     if (!image.GetBuffer(buffer.data())) {
         const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
         const char* tsName = gdcm::TransferSyntax::GetTSString(ts);
         throw FormatError(file + ": expected complete pixel data of " +
-                          pixelDescription(cols, rows, pf.GetBitsAllocated()) + " (transfer syntax " +
+                          pixelDescription(cols, rows, pf.GetBitsAllocated()) +
+                          " (transfer syntax " +
                           (tsName ? std::string(tsName) : std::string("unknown")) +
                           "), found a truncated file or data that cannot be decoded");
     }
 }
 
-double checkedSlope(const std::string& file, const std::optional<double>& slope, const std::string& text) {
+double checkedSlope(const std::string& file, const std::optional<double>& slope,
+                    const std::string& text) {
     if (slope && *slope == 0) {
-        throw FormatError(file + ": expected a non-zero Rescale Slope (0028,1053), found '" + text + "'");
+        throw FormatError(file + ": expected a non-zero Rescale Slope (0028,1053), found '" + text +
+                          "'");
     }
     return slope.value_or(1.0);
 }
@@ -810,8 +873,10 @@ void decodeSlice(const Header& h, Slice& slice) {
     slice.cols = h.integer(kColumns, 0);
     slice.rows = h.integer(kRows, 0);
     slice.source = file;
-    const std::size_t count = static_cast<std::size_t>(slice.rows) * static_cast<std::size_t>(slice.cols);
-    convertFrame(file, buffer.data(), reader.GetImage().GetPixelFormat(), count, slope, intercept, slice.values);
+    const std::size_t count =
+        static_cast<std::size_t>(slice.rows) * static_cast<std::size_t>(slice.cols);
+    convertFrame(file, buffer.data(), reader.GetImage().GetPixelFormat(), count, slope, intercept,
+                 slice.values);
 }
 
 // Enhanced (functional group) multi-frame tags.
@@ -833,14 +898,16 @@ std::optional<std::string> elementText(const gdcm::DataSet& ds, const gdcm::Tag&
 
 /// Copies position, orientation, spacing and rescale of one functional group item into @p h.
 void applyFunctionalGroup(const gdcm::DataSet& group, Header& h) {
-    const std::pair<gdcm::Tag, gdcm::Tag> wanted[] = {{kPixelMeasuresSequence, kPixelSpacing},
-                                                      {kPlanePositionSequence, kImagePosition},
-                                                      {kPlaneOrientationSequence, kImageOrientation},
-                                                      {kValueTransformSequence, kRescaleSlope},
-                                                      {kValueTransformSequence, kRescaleIntercept}};
+    const std::pair<gdcm::Tag, gdcm::Tag> wanted[] = {
+        {kPixelMeasuresSequence, kPixelSpacing},
+        {kPlanePositionSequence, kImagePosition},
+        {kPlaneOrientationSequence, kImageOrientation},
+        {kValueTransformSequence, kRescaleSlope},
+        {kValueTransformSequence, kRescaleIntercept}};
     for (const auto& [sequence, tag] : wanted) {
         if (!group.FindDataElement(sequence)) continue;
-        const gdcm::SmartPointer<gdcm::SequenceOfItems> items = group.GetDataElement(sequence).GetValueAsSQ();
+        const gdcm::SmartPointer<gdcm::SequenceOfItems> items =
+            group.GetDataElement(sequence).GetValueAsSQ();
         if (!items || items->GetNumberOfItems() == 0) continue;
         if (auto v = elementText(items->GetItem(1).GetNestedDataSet(), tag)) h.values[tag] = *v;
     }
@@ -849,21 +916,23 @@ void applyFunctionalGroup(const gdcm::DataSet& group, Header& h) {
 /// The time point to read, checked against @p count; -1 for a 3D source without a choice.
 int chooseTimePoint(const std::string& name, int count, const LoadOptions& options) {
     if (count > 1 && !options.timePoint) {
-        throw ValueError(name + ": expected --volume N to choose one of the " + std::to_string(count) +
-                         " time points (0-" + std::to_string(count - 1) + "), found none");
+        throw ValueError(name + ": expected --volume N to choose one of the " +
+                         std::to_string(count) + " time points (0-" + std::to_string(count - 1) +
+                         "), found none");
     }
     if (!options.timePoint) return -1;
     const int t = *options.timePoint;
     if (t < 0 || t >= count) {
-        throw ValueError(name + ": expected --volume between 0 and " + std::to_string(count - 1) + " (" +
-                         std::to_string(count) + " time point" + (count > 1 ? "s" : "") + "), found " +
-                         std::to_string(t));
+        throw ValueError(name + ": expected --volume between 0 and " + std::to_string(count - 1) +
+                         " (" + std::to_string(count) + " time point" + (count > 1 ? "s" : "") +
+                         "), found " + std::to_string(t));
     }
     return t;
 }
 
 /// Groups @p images by position and checks that every position holds the same number.
-std::vector<std::vector<const Header*>> positionGroups(const std::string& name, const std::vector<const Header*>& images,
+std::vector<std::vector<const Header*>> positionGroups(const std::string& name,
+                                                       const std::vector<const Header*>& images,
                                                        const FileGeometry& first) {
     const Eigen::Vector3d normal = first.rowCosine.cross(first.columnCosine).normalized();
     const double tolMm = 0.02 * std::min(first.rowSpacing, first.columnSpacing);
@@ -873,21 +942,27 @@ std::vector<std::vector<const Header*>> positionGroups(const std::string& name, 
         if (grp.size() != timePoints) {
             const auto& other = grp.size() < timePoints ? grp : positions.front();
             const double at = positionOf(*other.front())->dot(normal);
-            throw ValueError(name + ": expected the same number of images at every slice position (" +
-                             std::to_string(timePoints) + " at the first), found " + std::to_string(other.size()) +
-                             " at position " + std::to_string(at) + " mm along the normal (e.g. " +
-                             other.front()->path.string() + "); the series is incomplete or mixes acquisitions");
+            throw ValueError(name +
+                             ": expected the same number of images at every slice position (" +
+                             std::to_string(timePoints) + " at the first), found " +
+                             std::to_string(other.size()) + " at position " + std::to_string(at) +
+                             " mm along the normal (e.g. " + other.front()->path.string() +
+                             "); the series is incomplete or mixes acquisitions");
         }
     }
     return positions;
 }
 
-void checkMemory(const std::string& name, int cols, int rows, std::size_t slices, std::uint64_t limit) {
-    const long double bytes = static_cast<long double>(rows) * cols * static_cast<long double>(slices) * 4.0L;
+void checkMemory(const std::string& name, int cols, int rows, std::size_t slices,
+                 std::uint64_t limit) {
+    const long double bytes =
+        static_cast<long double>(rows) * cols * static_cast<long double>(slices) * 4.0L;
     if (bytes > static_cast<long double>(limit)) {
-        throw ValueError(name + ": expected at most " + std::to_string(limit) + " bytes of decoded slices, found " +
-                         std::to_string(cols) + "x" + std::to_string(rows) + "x" + std::to_string(slices) +
-                         " pixels (" + std::to_string(static_cast<unsigned long long>(bytes)) + " bytes as float)");
+        throw ValueError(name + ": expected at most " + std::to_string(limit) +
+                         " bytes of decoded slices, found " + std::to_string(cols) + "x" +
+                         std::to_string(rows) + "x" + std::to_string(slices) + " pixels (" +
+                         std::to_string(static_cast<unsigned long long>(bytes)) +
+                         " bytes as float)");
     }
 }
 
@@ -897,19 +972,23 @@ void setGeometry(const FileGeometry& g, Slice& s) {
     s.rowStep = g.columnCosine * (g.rowSpacing * 1e-3);
 }
 
-void fillInfo(VolumeInfo& info, const Header& first, const std::vector<fs::path>& inputs, const std::string& uid,
-              std::size_t positions, int timePoint, int timePointCount, bool rescaleVaries) {
+void fillInfo(VolumeInfo& info, const Header& first, const std::vector<fs::path>& inputs,
+              const std::string& uid, std::size_t positions, int timePoint, int timePointCount,
+              bool rescaleVaries) {
     info.modality = first.text(kModality);
     info.valueUnits = info.modality == "CT" ? "HU" : "";
     info.sourceFormat = "DICOM";
     info.sourceDescription = first.text(kSeriesDescription);
     if (info.sourceDescription.empty()) {
         const fs::path in = inputs.front();
-        info.sourceDescription = (in.has_filename() ? in.filename() : in.parent_path().filename()).string();
+        info.sourceDescription =
+            (in.has_filename() ? in.filename() : in.parent_path().filename()).string();
     }
-    if (rescaleVaries) info.sourceDescription += " (rescale slope/intercept vary per slice; applied per slice)";
+    if (rescaleVaries)
+        info.sourceDescription += " (rescale slope/intercept vary per slice; applied per slice)";
     info.seriesUid = uid;
-    info.originalDims = {first.integer(kColumns, 0), first.integer(kRows, 0), static_cast<std::int64_t>(positions)};
+    info.originalDims = {first.integer(kColumns, 0), first.integer(kRows, 0),
+                         static_cast<std::int64_t>(positions)};
     info.rescaleSlope = first.number(kRescaleSlope).value_or(1.0);
     info.rescaleIntercept = first.number(kRescaleIntercept).value_or(0.0);
     info.gantryTiltDeg = first.number(kGantryTilt).value_or(0.0);
@@ -920,8 +999,9 @@ void fillInfo(VolumeInfo& info, const Header& first, const std::vector<fs::path>
 /// One enhanced multi-frame file: every frame's own position from the per-frame functional
 /// groups (so uneven spacing is kept exactly), orientation, spacing and rescale from the
 /// per-frame or shared groups. Repeated positions are time points in frame order.
-SliceStack readMultiFrame(const Header& h, int frames, const std::string& name, const std::string& uid,
-                          const std::vector<fs::path>& inputs, const LoadOptions& options) {
+SliceStack readMultiFrame(const Header& h, int frames, const std::string& name,
+                          const std::string& uid, const std::vector<fs::path>& inputs,
+                          const LoadOptions& options) {
     const std::string file = h.path.string();
     const int rows = h.integer(kRows, 0);
     const int cols = h.integer(kColumns, 0);
@@ -932,14 +1012,17 @@ SliceStack readMultiFrame(const Header& h, int frames, const std::string& name, 
     decodeFile(h, frames, reader, buffer);
     const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
     if (!ds.FindDataElement(kPerFrameGroups)) {
-        throw FormatError(file + ": expected a Per-frame Functional Groups Sequence (5200,9230) giving each of the " +
-                          std::to_string(frames) +
-                          " frames its position, found none (legacy multi-frame images are not supported)");
+        throw FormatError(
+            file +
+            ": expected a Per-frame Functional Groups Sequence (5200,9230) giving each of the " +
+            std::to_string(frames) +
+            " frames its position, found none (legacy multi-frame images are not supported)");
     }
     Header base = h;
     if (ds.FindDataElement(kSharedGroups)) {
         const auto shared = ds.GetDataElement(kSharedGroups).GetValueAsSQ();
-        if (shared && shared->GetNumberOfItems() > 0) applyFunctionalGroup(shared->GetItem(1).GetNestedDataSet(), base);
+        if (shared && shared->GetNumberOfItems() > 0)
+            applyFunctionalGroup(shared->GetItem(1).GetNestedDataSet(), base);
     }
     const auto perFrame = ds.GetDataElement(kPerFrameGroups).GetValueAsSQ();
     const std::size_t items = perFrame ? perFrame->GetNumberOfItems() : 0;
@@ -978,13 +1061,15 @@ SliceStack readMultiFrame(const Header& h, int frames, const std::string& name, 
         s.cols = cols;
         s.rows = rows;
         s.source = fh.path.string();
-        const double slope = checkedSlope(s.source, fh.number(kRescaleSlope), fh.text(kRescaleSlope));
+        const double slope =
+            checkedSlope(s.source, fh.number(kRescaleSlope), fh.text(kRescaleSlope));
         const double intercept = fh.number(kRescaleIntercept).value_or(0.0);
         convertFrame(file, buffer.data() + k * frameBytes, pf, count, slope, intercept, s.values);
         rescaleVaries = rescaleVaries || slope != first.number(kRescaleSlope).value_or(1.0) ||
                         intercept != first.number(kRescaleIntercept).value_or(0.0);
     }
-    fillInfo(stack.info, first, inputs, uid, positions.size(), timePoint, timePointCount, rescaleVaries);
+    fillInfo(stack.info, first, inputs, uid, positions.size(), timePoint, timePointCount,
+             rescaleVaries);
     return stack;
 }
 
@@ -1005,7 +1090,8 @@ std::vector<DicomSeriesInfo> scanDicom(const std::vector<fs::path>& inputs) {
 
 SliceStack readDicom(const std::vector<fs::path>& inputs, const LoadOptions& options) {
     const Scan scan = scanHeaders(inputs);
-    if (scan.headers.empty() && !scan.damaged.empty()) throwDamaged(scan.damaged.front().first, scan.damaged.front().second);
+    if (scan.headers.empty() && !scan.damaged.empty())
+        throwDamaged(scan.damaged.front().first, scan.damaged.front().second);
     if (scan.headers.empty()) throwNoDicom(scan);
     const std::vector<SeriesGroup> groups = groupSeries(scan);
     const SeriesGroup& series = chooseSeries(scan, groups, options);
@@ -1016,21 +1102,26 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const LoadOptions& opt
 
     for (const Header* h : series.files) {
         if (!h->isImage()) {
-            throw FormatError(h->path.string() + ": expected an image of series " + series.uid +
-                              " (Rows, Columns, Pixel Data), found a file without them (SOP class " +
-                              (h->text(kSopClassUid).empty() ? std::string("unknown") : h->text(kSopClassUid)) +
-                              ")");
+            throw FormatError(
+                h->path.string() + ": expected an image of series " + series.uid +
+                " (Rows, Columns, Pixel Data), found a file without them (SOP class " +
+                (h->text(kSopClassUid).empty() ? std::string("unknown") : h->text(kSopClassUid)) +
+                ")");
         }
         if (h->integer(kSamplesPerPixel, 1) != 1) {
-            throw FormatError(h->path.string() + ": expected a grayscale image (1 sample per pixel), found " +
-                              h->text(kSamplesPerPixel) + " samples per pixel (" + h->text(kPhotometric) +
-                              "); colour images are not supported");
+            throw FormatError(h->path.string() +
+                              ": expected a grayscale image (1 sample per pixel), found " +
+                              h->text(kSamplesPerPixel) + " samples per pixel (" +
+                              h->text(kPhotometric) + "); colour images are not supported");
         }
         const int frames = h->integer(kNumberOfFrames, 1);
         if (frames > 1) {
-            if (series.images.size() == 1) return readMultiFrame(*h, frames, name, series.uid, inputs, options);
-            throw FormatError(h->path.string() + ": expected single-frame images or one multi-frame file, found a "
-                              "multi-frame image of " + std::to_string(frames) + " frames among " +
+            if (series.images.size() == 1)
+                return readMultiFrame(*h, frames, name, series.uid, inputs, options);
+            throw FormatError(h->path.string() +
+                              ": expected single-frame images or one multi-frame file, found a "
+                              "multi-frame image of " +
+                              std::to_string(frames) + " frames among " +
                               std::to_string(series.images.size()) + " images of the series");
         }
     }
@@ -1053,7 +1144,8 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const LoadOptions& opt
     }
 
     // Refuse before decoding anything that would not fit the memory budget.
-    checkMemory(name, first.integer(kColumns, 0), first.integer(kRows, 0), chosen.size(), options.maxSourceBytes);
+    checkMemory(name, first.integer(kColumns, 0), first.integer(kRows, 0), chosen.size(),
+                options.maxSourceBytes);
 
     SliceStack stack;
     stack.slices.resize(chosen.size());
@@ -1068,7 +1160,8 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const LoadOptions& opt
         rescaleVaries = rescaleVaries || h.number(kRescaleSlope).value_or(1.0) != slope0 ||
                         h.number(kRescaleIntercept).value_or(0.0) != intercept0;
     }
-    fillInfo(stack.info, first, inputs, series.uid, chosen.size(), timePoint, timePointCount, rescaleVaries);
+    fillInfo(stack.info, first, inputs, series.uid, chosen.size(), timePoint, timePointCount,
+             rescaleVaries);
     return stack;
 }
 
