@@ -80,6 +80,18 @@ void BM_ExplicitStep(benchmark::State& state) {
     setLabel(state, model);
 }
 
+/// The matrix-free operator alone: f = K u (zeroing f included), one thread.
+void BM_StiffnessOperator(benchmark::State& state) {
+    const FemModel model(cube(static_cast<int>(state.range(0)), state.range(1) != 0), tissue());
+    Eigen::VectorXd u = Eigen::VectorXd::Constant(model.dofCount(), 1e-4), f = u;
+    for (auto _ : state) {
+        f.setZero();
+        model.addStiffnessTimes(u.data(), f.data());
+        benchmark::DoNotOptimize(f.data());
+    }
+    setLabel(state, model);
+}
+
 void BM_ExplicitStepTbb(benchmark::State& state) {
     const FemModel model(cube(static_cast<int>(state.range(0)), state.range(1) != 0), tissue());
     ExplicitSolver s(model, bottom(model.mesh()));
@@ -130,6 +142,7 @@ void BM_Factorisation(benchmark::State& state) {
 // Args: nodes per edge, inhomogeneous (0/1).
 BENCHMARK(BM_ReferenceCsrStep)->Args({13, 0})->Args({13, 1})->Args({33, 0})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ExplicitStep)->Args({13, 0})->Args({13, 1})->Args({33, 0})->Args({33, 1})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_StiffnessOperator)->Args({13, 0})->Args({13, 1})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ExplicitStepTbb)->Args({13, 0})->Args({33, 0})->Unit(benchmark::kMicrosecond);
 // Args: nodes per edge, solver (0 LDLT, 1 CHOLMOD, 2 PCG).
 BENCHMARK(BM_ImplicitStep)->Args({13, 0})->Args({13, 1})->Args({13, 2})->Unit(benchmark::kMillisecond);
