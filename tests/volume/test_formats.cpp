@@ -226,7 +226,7 @@ TEST(Nifti, ShortUncompressedFileIsRefusedBeforeLoading) {
 // ----------------------------------------------------------------------------------------------
 // The same scan as NRRD (detached gzip) and MetaImage (zlib)
 
-TEST(CrossFormat, NrrdAndMhaGiveTheSameWorldAndValues) {
+TEST(NrrdVsMetaImage, SameScanGivesTheSameWorldAndValues) {
     PALP_REQUIRE_DATA(dir, "mr-one-volume-many-formats");
     const SliceStack a = palp::volume::readNrrd(dir / "nrrd.nhdr", {});
     const SliceStack b = palp::volume::readMetaImage(dir / "mha.mha", {});
@@ -504,7 +504,7 @@ TEST(MetaImage, BadHeadersAreRefused) {
 // ----------------------------------------------------------------------------------------------
 // Through the palp tool
 
-TEST(Tool, ConvertRefusesBadNrrdAndLeavesNoOutput) {
+TEST(FormatsTool, ConvertRefusesBadNrrdAndLeavesNoOutput) {
     const fs::path tool = palp::test::palpTool();
     if (!fs::exists(tool)) GTEST_SKIP() << "palp tool not built at " << tool;
     TempDir tmp;

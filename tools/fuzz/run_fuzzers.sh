@@ -33,7 +33,7 @@ for t in "${targets[@]}"; do
     status=1
   else
     grep -E "^stat::(number_of_executed_units|new_units_added|peak_rss_mb)" "$build/fuzz_$t.log" || true
-    tail -n 1 "$build/fuzz_$t.log"
+    grep -E "^Done [0-9]+ runs" "$build/fuzz_$t.log" || true
   fi
 done
 exit "$status"
