@@ -99,7 +99,9 @@ private:
     std::vector<int> mConstrained;  // constrained dofs (including inactive nodes)
     std::vector<int> mFree;         // free dofs with mass
     Eigen::VectorXd mU, mUPrev, mForce, mInternal, mWork, mTarget, mStart;
-    Eigen::VectorXd mInvDen, mPrevCoef;  // 1/(m + dt/2 c), (m - dt/2 c) per dof
+    // 1/(m + dt/2 c), (m - dt/2 c), 2 m per dof; all three 0 on constrained dofs, so the update
+    // runs densely over every dof (constrained ones come out 0 and are then overwritten).
+    Eigen::VectorXd mInvDen, mPrevCoef, mTwoMass;
     mutable Eigen::VectorXd mEnergyWork, mEnergyForce;
 };
 
