@@ -186,7 +186,9 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
         result.advancedSeconds += dt;
         ++result.substeps;
     }
-    if (!allFinite(mU.data(), dofCount) || !allFinite(mUPrev.data(), dofCount)) {
+    // With one substep u(n-1) is the u(n) that the previous call (or setDisplacement) checked.
+    if (!allFinite(mU.data(), dofCount) ||
+        (substeps > 1 && !allFinite(mUPrev.data(), dofCount))) {
         for (int d : mFree) {
             mU[d] = 0.0;
             mUPrev[d] = 0.0;
