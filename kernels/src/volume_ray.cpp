@@ -23,17 +23,26 @@ struct Cell {
     bool finite = false;           // false: non-finite or absurd position (value: background)
 };
 
-/// floor() without a libm call (x86-64 baseline has no SSE4.1 round); |x| < kCoordLimit.
-inline std::int64_t fastFloor(double x) noexcept {
+#define PALP_HOT [[gnu::always_inline]] inline
+
+/// floor() without a libm call (x86-64 baseline has no SSE4.1 round); |x| < 2^62.
+PALP_HOT std::int64_t fastFloor(double x) noexcept {
     const auto i = static_cast<std::int64_t>(x);
     return i - (x < static_cast<double>(i) ? 1 : 0);
 }
 
-inline void locate(const Table& tb, double x, double y, double z, Cell& c) noexcept {
+/// ceil() without a libm call; |x| < 2^62.
+PALP_HOT std::int64_t fastCeil(double x) noexcept {
+    const auto i = static_cast<std::int64_t>(x);
+    return i + (x > static_cast<double>(i) ? 1 : 0);
+}
+
+PALP_HOT void locate(const Table& tb, double x, double y, double z, Cell& c) noexcept {
     // Written so that NaN fails the test.
     c.finite = std::fabs(x) < kCoordLimit && std::fabs(y) < kCoordLimit && std::fabs(z) < kCoordLimit;
     c.block = -1;
-    if (!c.finite) return;
+    if (!c.finite) [[unlikely]]
+        return;
     const std::int64_t fx = fastFloor(x), fy = fastFloor(y), fz = fastFloor(z);
     c.ix = fx - tb.origin[0];
     c.iy = fy - tb.origin[1];
@@ -42,14 +51,16 @@ inline void locate(const Table& tb, double x, double y, double z, Cell& c) noexc
     c.ty = static_cast<float>(y - static_cast<double>(fy));
     c.tz = static_cast<float>(z - static_cast<double>(fz));
     const std::int64_t bx = c.ix >> 3, by = c.iy >> 3, bz = c.iz >> 3;
-    if (c.ix < 0 || c.iy < 0 || c.iz < 0 || bx >= tb.blocks[0] || by >= tb.blocks[1] ||
-        bz >= tb.blocks[2])
+    // One unsigned compare per axis also rejects negative coordinates.
+    if (static_cast<std::uint64_t>(bx) >= static_cast<std::uint64_t>(tb.blocks[0]) ||
+        static_cast<std::uint64_t>(by) >= static_cast<std::uint64_t>(tb.blocks[1]) ||
+        static_cast<std::uint64_t>(bz) >= static_cast<std::uint64_t>(tb.blocks[2])) [[unlikely]]
         return;
     c.block = (bx * tb.blocks[1] + by) * tb.blocks[2] + bz;
 }
 
-inline float voxelRel(const Table& tb, float background, std::int64_t ix, std::int64_t iy,
-                      std::int64_t iz) noexcept {
+float voxelRel(const Table& tb, float background, std::int64_t ix, std::int64_t iy,
+               std::int64_t iz) noexcept {
     const std::int64_t bx = ix >> 3, by = iy >> 3, bz = iz >> 3;
     if (ix < 0 || iy < 0 || iz < 0 || bx >= tb.blocks[0] || by >= tb.blocks[1] || bz >= tb.blocks[2])
         return background;
@@ -58,43 +69,102 @@ inline float voxelRel(const Table& tb, float background, std::int64_t ix, std::i
     return tb.data[static_cast<std::size_t>(b)][off];
 }
 
-inline float sampleCell(const Table& tb, float background, const Cell& c) noexcept {
-    if (!c.finite) return background;
-    float v000, v001, v010, v011, v100, v101, v110, v111;
+/// The eight corner values of a cell whose base voxel lies in table block c.block but whose +1
+/// neighbours cross into the next block on at least one axis. The neighbour block on an axis is
+/// a fixed table stride away; past the table's far side every value is background. Branch-free
+/// apart from the (always predicted) far-side test: this path serves every sample on a block
+/// face, which is where block-aligned structures are hit.
+inline void gatherAcrossBlocks(const Table& tb, float background, const Cell& c, float (&v)[8]) noexcept {
     const std::int64_t lx = c.ix & 7, ly = c.iy & 7, lz = c.iz & 7;
-    if (c.block >= 0 && lx < 7 && ly < 7 && lz < 7) {
-        const float* p = tb.data[static_cast<std::size_t>(c.block)] + ((lx << 6) | (ly << 3) | lz);
-        v000 = p[0];
-        v001 = p[1];
-        v010 = p[8];
-        v011 = p[9];
-        v100 = p[64];
-        v101 = p[65];
-        v110 = p[72];
-        v111 = p[73];
-    } else {
-        v000 = voxelRel(tb, background, c.ix, c.iy, c.iz);
-        v001 = voxelRel(tb, background, c.ix, c.iy, c.iz + 1);
-        v010 = voxelRel(tb, background, c.ix, c.iy + 1, c.iz);
-        v011 = voxelRel(tb, background, c.ix, c.iy + 1, c.iz + 1);
-        v100 = voxelRel(tb, background, c.ix + 1, c.iy, c.iz);
-        v101 = voxelRel(tb, background, c.ix + 1, c.iy, c.iz + 1);
-        v110 = voxelRel(tb, background, c.ix + 1, c.iy + 1, c.iz);
-        v111 = voxelRel(tb, background, c.ix + 1, c.iy + 1, c.iz + 1);
+    const bool cx = lx == 7, cy = ly == 7, cz = lz == 7;
+    const std::int64_t sz = 1, sy = tb.blocks[2], sx = std::int64_t{tb.blocks[1]} * tb.blocks[2];
+    const std::int64_t b1x = cx ? sx : 0, b1y = cy ? sy : 0, b1z = cz ? sz : 0;  // block steps
+    const std::int64_t o1x = cx ? -7 * 64 : 64, o1y = cy ? -7 * 8 : 8, o1z = cz ? -7 : 1;  // in-block
+    const std::int64_t off = (lx << 6) | (ly << 3) | lz;
+    const float* const* d = tb.data.data() + c.block;
+    v[0] = d[0][off];
+    if ((cx && (c.ix >> 3) + 1 >= tb.blocks[0]) || (cy && (c.iy >> 3) + 1 >= tb.blocks[1]) ||
+        (cz && (c.iz >> 3) + 1 >= tb.blocks[2])) [[unlikely]] {
+        // At the table's far side (only without clipping): the slow, checked path.
+        for (int i = 1; i < 8; ++i)
+            v[i] = voxelRel(tb, background, c.ix + ((i >> 2) & 1), c.iy + ((i >> 1) & 1), c.iz + (i & 1));
+        return;
     }
-    const float a00 = v000 + (v100 - v000) * c.tx;
-    const float a01 = v001 + (v101 - v001) * c.tx;
-    const float a10 = v010 + (v110 - v010) * c.tx;
-    const float a11 = v011 + (v111 - v011) * c.tx;
+    v[1] = d[b1z][off + o1z];
+    v[2] = d[b1y][off + o1y];
+    v[3] = d[b1y + b1z][off + o1y + o1z];
+    v[4] = d[b1x][off + o1x];
+    v[5] = d[b1x + b1z][off + o1x + o1z];
+    v[6] = d[b1x + b1y][off + o1x + o1y];
+    v[7] = d[b1x + b1y + b1z][off + o1x + o1y + o1z];
+}
+
+/// The eight corner values of cell @p c (v[4 dx + 2 dy + dz]).
+PALP_HOT void loadCorners(const Table& tb, float background, const Cell& c, float (&v)[8]) noexcept {
+    const std::int64_t lx = c.ix & 7, ly = c.iy & 7, lz = c.iz & 7;
+    if (c.block >= 0 && lx < 7 && ly < 7 && lz < 7) [[likely]] {
+        const float* p = tb.data[static_cast<std::size_t>(c.block)] + ((lx << 6) | (ly << 3) | lz);
+        v[0] = p[0];
+        v[1] = p[1];
+        v[2] = p[8];
+        v[3] = p[9];
+        v[4] = p[64];
+        v[5] = p[65];
+        v[6] = p[72];
+        v[7] = p[73];
+    } else if (c.block >= 0) {
+        gatherAcrossBlocks(tb, background, c, v);
+    } else {
+        for (int i = 0; i < 8; ++i)
+            v[i] = voxelRel(tb, background, c.ix + ((i >> 2) & 1), c.iy + ((i >> 1) & 1), c.iz + (i & 1));
+    }
+}
+
+PALP_HOT float interpolate(const Cell& c, const float (&v)[8]) noexcept {
+    const float a00 = v[0] + (v[4] - v[0]) * c.tx;
+    const float a01 = v[1] + (v[5] - v[1]) * c.tx;
+    const float a10 = v[2] + (v[6] - v[2]) * c.tx;
+    const float a11 = v[3] + (v[7] - v[3]) * c.tx;
     const float b0 = a00 + (a10 - a00) * c.ty;
     const float b1 = a01 + (a11 - a01) * c.ty;
     return b0 + (b1 - b0) * c.tz;
+}
+
+PALP_HOT float sampleCell(const Table& tb, float background, const Cell& c) noexcept {
+    if (!c.finite) [[unlikely]]
+        return background;
+    float v[8];
+    loadCorners(tb, background, c, v);
+    return interpolate(c, v);
+}
+
+/// The corners of the cell sampled last. At 0.5-voxel steps about half of the samples of a ray
+/// (and nearly every refinement sample) fall into the cell of the sample before, so one ray
+/// keeps one of these and loads corners only when the cell changes.
+struct CornerCache {
+    std::int64_t ix = std::numeric_limits<std::int64_t>::min(), iy = 0, iz = 0;
+    float v[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+};
+
+/// Same value as sampleCell(), through @p cache.
+PALP_HOT float sampleCached(const Table& tb, float background, const Cell& c, CornerCache& cache) noexcept {
+    if (!c.finite) [[unlikely]]
+        return background;
+    if (c.ix != cache.ix || c.iy != cache.iy || c.iz != cache.iz) {
+        loadCorners(tb, background, c, cache.v);
+        cache.ix = c.ix;
+        cache.iy = c.iy;
+        cache.iz = c.iz;
+    }
+    return interpolate(c, cache.v);
 }
 
 /// A ray in index space with its sample lattice.
 struct IndexRay {
     double o[3] = {0, 0, 0};  // index position at t = 0
     double d[3] = {0, 0, 0};  // index units per metre
+    double inv[3] = {0, 0, 0};  // metres per index unit along each axis (1 / d, inf for d = 0)
+    double invStep = 0;         // 1 / step
     double length = 0;        // metres (possibly cut to kMaxSamplesPerRay)
     double step = 0;
     std::int64_t kBegin = 0, kEnd = -1;  // samples to visit (inclusive); others are background
@@ -118,14 +188,16 @@ bool setupRay(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen
     const double n = direction.norm();
     if (!(n > 0) || !std::isfinite(n)) return false;
     const Eigen::Vector3d oi = view.indexFromWorld(origin);
-    const double inv = 1.0 / view.voxelSize();
+    const double scale = view.inverseVoxelSize() / n;
     for (int a = 0; a < 3; ++a) {
         r.o[a] = oi[a];
-        r.d[a] = direction[a] / n * inv;
+        r.d[a] = direction[a] * scale;
+        r.inv[a] = 1.0 / r.d[a];
     }
     r.step = step;
+    r.invStep = 1.0 / step;
     r.length = std::min(length, step * static_cast<double>(kMaxSamplesPerRay));
-    r.kLast = static_cast<std::int64_t>(std::ceil(r.length / step - 1e-9));
+    r.kLast = fastCeil(r.length * r.invStep - 1e-9);  // <= kMaxSamplesPerRay
     if (r.kLast < 0) r.kLast = 0;
     r.kBegin = 0;
     r.kEnd = r.kLast;
@@ -143,7 +215,7 @@ bool setupRay(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen
             }
             continue;
         }
-        double ta = (lo - r.o[a]) / r.d[a], tbb = (hi - r.o[a]) / r.d[a];
+        double ta = (lo - r.o[a]) * r.inv[a], tbb = (hi - r.o[a]) * r.inv[a];
         if (ta > tbb) std::swap(ta, tbb);
         t0 = std::max(t0, ta);
         t1 = std::min(t1, tbb);
@@ -152,47 +224,78 @@ bool setupRay(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen
         r.kEnd = -1;
         return true;
     }
-    r.kBegin = std::max<std::int64_t>(0, static_cast<std::int64_t>(std::floor(t0 / step)));
-    r.kEnd = std::min<std::int64_t>(r.kLast, static_cast<std::int64_t>(std::ceil(t1 / step)));
+    // 0 <= t0 <= t1 <= length here, so both quotients are at most kMaxSamplesPerRay.
+    r.kBegin = std::max<std::int64_t>(0, fastFloor(t0 * r.invStep));
+    r.kEnd = std::min<std::int64_t>(r.kLast, fastCeil(t1 * r.invStep));
     return true;
 }
 
-inline float sampleAt(const VolumeView& view, const IndexRay& r, double t, Cell& c) noexcept {
+PALP_HOT float sampleAt(const VolumeView& view, const IndexRay& r, double t, CornerCache& cache) noexcept {
+    Cell c;
     locate(view.table(), r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
-    return sampleCell(view.table(), view.background(), c);
+    return sampleCached(view.table(), view.background(), c, cache);
 }
 
-/// t (metres) where the ray leaves the block that holds cell @p c.
-inline double blockExit(const Table& tb, const IndexRay& r, const Cell& c) noexcept {
-    const std::int64_t rel[3] = {c.ix, c.iy, c.iz};
-    double tExit = kInf;
+/// Next sample index after skipping the block of @p c and every following block (a 3D DDA over
+/// the block grid) for which @p skippable(maxDilated, minDilated) holds, starting at sample
+/// @p k. One DDA step costs a compare and an add per axis instead of a locate, a table lookup
+/// and an exit computation per block. The exit is rounded down by a hair so that rounding can
+/// only revisit a sample of a skipped block (which then skips again, one sample further), never
+/// jump over the first sample of the next block.
+template <class Skippable>
+PALP_HOT std::int64_t skipBlocks(const Table& tb, const IndexRay& r, const Cell& c, std::int64_t k,
+                                 Skippable&& skippable) noexcept {
+    std::int64_t b[3] = {c.ix >> 3, c.iy >> 3, c.iz >> 3};
+    const std::int64_t stride[3] = {std::int64_t{tb.blocks[1]} * tb.blocks[2], tb.blocks[2], 1};
+    std::int64_t dir[3];
+    double tNext[3], tDelta[3];
     for (int a = 0; a < 3; ++a) {
-        const double lo = static_cast<double>(tb.origin[static_cast<std::size_t>(a)] + (rel[a] & ~std::int64_t{7}));
-        if (r.d[a] > 0)
-            tExit = std::min(tExit, (lo + 8.0 - r.o[a]) / r.d[a]);
-        else if (r.d[a] < 0)
-            tExit = std::min(tExit, (lo - r.o[a]) / r.d[a]);
+        const auto ua = static_cast<std::size_t>(a);
+        const double lo = static_cast<double>(tb.origin[ua] + 8 * b[a]);
+        if (r.d[a] > 0) {
+            dir[a] = 1;
+            tNext[a] = (lo + 8.0 - r.o[a]) * r.inv[a];
+            tDelta[a] = 8.0 * r.inv[a];
+        } else if (r.d[a] < 0) {
+            dir[a] = -1;
+            tNext[a] = (lo - r.o[a]) * r.inv[a];
+            tDelta[a] = -8.0 * r.inv[a];
+        } else {
+            dir[a] = 0;
+            tNext[a] = kInf;
+            tDelta[a] = 0;
+        }
     }
-    return tExit;
-}
-
-/// Next sample index after skipping the block of @p c from sample @p k.
-inline std::int64_t skipBlock(const Table& tb, const IndexRay& r, const Cell& c, std::int64_t k) noexcept {
-    const double tExit = blockExit(tb, r, c);
-    const double kk = std::ceil(tExit / r.step);
-    if (!(kk < static_cast<double>(r.kEnd + 1))) return r.kEnd + 1;
-    return std::max(k + 1, static_cast<std::int64_t>(kk));
+    const double kEnd = static_cast<double>(r.kEnd);
+    std::int64_t block = c.block;
+    double tExit = 0;
+    // Bounded: every step moves one block along the ray, and the ray ends within
+    // kMaxSamplesPerRay samples; the table bound stops it earlier.
+    for (;;) {
+        const int a = tNext[0] <= tNext[1] ? (tNext[0] <= tNext[2] ? 0 : 2) : (tNext[1] <= tNext[2] ? 1 : 2);
+        tExit = tNext[a];
+        if (!(tExit * r.invStep - 1e-7 <= kEnd)) return r.kEnd + 1;  // past the last sample
+        b[a] += dir[a];
+        if (static_cast<std::uint64_t>(b[a]) >= static_cast<std::uint64_t>(tb.blocks[static_cast<std::size_t>(a)]))
+            break;  // leaving the table: let the caller sample there
+        block += dir[a] * stride[a];
+        const auto ub = static_cast<std::size_t>(block);
+        if (!skippable(tb.maxDilated[ub], tb.minDilated[ub])) break;
+        tNext[a] += tDelta[a];
+    }
+    const double kk = tExit * r.invStep - 1e-7;
+    if (!(kk <= static_cast<double>(r.kEnd))) return r.kEnd + 1;
+    return std::max(k + 1, fastCeil(kk));
 }
 
 /// Regula falsi (Illinois) on v(t) - thr between ta (below) and tb (at or above).
 /// fa < 0 <= fb are v - thr at ta < tb.
 double refineCrossing(const VolumeView& view, const IndexRay& r, double thr, double ta, double fa,
-                      double tb, double fb, int iterations) noexcept {
+                      double tb, double fb, int iterations, CornerCache& cache) noexcept {
     double t = ta + (tb - ta) * (fa / (fa - fb));
     int side = 0;
-    Cell c;
     for (int it = 0; it < iterations; ++it) {
-        const double f = static_cast<double>(sampleAt(view, r, t, c)) - thr;
+        const double f = static_cast<double>(sampleAt(view, r, t, cache)) - thr;
         if (!std::isfinite(f)) break;
         if (f >= 0) {
             tb = t;
@@ -452,24 +555,22 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin, const Eig
     float prev = 0;
     bool prevValid = false;
     Cell c;
+    CornerCache cache;
     for (std::int64_t k = r.kBegin; k <= r.kEnd;) {
         const double t = r.t(k);
         locate(tb, r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
         if (skip && c.block >= 0 && tb.maxDilated[static_cast<std::size_t>(c.block)] < thr) {
-            k = skipBlock(tb, r, c, k);
+            k = skipBlocks(tb, r, c, k, [thr](float mx, float) { return mx < thr; });
             prevValid = false;
             continue;
         }
-        const float v = sampleCell(tb, bg, c);
+        const float v = sampleCached(tb, bg, c, cache);
         if (v >= thr) {
             if (k == 0) return {0.0f, true};
             const double tp = r.t(k - 1);
-            if (!prevValid) {
-                Cell cp;
-                prev = sampleAt(view, r, tp, cp);
-            }
+            if (!prevValid) prev = sampleAt(view, r, tp, cache);
             const double th = refineCrossing(view, r, thr, tp, static_cast<double>(prev) - thr, t,
-                                             static_cast<double>(v) - thr, params.refineIterations);
+                                             static_cast<double>(v) - thr, params.refineIterations, cache);
             return {static_cast<float>(th), true};
         }
         prev = v;
@@ -503,18 +604,22 @@ AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
     bool found = false;
     double hitT = 0;
     Cell c;
+    CornerCache cache;
     for (std::int64_t k = r.kBegin; k <= r.kEnd;) {
         const double t = r.t(k);
         locate(tb, r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
         if (skip && c.block >= 0) {
             const float mx = tb.maxDilated[static_cast<std::size_t>(c.block)];
             if (mx < zeroBelow && (!wantHit || found || mx < thr)) {
-                k = skipBlock(tb, r, c, k);
+                const bool hitDone = !wantHit || found;
+                k = skipBlocks(tb, r, c, k, [zeroBelow, hitDone, thr](float bmx, float) {
+                    return bmx < zeroBelow && (hitDone || bmx < thr);
+                });
                 prevValid = false;
                 continue;
             }
         }
-        const float v = sampleCell(tb, bg, c);
+        const float v = sampleCached(tb, bg, c, cache);
         if (k == 0) {
             if (wantHit && v >= thr) {
                 found = true;
@@ -528,14 +633,13 @@ AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
         }
         if (!prevValid) {
             prevT = r.t(k - 1);
-            Cell cp;
-            prev = sampleAt(view, r, prevT, cp);
+            prev = sampleAt(view, r, prevT, cache);
         }
         if (wantHit && !found && v >= thr) {
             found = true;
             hitT = prev >= thr ? prevT
                                : refineCrossing(view, r, thr, prevT, static_cast<double>(prev) - thr, t,
-                                                static_cast<double>(v) - thr, 4);
+                                                static_cast<double>(v) - thr, 4, cache);
         }
         const double dt = t - prevT;
         const double v0 = prev, dv = static_cast<double>(v) - v0;

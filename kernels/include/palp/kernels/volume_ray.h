@@ -50,7 +50,10 @@ public:
     /// @par Real-time  noexcept, no allocation.
     float sampleIndex(double x, double y, double z) const noexcept;
 
+    /// Voxel edge length, metres.
     double voxelSize() const noexcept { return mVoxelSize; }
+    /// 1 / voxelSize(), per metre.
+    double inverseVoxelSize() const noexcept { return mInvVoxelSize; }
     float background() const noexcept { return mBackground; }
     const openvdb::FloatGrid& grid() const noexcept { return *mGrid; }
     /// True when the grid has no leaves and no active tiles.
