@@ -95,12 +95,13 @@ StackGeometry analyse(const SliceStack& stack) {
     return g;
 }
 
-/// Bilinear sample of one slice at continuous (c, r); false when outside the pixel centres.
-inline bool sampleSlice(const Slice& s, double c, double r, double& out) {
-    constexpr double e = 1e-6;
+/// Bilinear sample of one slice at continuous (c, r), with the edge pixels extended (clamped)
+/// outside the pixel centres. Returns false when (c, r) is more than (mc, mr) pixels outside.
+inline bool sampleSlice(const Slice& s, double c, double r, double& out, double mc, double mr) {
     const double cmax = s.cols - 1;
     const double rmax = s.rows - 1;
-    if (!(c >= -e && c <= cmax + e && r >= -e && r <= rmax + e)) return false;
+    const bool inside = c >= -mc && c <= cmax + mc && r >= -mr && r <= rmax + mr;
+    if (!(c == c) || !(r == r)) return false;
     c = std::clamp(c, 0.0, cmax);
     r = std::clamp(r, 0.0, rmax);
     const int c0 = std::min(static_cast<int>(c), std::max(s.cols - 2, 0));
@@ -116,7 +117,7 @@ inline bool sampleSlice(const Slice& s, double c, double r, double& out) {
     const double top = at(c0, r0) * (1 - fc) + at(c1, r0) * fc;
     const double bottom = at(c0, r1) * (1 - fc) + at(c1, r1) * fc;
     out = top * (1 - fr) + bottom * fr;
-    return true;
+    return inside;
 }
 
 }  // namespace
@@ -176,6 +177,12 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
         lo -= 0.5 * voxel * g.normal.cwiseAbs();
         hi += 0.5 * voxel * g.normal.cwiseAbs();
     }
+    // One voxel of margin on every side, filled by extending the edge pixels, so that trilinear
+    // sampling of the grid is exact up to the outermost pixel centres (a lattice cell around a
+    // point on the data's edge has corners up to one voxel away along each axis). Shifting by a
+    // whole voxel keeps the lattice of an axis-aligned source on its pixel centres.
+    lo -= Eigen::Vector3d::Constant(voxel);
+    hi += Eigen::Vector3d::Constant(voxel);
     if (options.crop) {
         lo = lo.cwiseMax(options.crop->min);
         hi = hi.cwiseMin(options.crop->max);
@@ -209,13 +216,16 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
 
     const double loAlong = g.along.front();
     const double hiAlong = g.along.back();
-    const double alongTol = n == 1 ? 0.5 * voxel : 1e-7;
+    const double alongTol = n == 1 ? 0.5 * voxel : voxel * g.normal.lpNorm<1>() + 1e-9;
 
     // In-plane coordinates are affine in the world point: (c, r) = M p - M position_k.
     Eigen::Matrix<double, 2, 3> uvT;
     uvT.row(0) = g.u.transpose();
     uvT.row(1) = g.v.transpose();
     const Eigen::Matrix<double, 2, 3> M = g.gramInverse * uvT;
+    // In-plane margin in pixels: how far (in c and r) a lattice corner one voxel away can reach.
+    const double mc = voxel * M.row(0).lpNorm<1>() + 1e-6;
+    const double mr = voxel * M.row(1).lpNorm<1>() + 1e-6;
     std::vector<double> invGap(n, 0.0);
     for (std::size_t k = 0; k + 1 < n; ++k) invGap[k] = 1.0 / (g.along[k + 1] - g.along[k]);
     std::vector<const Slice*> sorted(n);
@@ -279,7 +289,7 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
         for (std::size_t k = first; k <= last; ++k) {
             const Eigen::Vector2d a = crMin + crOffset[k];
             const Eigen::Vector2d b = crMax + crOffset[k];
-            if (b.x() < -1 || a.x() > cols || b.y() < -1 || a.y() > rows) continue;
+            if (b.x() < -mc - 1 || a.x() > cols + mc || b.y() < -mr - 1 || a.y() > rows + mr) continue;
             const int c0 = std::clamp(static_cast<int>(std::floor(a.x())) - 1, 0, cols - 1) / kTile;
             const int c1 = std::clamp(static_cast<int>(std::floor(b.x())) + 2, 0, cols - 1) / kTile;
             const int r0 = std::clamp(static_cast<int>(std::floor(a.y())) - 1, 0, rows - 1) / kTile;
@@ -308,14 +318,17 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
         const Eigen::Vector2d mp = M * p;
         const Eigen::Vector2d cr0 = mp + crOffset[k0];
         double v0 = 0;
-        if (!sampleSlice(*sorted[k0], cr0.x(), cr0.y(), v0)) return false;
+        const bool in0 = sampleSlice(*sorted[k0], cr0.x(), cr0.y(), v0, mc, mr);
         if (k0 == k1) {
             out = v0;
-            return true;
+            return in0;
         }
         const Eigen::Vector2d cr1 = mp + crOffset[k1];
         double v1 = 0;
-        if (!sampleSlice(*sorted[k1], cr1.x(), cr1.y(), v1)) return false;
+        // With tilt the slices are shifted in-plane against each other: near the edge one of
+        // the two may be outside; its clamped edge value is used as long as the other is inside.
+        const bool in1 = sampleSlice(*sorted[k1], cr1.x(), cr1.y(), v1, mc, mr);
+        if (!in0 && !in1) return false;
         const double f = (sp - g.along[k0]) / (g.along[k1] - g.along[k0]);
         out = v0 * (1 - f) + v1 * f;
         return true;
@@ -363,11 +376,11 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
                                     const double px = mx + dm(0, 2) * k;
                                     const double py = my + dm(1, 2) * k;
                                     double va = 0, vb = 0;
-                                    if (!sampleSlice(*sorted[ka], px + crOffset[ka].x(), py + crOffset[ka].y(), va) ||
-                                        !sampleSlice(*sorted[ka + 1], px + crOffset[ka + 1].x(),
-                                                     py + crOffset[ka + 1].y(), vb)) {
-                                        continue;
-                                    }
+                                    const bool ina = sampleSlice(*sorted[ka], px + crOffset[ka].x(),
+                                                                 py + crOffset[ka].y(), va, mc, mr);
+                                    const bool inb = sampleSlice(*sorted[ka + 1], px + crOffset[ka + 1].x(),
+                                                                 py + crOffset[ka + 1].y(), vb, mc, mr);
+                                    if (!ina && !inb) continue;
                                     const double f = (sp - g.along[ka]) * invGap[ka];
                                     const auto fv = static_cast<float>(va * (1 - f) + vb * f);
                                     if (fv < threshold || fv == background) continue;
