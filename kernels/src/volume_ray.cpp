@@ -65,55 +65,24 @@ float voxelRel(const Table& tb, float background, std::int64_t ix, std::int64_t 
     if (ix < 0 || iy < 0 || iz < 0 || bx >= tb.blocks[0] || by >= tb.blocks[1] || bz >= tb.blocks[2])
         return background;
     const std::int64_t b = (bx * tb.blocks[1] + by) * tb.blocks[2] + bz;
-    const std::int64_t off = ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7);
+    const std::int64_t off = ((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7);
     return tb.data[static_cast<std::size_t>(b)][off];
 }
 
-/// The eight corner values of a cell whose base voxel lies in table block c.block but whose +1
-/// neighbours cross into the next block on at least one axis. The neighbour block on an axis is
-/// a fixed table stride away; past the table's far side every value is background. Branch-free
-/// apart from the (always predicted) far-side test: this path serves every sample on a block
-/// face, which is where block-aligned structures are hit.
-inline void gatherAcrossBlocks(const Table& tb, float background, const Cell& c, float (&v)[8]) noexcept {
-    const std::int64_t lx = c.ix & 7, ly = c.iy & 7, lz = c.iz & 7;
-    const bool cx = lx == 7, cy = ly == 7, cz = lz == 7;
-    const std::int64_t sz = 1, sy = tb.blocks[2], sx = std::int64_t{tb.blocks[1]} * tb.blocks[2];
-    const std::int64_t b1x = cx ? sx : 0, b1y = cy ? sy : 0, b1z = cz ? sz : 0;  // block steps
-    const std::int64_t o1x = cx ? -7 * 64 : 64, o1y = cy ? -7 * 8 : 8, o1z = cz ? -7 : 1;  // in-block
-    const std::int64_t off = (lx << 6) | (ly << 3) | lz;
-    const float* const* d = tb.data.data() + c.block;
-    v[0] = d[0][off];
-    if ((cx && (c.ix >> 3) + 1 >= tb.blocks[0]) || (cy && (c.iy >> 3) + 1 >= tb.blocks[1]) ||
-        (cz && (c.iz >> 3) + 1 >= tb.blocks[2])) [[unlikely]] {
-        // At the table's far side (only without clipping): the slow, checked path.
-        for (int i = 1; i < 8; ++i)
-            v[i] = voxelRel(tb, background, c.ix + ((i >> 2) & 1), c.iy + ((i >> 1) & 1), c.iz + (i & 1));
-        return;
-    }
-    v[1] = d[b1z][off + o1z];
-    v[2] = d[b1y][off + o1y];
-    v[3] = d[b1y + b1z][off + o1y + o1z];
-    v[4] = d[b1x][off + o1x];
-    v[5] = d[b1x + b1z][off + o1x + o1z];
-    v[6] = d[b1x + b1y][off + o1x + o1y];
-    v[7] = d[b1x + b1y + b1z][off + o1x + o1y + o1z];
-}
-
-/// The eight corner values of cell @p c (v[4 dx + 2 dy + dz]).
+/// The eight corner values of cell @p c (v[4 dx + 2 dy + dz]). Inside the table they all lie in
+/// the padded copy of the base voxel's block.
 PALP_HOT void loadCorners(const Table& tb, float background, const Cell& c, float (&v)[8]) noexcept {
-    const std::int64_t lx = c.ix & 7, ly = c.iy & 7, lz = c.iz & 7;
-    if (c.block >= 0 && lx < 7 && ly < 7 && lz < 7) [[likely]] {
-        const float* p = tb.data[static_cast<std::size_t>(c.block)] + ((lx << 6) | (ly << 3) | lz);
+    if (c.block >= 0) [[likely]] {
+        const std::int64_t lx = c.ix & 7, ly = c.iy & 7, lz = c.iz & 7;
+        const float* p = tb.data[static_cast<std::size_t>(c.block)] + ((lx * 9 + ly) * 9 + lz);
         v[0] = p[0];
         v[1] = p[1];
-        v[2] = p[8];
-        v[3] = p[9];
-        v[4] = p[64];
-        v[5] = p[65];
-        v[6] = p[72];
-        v[7] = p[73];
-    } else if (c.block >= 0) {
-        gatherAcrossBlocks(tb, background, c, v);
+        v[2] = p[9];
+        v[3] = p[10];
+        v[4] = p[81];
+        v[5] = p[82];
+        v[6] = p[90];
+        v[7] = p[91];
     } else {
         for (int i = 0; i < 8; ++i)
             v[i] = voxelRel(tb, background, c.ix + ((i >> 2) & 1), c.iy + ((i >> 1) & 1), c.iz + (i & 1));
@@ -143,8 +112,23 @@ PALP_HOT float sampleCell(const Table& tb, float background, const Cell& c) noex
 /// keeps one of these and loads corners only when the cell changes.
 struct CornerCache {
     std::int64_t ix = std::numeric_limits<std::int64_t>::min(), iy = 0, iz = 0;
+    /// Index position of the cached cell's base voxel (NaN: nothing cached).
+    double base[3] = {std::numeric_limits<double>::quiet_NaN(), 0, 0};
     float v[8] = {0, 0, 0, 0, 0, 0, 0, 0};
 };
+
+/// The value at index position (x, y, z) when it lies in the cached cell (no locate, no load):
+/// bit-identical to sampleCell() there, since the fractions are the same differences.
+PALP_HOT bool sampleInCache(const CornerCache& cache, double x, double y, double z, float& v) noexcept {
+    const double fx = x - cache.base[0], fy = y - cache.base[1], fz = z - cache.base[2];
+    if (!(fx >= 0 && fx < 1 && fy >= 0 && fy < 1 && fz >= 0 && fz < 1)) return false;  // NaN: false
+    Cell c;
+    c.tx = static_cast<float>(fx);
+    c.ty = static_cast<float>(fy);
+    c.tz = static_cast<float>(fz);
+    v = interpolate(c, cache.v);
+    return true;
+}
 
 /// Same value as sampleCell(), through @p cache.
 PALP_HOT float sampleCached(const Table& tb, float background, const Cell& c, CornerCache& cache) noexcept {
@@ -155,6 +139,9 @@ PALP_HOT float sampleCached(const Table& tb, float background, const Cell& c, Co
         cache.ix = c.ix;
         cache.iy = c.iy;
         cache.iz = c.iz;
+        cache.base[0] = static_cast<double>(c.ix + tb.origin[0]);
+        cache.base[1] = static_cast<double>(c.iy + tb.origin[1]);
+        cache.base[2] = static_cast<double>(c.iz + tb.origin[2]);
     }
     return interpolate(c, cache.v);
 }
@@ -231,8 +218,11 @@ bool setupRay(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen
 }
 
 PALP_HOT float sampleAt(const VolumeView& view, const IndexRay& r, double t, CornerCache& cache) noexcept {
+    const double x = r.o[0] + t * r.d[0], y = r.o[1] + t * r.d[1], z = r.o[2] + t * r.d[2];
+    float v;
+    if (sampleInCache(cache, x, y, z, v)) return v;
     Cell c;
-    locate(view.table(), r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
+    locate(view.table(), x, y, z, c);
     return sampleCached(view.table(), view.background(), c, cache);
 }
 
@@ -348,16 +338,6 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
     mVoxelSize = s;
     mInvVoxelSize = 1.0 / s;
     mBackground = mGrid->background();
-
-    auto constantBlock = [this](float v) -> const float* {
-        for (const auto& b : mConstantBlocks)
-            if ((*b)[0] == v || (std::isnan(v) && std::isnan((*b)[0]))) return b->data();
-        mConstantBlocks.push_back(std::make_unique<std::array<float, 512>>());
-        mConstantBlocks.back()->fill(v);
-        return mConstantBlocks.back()->data();
-    };
-    mBackgroundBlock = constantBlock(mBackground);
-
     const openvdb::FloatTree& tree = mGrid->tree();
     openvdb::CoordBBox box;
     for (auto it = tree.cbeginLeaf(); it; ++it) box.expand(it->getNodeBoundingBox());
@@ -394,50 +374,89 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
     for (int a = 0; a < 3; ++a)
         mTable.blocks[static_cast<std::size_t>(a)] = static_cast<std::int32_t>(n[static_cast<std::size_t>(a)]);
     const auto count = static_cast<std::size_t>(total);
-    mTable.data.assign(count, mBackgroundBlock);
-    std::vector<float> ownMin(count, mBackground), ownMax(count, mBackground);
+    auto index = [&](std::int64_t bx, std::int64_t by, std::int64_t bz) {
+        return static_cast<std::size_t>((bx * n[1] + by) * n[2] + bz);
+    };
+
+    // Pass 1: each block's own 512 values (a leaf buffer, or a constant for tiles/background).
+    std::vector<const float*> own(count, nullptr);
+    std::vector<float> constant(count, mBackground);  // the value where own[b] is null
     for (std::int64_t bx = 0; bx < n[0]; ++bx)
         for (std::int64_t by = 0; by < n[1]; ++by)
             for (std::int64_t bz = 0; bz < n[2]; ++bz) {
-                const auto b = static_cast<std::size_t>((bx * n[1] + by) * n[2] + bz);
                 const openvdb::Coord c(static_cast<openvdb::Int32>(mTable.origin[0] + 8 * bx),
                                        static_cast<openvdb::Int32>(mTable.origin[1] + 8 * by),
                                        static_cast<openvdb::Int32>(mTable.origin[2] + 8 * bz));
-                if (const auto* leaf = tree.probeConstLeaf(c)) {
-                    const float* d = leaf->buffer().data();
-                    mTable.data[b] = d;
-                    const auto [mn, mx] = std::minmax_element(d, d + 512);
-                    ownMin[b] = *mn;
-                    ownMax[b] = *mx;
-                } else {
-                    const float v = tree.getValue(c);
-                    mTable.data[b] = constantBlock(v);
-                    ownMin[b] = v;
-                    ownMax[b] = v;
-                }
+                if (const auto* leaf = tree.probeConstLeaf(c))
+                    own[index(bx, by, bz)] = leaf->buffer().data();
+                else
+                    constant[index(bx, by, bz)] = tree.getValue(c);
             }
-    mTable.maxDilated.assign(count, mBackground);
-    mTable.minDilated.assign(count, mBackground);
+    auto sameBits = [](float x, float y) { return x == y || (std::isnan(x) && std::isnan(y)); };
+    // A block's padded copy is a shared constant when the block and its seven +x/+y/+z
+    // neighbours (background past the table) are all the same constant.
+    auto constantNeighbourhood = [&](std::int64_t bx, std::int64_t by, std::int64_t bz, float& v) {
+        v = own[index(bx, by, bz)] ? 0.0f : constant[index(bx, by, bz)];
+        if (own[index(bx, by, bz)]) return false;
+        for (int i = 1; i < 8; ++i) {
+            const std::int64_t x = bx + ((i >> 2) & 1), y = by + ((i >> 1) & 1), z = bz + (i & 1);
+            if (x >= n[0] || y >= n[1] || z >= n[2]) {
+                if (!sameBits(v, mBackground)) return false;
+                continue;
+            }
+            if (own[index(x, y, z)] || !sameBits(constant[index(x, y, z)], v)) return false;
+        }
+        return true;
+    };
+    std::size_t unique = 0;
     for (std::int64_t bx = 0; bx < n[0]; ++bx)
         for (std::int64_t by = 0; by < n[1]; ++by)
             for (std::int64_t bz = 0; bz < n[2]; ++bz) {
-                float mn = std::numeric_limits<float>::infinity(), mx = -mn;
-                for (int dx = 0; dx <= 1; ++dx)
-                    for (int dy = 0; dy <= 1; ++dy)
-                        for (int dz = 0; dz <= 1; ++dz) {
-                            const std::int64_t x = bx + dx, y = by + dy, z = bz + dz;
-                            float lo = mBackground, hi = mBackground;
+                float v;
+                if (!constantNeighbourhood(bx, by, bz, v)) ++unique;
+            }
+    mPadded.assign(unique * static_cast<std::size_t>(Table::kPadded), 0.0f);
+    mTable.data.assign(count, nullptr);
+    mTable.maxDilated.assign(count, mBackground);
+    mTable.minDilated.assign(count, mBackground);
+    auto constantBlock = [this, &sameBits](float v) -> const float* {
+        for (const auto& b : mConstantBlocks)
+            if (sameBits((*b)[0], v)) return b->data();
+        mConstantBlocks.push_back(std::make_unique<std::array<float, Table::kPadded>>());
+        mConstantBlocks.back()->fill(v);
+        return mConstantBlocks.back()->data();
+    };
+    // Pass 2: the padded copies and their exact value ranges.
+    std::size_t next = 0;
+    for (std::int64_t bx = 0; bx < n[0]; ++bx)
+        for (std::int64_t by = 0; by < n[1]; ++by)
+            for (std::int64_t bz = 0; bz < n[2]; ++bz) {
+                const std::size_t b = index(bx, by, bz);
+                float v;
+                if (constantNeighbourhood(bx, by, bz, v)) {
+                    mTable.data[b] = constantBlock(v);
+                    mTable.minDilated[b] = v;
+                    mTable.maxDilated[b] = v;
+                    continue;
+                }
+                float* dst = mPadded.data() + next * static_cast<std::size_t>(Table::kPadded);
+                ++next;
+                for (int lx = 0; lx < Table::kPad; ++lx)
+                    for (int ly = 0; ly < Table::kPad; ++ly)
+                        for (int lz = 0; lz < Table::kPad; ++lz) {
+                            const std::int64_t x = bx + lx / 8, y = by + ly / 8, z = bz + lz / 8;
+                            float value = mBackground;
                             if (x < n[0] && y < n[1] && z < n[2]) {
-                                const auto b = static_cast<std::size_t>((x * n[1] + y) * n[2] + z);
-                                lo = ownMin[b];
-                                hi = ownMax[b];
+                                const std::size_t src = index(x, y, z);
+                                value = own[src] ? own[src][((lx % 8) << 6) | ((ly % 8) << 3) | (lz % 8)]
+                                                 : constant[src];
                             }
-                            mn = std::min(mn, lo);
-                            mx = std::max(mx, hi);
+                            dst[(lx * Table::kPad + ly) * Table::kPad + lz] = value;
                         }
-                const auto b = static_cast<std::size_t>((bx * n[1] + by) * n[2] + bz);
-                mTable.minDilated[b] = mn;
-                mTable.maxDilated[b] = mx;
+                const auto [mn, mx] = std::minmax_element(dst, dst + Table::kPadded);
+                mTable.data[b] = dst;
+                mTable.minDilated[b] = *mn;
+                mTable.maxDilated[b] = *mx;
             }
 }
 
@@ -558,13 +577,19 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin, const Eig
     CornerCache cache;
     for (std::int64_t k = r.kBegin; k <= r.kEnd;) {
         const double t = r.t(k);
-        locate(tb, r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
-        if (skip && c.block >= 0 && tb.maxDilated[static_cast<std::size_t>(c.block)] < thr) {
-            k = skipBlocks(tb, r, c, k, [thr](float mx, float) { return mx < thr; });
-            prevValid = false;
-            continue;
+        const double x = r.o[0] + t * r.d[0], y = r.o[1] + t * r.d[1], z = r.o[2] + t * r.d[2];
+        float v;
+        // A sample in the cell of the one before needs no locate and no skip test (its block
+        // was not skipped).
+        if (!sampleInCache(cache, x, y, z, v)) {
+            locate(tb, x, y, z, c);
+            if (skip && c.block >= 0 && tb.maxDilated[static_cast<std::size_t>(c.block)] < thr) {
+                k = skipBlocks(tb, r, c, k, [thr](float mx, float) { return mx < thr; });
+                prevValid = false;
+                continue;
+            }
+            v = sampleCached(tb, bg, c, cache);
         }
-        const float v = sampleCached(tb, bg, c, cache);
         if (v >= thr) {
             if (k == 0) return {0.0f, true};
             const double tp = r.t(k - 1);

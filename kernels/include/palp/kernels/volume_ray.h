@@ -3,12 +3,14 @@
 /// Ray marching through a FloatGrid for AVC/AVCEC: first-hit (threshold crossing) and
 /// accumulate (integral of a transfer function) modes, for single rays and whole bundles.
 ///
-/// The grid is read through a VolumeView: a flat table of the grid's 8^3 leaf blocks built once
-/// at set-up. A trilinear sample then costs one table load and eight float loads when its cell
-/// lies inside one leaf (7 of 8 cases along a ray on average), instead of a tree walk through a
-/// ValueAccessor; and blocks whose values cannot matter (their dilated maximum is below the
-/// threshold, or the transfer function is zero there) are skipped to their exit without
-/// sampling. Skipping never changes a result: samples stay on the lattice t_k = k * step.
+/// The grid is read through a VolumeView: a flat table of the grid's 8^3 blocks built once at
+/// set-up, each stored as a 9^3 copy that includes the first voxel layer of its +x/+y/+z
+/// neighbours. Every cell whose base voxel lies in a block then finds its eight corners in that
+/// one copy: a trilinear sample costs one table load and eight float loads with no branch on
+/// the position in the block, instead of a tree walk through a ValueAccessor. Blocks whose
+/// values cannot matter (the maximum of their 9^3 copy is below the threshold, or the transfer
+/// function is zero there) are skipped with a 3D DDA over the block grid, without sampling.
+/// Skipping never changes a result: samples stay on the lattice t_k = k * step.
 
 #include <openvdb/openvdb.h>
 
@@ -29,8 +31,9 @@ inline constexpr std::int64_t kMaxSamplesPerRay = std::int64_t{1} << 16;
 /// Largest number of 8^3 blocks a VolumeView accepts (its table costs 16 bytes per block).
 inline constexpr std::int64_t kMaxViewBlocks = std::int64_t{1} << 26;
 
-/// Read-only flat view of a FloatGrid for ray marching. Holds a shared pointer to the grid; the
-/// grid must not be modified while views of it exist (they point into its leaf buffers).
+/// Read-only flat view of a FloatGrid for ray marching. Holds a shared pointer to the grid and a
+/// padded copy of its values (about 1.4x the leaf data, plus one shared copy per distinct
+/// constant); changes to the grid after construction are not seen.
 ///
 /// @par Threading  Immutable after construction: any number of threads may trace through one
 ///      view at the same time, with no per-thread state.
@@ -39,7 +42,8 @@ inline constexpr std::int64_t kMaxViewBlocks = std::int64_t{1} << 26;
 class VolumeView {
 public:
     /// Builds the block table over the bounding box of @p grid's leaves and active tiles, grown
-    /// by one block on each side. Forces delay-loaded leaf buffers into memory.
+    /// by one block on each side, and the padded 9^3 copies. Forces delay-loaded leaf buffers
+    /// into memory.
     /// @throw palp::ValueError for a null grid, a transform that is not an axis-aligned
     ///        isotropic scale plus translation, or a table above kMaxViewBlocks blocks.
     explicit VolumeView(openvdb::FloatGrid::ConstPtr grid);
@@ -65,10 +69,14 @@ public:
 
     // Internal layout, read by the marcher (kept public for the kernels' free functions).
     struct Table {
+        static constexpr int kPad = 9;         ///< padded block edge (8 own voxels + 1 halo)
+        static constexpr int kPadded = kPad * kPad * kPad;
         std::array<std::int32_t, 3> origin{};  ///< index of the first voxel (multiple of 8)
         std::array<std::int32_t, 3> blocks{};  ///< blocks per axis
-        std::vector<const float*> data;        ///< 512 values per block (x-major, like LeafNode)
-        std::vector<float> maxDilated;         ///< max over the block and its +x/+y/+z neighbours
+        /// Per block: kPadded values, x-major ((lx * 9 + ly) * 9 + lz), lx, ly, lz in 0..8; the
+        /// layer 8 holds the neighbour block's layer 0 (background past the table).
+        std::vector<const float*> data;
+        std::vector<float> maxDilated;         ///< max over the block's padded copy
         std::vector<float> minDilated;         ///< min over the same
     };
     const Table& table() const noexcept { return mTable; }
@@ -76,8 +84,8 @@ public:
 private:
     openvdb::FloatGrid::ConstPtr mGrid;
     Table mTable;
-    std::vector<std::unique_ptr<std::array<float, 512>>> mConstantBlocks;  // tiles, background
-    const float* mBackgroundBlock = nullptr;
+    std::vector<float> mPadded;  // padded copies of the blocks that are not constant
+    std::vector<std::unique_ptr<std::array<float, Table::kPadded>>> mConstantBlocks;  // shared
     Eigen::Vector3d mWorldOrigin = Eigen::Vector3d::Zero();
     double mVoxelSize = 1;
     double mInvVoxelSize = 1;
