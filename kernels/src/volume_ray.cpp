@@ -575,20 +575,38 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin, const Eig
     bool prevValid = false;
     Cell c;
     CornerCache cache;
+    // Table-relative ray origin: inside the table every coordinate is >= 0, so floor is a plain
+    // truncation and the block and offset come from integer shifts.
+    const double ox = r.o[0] - tb.origin[0], oy = r.o[1] - tb.origin[1], oz = r.o[2] - tb.origin[2];
+    const double limX = 8.0 * tb.blocks[0], limY = 8.0 * tb.blocks[1], limZ = 8.0 * tb.blocks[2];
+    const std::int64_t nby = tb.blocks[1], nbz = tb.blocks[2];
     for (std::int64_t k = r.kBegin; k <= r.kEnd;) {
         const double t = r.t(k);
-        const double x = r.o[0] + t * r.d[0], y = r.o[1] + t * r.d[1], z = r.o[2] + t * r.d[2];
+        const double xr = ox + t * r.d[0], yr = oy + t * r.d[1], zr = oz + t * r.d[2];
         float v;
-        // A sample in the cell of the one before needs no locate and no skip test (its block
-        // was not skipped).
-        if (!sampleInCache(cache, x, y, z, v)) {
-            locate(tb, x, y, z, c);
-            if (skip && c.block >= 0 && tb.maxDilated[static_cast<std::size_t>(c.block)] < thr) {
+        if (xr >= 0 && xr < limX && yr >= 0 && yr < limY && zr >= 0 && zr < limZ) [[likely]] {
+            const auto ix = static_cast<std::int32_t>(xr), iy = static_cast<std::int32_t>(yr),
+                       iz = static_cast<std::int32_t>(zr);
+            const std::int64_t b = ((ix >> 3) * nby + (iy >> 3)) * nbz + (iz >> 3);
+            if (skip && tb.maxDilated[static_cast<std::size_t>(b)] < thr) {
+                c.ix = ix;
+                c.iy = iy;
+                c.iz = iz;
+                c.block = b;
                 k = skipBlocks(tb, r, c, k, [thr](float mx, float) { return mx < thr; });
                 prevValid = false;
                 continue;
             }
-            v = sampleCached(tb, bg, c, cache);
+            const float* p = tb.data[static_cast<std::size_t>(b)] + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7));
+            const float vv[8] = {p[0], p[1], p[9], p[10], p[81], p[82], p[90], p[91]};
+            c.tx = static_cast<float>(xr - ix);
+            c.ty = static_cast<float>(yr - iy);
+            c.tz = static_cast<float>(zr - iz);
+            v = interpolate(c, vv);
+        } else {
+            // Outside the table (background) or non-finite: the general path.
+            locate(tb, r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
+            v = sampleCell(tb, bg, c);
         }
         if (v >= thr) {
             if (k == 0) return {0.0f, true};

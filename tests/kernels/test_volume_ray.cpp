@@ -134,6 +134,61 @@ TEST(VolumeRay, ViewSamplerMatchesAccessor) {
     }
 }
 
+// The marcher's fast paths (padded 9^3 blocks, truncation floor, block DDA skipping, corner
+// cache in the refinement) against a plain march through an accessor on a grid that has noise
+// across many leaf borders, a constant active tile, inactive background and empty blocks: the
+// first lattice sample at or above the threshold brackets palp's hit.
+TEST(VolumeRay, FirstHitMatchesAccessorMarchOnANoisyGrid) {
+    auto grid = openvdb::FloatGrid::create(-1000.0f);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(kVoxel));
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> noise(0.0f, 400.0f);
+    auto acc = grid->getAccessor();
+    for (int x = -20; x < 20; ++x)
+        for (int y = -20; y < 20; ++y)
+            for (int z = -12; z < 12; ++z)
+                if ((x * 7 + y * 3 + z) % 5 != 0) acc.setValue(openvdb::Coord(x, y, z), noise(rng));
+    grid->fill(openvdb::CoordBBox(openvdb::Coord(128, 0, 0), openvdb::Coord(255, 127, 127)), 500.0f, true);
+    const VolumeView view(grid);
+    const auto cacc = grid->getConstAccessor();
+    std::uniform_real_distribution<double> u(-1, 1);
+    FirstHitParams p = hitParams();
+    p.threshold = 240;
+    int hits = 0, checked = 0;
+    for (int n = 0; n < 600; ++n) {
+        const Eigen::Vector3d o = n % 3 == 0 ? Eigen::Vector3d(u(rng) * 12e-3, u(rng) * 12e-3, u(rng) * 8e-3)
+                                             : Eigen::Vector3d(40e-3 + u(rng) * 30e-3, u(rng) * 30e-3, u(rng) * 30e-3);
+        const Eigen::Vector3d d = randomUnit(rng);
+        const double len = 0.5 * (1 + u(rng)) * 40e-3;
+        const RayHit h = firstHit(view, o, d, len, p);
+        const auto kLast = static_cast<int>(std::ceil(len / p.step - 1e-9));
+        int kHit = -1;
+        for (int k = 0; k <= kLast && kHit < 0; ++k) {
+            const double t = std::min(k * p.step, len);
+            const Eigen::Vector3d w = o + t * d;
+            const openvdb::Vec3d i = grid->worldToIndex(openvdb::Vec3d(w.x(), w.y(), w.z()));
+            if (sampleIndex(cacc, i) >= p.threshold) kHit = k;
+        }
+        ++checked;
+        ASSERT_EQ(h.hit, kHit >= 0) << "ray " << n;
+        if (kHit < 0) {
+            EXPECT_FLOAT_EQ(h.t, static_cast<float>(len));
+            continue;
+        }
+        ++hits;
+        const double t1 = std::min(kHit * p.step, len), t0 = kHit > 0 ? std::min((kHit - 1) * p.step, len) : 0.0;
+        EXPECT_GE(h.t, t0 - 1e-9) << "ray " << n;
+        EXPECT_LE(h.t, t1 + 1e-9) << "ray " << n;
+        // And skipping never changes it.
+        FirstHitParams q = p;
+        q.skipEmpty = false;
+        EXPECT_FLOAT_EQ(firstHit(view, o, d, len, q).t, h.t) << "ray " << n;
+    }
+    EXPECT_EQ(checked, 600);
+    EXPECT_GT(hits, 60);  // both outcomes are exercised
+    EXPECT_LT(hits, 540);
+}
+
 // Surface Sobel over real rays: on a tilted plane the ray length is linear in the offset, so the
 // stencil returns d L / d s = -(n.t) / (n.d) exactly (up to first-hit accuracy).
 TEST(VolumeRay, SurfaceSobelOfRayLengthOnATiltedPlane) {
