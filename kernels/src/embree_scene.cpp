@@ -28,13 +28,27 @@ void checkMesh(const TriangleMesh& m) {
 
 void errorCallback(void*, RTCError, const char*) {}
 
+/// One Embree device for the whole process, created on first use and never released. Every
+/// device brings up and tears down Embree's tasking state on top of TBB; creating one per scene
+/// (hundreds in the refit benchmark) churned that state while TBB workers from the previous
+/// build were still winding down, and cost a millisecond per scene. Devices are thread-safe
+/// for creating scenes; Embree keeps error codes per thread.
+RTCDevice sharedDevice() {
+    static const RTCDevice device = [] {
+        RTCDevice d = rtcNewDevice(nullptr);
+        if (d) rtcSetDeviceErrorFunction(d, errorCallback, nullptr);
+        return d;
+    }();
+    return device;
+}
+
 }  // namespace
 
 EmbreeScene::EmbreeScene() {
-    mDevice = rtcNewDevice(nullptr);
+    mDevice = sharedDevice();
     if (!mDevice) throw Error("embree: expected a device, found rtcNewDevice error " +
                               std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))));
-    rtcSetDeviceErrorFunction(mDevice, errorCallback, nullptr);
+    rtcRetainDevice(mDevice);
     mScene = rtcNewScene(mDevice);
     rtcSetSceneFlags(mScene, RTC_SCENE_FLAG_DYNAMIC);
     rtcSetSceneBuildQuality(mScene, RTC_BUILD_QUALITY_MEDIUM);

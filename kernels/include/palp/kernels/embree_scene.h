@@ -22,7 +22,8 @@ inline constexpr unsigned kMaskPlate = 2u;
 inline constexpr unsigned kMaskSurface = 4u;
 inline constexpr unsigned kMaskAll = 0xffffffffu;
 
-/// Owns an RTCDevice and an RTCScene. Add meshes, commit(), then trace.
+/// Owns an RTCScene on palp's one process-wide RTCDevice (created on first use, retained per
+/// scene). Add meshes, commit(), then trace.
 ///
 /// @par Threading  Adding geometry, updateVertices() and commit() are for one thread at a time
 ///      and must not overlap with tracing. Tracing a committed scene is safe from any number of
@@ -33,7 +34,7 @@ inline constexpr unsigned kMaskAll = 0xffffffffu;
 ///      meshes and only after measuring (`palp bench rays` prints refit costs).
 class EmbreeScene {
 public:
-    /// @throw palp::Error when Embree cannot create a device.
+    /// @throw palp::Error when Embree cannot create the shared device.
     EmbreeScene();
     ~EmbreeScene();
     EmbreeScene(const EmbreeScene&) = delete;
