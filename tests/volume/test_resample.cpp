@@ -185,7 +185,8 @@ TEST(Resample, SkippingBackgroundBlocksLosesNoActiveVoxel) {
     palp::volume::ResampleOptions all;
     all.voxelSize = 0.5e-3;
     all.backgroundThreshold = -1e9f;
-    palp::volume::ResampleOptions sparse = all;
+    palp::volume::ResampleOptions sparse;
+    sparse.voxelSize = 0.5e-3;
     sparse.backgroundThreshold = -900.0f;
     const auto full = palp::volume::resample(st, all);
     const auto skip = palp::volume::resample(st, sparse);
