@@ -5,7 +5,7 @@ set -euo pipefail
 
 PACKAGES=(
   # build
-  cmake g++ ninja-build pkg-config git
+  cmake g++ ninja-build pkg-config git clang-format
   # libraries
   libeigen3-dev libopenvdb-dev libboost-iostreams-dev libembree-dev libtbb-dev
   libgdcm-dev libnifti2-dev zlib1g-dev libpng-dev libstb-dev

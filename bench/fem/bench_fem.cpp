@@ -140,12 +140,25 @@ void BM_Factorisation(benchmark::State& state) {
 }
 
 // Args: nodes per edge, inhomogeneous (0/1).
-BENCHMARK(BM_ReferenceCsrStep)->Args({13, 0})->Args({13, 1})->Args({33, 0})->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_ExplicitStep)->Args({13, 0})->Args({13, 1})->Args({33, 0})->Args({33, 1})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ReferenceCsrStep)
+    ->Args({13, 0})
+    ->Args({13, 1})
+    ->Args({33, 0})
+    ->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ExplicitStep)
+    ->Args({13, 0})
+    ->Args({13, 1})
+    ->Args({33, 0})
+    ->Args({33, 1})
+    ->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_StiffnessOperator)->Args({13, 0})->Args({13, 1})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ExplicitStepTbb)->Args({13, 0})->Args({33, 0})->Unit(benchmark::kMicrosecond);
 // Args: nodes per edge, solver (0 LDLT, 1 CHOLMOD, 2 PCG).
-BENCHMARK(BM_ImplicitStep)->Args({13, 0})->Args({13, 1})->Args({13, 2})->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ImplicitStep)
+    ->Args({13, 0})
+    ->Args({13, 1})
+    ->Args({13, 2})
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Assembly)->Arg(13)->Arg(33)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Factorisation)->Args({13, 0})->Args({13, 1})->Unit(benchmark::kMillisecond);
 

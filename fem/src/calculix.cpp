@@ -49,15 +49,17 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
             for (int a : kCcxOrder) out << ", " << nodes[static_cast<std::size_t>(a)] + 1;
             out << "\n";
         }
-        out << "*MATERIAL, NAME=M" << g << "\n*ELASTIC\n" << e << ", " << mat.poissonRatio
-            << "\n*DENSITY\n" << mat.density << "\n";
+        out << "*MATERIAL, NAME=M" << g << "\n*ELASTIC\n"
+            << e << ", " << mat.poissonRatio << "\n*DENSITY\n"
+            << mat.density << "\n";
         if (mat.dampingAlpha > 0.0 || mat.dampingBeta > 0.0) {
             out << "*DAMPING, ALPHA=" << mat.dampingAlpha << ", BETA=" << mat.dampingBeta << "\n";
         }
         out << "*SOLID SECTION, ELSET=E" << g << ", MATERIAL=M" << g << "\n";
     }
     out << "*STEP";
-    if (step.dynamic) out << ", INC=" << static_cast<long>(step.totalTime / step.timeIncrement + 10);
+    if (step.dynamic)
+        out << ", INC=" << static_cast<long>(step.totalTime / step.timeIncrement + 10);
     out << "\n";
     if (step.dynamic) {
         out << "*DYNAMIC, DIRECT, ALPHA=" << step.hhtAlpha << "\n"
@@ -67,7 +69,8 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
     }
     out << "*BOUNDARY\n";
     for (int d = 0; d < model.dofCount(); ++d) {
-        if (!constraints.isFixed(d) || !mesh.nodeActive()[static_cast<std::size_t>(d / 3)]) continue;
+        if (!constraints.isFixed(d) || !mesh.nodeActive()[static_cast<std::size_t>(d / 3)])
+            continue;
         out << d / 3 + 1 << ", " << d % 3 + 1 << ", " << d % 3 + 1 << ", "
             << constraints.values()[d] << "\n";
     }
@@ -84,7 +87,8 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
 
 CalculixResults readCalculixDat(const std::filesystem::path& datPath, int dofCount) {
     std::ifstream in(datPath);
-    if (!in) throw IoError(datPath.string() + ": expected a readable CalculiX .dat file, found none");
+    if (!in)
+        throw IoError(datPath.string() + ": expected a readable CalculiX .dat file, found none");
     CalculixResults res;
     std::string line;
     bool inBlock = false;
@@ -92,8 +96,10 @@ CalculixResults readCalculixDat(const std::filesystem::path& datPath, int dofCou
         if (line.find("displacements (vx,vy,vz)") != std::string::npos) {
             const auto pos = line.find("time");
             if (pos == std::string::npos) {
-                throw FormatError(datPath.string() + ": expected 'time' in a displacement header, "
-                                                     "found '" + line + "'");
+                throw FormatError(datPath.string() +
+                                  ": expected 'time' in a displacement header, "
+                                  "found '" +
+                                  line + "'");
             }
             res.times.push_back(std::stod(line.substr(pos + 4)));
             res.displacements.push_back(Eigen::VectorXd::Zero(dofCount));

@@ -14,7 +14,8 @@ namespace palp::fem {
 namespace {
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-#define PALP_FEM_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#define PALP_FEM_CLONES \
+    __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #else
 #define PALP_FEM_CLONES
 #endif
@@ -122,9 +123,8 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
         return result;
     }
     double want = std::ceil(dtSeconds / mStableDt);
-    int substeps = want > static_cast<double>(mOptions.maxSubsteps)
-                       ? mOptions.maxSubsteps
-                       : static_cast<int>(want);
+    int substeps = want > static_cast<double>(mOptions.maxSubsteps) ? mOptions.maxSubsteps
+                                                                    : static_cast<int>(want);
     double dt = dtSeconds / substeps;
     if (want > static_cast<double>(mOptions.maxSubsteps)) {
         result.flags |= kStepSubstepLimit;
@@ -168,14 +168,12 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
         // The new displacement overwrites u(n-1), then the two buffers swap (no allocation).
         auto update = [&](std::size_t begin, std::size_t end) {
             centralDifference(begin, end, dt2, mForce.data(), mInternal.data(), mU.data(),
-                                     mTwoMass.data(), mPrevCoef.data(), mInvDen.data(),
-                                     mUPrev.data());
+                              mTwoMass.data(), mPrevCoef.data(), mInvDen.data(), mUPrev.data());
         };
         if constexpr (kParallel) {
-            tbb::parallel_for(tbb::blocked_range<std::size_t>(0, dofCount, 4096),
-                              [&](const tbb::blocked_range<std::size_t>& r) {
-                                  update(r.begin(), r.end());
-                              });
+            tbb::parallel_for(
+                tbb::blocked_range<std::size_t>(0, dofCount, 4096),
+                [&](const tbb::blocked_range<std::size_t>& r) { update(r.begin(), r.end()); });
         } else {
             update(0, dofCount);
         }
@@ -187,8 +185,7 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
         ++result.substeps;
     }
     // With one substep u(n-1) is the u(n) that the previous call (or setDisplacement) checked.
-    if (!allFinite(mU.data(), dofCount) ||
-        (substeps > 1 && !allFinite(mUPrev.data(), dofCount))) {
+    if (!allFinite(mU.data(), dofCount) || (substeps > 1 && !allFinite(mUPrev.data(), dofCount))) {
         for (int d : mFree) {
             mU[d] = 0.0;
             mUPrev[d] = 0.0;

@@ -36,7 +36,7 @@ template <int B>
     V8 acc[kB][kG][3];
     for (int t = 0; t < B; ++t) {
         for (int g = 0; g < kGroups; ++g) {
-            for (int v = 0; v < 3; ++v) acc[t][g][v] = V8{} ;
+            for (int v = 0; v < 3; ++v) acc[t][g][v] = V8{};
         }
     }
 #pragma GCC unroll 4
@@ -137,7 +137,7 @@ FemModel::FemModel(HexMesh mesh, const ElasticMaterial& material)
         }
     }
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 24, 24>> eig(ke,
-                                                                          Eigen::EigenvaluesOnly);
+                                                                           Eigen::EigenvaluesOnly);
     mOmegaMax = std::sqrt(maxE * eig.eigenvalues().maxCoeff() / nodeMass);
 }
 
@@ -223,7 +223,8 @@ SparseMatrix FemModel::assembleStiffness() const {
     SparseMatrix k(dofs, dofs);
     std::vector<int> outer(sz(dofs) + 1, 0);
     for (int n = 0; n < nodes; ++n) {
-        for (int d = 0; d < 3; ++d) outer[sz(3 * n + d + 1)] = outer[sz(3 * n + d)] + 3 * rowNnz[sz(n)];
+        for (int d = 0; d < 3; ++d)
+            outer[sz(3 * n + d + 1)] = outer[sz(3 * n + d)] + 3 * rowNnz[sz(n)];
     }
     const int nnz = outer[sz(dofs)];
     k.resizeNonZeros(nnz);

@@ -7,7 +7,7 @@
 namespace palp::fem {
 
 Eigen::Matrix<double, 6, 24> hexStrainDisplacement(double edge, double xi, double eta,
-                                                    double zeta) {
+                                                   double zeta) {
     Eigen::Matrix<double, 6, 24> b = Eigen::Matrix<double, 6, 24>::Zero();
     // d(xi)/dx = 2 / h on a cube.
     const double j = 2.0 / edge;
@@ -32,8 +32,7 @@ Eigen::Matrix<double, 6, 24> hexStrainDisplacement(double edge, double xi, doubl
     return b;
 }
 
-Eigen::Matrix<double, 24, 24> hexStiffness(double edge, double youngsModulus,
-                                           double poissonRatio) {
+Eigen::Matrix<double, 24, 24> hexStiffness(double edge, double youngsModulus, double poissonRatio) {
     const Eigen::Matrix<double, 6, 6> c = elasticityMatrix(youngsModulus, poissonRatio);
     const double g = 1.0 / std::sqrt(3.0);
     // Gauss weight 1 per point; dV = (h/2)^3 dxi deta dzeta.

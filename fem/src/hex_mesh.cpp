@@ -85,8 +85,9 @@ HexMesh HexMesh::fromCells(const std::array<int, 3>& nodeCounts, double edge,
         for (int n : m.cellNodes(c)) m.mNodeActive[sz(n)] = 1;
     }
     if (m.mElementCount == 0) {
-        throw ValueError("hex mesh: expected at least one element with Young's modulus > 0, "
-                         "found an empty mesh");
+        throw ValueError(
+            "hex mesh: expected at least one element with Young's modulus > 0, "
+            "found an empty mesh");
     }
     return m;
 }
@@ -119,8 +120,8 @@ std::array<int, 8> HexMesh::cellNodes(int c) const {
     const int n0 = node(i, j, k);
     const int sy = mNodeCounts[0];
     const int sz3 = mNodeCounts[0] * mNodeCounts[1];
-    return {n0,          n0 + 1,          n0 + sy,          n0 + sy + 1,
-            n0 + sz3,    n0 + sz3 + 1,    n0 + sz3 + sy,    n0 + sz3 + sy + 1};
+    return {n0,       n0 + 1,       n0 + sy,       n0 + sy + 1,
+            n0 + sz3, n0 + sz3 + 1, n0 + sz3 + sy, n0 + sz3 + sy + 1};
 }
 
 std::vector<int> HexMesh::faceNodes(BoxFace face) const {

@@ -27,7 +27,8 @@ void parallelSpmv(const RowMatrix& a, const Eigen::VectorXd& x, Eigen::VectorXd&
                       [&](const tbb::blocked_range<int>& r) {
                           for (int i = r.begin(); i != r.end(); ++i) {
                               double s = 0.0;
-                              for (int p = outer[i]; p < outer[i + 1]; ++p) s += val[p] * x[inner[p]];
+                              for (int p = outer[i]; p < outer[i + 1]; ++p)
+                                  s += val[p] * x[inner[p]];
                               y[i] = s;
                           }
                       });
@@ -82,8 +83,9 @@ ImplicitSolver::ImplicitSolver(const FemModel& model, const Constraints& constra
     const int nf = static_cast<int>(mFreeDofs.size());
     const int nc = static_cast<int>(mFixedDofs.size());
     if (nf == 0) {
-        throw ValueError("implicit solver: expected at least one free dof, found every dof "
-                         "constrained");
+        throw ValueError(
+            "implicit solver: expected at least one free dof, found every dof "
+            "constrained");
     }
     std::vector<Eigen::Triplet<double, int>> ff, fc;
     ff.reserve(static_cast<std::size_t>(mK.nonZeros()));
@@ -140,8 +142,9 @@ ImplicitSolver::ImplicitSolver(const FemModel& model, const Constraints& constra
             throw ValueError(s.str());
         }
         if (!prepare(1.0, 0.0)) {
-            throw ValueError("static problem: expected a positive definite stiffness, found a "
-                             "failed factorisation");
+            throw ValueError(
+                "static problem: expected a positive definite stiffness, found a "
+                "failed factorisation");
         }
     }
 }
@@ -153,7 +156,8 @@ bool ImplicitSolver::prepare(double stiffnessScale, double massScale) noexcept {
     try {
         Linear& lin = *mLinear;
         lin.matrix = stiffnessScale * mKff;
-        for (int q = 0; q < lin.matrix.cols(); ++q) lin.matrix.coeffRef(q, q) += massScale * mMassFree[q];
+        for (int q = 0; q < lin.matrix.cols(); ++q)
+            lin.matrix.coeffRef(q, q) += massScale * mMassFree[q];
         switch (mOptions.solver) {
             case LinearSolverKind::simplicialLdlt:
                 if (!lin.analysed) lin.ldlt.analyzePattern(lin.matrix);

@@ -19,11 +19,12 @@ void checkMesh(const TriangleMesh& m) {
     const std::size_t nv = m.vertexCount();
     for (std::size_t i = 0; i < m.indices.size(); ++i)
         if (m.indices[i] >= nv)
-            throw ValueError("mesh index " + std::to_string(i) + ": expected < " + std::to_string(nv) +
-                             ", found " + std::to_string(m.indices[i]));
+            throw ValueError("mesh index " + std::to_string(i) + ": expected < " +
+                             std::to_string(nv) + ", found " + std::to_string(m.indices[i]));
     for (std::size_t i = 0; i < m.positions.size(); ++i)
         if (!std::isfinite(m.positions[i]))
-            throw ValueError("mesh position " + std::to_string(i / 3) + ": expected finite coordinates");
+            throw ValueError("mesh position " + std::to_string(i / 3) +
+                             ": expected finite coordinates");
 }
 
 void errorCallback(void*, RTCError, const char*) {}
@@ -46,8 +47,9 @@ RTCDevice sharedDevice() {
 
 EmbreeScene::EmbreeScene() {
     mDevice = sharedDevice();
-    if (!mDevice) throw Error("embree: expected a device, found rtcNewDevice error " +
-                              std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))));
+    if (!mDevice)
+        throw Error("embree: expected a device, found rtcNewDevice error " +
+                    std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))));
     rtcRetainDevice(mDevice);
     mScene = rtcNewScene(mDevice);
     rtcSetSceneFlags(mScene, RTC_SCENE_FLAG_DYNAMIC);
@@ -62,10 +64,11 @@ EmbreeScene::~EmbreeScene() {
 unsigned EmbreeScene::add(const TriangleMesh& mesh, unsigned mask, bool deforming) {
     checkMesh(mesh);
     RTCGeometry g = rtcNewGeometry(mDevice, RTC_GEOMETRY_TYPE_TRIANGLE);
-    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                          3 * sizeof(float), mesh.vertexCount()));
-    auto* idx = static_cast<std::uint32_t*>(rtcSetNewGeometryBuffer(
-        g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(std::uint32_t), mesh.triangleCount()));
+    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
+        g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh.vertexCount()));
+    auto* idx = static_cast<std::uint32_t*>(
+        rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                3 * sizeof(std::uint32_t), mesh.triangleCount()));
     if (!v || !idx) {
         rtcReleaseGeometry(g);
         throw Error("embree: expected geometry buffers, found an allocation failure");
@@ -84,8 +87,12 @@ unsigned EmbreeScene::add(const TriangleMesh& mesh, unsigned mask, bool deformin
     return id;
 }
 
-unsigned EmbreeScene::addRigidMesh(const TriangleMesh& mesh, unsigned mask) { return add(mesh, mask, false); }
-unsigned EmbreeScene::addDeformingMesh(const TriangleMesh& mesh, unsigned mask) { return add(mesh, mask, true); }
+unsigned EmbreeScene::addRigidMesh(const TriangleMesh& mesh, unsigned mask) {
+    return add(mesh, mask, false);
+}
+unsigned EmbreeScene::addDeformingMesh(const TriangleMesh& mesh, unsigned mask) {
+    return add(mesh, mask, true);
+}
 
 bool EmbreeScene::updateVertices(unsigned geomId, std::span<const float> positions) noexcept {
     if (geomId >= mGeoms.size()) return false;
@@ -101,7 +108,8 @@ void EmbreeScene::commit() {
     rtcCommitScene(mScene);
     const RTCError e = rtcGetDeviceError(mDevice);
     if (e != RTC_ERROR_NONE)
-        throw Error("embree scene commit: expected no error, found error code " + std::to_string(static_cast<int>(e)));
+        throw Error("embree scene commit: expected no error, found error code " +
+                    std::to_string(static_cast<int>(e)));
     mCommitted = true;
 }
 
@@ -125,7 +133,8 @@ inline void setRay(RTCRayHit& rh, const RayBundle& b, std::size_t r, unsigned ma
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
 }
 
-inline void takeHit(const RTCRayHit& rh, const RayBundle& b, std::size_t r, BundleHits& out) noexcept {
+inline void takeHit(const RTCRayHit& rh, const RayBundle& b, std::size_t r,
+                    BundleHits& out) noexcept {
     const bool hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
     out.hit[r] = hit ? 1 : 0;
     out.t[r] = hit ? rh.ray.tfar : b.length[r];
@@ -160,8 +169,10 @@ void traceBundle(const EmbreeScene& scene, const RayBundle& bundle, unsigned mas
     }
     ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
     alignas(16) std::array<RTCRayHit, kMaxBundleRays> rays;
-    for (int i = 0; i < out.count; ++i) setRay(rays[static_cast<std::size_t>(i)], bundle, static_cast<std::size_t>(i), mask);
-    rtcIntersect1M(scene.handle(), &ctx, rays.data(), static_cast<unsigned>(out.count), sizeof(RTCRayHit));
+    for (int i = 0; i < out.count; ++i)
+        setRay(rays[static_cast<std::size_t>(i)], bundle, static_cast<std::size_t>(i), mask);
+    rtcIntersect1M(scene.handle(), &ctx, rays.data(), static_cast<unsigned>(out.count),
+                   sizeof(RTCRayHit));
     for (int i = 0; i < out.count; ++i)
         takeHit(rays[static_cast<std::size_t>(i)], bundle, static_cast<std::size_t>(i), out);
 }

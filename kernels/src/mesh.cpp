@@ -1,10 +1,10 @@
 #include "palp/kernels/mesh.h"
 
-#include <assimp/Importer.hpp>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 #include <openvdb/tools/VolumeToMesh.h>
 
+#include <assimp/Importer.hpp>
 #include <cmath>
 #include <fstream>
 #include <string>
@@ -15,16 +15,20 @@ namespace palp::kernels {
 
 TriangleMesh loadMesh(const std::filesystem::path& path, double metresPerUnit) {
     if (!(std::isfinite(metresPerUnit) && metresPerUnit > 0))
-        throw ValueError(path.string() + ": expected a unit scale > 0 m, found " + std::to_string(metresPerUnit));
+        throw ValueError(path.string() + ": expected a unit scale > 0 m, found " +
+                         std::to_string(metresPerUnit));
     std::error_code ec;
     if (!std::filesystem::is_regular_file(path, ec))
         throw IoError(path.string() + ": expected a readable mesh file, found none");
     Assimp::Importer importer;
-    const aiScene* scene = importer.ReadFile(
-        path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_SortByPType);
+    const aiScene* scene =
+        importer.ReadFile(path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
+                                             aiProcess_SortByPType);
     if (!scene || !scene->mRootNode)
-        throw FormatError(path.string() + ": expected a mesh file (OBJ, STL, PLY, ...), found an unreadable file (" +
-                          importer.GetErrorString() + ")");
+        throw FormatError(
+            path.string() +
+            ": expected a mesh file (OBJ, STL, PLY, ...), found an unreadable file (" +
+            importer.GetErrorString() + ")");
     TriangleMesh out;
     for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
         const aiMesh* mesh = scene->mMeshes[m];
@@ -48,9 +52,11 @@ TriangleMesh loadMesh(const std::filesystem::path& path, double metresPerUnit) {
 
 TriangleMesh isoSurface(const openvdb::FloatGrid& grid, double isoValue, double adaptivity) {
     if (!std::isfinite(isoValue))
-        throw ValueError("iso-surface value: expected a finite value, found " + std::to_string(isoValue));
+        throw ValueError("iso-surface value: expected a finite value, found " +
+                         std::to_string(isoValue));
     if (!(adaptivity >= 0 && adaptivity <= 1))
-        throw ValueError("iso-surface adaptivity: expected a value in [0, 1], found " + std::to_string(adaptivity));
+        throw ValueError("iso-surface adaptivity: expected a value in [0, 1], found " +
+                         std::to_string(adaptivity));
     std::vector<openvdb::Vec3s> points;
     std::vector<openvdb::Vec3I> tris;
     std::vector<openvdb::Vec4I> quads;
@@ -76,11 +82,11 @@ void saveObj(const TriangleMesh& mesh, const std::filesystem::path& path) {
     std::ofstream f(path);
     if (!f) throw IoError(path.string() + ": expected a writable file, found none");
     for (std::size_t v = 0; v < mesh.vertexCount(); ++v)
-        f << "v " << mesh.positions[3 * v] << ' ' << mesh.positions[3 * v + 1] << ' ' << mesh.positions[3 * v + 2]
-          << '\n';
+        f << "v " << mesh.positions[3 * v] << ' ' << mesh.positions[3 * v + 1] << ' '
+          << mesh.positions[3 * v + 2] << '\n';
     for (std::size_t t = 0; t < mesh.triangleCount(); ++t)
-        f << "f " << mesh.indices[3 * t] + 1 << ' ' << mesh.indices[3 * t + 1] + 1 << ' ' << mesh.indices[3 * t + 2] + 1
-          << '\n';
+        f << "f " << mesh.indices[3 * t] + 1 << ' ' << mesh.indices[3 * t + 1] + 1 << ' '
+          << mesh.indices[3 * t + 2] + 1 << '\n';
     if (!f) throw IoError(path.string() + ": expected to write the mesh, found a write error");
 }
 

@@ -27,8 +27,8 @@ namespace palp::kernels {
 namespace {
 void checkSizes(std::size_t bundles, std::size_t out) {
     if (out < bundles)
-        throw ValueError("ray batch output: expected room for " + std::to_string(bundles) + " bundles, found " +
-                         std::to_string(out));
+        throw ValueError("ray batch output: expected room for " + std::to_string(bundles) +
+                         " bundles, found " + std::to_string(out));
 }
 
 template <class F>
@@ -37,31 +37,34 @@ void forEach(std::size_t n, F&& f) {
     char fork = 0, join = 0;  // addresses only: the sync objects of the two edges
     __tsan_release(&fork);
 #endif
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16), [&](const tbb::blocked_range<std::size_t>& r) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
 #ifdef PALP_TSAN
-        __tsan_acquire(&fork);
+                          __tsan_acquire(&fork);
 #endif
-        for (std::size_t i = r.begin(); i != r.end(); ++i) f(i);
+                          for (std::size_t i = r.begin(); i != r.end(); ++i) f(i);
 #ifdef PALP_TSAN
-        __tsan_release(&join);
+                          __tsan_release(&join);
 #endif
-    });
+                      });
 #ifdef PALP_TSAN
     __tsan_acquire(&join);
 #endif
 }
 }  // namespace
 
-void traceFirstHitBatch(const VolumeView& view, std::span<const RayBundle> bundles, const FirstHitParams& params,
-                        std::span<BundleHits> out) {
+void traceFirstHitBatch(const VolumeView& view, std::span<const RayBundle> bundles,
+                        const FirstHitParams& params, std::span<BundleHits> out) {
     checkSizes(bundles.size(), out.size());
-    forEach(bundles.size(), [&](std::size_t i) { traceFirstHit(view, bundles[i], params, out[i]); });
+    forEach(bundles.size(),
+            [&](std::size_t i) { traceFirstHit(view, bundles[i], params, out[i]); });
 }
 
 void traceAccumulateBatch(const VolumeView& view, std::span<const RayBundle> bundles,
                           const AccumulateParams& params, std::span<BundleAccumulation> out) {
     checkSizes(bundles.size(), out.size());
-    forEach(bundles.size(), [&](std::size_t i) { traceAccumulate(view, bundles[i], params, out[i]); });
+    forEach(bundles.size(),
+            [&](std::size_t i) { traceAccumulate(view, bundles[i], params, out[i]); });
 }
 
 void traceMeshBatch(const EmbreeScene& scene, std::span<const RayBundle> bundles, unsigned mask,

@@ -9,9 +9,9 @@
 
 #include <algorithm>
 #include <chrono>
-#include <ctime>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <fstream>
 #include <functional>
 #include <random>
@@ -121,8 +121,8 @@ BundleParams bundleParams(const RayBenchOptions& o) {
 
 /// Proxy path: a Lissajous curve over the box's middle (about 0.05 mm per frame), rays pointing
 /// mostly along -z with a slow 25 degree wobble.
-std::vector<RayBundle> trajectoryBundles(const openvdb::BBoxd& box, std::size_t frames, const BundleParams& p,
-                                         double topOffset) {
+std::vector<RayBundle> trajectoryBundles(const openvdb::BBoxd& box, std::size_t frames,
+                                         const BundleParams& p, double topOffset) {
     std::vector<RayBundle> out(frames);
     const openvdb::Vec3d c = box.getCenter(), e = box.extents();
     const double ax = 0.3 * e.x(), ay = 0.3 * e.y();
@@ -130,21 +130,23 @@ std::vector<RayBundle> trajectoryBundles(const openvdb::BBoxd& box, std::size_t 
     const double w = 0.05e-3 / std::max(1e-6, std::max(ax, ay));  // radians per frame
     for (std::size_t f = 0; f < frames; ++f) {
         const double s = static_cast<double>(f) * w;
-        const Eigen::Vector3d proxy(c.x() + ax * std::sin(s), c.y() + ay * std::sin(1.3 * s + 0.4), z);
+        const Eigen::Vector3d proxy(c.x() + ax * std::sin(s), c.y() + ay * std::sin(1.3 * s + 0.4),
+                                    z);
         const Eigen::Vector3d d(0.45 * std::cos(7 * s), 0.45 * std::sin(5 * s), -1.0);
         generateBundle(proxy, d, Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), p, out[f]);
     }
     return out;
 }
 
-std::vector<RayBundle> randomBundles(const openvdb::BBoxd& box, std::size_t frames, const BundleParams& p,
-                                     std::uint64_t seed) {
+std::vector<RayBundle> randomBundles(const openvdb::BBoxd& box, std::size_t frames,
+                                     const BundleParams& p, std::uint64_t seed) {
     std::vector<RayBundle> out(frames);
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<double> u(0, 1);
     std::normal_distribution<double> n;
     for (std::size_t f = 0; f < frames; ++f) {
-        const Eigen::Vector3d proxy(box.min().x() + u(rng) * box.extents().x(), box.min().y() + u(rng) * box.extents().y(),
+        const Eigen::Vector3d proxy(box.min().x() + u(rng) * box.extents().x(),
+                                    box.min().y() + u(rng) * box.extents().y(),
                                     box.min().z() + u(rng) * box.extents().z());
         const Eigen::Vector3d d(n(rng), n(rng), n(rng));
         generateBundle(proxy, d, Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), p, out[f]);
@@ -157,8 +159,8 @@ std::vector<RayBundle> randomBundles(const openvdb::BBoxd& box, std::size_t fram
 /// linear interpolation.
 struct OpenVdbBaseline {
     using Intersector = openvdb::tools::VolumeRayIntersector<openvdb::FloatGrid>;
-    explicit OpenVdbBaseline(const openvdb::FloatGrid& grid) : inter(grid), acc(grid.getConstAccessor()),
-                                                               voxel(grid.voxelSize()[0]) {}
+    explicit OpenVdbBaseline(const openvdb::FloatGrid& grid)
+        : inter(grid), acc(grid.getConstAccessor()), voxel(grid.voxelSize()[0]) {}
     Intersector inter;
     openvdb::FloatGrid::ConstAccessor acc;
     double voxel;
@@ -167,14 +169,16 @@ struct OpenVdbBaseline {
         hit = false;
         const openvdb::Vec3d eye(b.ox[r], b.oy[r], b.oz[r]), dir(b.dx[r], b.dy[r], b.dz[r]);
         const double len = b.length[r];
-        const openvdb::math::Ray<double> wray(eye, dir.unit(), 0.0, len);  // finite t1 (openvdb#1710)
+        const openvdb::math::Ray<double> wray(eye, dir.unit(), 0.0,
+                                              len);  // finite t1 (openvdb#1710)
         if (!inter.setWorldRay(wray)) return static_cast<float>(len);
         const double si = step / voxel, leni = len / voxel;
         double t0 = 0, t1 = 0;
         while (inter.march(t0, t1)) {
             double k = std::ceil(t0 / si);
             double prevT = (k - 1) * si;
-            float prev = openvdb::tools::BoxSampler::sample(acc, inter.getIndexPos(std::max(0.0, prevT)));
+            float prev =
+                openvdb::tools::BoxSampler::sample(acc, inter.getIndexPos(std::max(0.0, prevT)));
             for (double t = k * si; t <= t1 + 1e-9 && t <= leni + 1e-9; t += si) {
                 const double tc = std::min(t, leni);
                 const float v = openvdb::tools::BoxSampler::sample(acc, inter.getIndexPos(tc));
@@ -203,7 +207,8 @@ template <class F>
 void unpinned(F&& f) {
     cpu_set_t current;
     CPU_ZERO(&current);
-    const bool restore = gHaveUnpinned && pthread_getaffinity_np(pthread_self(), sizeof(current), &current) == 0;
+    const bool restore =
+        gHaveUnpinned && pthread_getaffinity_np(pthread_self(), sizeof(current), &current) == 0;
     if (restore) pthread_setaffinity_np(pthread_self(), sizeof(gUnpinned), &gUnpinned);
     f();
     if (restore) pthread_setaffinity_np(pthread_self(), sizeof(current), &current);
@@ -242,29 +247,34 @@ std::string machineDescription() {
 
 openvdb::FloatGrid::Ptr makeRayBenchPhantom(double voxelSize) {
     openvdb::initialize();
-    if (!(voxelSize > 0)) throw ValueError("phantom voxel size: expected > 0 m, found " + std::to_string(voxelSize));
+    if (!(voxelSize > 0))
+        throw ValueError("phantom voxel size: expected > 0 m, found " + std::to_string(voxelSize));
     auto grid = openvdb::FloatGrid::create(-1000.0f);
     grid->setName("scan");
     grid->setTransform(openvdb::math::Transform::createLinearTransform(voxelSize));
     auto idx = [&](double m) { return static_cast<openvdb::Int32>(std::lround(m / voxelSize)); };
     // Box: x, y in [-30, 30) mm, z in [-30, 0) mm; plate: z in [-12, -8) mm, x, y in [-20, 20) mm.
-    grid->denseFill(openvdb::CoordBBox(openvdb::Coord(idx(-30e-3), idx(-30e-3), idx(-30e-3)),
-                                       openvdb::Coord(idx(30e-3) - 1, idx(30e-3) - 1, idx(0.0) - 1)),
-                    40.0f, true);
-    grid->denseFill(openvdb::CoordBBox(openvdb::Coord(idx(-20e-3), idx(-20e-3), idx(-12e-3)),
-                                       openvdb::Coord(idx(20e-3) - 1, idx(20e-3) - 1, idx(-8e-3) - 1)),
-                    1000.0f, true);
+    grid->denseFill(
+        openvdb::CoordBBox(openvdb::Coord(idx(-30e-3), idx(-30e-3), idx(-30e-3)),
+                           openvdb::Coord(idx(30e-3) - 1, idx(30e-3) - 1, idx(0.0) - 1)),
+        40.0f, true);
+    grid->denseFill(
+        openvdb::CoordBBox(openvdb::Coord(idx(-20e-3), idx(-20e-3), idx(-12e-3)),
+                           openvdb::Coord(idx(20e-3) - 1, idx(20e-3) - 1, idx(-8e-3) - 1)),
+        1000.0f, true);
     return grid;
 }
 
 void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string& label,
                      const RayBenchOptions& o, RayBenchReport& report) {
     if (o.rays < kBundleRaysWithoutRing || o.rays > kMaxBundleRays)
-        throw ValueError("rays: expected 17.." + std::to_string(kMaxBundleRays) + ", found " + std::to_string(o.rays));
+        throw ValueError("rays: expected 17.." + std::to_string(kMaxBundleRays) + ", found " +
+                         std::to_string(o.rays));
     if (o.frames < 1) throw ValueError("frames: expected >= 1, found " + std::to_string(o.frames));
     const BundleParams bp = bundleParams(o);
     const VolumeView view(grid);
-    if (view.empty()) throw ValueError(label + ": expected a grid with active voxels, found an empty grid");
+    if (view.empty())
+        throw ValueError(label + ": expected a grid with active voxels, found an empty grid");
     const openvdb::CoordBBox ib = grid->evalActiveVoxelBoundingBox();
     const openvdb::BBoxd box(grid->indexToWorld(ib.min()), grid->indexToWorld(ib.max()));
     FirstHitParams fp;
@@ -285,23 +295,23 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
         float sink = 0;
         FirstHitParams noSkip = fp;
         noSkip.skipEmpty = false;
-        const auto t = timeInterleaved(
-            o.warmUp, frames,
-            {[&](std::size_t f) {
-                 traceFirstHit(view, set.bundles[f], fp, hits);
-                 sink += hits.t[0];
-             },
-             [&](std::size_t f) {
-                 traceFirstHit(view, set.bundles[f], noSkip, hits);
-                 sink += hits.t[0];
-             },
-             [&](std::size_t f) {
-                 const RayBundle& b = set.bundles[f];
-                 for (int r = 0; r < b.count; ++r) {
-                     bool hit;
-                     sink += base.trace(b, static_cast<std::size_t>(r), o.step, o.threshold, hit);
-                 }
-             }});
+        const auto t = timeInterleaved(o.warmUp, frames,
+                                       {[&](std::size_t f) {
+                                            traceFirstHit(view, set.bundles[f], fp, hits);
+                                            sink += hits.t[0];
+                                        },
+                                        [&](std::size_t f) {
+                                            traceFirstHit(view, set.bundles[f], noSkip, hits);
+                                            sink += hits.t[0];
+                                        },
+                                        [&](std::size_t f) {
+                                            const RayBundle& b = set.bundles[f];
+                                            for (int r = 0; r < b.count; ++r) {
+                                                bool hit;
+                                                sink += base.trace(b, static_cast<std::size_t>(r),
+                                                                   o.step, o.threshold, hit);
+                                            }
+                                        }});
         const TimingStats palp = t[0], palpNoSkip = t[1], baseline = t[2];
         // Agreement: palp vs baseline hits within 0.05 voxel.
         std::size_t agree = 0, total = 0, hitsN = 0;
@@ -314,18 +324,23 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
                 const float tb = base.trace(b, i, o.step, o.threshold, hit);
                 ++total;
                 hitsN += hits.hit[i];
-                if (hit == (hits.hit[i] != 0) && std::fabs(tb - hits.t[i]) <= 0.05 * view.voxelSize()) ++agree;
+                if (hit == (hits.hit[i] != 0) &&
+                    std::fabs(tb - hits.t[i]) <= 0.05 * view.voxelSize())
+                    ++agree;
             }
         }
         const std::string name =
             "volume " + std::to_string(o.rays) + " rays, " + label + ", " + set.name;
         BenchComparison c = compare(name, "palp", "OpenVDB baseline", palp, baseline);
         char note[256];
-        std::snprintf(note, sizeof(note), "%.0f bundles per 1 ms; %zu/%zu rays agree with the baseline, %zu hits%s",
-                      1000.0 / std::max(1e-9, palp.meanUs), agree, total, hitsN, sink == 12345.f ? " " : "");
+        std::snprintf(note, sizeof(note),
+                      "%.0f bundles per 1 ms; %zu/%zu rays agree with the baseline, %zu hits%s",
+                      1000.0 / std::max(1e-9, palp.meanUs), agree, total, hitsN,
+                      sink == 12345.f ? " " : "");
         c.note = note;
         report.lines.push_back(c);
-        BenchComparison c2 = compare(name + ", no empty-space skipping", "palp", "OpenVDB baseline", palpNoSkip, baseline);
+        BenchComparison c2 = compare(name + ", no empty-space skipping", "palp", "OpenVDB baseline",
+                                     palpNoSkip, baseline);
         report.lines.push_back(c2);
     }
 }
@@ -339,7 +354,8 @@ TriangleMesh heightField(int n, double extent, double z0, double phase) {
         for (int i = 0; i <= n; ++i) {
             const double x = -extent / 2 + i * h, y = -extent / 2 + j * h;
             const double z = z0 + 1e-3 * std::sin(200 * x + phase) * std::cos(170 * y - phase);
-            m.positions.insert(m.positions.end(), {static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)});
+            m.positions.insert(m.positions.end(), {static_cast<float>(x), static_cast<float>(y),
+                                                   static_cast<float>(z)});
         }
     auto id = [&](int i, int j) { return static_cast<std::uint32_t>(j * (n + 1) + i); };
     for (int j = 0; j < n; ++j)
@@ -362,14 +378,17 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
     std::vector<Case> cases;
     cases.push_back({"2k triangles", heightField(32, 60e-3, -6e-3, 0)});
     cases.push_back({"32k triangles", heightField(128, 60e-3, -6e-3, 0)});
-    if (userMesh) cases.push_back({"user mesh " + std::to_string(userMesh->triangleCount()) + " triangles", *userMesh});
+    if (userMesh)
+        cases.push_back(
+            {"user mesh " + std::to_string(userMesh->triangleCount()) + " triangles", *userMesh});
     for (const auto& cs : cases) {
         EmbreeScene scene;
         scene.addRigidMesh(cs.mesh, kMaskBone);
         scene.commit();
         openvdb::BBoxd box;
         for (std::size_t v = 0; v < cs.mesh.vertexCount(); ++v)
-            box.expand(openvdb::Vec3d(cs.mesh.positions[3 * v], cs.mesh.positions[3 * v + 1], cs.mesh.positions[3 * v + 2]));
+            box.expand(openvdb::Vec3d(cs.mesh.positions[3 * v], cs.mesh.positions[3 * v + 1],
+                                      cs.mesh.positions[3 * v + 2]));
         // Proxy path 4 mm above the mesh's top (within the 10 mm rays).
         openvdb::BBoxd above = box;
         above.max().z() += 4e-3;
@@ -383,9 +402,15 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
             for (int r = 0; r < b.count; ++r) {
                 const auto i = static_cast<std::size_t>(r);
                 alignas(16) RTCRayHit rh{};
-                rh.ray.org_x = b.ox[i]; rh.ray.org_y = b.oy[i]; rh.ray.org_z = b.oz[i];
-                rh.ray.dir_x = b.dx[i]; rh.ray.dir_y = b.dy[i]; rh.ray.dir_z = b.dz[i];
-                rh.ray.tnear = 0; rh.ray.tfar = b.length[i]; rh.ray.mask = kMaskAll;
+                rh.ray.org_x = b.ox[i];
+                rh.ray.org_y = b.oy[i];
+                rh.ray.org_z = b.oz[i];
+                rh.ray.dir_x = b.dx[i];
+                rh.ray.dir_y = b.dy[i];
+                rh.ray.dir_z = b.dz[i];
+                rh.ray.tnear = 0;
+                rh.ray.tfar = b.length[i];
+                rh.ray.mask = kMaskAll;
                 rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
                 rtcIntersect1(scene.handle(), &ctx, &rh);
                 sink += rh.ray.tfar;
@@ -401,12 +426,19 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
                 const auto i = static_cast<std::size_t>(r);
                 RTCRayHit& rh = rays[r];
                 rh = RTCRayHit{};
-                rh.ray.org_x = b.ox[i]; rh.ray.org_y = b.oy[i]; rh.ray.org_z = b.oz[i];
-                rh.ray.dir_x = b.dx[i]; rh.ray.dir_y = b.dy[i]; rh.ray.dir_z = b.dz[i];
-                rh.ray.tnear = 0; rh.ray.tfar = b.length[i]; rh.ray.mask = kMaskAll;
+                rh.ray.org_x = b.ox[i];
+                rh.ray.org_y = b.oy[i];
+                rh.ray.org_z = b.oz[i];
+                rh.ray.dir_x = b.dx[i];
+                rh.ray.dir_y = b.dy[i];
+                rh.ray.dir_z = b.dz[i];
+                rh.ray.tnear = 0;
+                rh.ray.tfar = b.length[i];
+                rh.ray.mask = kMaskAll;
                 rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
             }
-            rtcIntersect1M(scene.handle(), &ctx, rays, static_cast<unsigned>(b.count), sizeof(RTCRayHit));
+            rtcIntersect1M(scene.handle(), &ctx, rays, static_cast<unsigned>(b.count),
+                           sizeof(RTCRayHit));
             sink += rays[0].ray.tfar;
         };
         auto palpFrame = [&](MeshTraceMode mode) {
@@ -415,19 +447,25 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
                 sink += hits.t[0];
             };
         };
-        const auto t = timeInterleaved(o.warmUp, frames,
-                                       {palpFrame(kDefaultMeshTraceMode), palpFrame(MeshTraceMode::Loop1),
-                                        palpFrame(MeshTraceMode::Stream1M), raw1Frame, rawMFrame});
-        const TimingStats palpDefault = t[0], palpLoop = t[1], palpStream = t[2], raw1 = t[3], rawM = t[4];
+        const auto t =
+            timeInterleaved(o.warmUp, frames,
+                            {palpFrame(kDefaultMeshTraceMode), palpFrame(MeshTraceMode::Loop1),
+                             palpFrame(MeshTraceMode::Stream1M), raw1Frame, rawMFrame});
+        const TimingStats palpDefault = t[0], palpLoop = t[1], palpStream = t[2], raw1 = t[3],
+                          rawM = t[4];
         const bool loopFaster = raw1.meanUs <= rawM.meanUs;
         const std::string prefix = "embree " + std::to_string(o.rays) + " rays, " + cs.name;
-        BenchComparison c = compare(prefix, "palp traceBundle", loopFaster ? "raw rtcIntersect1 loop" : "raw rtcIntersect1M coherent",
-                                    palpDefault, loopFaster ? raw1 : rawM);
+        BenchComparison c =
+            compare(prefix, "palp traceBundle",
+                    loopFaster ? "raw rtcIntersect1 loop" : "raw rtcIntersect1M coherent",
+                    palpDefault, loopFaster ? raw1 : rawM);
         c.note = "ratio >= 0.83 meets 'within 1.2x'";
         if (sink == 12345.f) c.note += " ";
         report.lines.push_back(c);
-        report.lines.push_back(compare(prefix + ", raw calls", "rtcIntersect1 loop", "rtcIntersect1M coherent", raw1, rawM));
-        report.lines.push_back(compare(prefix + ", palp modes", "palp Loop1", "palp Stream1M", palpLoop, palpStream));
+        report.lines.push_back(compare(prefix + ", raw calls", "rtcIntersect1 loop",
+                                       "rtcIntersect1M coherent", raw1, rawM));
+        report.lines.push_back(
+            compare(prefix + ", palp modes", "palp Loop1", "palp Stream1M", palpLoop, palpStream));
     }
     // Refit of deforming height fields (vertices rewritten every update).
     for (int n : {32, 128}) {
@@ -437,7 +475,8 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
         scene.commit();
         std::vector<TriangleMesh> poses;
         for (int k = 0; k < 8; ++k) poses.push_back(heightField(n, 60e-3, -6e-3, 0.1 * k));
-        const std::size_t updates = n == 32 ? std::min<std::size_t>(frames, 5000) : std::min<std::size_t>(frames, 1000);
+        const std::size_t updates =
+            n == 32 ? std::min<std::size_t>(frames, 5000) : std::min<std::size_t>(frames, 1000);
         const TimingStats refit = timeFrames(std::min(o.warmUp, 50), updates, [&](std::size_t f) {
             scene.updateVertices(id, poses[f % poses.size()].positions);
             scene.commit();
@@ -445,18 +484,20 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
         EmbreeScene rebuildScene;
         rebuildScene.addRigidMesh(m0);
         rebuildScene.commit();
-        const TimingStats rebuild = timeFrames(5, std::min<std::size_t>(updates, 200), [&](std::size_t f) {
-            EmbreeScene s;
-            s.addRigidMesh(poses[f % poses.size()]);
-            s.commit();
-        });
-        report.lines.push_back(compare("refit " + std::to_string(2 * n * n) + " triangles per update", "update+refit",
-                                       "full rebuild (new scene)", refit, rebuild));
+        const TimingStats rebuild =
+            timeFrames(5, std::min<std::size_t>(updates, 200), [&](std::size_t f) {
+                EmbreeScene s;
+                s.addRigidMesh(poses[f % poses.size()]);
+                s.commit();
+            });
+        report.lines.push_back(
+            compare("refit " + std::to_string(2 * n * n) + " triangles per update", "update+refit",
+                    "full rebuild (new scene)", refit, rebuild));
     }
 }
 
-void benchBatchRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string& label, const RayBenchOptions& o,
-                    RayBenchReport& report) {
+void benchBatchRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string& label,
+                    const RayBenchOptions& o, RayBenchReport& report) {
     const BundleParams bp = bundleParams(o);
     const VolumeView view(grid);
     const openvdb::CoordBBox ib = grid->evalActiveVoxelBoundingBox();
@@ -502,17 +543,20 @@ void benchBatchRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string&
 std::string formatComparison(const BenchComparison& c) {
     char buf[512];
     if (c.unit == "Mrays/s") {
-        std::snprintf(buf, sizeof(buf), "%s: %s %.2f Mrays/s; %s %.2f Mrays/s; %.2fx", c.name.c_str(), c.subject.c_str(),
-                      c.a.meanUs, c.baseline.c_str(), c.b.meanUs, c.ratioMean);
+        std::snprintf(buf, sizeof(buf), "%s: %s %.2f Mrays/s; %s %.2f Mrays/s; %.2fx",
+                      c.name.c_str(), c.subject.c_str(), c.a.meanUs, c.baseline.c_str(), c.b.meanUs,
+                      c.ratioMean);
     } else {
-        std::snprintf(buf, sizeof(buf), "%s: %s %.2f us mean / %.2f us p99 / %.1f max; %s %.2f / %.2f / %.1f us; %.2fx / %.2fx",
-                      c.name.c_str(), c.subject.c_str(), c.a.meanUs, c.a.p99Us, c.a.maxUs, c.baseline.c_str(), c.b.meanUs,
-                      c.b.p99Us, c.b.maxUs, c.ratioMean, c.ratioP99);
+        std::snprintf(
+            buf, sizeof(buf),
+            "%s: %s %.2f us mean / %.2f us p99 / %.1f max; %s %.2f / %.2f / %.1f us; %.2fx / %.2fx",
+            c.name.c_str(), c.subject.c_str(), c.a.meanUs, c.a.p99Us, c.a.maxUs, c.baseline.c_str(),
+            c.b.meanUs, c.b.p99Us, c.b.maxUs, c.ratioMean, c.ratioP99);
     }
     std::string s = buf;
     if (c.a.cpuMeanUs > 0 && c.b.cpuMeanUs > 0) {
-        std::snprintf(buf, sizeof(buf), "; thread CPU time %.2f vs %.2f us, %.2fx", c.a.cpuMeanUs, c.b.cpuMeanUs,
-                      c.b.cpuMeanUs / c.a.cpuMeanUs);
+        std::snprintf(buf, sizeof(buf), "; thread CPU time %.2f vs %.2f us, %.2fx", c.a.cpuMeanUs,
+                      c.b.cpuMeanUs, c.b.cpuMeanUs / c.a.cpuMeanUs);
         s += buf;
     }
     if (!c.note.empty()) s += " (" + c.note + ")";

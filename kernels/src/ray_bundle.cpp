@@ -46,8 +46,8 @@ void validateBundleParams(const BundleParams& p) {
     if (!(std::isfinite(p.length) && p.length > 0))
         throw ValueError("bundle length: expected a finite length > 0 m, found " + str(p.length));
     if (p.ringCount < 0 || p.ringCount > kMaxRingRays)
-        throw ValueError("bundle ringCount: expected 0.." + std::to_string(kMaxRingRays) + ", found " +
-                         std::to_string(p.ringCount));
+        throw ValueError("bundle ringCount: expected 0.." + std::to_string(kMaxRingRays) +
+                         ", found " + std::to_string(p.ringCount));
     if (p.ringCount > 0 && !(p.ringHalfAngle > 0 && p.ringHalfAngle < halfPi))
         throw ValueError("bundle ringHalfAngle: expected an angle in (0, pi/2) rad, found " +
                          str(p.ringHalfAngle));
@@ -55,7 +55,8 @@ void validateBundleParams(const BundleParams& p) {
         throw ValueError("bundle ringWeightSigma: expected a finite width > 0 rad, found " +
                          str(p.ringWeightSigma));
     if (!(p.sobelAngle > 0 && p.sobelAngle < halfPi))
-        throw ValueError("bundle sobelAngle: expected an angle in (0, pi/2) rad, found " + str(p.sobelAngle));
+        throw ValueError("bundle sobelAngle: expected an angle in (0, pi/2) rad, found " +
+                         str(p.sobelAngle));
     if (!(std::isfinite(p.surfaceOffset) && p.surfaceOffset > 0))
         throw ValueError("bundle surfaceOffset: expected a finite offset > 0 m, found " +
                          str(p.surfaceOffset));
@@ -143,8 +144,10 @@ bool generateBundle(const Eigen::Vector3d& origin, const Eigen::Vector3d& direct
 
 StencilGradient sobel3x3(const std::array<double, 9>& k, double spacing) noexcept {
     auto at = [&](int i, int j) { return k[static_cast<std::size_t>((j + 1) * 3 + (i + 1))]; };
-    const double sx = (at(1, -1) - at(-1, -1)) + 2 * (at(1, 0) - at(-1, 0)) + (at(1, 1) - at(-1, 1));
-    const double sy = (at(-1, 1) - at(-1, -1)) + 2 * (at(0, 1) - at(0, -1)) + (at(1, 1) - at(1, -1));
+    const double sx =
+        (at(1, -1) - at(-1, -1)) + 2 * (at(1, 0) - at(-1, 0)) + (at(1, 1) - at(-1, 1));
+    const double sy =
+        (at(-1, 1) - at(-1, -1)) + 2 * (at(0, 1) - at(0, -1)) + (at(1, 1) - at(1, -1));
     if (!(spacing > 0)) return {};
     return {sx / (8 * spacing), sy / (8 * spacing)};
 }
@@ -163,7 +166,8 @@ double lowPass(const RayBundle& b, std::span<const double> v) noexcept {
     if (!b.valid || v.size() < static_cast<std::size_t>(b.count)) return 0.0;
     double s = b.weight[0] * v[0];
     for (int r = b.ringBegin; r < b.ringBegin + b.ringCount; ++r)
-        s += static_cast<double>(b.weight[static_cast<std::size_t>(r)]) * v[static_cast<std::size_t>(r)];
+        s += static_cast<double>(b.weight[static_cast<std::size_t>(r)]) *
+             v[static_cast<std::size_t>(r)];
     return s;
 }
 

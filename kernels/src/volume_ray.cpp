@@ -17,10 +17,10 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 /// A sample position resolved against the table.
 struct Cell {
-    std::int64_t block = -1;       // table block of the base voxel, -1 outside
+    std::int64_t block = -1;              // table block of the base voxel, -1 outside
     std::int64_t ix = 0, iy = 0, iz = 0;  // base voxel relative to the table origin
-    float tx = 0, ty = 0, tz = 0;  // fractions in the cell
-    bool finite = false;           // false: non-finite or absurd position (value: background)
+    float tx = 0, ty = 0, tz = 0;         // fractions in the cell
+    bool finite = false;  // false: non-finite or absurd position (value: background)
 };
 
 #define PALP_HOT [[gnu::always_inline]] inline
@@ -39,7 +39,8 @@ PALP_HOT std::int64_t fastCeil(double x) noexcept {
 
 PALP_HOT void locate(const Table& tb, double x, double y, double z, Cell& c) noexcept {
     // Written so that NaN fails the test.
-    c.finite = std::fabs(x) < kCoordLimit && std::fabs(y) < kCoordLimit && std::fabs(z) < kCoordLimit;
+    c.finite =
+        std::fabs(x) < kCoordLimit && std::fabs(y) < kCoordLimit && std::fabs(z) < kCoordLimit;
     c.block = -1;
     if (!c.finite) [[unlikely]]
         return;
@@ -62,7 +63,8 @@ PALP_HOT void locate(const Table& tb, double x, double y, double z, Cell& c) noe
 float voxelRel(const Table& tb, float background, std::int64_t ix, std::int64_t iy,
                std::int64_t iz) noexcept {
     const std::int64_t bx = ix >> 3, by = iy >> 3, bz = iz >> 3;
-    if (ix < 0 || iy < 0 || iz < 0 || bx >= tb.blocks[0] || by >= tb.blocks[1] || bz >= tb.blocks[2])
+    if (ix < 0 || iy < 0 || iz < 0 || bx >= tb.blocks[0] || by >= tb.blocks[1] ||
+        bz >= tb.blocks[2])
         return background;
     const std::int64_t b = (bx * tb.blocks[1] + by) * tb.blocks[2] + bz;
     const std::int64_t off = ((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7);
@@ -71,7 +73,8 @@ float voxelRel(const Table& tb, float background, std::int64_t ix, std::int64_t 
 
 /// The eight corner values of cell @p c (v[4 dx + 2 dy + dz]). Inside the table they all lie in
 /// the padded copy of the base voxel's block.
-PALP_HOT void loadCorners(const Table& tb, float background, const Cell& c, float (&v)[8]) noexcept {
+PALP_HOT void loadCorners(const Table& tb, float background, const Cell& c,
+                          float (&v)[8]) noexcept {
     if (c.block >= 0) [[likely]] {
         const std::int64_t lx = c.ix & 7, ly = c.iy & 7, lz = c.iz & 7;
         const float* p = tb.data[static_cast<std::size_t>(c.block)] + ((lx * 9 + ly) * 9 + lz);
@@ -85,7 +88,8 @@ PALP_HOT void loadCorners(const Table& tb, float background, const Cell& c, floa
         v[7] = p[91];
     } else {
         for (int i = 0; i < 8; ++i)
-            v[i] = voxelRel(tb, background, c.ix + ((i >> 2) & 1), c.iy + ((i >> 1) & 1), c.iz + (i & 1));
+            v[i] = voxelRel(tb, background, c.ix + ((i >> 2) & 1), c.iy + ((i >> 1) & 1),
+                            c.iz + (i & 1));
     }
 }
 
@@ -119,7 +123,8 @@ struct CornerCache {
 
 /// The value at index position (x, y, z) when it lies in the cached cell (no locate, no load):
 /// bit-identical to sampleCell() there, since the fractions are the same differences.
-PALP_HOT bool sampleInCache(const CornerCache& cache, double x, double y, double z, float& v) noexcept {
+PALP_HOT bool sampleInCache(const CornerCache& cache, double x, double y, double z,
+                            float& v) noexcept {
     const double fx = x - cache.base[0], fy = y - cache.base[1], fz = z - cache.base[2];
     if (!(fx >= 0 && fx < 1 && fy >= 0 && fy < 1 && fz >= 0 && fz < 1)) return false;  // NaN: false
     Cell c;
@@ -131,7 +136,8 @@ PALP_HOT bool sampleInCache(const CornerCache& cache, double x, double y, double
 }
 
 /// Same value as sampleCell(), through @p cache.
-PALP_HOT float sampleCached(const Table& tb, float background, const Cell& c, CornerCache& cache) noexcept {
+PALP_HOT float sampleCached(const Table& tb, float background, const Cell& c,
+                            CornerCache& cache) noexcept {
     if (!c.finite) [[unlikely]]
         return background;
     if (c.ix != cache.ix || c.iy != cache.iy || c.iz != cache.iz) {
@@ -148,11 +154,11 @@ PALP_HOT float sampleCached(const Table& tb, float background, const Cell& c, Co
 
 /// A ray in index space with its sample lattice.
 struct IndexRay {
-    double o[3] = {0, 0, 0};  // index position at t = 0
-    double d[3] = {0, 0, 0};  // index units per metre
+    double o[3] = {0, 0, 0};    // index position at t = 0
+    double d[3] = {0, 0, 0};    // index units per metre
     double inv[3] = {0, 0, 0};  // metres per index unit along each axis (1 / d, inf for d = 0)
     double invStep = 0;         // 1 / step
-    double length = 0;        // metres (possibly cut to kMaxSamplesPerRay)
+    double length = 0;          // metres (possibly cut to kMaxSamplesPerRay)
     double step = 0;
     std::int64_t kBegin = 0, kEnd = -1;  // samples to visit (inclusive); others are background
     std::int64_t kLast = 0;              // last sample of the whole ray
@@ -167,8 +173,9 @@ bool finite3(const Eigen::Vector3d& v) noexcept {
 
 /// Sets up @p r; false for degenerate input. With @p clip, samples outside the table's interior
 /// (where every value is background) are left out of [kBegin, kEnd].
-bool setupRay(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-              double length, double step, bool clip, IndexRay& r) noexcept {
+bool setupRay(const VolumeView& view, const Eigen::Vector3d& origin,
+              const Eigen::Vector3d& direction, double length, double step, bool clip,
+              IndexRay& r) noexcept {
     if (view.empty() || !finite3(origin) || !finite3(direction) || !std::isfinite(length) ||
         !(length >= 0) || !std::isfinite(step) || !(step > 0))
         return false;
@@ -217,7 +224,8 @@ bool setupRay(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen
     return true;
 }
 
-PALP_HOT float sampleAt(const VolumeView& view, const IndexRay& r, double t, CornerCache& cache) noexcept {
+PALP_HOT float sampleAt(const VolumeView& view, const IndexRay& r, double t,
+                        CornerCache& cache) noexcept {
     const double x = r.o[0] + t * r.d[0], y = r.o[1] + t * r.d[1], z = r.o[2] + t * r.d[2];
     float v;
     if (sampleInCache(cache, x, y, z, v)) return v;
@@ -262,11 +270,13 @@ PALP_HOT std::int64_t skipBlocks(const Table& tb, const IndexRay& r, const Cell&
     // Bounded: every step moves one block along the ray, and the ray ends within
     // kMaxSamplesPerRay samples; the table bound stops it earlier.
     for (;;) {
-        const int a = tNext[0] <= tNext[1] ? (tNext[0] <= tNext[2] ? 0 : 2) : (tNext[1] <= tNext[2] ? 1 : 2);
+        const int a =
+            tNext[0] <= tNext[1] ? (tNext[0] <= tNext[2] ? 0 : 2) : (tNext[1] <= tNext[2] ? 1 : 2);
         tExit = tNext[a];
         if (!(tExit * r.invStep - 1e-7 <= kEnd)) return r.kEnd + 1;  // past the last sample
         b[a] += dir[a];
-        if (static_cast<std::uint64_t>(b[a]) >= static_cast<std::uint64_t>(tb.blocks[static_cast<std::size_t>(a)]))
+        if (static_cast<std::uint64_t>(b[a]) >=
+            static_cast<std::uint64_t>(tb.blocks[static_cast<std::size_t>(a)]))
             break;  // leaving the table: let the caller sample there
         block += dir[a] * stride[a];
         const auto ub = static_cast<std::size_t>(block);
@@ -326,14 +336,16 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
     const double s = ax.x();
     const double tol = 1e-9 * std::fabs(s);
     const bool ok = xf.isLinear() && s > 0 && std::isfinite(s) && std::fabs(ax.y()) <= tol &&
-                    std::fabs(ax.z()) <= tol && std::fabs(ay.x()) <= tol && std::fabs(ay.z()) <= tol &&
-                    std::fabs(az.x()) <= tol && std::fabs(az.y()) <= tol &&
-                    std::fabs(ay.y() - s) <= tol && std::fabs(az.z() - s) <= tol;
+                    std::fabs(ax.z()) <= tol && std::fabs(ay.x()) <= tol &&
+                    std::fabs(ay.z()) <= tol && std::fabs(az.x()) <= tol &&
+                    std::fabs(az.y()) <= tol && std::fabs(ay.y() - s) <= tol &&
+                    std::fabs(az.z() - s) <= tol;
     if (!ok)
-        throw ValueError("volume view transform of grid '" + mGrid->getName() +
-                         "': expected an isotropic axis-aligned scale and translation, found voxel axes (" +
-                         std::to_string(ax.x()) + ", " + std::to_string(ay.y()) + ", " +
-                         std::to_string(az.z()) + ") m");
+        throw ValueError(
+            "volume view transform of grid '" + mGrid->getName() +
+            "': expected an isotropic axis-aligned scale and translation, found voxel axes (" +
+            std::to_string(ax.x()) + ", " + std::to_string(ay.y()) + ", " + std::to_string(az.z()) +
+            ") m");
     mWorldOrigin = Eigen::Vector3d(o.x(), o.y(), o.z());
     mVoxelSize = s;
     mInvVoxelSize = 1.0 / s;
@@ -370,9 +382,11 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
     }
     if (total > kMaxViewBlocks)
         throw ValueError("volume view of grid '" + mGrid->getName() + "': expected at most " +
-                         std::to_string(kMaxViewBlocks) + " 8^3 blocks in the bounding box, found more");
+                         std::to_string(kMaxViewBlocks) +
+                         " 8^3 blocks in the bounding box, found more");
     for (int a = 0; a < 3; ++a)
-        mTable.blocks[static_cast<std::size_t>(a)] = static_cast<std::int32_t>(n[static_cast<std::size_t>(a)]);
+        mTable.blocks[static_cast<std::size_t>(a)] =
+            static_cast<std::int32_t>(n[static_cast<std::size_t>(a)]);
     const auto count = static_cast<std::size_t>(total);
     auto index = [&](std::int64_t bx, std::int64_t by, std::int64_t bz) {
         return static_cast<std::size_t>((bx * n[1] + by) * n[2] + bz);
@@ -448,8 +462,9 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
                             float value = mBackground;
                             if (x < n[0] && y < n[1] && z < n[2]) {
                                 const std::size_t src = index(x, y, z);
-                                value = own[src] ? own[src][((lx % 8) << 6) | ((ly % 8) << 3) | (lz % 8)]
-                                                 : constant[src];
+                                value = own[src]
+                                            ? own[src][((lx % 8) << 6) | ((ly % 8) << 3) | (lz % 8)]
+                                            : constant[src];
                             }
                             dst[(lx * Table::kPad + ly) * Table::kPad + lz] = value;
                         }
@@ -486,15 +501,16 @@ TransferFunction::TransferFunction(std::span<const std::array<float, 2>> nodes) 
                              std::to_string(v) + ", " + std::to_string(s) + ")");
         if (i > 0 && v < nodes[i - 1][0])
             throw ValueError("transfer function node " + std::to_string(i) +
-                             ": expected values in non-decreasing order, found " + std::to_string(v) +
-                             " after " + std::to_string(nodes[i - 1][0]));
+                             ": expected values in non-decreasing order, found " +
+                             std::to_string(v) + " after " + std::to_string(nodes[i - 1][0]));
         mV[i] = v;
         mS[i] = s;
     }
     mCount = static_cast<int>(nodes.size());
     mCum[0] = 0;
     for (std::size_t i = 1; i < nodes.size(); ++i)
-        mCum[i] = mCum[i - 1] + 0.5 * (static_cast<double>(mS[i - 1]) + mS[i]) * (static_cast<double>(mV[i]) - mV[i - 1]);
+        mCum[i] = mCum[i - 1] + 0.5 * (static_cast<double>(mS[i - 1]) + mS[i]) *
+                                    (static_cast<double>(mV[i]) - mV[i - 1]);
     mZeroBelow = std::numeric_limits<float>::infinity();
     if (mS[0] > 0) {
         mZeroBelow = -std::numeric_limits<float>::infinity();
@@ -545,7 +561,8 @@ double TransferFunction::integral(double v) const noexcept {
 
 void validateFirstHitParams(const FirstHitParams& p) {
     if (!(std::isfinite(p.step) && p.step > 0))
-        throw ValueError("first-hit step: expected a finite step > 0 m, found " + std::to_string(p.step));
+        throw ValueError("first-hit step: expected a finite step > 0 m, found " +
+                         std::to_string(p.step));
     if (std::isnan(p.threshold))
         throw ValueError("first-hit threshold: expected a number, found NaN");
     if (p.refineIterations < 0 || p.refineIterations > 64)
@@ -555,15 +572,18 @@ void validateFirstHitParams(const FirstHitParams& p) {
 
 void validateAccumulateParams(const AccumulateParams& p) {
     if (!(std::isfinite(p.step) && p.step > 0))
-        throw ValueError("accumulate step: expected a finite step > 0 m, found " + std::to_string(p.step));
+        throw ValueError("accumulate step: expected a finite step > 0 m, found " +
+                         std::to_string(p.step));
     if (!(std::isfinite(p.tauStop) && p.tauStop > 0))
-        throw ValueError("accumulate tauStop: expected a finite value > 0, found " + std::to_string(p.tauStop));
+        throw ValueError("accumulate tauStop: expected a finite value > 0, found " +
+                         std::to_string(p.tauStop));
     if (p.reportFirstHit && std::isnan(p.firstHitThreshold))
         throw ValueError("accumulate firstHitThreshold: expected a number, found NaN");
 }
 
-RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-                double length, const FirstHitParams& params) noexcept {
+RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
+                const Eigen::Vector3d& direction, double length,
+                const FirstHitParams& params) noexcept {
     const float thr = params.threshold;
     const bool clip = !(view.background() >= thr);
     IndexRay r;
@@ -597,7 +617,8 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin, const Eig
                 prevValid = false;
                 continue;
             }
-            const float* p = tb.data[static_cast<std::size_t>(b)] + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7));
+            const float* p =
+                tb.data[static_cast<std::size_t>(b)] + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7));
             const float vv[8] = {p[0], p[1], p[9], p[10], p[81], p[82], p[90], p[91]};
             c.tx = static_cast<float>(xr - ix);
             c.ty = static_cast<float>(yr - iy);
@@ -612,8 +633,9 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin, const Eig
             if (k == 0) return {0.0f, true};
             const double tp = r.t(k - 1);
             if (!prevValid) prev = sampleAt(view, r, tp, cache);
-            const double th = refineCrossing(view, r, thr, tp, static_cast<double>(prev) - thr, t,
-                                             static_cast<double>(v) - thr, params.refineIterations, cache);
+            const double th =
+                refineCrossing(view, r, thr, tp, static_cast<double>(prev) - thr, t,
+                               static_cast<double>(v) - thr, params.refineIterations, cache);
             return {static_cast<float>(th), true};
         }
         prev = v;
@@ -680,9 +702,10 @@ AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
         }
         if (wantHit && !found && v >= thr) {
             found = true;
-            hitT = prev >= thr ? prevT
-                               : refineCrossing(view, r, thr, prevT, static_cast<double>(prev) - thr, t,
-                                                static_cast<double>(v) - thr, 4, cache);
+            hitT = prev >= thr
+                       ? prevT
+                       : refineCrossing(view, r, thr, prevT, static_cast<double>(prev) - thr, t,
+                                        static_cast<double>(v) - thr, 4, cache);
         }
         const double dt = t - prevT;
         const double v0 = prev, dv = static_cast<double>(v) - v0;
@@ -740,14 +763,14 @@ void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstH
     }
 }
 
-void traceAccumulate(const VolumeView& view, const RayBundle& bundle, const AccumulateParams& params,
-                     BundleAccumulation& out) noexcept {
+void traceAccumulate(const VolumeView& view, const RayBundle& bundle,
+                     const AccumulateParams& params, BundleAccumulation& out) noexcept {
     out.count = bundle.valid ? std::clamp(bundle.count, 0, kMaxBundleRays) : 0;
     for (int i = 0; i < out.count; ++i) {
         const auto r = static_cast<std::size_t>(i);
-        const AccumulateHit h =
-            accumulate(view, Eigen::Vector3d(bundle.ox[r], bundle.oy[r], bundle.oz[r]),
-                       Eigen::Vector3d(bundle.dx[r], bundle.dy[r], bundle.dz[r]), bundle.length[r], params);
+        const AccumulateHit h = accumulate(
+            view, Eigen::Vector3d(bundle.ox[r], bundle.oy[r], bundle.oz[r]),
+            Eigen::Vector3d(bundle.dx[r], bundle.dy[r], bundle.dz[r]), bundle.length[r], params);
         out.t[r] = h.t;
         out.integral[r] = h.integral;
         out.firstHitT[r] = h.firstHitT;

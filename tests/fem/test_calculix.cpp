@@ -1,5 +1,3 @@
-#include "palp/fem/calculix.h"
-
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -7,6 +5,7 @@
 
 #include "fem_test_util.h"
 #include "palp/error.h"
+#include "palp/fem/calculix.h"
 #include "palp/fem/implicit_solver.h"
 #include "test_support.h"
 
@@ -82,9 +81,9 @@ TEST(Calculix, DampedStepLoadNewmarkMatchesCcxDynamic) {
     const double settledCcx = ccx.displacements.back()[probe];
     const double settledPalp = s.displacement()[probe];
     std::cout << "[ ccx dynamic ] static " << st.displacement()[probe] << " m; settled palp "
-              << settledPalp << " ccx " << settledCcx << " (" << 100 * (settledPalp / settledCcx - 1)
-              << " %); first peak palp " << peakPalp << " ccx " << peakCcx << " ("
-              << 100 * (peakPalp / peakCcx - 1) << " %)\n";
+              << settledPalp << " ccx " << settledCcx << " ("
+              << 100 * (settledPalp / settledCcx - 1) << " %); first peak palp " << peakPalp
+              << " ccx " << peakCcx << " (" << 100 * (peakPalp / peakCcx - 1) << " %)\n";
     EXPECT_NEAR(settledPalp, settledCcx, 0.01 * std::abs(settledCcx));
     EXPECT_NEAR(settledPalp, st.displacement()[probe], 0.01 * std::abs(settledCcx))
         << "settled means at the static solution";

@@ -1,5 +1,3 @@
-#include "palp/fem/explicit_solver.h"
-
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -10,6 +8,7 @@
 
 #include "fem_test_util.h"
 #include "palp/error.h"
+#include "palp/fem/explicit_solver.h"
 #include "palp/fem/implicit_solver.h"
 
 // A counting global operator new: the real-time step must not allocate.

@@ -1,11 +1,10 @@
-#include "palp/fem/fem_model.h"
-
 #include <gtest/gtest.h>
 
 #include <Eigen/Eigenvalues>
 #include <random>
 
 #include "fem_test_util.h"
+#include "palp/fem/fem_model.h"
 #include "palp/fem/hex_element.h"
 #include "palp/fem/implicit_solver.h"
 
@@ -96,8 +95,8 @@ TEST(FemModel, PatchTestReproducesLinearFieldsInTheInterior) {
         const Eigen::Vector3d x = mesh.nodePosition(n);
         exact.segment<3>(3 * n) = a * x + b;
         const auto ijk = mesh.nodeCoords(n);
-        const bool boundary = ijk[0] == 0 || ijk[1] == 0 || ijk[2] == 0 || ijk[0] == 6 ||
-                              ijk[1] == 5 || ijk[2] == 4;
+        const bool boundary =
+            ijk[0] == 0 || ijk[1] == 0 || ijk[2] == 0 || ijk[0] == 6 || ijk[1] == 5 || ijk[2] == 4;
         if (boundary) {
             for (int d = 0; d < 3; ++d) c.prescribe(3 * n + d, exact[3 * n + d]);
         }
@@ -121,8 +120,8 @@ TEST(FemModel, LumpedMassAndStableStep) {
     const FemModel model(test::cube13(), test::softTissue());
     EXPECT_NEAR(model.totalMass(), 1e3 * std::pow(0.06, 3), 1e-12);
     // Element bound: dt = kappa h / c_d with kappa about 0.62 at nu = 0.45 (ALGORITHMS.md 5).
-    const double kappa = model.criticalTimeStep() * model.material().dilatationalWaveSpeed() /
-                         model.mesh().edge();
+    const double kappa =
+        model.criticalTimeStep() * model.material().dilatationalWaveSpeed() / model.mesh().edge();
     EXPECT_NEAR(kappa, 0.62, 0.03);
     // Stiffer elements shrink the step as 1 / sqrt(E).
     const FemModel stiff(test::cube13(2e4), test::softTissue());

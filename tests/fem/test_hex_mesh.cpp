@@ -1,19 +1,18 @@
-#include "palp/fem/hex_mesh.h"
-
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
 
 #include "palp/error.h"
 #include "palp/fem/fem_model.h"
+#include "palp/fem/hex_mesh.h"
 #include "palp/fem/material.h"
 
 namespace palp::fem {
 namespace {
 
 TEST(HexMesh, BoxNumberingAndFaces) {
-    const HexMesh m = HexMesh::box(Eigen::Vector3d(0.04, 0.02, 0.03), {5, 3, 4}, 7.0,
-                                   Eigen::Vector3d(1, 2, 3));
+    const HexMesh m =
+        HexMesh::box(Eigen::Vector3d(0.04, 0.02, 0.03), {5, 3, 4}, 7.0, Eigen::Vector3d(1, 2, 3));
     EXPECT_EQ(m.nodeCount(), 60);
     EXPECT_EQ(m.elementCount(), 4 * 2 * 3);
     EXPECT_DOUBLE_EQ(m.edge(), 0.01);
@@ -51,9 +50,9 @@ TEST(HexMesh, BadInputThrowsWithValue) {
     EXPECT_THROW(HexMesh::box(Eigen::Vector3d::Constant(1.0), {1, 3, 3}), ValueError);
     EXPECT_THROW(HexMesh::box(Eigen::Vector3d(1.0, -1.0, 1.0), {3, 3, 3}), ValueError);
     EXPECT_THROW(HexMesh::box(Eigen::Vector3d(1.0, 2.0, 1.0), {3, 3, 3}), ValueError);
-    EXPECT_THROW(HexMesh::fromCells({3, 3, 3}, 0.1, Eigen::Vector3d::Zero(),
-                                    std::vector<double>(8, 0.0)),
-                 ValueError);  // empty
+    EXPECT_THROW(
+        HexMesh::fromCells({3, 3, 3}, 0.1, Eigen::Vector3d::Zero(), std::vector<double>(8, 0.0)),
+        ValueError);  // empty
     try {
         HexMesh::fromCells({3, 3, 3}, -0.1, Eigen::Vector3d::Zero(), std::vector<double>(8, 1.0));
         FAIL() << "expected a ValueError";
@@ -103,7 +102,8 @@ TEST(Material, ValidationNamesTheValue) {
     EXPECT_NO_THROW(validate(m));
     // c_d for soft tissue: sqrt(5000 * 0.55 / (1000 * 1.45 * 0.1)) = 4.3549 m/s.
     const ElasticMaterial tissue{5e3, 0.45, 1e3, 0, 0};
-    EXPECT_NEAR(tissue.dilatationalWaveSpeed(), std::sqrt(5000 * 0.55 / (1000 * 1.45 * 0.1)), 1e-12);
+    EXPECT_NEAR(tissue.dilatationalWaveSpeed(), std::sqrt(5000 * 0.55 / (1000 * 1.45 * 0.1)),
+                1e-12);
 }
 
 }  // namespace

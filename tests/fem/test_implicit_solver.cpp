@@ -1,5 +1,3 @@
-#include "palp/fem/implicit_solver.h"
-
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -9,6 +7,7 @@
 
 #include "fem_test_util.h"
 #include "palp/error.h"
+#include "palp/fem/implicit_solver.h"
 
 namespace palp::fem {
 namespace {
@@ -20,9 +19,9 @@ struct Uniaxial {
     std::vector<int> top = mesh.faceNodes(BoxFace::zMax);
     double delta = 1e-3;
     Uniaxial() {
-        c.fixNodes(mesh.faceNodes(BoxFace::zMin), 4u);    // uz = 0 on the bottom
-        c.fixNodes({mesh.node(0, 0, 0)}, 3u);             // no rigid x, y translation
-        c.fixNodes({mesh.node(12, 0, 0)}, 2u);            // no rigid rotation about z
+        c.fixNodes(mesh.faceNodes(BoxFace::zMin), 4u);  // uz = 0 on the bottom
+        c.fixNodes({mesh.node(0, 0, 0)}, 3u);           // no rigid x, y translation
+        c.fixNodes({mesh.node(12, 0, 0)}, 2u);          // no rigid rotation about z
         for (int n : top) c.prescribe(3 * n + 2, -delta);
     }
 };
@@ -30,8 +29,8 @@ struct Uniaxial {
 TEST(ImplicitSolver, UniaxialCompressionMatchesHookesLaw) {
     Uniaxial p;
     const FemModel model(p.mesh, test::softTissue());
-    for (auto kind : {LinearSolverKind::simplicialLdlt, LinearSolverKind::cholmod,
-                      LinearSolverKind::pcg}) {
+    for (auto kind :
+         {LinearSolverKind::simplicialLdlt, LinearSolverKind::cholmod, LinearSolverKind::pcg}) {
         ImplicitSolver s(model, p.c, {Integrator::quasiStatic, kind});
         EXPECT_EQ(s.step(1.0).flags, kStepOk);
         const double area = 0.06 * 0.06, length = 0.06;
@@ -51,8 +50,8 @@ TEST(ImplicitSolver, DirectAndIterativeSolversAgreeAndReuseTheFactorisation) {
     const Constraints c = test::bottomFixed(model.mesh());
     const Eigen::VectorXd load = test::topPatchLoad(model.mesh(), 0.05, 0.0101);
     std::vector<Eigen::VectorXd> results;
-    for (auto kind : {LinearSolverKind::simplicialLdlt, LinearSolverKind::cholmod,
-                      LinearSolverKind::pcg}) {
+    for (auto kind :
+         {LinearSolverKind::simplicialLdlt, LinearSolverKind::cholmod, LinearSolverKind::pcg}) {
         ImplicitSolver s(model, c, {Integrator::newmark, kind, 1e-12, 5000});
         s.externalForce() = load;
         for (int i = 0; i < 20; ++i) EXPECT_EQ(s.step(2e-3).flags, kStepOk);

@@ -5,7 +5,6 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
-
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -13,10 +12,10 @@
 
 namespace palp::test {
 
-inline constexpr double kVoxel = 0.5e-3;   // metres
-inline constexpr float kInside = 1000.0f;  // value deep inside a shape
-inline constexpr float kIso = 500.0f;      // the surface's value
-inline constexpr double kRampVoxels = 2.0; // half-width of the ramp across the surface, voxels
+inline constexpr double kVoxel = 0.5e-3;    // metres
+inline constexpr float kInside = 1000.0f;   // value deep inside a shape
+inline constexpr float kIso = 500.0f;       // the surface's value
+inline constexpr double kRampVoxels = 2.0;  // half-width of the ramp across the surface, voxels
 
 /// Volume of a shape given by its signed distance (metres, negative inside): value
 /// kInside * clamp(0.5 - sdf / (2 w), 0, 1), w = kRampVoxels voxels; background 0 (inactive).

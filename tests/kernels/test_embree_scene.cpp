@@ -1,5 +1,4 @@
 #include <gtest/gtest.h>
-
 #include <tbb/task_arena.h>
 
 #include <cmath>
@@ -44,9 +43,11 @@ TriangleMesh planeMesh(const Eigen::Vector3d& n, const Eigen::Vector3d& c, doubl
 TriangleMesh boxMesh(const palp::test::Box& b) {
     TriangleMesh m;
     for (int k = 0; k < 8; ++k)
-        addVertex(m, b.centre + Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(), (k & 2) ? b.half.y() : -b.half.y(),
+        addVertex(m, b.centre + Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(),
+                                                (k & 2) ? b.half.y() : -b.half.y(),
                                                 (k & 4) ? b.half.z() : -b.half.z()));
-    const std::uint32_t f[6][4] = {{0, 2, 6, 4}, {1, 5, 7, 3}, {0, 4, 5, 1}, {2, 3, 7, 6}, {0, 1, 3, 2}, {4, 6, 7, 5}};
+    const std::uint32_t f[6][4] = {{0, 2, 6, 4}, {1, 5, 7, 3}, {0, 4, 5, 1},
+                                   {2, 3, 7, 6}, {0, 1, 3, 2}, {4, 6, 7, 5}};
     for (const auto& q : f) {
         addTri(m, q[0], q[1], q[2]);
         addTri(m, q[0], q[2], q[3]);
@@ -57,19 +58,22 @@ TriangleMesh boxMesh(const palp::test::Box& b) {
 /// Icosphere: icosahedron subdivided @p levels times, vertices on the sphere.
 TriangleMesh icosphere(const palp::test::Sphere& s, int levels) {
     const double t = (1 + std::sqrt(5.0)) / 2;
-    std::vector<Eigen::Vector3d> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-                                      {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
-    std::vector<std::array<std::uint32_t, 3>> f = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11},
-                                                   {1, 5, 9}, {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
-                                                   {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8}, {3, 8, 9},
-                                                   {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+    std::vector<Eigen::Vector3d> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0},
+                                      {0, -1, t}, {0, 1, t}, {0, -1, -t}, {0, 1, -t},
+                                      {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+    std::vector<std::array<std::uint32_t, 3>> f = {
+        {0, 11, 5},  {0, 5, 1},  {0, 1, 7},  {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+        {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
+        {3, 8, 9},   {4, 9, 5},  {2, 4, 11}, {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
     for (auto& p : v) p.normalize();
     for (int l = 0; l < levels; ++l) {
         std::vector<std::array<std::uint32_t, 3>> nf;
         for (const auto& tri : f) {
             std::uint32_t m[3];
             for (int e = 0; e < 3; ++e) {
-                v.push_back((v[tri[static_cast<std::size_t>(e)]] + v[tri[static_cast<std::size_t>((e + 1) % 3)]]).normalized());
+                v.push_back((v[tri[static_cast<std::size_t>(e)]] +
+                             v[tri[static_cast<std::size_t>((e + 1) % 3)]])
+                                .normalized());
                 m[e] = static_cast<std::uint32_t>(v.size() - 1);
             }
             nf.push_back({tri[0], m[0], m[2]});
@@ -87,13 +91,15 @@ TriangleMesh icosphere(const palp::test::Sphere& s, int levels) {
 
 /// Exact closest hit against a mesh in double precision (brute force, Moller-Trumbore on the
 /// float vertices).
-double bruteForceHit(const TriangleMesh& m, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double tMax) {
+double bruteForceHit(const TriangleMesh& m, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                     double tMax) {
     double best = std::numeric_limits<double>::infinity();
     auto vert = [&](std::uint32_t i) {
         return Eigen::Vector3d(m.positions[3 * i], m.positions[3 * i + 1], m.positions[3 * i + 2]);
     };
     for (std::size_t t = 0; t < m.triangleCount(); ++t) {
-        const Eigen::Vector3d a = vert(m.indices[3 * t]), b = vert(m.indices[3 * t + 1]), c = vert(m.indices[3 * t + 2]);
+        const Eigen::Vector3d a = vert(m.indices[3 * t]), b = vert(m.indices[3 * t + 1]),
+                              c = vert(m.indices[3 * t + 2]);
         const Eigen::Vector3d e1 = b - a, e2 = c - a, p = d.cross(e2);
         const double det = e1.dot(p);
         if (std::fabs(det) < 1e-300) continue;
@@ -110,7 +116,8 @@ double bruteForceHit(const TriangleMesh& m, const Eigen::Vector3d& o, const Eige
 }
 
 /// One bundle per proxy pointing at @p target, for tests.
-RayBundle bundleAt(const Eigen::Vector3d& proxy, const Eigen::Vector3d& target, int ring = 0, double len = 20e-3) {
+RayBundle bundleAt(const Eigen::Vector3d& proxy, const Eigen::Vector3d& target, int ring = 0,
+                   double len = 20e-3) {
     BundleParams p;
     p.length = len;
     p.ringCount = ring;
@@ -124,8 +131,8 @@ RayBundle bundleAt(const Eigen::Vector3d& proxy, const Eigen::Vector3d& target, 
 // Rays whose origin lies inside the solid (inside(o)) are left out: the exact functions give the
 // entry into the solid from outside.
 template <class Exact, class Inside>
-void checkMeshAgainst(const TriangleMesh& mesh, Exact exact, Inside inside, const Eigen::Vector3d& c, double r0,
-                      double aim) {
+void checkMeshAgainst(const TriangleMesh& mesh, Exact exact, Inside inside,
+                      const Eigen::Vector3d& c, double r0, double aim) {
     EmbreeScene scene;
     scene.addRigidMesh(mesh, kMaskBone);
     scene.commit();
@@ -134,7 +141,8 @@ void checkMeshAgainst(const TriangleMesh& mesh, Exact exact, Inside inside, cons
     int hits = 0;
     for (int k = 0; k < 60; ++k) {
         const Eigen::Vector3d proxy = c + r0 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized();
-        const Eigen::Vector3d target = c + aim * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized();
+        const Eigen::Vector3d target =
+            c + aim * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized();
         const RayBundle b = bundleAt(proxy, target, 8, 2 * r0);
         for (MeshTraceMode mode : {MeshTraceMode::Loop1, MeshTraceMode::Stream1M}) {
             BundleHits h;
@@ -160,26 +168,32 @@ void checkMeshAgainst(const TriangleMesh& mesh, Exact exact, Inside inside, cons
 
 TEST(EmbreeScene, PlaneBoxAndSphereHitsWithinAMicrometre) {
     const palp::test::Plane plane{Eigen::Vector3d(0.2, -0.3, 1.0).normalized(), 0.7e-3};
-    checkMeshAgainst(planeMesh(plane.n, plane.c * plane.n, 0.1),
-                     [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) { return plane.hit(o, d); },
-                     [&](const Eigen::Vector3d& o) { return plane.sdf(o) <= 0; },
-                     Eigen::Vector3d::Zero(), 8e-3, 4e-3);
-    const palp::test::Box box{Eigen::Vector3d(0.1e-3, 0.2e-3, -0.3e-3), Eigen::Vector3d(5e-3, 4e-3, 3.5e-3)};
-    checkMeshAgainst(boxMesh(box), [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) { return box.hit(o, d); },
-                     [&](const Eigen::Vector3d& o) { return box.sdf(o) <= 0; },
-                     box.centre, 10e-3, 3e-3);
+    checkMeshAgainst(
+        planeMesh(plane.n, plane.c * plane.n, 0.1),
+        [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) { return plane.hit(o, d); },
+        [&](const Eigen::Vector3d& o) { return plane.sdf(o) <= 0; }, Eigen::Vector3d::Zero(), 8e-3,
+        4e-3);
+    const palp::test::Box box{Eigen::Vector3d(0.1e-3, 0.2e-3, -0.3e-3),
+                              Eigen::Vector3d(5e-3, 4e-3, 3.5e-3)};
+    checkMeshAgainst(
+        boxMesh(box),
+        [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) { return box.hit(o, d); },
+        [&](const Eigen::Vector3d& o) { return box.sdf(o) <= 0; }, box.centre, 10e-3, 3e-3);
     const palp::test::Sphere s{Eigen::Vector3d(0.13e-3, -0.21e-3, 0.07e-3), 6e-3};
     const TriangleMesh ico = icosphere(s, 3);
-    checkMeshAgainst(ico, [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) { return bruteForceHit(ico, o, d, 1.0); },
-                     [&](const Eigen::Vector3d& o) { return s.sdf(o) <= 0; },
-                     s.centre, 9.5e-3, 4e-3);
+    checkMeshAgainst(
+        ico,
+        [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) {
+            return bruteForceHit(ico, o, d, 1.0);
+        },
+        [&](const Eigen::Vector3d& o) { return s.sdf(o) <= 0; }, s.centre, 9.5e-3, 4e-3);
 }
 
 // The same shape as a volume and as a mesh (analytic and iso-surface) agrees within half a voxel.
 TEST(EmbreeScene, VolumeAndMeshAgreeWithinHalfAVoxel) {
     const palp::test::Sphere s{Eigen::Vector3d(0.13e-3, -0.21e-3, 0.07e-3), 6e-3};
-    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); }, {-20, -20, -20},
-                                        {20, 20, 20});
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); },
+                                        {-20, -20, -20}, {20, 20, 20});
     const VolumeView view(grid);
     EmbreeScene analytic, iso;
     analytic.addRigidMesh(icosphere(s, 5));
@@ -194,7 +208,8 @@ TEST(EmbreeScene, VolumeAndMeshAgreeWithinHalfAVoxel) {
     std::normal_distribution<double> n;
     int compared = 0;
     for (int k = 0; k < 40; ++k) {
-        const Eigen::Vector3d proxy = s.centre + 9.5e-3 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized();
+        const Eigen::Vector3d proxy =
+            s.centre + 9.5e-3 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized();
         const RayBundle b = bundleAt(proxy, s.centre, 8);
         BundleHits hv, ha, hi;
         traceFirstHit(view, b, fp, hv);
@@ -213,8 +228,10 @@ TEST(EmbreeScene, VolumeAndMeshAgreeWithinHalfAVoxel) {
 
 TEST(EmbreeScene, MasksSelectCategoriesAndRefitMovesADeformingMesh) {
     EmbreeScene scene;
-    const unsigned bone = scene.addRigidMesh(planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -6e-3), 0.05), kMaskBone);
-    const unsigned plate = scene.addRigidMesh(planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -4e-3), 0.05), kMaskPlate);
+    const unsigned bone = scene.addRigidMesh(
+        planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -6e-3), 0.05), kMaskBone);
+    const unsigned plate = scene.addRigidMesh(
+        planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -4e-3), 0.05), kMaskPlate);
     TriangleMesh skin = planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -2e-3), 0.05);
     const unsigned surf = scene.addDeformingMesh(skin, kMaskSurface);
     scene.commit();
@@ -263,27 +280,30 @@ TEST(EmbreeScene, DegenerateInputAndNoAllocation) {
     scene.addRigidMesh(planeMesh(Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, 0, -5e-3), 0.05));
     scene.commit();
     RayBundle invalid;
-    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(std::nan(""), 0, 0), Eigen::Vector3d::UnitX(),
-                   Eigen::Vector3d::UnitY(), BundleParams{}, invalid);
+    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(std::nan(""), 0, 0),
+                   Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), BundleParams{}, invalid);
     traceBundle(scene, invalid, kMaskAll, h);
     EXPECT_EQ(h.count, 0);
     // Zero length: no hit.
     BundleParams zp;
     zp.length = 0;
     RayBundle z;
-    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, -1), Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), zp, z);
+    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, -1), Eigen::Vector3d::UnitX(),
+                   Eigen::Vector3d::UnitY(), zp, z);
     traceBundle(scene, z, kMaskAll, h);
     EXPECT_FALSE(h.hit[0]);
     // Huge length: a hit.
     zp.length = 1e30;
-    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, -1), Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(), zp, z);
+    generateBundle(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, -1), Eigen::Vector3d::UnitX(),
+                   Eigen::Vector3d::UnitY(), zp, z);
     traceBundle(scene, z, kMaskAll, h);
     EXPECT_NEAR(h.t[0], 5e-3, 1e-7);
     // No allocation per frame.
     int hits = 0;
     const std::uint64_t before = palp::test::allocationCount();
     for (int frame = 0; frame < 200; ++frame) {
-        const RayBundle fb = bundleAt(Eigen::Vector3d(frame * 1e-5, 0, 0), Eigen::Vector3d(frame * 1e-5, 0, -1), 8);
+        const RayBundle fb =
+            bundleAt(Eigen::Vector3d(frame * 1e-5, 0, 0), Eigen::Vector3d(frame * 1e-5, 0, -1), 8);
         traceBundle(scene, fb, kMaskAll, h, MeshTraceMode::Loop1);
         hits += h.hit[0];
         traceBundle(scene, fb, kMaskAll, h, MeshTraceMode::Stream1M);
@@ -312,19 +332,22 @@ TEST(MeshIo, ObjStlPlyRoundTrip) {
         stl << "endsolid box\n";
         std::ofstream ply(dir / "box.ply");
         ply << "ply\nformat ascii 1.0\nelement vertex " << box.vertexCount()
-            << "\nproperty float x\nproperty float y\nproperty float z\nelement face " << box.triangleCount()
-            << "\nproperty list uchar int vertex_indices\nend_header\n";
+            << "\nproperty float x\nproperty float y\nproperty float z\nelement face "
+            << box.triangleCount() << "\nproperty list uchar int vertex_indices\nend_header\n";
         for (std::size_t v = 0; v < box.vertexCount(); ++v)
-            ply << box.positions[3 * v] << ' ' << box.positions[3 * v + 1] << ' ' << box.positions[3 * v + 2] << '\n';
+            ply << box.positions[3 * v] << ' ' << box.positions[3 * v + 1] << ' '
+                << box.positions[3 * v + 2] << '\n';
         for (std::size_t t = 0; t < box.triangleCount(); ++t)
-            ply << "3 " << box.indices[3 * t] << ' ' << box.indices[3 * t + 1] << ' ' << box.indices[3 * t + 2] << '\n';
+            ply << "3 " << box.indices[3 * t] << ' ' << box.indices[3 * t + 1] << ' '
+                << box.indices[3 * t + 2] << '\n';
     }
     for (const char* name : {"box.obj", "box.stl", "box.ply"}) {
         const TriangleMesh m = loadMesh(dir / name, 1e-3);  // millimetres
         EXPECT_EQ(m.triangleCount(), 12u) << name;
         // Every loaded vertex is a box corner scaled to metres.
         for (std::size_t v = 0; v < m.vertexCount(); ++v) {
-            const Eigen::Vector3d p(m.positions[3 * v], m.positions[3 * v + 1], m.positions[3 * v + 2]);
+            const Eigen::Vector3d p(m.positions[3 * v], m.positions[3 * v + 1],
+                                    m.positions[3 * v + 2]);
             const Eigen::Vector3d q = (p * 1e3 - Eigen::Vector3d(1, 2, 3)).cwiseAbs();
             EXPECT_NEAR(q.x(), 0.5, 1e-5) << name;
             EXPECT_NEAR(q.y(), 0.25, 1e-5) << name;
@@ -332,15 +355,18 @@ TEST(MeshIo, ObjStlPlyRoundTrip) {
         }
     }
     EXPECT_THROW(loadMesh(dir / "missing.stl"), palp::IoError);
-    { std::ofstream junk(dir / "junk.ply"); junk << "not a mesh"; }
+    {
+        std::ofstream junk(dir / "junk.ply");
+        junk << "not a mesh";
+    }
     EXPECT_THROW(loadMesh(dir / "junk.ply"), palp::FormatError);
 }
 
 // The batch API equals the single-thread path, for volumes and meshes (run under tsan too).
 TEST(RayBatch, ParallelEqualsSingleThread) {
     const palp::test::Sphere s{Eigen::Vector3d(0, 0, 0), 6e-3};
-    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); }, {-20, -20, -20},
-                                        {20, 20, 20});
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); },
+                                        {-20, -20, -20}, {20, 20, 20});
     const VolumeView view(grid);
     EmbreeScene scene;
     scene.addRigidMesh(icosphere(s, 3));
@@ -355,7 +381,8 @@ TEST(RayBatch, ParallelEqualsSingleThread) {
     fp.threshold = palp::test::kIso;
     AccumulateParams ap;
     ap.sigma = TransferFunction::step(200.0f, 3000.0f);
-    std::vector<BundleHits> v1(bundles.size()), vN(bundles.size()), m1(bundles.size()), mN(bundles.size());
+    std::vector<BundleHits> v1(bundles.size()), vN(bundles.size()), m1(bundles.size()),
+        mN(bundles.size());
     std::vector<BundleAccumulation> a1(bundles.size()), aN(bundles.size());
     for (std::size_t i = 0; i < bundles.size(); ++i) {
         traceFirstHit(view, bundles[i], fp, v1[i]);

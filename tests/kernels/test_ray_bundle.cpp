@@ -1,7 +1,6 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
-
 #include <cmath>
 #include <vector>
 
@@ -31,8 +30,8 @@ TEST(RayBundle, LayoutAndGeometry) {
     p.surfaceOffset = 0.7e-3;
     RayBundle b;
     const Eigen::Vector3d o(0.01, -0.02, 0.03), d = Eigen::Vector3d(0.3, -0.4, -1.0).normalized();
-    ASSERT_TRUE(palp::kernels::generateBundle(o, d * 3.0, Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0),
-                                              p, b));
+    ASSERT_TRUE(palp::kernels::generateBundle(o, d * 3.0, Eigen::Vector3d(1, 0, 0),
+                                              Eigen::Vector3d(0, 1, 0), p, b));
     EXPECT_EQ(b.count, 25);
     EXPECT_NEAR(b.e1.dot(d), 0, 1e-12);
     EXPECT_NEAR(b.e2.dot(d), 0, 1e-12);
@@ -62,7 +61,8 @@ TEST(RayBundle, LayoutAndGeometry) {
             const Eigen::Vector3d os = originOf(b, b.surfaceRay(i, j));
             EXPECT_NEAR((os - (o + 0.7e-3 * (i * b.t1 + j * b.t2))).norm(), 0, 1e-8);
             EXPECT_NEAR((dirOf(b, b.surfaceRay(i, j)) - d).norm(), 0, 1e-6);
-            EXPECT_EQ(b.weight[static_cast<std::size_t>(b.surfaceRay(i, j))] == 0, !(i == 0 && j == 0));
+            EXPECT_EQ(b.weight[static_cast<std::size_t>(b.surfaceRay(i, j))] == 0,
+                      !(i == 0 && j == 0));
         }
     // Surface frame: orthonormal, t1 along the given tangent.
     EXPECT_NEAR((b.t1 - Eigen::Vector3d::UnitX()).norm(), 0, 1e-12);
@@ -76,7 +76,8 @@ TEST(RayBundle, SobelExactForLinearFields) {
     p.surfaceOffset = 0.5e-3;
     RayBundle b;
     const Eigen::Vector3d o(0.02, 0.01, -0.05), d = Eigen::Vector3d(-0.2, 0.9, 0.4).normalized();
-    ASSERT_TRUE(palp::kernels::generateBundle(o, d, Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(1, 0, 0), p, b));
+    ASSERT_TRUE(palp::kernels::generateBundle(o, d, Eigen::Vector3d(0, 0, 1),
+                                              Eigen::Vector3d(1, 0, 0), p, b));
     // k linear in the two stencil angles: spherical Sobel returns the angular derivatives.
     const double a = 300, b1 = 1234.5, b2 = -678.25;
     std::vector<double> k(static_cast<std::size_t>(b.count));
@@ -91,14 +92,16 @@ TEST(RayBundle, SobelExactForLinearFields) {
     EXPECT_NEAR(gs.g2, b2, 1e-4 * std::fabs(b2));
     // k linear in position: surface Sobel returns the tangential gradient.
     const Eigen::Vector3d grad(500.0, -250.0, 125.0);
-    for (int r = 0; r < b.count; ++r) k[static_cast<std::size_t>(r)] = a + grad.dot(originOf(b, r) - o);
+    for (int r = 0; r < b.count; ++r)
+        k[static_cast<std::size_t>(r)] = a + grad.dot(originOf(b, r) - o);
     const auto gt = palp::kernels::surfaceSobel(b, k);
     EXPECT_NEAR(gt.g1, grad.dot(b.t1), 1e-3);
     EXPECT_NEAR(gt.g2, grad.dot(b.t2), 1e-3);
     // Exact arithmetic on a hand-made stencil: k = 2 i - 3 j + 1 at spacing 0.5.
     std::array<double, 9> s{};
     for (int j = -1; j <= 1; ++j)
-        for (int i = -1; i <= 1; ++i) s[static_cast<std::size_t>((j + 1) * 3 + i + 1)] = 2.0 * i - 3.0 * j + 1;
+        for (int i = -1; i <= 1; ++i)
+            s[static_cast<std::size_t>((j + 1) * 3 + i + 1)] = 2.0 * i - 3.0 * j + 1;
     const auto g = palp::kernels::sobel3x3(s, 0.5);
     EXPECT_DOUBLE_EQ(g.g1, 4.0);
     EXPECT_DOUBLE_EQ(g.g2, -6.0);
@@ -115,11 +118,13 @@ TEST(RayBundle, DegenerateInputGivesInvalidBundle) {
     EXPECT_FALSE(palp::kernels::generateBundle(o, Eigen::Vector3d::Zero(), t1, t2, p, b));
     EXPECT_EQ(b.count, 0);
     EXPECT_FALSE(palp::kernels::generateBundle(o, Eigen::Vector3d(nan, 0, 1), t1, t2, p, b));
-    EXPECT_FALSE(palp::kernels::generateBundle(Eigen::Vector3d(nan, 0, 0), Eigen::Vector3d(0, 0, 1), t1, t2, p, b));
+    EXPECT_FALSE(palp::kernels::generateBundle(Eigen::Vector3d(nan, 0, 0), Eigen::Vector3d(0, 0, 1),
+                                               t1, t2, p, b));
     EXPECT_FALSE(palp::kernels::generateBundle(o, Eigen::Vector3d(INFINITY, 0, 1), t1, t2, p, b));
     EXPECT_EQ(b.count, 0);
     // A degenerate tangent frame falls back to (e1, e2) and still gives a valid bundle.
-    EXPECT_TRUE(palp::kernels::generateBundle(o, Eigen::Vector3d(0, 0, -1), Eigen::Vector3d::Zero(), t2, p, b));
+    EXPECT_TRUE(palp::kernels::generateBundle(o, Eigen::Vector3d(0, 0, -1), Eigen::Vector3d::Zero(),
+                                              t2, p, b));
     EXPECT_NEAR(b.t1.dot(b.direction), 0, 1e-12);
     // Set-up validation names the field.
     p.ringCount = 100;

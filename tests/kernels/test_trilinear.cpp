@@ -20,7 +20,8 @@ TEST(Trilinear, ReproducesLinearFieldExactly) {
             for (double z : {2.0, 7.3}) {
                 EXPECT_NEAR(palp::kernels::sampleIndex(cacc, {x, y, z}), f(x, y, z), 1e-4);
                 const openvdb::Vec3d w = grid->transform().indexToWorld(openvdb::Vec3d(x, y, z));
-                EXPECT_NEAR(palp::kernels::sampleWorld(cacc, grid->transform(), w), f(x, y, z), 1e-4);
+                EXPECT_NEAR(palp::kernels::sampleWorld(cacc, grid->transform(), w), f(x, y, z),
+                            1e-4);
             }
 }
 

@@ -84,15 +84,16 @@ TEST(VolumeRay, PlaneFirstHitWithinAVoxelFraction) {
 
 TEST(VolumeRay, SphereFirstHitWithinAVoxelFraction) {
     const palp::test::Sphere s{Eigen::Vector3d(0.13e-3, -0.21e-3, 0.07e-3), 6e-3};
-    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); }, {-20, -20, -20},
-                                        {20, 20, 20});
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); },
+                                        {-20, -20, -20}, {20, 20, 20});
     checkShape(s, grid, s.centre, 9.5e-3, 4e-3, 300, 0.05);
 }
 
 TEST(VolumeRay, BoxFirstHitWithinAVoxelFraction) {
-    const palp::test::Box box{Eigen::Vector3d(0.1e-3, 0.2e-3, -0.3e-3), Eigen::Vector3d(5e-3, 4e-3, 3.5e-3)};
-    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return box.sdf(x); }, {-20, -20, -20},
-                                        {20, 20, 20});
+    const palp::test::Box box{Eigen::Vector3d(0.1e-3, 0.2e-3, -0.3e-3),
+                              Eigen::Vector3d(5e-3, 4e-3, 3.5e-3)};
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return box.sdf(x); },
+                                        {-20, -20, -20}, {20, 20, 20});
     const VolumeView view(grid);
     // Rays towards each face, tilted up to ~15 degrees, landing at least 1.5 mm from its edges.
     std::mt19937 rng(3);
@@ -105,15 +106,17 @@ TEST(VolumeRay, BoxFirstHitWithinAVoxelFraction) {
                 for (int a = 0; a < 3; ++a)
                     target[a] += a == axis ? sign * box.half[a] : u(rng) * (box.half[a] - 1.5e-3);
                 Eigen::Vector3d d = -sign * Eigen::Vector3d::Unit(axis);
-                d += 0.25 * Eigen::Vector3d(u(rng), u(rng), u(rng)).cwiseProduct(
-                                Eigen::Vector3d::Ones() - Eigen::Vector3d::Unit(axis));
+                d +=
+                    0.25 * Eigen::Vector3d(u(rng), u(rng), u(rng))
+                               .cwiseProduct(Eigen::Vector3d::Ones() - Eigen::Vector3d::Unit(axis));
                 d.normalize();
                 const Eigen::Vector3d o = target - 3e-3 * d;
                 const double exact = box.hit(o, d);
                 ASSERT_NEAR(exact, 3e-3, 1e-9);
                 const RayHit h = firstHit(view, o, d, 10e-3, hitParams());
                 ASSERT_TRUE(h.hit);
-                EXPECT_NEAR(h.t, exact, 0.05 * kVoxel) << "axis " << axis << " sign " << sign << " k " << k;
+                EXPECT_NEAR(h.t, exact, 0.05 * kVoxel)
+                    << "axis " << axis << " sign " << sign << " k " << k;
                 ++n;
             }
     EXPECT_EQ(n, 180);
@@ -122,8 +125,8 @@ TEST(VolumeRay, BoxFirstHitWithinAVoxelFraction) {
 // The table sampler reproduces trilinear interpolation through an accessor.
 TEST(VolumeRay, ViewSamplerMatchesAccessor) {
     const palp::test::Sphere s{Eigen::Vector3d(0, 0, 0), 5e-3};
-    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); }, {-16, -16, -16},
-                                        {16, 16, 16});
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); },
+                                        {-16, -16, -16}, {16, 16, 16});
     const VolumeView view(grid);
     const auto acc = grid->getConstAccessor();
     std::mt19937 rng(5);
@@ -148,7 +151,8 @@ TEST(VolumeRay, FirstHitMatchesAccessorMarchOnANoisyGrid) {
         for (int y = -20; y < 20; ++y)
             for (int z = -12; z < 12; ++z)
                 if ((x * 7 + y * 3 + z) % 5 != 0) acc.setValue(openvdb::Coord(x, y, z), noise(rng));
-    grid->fill(openvdb::CoordBBox(openvdb::Coord(128, 0, 0), openvdb::Coord(255, 127, 127)), 500.0f, true);
+    grid->fill(openvdb::CoordBBox(openvdb::Coord(128, 0, 0), openvdb::Coord(255, 127, 127)), 500.0f,
+               true);
     const VolumeView view(grid);
     const auto cacc = grid->getConstAccessor();
     std::uniform_real_distribution<double> u(-1, 1);
@@ -156,8 +160,9 @@ TEST(VolumeRay, FirstHitMatchesAccessorMarchOnANoisyGrid) {
     p.threshold = 240;
     int hits = 0, checked = 0;
     for (int n = 0; n < 600; ++n) {
-        const Eigen::Vector3d o = n % 3 == 0 ? Eigen::Vector3d(u(rng) * 12e-3, u(rng) * 12e-3, u(rng) * 8e-3)
-                                             : Eigen::Vector3d(40e-3 + u(rng) * 30e-3, u(rng) * 30e-3, u(rng) * 30e-3);
+        const Eigen::Vector3d o =
+            n % 3 == 0 ? Eigen::Vector3d(u(rng) * 12e-3, u(rng) * 12e-3, u(rng) * 8e-3)
+                       : Eigen::Vector3d(40e-3 + u(rng) * 30e-3, u(rng) * 30e-3, u(rng) * 30e-3);
         const Eigen::Vector3d d = randomUnit(rng);
         const double len = 0.5 * (1 + u(rng)) * 40e-3;
         const RayHit h = firstHit(view, o, d, len, p);
@@ -176,7 +181,8 @@ TEST(VolumeRay, FirstHitMatchesAccessorMarchOnANoisyGrid) {
             continue;
         }
         ++hits;
-        const double t1 = std::min(kHit * p.step, len), t0 = kHit > 0 ? std::min((kHit - 1) * p.step, len) : 0.0;
+        const double t1 = std::min(kHit * p.step, len),
+                     t0 = kHit > 0 ? std::min((kHit - 1) * p.step, len) : 0.0;
         EXPECT_GE(h.t, t0 - 1e-9) << "ray " << n;
         EXPECT_LE(h.t, t1 + 1e-9) << "ray " << n;
         // And skipping never changes it.
@@ -225,7 +231,7 @@ TEST(VolumeRay, SurfaceSobelAtAKnownEdge) {
         for (int j = -16; j <= 16; ++j)
             for (int k = -30; k <= 4; ++k) {
                 const double depth = i <= 0 ? 6.0 : 12.0;  // voxels
-                const double sdf = k + depth;               // voxels, negative inside the layer
+                const double sdf = k + depth;              // voxels, negative inside the layer
                 const double v = 1000.0 * std::clamp(0.5 - sdf / 4.0, 0.0, 1.0);
                 if (v > 0) acc.setValue({i, j, k}, static_cast<float>(v));
             }
@@ -238,7 +244,8 @@ TEST(VolumeRay, SurfaceSobelAtAKnownEdge) {
     BundleHits hits;
     traceFirstHit(view, b, hitParams(), hits);
     std::vector<double> len(static_cast<std::size_t>(b.count));
-    for (int r = 0; r < b.count; ++r) len[static_cast<std::size_t>(r)] = hits.t[static_cast<std::size_t>(r)];
+    for (int r = 0; r < b.count; ++r)
+        len[static_cast<std::size_t>(r)] = hits.t[static_cast<std::size_t>(r)];
     EXPECT_NEAR(len[static_cast<std::size_t>(b.surfaceRay(-1, 0))], 3e-3, 0.05 * kVoxel);
     EXPECT_NEAR(len[static_cast<std::size_t>(b.surfaceRay(1, 1))], 6e-3, 0.05 * kVoxel);
     const auto g = surfaceSobel(b, len);
@@ -252,8 +259,8 @@ TEST(VolumeRay, SurfaceSobelAtAKnownEdge) {
 
 TEST(VolumeRay, NoHeapAllocationPerFrame) {
     const palp::test::Sphere s{Eigen::Vector3d(0, 0, 0), 5e-3};
-    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); }, {-16, -16, -16},
-                                        {16, 16, 16});
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); },
+                                        {-16, -16, -16}, {16, 16, 16});
     const VolumeView view(grid);
     BundleParams bp;
     bp.ringCount = 8;
@@ -282,8 +289,8 @@ TEST(VolumeRay, NoHeapAllocationPerFrame) {
 
 TEST(VolumeRay, DegenerateInputIsANoHitInBoundedTime) {
     const palp::test::Sphere s{Eigen::Vector3d(0, 0, 0), 5e-3};
-    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); }, {-16, -16, -16},
-                                        {16, 16, 16});
+    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); },
+                                        {-16, -16, -16}, {16, 16, 16});
     const VolumeView view(grid);
     const FirstHitParams p = hitParams();
     const double nan = std::nan(""), inf = INFINITY;
@@ -341,7 +348,8 @@ TEST(VolumeRay, DegenerateInputIsANoHitInBoundedTime) {
 }
 
 TEST(VolumeRay, TransferFunctionIntegral) {
-    const std::array<std::array<float, 2>, 3> nodes{{{0.0f, 0.0f}, {100.0f, 10.0f}, {200.0f, 10.0f}}};
+    const std::array<std::array<float, 2>, 3> nodes{
+        {{0.0f, 0.0f}, {100.0f, 10.0f}, {200.0f, 10.0f}}};
     const TransferFunction tf(nodes);
     EXPECT_FLOAT_EQ(tf.sigma(-5.0f), 0.0f);
     EXPECT_FLOAT_EQ(tf.sigma(50.0f), 5.0f);

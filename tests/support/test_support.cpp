@@ -26,7 +26,8 @@ fs::path dataPath(const std::string& sub) {
 
 TempDir::TempDir() {
     std::random_device rd;
-    mPath = fs::temp_directory_path() / ("palp-test-" + std::to_string(rd()) + std::to_string(rd()));
+    mPath =
+        fs::temp_directory_path() / ("palp-test-" + std::to_string(rd()) + std::to_string(rd()));
     fs::create_directories(mPath);
 }
 

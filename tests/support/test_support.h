@@ -16,7 +16,7 @@ std::filesystem::path dataPath(const std::string& sub);
 
 /// A fresh directory under the system temp dir, removed by the destructor.
 class TempDir {
-public:
+  public:
     TempDir();
     ~TempDir();
     TempDir(const TempDir&) = delete;
@@ -24,7 +24,7 @@ public:
     const std::filesystem::path& path() const { return mPath; }
     std::filesystem::path operator/(const std::string& name) const { return mPath / name; }
 
-private:
+  private:
     std::filesystem::path mPath;
 };
 
@@ -46,6 +46,6 @@ bool haveProgram(const std::string& program);
 }  // namespace palp::test
 
 /// Skips the current test when the shared data folder @p sub is missing.
-#define PALP_REQUIRE_DATA(var, sub)                                                   \
-    const std::filesystem::path var = ::palp::test::dataPath(sub);                    \
+#define PALP_REQUIRE_DATA(var, sub)                                \
+    const std::filesystem::path var = ::palp::test::dataPath(sub); \
     if (var.empty()) GTEST_SKIP() << "shared data folder '" << (sub) << "' not found"

@@ -2,11 +2,10 @@
 // geometry and the same values.
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-
-#include <Eigen/Geometry>
 
 #include "palp/volume/load.h"
 #include "test_support.h"
@@ -18,7 +17,8 @@ using palp::test::runCommand;
 
 /// Unzips the DICOM member of mr-one-volume-many-formats into @p dir; returns the folder.
 fs::path unzipDicom(const fs::path& set, const palp::test::TempDir& tmp) {
-    const auto r = runCommand("unzip -q -o '" + (set / "DICOM.zip").string() + "' -d '" + tmp.path().string() + "'");
+    const auto r = runCommand("unzip -q -o '" + (set / "DICOM.zip").string() + "' -d '" +
+                              tmp.path().string() + "'");
     EXPECT_EQ(r.exitCode, 0) << r.output;
     return tmp.path();
 }
@@ -34,17 +34,20 @@ Comparison compareVolumes(const palp::volume::Volume& a, const palp::volume::Vol
     const auto& ta = a.grid->transform();
     const auto& tb = b.grid->transform();
     for (const openvdb::Vec3d ijk : {openvdb::Vec3d(0, 0, 0), openvdb::Vec3d(100, 100, 100)}) {
-        c.maxTransformDiff = std::max(c.maxTransformDiff, (ta.indexToWorld(ijk) - tb.indexToWorld(ijk)).length());
+        c.maxTransformDiff =
+            std::max(c.maxTransformDiff, (ta.indexToWorld(ijk) - tb.indexToWorld(ijk)).length());
     }
     const auto acc = b.grid->getConstAccessor();
     for (auto it = a.grid->cbeginValueOn(); it; ++it) {
-        c.maxValueDiff = std::max(c.maxValueDiff, static_cast<double>(std::abs(*it - acc.getValue(it.getCoord()))));
+        c.maxValueDiff = std::max(c.maxValueDiff,
+                                  static_cast<double>(std::abs(*it - acc.getValue(it.getCoord()))));
         ++c.compared;
     }
     // And the other way round, so voxels active only in b count too.
     const auto accA = a.grid->getConstAccessor();
     for (auto it = b.grid->cbeginValueOn(); it; ++it) {
-        c.maxValueDiff = std::max(c.maxValueDiff, static_cast<double>(std::abs(*it - accA.getValue(it.getCoord()))));
+        c.maxValueDiff = std::max(
+            c.maxValueDiff, static_cast<double>(std::abs(*it - accA.getValue(it.getCoord()))));
     }
     return c;
 }
@@ -77,7 +80,9 @@ TEST(CrossFormat, DicomNrrdAndMetaImageAgree) {
         Eigen::AlignedBox3d box;
         for (const auto& s : st.slices)
             for (int a : {0, 1})
-                for (int b : {0, 1}) box.extend(s.position + a * (s.cols - 1) * s.colStep + b * (s.rows - 1) * s.rowStep);
+                for (int b : {0, 1})
+                    box.extend(s.position + a * (s.cols - 1) * s.colStep +
+                               b * (s.rows - 1) * s.rowStep);
         return box;
     };
     const auto bd = boxOf(palp::volume::readStack({dicom}, opt));
@@ -98,7 +103,8 @@ TEST(CrossFormat, LosslessTransferSyntaxesDecodeIdentically) {
     const fs::path dicom = unzipDicom(set, tmp);
     std::vector<fs::path> files;
     for (const auto& e : fs::recursive_directory_iterator(dicom)) {
-        if (e.is_regular_file() && palp::volume::detectFormat(e.path()) == palp::volume::Format::Dicom &&
+        if (e.is_regular_file() &&
+            palp::volume::detectFormat(e.path()) == palp::volume::Format::Dicom &&
             e.path().filename().string().front() != '.') {
             files.push_back(e.path());
         }
@@ -108,9 +114,9 @@ TEST(CrossFormat, LosslessTransferSyntaxesDecodeIdentically) {
     const auto reference = palp::volume::readStack({dicom}, opt);
     // flag, transfer syntax
     const std::vector<std::pair<std::string, std::string>> syntaxes{
-        {"--implicit", "1.2.840.10008.1.2"},    {"--deflated", "1.2.840.10008.1.2.1.99"},
-        {"--jpeg", "1.2.840.10008.1.2.4.70"},   {"--jpegls", "1.2.840.10008.1.2.4.80"},
-        {"--j2k", "1.2.840.10008.1.2.4.90"},    {"--rle", "1.2.840.10008.1.2.5"}};
+        {"--implicit", "1.2.840.10008.1.2"},  {"--deflated", "1.2.840.10008.1.2.1.99"},
+        {"--jpeg", "1.2.840.10008.1.2.4.70"}, {"--jpegls", "1.2.840.10008.1.2.4.80"},
+        {"--j2k", "1.2.840.10008.1.2.4.90"},  {"--rle", "1.2.840.10008.1.2.5"}};
     for (const auto& [flag, uid] : syntaxes) {
         const fs::path out = tmp.path() / ("ts" + flag);
         fs::create_directories(out);
@@ -119,13 +125,16 @@ TEST(CrossFormat, LosslessTransferSyntaxesDecodeIdentically) {
                                       (out / f.filename()).string() + "'");
             ASSERT_EQ(r.exitCode, 0) << flag << ": " << r.output;
         }
-        const auto dump = runCommand("gdcmdump '" + (out / files.front().filename()).string() + "' | grep '(0002,0010)'");
-        ASSERT_NE(dump.output.find(uid), std::string::npos) << flag << " did not produce " << uid << ": " << dump.output;
+        const auto dump = runCommand("gdcmdump '" + (out / files.front().filename()).string() +
+                                     "' | grep '(0002,0010)'");
+        ASSERT_NE(dump.output.find(uid), std::string::npos)
+            << flag << " did not produce " << uid << ": " << dump.output;
         const auto stack = palp::volume::readStack({out}, opt);
         ASSERT_EQ(stack.slices.size(), reference.slices.size()) << flag;
         for (std::size_t k = 0; k < stack.slices.size(); ++k) {
             ASSERT_EQ(stack.slices[k].values, reference.slices[k].values) << flag << " slice " << k;
-            ASSERT_LT((stack.slices[k].position - reference.slices[k].position).norm(), 1e-9) << flag;
+            ASSERT_LT((stack.slices[k].position - reference.slices[k].position).norm(), 1e-9)
+                << flag;
         }
     }
 }

@@ -2,9 +2,8 @@
 // two formats against each other, synthetic files with known geometry and values, and bad
 // inputs (right exception, message naming the file with expected/found, nothing written).
 #include <gtest/gtest.h>
-#include <zlib.h>
-
 #include <openvdb/tools/Interpolation.h>
+#include <zlib.h>
 
 #include <cmath>
 #include <cstring>
@@ -81,7 +80,8 @@ void expectThrowWith(Fn&& fn, const std::vector<std::string>& parts) {
         ADD_FAILURE() << "expected an exception";
     } catch (const E& e) {
         const std::string msg = e.what();
-        for (const auto& p : parts) EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
+        for (const auto& p : parts)
+            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
     } catch (const std::exception& e) {
         ADD_FAILURE() << "wrong exception type: " << e.what();
     }
@@ -98,7 +98,8 @@ struct NibabelResult {
 };
 
 bool haveNibabel() {
-    return palp::test::runCommand("/usr/bin/python3 -c 'import nibabel' >/dev/null 2>&1").exitCode == 0;
+    return palp::test::runCommand("/usr/bin/python3 -c 'import nibabel' >/dev/null 2>&1")
+               .exitCode == 0;
 }
 
 /// Runs nibabel on @p file, volume @p t (-1: 3D), and returns its affine, sum and probe values.
@@ -144,7 +145,8 @@ void expectGeometryMatches(const SliceStack& st, const Eigen::Matrix4d& rasMm) {
     const Eigen::Vector3d origin = lps.topRightCorner<3, 1>() * 1e-3;
     for (std::size_t k = 0; k < st.slices.size(); ++k) {
         const auto& s = st.slices[k];
-        EXPECT_LT((s.position - (origin + static_cast<double>(k) * axes.col(2))).norm(), 1e-9) << "slice " << k;
+        EXPECT_LT((s.position - (origin + static_cast<double>(k) * axes.col(2))).norm(), 1e-9)
+            << "slice " << k;
         EXPECT_LT((s.colStep - axes.col(0)).norm(), 1e-9);
         EXPECT_LT((s.rowStep - axes.col(1)).norm(), 1e-9);
     }
@@ -154,7 +156,8 @@ TEST(Nifti, BigEndianAnatomicalMatchesNibabel) {
     PALP_REQUIRE_DATA(dir, "nifti-mr");
     if (!haveNibabel()) GTEST_SKIP() << "/usr/bin/python3 with nibabel not available";
     const fs::path file = dir / "anatomical.nii";
-    const std::vector<std::array<int, 3>> probes{{10, 11, 12}, {16, 20, 12}, {0, 0, 0}, {32, 40, 24}};
+    const std::vector<std::array<int, 3>> probes{
+        {10, 11, 12}, {16, 20, 12}, {0, 0, 0}, {32, 40, 24}};
     const NibabelResult ref = nibabel(file, -1, probes);
     const SliceStack st = palp::volume::readNifti(file, {});
     ASSERT_EQ(ref.shape, (std::vector<std::int64_t>{33, 41, 25}));
@@ -171,7 +174,8 @@ TEST(Nifti, BigEndianAnatomicalMatchesNibabel) {
     EXPECT_LT((st.slices[0].position - Eigen::Vector3d(-0.032, 0.040, -0.016)).norm(), 1e-12);
     EXPECT_DOUBLE_EQ(stackSum(st), ref.sum);
     for (std::size_t p = 0; p < probes.size(); ++p) {
-        EXPECT_EQ(voxel(st, probes[p][0], probes[p][1], probes[p][2]), ref.probes[p]) << "probe " << p;
+        EXPECT_EQ(voxel(st, probes[p][0], probes[p][1], probes[p][2]), ref.probes[p])
+            << "probe " << p;
     }
     EXPECT_EQ(voxel(st, 10, 11, 12), 9318.0f);  // big-endian int16 decoded (nibabel says 9318)
 }
@@ -179,14 +183,17 @@ TEST(Nifti, BigEndianAnatomicalMatchesNibabel) {
 TEST(Nifti, Gzip4DNeedsAVolumeAndMatchesNibabel) {
     PALP_REQUIRE_DATA(dir, "nifti-mr");
     const fs::path file = dir / "example4d.nii.gz";
-    expectThrowWith<palp::ValueError>([&] { palp::volume::readNifti(file, {}); },
-                                      {file.string() + ": expected --volume N to choose one of the 2 volumes (0-1), found none"});
+    expectThrowWith<palp::ValueError>(
+        [&] { palp::volume::readNifti(file, {}); },
+        {file.string() + ": expected --volume N to choose one of the 2 volumes (0-1), found none"});
     LoadOptions bad;
     bad.timePoint = 2;
-    expectThrowWith<palp::ValueError>([&] { palp::volume::readNifti(file, bad); }, {file.string(), "found 2"});
+    expectThrowWith<palp::ValueError>([&] { palp::volume::readNifti(file, bad); },
+                                      {file.string(), "found 2"});
 
     if (!haveNibabel()) GTEST_SKIP() << "/usr/bin/python3 with nibabel not available";
-    const std::vector<std::array<int, 3>> probes{{64, 48, 12}, {30, 40, 10}, {100, 20, 5}, {60, 70, 20}};
+    const std::vector<std::array<int, 3>> probes{
+        {64, 48, 12}, {30, 40, 10}, {100, 20, 5}, {60, 70, 20}};
     LoadOptions o0, o1;
     o0.timePoint = 0;
     o1.timePoint = 1;
@@ -205,8 +212,10 @@ TEST(Nifti, Gzip4DNeedsAVolumeAndMatchesNibabel) {
     EXPECT_DOUBLE_EQ(stackSum(v1), r1.sum);
     EXPECT_NE(stackSum(v0), stackSum(v1));
     for (std::size_t p = 0; p < probes.size(); ++p) {
-        EXPECT_EQ(voxel(v0, probes[p][0], probes[p][1], probes[p][2]), r0.probes[p]) << "probe " << p;
-        EXPECT_EQ(voxel(v1, probes[p][0], probes[p][1], probes[p][2]), r1.probes[p]) << "probe " << p;
+        EXPECT_EQ(voxel(v0, probes[p][0], probes[p][1], probes[p][2]), r0.probes[p])
+            << "probe " << p;
+        EXPECT_EQ(voxel(v1, probes[p][0], probes[p][1], probes[p][2]), r1.probes[p])
+            << "probe " << p;
     }
 }
 
@@ -219,8 +228,9 @@ TEST(Nifti, ShortUncompressedFileIsRefusedBeforeLoading) {
     const fs::path file = tmp / "short.nii";
     writeFile(file, bytes);
     // 33*41*25*2 = 67650 bytes of data after the 352-byte header.
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNifti(file, {}); },
-                                       {file.string() + ": expected 67650 bytes of voxel data after the header, found 66650"});
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNifti(file, {}); },
+        {file.string() + ": expected 67650 bytes of voxel data after the header, found 66650"});
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -246,10 +256,12 @@ TEST(NrrdVsMetaImage, SameScanGivesTheSameWorldAndValues) {
         EXPECT_EQ(sa.values, sb.values) << "slice " << k;
     }
     // From the NRRD header: origin (108.281, -82.3795, -47.8356) mm RAS, steps 3.4375 / 3.8 mm.
-    EXPECT_LT((a.slices[0].position - Eigen::Vector3d(-0.108281, 0.0823795, -0.0478356)).norm(), 1e-12);
+    EXPECT_LT((a.slices[0].position - Eigen::Vector3d(-0.108281, 0.0823795, -0.0478356)).norm(),
+              1e-12);
     EXPECT_LT((a.slices[0].colStep - Eigen::Vector3d(3.4375e-3, 0, 0)).norm(), 1e-12);
     EXPECT_LT((a.slices[0].rowStep - Eigen::Vector3d(0, -3.4375e-3, 0)).norm(), 1e-12);
-    EXPECT_LT((a.slices[1].position - a.slices[0].position - Eigen::Vector3d(0, 0, 3.8e-3)).norm(), 1e-12);
+    EXPECT_LT((a.slices[1].position - a.slices[0].position - Eigen::Vector3d(0, 0, 3.8e-3)).norm(),
+              1e-12);
     EXPECT_GT(stackSum(a), 0.0);
 }
 
@@ -272,13 +284,17 @@ TEST(Nrrd, AttachedRawKnownAffineResamplesToKnownValues) {
     const std::string header =
         "NRRD0004\n# a comment\ntype: float\ndimension: 3\nspace: left-posterior-superior\n"
         "sizes: 4 3 5\nspace directions: (2,0,0) (0,3,0) (0,0,4)\nspace origin: (10,-20,30)\n"
-        "kinds: domain domain domain\nendian: little\nencoding: raw\ncontent: known field\nsome key:=ignored\n\n";
+        "kinds: domain domain domain\nendian: little\nencoding: raw\ncontent: known field\nsome "
+        "key:=ignored\n\n";
     writeFile(file, header + floatsLE(fieldValues(4, 3, 5)));
     const SliceStack st = palp::volume::readNrrd(file, {});
     ASSERT_EQ(st.slices.size(), 5u);
     EXPECT_EQ(st.info.sourceDescription, "known field");
     for (int k = 0; k < 5; ++k) {
-        EXPECT_LT((st.slices[static_cast<std::size_t>(k)].position - Eigen::Vector3d(10e-3, -20e-3, (30.0 + 4 * k) * 1e-3)).norm(), 1e-15);
+        EXPECT_LT((st.slices[static_cast<std::size_t>(k)].position -
+                   Eigen::Vector3d(10e-3, -20e-3, (30.0 + 4 * k) * 1e-3))
+                      .norm(),
+                  1e-15);
         for (int j = 0; j < 3; ++j)
             for (int i = 0; i < 4; ++i) EXPECT_EQ(voxel(st, i, j, k), linearField(i, j, k));
     }
@@ -290,7 +306,8 @@ TEST(Nrrd, AttachedRawKnownAffineResamplesToKnownValues) {
     auto expected = [](double x, double y, double z) {
         return linearField(0, 0, 0) + (x - 10) / 2 + 10 * (y + 20) / 3 + 100 * (z - 30) / 4;
     };
-    const std::vector<Eigen::Vector3d> pts{{10, -20, 30}, {16, -14, 46}, {11, -19, 31}, {13, -17, 41}, {12, -15, 38}};
+    const std::vector<Eigen::Vector3d> pts{
+        {10, -20, 30}, {16, -14, 46}, {11, -19, 31}, {13, -17, 41}, {12, -15, 38}};
     for (const auto& p : pts) {
         const float v = sampler.wsSample(openvdb::Vec3d(p.x() * 1e-3, p.y() * 1e-3, p.z() * 1e-3));
         EXPECT_NEAR(v, expected(p.x(), p.y(), p.z()), 1e-3) << p.transpose();
@@ -320,10 +337,14 @@ TEST(Nrrd, BigEndianInt16AndSpacingsFallback) {
     TempDir tmp;
     const fs::path file = tmp / "be.nrrd";
     const std::vector<std::int16_t> v{-32768, -1, 0, 1, 258, 32767, -300, 1234};
-    writeFile(file, "NRRD0004\ntype: short\ndimension: 3\nsizes: 2 2 2\nspacings: 0.5 0.25 2\n"
-                    "axis mins: 1 2 3\nendian: big\nencoding: raw\n\n" + int16BE(v));
+    writeFile(file,
+              "NRRD0004\ntype: short\ndimension: 3\nsizes: 2 2 2\nspacings: 0.5 0.25 2\n"
+              "axis mins: 1 2 3\nendian: big\nencoding: raw\n\n" +
+                  int16BE(v));
     const SliceStack st = palp::volume::readNrrd(file, {});
-    for (int n = 0; n < 8; ++n) EXPECT_EQ(voxel(st, n % 2, (n / 2) % 2, n / 4), static_cast<float>(v[static_cast<std::size_t>(n)]));
+    for (int n = 0; n < 8; ++n)
+        EXPECT_EQ(voxel(st, n % 2, (n / 2) % 2, n / 4),
+                  static_cast<float>(v[static_cast<std::size_t>(n)]));
     EXPECT_LT((st.slices[0].colStep - Eigen::Vector3d(0.5e-3, 0, 0)).norm(), 1e-15);
     EXPECT_LT((st.slices[0].rowStep - Eigen::Vector3d(0, 0.25e-3, 0)).norm(), 1e-15);
     EXPECT_LT((st.slices[1].position - Eigen::Vector3d(1e-3, 2e-3, 5e-3)).norm(), 1e-15);
@@ -337,11 +358,13 @@ TEST(Nrrd, DetachedGzipAsciiAnd4D) {
     for (float& x : second) x += 1000;
     vals.insert(vals.end(), second.begin(), second.end());
     writeFile(tmp / "d.raw.gz", deflateString(floatsLE(vals), true));
-    writeFile(tmp / "d.nhdr", "NRRD0005\ntype: float\ndimension: 4\nspace: LPS\nsizes: 3 2 2 2\n"
-                              "space directions: (1,0,0) (0,1,0) (0,0,1) none\nkinds: space space space time\n"
-                              "endian: little\nencoding: gzip\ndata file: d.raw.gz\n");
-    expectThrowWith<palp::ValueError>([&] { palp::volume::readNrrd(tmp / "d.nhdr", {}); },
-                                      {"d.nhdr: expected --volume N to choose one of the 2 volumes (0-1), found none"});
+    writeFile(tmp / "d.nhdr",
+              "NRRD0005\ntype: float\ndimension: 4\nspace: LPS\nsizes: 3 2 2 2\n"
+              "space directions: (1,0,0) (0,1,0) (0,0,1) none\nkinds: space space space time\n"
+              "endian: little\nencoding: gzip\ndata file: d.raw.gz\n");
+    expectThrowWith<palp::ValueError>(
+        [&] { palp::volume::readNrrd(tmp / "d.nhdr", {}); },
+        {"d.nhdr: expected --volume N to choose one of the 2 volumes (0-1), found none"});
     LoadOptions o;
     o.timePoint = 1;
     const SliceStack st = palp::volume::readNrrd(tmp / "d.nhdr", o);
@@ -350,8 +373,9 @@ TEST(Nrrd, DetachedGzipAsciiAnd4D) {
 
     // ASCII with a line skip in a detached file.
     writeFile(tmp / "a.txt", "junk line\n1 2 3\n4,5,6\n7 8\n");
-    writeFile(tmp / "a.nhdr", "NRRD0004\ntype: double\ndimension: 3\nsizes: 2 2 2\nencoding: ascii\n"
-                              "data file: a.txt\nline skip: 1\n");
+    writeFile(tmp / "a.nhdr",
+              "NRRD0004\ntype: double\ndimension: 3\nsizes: 2 2 2\nencoding: ascii\n"
+              "data file: a.txt\nline skip: 1\n");
     const SliceStack sa = palp::volume::readNrrd(tmp / "a.nhdr", {});
     EXPECT_EQ(voxel(sa, 1, 1, 1), 8.0f);
     EXPECT_EQ(voxel(sa, 0, 1, 0), 3.0f);
@@ -360,70 +384,96 @@ TEST(Nrrd, DetachedGzipAsciiAnd4D) {
 TEST(Nrrd, HugeSizesAreRefusedBeforeAllocating) {
     TempDir tmp;
     const fs::path file = tmp / "huge.nrrd";
-    writeFile(file, "NRRD0004\ntype: short\ndimension: 3\nsizes: 100000 100000 100000\nendian: little\n"
-                    "encoding: raw\n\n\x01\x02");
-    expectThrowWith<palp::ValueError>([&] { palp::volume::readNrrd(file, {}); },
-                                      {file.string() + ": expected at most 8589934592 bytes of voxel data",
-                                       "100000 x 100000 x 100000 x 2 bytes = 2000000000000000"});
+    writeFile(file,
+              "NRRD0004\ntype: short\ndimension: 3\nsizes: 100000 100000 100000\nendian: little\n"
+              "encoding: raw\n\n\x01\x02");
+    expectThrowWith<palp::ValueError>(
+        [&] { palp::volume::readNrrd(file, {}); },
+        {file.string() + ": expected at most 8589934592 bytes of voxel data",
+         "100000 x 100000 x 100000 x 2 bytes = 2000000000000000"});
     // Overflowing products are refused too.
-    writeFile(file, "NRRD0004\ntype: double\ndimension: 4\nsizes: 4294967296 4294967296 4294967296 2\n"
-                    "endian: little\nencoding: gzip\n\n");
-    expectThrowWith<palp::ValueError>([&] { palp::volume::readNrrd(file, {}); }, {file.string(), "more than 2^64"});
+    writeFile(file,
+              "NRRD0004\ntype: double\ndimension: 4\nsizes: 4294967296 4294967296 4294967296 2\n"
+              "endian: little\nencoding: gzip\n\n");
+    expectThrowWith<palp::ValueError>([&] { palp::volume::readNrrd(file, {}); },
+                                      {file.string(), "more than 2^64"});
 }
 
 TEST(Nrrd, ShortRawFileIsRefused) {
     TempDir tmp;
     writeFile(tmp / "s.raw", std::string(100, '\0'));
-    writeFile(tmp / "s.nhdr", "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 3 5\nendian: little\n"
-                              "encoding: raw\ndata file: s.raw\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(tmp / "s.nhdr", {}); },
-                                       {(tmp / "s.raw").string() + ": expected 120 bytes of voxel data after the header",
-                                        "found 100"});
+    writeFile(tmp / "s.nhdr",
+              "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 3 5\nendian: little\n"
+              "encoding: raw\ndata file: s.raw\n");
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNrrd(tmp / "s.nhdr", {}); },
+        {(tmp / "s.raw").string() + ": expected 120 bytes of voxel data after the header",
+         "found 100"});
 }
 
 TEST(Nrrd, TruncatedAndOverlongGzipAreRefused) {
     TempDir tmp;
     const std::string data = floatsLE(fieldValues(8, 8, 8));
     const std::string gz = deflateString(data, true);
-    const std::string header = "NRRD0004\ntype: float\ndimension: 3\nsizes: 8 8 8\nendian: little\nencoding: gzip\n\n";
+    const std::string header =
+        "NRRD0004\ntype: float\ndimension: 3\nsizes: 8 8 8\nendian: little\nencoding: gzip\n\n";
     writeFile(tmp / "t.nrrd", header + gz.substr(0, gz.size() / 2));
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(tmp / "t.nrrd", {}); },
-                                       {(tmp / "t.nrrd").string() + ": expected 2048 bytes of decompressed voxel data",
-                                        "truncated"});
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNrrd(tmp / "t.nrrd", {}); },
+        {(tmp / "t.nrrd").string() + ": expected 2048 bytes of decompressed voxel data",
+         "truncated"});
     // Header says fewer samples than the stream holds.
-    writeFile(tmp / "l.nrrd", "NRRD0004\ntype: float\ndimension: 3\nsizes: 8 8 7\nendian: little\nencoding: gzip\n\n" + gz);
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(tmp / "l.nrrd", {}); },
-                                       {(tmp / "l.nrrd").string() + ": expected 1792 bytes of decompressed voxel data, found more"});
+    writeFile(
+        tmp / "l.nrrd",
+        "NRRD0004\ntype: float\ndimension: 3\nsizes: 8 8 7\nendian: little\nencoding: gzip\n\n" +
+            gz);
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNrrd(tmp / "l.nrrd", {}); },
+        {(tmp / "l.nrrd").string() +
+         ": expected 1792 bytes of decompressed voxel data, found more"});
     // The intact stream reads back.
     writeFile(tmp / "ok.nrrd", header + gz);
-    EXPECT_EQ(voxel(palp::volume::readNrrd(tmp / "ok.nrrd", {}), 7, 6, 5), static_cast<float>(linearField(7, 6, 5)));
+    EXPECT_EQ(voxel(palp::volume::readNrrd(tmp / "ok.nrrd", {}), 7, 6, 5),
+              static_cast<float>(linearField(7, 6, 5)));
 }
 
 TEST(Nrrd, MalformedHeadersNameFileLineAndExpectation) {
     TempDir tmp;
     const fs::path file = tmp / "bad.nrrd";
     writeFile(file, "NRRD0004\ntype: complex\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); },
-                                       {file.string() + ": line 2: expected 'type' with a scalar type", "found 'complex'"});
-    writeFile(file, "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\nfoo: bar\n\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); },
-                                       {file.string() + ": line 6: expected a NRRD field, found 'foo'"});
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNrrd(file, {}); },
+        {file.string() + ": line 2: expected 'type' with a scalar type", "found 'complex'"});
+    writeFile(file,
+              "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\nfoo: bar\n\n");
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNrrd(file, {}); },
+        {file.string() + ": line 6: expected a NRRD field, found 'foo'"});
     writeFile(file, "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 0 2\nencoding: raw\n\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); },
-                                       {file.string() + ": line 4: expected 'sizes' with 3 positive integers, found '2 0 2'"});
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNrrd(file, {}); },
+        {file.string() + ": line 4: expected 'sizes' with 3 positive integers, found '2 0 2'"});
     writeFile(file, "NRRD0004\ntype: short\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); }, {file.string() + ": expected an 'endian' field"});
+    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); },
+                                       {file.string() + ": expected an 'endian' field"});
     writeFile(file, "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: bzip2\n\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); }, {file.string() + ": line 5: expected 'encoding'"});
-    writeFile(file, "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nspace: RAS\n"
-                    "space directions: (1,0,0) (0,1) (0,0,1)\nencoding: raw\n\n");
     expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); },
-                                       {file.string() + ": line 6: expected 'space directions' with 3 vectors of 3 numbers"});
+                                       {file.string() + ": line 5: expected 'encoding'"});
+    writeFile(file,
+              "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nspace: RAS\n"
+              "space directions: (1,0,0) (0,1) (0,0,1)\nencoding: raw\n\n");
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNrrd(file, {}); },
+        {file.string() + ": line 6: expected 'space directions' with 3 vectors of 3 numbers"});
     writeFile(file, "P5 2 2\n");
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readNrrd(file, {}); },
+        {file.string() + ": line 1: expected the magic 'NRRD0001' to 'NRRD0005'"});
+    writeFile(
+        file,
+        "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\ndata file: LIST\n");
     expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); },
-                                       {file.string() + ": line 1: expected the magic 'NRRD0001' to 'NRRD0005'"});
-    writeFile(file, "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\ndata file: LIST\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readNrrd(file, {}); }, {file.string() + ": line 6", "LIST"});
+                                       {file.string() + ": line 6", "LIST"});
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -435,21 +485,27 @@ TEST(MetaImage, MhdRawPairWithDirectionsAndBigEndian) {
     for (int n = 0; n < 3 * 2 * 4; ++n) v.push_back(static_cast<std::int16_t>(n * 37 - 400));
     writeFile(tmp / "img.raw", int16BE(v));
     // Axis 0 along +y, axis 1 along -x (column-major direction cosines), axis 2 along z.
-    writeFile(tmp / "img.mhd", "ObjectType = Image\nNDims = 3\nBinaryData = True\nElementByteOrderMSB = True\n"
-                               "TransformMatrix = 0 1 0 -1 0 0 0 0 1\nOffset = 5 -6 7\nAnatomicalOrientation = RAI\n"
-                               "ElementSpacing = 0.5 2 3\nDimSize = 3 2 4\nElementType = MET_SHORT\n"
-                               "ElementDataFile = img.raw\n");
+    writeFile(tmp / "img.mhd",
+              "ObjectType = Image\nNDims = 3\nBinaryData = True\nElementByteOrderMSB = True\n"
+              "TransformMatrix = 0 1 0 -1 0 0 0 0 1\nOffset = 5 -6 7\nAnatomicalOrientation = RAI\n"
+              "ElementSpacing = 0.5 2 3\nDimSize = 3 2 4\nElementType = MET_SHORT\n"
+              "ElementDataFile = img.raw\n");
     const SliceStack st = palp::volume::readMetaImage(tmp / "img.mhd", {});
     ASSERT_EQ(st.slices.size(), 4u);
     EXPECT_LT((st.slices[0].colStep - Eigen::Vector3d(0, 0.5e-3, 0)).norm(), 1e-15);
     EXPECT_LT((st.slices[0].rowStep - Eigen::Vector3d(-2e-3, 0, 0)).norm(), 1e-15);
     EXPECT_LT((st.slices[2].position - Eigen::Vector3d(5e-3, -6e-3, 13e-3)).norm(), 1e-15);
-    for (int n = 0; n < 24; ++n) EXPECT_EQ(voxel(st, n % 3, (n / 3) % 2, n / 6), static_cast<float>(v[static_cast<std::size_t>(n)]));
+    for (int n = 0; n < 24; ++n)
+        EXPECT_EQ(voxel(st, n % 3, (n / 3) % 2, n / 6),
+                  static_cast<float>(v[static_cast<std::size_t>(n)]));
 
     writeFile(tmp / "short.raw", int16BE({1, 2, 3}));
-    writeFile(tmp / "short.mhd", "NDims = 3\nDimSize = 3 2 4\nElementType = MET_SHORT\nElementDataFile = short.raw\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readMetaImage(tmp / "short.mhd", {}); },
-                                       {(tmp / "short.raw").string() + ": expected 48 bytes of voxel data after the header, found 6"});
+    writeFile(tmp / "short.mhd",
+              "NDims = 3\nDimSize = 3 2 4\nElementType = MET_SHORT\nElementDataFile = short.raw\n");
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readMetaImage(tmp / "short.mhd", {}); },
+        {(tmp / "short.raw").string() +
+         ": expected 48 bytes of voxel data after the header, found 6"});
 }
 
 TEST(MetaImage, CompressedLocalDataAnd4D) {
@@ -459,13 +515,17 @@ TEST(MetaImage, CompressedLocalDataAnd4D) {
     for (float& x : second) x = -x;
     vals.insert(vals.end(), second.begin(), second.end());
     const std::string z = deflateString(floatsLE(vals), false);
-    writeFile(tmp / "c.mha", "ObjectType = Image\nNDims = 4\nBinaryData = True\nBinaryDataByteOrderMSB = False\n"
-                             "CompressedData = True\nCompressedDataSize = " + std::to_string(z.size()) +
-                             "\nTransformMatrix = 1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\nOffset = 1 2 3 0\n"
-                             "ElementSpacing = 1 1 1 1\nDimSize = 4 3 2 2\nElementType = MET_FLOAT\n"
-                             "ElementDataFile = LOCAL\n" + z);
-    expectThrowWith<palp::ValueError>([&] { palp::volume::readMetaImage(tmp / "c.mha", {}); },
-                                      {"c.mha: expected --volume N to choose one of the 2 volumes (0-1), found none"});
+    writeFile(tmp / "c.mha",
+              "ObjectType = Image\nNDims = 4\nBinaryData = True\nBinaryDataByteOrderMSB = False\n"
+              "CompressedData = True\nCompressedDataSize = " +
+                  std::to_string(z.size()) +
+                  "\nTransformMatrix = 1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\nOffset = 1 2 3 0\n"
+                  "ElementSpacing = 1 1 1 1\nDimSize = 4 3 2 2\nElementType = MET_FLOAT\n"
+                  "ElementDataFile = LOCAL\n" +
+                  z);
+    expectThrowWith<palp::ValueError>(
+        [&] { palp::volume::readMetaImage(tmp / "c.mha", {}); },
+        {"c.mha: expected --volume N to choose one of the 2 volumes (0-1), found none"});
     LoadOptions o;
     o.timePoint = 1;
     const SliceStack st = palp::volume::readMetaImage(tmp / "c.mha", o);
@@ -475,8 +535,10 @@ TEST(MetaImage, CompressedLocalDataAnd4D) {
 
     // A 3D file whose compressed stream is cut short.
     const std::string z3 = deflateString(floatsLE(fieldValues(4, 3, 2)), false);
-    writeFile(tmp / "cut.mha", "NDims = 3\nCompressedData = True\nDimSize = 4 3 2\nElementType = MET_FLOAT\n"
-                               "ElementDataFile = LOCAL\n" + z3.substr(0, z3.size() - 10));
+    writeFile(tmp / "cut.mha",
+              "NDims = 3\nCompressedData = True\nDimSize = 4 3 2\nElementType = MET_FLOAT\n"
+              "ElementDataFile = LOCAL\n" +
+                  z3.substr(0, z3.size() - 10));
     expectThrowWith<palp::FormatError>([&] { palp::volume::readMetaImage(tmp / "cut.mha", {}); },
                                        {"cut.mha: expected 96 bytes of decompressed voxel data"});
 }
@@ -485,17 +547,25 @@ TEST(MetaImage, BadHeadersAreRefused) {
     TempDir tmp;
     const fs::path file = tmp / "bad.mha";
     writeFile(file, "NDims = 3\nDimSize = 4 3\nElementType = MET_FLOAT\nElementDataFile = LOCAL\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readMetaImage(file, {}); },
-                                       {file.string() + ": line 2: expected 'DimSize' with 3 positive integers, found '4 3'"});
-    writeFile(file, "NDims = 3\nDimSize = 4 3 2\nElementType = MET_STRING\nElementDataFile = LOCAL\n");
-    expectThrowWith<palp::FormatError>([&] { palp::volume::readMetaImage(file, {}); },
-                                       {file.string() + ": line 3: expected 'ElementType' MET_CHAR"});
-    writeFile(file, "NDims = 3\nDimSize = 4 3 2\nElementType = MET_FLOAT\nElementNumberOfChannels = 3\nElementDataFile = LOCAL\n");
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readMetaImage(file, {}); },
+        {file.string() + ": line 2: expected 'DimSize' with 3 positive integers, found '4 3'"});
+    writeFile(file,
+              "NDims = 3\nDimSize = 4 3 2\nElementType = MET_STRING\nElementDataFile = LOCAL\n");
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readMetaImage(file, {}); },
+        {file.string() + ": line 3: expected 'ElementType' MET_CHAR"});
+    writeFile(file,
+              "NDims = 3\nDimSize = 4 3 2\nElementType = MET_FLOAT\nElementNumberOfChannels = "
+              "3\nElementDataFile = LOCAL\n");
     expectThrowWith<palp::FormatError>([&] { palp::volume::readMetaImage(file, {}); },
                                        {file.string() + ": expected ElementNumberOfChannels 1"});
-    writeFile(file, "NDims = 3\nDimSize = 100000 100000 100000\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n");
-    expectThrowWith<palp::ValueError>([&] { palp::volume::readMetaImage(file, {}); },
-                                      {file.string() + ": expected at most", "100000 x 100000 x 100000 x 1 bytes"});
+    writeFile(file,
+              "NDims = 3\nDimSize = 100000 100000 100000\nElementType = MET_UCHAR\nElementDataFile "
+              "= LOCAL\n");
+    expectThrowWith<palp::ValueError>(
+        [&] { palp::volume::readMetaImage(file, {}); },
+        {file.string() + ": expected at most", "100000 x 100000 x 100000 x 1 bytes"});
     writeFile(file, "NDims = 3\nDimSize = 4 3 2\nElementType = MET_FLOAT\n");
     expectThrowWith<palp::FormatError>([&] { palp::volume::readMetaImage(file, {}); },
                                        {file.string() + ": expected an 'ElementDataFile' line"});
@@ -508,16 +578,20 @@ TEST(FormatsTool, ConvertRefusesBadNrrdAndLeavesNoOutput) {
     const fs::path tool = palp::test::palpTool();
     if (!fs::exists(tool)) GTEST_SKIP() << "palp tool not built at " << tool;
     TempDir tmp;
-    writeFile(tmp / "huge.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 100000 100000 100000\n"
-                                 "endian: little\nencoding: raw\n\n\x01\x02");
+    writeFile(tmp / "huge.nrrd",
+              "NRRD0004\ntype: short\ndimension: 3\nsizes: 100000 100000 100000\n"
+              "endian: little\nencoding: raw\n\n\x01\x02");
     writeFile(tmp / "s.raw", std::string(100, '\0'));
-    writeFile(tmp / "short.nhdr", "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 3 5\nendian: little\n"
-                                  "encoding: raw\ndata file: s.raw\n");
+    writeFile(tmp / "short.nhdr",
+              "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 3 5\nendian: little\n"
+              "encoding: raw\ndata file: s.raw\n");
     for (const std::string in : {"huge.nrrd", "short.nhdr"}) {
         const fs::path out = tmp / "out.vdb";
-        const auto r = palp::test::runCommand(tool.string() + " convert " + (tmp / in).string() + " -o " + out.string());
+        const auto r = palp::test::runCommand(tool.string() + " convert " + (tmp / in).string() +
+                                              " -o " + out.string());
         EXPECT_NE(r.exitCode, 0) << r.output;
-        const std::string named = in == "huge.nrrd" ? (tmp / in).string() : (tmp / "s.raw").string();
+        const std::string named =
+            in == "huge.nrrd" ? (tmp / in).string() : (tmp / "s.raw").string();
         EXPECT_NE(r.output.find("palp: error: " + named + ":"), std::string::npos) << r.output;
         EXPECT_FALSE(fs::exists(out));
         for (const auto& e : fs::directory_iterator(tmp.path())) {
@@ -525,11 +599,12 @@ TEST(FormatsTool, ConvertRefusesBadNrrdAndLeavesNoOutput) {
         }
     }
     // And a good file converts.
-    writeFile(tmp / "ok.nrrd", "NRRD0004\ntype: float\ndimension: 3\nspace: LPS\nsizes: 4 3 5\n"
-                               "space directions: (2,0,0) (0,3,0) (0,0,4)\nendian: little\nencoding: raw\n\n" +
-                                   floatsLE(fieldValues(4, 3, 5)));
-    const auto r = palp::test::runCommand(tool.string() + " convert " + (tmp / "ok.nrrd").string() + " -o " +
-                                          (tmp / "ok.vdb").string() + " --voxel-size 1");
+    writeFile(tmp / "ok.nrrd",
+              "NRRD0004\ntype: float\ndimension: 3\nspace: LPS\nsizes: 4 3 5\n"
+              "space directions: (2,0,0) (0,3,0) (0,0,4)\nendian: little\nencoding: raw\n\n" +
+                  floatsLE(fieldValues(4, 3, 5)));
+    const auto r = palp::test::runCommand(tool.string() + " convert " + (tmp / "ok.nrrd").string() +
+                                          " -o " + (tmp / "ok.vdb").string() + " --voxel-size 1");
     EXPECT_EQ(r.exitCode, 0) << r.output;
     EXPECT_TRUE(fs::exists(tmp / "ok.vdb"));
 }

@@ -1,5 +1,4 @@
 // Phantoms (analytic truth, determinism, noise, blur), the DICOM series writer and `palp phantom`.
-#include <Eigen/Geometry>
 #include <gdcmAttribute.h>
 #include <gdcmDataSet.h>
 #include <gdcmImage.h>
@@ -8,6 +7,7 @@
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <numbers>
@@ -42,7 +42,8 @@ Vector3d centre(const WorldBox& b) { return 0.5 * (b.min + b.max); }
 // Index of the voxel whose centre is nearest to world point @p p.
 openvdb::Coord nearestVoxel(const openvdb::math::Transform& xf, const Vector3d& p) {
     const openvdb::Vec3d i = xf.worldToIndex(openvdb::Vec3d(p.x(), p.y(), p.z()));
-    return openvdb::Coord(static_cast<int>(std::lround(i.x())), static_cast<int>(std::lround(i.y())),
+    return openvdb::Coord(static_cast<int>(std::lround(i.x())),
+                          static_cast<int>(std::lround(i.y())),
                           static_cast<int>(std::lround(i.z())));
 }
 
@@ -50,7 +51,8 @@ openvdb::Coord nearestVoxel(const openvdb::math::Transform& xf, const Vector3d& 
 
 TEST(PhantomProfile, MatchesFormulasAtKnownPoints) {
     const double w = 0.01;
-    for (TransitionProfile p : {TransitionProfile::Linear, TransitionProfile::Cosine, TransitionProfile::Tanh}) {
+    for (TransitionProfile p :
+         {TransitionProfile::Linear, TransitionProfile::Cosine, TransitionProfile::Tanh}) {
         EXPECT_DOUBLE_EQ(transitionProfile(p, 0, w, 3), 0) << profileName(p);
         EXPECT_NEAR(transitionProfile(p, w / 2, w, 3), 0.5, 1e-15) << profileName(p);
         EXPECT_DOUBLE_EQ(transitionProfile(p, w, w, 3), 1) << profileName(p);
@@ -58,7 +60,8 @@ TEST(PhantomProfile, MatchesFormulasAtKnownPoints) {
         EXPECT_DOUBLE_EQ(transitionProfile(p, 2 * w, w, 3), 1) << profileName(p);
     }
     EXPECT_NEAR(transitionProfile(TransitionProfile::Linear, w / 4, w, 3), 0.25, 1e-15);
-    EXPECT_NEAR(transitionProfile(TransitionProfile::Cosine, w / 4, w, 3), (1 - std::cos(kPi / 4)) / 2, 1e-15);
+    EXPECT_NEAR(transitionProfile(TransitionProfile::Cosine, w / 4, w, 3),
+                (1 - std::cos(kPi / 4)) / 2, 1e-15);
     EXPECT_NEAR(transitionProfile(TransitionProfile::Tanh, w / 4, w, 2),
                 (std::tanh(2 * (0.5 - 1)) / std::tanh(2.0) + 1) / 2, 1e-15);
     // Tanh with a large sharpness approaches a step.
@@ -75,7 +78,8 @@ TEST(PhantomTruth, AvcHiddenBoxInItsQuadrantUnderThePlate) {
         EXPECT_EQ(ph.valueAt(centre(plate)), m.rigidHu);
         for (int other = 0; other < 4; ++other) {
             const Vector3d c = centre(Phantom::avcHiddenBox(other));
-            EXPECT_EQ(ph.valueAt(c), other == q ? m.rigidHu : m.softHu) << "box " << other << " quadrant " << q;
+            EXPECT_EQ(ph.valueAt(c), other == q ? m.rigidHu : m.softHu)
+                << "box " << other << " quadrant " << q;
         }
         const WorldBox box = Phantom::avcHiddenBox(q);
         // The quadrant bits: bit 0 -> x > 0, bit 1 -> z > 0.
@@ -129,21 +133,30 @@ TEST(PhantomTruth, AvcecShapes) {
         bool inside;
     };
     const std::vector<Probe> probes = {
-        {PlateShape::Circle, 0, 19.9, true},     {PlateShape::Circle, 14, 14, true},
-        {PlateShape::Circle, 14.5, 14.5, false}, {PlateShape::Circle, 0, 20.1, false},
+        {PlateShape::Circle, 0, 19.9, true},
+        {PlateShape::Circle, 14, 14, true},
+        {PlateShape::Circle, 14.5, 14.5, false},
+        {PlateShape::Circle, 0, 20.1, false},
         // Triangle: vertex at +z (R = 20 mm), base at z = -R cos 60 = -10 mm.
-        {PlateShape::Triangle, 0, 19.8, true},   {PlateShape::Triangle, 0, -9.9, true},
-        {PlateShape::Triangle, 0, -10.1, false}, {PlateShape::Triangle, 15, -9, true},
+        {PlateShape::Triangle, 0, 19.8, true},
+        {PlateShape::Triangle, 0, -9.9, true},
+        {PlateShape::Triangle, 0, -10.1, false},
+        {PlateShape::Triangle, 15, -9, true},
         {PlateShape::Triangle, 10, 5, false},
         // Hexagon (vertex at +z): vertical edges at x = +-R cos 30 = 17.32 mm.
-        {PlateShape::Hexagon, 17.2, 0, true},    {PlateShape::Hexagon, -17.2, 0, true},
-        {PlateShape::Hexagon, 17.45, 0, false},  {PlateShape::Hexagon, 0, 19.9, true},
+        {PlateShape::Hexagon, 17.2, 0, true},
+        {PlateShape::Hexagon, -17.2, 0, true},
+        {PlateShape::Hexagon, 17.45, 0, false},
+        {PlateShape::Hexagon, 0, 19.9, true},
         // Pentagon (vertex at +z): bottom edge at z = -R cos 36 = -16.18 mm.
-        {PlateShape::Pentagon, 0, -16.1, true},  {PlateShape::Pentagon, 0, -16.3, false},
+        {PlateShape::Pentagon, 0, -16.1, true},
+        {PlateShape::Pentagon, 0, -16.3, false},
         {PlateShape::Pentagon, 0, 19.9, true},
         // Rectangle 40 x 24 mm.
-        {PlateShape::Rectangle, 19.9, 11.9, true}, {PlateShape::Rectangle, 19.9, 12.1, false},
-        {PlateShape::Rectangle, 20.1, 0, false},   {PlateShape::Rectangle, -19.9, -11.9, true},
+        {PlateShape::Rectangle, 19.9, 11.9, true},
+        {PlateShape::Rectangle, 19.9, 12.1, false},
+        {PlateShape::Rectangle, 20.1, 0, false},
+        {PlateShape::Rectangle, -19.9, -11.9, true},
     };
     for (const Probe& pr : probes) {
         PhantomParams params = paramsFor(PhantomScene::Avcec);
@@ -183,7 +196,8 @@ TEST(PhantomTruth, BoneDisplacementSide) {
 }
 
 TEST(PhantomTruth, StiffnessBoxes) {
-    for (TransitionProfile prof : {TransitionProfile::Linear, TransitionProfile::Cosine, TransitionProfile::Tanh}) {
+    for (TransitionProfile prof :
+         {TransitionProfile::Linear, TransitionProfile::Cosine, TransitionProfile::Tanh}) {
         PhantomParams params = paramsFor(PhantomScene::Stiffness);
         params.profile = prof;
         params.transitionWidth = 10 * kMm;
@@ -201,7 +215,8 @@ TEST(PhantomTruth, StiffnessBoxes) {
         EXPECT_NEAR(ph.valueAt(Vector3d(cl, y, 0)), (soft + hard) / 2, 1e-9);
         EXPECT_EQ(ph.valueAt(Vector3d(cl + 5.01 * kMm, y, 0)), hard);
         const double quarter = transitionProfile(prof, 2.5 * kMm, 10 * kMm, 3);
-        EXPECT_NEAR(ph.valueAt(Vector3d(cl - 2.5 * kMm, y, 0)), soft + (hard - soft) * quarter, 1e-9);
+        EXPECT_NEAR(ph.valueAt(Vector3d(cl - 2.5 * kMm, y, 0)), soft + (hard - soft) * quarter,
+                    1e-9);
         // Air between the boxes.
         EXPECT_EQ(ph.valueAt(Vector3d(0.5 * (dp + cp), y, 0)), -1000);
     }
@@ -283,7 +298,8 @@ TEST(PhantomVolume, SameSeedIdenticalOtherSeedDiffersNoiseSigma) {
         if (accC.getValue(ijk) != *it) ++differC;
         const openvdb::Vec3d w = a.grid->indexToWorld(ijk);
         // Uniform soft tissue between the fat layer and the plate.
-        if (w.y() > 3 * kMm && w.y() < 9 * kMm && std::abs(w.x()) < 45 * kMm && std::abs(w.z()) < 45 * kMm) {
+        if (w.y() > 3 * kMm && w.y() < 9 * kMm && std::abs(w.x()) < 45 * kMm &&
+            std::abs(w.z()) < 45 * kMm) {
             const double r = static_cast<double>(*it) - ph.valueAt(Vector3d(w.x(), w.y(), w.z()));
             sum += r;
             sumSq += r * r;
@@ -295,8 +311,8 @@ TEST(PhantomVolume, SameSeedIdenticalOtherSeedDiffersNoiseSigma) {
     ASSERT_GT(n, 40000u);
     const double mean = sum / static_cast<double>(n);
     const double sd = std::sqrt(sumSq / static_cast<double>(n) - mean * mean);
-    EXPECT_NEAR(mean, 0, 0.5);                // 5 standard errors
-    EXPECT_NEAR(sd, 20, 0.03 * 20);           // within 3 %
+    EXPECT_NEAR(mean, 0, 0.5);       // 5 standard errors
+    EXPECT_NEAR(sd, 20, 0.03 * 20);  // within 3 %
     std::printf("noise: n=%zu mean=%.4f HU sd=%.4f HU (sigma 20)\n", n, mean, sd);
 }
 
@@ -317,10 +333,12 @@ TEST(PhantomVolume, SupersampleAndBlurArePartialVolume) {
         if (std::abs(s.position.z() - 0.25 * kMm) < 1e-9) mid = &s;
     }
     ASSERT_NE(mid, nullptr);
-    const int c = static_cast<int>(std::lround((0.25 * kMm - mid->position.x()) / mid->colStep.x()));
+    const int c =
+        static_cast<int>(std::lround((0.25 * kMm - mid->position.x()) / mid->colStep.x()));
     double worst = 0;
     for (double y = 12.25; y < 18; y += 0.5) {
-        const int r = static_cast<int>(std::lround((y * kMm - mid->position.y()) / mid->rowStep.y()));
+        const int r =
+            static_cast<int>(std::lround((y * kMm - mid->position.y()) / mid->rowStep.y()));
         const double v = mid->values[static_cast<std::size_t>(r * mid->cols + c)];
         const double expected = 40 + 260 * 0.5 * std::erfc(-(y - 15) / std::sqrt(2.0));
         worst = std::max(worst, std::abs(v - expected));
@@ -369,7 +387,8 @@ TEST(PhantomSlices, TiltedUnevenGeometry) {
         for (int r = 0; r < s.rows; r += 7) {
             for (int c = 0; c < s.cols; c += 5) {
                 const Vector3d p = s.position + c * s.colStep + r * s.rowStep;
-                ASSERT_EQ(s.values[static_cast<std::size_t>(r * s.cols + c)], static_cast<float>(ph.valueAt(p)));
+                ASSERT_EQ(s.values[static_cast<std::size_t>(r * s.cols + c)],
+                          static_cast<float>(ph.valueAt(p)));
             }
         }
     }
@@ -394,7 +413,8 @@ TEST(PhantomSlices, TiltedUnevenGeometry) {
 
 // ---------------------------------------------------------------- DICOM
 
-std::string tagString(const gdcm::DataSet& ds, const gdcm::File& file, std::uint16_t g, std::uint16_t e) {
+std::string tagString(const gdcm::DataSet& ds, const gdcm::File& file, std::uint16_t g,
+                      std::uint16_t e) {
     gdcm::StringFilter sf;
     sf.SetFile(file);
     std::string s = sf.ToString(gdcm::Tag(g, e));
@@ -410,7 +430,8 @@ std::vector<fs::path> listFiles(const fs::path& dir) {
     return files;
 }
 
-void checkSeriesAgainstStack(const fs::path& dir, const SliceStack& stack, double tiltDeg, double maxError) {
+void checkSeriesAgainstStack(const fs::path& dir, const SliceStack& stack, double tiltDeg,
+                             double maxError) {
     const std::vector<fs::path> files = listFiles(dir);
     ASSERT_EQ(files.size(), stack.slices.size());
     std::set<std::string> sopUids;
@@ -431,7 +452,8 @@ void checkSeriesAgainstStack(const fs::path& dir, const SliceStack& stack, doubl
         EXPECT_EQ(img.GetPixelFormat().GetScalarType(), gdcm::PixelFormat::UINT16);
         EXPECT_NEAR(img.GetSpacing(0), s.colStep.norm() * 1e3, 1e-9);
         EXPECT_NEAR(img.GetSpacing(1), s.rowStep.norm() * 1e3, 1e-9);
-        for (int a = 0; a < 3; ++a) EXPECT_NEAR(img.GetOrigin(static_cast<unsigned>(a)), s.position[a] * 1e3, 1e-9);
+        for (int a = 0; a < 3; ++a)
+            EXPECT_NEAR(img.GetOrigin(static_cast<unsigned>(a)), s.position[a] * 1e3, 1e-9);
         const double* dc = img.GetDirectionCosines();
         const Vector3d rowCos = s.colStep.normalized(), colCos = s.rowStep.normalized();
         for (int a = 0; a < 3; ++a) {
@@ -467,7 +489,8 @@ void checkSeriesAgainstStack(const fs::path& dir, const SliceStack& stack, doubl
     }
     EXPECT_EQ(sopUids.size(), files.size());
     EXPECT_LE(worst, maxError);
-    std::printf("DICOM: %zu files, largest |stored*slope+intercept - value| = %.4f HU\n", files.size(), worst);
+    std::printf("DICOM: %zu files, largest |stored*slope+intercept - value| = %.4f HU\n",
+                files.size(), worst);
 }
 
 TEST(DicomWrite, TagsGeometryAndValuesReadBackWithGdcm) {
@@ -592,20 +615,24 @@ TEST(DicomRoundTrip, PhantomSeriesLoadsBackExactly) {
                 ++flipped;
                 continue;
             }
-            worst = std::max(worst, std::abs(static_cast<double>(accL.getValue(it.getCoord()) - *it)));
+            worst =
+                std::max(worst, std::abs(static_cast<double>(accL.getValue(it.getCoord()) - *it)));
             ++n;
         }
         EXPECT_LT(flipped, 100u);
         EXPECT_GT(n, 100000u);
         EXPECT_LE(worst, 0.5 + 1e-3);
-        std::printf("round trip tilt %.0f noise %.0f HU: %zu voxels, largest |loaded - in-memory| = %.4f HU\n",
-                    cs.tiltDeg, cs.noiseHu, n, worst);
+        std::printf(
+            "round trip tilt %.0f noise %.0f HU: %zu voxels, largest |loaded - in-memory| = %.4f "
+            "HU\n",
+            cs.tiltDeg, cs.noiseHu, n, worst);
         // Away from edges the loaded grid equals the analytic truth.
         if (cs.noiseHu > 0) continue;
         const Phantom ph(spec.params);
         auto accD = direct.grid->getConstAccessor();
-        for (const Vector3d& p : {Vector3d(centre(Phantom::avcHiddenBox(2))), Vector3d(mm(0, 11, 0)), Vector3d(mm(20, 40, -20)),
-                                  Vector3d(mm(0, 30, 30))}) {
+        for (const Vector3d& p :
+             {Vector3d(centre(Phantom::avcHiddenBox(2))), Vector3d(mm(0, 11, 0)),
+              Vector3d(mm(20, 40, -20)), Vector3d(mm(0, 30, 30))}) {
             const openvdb::Coord ijk = nearestVoxel(loaded.grid->transform(), p);
             EXPECT_NEAR(accL.getValue(ijk), ph.valueAt(p), 0.5 + 1e-3);
             EXPECT_NEAR(accD.getValue(ijk), ph.valueAt(p), 1e-3);
@@ -620,7 +647,8 @@ TEST(PhantomTool, VdbAndDicomEndToEnd) {
     if (!fs::exists(palp)) GTEST_SKIP() << "palp tool not built at " << palp;
     palp::test::TempDir tmp;
     const std::string vdb = (tmp / "avc.vdb").string();
-    auto r = palp::test::runCommand(palp.string() + " phantom avc --quadrant 2 --voxel-size 2 --noise 10 --seed 3 -o " + vdb);
+    auto r = palp::test::runCommand(
+        palp.string() + " phantom avc --quadrant 2 --voxel-size 2 --noise 10 --seed 3 -o " + vdb);
     ASSERT_EQ(r.exitCode, 0) << r.output;
     EXPECT_NE(r.output.find("palp phantom: wrote"), std::string::npos) << r.output;
     const Volume v = loadVdb(vdb);
@@ -629,20 +657,26 @@ TEST(PhantomTool, VdbAndDicomEndToEnd) {
     EXPECT_NEAR(v.voxelSize(), 2e-3, 1e-12);
     EXPECT_NE(v.info.sourceDescription.find("quadrant=2"), std::string::npos);
 
-    r = palp::test::runCommand(palp.string() + " --quiet phantom avcec --shape pentagon --voxel-size 2 -o " +
+    r = palp::test::runCommand(palp.string() +
+                               " --quiet phantom avcec --shape pentagon --voxel-size 2 -o " +
                                (tmp / "q.vdb").string());
     EXPECT_EQ(r.exitCode, 0) << r.output;
     EXPECT_TRUE(r.output.empty()) << r.output;
 
-    r = palp::test::runCommand(palp.string() + " phantom avc --quadrant 7 -o " + (tmp / "x.vdb").string());
+    r = palp::test::runCommand(palp.string() + " phantom avc --quadrant 7 -o " +
+                               (tmp / "x.vdb").string());
     EXPECT_NE(r.exitCode, 0);
-    r = palp::test::runCommand(palp.string() + " phantom avc --tilt 10 -o " + (tmp / "x.vdb").string());
+    r = palp::test::runCommand(palp.string() + " phantom avc --tilt 10 -o " +
+                               (tmp / "x.vdb").string());
     EXPECT_NE(r.exitCode, 0);
     EXPECT_NE(r.output.find("palp: error:"), std::string::npos) << r.output;
     EXPECT_FALSE(fs::exists(tmp / "x.vdb"));
 
     const std::string dir = (tmp / "dcm").string();
-    r = palp::test::runCommand(palp.string() + " phantom bone --displacement 1 --voxel-size 2 --slice-spacing 3 --tilt 15 --dicom-dir " + dir);
+    r = palp::test::runCommand(
+        palp.string() +
+        " phantom bone --displacement 1 --voxel-size 2 --slice-spacing 3 --tilt 15 --dicom-dir " +
+        dir);
     ASSERT_EQ(r.exitCode, 0) << r.output;
     EXPECT_GT(listFiles(dir).size(), 30u);
 

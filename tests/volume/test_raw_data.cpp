@@ -38,15 +38,19 @@ TEST(RawData, DecodesEveryTypeInBothByteOrders) {
     EXPECT_EQ(out[0], 65536.0f);
     decodeElements(bytesOf({0xff, 0xff, 0xff, 0xff}), ElementType::UInt32, ByteOrder::Little, out);
     EXPECT_EQ(out[0], 4294967295.0f);
-    decodeElements(bytesOf({0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xfd}), ElementType::Int64, ByteOrder::Big, out);
+    decodeElements(bytesOf({0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xfd}), ElementType::Int64,
+                   ByteOrder::Big, out);
     EXPECT_EQ(out[0], -3.0f);
-    decodeElements(bytesOf({0, 0, 0, 0, 0, 0, 0, 0x80}), ElementType::UInt64, ByteOrder::Little, out);
+    decodeElements(bytesOf({0, 0, 0, 0, 0, 0, 0, 0x80}), ElementType::UInt64, ByteOrder::Little,
+                   out);
     EXPECT_EQ(out[0], 9223372036854775808.0f);
     decodeElements(bytesOf({0x3f, 0xc0, 0x00, 0x00}), ElementType::Float32, ByteOrder::Big, out);
     EXPECT_EQ(out[0], 1.5f);
-    decodeElements(bytesOf({0, 0, 0, 0, 0, 0, 0x04, 0xc0}), ElementType::Float64, ByteOrder::Little, out);
+    decodeElements(bytesOf({0, 0, 0, 0, 0, 0, 0x04, 0xc0}), ElementType::Float64, ByteOrder::Little,
+                   out);
     EXPECT_EQ(out[0], -2.5f);
-    EXPECT_THROW(decodeElements(bytesOf({1, 2, 3}), ElementType::Int32, ByteOrder::Little, out), palp::ValueError);
+    EXPECT_THROW(decodeElements(bytesOf({1, 2, 3}), ElementType::Int32, ByteOrder::Little, out),
+                 palp::ValueError);
     EXPECT_EQ(elementSize(ElementType::UInt64), 8u);
     EXPECT_STREQ(elementTypeName(ElementType::Float32), "float32");
 }
@@ -59,7 +63,8 @@ TEST(RawData, CheckedSizesRefuseOverflowAndLimit) {
         checkedDataBytes(big, 1, std::numeric_limits<std::uint64_t>::max(), "f.nrrd");
         ADD_FAILURE() << "overflow not detected";
     } catch (const palp::ValueError& e) {
-        EXPECT_NE(std::string(e.what()).find("f.nrrd: expected at most"), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find("f.nrrd: expected at most"), std::string::npos)
+            << e.what();
         EXPECT_NE(std::string(e.what()).find("more than 2^64"), std::string::npos) << e.what();
     }
     EXPECT_THROW(checkedDataBytes(dims, 2, 1000, "x"), palp::ValueError);
@@ -71,7 +76,8 @@ TEST(RawData, CheckedSizesRefuseOverflowAndLimit) {
 
 TEST(RawData, InflateIsExactAboutTheExpectedSize) {
     std::vector<unsigned char> plain(3'000'000);
-    for (std::size_t i = 0; i < plain.size(); ++i) plain[i] = static_cast<unsigned char>((i * 7) ^ (i >> 9));
+    for (std::size_t i = 0; i < plain.size(); ++i)
+        plain[i] = static_cast<unsigned char>((i * 7) ^ (i >> 9));
     uLongf zsize = compressBound(static_cast<uLong>(plain.size()));
     std::vector<unsigned char> z(zsize);
     ASSERT_EQ(compress2(z.data(), &zsize, plain.data(), static_cast<uLong>(plain.size()), 6), Z_OK);
@@ -80,9 +86,10 @@ TEST(RawData, InflateIsExactAboutTheExpectedSize) {
     const auto out = inflateBytes(zs, plain.size(), "z");
     ASSERT_EQ(out.size(), plain.size());
     EXPECT_EQ(std::memcmp(out.data(), plain.data(), plain.size()), 0);
-    EXPECT_THROW(inflateBytes(zs, plain.size() + 1, "z"), palp::FormatError);       // stream shorter
-    EXPECT_THROW(inflateBytes(zs, plain.size() - 1, "z"), palp::FormatError);       // stream longer
-    EXPECT_THROW(inflateBytes(zs.first(zs.size() / 2), plain.size(), "z"), palp::FormatError);  // truncated
+    EXPECT_THROW(inflateBytes(zs, plain.size() + 1, "z"), palp::FormatError);  // stream shorter
+    EXPECT_THROW(inflateBytes(zs, plain.size() - 1, "z"), palp::FormatError);  // stream longer
+    EXPECT_THROW(inflateBytes(zs.first(zs.size() / 2), plain.size(), "z"),
+                 palp::FormatError);  // truncated
     std::vector<std::byte> garbage(100, std::byte{0x42});
     EXPECT_THROW(inflateBytes(garbage, 10, "z"), palp::FormatError);
 }
@@ -102,8 +109,10 @@ TEST(RawData, FileRangesAreCheckedBeforeReading) {
         readFileRange(file, 4, 1234567);
         ADD_FAILURE();
     } catch (const palp::FormatError& e) {
-        EXPECT_NE(std::string(e.what()).find(file.string() + ": expected 1234567 bytes of voxel data after the header"),
-                  std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find(
+                      file.string() + ": expected 1234567 bytes of voxel data after the header"),
+                  std::string::npos)
+            << e.what();
         EXPECT_NE(std::string(e.what()).find("found 6"), std::string::npos) << e.what();
     }
     EXPECT_THROW(fileSize(tmp / "missing"), palp::IoError);

@@ -1,8 +1,7 @@
 #include <gtest/gtest.h>
 
-#include <cmath>
-
 #include <Eigen/Geometry>
+#include <cmath>
 
 #include "palp/error.h"
 #include "palp/kernels/trilinear.h"
@@ -15,11 +14,14 @@ using palp::volume::SliceStack;
 
 // A linear world field; bilinear-in-plane plus linear-along-normal interpolation reproduces it
 // exactly, so any geometric error of the resampler shows up as a value error.
-double field(const Eigen::Vector3d& p) { return 1000.0 * (p.x() * 40 - p.y() * 25 + p.z() * 60) + 200.0; }
+double field(const Eigen::Vector3d& p) {
+    return 1000.0 * (p.x() * 40 - p.y() * 25 + p.z() * 60) + 200.0;
+}
 
 // A tilted stack with uneven slice gaps: in-plane axes rotated about x by the tilt, slices
 // stacked along world z (as a CT gantry tilt does), gaps alternating.
-SliceStack tiltedStack(double tiltDeg, const std::vector<double>& gapsMm, int cols = 24, int rows = 20) {
+SliceStack tiltedStack(double tiltDeg, const std::vector<double>& gapsMm, int cols = 24,
+                       int rows = 20) {
     SliceStack st;
     st.info.modality = "CT";
     const double t = tiltDeg * M_PI / 180.0;
@@ -35,7 +37,8 @@ SliceStack tiltedStack(double tiltDeg, const std::vector<double>& gapsMm, int co
         s.rows = rows;
         s.source = "slice" + std::to_string(k);
         for (int r = 0; r < rows; ++r)
-            for (int c = 0; c < cols; ++c) s.values.push_back(static_cast<float>(field(pos + c * u + r * v)));
+            for (int c = 0; c < cols; ++c)
+                s.values.push_back(static_cast<float>(field(pos + c * u + r * v)));
         st.slices.push_back(std::move(s));
         if (k < gapsMm.size()) pos += Eigen::Vector3d(0, 0, gapsMm[k] * 1e-3);
     }
@@ -62,7 +65,8 @@ bool insideData(const SliceStack& st, const Eigen::Vector3d& p) {
     if (sp < lo || sp > hi) return false;
     for (const Slice& s : st.slices) {
         const Eigen::Vector3d q = p - s.position;
-        const double c = q.dot(s.colStep) / s.colStep.squaredNorm();  // orthogonal steps in these tests
+        const double c =
+            q.dot(s.colStep) / s.colStep.squaredNorm();  // orthogonal steps in these tests
         const double r = q.dot(s.rowStep) / s.rowStep.squaredNorm();
         if (c < 0 || c > s.cols - 1 || r < 0 || r > s.rows - 1) return false;
     }
@@ -125,7 +129,8 @@ TEST(Resample, TrilinearSamplingIsExactUpToTheDataEdge) {
         for (int r = 0; r < s.rows; ++r)
             for (int c = 0; c < s.cols; ++c) {
                 const Eigen::Vector3d p = s.position + c * s.colStep + r * s.rowStep;
-                const double v = palp::kernels::sampleWorld(acc, vol.grid->transform(), openvdb::Vec3d(p.data()));
+                const double v = palp::kernels::sampleWorld(acc, vol.grid->transform(),
+                                                            openvdb::Vec3d(p.data()));
                 worst = std::max(worst, std::abs(v - field(p)));
                 ++checked;
             }
@@ -155,7 +160,8 @@ TEST(Resample, AxisAlignedSourceAtItsOwnSpacingIsLossless) {
         for (int r = 0; r < s.rows; ++r)
             for (int c = 0; c < s.cols; ++c) {
                 const Eigen::Vector3d p = s.position + c * s.colStep + r * s.rowStep;
-                const openvdb::Vec3d ip = vol.grid->transform().worldToIndex(openvdb::Vec3d(p.data()));
+                const openvdb::Vec3d ip =
+                    vol.grid->transform().worldToIndex(openvdb::Vec3d(p.data()));
                 const openvdb::Coord ijk = openvdb::Coord::round(ip);
                 EXPECT_NEAR((ip - ijk.asVec3d()).length(), 0.0, 1e-6);
                 EXPECT_EQ(acc.getValue(ijk), s.values[static_cast<std::size_t>(r * s.cols + c)]);
@@ -211,7 +217,8 @@ TEST(Resample, BadStacksAreRefusedWithReasons) {
         palp::volume::resample(dup, {});
         FAIL() << "repeated positions accepted";
     } catch (const palp::ValueError& e) {
-        EXPECT_NE(std::string(e.what()).find("distinct slice positions"), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find("distinct slice positions"), std::string::npos)
+            << e.what();
     }
     SliceStack rotated = tiltedStack(0, {1.0});
     rotated.slices[1].colStep = Eigen::Vector3d(0, 0.7e-3, 0);
@@ -228,7 +235,8 @@ TEST(Resample, CropKeepsOnlyTheBox) {
     const SliceStack st = tiltedStack(0, {1.0, 1.0, 1.0, 1.0});
     palp::volume::ResampleOptions opt;
     opt.backgroundThreshold = -1e9f;
-    opt.crop = palp::volume::WorldBox{Eigen::Vector3d(-3e-3, -4e-3, 11e-3), Eigen::Vector3d(2e-3, 1e-3, 12.5e-3)};
+    opt.crop = palp::volume::WorldBox{Eigen::Vector3d(-3e-3, -4e-3, 11e-3),
+                                      Eigen::Vector3d(2e-3, 1e-3, 12.5e-3)};
     const auto vol = palp::volume::resample(st, opt);
     const auto b = vol.worldBounds();
     EXPECT_GE(b.min().x(), -3e-3 - 1e-9);

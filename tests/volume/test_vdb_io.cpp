@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
-
 #include <sys/stat.h>
+
 #include <filesystem>
 #include <fstream>
 
@@ -60,7 +60,9 @@ TEST(VdbIo, RegriddingAStoredVolumeInterpolatesTrilinearly) {
     for (int i = 0; i < 16; ++i)
         for (int j = 0; j < 16; ++j)
             for (int k = 0; k < 16; ++k)
-                grid->tree().setValue({i, j, k}, static_cast<float>(f(grid->transform().indexToWorld(openvdb::Coord(i, j, k)))));
+                grid->tree().setValue(
+                    {i, j, k},
+                    static_cast<float>(f(grid->transform().indexToWorld(openvdb::Coord(i, j, k)))));
     palp::test::TempDir tmp;
     palp::volume::save(palp::volume::Volume{grid, {}}, tmp / "lin.vdb");
     palp::volume::LoadOptions opt;
@@ -70,7 +72,9 @@ TEST(VdbIo, RegriddingAStoredVolumeInterpolatesTrilinearly) {
     int checked = 0;
     for (auto it = fine.grid->cbeginValueOn(); it; ++it) {
         const openvdb::Vec3d w = fine.grid->transform().indexToWorld(it.getCoord());
-        if (w.x() < 1e-3 || w.y() < 1e-3 || w.z() < 1e-3 || w.x() > 14e-3 || w.y() > 14e-3 || w.z() > 14e-3) continue;
+        if (w.x() < 1e-3 || w.y() < 1e-3 || w.z() < 1e-3 || w.x() > 14e-3 || w.y() > 14e-3 ||
+            w.z() > 14e-3)
+            continue;
         EXPECT_NEAR(*it, f(w), 1e-2);
         ++checked;
     }

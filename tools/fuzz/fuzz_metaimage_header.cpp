@@ -18,8 +18,8 @@
 namespace {
 
 const std::filesystem::path& scratchFile() {
-    static const std::filesystem::path p =
-        std::filesystem::temp_directory_path() / ("palp-fuzz-mha-" + std::to_string(::getpid()) + ".mha");
+    static const std::filesystem::path p = std::filesystem::temp_directory_path() /
+                                           ("palp-fuzz-mha-" + std::to_string(::getpid()) + ".mha");
     return p;
 }
 
@@ -28,7 +28,8 @@ const std::filesystem::path& scratchFile() {
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
     const std::string_view text(reinterpret_cast<const char*>(data), size);
     try {
-        const palp::volume::MetaImageHeader h = palp::volume::parseMetaImageHeader(text, "fuzz.mha");
+        const palp::volume::MetaImageHeader h =
+            palp::volume::parseMetaImageHeader(text, "fuzz.mha");
         if (h.nDims != static_cast<int>(h.dimSize.size())) __builtin_trap();
         if (h.headerBytes > size) __builtin_trap();
     } catch (const palp::Error&) {

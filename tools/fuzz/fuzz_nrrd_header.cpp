@@ -19,7 +19,8 @@ namespace {
 
 const std::filesystem::path& scratchFile() {
     static const std::filesystem::path p =
-        std::filesystem::temp_directory_path() / ("palp-fuzz-nrrd-" + std::to_string(::getpid()) + ".nrrd");
+        std::filesystem::temp_directory_path() /
+        ("palp-fuzz-nrrd-" + std::to_string(::getpid()) + ".nrrd");
     return p;
 }
 

@@ -1,10 +1,9 @@
 // palp bench rays: how many AVC/AVCEC ray bundles fit in a haptic frame on this machine and data,
 // each figure next to a baseline measured in the same run.
-#include <nlohmann/json.hpp>
-
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "commands.h"
@@ -22,7 +21,10 @@ namespace {
 
 json stats(const kernels::TimingStats& s, const std::string& unit) {
     if (unit == "Mrays/s") return {{"mrays_per_s", s.meanUs}};
-    return {{"mean_us", s.meanUs}, {"p99_us", s.p99Us}, {"max_us", s.maxUs}, {"cpu_mean_us", s.cpuMeanUs},
+    return {{"mean_us", s.meanUs},
+            {"p99_us", s.p99Us},
+            {"max_us", s.maxUs},
+            {"cpu_mean_us", s.cpuMeanUs},
             {"frames", s.samples}};
 }
 
@@ -44,15 +46,21 @@ Command addBench(CLI::App& root) {
     auto args = std::make_shared<Args>();
     CLI::App* bench = root.add_subcommand("bench", "Measure palp's kernels on this machine");
     bench->require_subcommand(1);
-    CLI::App* app = bench->add_subcommand(
-        "rays", "Per-frame cost of AVC/AVCEC ray bundles (volume and Embree) against baselines in the same run");
-    app->add_option("--volume", args->volume, "A .vdb (or any scan palp reads); default: the built-in phantom");
-    app->add_option("--voxel", args->voxelMm, "Resample --volume to this voxel size, mm (default: as stored)");
-    app->add_option("--mesh", args->mesh, "A triangle mesh (OBJ, STL, PLY) to trace next to the built-in meshes");
-    app->add_option("--mesh-unit", args->meshUnit, "Metres per mesh file unit (default 1e-3: millimetres)");
+    CLI::App* app = bench->add_subcommand("rays",
+                                          "Per-frame cost of AVC/AVCEC ray bundles (volume and "
+                                          "Embree) against baselines in the same run");
+    app->add_option("--volume", args->volume,
+                    "A .vdb (or any scan palp reads); default: the built-in phantom");
+    app->add_option("--voxel", args->voxelMm,
+                    "Resample --volume to this voxel size, mm (default: as stored)");
+    app->add_option("--mesh", args->mesh,
+                    "A triangle mesh (OBJ, STL, PLY) to trace next to the built-in meshes");
+    app->add_option("--mesh-unit", args->meshUnit,
+                    "Metres per mesh file unit (default 1e-3: millimetres)");
     app->add_option("--rays", args->rays, "Rays per bundle, 17..64 (17 + ring); default: 17 and 25")
         ->check(CLI::Range(17, 64));
-    app->add_option("--frames", args->frames, "Measured frames per figure")->check(CLI::Range(10, 10000000));
+    app->add_option("--frames", args->frames, "Measured frames per figure")
+        ->check(CLI::Range(10, 10000000));
     app->add_option("--threshold", args->threshold, "First-hit threshold (HU for CT), default 300");
     app->add_flag("--json", args->json, "Print the figures as JSON");
     app->add_flag("--no-pin", args->noPin, "Do not pin the measuring thread to one core");
@@ -79,11 +87,13 @@ Command addBench(CLI::App& root) {
                 }
                 std::unique_ptr<kernels::TriangleMesh> mesh;
                 if (!args->mesh.empty())
-                    mesh = std::make_unique<kernels::TriangleMesh>(kernels::loadMesh(args->mesh, args->meshUnit));
+                    mesh = std::make_unique<kernels::TriangleMesh>(
+                        kernels::loadMesh(args->mesh, args->meshUnit));
                 report.pinned = !args->noPin && kernels::pinCurrentThread();
                 if (!globals().quiet && !args->json)
                     std::fprintf(stderr, "palp: measuring %d frames per figure...\n", o.frames);
-                const std::vector<int> rayCounts = args->rays ? std::vector<int>{args->rays} : std::vector<int>{17, 25};
+                const std::vector<int> rayCounts =
+                    args->rays ? std::vector<int>{args->rays} : std::vector<int>{17, 25};
                 for (int r : rayCounts) {
                     o.rays = r;
                     kernels::benchVolumeRays(grid, label, o, report);
@@ -112,9 +122,11 @@ Command addBench(CLI::App& root) {
                     std::printf("%s\n", j.dump(2).c_str());
                 } else {
                     std::printf("machine: %s; measuring thread %s; rays %.0f mm at %.2f mm steps\n",
-                                report.machine.c_str(), report.pinned ? "pinned to one core" : "not pinned",
-                                o.length * 1e3, o.step * 1e3);
-                    for (const auto& l : report.lines) std::printf("%s\n", kernels::formatComparison(l).c_str());
+                                report.machine.c_str(),
+                                report.pinned ? "pinned to one core" : "not pinned", o.length * 1e3,
+                                o.step * 1e3);
+                    for (const auto& l : report.lines)
+                        std::printf("%s\n", kernels::formatComparison(l).c_str());
                 }
                 return 0;
             }};

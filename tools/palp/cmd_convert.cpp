@@ -24,61 +24,68 @@ Command addConvert(CLI::App& root) {
     };
     auto args = std::make_shared<Args>();
     CLI::App* app = root.add_subcommand(
-        "convert", "Convert a DICOM series, NIfTI, NRRD, MetaImage or .vdb into a palp .vdb volume");
+        "convert",
+        "Convert a DICOM series, NIfTI, NRRD, MetaImage or .vdb into a palp .vdb volume");
     app->add_option("inputs", args->inputs, "Input file(s) or a DICOM directory")->required();
     app->add_option("-o,--output", args->output, "Output .vdb file")->required();
-    app->add_option("--voxel-size", args->voxelMm, "Isotropic voxel edge in mm (default: finest input spacing)")
+    app->add_option("--voxel-size", args->voxelMm,
+                    "Isotropic voxel edge in mm (default: finest input spacing)")
         ->check(CLI::PositiveNumber);
     app->add_option("--series", args->series, "DICOM SeriesInstanceUID to convert");
     app->add_option("--volume", args->volume, "0-based time point of a 4D series or file")
         ->check(CLI::NonNegativeNumber);
-    app->add_option("--background", args->background,
-                    "Values below this become inactive background (default -900 for CT, 0 otherwise)");
+    app->add_option(
+        "--background", args->background,
+        "Values below this become inactive background (default -900 for CT, 0 otherwise)");
     app->add_option("--crop", args->cropMm, "World box in mm (LPS): xmin,ymin,zmin,xmax,ymax,zmax")
         ->delimiter(',')
         ->expected(6);
-    app->add_option("--compression", args->compression, "Leaf compression: blosc (default), zip or mask")
+    app->add_option("--compression", args->compression,
+                    "Leaf compression: blosc (default), zip or mask")
         ->check(CLI::IsMember({"blosc", "zip", "mask"}));
-    return {app, [args]() -> int {
-                const fs::path out(args->output);
-                const fs::path dir = out.has_parent_path() ? out.parent_path() : fs::path(".");
-                std::error_code ec;
-                if (!fs::is_directory(dir, ec)) {
-                    throw IoError(out.string() + ": expected an existing directory '" + dir.string() +
-                                  "' for the output, found none");
-                }
-                volume::LoadOptions opt;
-                if (args->voxelMm > 0) opt.resample.voxelSize = args->voxelMm * 1e-3;
-                if (!args->series.empty()) opt.seriesUid = args->series;
-                if (args->volume >= 0) opt.timePoint = args->volume;
-                if (!std::isnan(args->background)) opt.resample.backgroundThreshold = static_cast<float>(args->background);
-                if (!args->cropMm.empty()) {
-                    volume::WorldBox box;
-                    box.min = Eigen::Vector3d(args->cropMm[0], args->cropMm[1], args->cropMm[2]) * 1e-3;
-                    box.max = Eigen::Vector3d(args->cropMm[3], args->cropMm[4], args->cropMm[5]) * 1e-3;
-                    opt.resample.crop = box;
-                }
-                opt.resample.progress = progressLine("palp convert: resampling");
-                std::vector<fs::path> inputs(args->inputs.begin(), args->inputs.end());
-                const volume::Volume vol = volume::load(inputs, opt);
-                endProgress();
-                volume::SaveOptions so;
-                so.compression = args->compression == "zip"    ? volume::Compression::Zip
-                                 : args->compression == "mask" ? volume::Compression::ActiveMask
-                                                               : volume::Compression::Blosc;
-                volume::save(vol, out, so);
-                if (!globals().quiet) {
-                    const auto b = vol.worldBounds();
-                    std::printf("palp convert: wrote %s: %s %s, voxel %.4g mm, %llu active voxels, "
-                                "world box (%.1f, %.1f, %.1f) - (%.1f, %.1f, %.1f) mm\n",
-                                out.c_str(), vol.info.sourceFormat.c_str(), vol.info.modality.c_str(),
-                                vol.voxelSize() * 1e3,
-                                static_cast<unsigned long long>(vol.grid->activeVoxelCount()),
-                                b.min().x() * 1e3, b.min().y() * 1e3, b.min().z() * 1e3,
-                                b.max().x() * 1e3, b.max().y() * 1e3, b.max().z() * 1e3);
-                }
-                return 0;
-            }};
+    return {
+        app, [args]() -> int {
+            const fs::path out(args->output);
+            const fs::path dir = out.has_parent_path() ? out.parent_path() : fs::path(".");
+            std::error_code ec;
+            if (!fs::is_directory(dir, ec)) {
+                throw IoError(out.string() + ": expected an existing directory '" + dir.string() +
+                              "' for the output, found none");
+            }
+            volume::LoadOptions opt;
+            if (args->voxelMm > 0) opt.resample.voxelSize = args->voxelMm * 1e-3;
+            if (!args->series.empty()) opt.seriesUid = args->series;
+            if (args->volume >= 0) opt.timePoint = args->volume;
+            if (!std::isnan(args->background))
+                opt.resample.backgroundThreshold = static_cast<float>(args->background);
+            if (!args->cropMm.empty()) {
+                volume::WorldBox box;
+                box.min = Eigen::Vector3d(args->cropMm[0], args->cropMm[1], args->cropMm[2]) * 1e-3;
+                box.max = Eigen::Vector3d(args->cropMm[3], args->cropMm[4], args->cropMm[5]) * 1e-3;
+                opt.resample.crop = box;
+            }
+            opt.resample.progress = progressLine("palp convert: resampling");
+            std::vector<fs::path> inputs(args->inputs.begin(), args->inputs.end());
+            const volume::Volume vol = volume::load(inputs, opt);
+            endProgress();
+            volume::SaveOptions so;
+            so.compression = args->compression == "zip"    ? volume::Compression::Zip
+                             : args->compression == "mask" ? volume::Compression::ActiveMask
+                                                           : volume::Compression::Blosc;
+            volume::save(vol, out, so);
+            if (!globals().quiet) {
+                const auto b = vol.worldBounds();
+                std::printf(
+                    "palp convert: wrote %s: %s %s, voxel %.4g mm, %llu active voxels, "
+                    "world box (%.1f, %.1f, %.1f) - (%.1f, %.1f, %.1f) mm\n",
+                    out.c_str(), vol.info.sourceFormat.c_str(), vol.info.modality.c_str(),
+                    vol.voxelSize() * 1e3,
+                    static_cast<unsigned long long>(vol.grid->activeVoxelCount()),
+                    b.min().x() * 1e3, b.min().y() * 1e3, b.min().z() * 1e3, b.max().x() * 1e3,
+                    b.max().y() * 1e3, b.max().z() * 1e3);
+            }
+            return 0;
+        }};
 }
 
 }  // namespace palp::tool

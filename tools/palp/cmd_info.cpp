@@ -1,10 +1,9 @@
 // palp info: what a .vdb, a DICOM directory or a scan file holds.
-#include <nlohmann/json.hpp>
-
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <limits>
+#include <nlohmann/json.hpp>
 
 #include "commands.h"
 #include "palp/error.h"
@@ -35,7 +34,8 @@ json describeVolume(const volume::Volume& v, const fs::path& path) {
         ++n;
     }
     const double mean = n ? sum / static_cast<double>(n) : 0.0;
-    const double sd = n ? std::sqrt(std::max(0.0, sum2 / static_cast<double>(n) - mean * mean)) : 0.0;
+    const double sd =
+        n ? std::sqrt(std::max(0.0, sum2 / static_cast<double>(n) - mean * mean)) : 0.0;
     const auto& i = v.info;
     json j;
     j["file"] = path.string();
@@ -53,19 +53,20 @@ json describeVolume(const volume::Volume& v, const fs::path& path) {
                              vec3(wb.max().x() * 1e3, wb.max().y() * 1e3, wb.max().z() * 1e3)};
         j["values"] = {{"min", mn}, {"max", mx}, {"mean", mean}, {"stddev", sd}};
     }
-    j["metadata"] = {{"modality", i.modality},
-                     {"value_units", i.valueUnits},
-                     {"source_format", i.sourceFormat},
-                     {"source_description", i.sourceDescription},
-                     {"series_uid", i.seriesUid},
-                     {"original_dims", i.originalDims},
-                     {"original_spacing_mm", vec3(i.originalSpacing[0] * 1e3, i.originalSpacing[1] * 1e3,
-                                                  i.originalSpacing[2] * 1e3)},
-                     {"slice_gap_mm", {i.minSliceGap * 1e3, i.maxSliceGap * 1e3}},
-                     {"rescale", {{"slope", i.rescaleSlope}, {"intercept", i.rescaleIntercept}}},
-                     {"gantry_tilt_deg", i.gantryTiltDeg},
-                     {"time_point", i.timePoint},
-                     {"time_point_count", i.timePointCount}};
+    j["metadata"] = {
+        {"modality", i.modality},
+        {"value_units", i.valueUnits},
+        {"source_format", i.sourceFormat},
+        {"source_description", i.sourceDescription},
+        {"series_uid", i.seriesUid},
+        {"original_dims", i.originalDims},
+        {"original_spacing_mm",
+         vec3(i.originalSpacing[0] * 1e3, i.originalSpacing[1] * 1e3, i.originalSpacing[2] * 1e3)},
+        {"slice_gap_mm", {i.minSliceGap * 1e3, i.maxSliceGap * 1e3}},
+        {"rescale", {{"slope", i.rescaleSlope}, {"intercept", i.rescaleIntercept}}},
+        {"gantry_tilt_deg", i.gantryTiltDeg},
+        {"time_point", i.timePoint},
+        {"time_point_count", i.timePointCount}};
     return j;
 }
 
@@ -78,14 +79,15 @@ void printVolume(const json& j) {
     if (j.contains("dimensions")) {
         const auto& d = j["dimensions"];
         const auto& w = j["world_box_mm"];
-        std::printf("  dimensions      %d x %d x %d voxels (active bounding box)\n", d[0].get<int>(),
-                    d[1].get<int>(), d[2].get<int>());
-        std::printf("  world box (LPS) (%.2f, %.2f, %.2f) - (%.2f, %.2f, %.2f) mm\n", w[0][0].get<double>(),
-                    w[0][1].get<double>(), w[0][2].get<double>(), w[1][0].get<double>(),
-                    w[1][1].get<double>(), w[1][2].get<double>());
+        std::printf("  dimensions      %d x %d x %d voxels (active bounding box)\n",
+                    d[0].get<int>(), d[1].get<int>(), d[2].get<int>());
+        std::printf("  world box (LPS) (%.2f, %.2f, %.2f) - (%.2f, %.2f, %.2f) mm\n",
+                    w[0][0].get<double>(), w[0][1].get<double>(), w[0][2].get<double>(),
+                    w[1][0].get<double>(), w[1][1].get<double>(), w[1][2].get<double>());
         const auto& s = j["values"];
-        std::printf("  values          min %.6g, max %.6g, mean %.6g, stddev %.6g\n", s["min"].get<double>(),
-                    s["max"].get<double>(), s["mean"].get<double>(), s["stddev"].get<double>());
+        std::printf("  values          min %.6g, max %.6g, mean %.6g, stddev %.6g\n",
+                    s["min"].get<double>(), s["max"].get<double>(), s["mean"].get<double>(),
+                    s["stddev"].get<double>());
     }
     std::printf("  background      %.6g (values below %.6g are inactive)\n",
                 j["background_value"].get<double>(), j["background_threshold"].get<double>());
@@ -103,14 +105,17 @@ Command addInfo(CLI::App& root) {
         bool json = false;
     };
     auto args = std::make_shared<Args>();
-    CLI::App* app = root.add_subcommand("info", "Describe a .vdb volume, a DICOM directory or a scan file");
-    app->add_option("input", args->input, "A .vdb, a DICOM directory or file, or a scan file")->required();
+    CLI::App* app =
+        root.add_subcommand("info", "Describe a .vdb volume, a DICOM directory or a scan file");
+    app->add_option("input", args->input, "A .vdb, a DICOM directory or file, or a scan file")
+        ->required();
     app->add_flag("--json", args->json, "Print JSON");
     return {app, [args]() -> int {
                 const fs::path in(args->input);
                 std::error_code ec;
                 if (!fs::exists(in, ec)) {
-                    throw IoError(in.string() + ": expected an existing file or directory, found nothing");
+                    throw IoError(in.string() +
+                                  ": expected an existing file or directory, found nothing");
                 }
                 const volume::Format f = volume::detectFormat(in);
                 json j;
@@ -132,9 +137,10 @@ Command addInfo(CLI::App& root) {
                     if (!args->json) {
                         std::printf("%s: %zu DICOM series\n", in.c_str(), series.size());
                         for (const auto& s : series) {
-                            std::printf("  %s  %-4s %4d images, %4d positions, %3d time points  \"%s\"\n",
-                                        s.uid.c_str(), s.modality.c_str(), s.imageCount, s.positionCount,
-                                        s.timePointCount, s.description.c_str());
+                            std::printf(
+                                "  %s  %-4s %4d images, %4d positions, %3d time points  \"%s\"\n",
+                                s.uid.c_str(), s.modality.c_str(), s.imageCount, s.positionCount,
+                                s.timePointCount, s.description.c_str());
                         }
                     }
                 } else {
@@ -145,9 +151,12 @@ Command addInfo(CLI::App& root) {
                     j["file"] = in.string();
                     j["format"] = st.info.sourceFormat;
                     j["dims"] = vec3(sl.cols, sl.rows, static_cast<double>(st.slices.size()));
-                    j["column_step_mm"] = vec3(sl.colStep.x() * 1e3, sl.colStep.y() * 1e3, sl.colStep.z() * 1e3);
-                    j["row_step_mm"] = vec3(sl.rowStep.x() * 1e3, sl.rowStep.y() * 1e3, sl.rowStep.z() * 1e3);
-                    j["first_slice_mm"] = vec3(sl.position.x() * 1e3, sl.position.y() * 1e3, sl.position.z() * 1e3);
+                    j["column_step_mm"] =
+                        vec3(sl.colStep.x() * 1e3, sl.colStep.y() * 1e3, sl.colStep.z() * 1e3);
+                    j["row_step_mm"] =
+                        vec3(sl.rowStep.x() * 1e3, sl.rowStep.y() * 1e3, sl.rowStep.z() * 1e3);
+                    j["first_slice_mm"] =
+                        vec3(sl.position.x() * 1e3, sl.position.y() * 1e3, sl.position.z() * 1e3);
                     j["time_points"] = st.info.timePointCount;
                     if (!args->json) std::printf("%s\n", j.dump(2).c_str());
                 }

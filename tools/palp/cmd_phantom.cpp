@@ -41,105 +41,120 @@ Command addPhantom(CLI::App& root) {
     };
     auto args = std::make_shared<Args>();
     CLI::App* app = root.add_subcommand(
-        "phantom", "Generate a thesis scene (avc, avcec, bone, stiffness) as a CT-like .vdb or DICOM series");
+        "phantom",
+        "Generate a thesis scene (avc, avcec, bone, stiffness) as a CT-like .vdb or DICOM series");
     app->add_option("scene", args->scene, "Scene: avc, avcec, bone or stiffness")
         ->required()
         ->check(CLI::IsMember({"avc", "avcec", "bone", "stiffness"}));
     auto* out = app->add_option("-o,--output", args->output, "Output .vdb file");
-    auto* dicom = app->add_option("--dicom-dir", args->dicomDir, "Write a DICOM CT series into this new directory");
+    auto* dicom = app->add_option("--dicom-dir", args->dicomDir,
+                                  "Write a DICOM CT series into this new directory");
     out->excludes(dicom);
-    app->add_option("--quadrant", args->quadrant, "avc: quadrant of the hidden box, 0-3 (bit 0: +x, bit 1: +z)")
+    app->add_option("--quadrant", args->quadrant,
+                    "avc: quadrant of the hidden box, 0-3 (bit 0: +x, bit 1: +z)")
         ->check(CLI::Range(0, 3));
     app->add_option("--shape", args->shape, "avcec: plate outline")
         ->check(CLI::IsMember({"circle", "triangle", "rectangle", "hexagon", "pentagon"}));
     app->add_option("--displacement", args->displacement,
                     "bone: -1 right side (x<0) closer to the surface, 0 level, 1 left side closer")
         ->check(CLI::Range(-1, 1));
-    app->add_option("--bone-tilt", args->boneTiltDeg, "bone: slab tilt for displacement +-1, degrees");
+    app->add_option("--bone-tilt", args->boneTiltDeg,
+                    "bone: slab tilt for displacement +-1, degrees");
     app->add_option("--profile", args->profile, "stiffness: CL transition profile")
         ->check(CLI::IsMember({"linear", "cosine", "tanh"}));
     app->add_option("--width", args->widthMm, "stiffness: CL transition width, mm");
     app->add_option("--tanh-a", args->tanhSharpness, "stiffness: sharpness of the tanh profile");
-    app->add_option("--hard-depth", args->hardDepthMm, "stiffness: CP depth below which the box is harder, mm");
+    app->add_option("--hard-depth", args->hardDepthMm,
+                    "stiffness: CP depth below which the box is harder, mm");
     app->add_option("--fat", args->fatMm, "Fat layer thickness under the surface, mm (0 for none)");
     app->add_option("--voxel-size", args->voxelMm, "Voxel edge (and DICOM pixel spacing), mm")
         ->check(CLI::PositiveNumber);
     app->add_option("--noise", args->noiseHu, "Gaussian noise standard deviation, HU");
     app->add_option("--blur", args->blurMm, "Gaussian partial-volume blur standard deviation, mm");
-    app->add_option("--supersample", args->supersample, "Sub-samples per pixel edge (n^3 per pixel), 1-8")
+    app->add_option("--supersample", args->supersample,
+                    "Sub-samples per pixel edge (n^3 per pixel), 1-8")
         ->check(CLI::Range(1, 8));
     app->add_option("--seed", args->seed, "Noise seed (the same seed gives identical output)");
     app->add_option("--margin", args->marginMm, "Air around the scene, mm");
-    app->add_option("--slice-spacing", args->sliceSpacingMm,
-                    "DICOM: gap between slices along the slice normal, mm (default: the voxel size)");
-    app->add_option("--slice-gaps", args->sliceGapsMm, "DICOM: uneven gaps along the normal, mm, used cyclically")
+    app->add_option(
+        "--slice-spacing", args->sliceSpacingMm,
+        "DICOM: gap between slices along the slice normal, mm (default: the voxel size)");
+    app->add_option("--slice-gaps", args->sliceGapsMm,
+                    "DICOM: uneven gaps along the normal, mm, used cyclically")
         ->delimiter(',');
     app->add_option("--tilt", args->tiltDeg, "DICOM: gantry tilt, degrees");
-    return {app, [args, out, dicom]() -> int {
-                if (out->count() == 0 && dicom->count() == 0) {
-                    throw ValueError("phantom: expected -o OUT.vdb or --dicom-dir DIR, found neither");
-                }
-                const bool toDicom = dicom->count() > 0;
-                if (!toDicom && (args->tiltDeg != 0 || args->sliceSpacingMm != 0 || !args->sliceGapsMm.empty())) {
-                    throw ValueError("phantom: expected --tilt, --slice-spacing and --slice-gaps only with --dicom-dir, "
-                                     "found them with -o");
-                }
-                volume::PhantomSpec spec;
-                volume::PhantomParams& p = spec.params;
-                p.scene = volume::parseScene(args->scene);
-                p.quadrant = args->quadrant;
-                p.shape = volume::parseShape(args->shape);
-                p.displacement = args->displacement;
-                p.boneTiltDeg = args->boneTiltDeg;
-                p.profile = volume::parseProfile(args->profile);
-                p.transitionWidth = args->widthMm * 1e-3;
-                p.tanhSharpness = args->tanhSharpness;
-                p.hardDepth = args->hardDepthMm * 1e-3;
-                p.fatThickness = args->fatMm * 1e-3;
-                spec.voxelSize = args->voxelMm * 1e-3;
-                spec.noiseSigmaHu = args->noiseHu;
-                spec.blurSigma = args->blurMm * 1e-3;
-                spec.supersample = args->supersample;
-                spec.seed = args->seed;
-                spec.margin = args->marginMm * 1e-3;
+    return {
+        app, [args, out, dicom]() -> int {
+            if (out->count() == 0 && dicom->count() == 0) {
+                throw ValueError("phantom: expected -o OUT.vdb or --dicom-dir DIR, found neither");
+            }
+            const bool toDicom = dicom->count() > 0;
+            if (!toDicom &&
+                (args->tiltDeg != 0 || args->sliceSpacingMm != 0 || !args->sliceGapsMm.empty())) {
+                throw ValueError(
+                    "phantom: expected --tilt, --slice-spacing and --slice-gaps only with "
+                    "--dicom-dir, "
+                    "found them with -o");
+            }
+            volume::PhantomSpec spec;
+            volume::PhantomParams& p = spec.params;
+            p.scene = volume::parseScene(args->scene);
+            p.quadrant = args->quadrant;
+            p.shape = volume::parseShape(args->shape);
+            p.displacement = args->displacement;
+            p.boneTiltDeg = args->boneTiltDeg;
+            p.profile = volume::parseProfile(args->profile);
+            p.transitionWidth = args->widthMm * 1e-3;
+            p.tanhSharpness = args->tanhSharpness;
+            p.hardDepth = args->hardDepthMm * 1e-3;
+            p.fatThickness = args->fatMm * 1e-3;
+            spec.voxelSize = args->voxelMm * 1e-3;
+            spec.noiseSigmaHu = args->noiseHu;
+            spec.blurSigma = args->blurMm * 1e-3;
+            spec.supersample = args->supersample;
+            spec.seed = args->seed;
+            spec.margin = args->marginMm * 1e-3;
 
-                if (!toDicom) {
-                    const fs::path path(args->output);
-                    const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
-                    std::error_code ec;
-                    if (!fs::is_directory(dir, ec)) {
-                        throw IoError(path.string() + ": expected an existing directory '" + dir.string() +
-                                      "' for the output, found none");
-                    }
-                    const volume::Volume vol = volume::makePhantomVolume(spec);
-                    volume::save(vol, path);
-                    if (!globals().quiet) {
-                        std::printf("palp phantom: wrote %s: %s, voxel %.4g mm, %llu active voxels\n", path.c_str(),
-                                    vol.info.sourceDescription.c_str(), vol.voxelSize() * 1e3,
-                                    static_cast<unsigned long long>(vol.grid->activeVoxelCount()));
-                    }
-                    return 0;
+            if (!toDicom) {
+                const fs::path path(args->output);
+                const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+                std::error_code ec;
+                if (!fs::is_directory(dir, ec)) {
+                    throw IoError(path.string() + ": expected an existing directory '" +
+                                  dir.string() + "' for the output, found none");
                 }
-                volume::SliceGeometry geometry;
-                geometry.pixelSpacing = spec.voxelSize;
-                geometry.sliceSpacing = args->sliceSpacingMm > 0 ? args->sliceSpacingMm * 1e-3 : spec.voxelSize;
-                for (double g : args->sliceGapsMm) geometry.sliceGaps.push_back(g * 1e-3);
-                geometry.tiltDeg = args->tiltDeg;
-                const volume::SliceStack stack = volume::makePhantomSlices(spec, geometry);
-                volume::DicomWriteOptions options;
-                options.modality = "CT";
-                options.seriesDescription = "palp phantom " + volume::Phantom(p).description();
-                options.gantryTiltDeg = args->tiltDeg;
-                options.clampToStorage = true;  // noise on air below -1024 HU clips, as on a scanner
-                const fs::path dirPath(args->dicomDir);
-                volume::writeDicomSeries(stack, dirPath, options);
+                const volume::Volume vol = volume::makePhantomVolume(spec);
+                volume::save(vol, path);
                 if (!globals().quiet) {
-                    const volume::Slice& s = stack.slices.front();
-                    std::printf("palp phantom: wrote %s: %zu CT slices of %dx%d pixels, %s\n", dirPath.c_str(),
-                                stack.slices.size(), s.cols, s.rows, stack.info.sourceDescription.c_str());
+                    std::printf("palp phantom: wrote %s: %s, voxel %.4g mm, %llu active voxels\n",
+                                path.c_str(), vol.info.sourceDescription.c_str(),
+                                vol.voxelSize() * 1e3,
+                                static_cast<unsigned long long>(vol.grid->activeVoxelCount()));
                 }
                 return 0;
-            }};
+            }
+            volume::SliceGeometry geometry;
+            geometry.pixelSpacing = spec.voxelSize;
+            geometry.sliceSpacing =
+                args->sliceSpacingMm > 0 ? args->sliceSpacingMm * 1e-3 : spec.voxelSize;
+            for (double g : args->sliceGapsMm) geometry.sliceGaps.push_back(g * 1e-3);
+            geometry.tiltDeg = args->tiltDeg;
+            const volume::SliceStack stack = volume::makePhantomSlices(spec, geometry);
+            volume::DicomWriteOptions options;
+            options.modality = "CT";
+            options.seriesDescription = "palp phantom " + volume::Phantom(p).description();
+            options.gantryTiltDeg = args->tiltDeg;
+            options.clampToStorage = true;  // noise on air below -1024 HU clips, as on a scanner
+            const fs::path dirPath(args->dicomDir);
+            volume::writeDicomSeries(stack, dirPath, options);
+            if (!globals().quiet) {
+                const volume::Slice& s = stack.slices.front();
+                std::printf("palp phantom: wrote %s: %zu CT slices of %dx%d pixels, %s\n",
+                            dirPath.c_str(), stack.slices.size(), s.cols, s.rows,
+                            stack.info.sourceDescription.c_str());
+            }
+            return 0;
+        }};
 }
 
 }  // namespace palp::tool

@@ -3,7 +3,6 @@
 /// The palp command's subcommands. Each registers itself on the CLI11 app and runs when chosen.
 
 #include <CLI/CLI.hpp>
-
 #include <functional>
 #include <string>
 

@@ -1,6 +1,5 @@
 // The palp command: convert, inspect and generate volumes (and later palpate and benchmark).
 #include <CLI/CLI.hpp>
-
 #include <cstdio>
 #include <exception>
 #include <vector>
@@ -22,7 +21,8 @@ int main(int argc, char** argv) {
     app.set_version_flag("--version", "palp 0.1.0");
     app.add_flag("-q,--quiet", palp::tool::globals().quiet, "No progress output");
     std::vector<palp::tool::Command> commands{palp::tool::addConvert(app), palp::tool::addInfo(app),
-                                              palp::tool::addPhantom(app), palp::tool::addBench(app)};
+                                              palp::tool::addPhantom(app),
+                                              palp::tool::addBench(app)};
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {

@@ -1,5 +1,4 @@
 // DICOM series writer (GDCM): one single-frame CT/MR image per slice, uint16 storage.
-#include <Eigen/Geometry>
 #include <gdcmAttribute.h>
 #include <gdcmDataElement.h>
 #include <gdcmDataSet.h>
@@ -12,6 +11,7 @@
 #include <gdcmTransferSyntax.h>
 #include <gdcmUIDGenerator.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -36,7 +36,8 @@ std::string num(double v) {
 }
 
 // Adds a string element, padded to even length as DICOM requires.
-void setString(gdcm::DataSet& ds, std::uint16_t group, std::uint16_t element, gdcm::VR vr, std::string value) {
+void setString(gdcm::DataSet& ds, std::uint16_t group, std::uint16_t element, gdcm::VR vr,
+               std::string value) {
     if (value.size() % 2 != 0) value.push_back(vr == gdcm::VR::UI ? '\0' : ' ');
     gdcm::DataElement de(gdcm::Tag(group, element));
     de.SetVR(vr);
@@ -65,14 +66,20 @@ struct Cleanup {
 
 }  // namespace
 
-void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomWriteOptions& options) {
+void writeDicomSeries(const SliceStack& stack, const fs::path& dir,
+                      const DicomWriteOptions& options) {
     const std::string where = dir.string();
-    if (stack.slices.empty()) throw ValueError(where + ": expected at least one slice to write, found none");
-    if (!(options.rescaleSlope > 0) || !std::isfinite(options.rescaleSlope) || !std::isfinite(options.rescaleIntercept)) {
-        throw ValueError(where + ": expected a positive, finite rescale slope and a finite intercept, found slope " +
-                         num(options.rescaleSlope) + ", intercept " + num(options.rescaleIntercept));
+    if (stack.slices.empty())
+        throw ValueError(where + ": expected at least one slice to write, found none");
+    if (!(options.rescaleSlope > 0) || !std::isfinite(options.rescaleSlope) ||
+        !std::isfinite(options.rescaleIntercept)) {
+        throw ValueError(
+            where +
+            ": expected a positive, finite rescale slope and a finite intercept, found slope " +
+            num(options.rescaleSlope) + ", intercept " + num(options.rescaleIntercept));
     }
-    if (options.modality.empty()) throw ValueError(where + ": expected a modality, found an empty string");
+    if (options.modality.empty())
+        throw ValueError(where + ": expected a modality, found an empty string");
     const Slice& first = stack.slices.front();
     const double lo = options.rescaleIntercept;
     const double hi = options.rescaleIntercept + 65535.0 * options.rescaleSlope;
@@ -81,19 +88,23 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
         const Slice& s = stack.slices[k];
         const std::string name = s.source.empty() ? "slice " + std::to_string(k) : s.source;
         if (s.cols <= 0 || s.rows <= 0 || s.cols > 65535 || s.rows > 65535 ||
-            s.values.size() != static_cast<std::size_t>(s.cols) * static_cast<std::size_t>(s.rows)) {
-            throw ValueError(name + ": expected 1 to 65535 rows and columns with rows * columns values, found " +
-                             std::to_string(s.cols) + "x" + std::to_string(s.rows) + " with " +
-                             std::to_string(s.values.size()) + " values");
+            s.values.size() !=
+                static_cast<std::size_t>(s.cols) * static_cast<std::size_t>(s.rows)) {
+            throw ValueError(
+                name + ": expected 1 to 65535 rows and columns with rows * columns values, found " +
+                std::to_string(s.cols) + "x" + std::to_string(s.rows) + " with " +
+                std::to_string(s.values.size()) + " values");
         }
         if (s.cols != first.cols || s.rows != first.rows) {
-            throw ValueError(name + ": expected " + std::to_string(first.cols) + "x" + std::to_string(first.rows) +
-                             " pixels like the first slice, found " + std::to_string(s.cols) + "x" +
-                             std::to_string(s.rows));
+            throw ValueError(name + ": expected " + std::to_string(first.cols) + "x" +
+                             std::to_string(first.rows) + " pixels like the first slice, found " +
+                             std::to_string(s.cols) + "x" + std::to_string(s.rows));
         }
-        if (!(s.colStep.norm() > 0) || !(s.rowStep.norm() > 0) || !s.position.allFinite() || !s.colStep.allFinite() ||
-            !s.rowStep.allFinite()) {
-            throw ValueError(name + ": expected finite position and non-zero steps, found a degenerate geometry");
+        if (!(s.colStep.norm() > 0) || !(s.rowStep.norm() > 0) || !s.position.allFinite() ||
+            !s.colStep.allFinite() || !s.rowStep.allFinite()) {
+            throw ValueError(
+                name +
+                ": expected finite position and non-zero steps, found a degenerate geometry");
         }
         for (float v : s.values) {
             // Values are rounded to the nearest stored integer, so half a step beyond is fine.
@@ -103,7 +114,8 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
             if (!(q >= 0.0 && q <= 65535.0)) {
                 throw ValueError(name + ": expected values in [" + num(lo) + ", " + num(hi) +
                                  "] to fit uint16 storage with slope " + num(options.rescaleSlope) +
-                                 " and intercept " + num(options.rescaleIntercept) + ", found " + num(d));
+                                 " and intercept " + num(options.rescaleIntercept) + ", found " +
+                                 num(d));
             }
         }
     }
@@ -111,9 +123,12 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
     std::error_code ec;
     Cleanup cleanup;
     if (fs::exists(dir, ec)) {
-        if (!fs::is_directory(dir, ec)) throw IoError(where + ": expected a directory, found a file");
+        if (!fs::is_directory(dir, ec))
+            throw IoError(where + ": expected a directory, found a file");
         if (!fs::is_empty(dir, ec)) {
-            throw IoError(where + ": expected a new or empty directory for the series, found existing entries");
+            throw IoError(
+                where +
+                ": expected a new or empty directory for the series, found existing entries");
         }
     } else {
         if (!fs::create_directories(dir, ec) || ec) {
@@ -128,8 +143,9 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
     const std::string seriesUid = uid(gen);
     const std::string frameUid = uid(gen);
     const bool isCt = options.modality == "CT";
-    const char* sopClass = isCt ? gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage)
-                                : gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage);
+    const char* sopClass =
+        isCt ? gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage)
+             : gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage);
     const int digits = stack.slices.size() < 10000 ? 4 : 6;
     std::vector<std::uint16_t> stored;
 
@@ -142,14 +158,19 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
         const Eigen::Vector3d normal = rowCosine.cross(colCosine).normalized();
         double thickness = 0;
         if (stack.slices.size() > 1) {
-            const Slice& other = k + 1 < stack.slices.size() ? stack.slices[k + 1] : stack.slices[k - 1];
+            const Slice& other =
+                k + 1 < stack.slices.size() ? stack.slices[k + 1] : stack.slices[k - 1];
             thickness = std::abs((other.position - s.position).dot(normal));
         }
-        if (!(thickness > 0)) thickness = stack.info.originalSpacing[2] > 0 ? stack.info.originalSpacing[2] : colSpacing;
+        if (!(thickness > 0))
+            thickness =
+                stack.info.originalSpacing[2] > 0 ? stack.info.originalSpacing[2] : colSpacing;
 
         stored.resize(s.values.size());
         for (std::size_t i = 0; i < s.values.size(); ++i) {
-            const double q = std::round((static_cast<double>(s.values[i]) - options.rescaleIntercept) / options.rescaleSlope);
+            const double q =
+                std::round((static_cast<double>(s.values[i]) - options.rescaleIntercept) /
+                           options.rescaleSlope);
             stored[i] = static_cast<std::uint16_t>(std::clamp(q, 0.0, 65535.0));
         }
 
@@ -166,7 +187,8 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
         image.SetSpacing(2, thickness * 1e3);
         const Eigen::Vector3d originMm = s.position * 1e3;
         // Per component: the array overload copies only GetNumberOfDimensions() values.
-        for (unsigned int a = 0; a < 3; ++a) image.SetOrigin(a, originMm[static_cast<Eigen::Index>(a)]);
+        for (unsigned int a = 0; a < 3; ++a)
+            image.SetOrigin(a, originMm[static_cast<Eigen::Index>(a)]);
         const double cosines[6] = {rowCosine.x(), rowCosine.y(), rowCosine.z(),
                                    colCosine.x(), colCosine.y(), colCosine.z()};
         image.SetDirectionCosines(cosines);
@@ -191,8 +213,8 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
         setString(ds, 0x0020, 0x000d, gdcm::VR::UI, studyUid);
         setString(ds, 0x0020, 0x000e, gdcm::VR::UI, seriesUid);
         setString(ds, 0x0020, 0x0052, gdcm::VR::UI, frameUid);
-        setString(ds, 0x0020, 0x0010, gdcm::VR::SH, "1");              // StudyID
-        setString(ds, 0x0020, 0x0011, gdcm::VR::IS, "1");              // SeriesNumber
+        setString(ds, 0x0020, 0x0010, gdcm::VR::SH, "1");                    // StudyID
+        setString(ds, 0x0020, 0x0011, gdcm::VR::IS, "1");                    // SeriesNumber
         setString(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(k + 1));  // InstanceNumber
         setString(ds, 0x0018, 0x0050, gdcm::VR::DS, num(thickness * 1e3).substr(0, 16));
         if (options.gantryTiltDeg != 0) {
@@ -205,10 +227,14 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir, const DicomW
         const fs::path tmpPath = dir / (std::string(".") + name + ".tmp");
         cleanup.paths.push_back(tmpPath);
         writer.SetFileName(tmpPath.string().c_str());
-        if (!writer.Write()) throw IoError(tmpPath.string() + ": expected to write a DICOM file, found a write failure");
+        if (!writer.Write())
+            throw IoError(tmpPath.string() +
+                          ": expected to write a DICOM file, found a write failure");
         cleanup.paths.push_back(finalPath);
         fs::rename(tmpPath, finalPath, ec);
-        if (ec) throw IoError(finalPath.string() + ": expected to rename the written file, found " + ec.message());
+        if (ec)
+            throw IoError(finalPath.string() + ": expected to rename the written file, found " +
+                          ec.message());
     }
     cleanup.armed = false;
 }

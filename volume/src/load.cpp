@@ -26,7 +26,8 @@ std::string lower(std::string s) {
 }
 
 bool endsWith(const std::string& s, const std::string& suffix) {
-    return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+    return s.size() >= suffix.size() &&
+           s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
 std::string readPrefix(const fs::path& path, std::size_t n) {
@@ -39,19 +40,26 @@ std::string readPrefix(const fs::path& path, std::size_t n) {
 
 void requireExists(const fs::path& p) {
     std::error_code ec;
-    if (!fs::exists(p, ec)) throw IoError(p.string() + ": expected an existing file or directory, found nothing");
+    if (!fs::exists(p, ec))
+        throw IoError(p.string() + ": expected an existing file or directory, found nothing");
 }
 
 }  // namespace
 
 const char* formatName(Format f) {
     switch (f) {
-        case Format::Dicom: return "DICOM";
-        case Format::Nifti: return "NIfTI";
-        case Format::Nrrd: return "NRRD";
-        case Format::MetaImage: return "MetaImage";
-        case Format::Vdb: return "OpenVDB";
-        case Format::Unknown: break;
+        case Format::Dicom:
+            return "DICOM";
+        case Format::Nifti:
+            return "NIfTI";
+        case Format::Nrrd:
+            return "NRRD";
+        case Format::MetaImage:
+            return "MetaImage";
+        case Format::Vdb:
+            return "OpenVDB";
+        case Format::Unknown:
+            break;
     }
     return "unknown";
 }
@@ -63,18 +71,21 @@ Format detectFormat(const fs::path& path) {
     if (head.size() >= 132 && head.compare(128, 4, "DICM") == 0) return Format::Dicom;
     if (head.rfind("NRRD000", 0) == 0) return Format::Nrrd;
     if (head.size() >= 4 && static_cast<unsigned char>(head[0]) == 0x20 &&
-        static_cast<unsigned char>(head[1]) == 0xBD && static_cast<unsigned char>(head[2]) == 0xB3 &&
+        static_cast<unsigned char>(head[1]) == 0xBD &&
+        static_cast<unsigned char>(head[2]) == 0xB3 &&
         static_cast<unsigned char>(head[3]) == 0x56) {
         return Format::Vdb;
     }
-    if (head.size() >= 348 && (head.compare(344, 3, "n+1") == 0 || head.compare(344, 3, "ni1") == 0)) {
+    if (head.size() >= 348 &&
+        (head.compare(344, 3, "n+1") == 0 || head.compare(344, 3, "ni1") == 0)) {
         return Format::Nifti;
     }
     if (head.size() >= 8 && (head.compare(4, 3, "n+2") == 0 || head.compare(4, 3, "ni2") == 0)) {
         return Format::Nifti;
     }
     const std::string name = lower(path.filename().string());
-    if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr")) return Format::Nifti;
+    if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr"))
+        return Format::Nifti;
     if (endsWith(name, ".nrrd") || endsWith(name, ".nhdr")) return Format::Nrrd;
     if (endsWith(name, ".mha") || endsWith(name, ".mhd")) return Format::MetaImage;
     if (endsWith(name, ".vdb")) return Format::Vdb;
@@ -89,17 +100,23 @@ SliceStack readStack(const std::vector<fs::path>& inputs, const LoadOptions& opt
     for (const fs::path& p : inputs) requireExists(p);
     const Format f = detectFormat(inputs.front());
     if (f != Format::Dicom && inputs.size() > 1) {
-        throw ValueError(inputs[1].string() + ": expected one " + formatName(f) +
-                         " file, found " + std::to_string(inputs.size()) + " inputs");
+        throw ValueError(inputs[1].string() + ": expected one " + formatName(f) + " file, found " +
+                         std::to_string(inputs.size()) + " inputs");
     }
     switch (f) {
-        case Format::Dicom: return readDicom(inputs, options);
-        case Format::Nifti: return readNifti(inputs.front(), options);
-        case Format::Nrrd: return readNrrd(inputs.front(), options);
-        case Format::MetaImage: return readMetaImage(inputs.front(), options);
+        case Format::Dicom:
+            return readDicom(inputs, options);
+        case Format::Nifti:
+            return readNifti(inputs.front(), options);
+        case Format::Nrrd:
+            return readNrrd(inputs.front(), options);
+        case Format::MetaImage:
+            return readMetaImage(inputs.front(), options);
         case Format::Vdb:
-            throw ValueError(inputs.front().string() + ": a .vdb holds a grid, not slices; use load()");
-        case Format::Unknown: break;
+            throw ValueError(inputs.front().string() +
+                             ": a .vdb holds a grid, not slices; use load()");
+        case Format::Unknown:
+            break;
     }
     throw FormatError(inputs.front().string() +
                       ": expected a DICOM file or directory, NIfTI (.nii, .nii.gz), NRRD (.nrrd, "
@@ -142,7 +159,8 @@ Volume loadVdb(const fs::path& path) {
         grids = file.getGrids();
         file.close();
     } catch (const openvdb::Exception& e) {
-        throw IoError(path.string() + ": expected a readable OpenVDB file, found an error: " + e.what());
+        throw IoError(path.string() +
+                      ": expected a readable OpenVDB file, found an error: " + e.what());
     }
     openvdb::FloatGrid::Ptr chosen;
     for (const auto& g : *grids) {
@@ -163,7 +181,8 @@ Volume loadVdb(const fs::path& path) {
 
 void save(const Volume& volume, const fs::path& path, const SaveOptions& options) {
     initialize();
-    if (!volume.grid) throw ValueError(path.string() + ": expected a volume with a grid, found none");
+    if (!volume.grid)
+        throw ValueError(path.string() + ": expected a volume with a grid, found none");
     const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
     std::error_code ec;
     if (!fs::is_directory(dir, ec)) {
@@ -171,14 +190,15 @@ void save(const Volume& volume, const fs::path& path, const SaveOptions& options
                       "' to write into, found none");
     }
     std::random_device rd;
-    const fs::path tmp = dir / ("." + path.filename().string() + ".tmp" + std::to_string(::getpid()) +
-                                "-" + std::to_string(rd()));
+    const fs::path tmp = dir / ("." + path.filename().string() + ".tmp" +
+                                std::to_string(::getpid()) + "-" + std::to_string(rd()));
     writeInfo(volume.info, *volume.grid);
     volume.grid->setName(kScanGridName);
     try {
         openvdb::io::File file(tmp.string());
         std::uint32_t flags = openvdb::io::COMPRESS_ACTIVE_MASK;
-        if (options.compression == Compression::Blosc && openvdb::io::Archive::hasBloscCompression()) {
+        if (options.compression == Compression::Blosc &&
+            openvdb::io::Archive::hasBloscCompression()) {
             flags |= openvdb::io::COMPRESS_BLOSC;
         } else if (options.compression != Compression::ActiveMask) {
             flags |= openvdb::io::COMPRESS_ZIP;
@@ -190,12 +210,14 @@ void save(const Volume& volume, const fs::path& path, const SaveOptions& options
         file.close();
     } catch (const std::exception& e) {
         fs::remove(tmp, ec);
-        throw IoError(path.string() + ": expected a writable location, found an error: " + e.what());
+        throw IoError(path.string() +
+                      ": expected a writable location, found an error: " + e.what());
     }
     fs::rename(tmp, path, ec);
     if (ec) {
         fs::remove(tmp, ec);
-        throw IoError(path.string() + ": could not rename the finished file into place: " + ec.message());
+        throw IoError(path.string() +
+                      ": could not rename the finished file into place: " + ec.message());
     }
 }
 

@@ -1,7 +1,6 @@
 // MetaImage reader (.mha with LOCAL data, .mhd with a separate data file): palp's own parser of
 // the MetaIO text header; raw, zlib-compressed or ASCII data.
 #include <Eigen/Core>
-
 #include <array>
 #include <cmath>
 #include <limits>
@@ -28,8 +27,8 @@ struct Entry {
 };
 
 [[noreturn]] void fail(const std::string& name, const Entry& e, const std::string& expected) {
-    throw FormatError(name + ": line " + std::to_string(e.line) + ": expected " + expected + ", found " +
-                      quoteFound(e.value));
+    throw FormatError(name + ": line " + std::to_string(e.line) + ": expected " + expected +
+                      ", found " + quoteFound(e.value));
 }
 
 bool boolean(const std::string& name, const Entry& e, const char* key) {
@@ -39,7 +38,8 @@ bool boolean(const std::string& name, const Entry& e, const char* key) {
     fail(name, e, std::string("'") + key + "' True or False");
 }
 
-std::vector<double> numbers(const std::string& name, const Entry& e, const char* key, std::size_t n) {
+std::vector<double> numbers(const std::string& name, const Entry& e, const char* key,
+                            std::size_t n) {
     const auto w = detail::words(e.value);
     std::vector<double> out;
     for (const auto& tok : w) {
@@ -71,13 +71,14 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
         if (trim(line).empty()) continue;
         const std::size_t eq = line.find('=');
         if (eq == std::string_view::npos) {
-            throw FormatError(name + ": line " + std::to_string(lineNo) + ": expected 'Key = Value', found " +
-                              quoteFound(line));
+            throw FormatError(name + ": line " + std::to_string(lineNo) +
+                              ": expected 'Key = Value', found " + quoteFound(line));
         }
-        Entry entry{lower(trim(line.substr(0, eq))), std::string(trim(line.substr(eq + 1))), lineNo};
+        Entry entry{lower(trim(line.substr(0, eq))), std::string(trim(line.substr(eq + 1))),
+                    lineNo};
         if (entry.key.empty()) {
-            throw FormatError(name + ": line " + std::to_string(lineNo) + ": expected 'Key = Value', found " +
-                              quoteFound(line));
+            throw FormatError(name + ": line " + std::to_string(lineNo) +
+                              ": expected 'Key = Value', found " + quoteFound(line));
         }
         const bool isDataFile = entry.key == "elementdatafile";
         entries.push_back(std::move(entry));
@@ -87,8 +88,10 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
         }
     }
     if (!sawDataFile) {
-        throw FormatError(name + ": expected an 'ElementDataFile' line ending the MetaImage header, found " +
-                          (lineNo == 0 ? std::string("an empty header") : "none in " + std::to_string(lineNo) + " lines"));
+        throw FormatError(
+            name + ": expected an 'ElementDataFile' line ending the MetaImage header, found " +
+            (lineNo == 0 ? std::string("an empty header")
+                         : "none in " + std::to_string(lineNo) + " lines"));
     }
     h.headerBytes = pos;
 
@@ -101,7 +104,9 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
     };
     auto require = [&](const char* key, const char* display) -> const Entry& {
         const Entry* en = find(key);
-        if (!en) throw FormatError(name + ": expected a '" + std::string(display) + "' line in the MetaImage header, found none");
+        if (!en)
+            throw FormatError(name + ": expected a '" + std::string(display) +
+                              "' line in the MetaImage header, found none");
         return *en;
     };
 
@@ -117,10 +122,12 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
     const Entry& eSize = require("dimsize", "DimSize");
     for (const auto& tok : detail::words(eSize.value)) {
         const auto v = detail::toInt(tok);
-        if (!v || *v <= 0) fail(name, eSize, "'DimSize' with " + std::to_string(n) + " positive integers");
+        if (!v || *v <= 0)
+            fail(name, eSize, "'DimSize' with " + std::to_string(n) + " positive integers");
         h.dimSize.push_back(*v);
     }
-    if (h.dimSize.size() != n) fail(name, eSize, "'DimSize' with " + std::to_string(n) + " positive integers");
+    if (h.dimSize.size() != n)
+        fail(name, eSize, "'DimSize' with " + std::to_string(n) + " positive integers");
 
     h.elementSpacing.assign(n, 1.0);
     if (const Entry* en = find("elementspacing")) {
@@ -135,7 +142,8 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
     h.transformMatrix.assign(n * n, 0.0);
     for (std::size_t i = 0; i < n; ++i) h.transformMatrix[i * n + i] = 1.0;
     for (const char* key : {"orientation", "rotation", "transformmatrix"}) {
-        if (const Entry* en = find(key)) h.transformMatrix = numbers(name, *en, "TransformMatrix", n * n);
+        if (const Entry* en = find(key))
+            h.transformMatrix = numbers(name, *en, "TransformMatrix", n * n);
     }
     if (const Entry* en = find("anatomicalorientation")) h.anatomicalOrientation = en->value;
 
@@ -156,15 +164,20 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
                 ok = true;
             }
         }
-        if (!ok) fail(name, eType, "'ElementType' MET_CHAR, MET_UCHAR, MET_SHORT, MET_USHORT, MET_INT, MET_UINT, "
-                                   "MET_LONG, MET_ULONG, MET_LONG_LONG, MET_ULONG_LONG, MET_FLOAT or MET_DOUBLE");
+        if (!ok)
+            fail(name, eType,
+                 "'ElementType' MET_CHAR, MET_UCHAR, MET_SHORT, MET_USHORT, MET_INT, MET_UINT, "
+                 "MET_LONG, MET_ULONG, MET_LONG_LONG, MET_ULONG_LONG, MET_FLOAT or MET_DOUBLE");
         h.typeGiven = true;
     }
     for (const char* key : {"binarydatabyteordermsb", "elementbyteordermsb"}) {
-        if (const Entry* en = find(key)) h.byteOrder = boolean(name, *en, "ElementByteOrderMSB") ? ByteOrder::Big : ByteOrder::Little;
+        if (const Entry* en = find(key))
+            h.byteOrder =
+                boolean(name, *en, "ElementByteOrderMSB") ? ByteOrder::Big : ByteOrder::Little;
     }
     if (const Entry* en = find("binarydata")) h.binaryData = boolean(name, *en, "BinaryData");
-    if (const Entry* en = find("compresseddata")) h.compressed = boolean(name, *en, "CompressedData");
+    if (const Entry* en = find("compresseddata"))
+        h.compressed = boolean(name, *en, "CompressedData");
     if (const Entry* en = find("compresseddatasize")) {
         const auto v = detail::toInt(en->value);
         if (!v || *v <= 0) fail(name, *en, "'CompressedDataSize' with a positive integer");
@@ -172,7 +185,8 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
     }
     if (const Entry* en = find("elementnumberofchannels")) {
         const auto v = detail::toInt(en->value);
-        if (!v || *v < 1 || *v > 1024) fail(name, *en, "'ElementNumberOfChannels' with an integer in [1, 1024]");
+        if (!v || *v < 1 || *v > 1024)
+            fail(name, *en, "'ElementNumberOfChannels' with an integer in [1, 1024]");
         h.channels = static_cast<int>(*v);
     }
     if (const Entry* en = find("headersize")) {
@@ -193,7 +207,8 @@ SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
     const std::uint64_t size = fileSize(path);
     const std::vector<std::byte> prefixBytes =
         readFileRange(path, 0, std::min<std::uint64_t>(size, kMaxHeaderBytes));
-    const std::string_view prefix(reinterpret_cast<const char*>(prefixBytes.data()), prefixBytes.size());
+    const std::string_view prefix(reinterpret_cast<const char*>(prefixBytes.data()),
+                                  prefixBytes.size());
     const MetaImageHeader h = parseMetaImageHeader(prefix, name);
 
     if (h.nDims != 3 && h.nDims != 4) {
@@ -208,7 +223,8 @@ SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
     const auto n = static_cast<std::size_t>(h.nDims);
     for (std::size_t a = 0; a < 3; ++a) {
         if (h.dimSize[a] > std::numeric_limits<std::int32_t>::max()) {
-            throw ValueError(name + ": expected at most 2147483647 samples per spatial axis, found " +
+            throw ValueError(name +
+                             ": expected at most 2147483647 samples per spatial axis, found " +
                              std::to_string(h.dimSize[a]));
         }
     }
@@ -236,12 +252,17 @@ SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
         offset = h.headerBytes;
     } else {
         if (fileWord.rfind("list", 0) == 0) {
-            throw FormatError(name + ": expected 'ElementDataFile' LOCAL or a single file name, found LIST "
-                                     "(palp does not read multi-file MetaImages)");
+            throw FormatError(
+                name +
+                ": expected 'ElementDataFile' LOCAL or a single file name, found LIST "
+                "(palp does not read multi-file MetaImages)");
         }
-        if (h.elementDataFile.find('%') != std::string::npos && detail::words(h.elementDataFile).size() > 1) {
-            throw FormatError(name + ": expected 'ElementDataFile' LOCAL or a single file name, found the "
-                                     "printf-style multi-file form " + quoteFound(h.elementDataFile));
+        if (h.elementDataFile.find('%') != std::string::npos &&
+            detail::words(h.elementDataFile).size() > 1) {
+            throw FormatError(name +
+                              ": expected 'ElementDataFile' LOCAL or a single file name, found the "
+                              "printf-style multi-file form " +
+                              quoteFound(h.elementDataFile));
         }
         const fs::path df(h.elementDataFile);
         dataPath = df.is_absolute() ? df : path.parent_path() / df;
@@ -250,27 +271,32 @@ SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
     std::vector<float> values(static_cast<std::size_t>(volumeBytes / esize));
     const ByteOrder order = h.byteOrder;
     if (!h.binaryData) {
-        std::vector<float> all = readAsciiValues(dataPath, offset + static_cast<std::uint64_t>(std::max<std::int64_t>(h.headerSize, 0)),
-                                                 total / esize);
+        std::vector<float> all = readAsciiValues(
+            dataPath, offset + static_cast<std::uint64_t>(std::max<std::int64_t>(h.headerSize, 0)),
+            total / esize);
         const auto first = static_cast<std::ptrdiff_t>(volumeStart / esize);
-        std::copy(all.begin() + first, all.begin() + first + static_cast<std::ptrdiff_t>(values.size()), values.begin());
+        std::copy(all.begin() + first,
+                  all.begin() + first + static_cast<std::ptrdiff_t>(values.size()), values.begin());
     } else if (h.compressed) {
         if (h.headerSize == -1) {
             throw FormatError(name + ": expected 'HeaderSize' >= 0 with compressed data, found -1");
         }
         offset += static_cast<std::uint64_t>(h.headerSize);
         const std::vector<std::byte> bytes = inflateFileRange(
-            dataPath, offset, h.compressedDataSize.value_or(std::numeric_limits<std::uint64_t>::max()), total);
-        decodeElements(std::span<const std::byte>(bytes).subspan(static_cast<std::size_t>(volumeStart),
-                                                                  static_cast<std::size_t>(volumeBytes)),
-                       h.type, order, values);
+            dataPath, offset,
+            h.compressedDataSize.value_or(std::numeric_limits<std::uint64_t>::max()), total);
+        decodeElements(
+            std::span<const std::byte>(bytes).subspan(static_cast<std::size_t>(volumeStart),
+                                                      static_cast<std::size_t>(volumeBytes)),
+            h.type, order, values);
     } else {
         if (h.headerSize == -1) {
             const std::uint64_t fsz = fileSize(dataPath);
             if (fsz < offset + total) {
-                throw FormatError(dataPath.string() + ": expected " + std::to_string(total) +
-                                  " bytes of voxel data at the end of the file (HeaderSize -1), found " +
-                                  std::to_string(fsz > offset ? fsz - offset : 0));
+                throw FormatError(
+                    dataPath.string() + ": expected " + std::to_string(total) +
+                    " bytes of voxel data at the end of the file (HeaderSize -1), found " +
+                    std::to_string(fsz > offset ? fsz - offset : 0));
             }
             offset = fsz - total;
         } else {
@@ -283,7 +309,8 @@ SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
                               " bytes of voxel data after the header, found " +
                               std::to_string(fsz > offset ? fsz - offset : 0));
         }
-        const std::vector<std::byte> bytes = readFileRange(dataPath, offset + volumeStart, volumeBytes);
+        const std::vector<std::byte> bytes =
+            readFileRange(dataPath, offset + volumeStart, volumeBytes);
         decodeElements(bytes, h.type, order, values);
     }
 
@@ -292,7 +319,8 @@ SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
     stack.info.sourceFormat = "MetaImage";
     stack.info.sourceDescription = path.filename().string();
     stack.info.timePoint = t;
-    stack.info.timePointCount = static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
+    stack.info.timePointCount =
+        static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
     return stack;
 }
 

@@ -2,7 +2,6 @@
 #include <nifti2_io.h>
 
 #include <Eigen/Core>
-
 #include <array>
 #include <cmath>
 #include <cstring>
@@ -28,22 +27,34 @@ using NiftiPtr = std::unique_ptr<nifti_image, NiftiDeleter>;
 
 std::optional<ElementType> niftiType(int datatype) {
     switch (datatype) {
-        case DT_INT8: return ElementType::Int8;
-        case DT_UINT8: return ElementType::UInt8;
-        case DT_INT16: return ElementType::Int16;
-        case DT_UINT16: return ElementType::UInt16;
-        case DT_INT32: return ElementType::Int32;
-        case DT_UINT32: return ElementType::UInt32;
-        case DT_INT64: return ElementType::Int64;
-        case DT_UINT64: return ElementType::UInt64;
-        case DT_FLOAT32: return ElementType::Float32;
-        case DT_FLOAT64: return ElementType::Float64;
-        default: return std::nullopt;
+        case DT_INT8:
+            return ElementType::Int8;
+        case DT_UINT8:
+            return ElementType::UInt8;
+        case DT_INT16:
+            return ElementType::Int16;
+        case DT_UINT16:
+            return ElementType::UInt16;
+        case DT_INT32:
+            return ElementType::Int32;
+        case DT_UINT32:
+            return ElementType::UInt32;
+        case DT_INT64:
+            return ElementType::Int64;
+        case DT_UINT64:
+            return ElementType::UInt64;
+        case DT_FLOAT32:
+            return ElementType::Float32;
+        case DT_FLOAT64:
+            return ElementType::Float64;
+        default:
+            return std::nullopt;
     }
 }
 
 bool isGzipName(const std::string& s) {
-    return s.size() >= 3 && (s.compare(s.size() - 3, 3, ".gz") == 0 || s.compare(s.size() - 3, 3, ".GZ") == 0);
+    return s.size() >= 3 &&
+           (s.compare(s.size() - 3, 3, ".gz") == 0 || s.compare(s.size() - 3, 3, ".GZ") == 0);
 }
 
 /// nifticlib keeps global options; serialise our calls into it.
@@ -62,41 +73,47 @@ SliceStack readNifti(const fs::path& path, const LoadOptions& options) {
     nifti_set_debug_level(0);
     NiftiPtr nim(nifti_image_read(name.c_str(), 0));
     if (!nim) {
-        throw FormatError(name + ": expected a NIfTI-1 or NIfTI-2 header, found one nifticlib cannot read");
+        throw FormatError(
+            name + ": expected a NIfTI-1 or NIfTI-2 header, found one nifticlib cannot read");
     }
 
     const auto type = niftiType(nim->datatype);
     if (!type) {
-        throw FormatError(name + ": expected a scalar NIfTI datatype (int8..uint64, float32, float64), found datatype " +
-                          std::to_string(nim->datatype) + " (" + nifti_datatype_string(nim->datatype) + ")");
+        throw FormatError(
+            name +
+            ": expected a scalar NIfTI datatype (int8..uint64, float32, float64), found datatype " +
+            std::to_string(nim->datatype) + " (" + nifti_datatype_string(nim->datatype) + ")");
     }
     if (static_cast<std::size_t>(nim->nbyper) != elementSize(*type)) {
-        throw FormatError(name + ": expected " + std::to_string(elementSize(*type)) + " bytes per voxel for " +
-                          elementTypeName(*type) + ", found " + std::to_string(nim->nbyper));
+        throw FormatError(name + ": expected " + std::to_string(elementSize(*type)) +
+                          " bytes per voxel for " + elementTypeName(*type) + ", found " +
+                          std::to_string(nim->nbyper));
     }
     const std::int64_t ndim = nim->dim[0];
     if (ndim < 1 || ndim > 7) {
-        throw FormatError(name + ": expected dim[0] between 1 and 7, found " + std::to_string(ndim));
+        throw FormatError(name + ": expected dim[0] between 1 and 7, found " +
+                          std::to_string(ndim));
     }
     std::vector<std::int64_t> dims;
     for (std::int64_t d = 1; d <= 7; ++d) dims.push_back(d <= ndim ? nim->dim[d] : 1);
     for (std::size_t d = 0; d < dims.size(); ++d) {
         if (dims[d] <= 0) {
-            throw FormatError(name + ": expected positive dimensions, found dim[" + std::to_string(d + 1) +
-                              "] = " + std::to_string(dims[d]));
+            throw FormatError(name + ": expected positive dimensions, found dim[" +
+                              std::to_string(d + 1) + "] = " + std::to_string(dims[d]));
         }
     }
     for (std::size_t a = 0; a < 3; ++a) {
         if (dims[a] > std::numeric_limits<std::int32_t>::max()) {
-            throw ValueError(name + ": expected at most 2147483647 samples per spatial axis, found " +
+            throw ValueError(name +
+                             ": expected at most 2147483647 samples per spatial axis, found " +
                              std::to_string(dims[a]));
         }
     }
     const std::uint64_t esize = elementSize(*type);
     const std::uint64_t total = checkedDataBytes(dims, esize, options.maxSourceBytes, name);
     if (static_cast<std::uint64_t>(nim->nvox) * esize != total) {
-        throw FormatError(name + ": expected " + std::to_string(total / esize) + " voxels from the dimensions, found nvox " +
-                          std::to_string(nim->nvox));
+        throw FormatError(name + ": expected " + std::to_string(total / esize) +
+                          " voxels from the dimensions, found nvox " + std::to_string(nim->nvox));
     }
     // dims[3..6] are time and other non-spatial axes, stored as consecutive 3D volumes.
     std::int64_t volumeCount = 1;
@@ -111,7 +128,8 @@ SliceStack readNifti(const fs::path& path, const LoadOptions& options) {
         const std::uint64_t avail = isize > off ? isize - off : 0;
         if (avail < total) {
             throw FormatError(iname + ": expected " + std::to_string(total) +
-                              " bytes of voxel data after the header, found " + std::to_string(avail));
+                              " bytes of voxel data after the header, found " +
+                              std::to_string(avail));
         }
     }
 
@@ -130,9 +148,14 @@ SliceStack readNifti(const fs::path& path, const LoadOptions& options) {
     }
     double unit = 1e-3;  // millimetres unless the header says otherwise
     switch (nim->xyz_units) {
-        case NIFTI_UNITS_METER: unit = 1; break;
-        case NIFTI_UNITS_MICRON: unit = 1e-6; break;
-        default: break;
+        case NIFTI_UNITS_METER:
+            unit = 1;
+            break;
+        case NIFTI_UNITS_MICRON:
+            unit = 1e-6;
+            break;
+        default:
+            break;
     }
     Eigen::Matrix3d axes = ras.topLeftCorner<3, 3>() * unit;
     Eigen::Vector3d origin = ras.topRightCorner<3, 1>() * unit;
@@ -141,7 +164,8 @@ SliceStack readNifti(const fs::path& path, const LoadOptions& options) {
     origin[0] *= -1;
     origin[1] *= -1;
     if (!axes.allFinite() || !origin.allFinite()) {
-        throw FormatError(name + ": expected a finite orientation (sform/qform/pixdim), found non-finite values");
+        throw FormatError(
+            name + ": expected a finite orientation (sform/qform/pixdim), found non-finite values");
     }
 
     const double slope = nim->scl_slope;
@@ -153,15 +177,18 @@ SliceStack readNifti(const fs::path& path, const LoadOptions& options) {
     const int niftiKind = nim->nifti_type;
 
     if (nifti_image_load(nim.get()) != 0 || !nim->data) {
-        throw FormatError(name + ": expected " + std::to_string(total) +
-                          " bytes of voxel data after the header, found a shorter or unreadable data stream");
+        throw FormatError(
+            name + ": expected " + std::to_string(total) +
+            " bytes of voxel data after the header, found a shorter or unreadable data stream");
     }
     const std::uint64_t volumeBytes = total / static_cast<std::uint64_t>(volumeCount);
     const std::uint64_t start = t > 0 ? static_cast<std::uint64_t>(t) * volumeBytes : 0;
     std::vector<float> values(static_cast<std::size_t>(volumeBytes / esize));
-    const std::span<const std::byte> all(static_cast<const std::byte*>(nim->data), static_cast<std::size_t>(total));
-    decodeElements(all.subspan(static_cast<std::size_t>(start), static_cast<std::size_t>(volumeBytes)), *type,
-                   nativeByteOrder(), values);  // nifticlib swapped to native order
+    const std::span<const std::byte> all(static_cast<const std::byte*>(nim->data),
+                                         static_cast<std::size_t>(total));
+    decodeElements(
+        all.subspan(static_cast<std::size_t>(start), static_cast<std::size_t>(volumeBytes)), *type,
+        nativeByteOrder(), values);  // nifticlib swapped to native order
     nim.reset();
     lock.unlock();
 
@@ -171,12 +198,15 @@ SliceStack readNifti(const fs::path& path, const LoadOptions& options) {
 
     const std::array<std::int64_t, 3> dims3{dims[0], dims[1], dims[2]};
     SliceStack stack = stackFromAffine(values, dims3, axes, origin, name);
-    stack.info.sourceFormat = niftiKind >= NIFTI_FTYPE_NIFTI2_1 ? "NIfTI-2"
+    stack.info.sourceFormat = niftiKind >= NIFTI_FTYPE_NIFTI2_1  ? "NIfTI-2"
                               : niftiKind == NIFTI_FTYPE_ANALYZE ? "Analyze 7.5"
                                                                  : "NIfTI-1";
-    stack.info.sourceDescription = detail::trim(description).empty() ? path.filename().string() : std::string(detail::trim(description));
+    stack.info.sourceDescription = detail::trim(description).empty()
+                                       ? path.filename().string()
+                                       : std::string(detail::trim(description));
     stack.info.timePoint = t;
-    stack.info.timePointCount = static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
+    stack.info.timePointCount =
+        static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
     if (rescale) {
         stack.info.rescaleSlope = slope;
         stack.info.rescaleIntercept = inter;

@@ -1,7 +1,6 @@
 // NRRD reader: palp's own header parser (teem's format description, NRRD0001..NRRD0005) and
 // raw/gzip/ascii data, attached or detached.
 #include <Eigen/Core>
-
 #include <array>
 #include <cmath>
 #include <limits>
@@ -77,13 +76,46 @@ std::optional<ElementType> nrrdType(const std::string& t) {
 
 /// Fields palp reads or knowingly ignores; anything else is refused.
 bool knownField(const std::string& key) {
-    static const char* const kKnown[] = {
-        "dimension", "type", "sizes", "endian", "encoding", "content", "block size", "blocksize",
-        "space", "space dimension", "space directions", "space origin", "space units", "spacings",
-        "thicknesses", "axis mins", "axismins", "axis maxs", "axismaxs", "centers", "centerings",
-        "labels", "units", "kinds", "min", "max", "old min", "oldmin", "old max", "oldmax",
-        "data file", "datafile", "line skip", "lineskip", "byte skip", "byteskip", "number",
-        "sample units", "sampleunits", "measurement frame"};
+    static const char* const kKnown[] = {"dimension",
+                                         "type",
+                                         "sizes",
+                                         "endian",
+                                         "encoding",
+                                         "content",
+                                         "block size",
+                                         "blocksize",
+                                         "space",
+                                         "space dimension",
+                                         "space directions",
+                                         "space origin",
+                                         "space units",
+                                         "spacings",
+                                         "thicknesses",
+                                         "axis mins",
+                                         "axismins",
+                                         "axis maxs",
+                                         "axismaxs",
+                                         "centers",
+                                         "centerings",
+                                         "labels",
+                                         "units",
+                                         "kinds",
+                                         "min",
+                                         "max",
+                                         "old min",
+                                         "oldmin",
+                                         "old max",
+                                         "oldmax",
+                                         "data file",
+                                         "datafile",
+                                         "line skip",
+                                         "lineskip",
+                                         "byte skip",
+                                         "byteskip",
+                                         "number",
+                                         "sample units",
+                                         "sampleunits",
+                                         "measurement frame"};
     for (const char* k : kKnown) {
         if (key == k) return true;
     }
@@ -91,8 +123,9 @@ bool knownField(const std::string& key) {
 }
 
 class Parser {
-public:
-    Parser(const std::map<std::string, Field>& fields, const std::string& name) : mFields(fields), mName(name) {}
+  public:
+    Parser(const std::map<std::string, Field>& fields, const std::string& name)
+        : mFields(fields), mName(name) {}
 
     const Field* find(const char* a, const char* b = nullptr) const {
         auto it = mFields.find(a);
@@ -104,15 +137,18 @@ public:
         return nullptr;
     }
 
-    [[noreturn]] void fail(const Field& f, const std::string& key, const std::string& expected) const {
-        throw FormatError(mName + ": line " + std::to_string(f.line) + ": expected '" + key + "' " + expected +
-                          ", found " + quoteFound(f.value));
+    [[noreturn]] void fail(const Field& f, const std::string& key,
+                           const std::string& expected) const {
+        throw FormatError(mName + ": line " + std::to_string(f.line) + ": expected '" + key + "' " +
+                          expected + ", found " + quoteFound(f.value));
     }
 
-    std::int64_t integer(const Field& f, const std::string& key, std::int64_t lo, std::int64_t hi) const {
+    std::int64_t integer(const Field& f, const std::string& key, std::int64_t lo,
+                         std::int64_t hi) const {
         const auto v = detail::toInt(f.value);
         if (!v || *v < lo || *v > hi) {
-            fail(f, key, "with an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+            fail(f, key,
+                 "with an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
         }
         return *v;
     }
@@ -126,7 +162,8 @@ public:
             if (!v) fail(f, key, "with " + std::to_string(n) + " numbers");
             out.push_back(*v);
         }
-        if (static_cast<int>(out.size()) != n) fail(f, key, "with " + std::to_string(n) + " numbers");
+        if (static_cast<int>(out.size()) != n)
+            fail(f, key, "with " + std::to_string(n) + " numbers");
         return out;
     }
 
@@ -151,7 +188,8 @@ public:
         std::size_t b = 0;
         for (;;) {
             const std::size_t comma = inner.find(',', b);
-            const auto v = detail::toDouble(inner.substr(b, comma == std::string_view::npos ? inner.size() - b : comma - b));
+            const auto v = detail::toDouble(
+                inner.substr(b, comma == std::string_view::npos ? inner.size() - b : comma - b));
             if (!v) return std::nullopt;
             out.push_back(*v);
             if (comma == std::string_view::npos) break;
@@ -162,13 +200,14 @@ public:
         return out;
     }
 
-private:
+  private:
     const std::map<std::string, Field>& mFields;
     const std::string& mName;
 };
 
 bool nonSpatialKind(const std::string& kind) {
-    return !(kind.empty() || kind == "domain" || kind == "space" || kind == "???" || kind == "none");
+    return !(kind.empty() || kind == "domain" || kind == "space" || kind == "???" ||
+             kind == "none");
 }
 
 }  // namespace
@@ -189,7 +228,8 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
     };
 
     std::string_view line;
-    if (!nextLine(line) || line.size() != 8 || line.substr(0, 7) != "NRRD000" || line[7] < '1' || line[7] > '5') {
+    if (!nextLine(line) || line.size() != 8 || line.substr(0, 7) != "NRRD000" || line[7] < '1' ||
+        line[7] > '5') {
         throw FormatError(name + ": line 1: expected the magic 'NRRD0001' to 'NRRD0005', found " +
                           quoteFound(line.substr(0, std::min<std::size_t>(line.size(), 16))));
     }
@@ -204,20 +244,22 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
         if (line.front() == '#') continue;
         const std::size_t kv = line.find(":=");
         const std::size_t colon = line.find(": ");
-        if (kv != std::string_view::npos && (colon == std::string_view::npos || kv < colon)) continue;
+        if (kv != std::string_view::npos && (colon == std::string_view::npos || kv < colon))
+            continue;
         if (colon == std::string_view::npos) {
-            throw FormatError(name + ": line " + std::to_string(lineNo) +
-                              ": expected a 'field: value' line, a 'key:=value' pair or a '#' comment, found " +
-                              quoteFound(line));
+            throw FormatError(
+                name + ": line " + std::to_string(lineNo) +
+                ": expected a 'field: value' line, a 'key:=value' pair or a '#' comment, found " +
+                quoteFound(line));
         }
         const std::string key = lower(trim(line.substr(0, colon)));
         if (!knownField(key)) {
-            throw FormatError(name + ": line " + std::to_string(lineNo) + ": expected a NRRD field, found " +
-                              quoteFound(key));
+            throw FormatError(name + ": line " + std::to_string(lineNo) +
+                              ": expected a NRRD field, found " + quoteFound(key));
         }
         if (fields.count(key) != 0) {
-            throw FormatError(name + ": line " + std::to_string(lineNo) + ": expected each field once, found '" +
-                              key + "' again");
+            throw FormatError(name + ": line " + std::to_string(lineNo) +
+                              ": expected each field once, found '" + key + "' again");
         }
         fields[key] = Field{std::string(trim(line.substr(colon + 2))), lineNo};
     }
@@ -227,7 +269,8 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
     auto require = [&](const char* key, const char* alt = nullptr) -> const Field& {
         const Field* f = p.find(key, alt);
         if (!f) {
-            throw FormatError(name + ": expected a '" + std::string(key) + "' field in the NRRD header, found none");
+            throw FormatError(name + ": expected a '" + std::string(key) +
+                              "' field in the NRRD header, found none");
         }
         return *f;
     };
@@ -239,18 +282,22 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
     const Field& fType = require("type");
     const auto type = nrrdType(lower(fType.value));
     if (!type) {
-        p.fail(fType, "type", "with a scalar type (int8, uint8, int16, uint16, int32, uint32, int64, uint64, float, "
-                              "double or a C spelling of them)");
+        p.fail(
+            fType, "type",
+            "with a scalar type (int8, uint8, int16, uint16, int32, uint32, int64, uint64, float, "
+            "double or a C spelling of them)");
     }
     h.type = *type;
 
     const Field& fSizes = require("sizes");
     for (const auto& tok : detail::words(fSizes.value)) {
         const auto v = detail::toInt(tok);
-        if (!v || *v <= 0) p.fail(fSizes, "sizes", "with " + std::to_string(n) + " positive integers");
+        if (!v || *v <= 0)
+            p.fail(fSizes, "sizes", "with " + std::to_string(n) + " positive integers");
         h.sizes.push_back(*v);
     }
-    if (static_cast<int>(h.sizes.size()) != n) p.fail(fSizes, "sizes", "with " + std::to_string(n) + " positive integers");
+    if (static_cast<int>(h.sizes.size()) != n)
+        p.fail(fSizes, "sizes", "with " + std::to_string(n) + " positive integers");
 
     const Field& fEnc = require("encoding");
     h.encodingGiven = true;
@@ -278,8 +325,9 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
         }
         h.endianGiven = true;
     } else if (elementSize(h.type) > 1 && h.encoding != NrrdEncoding::Ascii) {
-        throw FormatError(name + ": expected an 'endian' field for type " + elementTypeName(h.type) +
-                          " with " + lower(fEnc.value) + " encoding, found none");
+        throw FormatError(name + ": expected an 'endian' field for type " +
+                          elementTypeName(h.type) + " with " + lower(fEnc.value) +
+                          " encoding, found none");
     }
 
     if (const Field* f = p.find("content")) h.content = f->value;
@@ -315,15 +363,17 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
             }
         }
         if (!found) {
-            p.fail(*f, "space", "with right-anterior-superior, left-anterior-superior, left-posterior-superior "
-                                "(or RAS, LAS, LPS, their -time variants), 3D-right-handed or scanner-xyz");
+            p.fail(*f, "space",
+                   "with right-anterior-superior, left-anterior-superior, left-posterior-superior "
+                   "(or RAS, LAS, LPS, their -time variants), 3D-right-handed or scanner-xyz");
         }
     }
     if (const Field* f = p.find("space dimension")) {
         const auto d = static_cast<int>(p.integer(*f, "space dimension", 3, 4));
         if (h.spaceDimension != 0 && d != h.spaceDimension) {
-            p.fail(*f, "space dimension", "equal to the dimension of space '" + h.space + "' (" +
-                                              std::to_string(h.spaceDimension) + ")");
+            p.fail(*f, "space dimension",
+                   "equal to the dimension of space '" + h.space + "' (" +
+                       std::to_string(h.spaceDimension) + ")");
         }
         h.spaceDimension = d;
     }
@@ -343,8 +393,9 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
             }
             const auto v = p.vector(s, q, h.spaceDimension);
             if (!v) {
-                p.fail(*f, "space directions", "with " + std::to_string(n) + " vectors of " +
-                                                   std::to_string(h.spaceDimension) + " numbers or 'none'");
+                p.fail(*f, "space directions",
+                       "with " + std::to_string(n) + " vectors of " +
+                           std::to_string(h.spaceDimension) + " numbers or 'none'");
             }
             const Eigen::Vector3d d((*v)[0], (*v)[1], (*v)[2]);
             if (!d.allFinite()) p.fail(*f, "space directions", "with finite vectors");
@@ -355,17 +406,20 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
         }
     }
     if (const Field* f = p.find("space origin")) {
-        if (h.spaceDimension == 0) p.fail(*f, "space origin", "after a 'space' or 'space dimension' field");
+        if (h.spaceDimension == 0)
+            p.fail(*f, "space origin", "after a 'space' or 'space dimension' field");
         std::size_t q = 0;
         const auto v = p.vector(f->value, q, h.spaceDimension);
         if (!v || !trim(std::string_view(f->value).substr(q)).empty()) {
-            p.fail(*f, "space origin", "with one vector of " + std::to_string(h.spaceDimension) + " numbers");
+            p.fail(*f, "space origin",
+                   "with one vector of " + std::to_string(h.spaceDimension) + " numbers");
         }
         h.spaceOrigin = Eigen::Vector3d((*v)[0], (*v)[1], (*v)[2]);
         if (!h.spaceOrigin->allFinite()) p.fail(*f, "space origin", "with finite numbers");
     }
     if (const Field* f = p.find("space units")) {
-        if (h.spaceDimension == 0) p.fail(*f, "space units", "after a 'space' or 'space dimension' field");
+        if (h.spaceDimension == 0)
+            p.fail(*f, "space units", "after a 'space' or 'space dimension' field");
         std::vector<std::string> units;
         std::string_view s = f->value;
         std::size_t q = 0;
@@ -395,20 +449,25 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
             } else {
                 p.fail(*f, "space units", "with mm, cm, m or um");
             }
-            if (i > 0 && s1 != scale) p.fail(*f, "space units", "with the same unit on all three axes");
+            if (i > 0 && s1 != scale)
+                p.fail(*f, "space units", "with the same unit on all three axes");
             scale = s1;
         }
         h.spaceUnitsToMetres = scale;
     }
 
     const double nan = std::numeric_limits<double>::quiet_NaN();
-    h.spacings = p.find("spacings") ? p.doubles(*p.find("spacings"), "spacings", n) : std::vector<double>(static_cast<std::size_t>(n), nan);
+    h.spacings = p.find("spacings") ? p.doubles(*p.find("spacings"), "spacings", n)
+                                    : std::vector<double>(static_cast<std::size_t>(n), nan);
     const Field* fMin = p.find("axis mins", "axismins");
-    h.axisMins = fMin ? p.doubles(*fMin, "axis mins", n) : std::vector<double>(static_cast<std::size_t>(n), nan);
+    h.axisMins = fMin ? p.doubles(*fMin, "axis mins", n)
+                      : std::vector<double>(static_cast<std::size_t>(n), nan);
     const Field* fMax = p.find("axis maxs", "axismaxs");
-    h.axisMaxs = fMax ? p.doubles(*fMax, "axis maxs", n) : std::vector<double>(static_cast<std::size_t>(n), nan);
+    h.axisMaxs = fMax ? p.doubles(*fMax, "axis maxs", n)
+                      : std::vector<double>(static_cast<std::size_t>(n), nan);
     if (const Field* f = p.find("thicknesses")) (void)p.doubles(*f, "thicknesses", n);
-    if (const Field* f = p.find("centerings", "centers")) h.centerings = p.strings(*f, "centerings", n);
+    if (const Field* f = p.find("centerings", "centers"))
+        h.centerings = p.strings(*f, "centerings", n);
     if (const Field* f = p.find("kinds")) {
         // Kinds may be quoted and may contain spaces in theory ("2D-symmetric-matrix" has none);
         // palp only needs to tell spatial from non-spatial axes.
@@ -421,7 +480,8 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
             p.fail(*f, "data file", "with a single file name (palp does not read the LIST form)");
         }
         if (v.find('%') != std::string::npos && detail::words(v).size() > 1) {
-            p.fail(*f, "data file", "with a single file name (palp does not read the printf-style multi-file form)");
+            p.fail(*f, "data file",
+                   "with a single file name (palp does not read the printf-style multi-file form)");
         }
         h.dataFile = v;
     }
@@ -442,7 +502,8 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
     const std::uint64_t size = fileSize(path);
     const std::vector<std::byte> prefixBytes =
         readFileRange(path, 0, std::min<std::uint64_t>(size, kMaxHeaderBytes));
-    const std::string_view prefix(reinterpret_cast<const char*>(prefixBytes.data()), prefixBytes.size());
+    const std::string_view prefix(reinterpret_cast<const char*>(prefixBytes.data()),
+                                  prefixBytes.size());
     const NrrdHeader h = parseNrrdHeader(prefix, name);
     const int n = h.dimension;
     const auto un = static_cast<std::size_t>(n);
@@ -477,8 +538,11 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
         const std::int64_t s = h.sizes[static_cast<std::size_t>(a)];
         if (s > 1) {
             if (volumeAxis >= 0) {
-                throw FormatError(name + ": expected at most one non-spatial axis with more than one sample, "
-                                         "found axes " + std::to_string(volumeAxis) + " and " + std::to_string(a));
+                throw FormatError(
+                    name +
+                    ": expected at most one non-spatial axis with more than one sample, "
+                    "found axes " +
+                    std::to_string(volumeAxis) + " and " + std::to_string(a));
             }
             volumeAxis = a;
             volumeCount = s;
@@ -487,7 +551,8 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
     const int t = detail::chooseTimePoint(volumeCount, options, name);
     for (const int a : spatial) {
         if (h.sizes[static_cast<std::size_t>(a)] > std::numeric_limits<std::int32_t>::max()) {
-            throw ValueError(name + ": expected at most 2147483647 samples per spatial axis, found " +
+            throw ValueError(name +
+                             ": expected at most 2147483647 samples per spatial axis, found " +
                              std::to_string(h.sizes[static_cast<std::size_t>(a)]));
         }
     }
@@ -498,7 +563,8 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
     const double unit = h.spaceUnitsToMetres;
     if (!h.spaceDirections.empty()) {
         for (int c = 0; c < 3; ++c) {
-            const Eigen::Vector3d& d = *h.spaceDirections[static_cast<std::size_t>(spatial[static_cast<std::size_t>(c)])];
+            const Eigen::Vector3d& d =
+                *h.spaceDirections[static_cast<std::size_t>(spatial[static_cast<std::size_t>(c)])];
             axes.col(c) = d.cwiseProduct(h.toLps) * unit;
         }
         if (h.spaceOrigin) origin = h.spaceOrigin->cwiseProduct(h.toLps) * unit;
@@ -512,7 +578,8 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
                 step = h.spacings[a];
             } else if (std::isfinite(h.axisMins[a]) && std::isfinite(h.axisMaxs[a])) {
                 const double intervals = cell ? samples : samples - 1;
-                if (intervals > 0 && h.axisMaxs[a] != h.axisMins[a]) step = (h.axisMaxs[a] - h.axisMins[a]) / intervals;
+                if (intervals > 0 && h.axisMaxs[a] != h.axisMins[a])
+                    step = (h.axisMaxs[a] - h.axisMins[a]) / intervals;
             }
             double start = 0;
             if (std::isfinite(h.axisMins[a])) start = h.axisMins[a] + (cell ? 0.5 * step : 0.0);
@@ -521,7 +588,8 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
         }
     }
     if (!axes.allFinite() || !origin.allFinite()) {
-        throw FormatError(name + ": expected finite space directions and origin, found non-finite values");
+        throw FormatError(name +
+                          ": expected finite space directions and origin, found non-finite values");
     }
 
     // Voxel data.
@@ -529,8 +597,11 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
     std::uint64_t offset = 0;
     if (h.dataFile.empty()) {
         if (!h.blankLineEnd) {
-            throw FormatError(name + ": expected an empty line ending the header before the attached data, found " +
-                              (prefix.size() >= kMaxHeaderBytes ? "none in the first 1 MiB" : "the end of the file"));
+            throw FormatError(
+                name +
+                ": expected an empty line ending the header before the attached data, found " +
+                (prefix.size() >= kMaxHeaderBytes ? "none in the first 1 MiB"
+                                                  : "the end of the file"));
         }
         offset = h.headerBytes;
     } else {
@@ -547,9 +618,10 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
             if (h.byteSkip == -1) {
                 const std::uint64_t fsz = fileSize(dataPath);
                 if (fsz < offset + total) {
-                    throw FormatError(dataPath.string() + ": expected " + std::to_string(total) +
-                                      " bytes of voxel data at the end of the file (byte skip -1), found " +
-                                      std::to_string(fsz > offset ? fsz - offset : 0));
+                    throw FormatError(
+                        dataPath.string() + ": expected " + std::to_string(total) +
+                        " bytes of voxel data at the end of the file (byte skip -1), found " +
+                        std::to_string(fsz > offset ? fsz - offset : 0));
                 }
                 offset = fsz - total;
             } else {
@@ -562,21 +634,28 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
             const auto skip = static_cast<std::uint64_t>(h.byteSkip);
             if (skip > options.maxSourceBytes - total) {
                 throw ValueError(name + ": expected a byte skip of at most " +
-                                 std::to_string(options.maxSourceBytes - total) + ", found " + std::to_string(skip));
+                                 std::to_string(options.maxSourceBytes - total) + ", found " +
+                                 std::to_string(skip));
             }
-            bytes = inflateFileRange(dataPath, offset, std::numeric_limits<std::uint64_t>::max(), total + skip);
+            bytes = inflateFileRange(dataPath, offset, std::numeric_limits<std::uint64_t>::max(),
+                                     total + skip);
             dataStart = skip;
             break;
         }
         case NrrdEncoding::Ascii:
-            asciiValues = readAsciiValues(dataPath, offset + static_cast<std::uint64_t>(std::max<std::int64_t>(h.byteSkip, 0)), count);
+            asciiValues = readAsciiValues(
+                dataPath,
+                offset + static_cast<std::uint64_t>(std::max<std::int64_t>(h.byteSkip, 0)), count);
             break;
     }
 
     // Gather the chosen volume with the spatial axes in file order (first spatial axis fastest).
     std::vector<std::uint64_t> stride(un, 1);
-    for (std::size_t a = 1; a < un; ++a) stride[a] = stride[a - 1] * static_cast<std::uint64_t>(h.sizes[a - 1]);
-    const std::uint64_t base = volumeAxis >= 0 ? static_cast<std::uint64_t>(t) * stride[static_cast<std::size_t>(volumeAxis)] : 0;
+    for (std::size_t a = 1; a < un; ++a)
+        stride[a] = stride[a - 1] * static_cast<std::uint64_t>(h.sizes[a - 1]);
+    const std::uint64_t base = volumeAxis >= 0 ? static_cast<std::uint64_t>(t) *
+                                                     stride[static_cast<std::size_t>(volumeAxis)]
+                                               : 0;
     std::array<std::int64_t, 3> dims{};
     std::array<std::uint64_t, 3> st{};
     for (std::size_t c = 0; c < 3; ++c) {
@@ -596,13 +675,16 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
             const std::uint64_t rowStart = base + j * st[1] + k * st[2];
             std::span<float> dst(values.data() + out, static_cast<std::size_t>(nx));
             if (h.encoding == NrrdEncoding::Ascii) {
-                for (std::uint64_t i = 0; i < nx; ++i) dst[i] = asciiValues[static_cast<std::size_t>(rowStart + i * st[0])];
+                for (std::uint64_t i = 0; i < nx; ++i)
+                    dst[i] = asciiValues[static_cast<std::size_t>(rowStart + i * st[0])];
             } else if (st[0] == 1) {
-                decodeElements(all.subspan(static_cast<std::size_t>(dataStart + rowStart * esize), static_cast<std::size_t>(nx * esize)),
+                decodeElements(all.subspan(static_cast<std::size_t>(dataStart + rowStart * esize),
+                                           static_cast<std::size_t>(nx * esize)),
                                h.type, order, dst);
             } else {
                 for (std::uint64_t i = 0; i < nx; ++i) {
-                    decodeElements(all.subspan(static_cast<std::size_t>(dataStart + (rowStart + i * st[0]) * esize),
+                    decodeElements(all.subspan(static_cast<std::size_t>(
+                                                   dataStart + (rowStart + i * st[0]) * esize),
                                                static_cast<std::size_t>(esize)),
                                    h.type, order, dst.subspan(static_cast<std::size_t>(i), 1));
                 }
@@ -617,7 +699,8 @@ SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
     stack.info.sourceFormat = "NRRD";
     stack.info.sourceDescription = h.content.empty() ? path.filename().string() : h.content;
     stack.info.timePoint = t;
-    stack.info.timePointCount = static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
+    stack.info.timePointCount =
+        static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
     return stack;
 }
 

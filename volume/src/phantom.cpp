@@ -1,9 +1,9 @@
 #include "palp/volume/phantom.h"
 
-#include <Eigen/Geometry>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -41,7 +41,8 @@ void requirePositive(double v, const char* what) {
 
 void requireNonNegative(double v, const char* what) {
     if (!(v >= 0) || !std::isfinite(v)) {
-        throw ValueError(std::string("phantom: expected a non-negative ") + what + ", found " + num(v));
+        throw ValueError(std::string("phantom: expected a non-negative ") + what + ", found " +
+                         num(v));
     }
 }
 
@@ -78,8 +79,9 @@ std::vector<double> gaussianKernel(double sigmaSteps) {
 
 // One pass of a separable convolution with edge clamping: n lines of length len, element
 // (line, i) at data[line * lineStride + i * step].
-void convolveLines(std::vector<double>& data, std::vector<double>& scratch, const std::vector<double>& kernel,
-                   int lines, int len, std::size_t lineStride, std::size_t step) {
+void convolveLines(std::vector<double>& data, std::vector<double>& scratch,
+                   const std::vector<double>& kernel, int lines, int len, std::size_t lineStride,
+                   std::size_t step) {
     const int radius = static_cast<int>(kernel.size() / 2);
     scratch.resize(static_cast<std::size_t>(len));
     for (int l = 0; l < lines; ++l) {
@@ -88,7 +90,8 @@ void convolveLines(std::vector<double>& data, std::vector<double>& scratch, cons
             double acc = 0;
             for (int j = -radius; j <= radius; ++j) {
                 const int s = std::clamp(i + j, 0, len - 1);
-                acc += kernel[static_cast<std::size_t>(j + radius)] * data[base + static_cast<std::size_t>(s) * step];
+                acc += kernel[static_cast<std::size_t>(j + radius)] *
+                       data[base + static_cast<std::size_t>(s) * step];
             }
             scratch[static_cast<std::size_t>(i)] = acc;
         }
@@ -105,98 +108,131 @@ double transitionProfile(TransitionProfile profile, double x, double width, doub
     if (x >= width) return 1;
     const double t = x / width;
     switch (profile) {
-        case TransitionProfile::Linear: return t;
-        case TransitionProfile::Cosine: return 0.5 * (1.0 - std::cos(kPi * t));
+        case TransitionProfile::Linear:
+            return t;
+        case TransitionProfile::Cosine:
+            return 0.5 * (1.0 - std::cos(kPi * t));
         case TransitionProfile::Tanh:
-            return 0.5 * (std::tanh(tanhSharpness * (2.0 * t - 1.0)) / std::tanh(tanhSharpness) + 1.0);
+            return 0.5 *
+                   (std::tanh(tanhSharpness * (2.0 * t - 1.0)) / std::tanh(tanhSharpness) + 1.0);
     }
     return t;
 }
 
 const char* sceneName(PhantomScene scene) {
     switch (scene) {
-        case PhantomScene::Avc: return "avc";
-        case PhantomScene::Avcec: return "avcec";
-        case PhantomScene::Bone: return "bone";
-        case PhantomScene::Stiffness: return "stiffness";
+        case PhantomScene::Avc:
+            return "avc";
+        case PhantomScene::Avcec:
+            return "avcec";
+        case PhantomScene::Bone:
+            return "bone";
+        case PhantomScene::Stiffness:
+            return "stiffness";
     }
     return "unknown";
 }
 
 const char* shapeName(PlateShape shape) {
     switch (shape) {
-        case PlateShape::Circle: return "circle";
-        case PlateShape::Triangle: return "triangle";
-        case PlateShape::Rectangle: return "rectangle";
-        case PlateShape::Hexagon: return "hexagon";
-        case PlateShape::Pentagon: return "pentagon";
+        case PlateShape::Circle:
+            return "circle";
+        case PlateShape::Triangle:
+            return "triangle";
+        case PlateShape::Rectangle:
+            return "rectangle";
+        case PlateShape::Hexagon:
+            return "hexagon";
+        case PlateShape::Pentagon:
+            return "pentagon";
     }
     return "unknown";
 }
 
 const char* profileName(TransitionProfile profile) {
     switch (profile) {
-        case TransitionProfile::Linear: return "linear";
-        case TransitionProfile::Cosine: return "cosine";
-        case TransitionProfile::Tanh: return "tanh";
+        case TransitionProfile::Linear:
+            return "linear";
+        case TransitionProfile::Cosine:
+            return "cosine";
+        case TransitionProfile::Tanh:
+            return "tanh";
     }
     return "unknown";
 }
 
 PhantomScene parseScene(std::string_view name) {
-    for (PhantomScene s : {PhantomScene::Avc, PhantomScene::Avcec, PhantomScene::Bone, PhantomScene::Stiffness}) {
+    for (PhantomScene s :
+         {PhantomScene::Avc, PhantomScene::Avcec, PhantomScene::Bone, PhantomScene::Stiffness}) {
         if (name == sceneName(s)) return s;
     }
-    throw ValueError("phantom scene: expected avc, avcec, bone or stiffness, found '" + std::string(name) + "'");
-}
-
-PlateShape parseShape(std::string_view name) {
-    for (PlateShape s : {PlateShape::Circle, PlateShape::Triangle, PlateShape::Rectangle, PlateShape::Hexagon,
-                         PlateShape::Pentagon}) {
-        if (name == shapeName(s)) return s;
-    }
-    throw ValueError("phantom shape: expected circle, triangle, rectangle, hexagon or pentagon, found '" +
+    throw ValueError("phantom scene: expected avc, avcec, bone or stiffness, found '" +
                      std::string(name) + "'");
 }
 
+PlateShape parseShape(std::string_view name) {
+    for (PlateShape s : {PlateShape::Circle, PlateShape::Triangle, PlateShape::Rectangle,
+                         PlateShape::Hexagon, PlateShape::Pentagon}) {
+        if (name == shapeName(s)) return s;
+    }
+    throw ValueError(
+        "phantom shape: expected circle, triangle, rectangle, hexagon or pentagon, found '" +
+        std::string(name) + "'");
+}
+
 TransitionProfile parseProfile(std::string_view name) {
-    for (TransitionProfile p : {TransitionProfile::Linear, TransitionProfile::Cosine, TransitionProfile::Tanh}) {
+    for (TransitionProfile p :
+         {TransitionProfile::Linear, TransitionProfile::Cosine, TransitionProfile::Tanh}) {
         if (name == profileName(p)) return p;
     }
-    throw ValueError("phantom profile: expected linear, cosine or tanh, found '" + std::string(name) + "'");
+    throw ValueError("phantom profile: expected linear, cosine or tanh, found '" +
+                     std::string(name) + "'");
 }
 
 Phantom::Phantom(const PhantomParams& params) : mParams(params) {
     if (params.quadrant < 0 || params.quadrant > 3) {
-        throw ValueError("phantom quadrant: expected 0, 1, 2 or 3, found " + std::to_string(params.quadrant));
+        throw ValueError("phantom quadrant: expected 0, 1, 2 or 3, found " +
+                         std::to_string(params.quadrant));
     }
     if (params.displacement < -1 || params.displacement > 1) {
-        throw ValueError("phantom displacement: expected -1, 0 or 1, found " + std::to_string(params.displacement));
+        throw ValueError("phantom displacement: expected -1, 0 or 1, found " +
+                         std::to_string(params.displacement));
     }
     if (!(std::abs(params.boneTiltDeg) < 30)) {
-        throw ValueError("phantom bone tilt: expected less than 30 degrees, found " + num(params.boneTiltDeg));
+        throw ValueError("phantom bone tilt: expected less than 30 degrees, found " +
+                         num(params.boneTiltDeg));
     }
     requirePositive(params.transitionWidth, "transition width (m)");
     requirePositive(params.tanhSharpness, "tanh sharpness");
     requireNonNegative(params.hardDepth, "hard depth (m)");
     requireNonNegative(params.fatThickness, "fat thickness (m)");
     if (params.fatThickness > 0.005) {
-        throw ValueError("phantom fat thickness: expected at most 5 mm, found " + mm(params.fatThickness));
+        throw ValueError("phantom fat thickness: expected at most 5 mm, found " +
+                         mm(params.fatThickness));
     }
     if (params.transitionWidth > pg::kStiffBoxWidth) {
-        throw ValueError("phantom transition width: expected at most 40 mm, found " + mm(params.transitionWidth));
+        throw ValueError("phantom transition width: expected at most 40 mm, found " +
+                         mm(params.transitionWidth));
     }
     const PhantomMaterials& m = params.materials;
     for (double v : {m.airHu, m.fatHu, m.softHu, m.hardHu, m.rigidHu}) {
-        if (!std::isfinite(v)) throw ValueError("phantom materials: expected finite HU values, found " + num(v));
+        if (!std::isfinite(v))
+            throw ValueError("phantom materials: expected finite HU values, found " + num(v));
     }
 
     int sides = 0;
     switch (params.shape) {
-        case PlateShape::Triangle: sides = 3; break;
-        case PlateShape::Pentagon: sides = 5; break;
-        case PlateShape::Hexagon: sides = 6; break;
-        default: break;
+        case PlateShape::Triangle:
+            sides = 3;
+            break;
+        case PlateShape::Pentagon:
+            sides = 5;
+            break;
+        case PlateShape::Hexagon:
+            sides = 6;
+            break;
+        default:
+            break;
     }
     if (sides > 0) {
         // Regular polygon with a vertex towards +z; edge normals halfway between vertices.
@@ -221,7 +257,8 @@ WorldBox Phantom::avcHiddenBox(int quadrant) {
     const double cz = (quadrant & 2) ? pg::kAvcBoxOffset : -pg::kAvcBoxOffset;
     WorldBox b;
     b.min = Eigen::Vector3d(cx - pg::kAvcBoxHalfWidth, pg::kAvcBoxTop, cz - pg::kAvcBoxHalfWidth);
-    b.max = Eigen::Vector3d(cx + pg::kAvcBoxHalfWidth, pg::kAvcBoxBottom, cz + pg::kAvcBoxHalfWidth);
+    b.max =
+        Eigen::Vector3d(cx + pg::kAvcBoxHalfWidth, pg::kAvcBoxBottom, cz + pg::kAvcBoxHalfWidth);
     return b;
 }
 
@@ -245,15 +282,21 @@ WorldBox Phantom::bounds() const {
 std::string Phantom::description() const {
     std::string d = sceneName(mParams.scene);
     switch (mParams.scene) {
-        case PhantomScene::Avc: d += " quadrant=" + std::to_string(mParams.quadrant); break;
-        case PhantomScene::Avcec: d += std::string(" shape=") + shapeName(mParams.shape); break;
+        case PhantomScene::Avc:
+            d += " quadrant=" + std::to_string(mParams.quadrant);
+            break;
+        case PhantomScene::Avcec:
+            d += std::string(" shape=") + shapeName(mParams.shape);
+            break;
         case PhantomScene::Bone:
-            d += " displacement=" + std::to_string(mParams.displacement) + " tilt=" + num(mParams.boneTiltDeg) + "deg";
+            d += " displacement=" + std::to_string(mParams.displacement) +
+                 " tilt=" + num(mParams.boneTiltDeg) + "deg";
             break;
         case PhantomScene::Stiffness:
-            d += std::string(" profile=") + profileName(mParams.profile) + " width=" + mm(mParams.transitionWidth) +
-                 " hard-depth=" + mm(mParams.hardDepth);
-            if (mParams.profile == TransitionProfile::Tanh) d += " tanh-a=" + num(mParams.tanhSharpness);
+            d += std::string(" profile=") + profileName(mParams.profile) +
+                 " width=" + mm(mParams.transitionWidth) + " hard-depth=" + mm(mParams.hardDepth);
+            if (mParams.profile == TransitionProfile::Tanh)
+                d += " tanh-a=" + num(mParams.tanhSharpness);
             break;
     }
     d += " fat=" + mm(mParams.fatThickness);
@@ -262,9 +305,12 @@ std::string Phantom::description() const {
 
 bool Phantom::insidePlateOutline(double x, double z) const {
     switch (mParams.shape) {
-        case PlateShape::Circle: return x * x + z * z < pg::kAvcecPlateRadius * pg::kAvcecPlateRadius;
-        case PlateShape::Rectangle: return std::abs(x) < pg::kAvcecRectHalfX && std::abs(z) < pg::kAvcecRectHalfZ;
-        default: break;
+        case PlateShape::Circle:
+            return x * x + z * z < pg::kAvcecPlateRadius * pg::kAvcecPlateRadius;
+        case PlateShape::Rectangle:
+            return std::abs(x) < pg::kAvcecRectHalfX && std::abs(z) < pg::kAvcecRectHalfZ;
+        default:
+            break;
     }
     for (const Eigen::Vector2d& n : mEdgeNormals) {
         if (n.x() * x + n.y() * z >= mApothem) return false;
@@ -299,8 +345,8 @@ double Phantom::valueAt(const Eigen::Vector3d& p) const {
         }
         return m.airHu;
     }
-    if (!inRange(x, -pg::kBlockHalfWidth, pg::kBlockHalfWidth) || !inRange(z, -pg::kBlockHalfWidth, pg::kBlockHalfWidth) ||
-        !inRange(y, 0, pg::kBlockDepth)) {
+    if (!inRange(x, -pg::kBlockHalfWidth, pg::kBlockHalfWidth) ||
+        !inRange(z, -pg::kBlockHalfWidth, pg::kBlockHalfWidth) || !inRange(y, 0, pg::kBlockDepth)) {
         return m.airHu;
     }
     switch (mParams.scene) {
@@ -316,17 +362,20 @@ double Phantom::valueAt(const Eigen::Vector3d& p) const {
             break;
         }
         case PhantomScene::Avcec:
-            if (inRange(y, pg::kAvcecPlateTop, pg::kAvcecPlateBottom) && insidePlateOutline(x, z)) return m.rigidHu;
+            if (inRange(y, pg::kAvcecPlateTop, pg::kAvcecPlateBottom) && insidePlateOutline(x, z))
+                return m.rigidHu;
             break;
         case PhantomScene::Bone: {
             const double top = boneTopDepth(x);
-            if (inRange(x, -pg::kBoneHalfWidth, pg::kBoneHalfWidth) && inRange(z, -pg::kBoneHalfWidth, pg::kBoneHalfWidth) &&
+            if (inRange(x, -pg::kBoneHalfWidth, pg::kBoneHalfWidth) &&
+                inRange(z, -pg::kBoneHalfWidth, pg::kBoneHalfWidth) &&
                 inRange(y, top, top + pg::kBoneThickness)) {
                 return m.rigidHu;
             }
             break;
         }
-        case PhantomScene::Stiffness: break;
+        case PhantomScene::Stiffness:
+            break;
     }
     return tissueValue(y);
 }
@@ -348,26 +397,33 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
     requireNonNegative(spec.blurSigma, "blur sigma (m)");
     requireNonNegative(spec.margin, "margin (m)");
     if (spec.supersample < 1 || spec.supersample > 8) {
-        throw ValueError("phantom supersample: expected 1 to 8, found " + std::to_string(spec.supersample));
+        throw ValueError("phantom supersample: expected 1 to 8, found " +
+                         std::to_string(spec.supersample));
     }
     requirePositive(geometry.pixelSpacing, "pixel spacing (m)");
     requirePositive(geometry.sliceSpacing, "slice spacing (m)");
     for (double g : geometry.sliceGaps) requirePositive(g, "slice gap (m)");
     requireNonNegative(geometry.sliceThickness, "slice thickness (m)");
     if (!(std::abs(geometry.tiltDeg) < 60)) {
-        throw ValueError("phantom gantry tilt: expected less than 60 degrees, found " + num(geometry.tiltDeg));
+        throw ValueError("phantom gantry tilt: expected less than 60 degrees, found " +
+                         num(geometry.tiltDeg));
     }
     // Guards the integer conversions below against absurd spacings.
-    const double smallest = std::min({geometry.pixelSpacing, geometry.sliceSpacing,
-                                      geometry.sliceGaps.empty() ? geometry.sliceSpacing
-                                                                 : *std::min_element(geometry.sliceGaps.begin(),
-                                                                                     geometry.sliceGaps.end())});
+    const double smallest =
+        std::min({geometry.pixelSpacing, geometry.sliceSpacing,
+                  geometry.sliceGaps.empty()
+                      ? geometry.sliceSpacing
+                      : *std::min_element(geometry.sliceGaps.begin(), geometry.sliceGaps.end())});
     if (smallest < 1e-6 || geometry.pixelSpacing > 0.1 || spec.margin > 0.1) {
-        throw ValueError("phantom: expected spacings from 0.001 mm to 100 mm and a margin up to 100 mm, found pixel " +
-                         mm(geometry.pixelSpacing) + ", smallest gap " + mm(smallest) + ", margin " + mm(spec.margin));
+        throw ValueError(
+            "phantom: expected spacings from 0.001 mm to 100 mm and a margin up to 100 mm, found "
+            "pixel " +
+            mm(geometry.pixelSpacing) + ", smallest gap " + mm(smallest) + ", margin " +
+            mm(spec.margin));
     }
-    const std::vector<double> gaps =
-        geometry.sliceGaps.empty() ? std::vector<double>{geometry.sliceSpacing} : geometry.sliceGaps;
+    const std::vector<double> gaps = geometry.sliceGaps.empty()
+                                         ? std::vector<double>{geometry.sliceSpacing}
+                                         : geometry.sliceGaps;
     const double minGap = *std::min_element(gaps.begin(), gaps.end());
 
     const double t = geometry.tiltDeg * kPi / 180.0;
@@ -397,8 +453,8 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
         static_cast<std::uint64_t>(std::ceil((zHi - zLo) / (minGap / ct))) + 2;
     constexpr std::uint64_t kMaxPixels = std::uint64_t{1} << 28;
     if (static_cast<std::uint64_t>(cols * rows) * maxSlices > kMaxPixels) {
-        throw ValueError("phantom: expected at most 2^28 pixels, found " + std::to_string(cols) + "x" +
-                         std::to_string(rows) + "x" + std::to_string(maxSlices) +
+        throw ValueError("phantom: expected at most 2^28 pixels, found " + std::to_string(cols) +
+                         "x" + std::to_string(rows) + "x" + std::to_string(maxSlices) +
                          "; choose a larger pixel or slice spacing");
     }
     std::vector<double> zs;
@@ -432,64 +488,73 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
     } else {
         planes.emplace_back(0.0, 1.0);
     }
-    const std::vector<double> inPlaneKernel = spec.blurSigma > 0 ? gaussianKernel(spec.blurSigma / p) : std::vector<double>{};
+    const std::vector<double> inPlaneKernel =
+        spec.blurSigma > 0 ? gaussianKernel(spec.blurSigma / p) : std::vector<double>{};
     const auto ncols = static_cast<int>(cols);
     const auto nrows = static_cast<int>(rows);
     const Eigen::Vector3d colStep = p * colDir;
     const Eigen::Vector3d rowStep = p * rowDir;
     const double subWeight = 1.0 / (n * n * n);
 
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, zs.size()), [&](const tbb::blocked_range<std::size_t>& range) {
-        std::vector<double> img;
-        std::vector<double> scratch;
-        for (std::size_t k = range.begin(); k != range.end(); ++k) {
-            Slice& s = stack.slices[k];
-            s.position = Eigen::Vector3d(x0, y0, zs[k]);
-            s.colStep = colStep;
-            s.rowStep = rowStep;
-            s.cols = ncols;
-            s.rows = nrows;
-            s.source = "phantom slice " + std::to_string(k);
-            img.assign(static_cast<std::size_t>(ncols) * static_cast<std::size_t>(nrows), 0.0);
-            for (int r = 0; r < nrows; ++r) {
-                for (int c = 0; c < ncols; ++c) {
-                    const Eigen::Vector3d centre = s.position + c * colStep + r * rowStep;
-                    double acc = 0;
-                    for (const auto& [offset, weight] : planes) {
-                        double box = 0;
-                        for (double a : subOffsets) {
-                            for (double b : subOffsets) {
-                                for (double d : subOffsets) {
-                                    box += phantom.valueAt(centre + (offset + d * thickness) * normal + a * colStep +
-                                                           b * rowStep);
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, zs.size()),
+        [&](const tbb::blocked_range<std::size_t>& range) {
+            std::vector<double> img;
+            std::vector<double> scratch;
+            for (std::size_t k = range.begin(); k != range.end(); ++k) {
+                Slice& s = stack.slices[k];
+                s.position = Eigen::Vector3d(x0, y0, zs[k]);
+                s.colStep = colStep;
+                s.rowStep = rowStep;
+                s.cols = ncols;
+                s.rows = nrows;
+                s.source = "phantom slice " + std::to_string(k);
+                img.assign(static_cast<std::size_t>(ncols) * static_cast<std::size_t>(nrows), 0.0);
+                for (int r = 0; r < nrows; ++r) {
+                    for (int c = 0; c < ncols; ++c) {
+                        const Eigen::Vector3d centre = s.position + c * colStep + r * rowStep;
+                        double acc = 0;
+                        for (const auto& [offset, weight] : planes) {
+                            double box = 0;
+                            for (double a : subOffsets) {
+                                for (double b : subOffsets) {
+                                    for (double d : subOffsets) {
+                                        box += phantom.valueAt(centre +
+                                                               (offset + d * thickness) * normal +
+                                                               a * colStep + b * rowStep);
+                                    }
                                 }
                             }
+                            acc += weight * box * subWeight;
                         }
-                        acc += weight * box * subWeight;
+                        img[static_cast<std::size_t>(r) * static_cast<std::size_t>(ncols) +
+                            static_cast<std::size_t>(c)] = acc;
                     }
-                    img[static_cast<std::size_t>(r) * static_cast<std::size_t>(ncols) + static_cast<std::size_t>(c)] = acc;
+                }
+                if (!inPlaneKernel.empty()) {
+                    convolveLines(img, scratch, inPlaneKernel, nrows, ncols,
+                                  static_cast<std::size_t>(ncols), 1);
+                    convolveLines(img, scratch, inPlaneKernel, ncols, nrows, 1,
+                                  static_cast<std::size_t>(ncols));
+                }
+                s.values.resize(img.size());
+                const std::uint64_t base = static_cast<std::uint64_t>(k) * img.size();
+                for (std::size_t i = 0; i < img.size(); ++i) {
+                    double v = img[i];
+                    if (spec.noiseSigmaHu > 0)
+                        v += spec.noiseSigmaHu * gaussianNoise(spec.seed, base + i);
+                    s.values[i] = static_cast<float>(v);
                 }
             }
-            if (!inPlaneKernel.empty()) {
-                convolveLines(img, scratch, inPlaneKernel, nrows, ncols, static_cast<std::size_t>(ncols), 1);
-                convolveLines(img, scratch, inPlaneKernel, ncols, nrows, 1, static_cast<std::size_t>(ncols));
-            }
-            s.values.resize(img.size());
-            const std::uint64_t base = static_cast<std::uint64_t>(k) * img.size();
-            for (std::size_t i = 0; i < img.size(); ++i) {
-                double v = img[i];
-                if (spec.noiseSigmaHu > 0) v += spec.noiseSigmaHu * gaussianNoise(spec.seed, base + i);
-                s.values[i] = static_cast<float>(v);
-            }
-        }
-    });
+        });
 
     VolumeInfo& info = stack.info;
     info.modality = "CT";
     info.valueUnits = "HU";
     info.sourceFormat = "phantom";
-    info.sourceDescription = "phantom " + phantom.description() + " noise=" + num(spec.noiseSigmaHu) + "HU blur=" +
-                             mm(spec.blurSigma) + " supersample=" + std::to_string(n) +
+    info.sourceDescription = "phantom " + phantom.description() +
+                             " noise=" + num(spec.noiseSigmaHu) + "HU blur=" + mm(spec.blurSigma) +
+                             " supersample=" + std::to_string(n) +
                              " seed=" + std::to_string(spec.seed);
     info.originalDims = {cols, rows, static_cast<std::int64_t>(zs.size())};
     std::vector<double> sortedGaps;

@@ -33,7 +33,9 @@ void decodeTyped(const std::byte* src, bool swap, std::span<float> out) {
 
 std::ifstream openOrThrow(const fs::path& path) {
     std::ifstream in(path, std::ios::binary);
-    if (!in) throw IoError(path.string() + ": expected a readable file, found one that cannot be opened");
+    if (!in)
+        throw IoError(path.string() +
+                      ": expected a readable file, found one that cannot be opened");
     return in;
 }
 
@@ -42,31 +44,45 @@ std::ifstream openOrThrow(const fs::path& path) {
 std::size_t elementSize(ElementType type) {
     switch (type) {
         case ElementType::Int8:
-        case ElementType::UInt8: return 1;
+        case ElementType::UInt8:
+            return 1;
         case ElementType::Int16:
-        case ElementType::UInt16: return 2;
+        case ElementType::UInt16:
+            return 2;
         case ElementType::Int32:
         case ElementType::UInt32:
-        case ElementType::Float32: return 4;
+        case ElementType::Float32:
+            return 4;
         case ElementType::Int64:
         case ElementType::UInt64:
-        case ElementType::Float64: return 8;
+        case ElementType::Float64:
+            return 8;
     }
     return 1;
 }
 
 const char* elementTypeName(ElementType type) {
     switch (type) {
-        case ElementType::Int8: return "int8";
-        case ElementType::UInt8: return "uint8";
-        case ElementType::Int16: return "int16";
-        case ElementType::UInt16: return "uint16";
-        case ElementType::Int32: return "int32";
-        case ElementType::UInt32: return "uint32";
-        case ElementType::Int64: return "int64";
-        case ElementType::UInt64: return "uint64";
-        case ElementType::Float32: return "float32";
-        case ElementType::Float64: return "float64";
+        case ElementType::Int8:
+            return "int8";
+        case ElementType::UInt8:
+            return "uint8";
+        case ElementType::Int16:
+            return "int16";
+        case ElementType::UInt16:
+            return "uint16";
+        case ElementType::Int32:
+            return "int32";
+        case ElementType::UInt32:
+            return "uint32";
+        case ElementType::Int64:
+            return "int64";
+        case ElementType::UInt64:
+            return "uint64";
+        case ElementType::Float32:
+            return "float32";
+        case ElementType::Float64:
+            return "float64";
     }
     return "unknown";
 }
@@ -85,16 +101,36 @@ void decodeElements(std::span<const std::byte> bytes, ElementType type, ByteOrde
     const bool swap = size > 1 && order != nativeByteOrder();
     const std::byte* src = bytes.data();
     switch (type) {
-        case ElementType::Int8: decodeTyped<std::int8_t>(src, swap, out); break;
-        case ElementType::UInt8: decodeTyped<std::uint8_t>(src, swap, out); break;
-        case ElementType::Int16: decodeTyped<std::int16_t>(src, swap, out); break;
-        case ElementType::UInt16: decodeTyped<std::uint16_t>(src, swap, out); break;
-        case ElementType::Int32: decodeTyped<std::int32_t>(src, swap, out); break;
-        case ElementType::UInt32: decodeTyped<std::uint32_t>(src, swap, out); break;
-        case ElementType::Int64: decodeTyped<std::int64_t>(src, swap, out); break;
-        case ElementType::UInt64: decodeTyped<std::uint64_t>(src, swap, out); break;
-        case ElementType::Float32: decodeTyped<float>(src, swap, out); break;
-        case ElementType::Float64: decodeTyped<double>(src, swap, out); break;
+        case ElementType::Int8:
+            decodeTyped<std::int8_t>(src, swap, out);
+            break;
+        case ElementType::UInt8:
+            decodeTyped<std::uint8_t>(src, swap, out);
+            break;
+        case ElementType::Int16:
+            decodeTyped<std::int16_t>(src, swap, out);
+            break;
+        case ElementType::UInt16:
+            decodeTyped<std::uint16_t>(src, swap, out);
+            break;
+        case ElementType::Int32:
+            decodeTyped<std::int32_t>(src, swap, out);
+            break;
+        case ElementType::UInt32:
+            decodeTyped<std::uint32_t>(src, swap, out);
+            break;
+        case ElementType::Int64:
+            decodeTyped<std::int64_t>(src, swap, out);
+            break;
+        case ElementType::UInt64:
+            decodeTyped<std::uint64_t>(src, swap, out);
+            break;
+        case ElementType::Float32:
+            decodeTyped<float>(src, swap, out);
+            break;
+        case ElementType::Float64:
+            decodeTyped<double>(src, swap, out);
+            break;
     }
 }
 
@@ -131,25 +167,28 @@ std::uint64_t fileSize(const fs::path& path) {
                       (fs::exists(path, ec) ? "something else" : "nothing"));
     }
     const std::uintmax_t size = fs::file_size(path, ec);
-    if (ec) throw IoError(path.string() + ": expected a readable file, found an error: " + ec.message());
+    if (ec)
+        throw IoError(path.string() +
+                      ": expected a readable file, found an error: " + ec.message());
     return static_cast<std::uint64_t>(size);
 }
 
-std::vector<std::byte> readFileRange(const fs::path& path, std::uint64_t offset, std::uint64_t count) {
+std::vector<std::byte> readFileRange(const fs::path& path, std::uint64_t offset,
+                                     std::uint64_t count) {
     const std::uint64_t size = fileSize(path);
     const std::uint64_t available = size > offset ? size - offset : 0;
     if (available < count) {
         throw FormatError(path.string() + ": expected " + std::to_string(count) +
-                          " bytes of voxel data after the header (at byte " + std::to_string(offset) +
-                          "), found " + std::to_string(available));
+                          " bytes of voxel data after the header (at byte " +
+                          std::to_string(offset) + "), found " + std::to_string(available));
     }
     std::ifstream in = openOrThrow(path);
     in.seekg(static_cast<std::streamoff>(offset));
     std::vector<std::byte> data(static_cast<std::size_t>(count));
     in.read(reinterpret_cast<char*>(data.data()), static_cast<std::streamsize>(count));
     if (static_cast<std::uint64_t>(in.gcount()) != count) {
-        throw IoError(path.string() + ": expected " + std::to_string(count) + " readable bytes, found " +
-                      std::to_string(in.gcount()));
+        throw IoError(path.string() + ": expected " + std::to_string(count) +
+                      " readable bytes, found " + std::to_string(in.gcount()));
     }
     return data;
 }
@@ -158,7 +197,8 @@ namespace {
 
 /// Streams compressed bytes from @p next (returns a chunk; empty at the end) into a bounded buffer.
 template <typename NextChunk>
-std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedBytes, const std::string& item) {
+std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedBytes,
+                                     const std::string& item) {
     z_stream zs{};
     if (inflateInit2(&zs, 15 + 32) != Z_OK) {
         throw Error(item + ": expected zlib to initialise, found an error");
@@ -193,7 +233,8 @@ std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedByt
         }
         const bool probing = produced == out.size();
         if (!probing) {
-            const std::uint64_t room = std::min<std::uint64_t>(out.size() - produced, std::uint64_t{1} << 30);
+            const std::uint64_t room =
+                std::min<std::uint64_t>(out.size() - produced, std::uint64_t{1} << 30);
             zs.next_out = reinterpret_cast<Bytef*>(out.data() + produced);
             zs.avail_out = static_cast<uInt>(room);
         } else {
@@ -241,23 +282,28 @@ std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedByt
 }  // namespace
 
 std::vector<std::byte> inflateFileRange(const fs::path& path, std::uint64_t offset,
-                                        std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes) {
+                                        std::uint64_t maxCompressedBytes,
+                                        std::uint64_t expectedBytes) {
     const std::uint64_t size = fileSize(path);
     if (offset > size) {
-        throw FormatError(path.string() + ": expected compressed voxel data at byte " + std::to_string(offset) +
-                          ", found a file of " + std::to_string(size) + " bytes");
+        throw FormatError(path.string() + ": expected compressed voxel data at byte " +
+                          std::to_string(offset) + ", found a file of " + std::to_string(size) +
+                          " bytes");
     }
     std::uint64_t remaining = std::min(size - offset, maxCompressedBytes);
-    if (maxCompressedBytes != std::numeric_limits<std::uint64_t>::max() && remaining < maxCompressedBytes) {
+    if (maxCompressedBytes != std::numeric_limits<std::uint64_t>::max() &&
+        remaining < maxCompressedBytes) {
         throw FormatError(path.string() + ": expected " + std::to_string(maxCompressedBytes) +
-                          " bytes of compressed voxel data after the header, found " + std::to_string(remaining));
+                          " bytes of compressed voxel data after the header, found " +
+                          std::to_string(remaining));
     }
     std::ifstream in = openOrThrow(path);
     in.seekg(static_cast<std::streamoff>(offset));
     std::vector<std::byte> buffer(std::size_t{1} << 18);
     auto next = [&]() -> std::span<const std::byte> {
         if (remaining == 0) return {};
-        const auto want = static_cast<std::size_t>(std::min<std::uint64_t>(remaining, buffer.size()));
+        const auto want =
+            static_cast<std::size_t>(std::min<std::uint64_t>(remaining, buffer.size()));
         in.read(reinterpret_cast<char*>(buffer.data()), static_cast<std::streamsize>(want));
         const auto got = static_cast<std::size_t>(std::max<std::streamsize>(in.gcount(), 0));
         remaining = got == 0 ? 0 : remaining - got;
@@ -266,8 +312,8 @@ std::vector<std::byte> inflateFileRange(const fs::path& path, std::uint64_t offs
     return inflateStream(next, expectedBytes, path.string());
 }
 
-std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed, std::uint64_t expectedBytes,
-                                    const std::string& item) {
+std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed,
+                                    std::uint64_t expectedBytes, const std::string& item) {
     bool given = false;
     auto next = [&]() -> std::span<const std::byte> {
         if (given) return {};
@@ -278,7 +324,8 @@ std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed, std::
     if (compressed.size() > (std::size_t{1} << 30)) {
         std::size_t pos = 0;
         auto chunked = [&]() -> std::span<const std::byte> {
-            const std::size_t n = std::min<std::size_t>(compressed.size() - pos, std::size_t{1} << 30);
+            const std::size_t n =
+                std::min<std::size_t>(compressed.size() - pos, std::size_t{1} << 30);
             std::span<const std::byte> s = compressed.subspan(pos, n);
             pos += n;
             return s;
@@ -288,7 +335,8 @@ std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed, std::
     return inflateStream(next, expectedBytes, item);
 }
 
-std::vector<float> readAsciiValues(const fs::path& path, std::uint64_t offset, std::uint64_t count) {
+std::vector<float> readAsciiValues(const fs::path& path, std::uint64_t offset,
+                                   std::uint64_t count) {
     const std::uint64_t size = fileSize(path);
     const std::uint64_t available = size > offset ? size - offset : 0;
     // Each number takes at least one character and one separator (the last may end the file).
@@ -302,7 +350,9 @@ std::vector<float> readAsciiValues(const fs::path& path, std::uint64_t offset, s
     const char* end = p + raw.size();
     std::vector<float> values;
     values.reserve(static_cast<std::size_t>(count));
-    auto isSep = [](char c) { return std::isspace(static_cast<unsigned char>(c)) != 0 || c == ','; };
+    auto isSep = [](char c) {
+        return std::isspace(static_cast<unsigned char>(c)) != 0 || c == ',';
+    };
     while (values.size() < count) {
         while (p < end && isSep(*p)) ++p;
         if (p == end) break;
@@ -312,7 +362,8 @@ std::vector<float> readAsciiValues(const fs::path& path, std::uint64_t offset, s
             const char* tokEnd = p;
             while (tokEnd < end && !isSep(*tokEnd) && tokEnd - p < 20) ++tokEnd;
             throw FormatError(path.string() + ": expected a number as ASCII voxel value " +
-                              std::to_string(values.size()) + ", found '" + std::string(p, tokEnd) + "'");
+                              std::to_string(values.size()) + ", found '" + std::string(p, tokEnd) +
+                              "'");
         }
         values.push_back(static_cast<float>(v));
         p = res.ptr;
@@ -336,7 +387,8 @@ std::uint64_t skipLines(const fs::path& path, std::uint64_t offset, std::int64_t
         const std::streamsize got = in.gcount();
         if (got <= 0) {
             throw FormatError(path.string() + ": expected " + std::to_string(lines) +
-                              " lines to skip before the voxel data, found " + std::to_string(seen));
+                              " lines to skip before the voxel data, found " +
+                              std::to_string(seen));
         }
         for (std::streamsize i = 0; i < got; ++i) {
             if (buf[i] == '\n' && ++seen == lines) return pos + static_cast<std::uint64_t>(i) + 1;

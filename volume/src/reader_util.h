@@ -76,22 +76,25 @@ inline std::string quoteFound(std::string_view s) {
 
 /// Chooses one volume of a 4D source: the only one, or options.timePoint.
 /// @throw ValueError naming @p item when the choice is missing or out of range.
-inline int chooseTimePoint(std::int64_t count, const LoadOptions& options, const std::string& item) {
+inline int chooseTimePoint(std::int64_t count, const LoadOptions& options,
+                           const std::string& item) {
     if (count <= 1) {
         if (options.timePoint && *options.timePoint != 0) {
-            throw ValueError(item + ": expected --volume 0 for a source with one volume, found --volume " +
+            throw ValueError(item +
+                             ": expected --volume 0 for a source with one volume, found --volume " +
                              std::to_string(*options.timePoint));
         }
         return -1;
     }
     const std::string range = "(0-" + std::to_string(count - 1) + ")";
     if (!options.timePoint) {
-        throw ValueError(item + ": expected --volume N to choose one of the " + std::to_string(count) +
-                         " volumes " + range + ", found none");
+        throw ValueError(item + ": expected --volume N to choose one of the " +
+                         std::to_string(count) + " volumes " + range + ", found none");
     }
     if (*options.timePoint < 0 || *options.timePoint >= count) {
-        throw ValueError(item + ": expected --volume N to choose one of the " + std::to_string(count) +
-                         " volumes " + range + ", found " + std::to_string(*options.timePoint));
+        throw ValueError(item + ": expected --volume N to choose one of the " +
+                         std::to_string(count) + " volumes " + range + ", found " +
+                         std::to_string(*options.timePoint));
     }
     return *options.timePoint;
 }

@@ -31,8 +31,8 @@ std::string vecStr(const Eigen::Vector3d& v) {
 /// Geometry shared by all slices plus each slice's offset, prepared once per resample.
 struct StackGeometry {
     Eigen::Vector3d normal;
-    Eigen::Matrix2d gramInverse;  // inverse of [u v]^T [u v]
-    Eigen::Vector3d u, v;         // column and row steps
+    Eigen::Matrix2d gramInverse;     // inverse of [u v]^T [u v]
+    Eigen::Vector3d u, v;            // column and row steps
     std::vector<std::size_t> order;  // slice indices sorted along the normal
     std::vector<double> along;       // normal coordinate of each sorted slice
 };
@@ -45,7 +45,8 @@ StackGeometry analyse(const SliceStack& stack) {
     g.v = first.rowStep;
     for (const Slice& s : stack.slices) {
         if (s.cols <= 0 || s.rows <= 0 ||
-            s.values.size() != static_cast<std::size_t>(s.cols) * static_cast<std::size_t>(s.rows)) {
+            s.values.size() !=
+                static_cast<std::size_t>(s.cols) * static_cast<std::size_t>(s.rows)) {
             throw ValueError(s.source + ": expected " + std::to_string(s.cols) + "x" +
                              std::to_string(s.rows) + " values, found " +
                              std::to_string(s.values.size()));
@@ -111,8 +112,9 @@ inline bool sampleSlice(const Slice& s, double c, double r, double& out, double 
     const int c1 = std::min(c0 + 1, s.cols - 1);
     const int r1 = std::min(r0 + 1, s.rows - 1);
     const auto at = [&](int cc, int rr) {
-        return static_cast<double>(s.values[static_cast<std::size_t>(rr) * static_cast<std::size_t>(s.cols) +
-                                            static_cast<std::size_t>(cc)]);
+        return static_cast<double>(
+            s.values[static_cast<std::size_t>(rr) * static_cast<std::size_t>(s.cols) +
+                     static_cast<std::size_t>(cc)]);
     };
     const double top = at(c0, r0) * (1 - fc) + at(c1, r0) * fc;
     const double bottom = at(c0, r1) * (1 - fc) + at(c1, r1) * fc;
@@ -158,7 +160,8 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     if (minGap > 0) voxel = std::min(voxel, minGap);
     if (options.voxelSize) voxel = *options.voxelSize;
     if (!(voxel > 0) || !std::isfinite(voxel)) {
-        throw ValueError("resample: expected a positive voxel size, found " + std::to_string(voxel) + " m");
+        throw ValueError("resample: expected a positive voxel size, found " +
+                         std::to_string(voxel) + " m");
     }
 
     // World bounding box of all pixel centres.
@@ -167,7 +170,8 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     for (const Slice& s : stack.slices) {
         for (int a = 0; a < 2; ++a) {
             for (int b = 0; b < 2; ++b) {
-                const Eigen::Vector3d p = s.position + a * (s.cols - 1) * g.u + b * (s.rows - 1) * g.v;
+                const Eigen::Vector3d p =
+                    s.position + a * (s.cols - 1) * g.u + b * (s.rows - 1) * g.v;
                 lo = lo.cwiseMin(p);
                 hi = hi.cwiseMax(p);
             }
@@ -205,7 +209,8 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
                          std::to_string(options.maxVoxels) + "; choose a larger voxel size");
     }
 
-    const float threshold = options.backgroundThreshold.value_or(defaultBackgroundThreshold(stack.info));
+    const float threshold =
+        options.backgroundThreshold.value_or(defaultBackgroundThreshold(stack.info));
     const float background = backgroundValueFor(stack.info, threshold);
 
     auto grid = openvdb::FloatGrid::create(background);
@@ -266,7 +271,8 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
         Eigen::Vector2d crMin = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity());
         Eigen::Vector2d crMax = -crMin;
         for (int corner = 0; corner < 8; ++corner) {
-            const Eigen::Vector3d p((corner & 1) ? bmax.x() : bmin.x(), (corner & 2) ? bmax.y() : bmin.y(),
+            const Eigen::Vector3d p((corner & 1) ? bmax.x() : bmin.x(),
+                                    (corner & 2) ? bmax.y() : bmin.y(),
                                     (corner & 4) ? bmax.z() : bmin.z());
             const double sp = p.dot(g.normal);
             smin = std::min(smin, sp);
@@ -276,11 +282,11 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
             crMax = crMax.cwiseMax(mp);
         }
         if (smax < loAlong - alongTol || smin > hiAlong + alongTol) return false;
-        auto first = static_cast<std::size_t>(std::upper_bound(g.along.begin(), g.along.end(), smin) -
-                                              g.along.begin());
+        auto first = static_cast<std::size_t>(
+            std::upper_bound(g.along.begin(), g.along.end(), smin) - g.along.begin());
         first = first > 0 ? first - 1 : 0;
-        auto last = static_cast<std::size_t>(std::lower_bound(g.along.begin(), g.along.end(), smax) -
-                                             g.along.begin());
+        auto last = static_cast<std::size_t>(
+            std::lower_bound(g.along.begin(), g.along.end(), smax) - g.along.begin());
         last = std::min(last, n - 1);
         if (n > 1 && smin >= loAlong && smax <= hiAlong) {
             bracket = std::min(first, n - 2);
@@ -289,7 +295,8 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
         for (std::size_t k = first; k <= last; ++k) {
             const Eigen::Vector2d a = crMin + crOffset[k];
             const Eigen::Vector2d b = crMax + crOffset[k];
-            if (b.x() < -mc - 1 || a.x() > cols + mc || b.y() < -mr - 1 || a.y() > rows + mr) continue;
+            if (b.x() < -mc - 1 || a.x() > cols + mc || b.y() < -mr - 1 || a.y() > rows + mr)
+                continue;
             const int c0 = std::clamp(static_cast<int>(std::floor(a.x())) - 1, 0, cols - 1) / kTile;
             const int c1 = std::clamp(static_cast<int>(std::floor(b.x())) + 2, 0, cols - 1) / kTile;
             const int r0 = std::clamp(static_cast<int>(std::floor(a.y())) - 1, 0, rows - 1) / kTile;
@@ -341,80 +348,89 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
 
     for (int zb = 0; zb < bz; ++zb) {
-        tbb::parallel_for(tbb::blocked_range2d<int>(0, by, 0, bx), [&](const tbb::blocked_range2d<int>& r) {
-            auto& mine = made.local();
-            for (int yb = r.rows().begin(); yb != r.rows().end(); ++yb) {
-                for (int xb = r.cols().begin(); xb != r.cols().end(); ++xb) {
-                    const openvdb::Coord origin(xb * kLeafDim, yb * kLeafDim, zb * kLeafDim);
-                    const Eigen::Vector3d bmin = lo + voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
-                    const Eigen::Vector3d bmax = bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
-                    std::size_t bracket = n, bracketEnd = n;
-                    if (!blockMayBeActive(bmin, bmax, bracket, bracketEnd)) continue;
-                    auto leaf = std::make_unique<LeafT>(origin, background, false);
-                    bool any = false;
-                    if (bracket < n) {
-                        // Fast path: the block lies within the slices' range, and the along-normal
-                        // and in-plane coordinates are affine in the voxel offset.
-                        const double s0 = bmin.dot(g.normal);
-                        const Eigen::Vector3d ds = voxel * g.normal;
-                        const Eigen::Vector2d m0 = M * bmin;
-                        const Eigen::Matrix<double, 2, 3> dm = voxel * M;
-                        const int ni = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[0] - origin.x()));
-                        const int nj = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[1] - origin.y()));
-                        const int nk = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[2] - origin.z()));
-                        for (int i = 0; i < ni; ++i) {
-                            for (int j = 0; j < nj; ++j) {
-                                const double sij = s0 + ds.x() * i + ds.y() * j;
-                                const double mx = m0.x() + dm(0, 0) * i + dm(0, 1) * j;
-                                const double my = m0.y() + dm(1, 0) * i + dm(1, 1) * j;
-                                const openvdb::Index base = LeafT::coordToOffset(
-                                    openvdb::Coord(origin.x() + i, origin.y() + j, origin.z()));
-                                for (int k = 0; k < nk; ++k) {
-                                    const double sp = sij + ds.z() * k;
-                                    std::size_t ka = bracket;
-                                    while (ka + 1 < bracketEnd && g.along[ka + 1] <= sp) ++ka;
-                                    const double px = mx + dm(0, 2) * k;
-                                    const double py = my + dm(1, 2) * k;
-                                    double va = 0, vb = 0;
-                                    const bool ina = sampleSlice(*sorted[ka], px + crOffset[ka].x(),
-                                                                 py + crOffset[ka].y(), va, mc, mr);
-                                    const bool inb = sampleSlice(*sorted[ka + 1], px + crOffset[ka + 1].x(),
-                                                                 py + crOffset[ka + 1].y(), vb, mc, mr);
-                                    if (!ina && !inb) continue;
-                                    const double f = (sp - g.along[ka]) * invGap[ka];
-                                    const auto fv = static_cast<float>(va * (1 - f) + vb * f);
+        tbb::parallel_for(
+            tbb::blocked_range2d<int>(0, by, 0, bx), [&](const tbb::blocked_range2d<int>& r) {
+                auto& mine = made.local();
+                for (int yb = r.rows().begin(); yb != r.rows().end(); ++yb) {
+                    for (int xb = r.cols().begin(); xb != r.cols().end(); ++xb) {
+                        const openvdb::Coord origin(xb * kLeafDim, yb * kLeafDim, zb * kLeafDim);
+                        const Eigen::Vector3d bmin =
+                            lo + voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
+                        const Eigen::Vector3d bmax =
+                            bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
+                        std::size_t bracket = n, bracketEnd = n;
+                        if (!blockMayBeActive(bmin, bmax, bracket, bracketEnd)) continue;
+                        auto leaf = std::make_unique<LeafT>(origin, background, false);
+                        bool any = false;
+                        if (bracket < n) {
+                            // Fast path: the block lies within the slices' range, and the
+                            // along-normal and in-plane coordinates are affine in the voxel offset.
+                            const double s0 = bmin.dot(g.normal);
+                            const Eigen::Vector3d ds = voxel * g.normal;
+                            const Eigen::Vector2d m0 = M * bmin;
+                            const Eigen::Matrix<double, 2, 3> dm = voxel * M;
+                            const int ni = static_cast<int>(
+                                std::min<std::int64_t>(kLeafDim, dims[0] - origin.x()));
+                            const int nj = static_cast<int>(
+                                std::min<std::int64_t>(kLeafDim, dims[1] - origin.y()));
+                            const int nk = static_cast<int>(
+                                std::min<std::int64_t>(kLeafDim, dims[2] - origin.z()));
+                            for (int i = 0; i < ni; ++i) {
+                                for (int j = 0; j < nj; ++j) {
+                                    const double sij = s0 + ds.x() * i + ds.y() * j;
+                                    const double mx = m0.x() + dm(0, 0) * i + dm(0, 1) * j;
+                                    const double my = m0.y() + dm(1, 0) * i + dm(1, 1) * j;
+                                    const openvdb::Index base = LeafT::coordToOffset(
+                                        openvdb::Coord(origin.x() + i, origin.y() + j, origin.z()));
+                                    for (int k = 0; k < nk; ++k) {
+                                        const double sp = sij + ds.z() * k;
+                                        std::size_t ka = bracket;
+                                        while (ka + 1 < bracketEnd && g.along[ka + 1] <= sp) ++ka;
+                                        const double px = mx + dm(0, 2) * k;
+                                        const double py = my + dm(1, 2) * k;
+                                        double va = 0, vb = 0;
+                                        const bool ina =
+                                            sampleSlice(*sorted[ka], px + crOffset[ka].x(),
+                                                        py + crOffset[ka].y(), va, mc, mr);
+                                        const bool inb =
+                                            sampleSlice(*sorted[ka + 1], px + crOffset[ka + 1].x(),
+                                                        py + crOffset[ka + 1].y(), vb, mc, mr);
+                                        if (!ina && !inb) continue;
+                                        const double f = (sp - g.along[ka]) * invGap[ka];
+                                        const auto fv = static_cast<float>(va * (1 - f) + vb * f);
+                                        if (fv < threshold || fv == background) continue;
+                                        leaf->setValueOn(base + static_cast<openvdb::Index>(k), fv);
+                                        any = true;
+                                    }
+                                }
+                            }
+                            if (any) mine.push_back(std::move(leaf));
+                            continue;
+                        }
+                        for (int i = 0; i < kLeafDim; ++i) {
+                            const int x = origin.x() + i;
+                            if (x >= dims[0]) break;
+                            for (int j = 0; j < kLeafDim; ++j) {
+                                const int y = origin.y() + j;
+                                if (y >= dims[1]) break;
+                                for (int k = 0; k < kLeafDim; ++k) {
+                                    const int z = origin.z() + k;
+                                    if (z >= dims[2]) break;
+                                    const Eigen::Vector3d p = lo + voxel * Eigen::Vector3d(x, y, z);
+                                    double v = 0;
+                                    if (!valueAt(p, v)) continue;
+                                    const auto fv = static_cast<float>(v);
                                     if (fv < threshold || fv == background) continue;
-                                    leaf->setValueOn(base + static_cast<openvdb::Index>(k), fv);
+                                    leaf->setValueOn(LeafT::coordToOffset(openvdb::Coord(x, y, z)),
+                                                     fv);
                                     any = true;
                                 }
                             }
                         }
                         if (any) mine.push_back(std::move(leaf));
-                        continue;
                     }
-                    for (int i = 0; i < kLeafDim; ++i) {
-                        const int x = origin.x() + i;
-                        if (x >= dims[0]) break;
-                        for (int j = 0; j < kLeafDim; ++j) {
-                            const int y = origin.y() + j;
-                            if (y >= dims[1]) break;
-                            for (int k = 0; k < kLeafDim; ++k) {
-                                const int z = origin.z() + k;
-                                if (z >= dims[2]) break;
-                                const Eigen::Vector3d p = lo + voxel * Eigen::Vector3d(x, y, z);
-                                double v = 0;
-                                if (!valueAt(p, v)) continue;
-                                const auto fv = static_cast<float>(v);
-                                if (fv < threshold || fv == background) continue;
-                                leaf->setValueOn(LeafT::coordToOffset(openvdb::Coord(x, y, z)), fv);
-                                any = true;
-                            }
-                        }
-                    }
-                    if (any) mine.push_back(std::move(leaf));
                 }
-            }
-        });
+            });
         for (auto& list : made) {
             for (auto& leaf : list) tree.addLeaf(leaf.release());  // the tree takes ownership
             list.clear();

@@ -5,9 +5,9 @@
 
 namespace palp::volume {
 
-SliceStack stackFromAffine(const std::vector<float>& values, const std::array<std::int64_t, 3>& dims,
-                           const Eigen::Matrix3d& axes, const Eigen::Vector3d& origin,
-                           const std::string& source) {
+SliceStack stackFromAffine(const std::vector<float>& values,
+                           const std::array<std::int64_t, 3>& dims, const Eigen::Matrix3d& axes,
+                           const Eigen::Vector3d& origin, const std::string& source) {
     SliceStack stack;
     const auto nx = static_cast<std::size_t>(dims[0]);
     const auto ny = static_cast<std::size_t>(dims[1]);

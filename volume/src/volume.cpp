@@ -35,10 +35,9 @@ void writeInfo(const VolumeInfo& info, openvdb::GridBase& grid) {
                     openvdb::Vec3IMetadata(openvdb::Vec3i(static_cast<int>(info.originalDims[0]),
                                                           static_cast<int>(info.originalDims[1]),
                                                           static_cast<int>(info.originalDims[2]))));
-    grid.insertMeta("palp:original_spacing_m",
-                    openvdb::Vec3DMetadata(openvdb::Vec3d(info.originalSpacing[0],
-                                                          info.originalSpacing[1],
-                                                          info.originalSpacing[2])));
+    grid.insertMeta("palp:original_spacing_m", openvdb::Vec3DMetadata(openvdb::Vec3d(
+                                                   info.originalSpacing[0], info.originalSpacing[1],
+                                                   info.originalSpacing[2])));
     grid.insertMeta("palp:min_slice_gap_m", openvdb::DoubleMetadata(info.minSliceGap));
     grid.insertMeta("palp:max_slice_gap_m", openvdb::DoubleMetadata(info.maxSliceGap));
     grid.insertMeta("palp:rescale_slope", openvdb::DoubleMetadata(info.rescaleSlope));

@@ -13,25 +13,25 @@ namespace palp {
 
 /// Base of all palp errors.
 class Error : public std::runtime_error {
-public:
+  public:
     using std::runtime_error::runtime_error;
 };
 
 /// A file or directory could not be opened, read or written.
 class IoError : public Error {
-public:
+  public:
     using Error::Error;
 };
 
 /// A file was readable but its content is not what its format requires.
 class FormatError : public Error {
-public:
+  public:
     using Error::Error;
 };
 
 /// A value (option, parameter, header field) is outside what palp accepts.
 class ValueError : public Error {
-public:
+  public:
     using Error::Error;
 };
 

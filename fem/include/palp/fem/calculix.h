@@ -4,7 +4,6 @@
 /// nodal displacements that `ccx` prints to its `.dat` file.
 
 #include <Eigen/Core>
-
 #include <filesystem>
 #include <vector>
 
@@ -15,11 +14,11 @@ namespace palp::fem {
 
 /// The analysis step written to the `.inp` file.
 struct CalculixStep {
-    bool dynamic = false;           ///< false: *STATIC; true: *DYNAMIC, DIRECT
-    double timeIncrement = 1.0;     ///< seconds (fixed increments)
-    double totalTime = 1.0;         ///< seconds
-    double hhtAlpha = 0.0;          ///< *DYNAMIC ALPHA in [-1/3, 0]; 0 = average acceleration
-    int printEvery = 1;             ///< *NODE PRINT FREQUENCY (increments)
+    bool dynamic = false;        ///< false: *STATIC; true: *DYNAMIC, DIRECT
+    double timeIncrement = 1.0;  ///< seconds (fixed increments)
+    double totalTime = 1.0;      ///< seconds
+    double hhtAlpha = 0.0;       ///< *DYNAMIC ALPHA in [-1/3, 0]; 0 = average acceleration
+    int printEvery = 1;          ///< *NODE PRINT FREQUENCY (increments)
 };
 
 /// Writes mesh (active nodes, active cells as C3D8; palp node n is CalculiX node n+1, cell c is

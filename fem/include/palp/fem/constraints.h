@@ -3,7 +3,6 @@
 /// Dirichlet constraints: per-dof fixed flags with prescribed displacements.
 
 #include <Eigen/Core>
-
 #include <cstdint>
 #include <vector>
 
@@ -12,10 +11,9 @@ namespace palp::fem {
 /// Per-dof Dirichlet constraints of a model with @p dofCount dofs: a constrained dof follows its
 /// prescribed displacement (metres), every other dof is free.
 class Constraints {
-public:
+  public:
     explicit Constraints(int dofCount = 0)
-        : mFixed(static_cast<std::size_t>(dofCount), 0),
-          mValue(Eigen::VectorXd::Zero(dofCount)) {}
+        : mFixed(static_cast<std::size_t>(dofCount), 0), mValue(Eigen::VectorXd::Zero(dofCount)) {}
 
     /// Constrains components (bit 0 = x, 1 = y, 2 = z) of @p nodes to displacement 0.
     /// @throw palp::ValueError for a node outside the model.
@@ -25,9 +23,7 @@ public:
     void prescribe(int dof, double value);
     /// Changes the prescribed value of an already constrained dof without checks.
     /// @par Real-time
-    void setValue(int dof, double value) noexcept {
-        mValue[dof] = value;
-    }
+    void setValue(int dof, double value) noexcept { mValue[dof] = value; }
 
     int dofCount() const { return static_cast<int>(mFixed.size()); }
     bool isFixed(int dof) const { return mFixed[static_cast<std::size_t>(dof)] != 0; }
@@ -38,7 +34,7 @@ public:
     /// Number of constrained dofs.
     int fixedCount() const;
 
-private:
+  private:
     std::vector<std::uint8_t> mFixed;
     Eigen::VectorXd mValue;
 };

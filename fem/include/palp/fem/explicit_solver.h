@@ -4,7 +4,6 @@
 /// automatic substepping below the stable step, a real-time single-thread variant and a TBB one.
 
 #include <Eigen/Core>
-
 #include <vector>
 
 #include "palp/fem/constraints.h"
@@ -34,15 +33,15 @@ struct ExplicitOptions {
     int maxSubsteps = 4096;     ///< bound on substeps per step() call (keeps a tick bounded)
 };
 
-/// Central difference `u(n+1) = [dt^2 (f - K u~) + 2 M u(n) - (M - dt/2 C_M) u(n-1)] / (M + dt/2 C_M)`
-/// with `C_M = alpha M` diagonal and the stiffness-proportional damping folded into the internal
-/// force as `K u~`, `u~ = u(n) + beta (u(n) - u(n-1)) / dt` (velocity lagged half a step).
+/// Central difference `u(n+1) = [dt^2 (f - K u~) + 2 M u(n) - (M - dt/2 C_M) u(n-1)] / (M + dt/2
+/// C_M)` with `C_M = alpha M` diagonal and the stiffness-proportional damping folded into the
+/// internal force as `K u~`, `u~ = u(n) + beta (u(n) - u(n-1)) / dt` (velocity lagged half a step).
 /// Constrained dofs follow their prescribed values, interpolated linearly across the substeps of
 /// one step() call.
 ///
 /// @par Threading  One thread drives a solver; the model must outlive it and is only read.
 class ExplicitSolver {
-public:
+  public:
     /// Allocates all state. @throw palp::ValueError when @p constraints does not match the model
     /// or options are out of range.
     ExplicitSolver(const FemModel& model, const Constraints& constraints,
@@ -86,7 +85,7 @@ public:
     /// Substep length of the last step, seconds (0 before the first).
     double lastSubstep() const { return mDt; }
 
-private:
+  private:
     template <bool kParallel>
     StepResult advance(double dtSeconds) noexcept;
     void setCoefficients(double dt) noexcept;
@@ -94,7 +93,7 @@ private:
     const FemModel& mModel;
     ExplicitOptions mOptions;
     double mStableDt = 0.0;
-    double mDt = 0.0;       // current substep, seconds
+    double mDt = 0.0;  // current substep, seconds
     double mTime = 0.0;
     std::vector<int> mConstrained;  // constrained dofs (including inactive nodes)
     std::vector<int> mFree;         // free dofs with mass

@@ -5,7 +5,6 @@
 
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
-
 #include <array>
 #include <vector>
 
@@ -23,7 +22,7 @@ using SparseMatrix = Eigen::SparseMatrix<double, Eigen::ColMajor, int>;
 ///
 /// @par Threading  Immutable after construction: const methods may be called from many threads.
 class FemModel {
-public:
+  public:
     /// Validates the material and the mesh (non-empty, one connected body) and precomputes the
     /// unit element stiffness (E = 1 Pa) and the lumped mass.
     /// @throw palp::ValueError for bad material, an empty or a disconnected mesh.
@@ -59,13 +58,14 @@ public:
     /// from the largest element eigenvalue of M_e^-1 K_e (element eigenvalue inequality).
     double maxFrequencyBound() const { return mOmegaMax; }
     /// Largest stable explicit central-difference step, seconds, with Rayleigh damping:
-    /// `dt = (2 / w) (sqrt(1 + xi^2) - xi)`, `xi = (alpha / w + beta w) / 2`, w = maxFrequencyBound.
+    /// `dt = (2 / w) (sqrt(1 + xi^2) - xi)`, `xi = (alpha / w + beta w) / 2`, w =
+    /// maxFrequencyBound.
     double criticalTimeStep() const;
 
     /// Strain energy `u^T K u / 2`, joules, of displacement @p u (#dofs).
     double strainEnergy(const Eigen::VectorXd& u) const;
 
-private:
+  private:
     HexMesh mMesh;
     ElasticMaterial mMaterial;
     alignas(64) std::array<double, 576> mUnitKe{};

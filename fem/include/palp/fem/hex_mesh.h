@@ -11,7 +11,6 @@
 /// (0,0,0), (1,0,0), (0,1,0), (1,1,0), (0,0,1), (1,0,1), (0,1,1), (1,1,1).
 
 #include <Eigen/Core>
-
 #include <array>
 #include <cstdint>
 #include <vector>
@@ -24,14 +23,14 @@ enum class BoxFace { xMin, xMax, yMin, yMax, zMin, zMax };
 /// Boundary surface as a triangle mesh (for Embree): positions in metres, counter-clockwise
 /// seen from outside (outward normals).
 struct SurfaceMesh {
-    std::vector<Eigen::Vector3f> vertices;        ///< #V positions, metres
+    std::vector<Eigen::Vector3f> vertices;                ///< #V positions, metres
     std::vector<std::array<std::uint32_t, 3>> triangles;  ///< #T vertex indices
-    std::vector<std::int32_t> vertexNode;         ///< #V mesh node of each vertex
+    std::vector<std::int32_t> vertexNode;                 ///< #V mesh node of each vertex
 };
 
 /// A regular hexahedral mesh with per-cell Young's modulus (0 marks a void cell).
 class HexMesh {
-public:
+  public:
     HexMesh() = default;
 
     /// A solid box of @p size metres starting at @p origin with @p nodeCounts nodes per axis
@@ -106,7 +105,7 @@ public:
     /// outside), two triangles each, outward-oriented.
     SurfaceMesh boundarySurface() const;
 
-private:
+  private:
     std::array<int, 3> mNodeCounts{0, 0, 0};
     double mEdge = 0.0;
     Eigen::Vector3d mOrigin = Eigen::Vector3d::Zero();

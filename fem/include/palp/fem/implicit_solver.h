@@ -5,7 +5,6 @@
 /// CHOLMOD), or warm-started Jacobi-preconditioned CG with a TBB-parallel operator.
 
 #include <Eigen/Core>
-
 #include <memory>
 #include <vector>
 
@@ -45,7 +44,7 @@ struct ImplicitOptions {
 ///
 /// @par Threading  One thread drives a solver; PCG and assembly use TBB inside a call.
 class ImplicitSolver {
-public:
+  public:
     /// Assembles K and, for quasi-static problems, factorises it once.
     /// @throw palp::ValueError on mismatched constraints, or for a quasi-static problem whose
     /// supports leave a rigid-body motion free (singular stiffness).
@@ -82,7 +81,7 @@ public:
     /// The assembled stiffness, 3N x 3N, N/m.
     const SparseMatrix& stiffness() const { return mK; }
 
-private:
+  private:
     struct Linear;
     bool prepare(double stiffnessScale, double massScale) noexcept;
     bool solve(const Eigen::VectorXd& rhsFree, Eigen::VectorXd& xFree) noexcept;

@@ -33,7 +33,7 @@ inline constexpr unsigned kMaskAll = 0xffffffffu;
 ///      Embree, which may allocate and use TBB: call it on the servo thread only for small
 ///      meshes and only after measuring (`palp bench rays` prints refit costs).
 class EmbreeScene {
-public:
+  public:
     /// @throw palp::Error when Embree cannot create the shared device.
     EmbreeScene();
     ~EmbreeScene();
@@ -59,7 +59,7 @@ public:
     bool committed() const noexcept { return mCommitted; }
     std::size_t triangleCount() const noexcept { return mTriangles; }
 
-private:
+  private:
     struct Geom {
         RTCGeometry geometry = nullptr;
         float* vertices = nullptr;  // Embree-owned buffer (deforming meshes)

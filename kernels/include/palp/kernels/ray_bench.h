@@ -36,14 +36,14 @@ struct TimingStats {
 
 /// One comparison line: subject against baseline measured in the same run.
 struct BenchComparison {
-    std::string name;      ///< e.g. "volume 17 rays, phantom, trajectory"
-    std::string subject;   ///< e.g. "palp"
-    std::string baseline;  ///< e.g. "OpenVDB baseline"
-    TimingStats a, b;      ///< subject, baseline
-    double ratioMean = 0;  ///< b.mean / a.mean (> 1: subject faster)
-    double ratioP99 = 0;   ///< b.p99 / a.p99
+    std::string name;         ///< e.g. "volume 17 rays, phantom, trajectory"
+    std::string subject;      ///< e.g. "palp"
+    std::string baseline;     ///< e.g. "OpenVDB baseline"
+    TimingStats a, b;         ///< subject, baseline
+    double ratioMean = 0;     ///< b.mean / a.mean (> 1: subject faster)
+    double ratioP99 = 0;      ///< b.p99 / a.p99
     std::string unit = "us";  ///< "us" per frame, or "Mrays/s" (then only meanUs is used)
-    std::string note;      ///< agreement check, frames per 1 ms, ...
+    std::string note;         ///< agreement check, frames per 1 ms, ...
 };
 
 /// All lines of a run plus the machine it ran on.
@@ -66,7 +66,8 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
 /// Embree bundles against 2k and 32k triangle height fields (and @p userMesh when not null)
 /// next to a raw rtcIntersect1 loop and rtcIntersect1M coherent; refit costs of deforming 2k
 /// and 32k meshes.
-void benchMeshRays(const RayBenchOptions& options, const TriangleMesh* userMesh, RayBenchReport& report);
+void benchMeshRays(const RayBenchOptions& options, const TriangleMesh* userMesh,
+                   RayBenchReport& report);
 
 /// Batch throughput (rays per second) of traceFirstHitBatch with 1 thread and all threads.
 void benchBatchRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string& label,

@@ -5,7 +5,6 @@
 /// stored as structure-of-arrays in fixed-capacity buffers; and the Sobel gradient functions.
 
 #include <Eigen/Core>
-
 #include <array>
 #include <cstdint>
 #include <span>
@@ -45,19 +44,22 @@ struct RayBundle {
     std::array<float, kMaxBundleRays> ox{}, oy{}, oz{};  ///< origins, metres
     std::array<float, kMaxBundleRays> dx{}, dy{}, dz{};  ///< unit directions
     std::array<float, kMaxBundleRays> length{};          ///< ray lengths, metres
-    std::array<float, kMaxBundleRays> weight{};  ///< low-pass weights (centre and ring, sum 1), 0 for stencils
-    int count = 0;          ///< rays in use; 0 for an invalid bundle
-    int ringBegin = 1;      ///< index of the first ring ray
-    int ringCount = 0;      ///< number of ring rays
-    int sphereBegin = 1;    ///< index of the first of the 8 spherical Sobel rays
-    int surfaceBegin = 9;   ///< index of the first of the 8 surface Sobel rays
-    bool valid = false;     ///< false when the direction or origin was degenerate
-    double sobelAngle = 0;  ///< delta used, radians
+    std::array<float, kMaxBundleRays>
+        weight{};              ///< low-pass weights (centre and ring, sum 1), 0 for stencils
+    int count = 0;             ///< rays in use; 0 for an invalid bundle
+    int ringBegin = 1;         ///< index of the first ring ray
+    int ringCount = 0;         ///< number of ring rays
+    int sphereBegin = 1;       ///< index of the first of the 8 spherical Sobel rays
+    int surfaceBegin = 9;      ///< index of the first of the 8 surface Sobel rays
+    bool valid = false;        ///< false when the direction or origin was degenerate
+    double sobelAngle = 0;     ///< delta used, radians
     double surfaceOffset = 0;  ///< h used, metres
-    Eigen::Vector3d origin = Eigen::Vector3d::Zero();     ///< x_py
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();      ///< x_py
     Eigen::Vector3d direction = Eigen::Vector3d::UnitZ();  ///< d
-    Eigen::Vector3d e1 = Eigen::Vector3d::UnitX();  ///< spherical stencil axis i (perpendicular to d)
-    Eigen::Vector3d e2 = Eigen::Vector3d::UnitY();  ///< spherical stencil axis j (perpendicular to d, e1)
+    Eigen::Vector3d e1 =
+        Eigen::Vector3d::UnitX();  ///< spherical stencil axis i (perpendicular to d)
+    Eigen::Vector3d e2 =
+        Eigen::Vector3d::UnitY();  ///< spherical stencil axis j (perpendicular to d, e1)
     Eigen::Vector3d t1 = Eigen::Vector3d::UnitX();  ///< surface stencil axis i (tangent)
     Eigen::Vector3d t2 = Eigen::Vector3d::UnitY();  ///< surface stencil axis j (tangent)
 
@@ -66,7 +68,7 @@ struct RayBundle {
     /// Index of stencil entry (i, j) among the surface rays (0, 0 -> centre).
     int surfaceRay(int i, int j) const noexcept { return stencilRay(surfaceBegin, i, j); }
 
-private:
+  private:
     static int stencilRay(int begin, int i, int j) noexcept {
         const int s = (j + 1) * 3 + (i + 1);
         if (s == 4) return 0;

@@ -15,7 +15,6 @@
 #include <openvdb/openvdb.h>
 
 #include <Eigen/Core>
-
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -40,7 +39,7 @@ inline constexpr std::int64_t kMaxViewBlocks = std::int64_t{1} << 26;
 /// @par Real-time  Construction allocates and is for set-up threads; sampling and tracing are
 ///      noexcept and allocation-free.
 class VolumeView {
-public:
+  public:
     /// Builds the block table over the bounding box of @p grid's leaves and active tiles, grown
     /// by one block on each side, and the padded 9^3 copies. Forces delay-loaded leaf buffers
     /// into memory.
@@ -69,19 +68,19 @@ public:
 
     // Internal layout, read by the marcher (kept public for the kernels' free functions).
     struct Table {
-        static constexpr int kPad = 9;         ///< padded block edge (8 own voxels + 1 halo)
+        static constexpr int kPad = 9;  ///< padded block edge (8 own voxels + 1 halo)
         static constexpr int kPadded = kPad * kPad * kPad;
         std::array<std::int32_t, 3> origin{};  ///< index of the first voxel (multiple of 8)
         std::array<std::int32_t, 3> blocks{};  ///< blocks per axis
         /// Per block: kPadded values, x-major ((lx * 9 + ly) * 9 + lz), lx, ly, lz in 0..8; the
         /// layer 8 holds the neighbour block's layer 0 (background past the table).
         std::vector<const float*> data;
-        std::vector<float> maxDilated;         ///< max over the block's padded copy
-        std::vector<float> minDilated;         ///< min over the same
+        std::vector<float> maxDilated;  ///< max over the block's padded copy
+        std::vector<float> minDilated;  ///< min over the same
     };
     const Table& table() const noexcept { return mTable; }
 
-private:
+  private:
     openvdb::FloatGrid::ConstPtr mGrid;
     Table mTable;
     std::vector<float> mPadded;  // padded copies of the blocks that are not constant
@@ -98,7 +97,7 @@ private:
 /// a step. Constant beyond the end nodes.
 /// @par Threading  A plain value.
 class TransferFunction {
-public:
+  public:
     static constexpr int kMaxNodes = 16;
     TransferFunction() = default;
     /// @throw palp::ValueError for no node, more than kMaxNodes, decreasing values, negative or
@@ -115,7 +114,7 @@ public:
     /// sigma(u) == 0 for every u < zeroBelow() (-inf when sigma is positive everywhere).
     float zeroBelow() const noexcept { return mZeroBelow; }
 
-private:
+  private:
     std::array<float, kMaxNodes> mV{}, mS{};
     std::array<double, kMaxNodes> mCum{};  // S at each node
     int mCount = 0;
@@ -127,39 +126,39 @@ struct FirstHitParams {
     float threshold = 300;  ///< hit where the interpolated value first reaches this (value units)
     double step = 0.25e-3;  ///< sample spacing along the ray, metres
     int refineIterations = 2;  ///< regula-falsi steps below the step size (0: linear interpolation)
-    bool skipEmpty = true;  ///< skip blocks whose dilated maximum is below the threshold
+    bool skipEmpty = true;     ///< skip blocks whose dilated maximum is below the threshold
 };
 
 /// Accumulate settings.
 struct AccumulateParams {
-    TransferFunction sigma;  ///< hardness per metre as a function of value
-    double tauStop = 1;      ///< stop where the integral of sigma reaches this (dimensionless)
-    double step = 0.25e-3;   ///< sample spacing, metres
+    TransferFunction sigma;       ///< hardness per metre as a function of value
+    double tauStop = 1;           ///< stop where the integral of sigma reaches this (dimensionless)
+    double step = 0.25e-3;        ///< sample spacing, metres
     bool reportFirstHit = false;  ///< also find the first crossing of firstHitThreshold
     float firstHitThreshold = 300;
-    bool skipEmpty = true;   ///< skip blocks where sigma is zero (and no crossing is possible)
+    bool skipEmpty = true;  ///< skip blocks where sigma is zero (and no crossing is possible)
 };
 
 /// Result of one first-hit ray.
 struct RayHit {
-    float t = 0;       ///< metres along the unit direction; the ray length when there is no hit
+    float t = 0;  ///< metres along the unit direction; the ray length when there is no hit
     bool hit = false;
 };
 
 /// Result of one accumulate ray.
 struct AccumulateHit {
-    float t = 0;          ///< where the integral reached tauStop, or the ray length (metres)
-    float integral = 0;   ///< integral of sigma up to t (dimensionless)
-    float firstHitT = 0;  ///< first crossing (when reportFirstHit and firstHit), metres
-    bool stopped = false; ///< integral reached tauStop
+    float t = 0;           ///< where the integral reached tauStop, or the ray length (metres)
+    float integral = 0;    ///< integral of sigma up to t (dimensionless)
+    float firstHitT = 0;   ///< first crossing (when reportFirstHit and firstHit), metres
+    bool stopped = false;  ///< integral reached tauStop
     bool firstHit = false;
 };
 
 /// Per-ray results of a bundle, same order as RayBundle. Rays beyond `count` are untouched.
 /// @par Real-time  Fixed capacity.
 struct BundleHits {
-    std::array<float, kMaxBundleRays> t{};              ///< metres (ray length when no hit)
-    std::array<std::uint8_t, kMaxBundleRays> hit{};     ///< 1 = hit
+    std::array<float, kMaxBundleRays> t{};               ///< metres (ray length when no hit)
+    std::array<std::uint8_t, kMaxBundleRays> hit{};      ///< 1 = hit
     std::array<std::uint32_t, kMaxBundleRays> geomId{};  ///< mesh traces: Embree geometry id
     int count = 0;
 };
@@ -181,8 +180,9 @@ struct BundleAccumulation {
 /// Time is bounded by kMaxSamplesPerRay samples (longer rays are cut there).
 /// @par Threading  Any number of threads on one view.
 /// @par Real-time  noexcept, no allocation, no lock.
-RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-                double length, const FirstHitParams& params) noexcept;
+RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
+                const Eigen::Vector3d& direction, double length,
+                const FirstHitParams& params) noexcept;
 
 /// Integrates tau(t) = integral_0^t sigma(v(s)) ds along the ray (v linear between samples, so
 /// each step's integral is exact for a piecewise-linear sigma) and returns the t where tau
@@ -203,8 +203,8 @@ void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstH
 /// Accumulate for every ray of @p bundle.
 /// @par Threading  Any number of threads on one view, each with its own @p out.
 /// @par Real-time  noexcept, no allocation, no lock.
-void traceAccumulate(const VolumeView& view, const RayBundle& bundle, const AccumulateParams& params,
-                     BundleAccumulation& out) noexcept;
+void traceAccumulate(const VolumeView& view, const RayBundle& bundle,
+                     const AccumulateParams& params, BundleAccumulation& out) noexcept;
 
 /// Throws palp::ValueError when @p params cannot be used (non-positive or non-finite step,
 /// NaN threshold, negative refine count). Call at set-up; the kernels themselves never throw.

@@ -5,7 +5,6 @@
 /// what was expected. The readers (formats.h) and the fuzz targets call them.
 
 #include <Eigen/Core>
-
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -28,33 +27,33 @@ enum class NrrdEncoding { Raw, Gzip, Ascii };
 /// A parsed NRRD header. Geometry is as written in the file (millimetres, in the file's space);
 /// the reader converts to LPS metres.
 struct NrrdHeader {
-    int version = 0;                    ///< N of NRRD000N
+    int version = 0;  ///< N of NRRD000N
     ElementType type = ElementType::UInt8;
-    int dimension = 0;                  ///< number of axes
-    std::vector<std::int64_t> sizes;    ///< samples per axis, axis 0 fastest
+    int dimension = 0;                ///< number of axes
+    std::vector<std::int64_t> sizes;  ///< samples per axis, axis 0 fastest
     /// Sign applied to world x, y, z to reach LPS: (-1, -1, 1) for RAS, (1, 1, 1) for LPS.
     Eigen::Vector3d toLps = Eigen::Vector3d::Ones();
-    std::string space;                  ///< canonical space name, "" when absent
-    int spaceDimension = 0;             ///< 0 when no space or space dimension field
+    std::string space;       ///< canonical space name, "" when absent
+    int spaceDimension = 0;  ///< 0 when no space or space dimension field
     /// Per axis: direction vector (first 3 components, mm) or nullopt for "none".
     std::vector<std::optional<Eigen::Vector3d>> spaceDirections;
     std::optional<Eigen::Vector3d> spaceOrigin;  ///< mm, first 3 components
-    double spaceUnitsToMetres = 1e-3;   ///< from "space units" (mm by default)
-    std::vector<double> spacings;       ///< per axis, NaN when absent
-    std::vector<double> axisMins;       ///< per axis, NaN when absent
-    std::vector<double> axisMaxs;       ///< per axis, NaN when absent
+    double spaceUnitsToMetres = 1e-3;            ///< from "space units" (mm by default)
+    std::vector<double> spacings;                ///< per axis, NaN when absent
+    std::vector<double> axisMins;                ///< per axis, NaN when absent
+    std::vector<double> axisMaxs;                ///< per axis, NaN when absent
     std::vector<std::string> centerings;  ///< per axis ("cell", "node", "???"), empty when absent
     std::vector<std::string> kinds;       ///< per axis, empty when absent
     bool endianGiven = false;
     ByteOrder endian = ByteOrder::Little;
     NrrdEncoding encoding = NrrdEncoding::Raw;
     bool encodingGiven = false;
-    std::string dataFile;               ///< detached data file name as written, "" when attached
+    std::string dataFile;  ///< detached data file name as written, "" when attached
     std::int64_t lineSkip = 0;
-    std::int64_t byteSkip = 0;          ///< -1: data are the last bytes of the file (raw only)
-    std::size_t headerBytes = 0;        ///< offset of attached data (after the blank line)
-    bool blankLineEnd = false;          ///< the header ended with an empty line (not end of text)
-    std::string content;                ///< "content" field, "" when absent
+    std::int64_t byteSkip = 0;    ///< -1: data are the last bytes of the file (raw only)
+    std::size_t headerBytes = 0;  ///< offset of attached data (after the blank line)
+    bool blankLineEnd = false;    ///< the header ended with an empty line (not end of text)
+    std::string content;          ///< "content" field, "" when absent
 };
 
 /// Parses the NRRD header at the start of @p text (the whole file or its first bytes). The header
@@ -68,10 +67,10 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name);
 struct MetaImageHeader {
     int nDims = 0;
     std::vector<std::int64_t> dimSize;
-    std::vector<double> elementSpacing;        ///< mm per axis (1 when absent)
-    std::vector<double> offset;                ///< mm, nDims values (0 when absent)
-    std::vector<double> transformMatrix;       ///< nDims*nDims, column-major direction cosines
-    std::string anatomicalOrientation;         ///< e.g. "RAI", informational
+    std::vector<double> elementSpacing;   ///< mm per axis (1 when absent)
+    std::vector<double> offset;           ///< mm, nDims values (0 when absent)
+    std::vector<double> transformMatrix;  ///< nDims*nDims, column-major direction cosines
+    std::string anatomicalOrientation;    ///< e.g. "RAI", informational
     ElementType type = ElementType::UInt8;
     bool typeGiven = false;
     ByteOrder byteOrder = ByteOrder::Little;
@@ -79,9 +78,9 @@ struct MetaImageHeader {
     bool compressed = false;
     std::optional<std::uint64_t> compressedDataSize;
     int channels = 1;
-    std::int64_t headerSize = 0;               ///< bytes to skip in the data file, -1: tail
-    std::string elementDataFile;               ///< "LOCAL" or a file name
-    std::size_t headerBytes = 0;               ///< offset of LOCAL data (after ElementDataFile line)
+    std::int64_t headerSize = 0;  ///< bytes to skip in the data file, -1: tail
+    std::string elementDataFile;  ///< "LOCAL" or a file name
+    std::size_t headerBytes = 0;  ///< offset of LOCAL data (after ElementDataFile line)
 };
 
 /// Parses a MetaImage header from the start of @p text; it ends at the ElementDataFile line.

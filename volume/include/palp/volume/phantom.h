@@ -13,7 +13,6 @@
 /// hidden box, bone) +1000.
 
 #include <Eigen/Core>
-
 #include <cstdint>
 #include <string>
 #include <string_view>
@@ -75,8 +74,8 @@ struct PhantomParams {
 
 /// Fixed dimensions of the scenes (metres, in the frame described in the file comment).
 namespace phantom_geometry {
-inline constexpr double kBlockHalfWidth = 0.050;   ///< AVC/AVCEC/bone block: x, z in +-50 mm
-inline constexpr double kBlockDepth = 0.050;       ///< block: y in [0, 50] mm
+inline constexpr double kBlockHalfWidth = 0.050;     ///< AVC/AVCEC/bone block: x, z in +-50 mm
+inline constexpr double kBlockDepth = 0.050;         ///< block: y in [0, 50] mm
 inline constexpr double kAvcPlateHalfWidth = 0.030;  ///< AVC plate: x, z in +-30 mm
 inline constexpr double kAvcPlateTop = 0.010;        ///< AVC plate: y in [10, 12] mm
 inline constexpr double kAvcPlateBottom = 0.012;
@@ -87,13 +86,13 @@ inline constexpr double kAvcBoxBottom = 0.028;
 inline constexpr double kAvcecPlateRadius = 0.020;  ///< circumradius of the AVCEC outlines
 inline constexpr double kAvcecRectHalfX = 0.020;    ///< AVCEC rectangle: 40 mm (x) by 24 mm (z)
 inline constexpr double kAvcecRectHalfZ = 0.012;
-inline constexpr double kAvcecPlateTop = 0.008;     ///< AVCEC plate: y in [8, 10] mm
+inline constexpr double kAvcecPlateTop = 0.008;  ///< AVCEC plate: y in [8, 10] mm
 inline constexpr double kAvcecPlateBottom = 0.010;
-inline constexpr double kBoneHalfWidth = 0.040;     ///< bone slab: x, z in +-40 mm
-inline constexpr double kBoneCentreDepth = 0.025;   ///< depth of the slab's top at x = 0
-inline constexpr double kBoneThickness = 0.006;     ///< measured along y
-inline constexpr double kStiffBoxWidth = 0.040;     ///< stiffness boxes 40 x 40 x 40 mm
-inline constexpr double kStiffBoxPitch = 0.050;     ///< box centres at x = -50, 0, +50 mm
+inline constexpr double kBoneHalfWidth = 0.040;    ///< bone slab: x, z in +-40 mm
+inline constexpr double kBoneCentreDepth = 0.025;  ///< depth of the slab's top at x = 0
+inline constexpr double kBoneThickness = 0.006;    ///< measured along y
+inline constexpr double kStiffBoxWidth = 0.040;    ///< stiffness boxes 40 x 40 x 40 mm
+inline constexpr double kStiffBoxPitch = 0.050;    ///< box centres at x = -50, 0, +50 mm
 }  // namespace phantom_geometry
 
 /// Smooth step from 0 (at @p x <= 0) to 1 (at @p x >= @p width): linear x/w, cosine
@@ -103,7 +102,7 @@ double transitionProfile(TransitionProfile profile, double x, double width, doub
 /// A scene with exact geometry.
 /// @par Threading  Immutable after construction; valueAt may be called from any thread.
 class Phantom {
-public:
+  public:
     /// @throw ValueError for parameters outside their ranges (quadrant 0-3, displacement -1..1,
     ///        positive widths, |boneTiltDeg| < 30, tanhSharpness > 0, ...).
     explicit Phantom(const PhantomParams& params);
@@ -129,7 +128,7 @@ public:
     /// Stiffness: x of the centre of box @p index (0 = DP, 1 = CP, 2 = CL), metres.
     static double stiffnessBoxCentreX(int index);
 
-private:
+  private:
     bool insidePlateOutline(double x, double z) const;
     double tissueValue(double depth) const;
 

@@ -15,7 +15,18 @@
 namespace palp::volume {
 
 /// Scalar element types of the supported formats.
-enum class ElementType { Int8, UInt8, Int16, UInt16, Int32, UInt32, Int64, UInt64, Float32, Float64 };
+enum class ElementType {
+    Int8,
+    UInt8,
+    Int16,
+    UInt16,
+    Int32,
+    UInt32,
+    Int64,
+    UInt64,
+    Float32,
+    Float64
+};
 
 /// Byte order of multi-byte elements in a file.
 enum class ByteOrder { Little, Big };
@@ -58,11 +69,12 @@ std::vector<std::byte> readFileRange(const std::filesystem::path& path, std::uin
 /// @throw IoError when unreadable; FormatError when the stream is corrupt, ends before
 ///        @p expectedBytes bytes or holds more than that.
 std::vector<std::byte> inflateFileRange(const std::filesystem::path& path, std::uint64_t offset,
-                                        std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes);
+                                        std::uint64_t maxCompressedBytes,
+                                        std::uint64_t expectedBytes);
 
 /// In-memory variant of inflateFileRange; @p item names the source in messages.
-std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed, std::uint64_t expectedBytes,
-                                    const std::string& item);
+std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed,
+                                    std::uint64_t expectedBytes, const std::string& item);
 
 /// Parses @p count numbers (separated by white space or commas) from text at @p offset of
 /// @p path. Refuses before allocating when the remaining file is too short to hold them.
@@ -72,6 +84,7 @@ std::vector<float> readAsciiValues(const std::filesystem::path& path, std::uint6
 
 /// Byte offset just after @p lines newline characters starting at @p offset of @p path.
 /// @throw FormatError when the file ends first.
-std::uint64_t skipLines(const std::filesystem::path& path, std::uint64_t offset, std::int64_t lines);
+std::uint64_t skipLines(const std::filesystem::path& path, std::uint64_t offset,
+                        std::int64_t lines);
 
 }  // namespace palp::volume

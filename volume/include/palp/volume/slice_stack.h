@@ -4,7 +4,6 @@
 /// world geometry, so gantry tilt and uneven spacing are represented exactly.
 
 #include <Eigen/Core>
-
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -36,8 +35,8 @@ struct SliceStack {
 /// Builds a stack from a regular grid given by an index-to-world affine (metres, LPS): voxel
 /// (i, j, k) is at origin + i*axes.col(0) + j*axes.col(1) + k*axes.col(2). @p values holds
 /// dims[0]*dims[1]*dims[2] values with i fastest. Moves the values slice by slice.
-SliceStack stackFromAffine(const std::vector<float>& values, const std::array<std::int64_t, 3>& dims,
-                           const Eigen::Matrix3d& axes, const Eigen::Vector3d& origin,
-                           const std::string& source);
+SliceStack stackFromAffine(const std::vector<float>& values,
+                           const std::array<std::int64_t, 3>& dims, const Eigen::Matrix3d& axes,
+                           const Eigen::Vector3d& origin, const std::string& source);
 
 }  // namespace palp::volume

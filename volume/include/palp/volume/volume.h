@@ -16,13 +16,15 @@ inline constexpr const char* kScanGridName = "scan";
 /// Acquisition facts carried with a volume. Nothing here identifies a patient: palp copies no
 /// patient, physician, institution, date or accession tags.
 struct VolumeInfo {
-    std::string modality;           ///< DICOM modality ("CT", "MR", ...) or "" when unknown
-    std::string valueUnits;         ///< "HU" for CT, otherwise "" (scanner intensity)
-    std::string sourceFormat;       ///< "DICOM", "NIfTI-1", "NIfTI-2", "NRRD", "MetaImage", "VDB", "phantom"
+    std::string modality;    ///< DICOM modality ("CT", "MR", ...) or "" when unknown
+    std::string valueUnits;  ///< "HU" for CT, otherwise "" (scanner intensity)
+    std::string
+        sourceFormat;  ///< "DICOM", "NIfTI-1", "NIfTI-2", "NRRD", "MetaImage", "VDB", "phantom"
     std::string sourceDescription;  ///< series description or file name, free text
     std::string seriesUid;          ///< DICOM SeriesInstanceUID (empty for other formats)
     std::array<std::int64_t, 3> originalDims{0, 0, 0};  ///< columns, rows, slices of the source
-    std::array<double, 3> originalSpacing{0, 0, 0};     ///< metres: column step, row step, median slice gap
+    std::array<double, 3> originalSpacing{0, 0,
+                                          0};  ///< metres: column step, row step, median slice gap
     double minSliceGap = 0;       ///< metres, smallest gap between adjacent slices along the normal
     double maxSliceGap = 0;       ///< metres, largest gap (differs from min for uneven spacing)
     double rescaleSlope = 1;      ///< applied to stored values (value = slope * stored + intercept)
