@@ -17,7 +17,11 @@ using nlohmann::json;
 
 namespace {
 
-json vec3(double a, double b, double c) { return json::array({a, b, c}); }
+/// Millimetre figures rounded to 1 nm, so that float noise of the metre-based geometry
+/// (0.5000000000000004) does not show.
+double mm(double v) { return std::round(v * 1e6) / 1e6; }
+
+json vec3(double a, double b, double c) { return json::array({mm(a), mm(b), mm(c)}); }
 
 json describeVolume(const volume::Volume& v, const fs::path& path) {
     const auto& g = *v.grid;
@@ -62,7 +66,7 @@ json describeVolume(const volume::Volume& v, const fs::path& path) {
         {"original_dims", i.originalDims},
         {"original_spacing_mm",
          vec3(i.originalSpacing[0] * 1e3, i.originalSpacing[1] * 1e3, i.originalSpacing[2] * 1e3)},
-        {"slice_gap_mm", {i.minSliceGap * 1e3, i.maxSliceGap * 1e3}},
+        {"slice_gap_mm", {mm(i.minSliceGap * 1e3), mm(i.maxSliceGap * 1e3)}},
         {"rescale", {{"slope", i.rescaleSlope}, {"intercept", i.rescaleIntercept}}},
         {"gantry_tilt_deg", i.gantryTiltDeg},
         {"time_point", i.timePoint},
