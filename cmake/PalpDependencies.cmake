@@ -27,8 +27,8 @@ target_include_directories(palp_gdcm SYSTEM INTERFACE ${GDCM_INCLUDE_DIRS})
 target_link_libraries(palp_gdcm INTERFACE gdcmMSFF gdcmDSED gdcmCommon)
 
 # CHOLMOD (SuiteSparse 5.12) has no CMake config.
-find_library(PALP_CHOLMOD_LIB cholmod)
-find_path(PALP_CHOLMOD_INCLUDE_DIR cholmod.h PATH_SUFFIXES suitesparse)
+find_library(PALP_CHOLMOD_LIB cholmod REQUIRED)
+find_path(PALP_CHOLMOD_INCLUDE_DIR cholmod.h PATH_SUFFIXES suitesparse REQUIRED)
 
 if(PALP_BUILD_TESTS)
   find_package(GTest REQUIRED)
