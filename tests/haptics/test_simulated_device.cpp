@@ -70,9 +70,9 @@ TEST(SimulatedDevice, WallForceStopsTheHandAtTheStaticEquilibrium) {
     // k_h (z_target - z) + k_wall (z_wall - z) = 0.
     const double zEq = (hand.stiffnessNpm * -0.01 + kWall * zWall) / (hand.stiffnessNpm + kWall);
     EXPECT_NEAR(zAtHoldEnd, zEq, 1e-4);
-    // A sampled wall is not exactly passive; with this damping the observer stays near zero
-    // and ends the press-and-release cycle with the wall relaxed.
-    EXPECT_GT(minEnergy, -1e-4);
+    // The hand's damping keeps the sampled wall passive over the press-and-release cycle (the
+    // observer sees W >= 0 throughout), and the wall is relaxed at the end.
+    EXPECT_GE(minEnergy, -1e-9);
     EXPECT_NEAR(s.position.z(), 0.0, 1e-4);
 }
 
