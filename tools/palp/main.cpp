@@ -1,4 +1,4 @@
-// The palp command: convert, inspect and generate volumes (and later palpate and benchmark).
+// The palp command: convert, inspect and generate volumes, benchmark ray bundles.
 #include <CLI/CLI.hpp>
 #include <cstdio>
 #include <exception>
