@@ -550,11 +550,7 @@ TEST(DicomWrite, RefusesValuesThatDoNotFitAndLeavesNothing) {
     EXPECT_THROW(writeDicomSeries(stack, "/proc/palp-no-such/dir"), palp::IoError);
 }
 
-// Round trip through palp's DICOM reader; skipped while the reader is not there yet.
-bool readerMissing(const palp::Error& e) {
-    return std::string(e.what()).find("not implemented") != std::string::npos;
-}
-
+// Round trip through palp's DICOM reader.
 TEST(DicomRoundTrip, PhantomSeriesLoadsBackExactly) {
     struct Case {
         double tiltDeg;
@@ -584,13 +580,7 @@ TEST(DicomRoundTrip, PhantomSeriesLoadsBackExactly) {
         writeDicomSeries(stack, tmp / "series", opt);
         LoadOptions lo;
         lo.resample.voxelSize = 1 * kMm;
-        Volume loaded;
-        try {
-            loaded = load({tmp / "series"}, lo);
-        } catch (const palp::Error& e) {
-            if (readerMissing(e)) GTEST_SKIP() << "DICOM reader not there yet: " << e.what();
-            throw;
-        }
+        const Volume loaded = load({tmp / "series"}, lo);
         ResampleOptions ro;
         ro.voxelSize = 1 * kMm;
         ro.backgroundThreshold = -900.0f;
@@ -682,9 +672,6 @@ TEST(PhantomTool, VdbAndDicomEndToEnd) {
 
     const std::string conv = (tmp / "conv.vdb").string();
     r = palp::test::runCommand(palp.string() + " convert " + dir + " -o " + conv);
-    if (r.exitCode != 0 && r.output.find("not implemented") != std::string::npos) {
-        GTEST_SKIP() << "DICOM reader not there yet: " << r.output;
-    }
     ASSERT_EQ(r.exitCode, 0) << r.output;
     r = palp::test::runCommand(palp.string() + " info " + conv);
     ASSERT_EQ(r.exitCode, 0) << r.output;
