@@ -634,7 +634,7 @@ TEST(DicomRoundTrip, PhantomSeriesLoadsBackExactly) {
 
 TEST(PhantomTool, VdbAndDicomEndToEnd) {
     const fs::path palp = palp::test::palpTool();
-    if (!fs::exists(palp)) GTEST_SKIP() << "palp tool not built at " << palp;
+    ASSERT_TRUE(fs::exists(palp)) << "palp tool not built at " << palp;
     palp::test::TempDir tmp;
     const std::string vdb = (tmp / "avc.vdb").string();
     auto r = palp::test::runCommand(
