@@ -204,11 +204,7 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
 
 SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
     const std::string name = path.string();
-    const std::uint64_t size = fileSize(path);
-    const std::vector<std::byte> prefixBytes =
-        readFileRange(path, 0, std::min<std::uint64_t>(size, kMaxHeaderBytes));
-    const std::string_view prefix(reinterpret_cast<const char*>(prefixBytes.data()),
-                                  prefixBytes.size());
+    const std::string prefix = detail::readHeaderPrefix(path);
     const MetaImageHeader h = parseMetaImageHeader(prefix, name);
 
     if (h.nDims != 3 && h.nDims != 4) {

@@ -499,11 +499,7 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
 
 SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
     const std::string name = path.string();
-    const std::uint64_t size = fileSize(path);
-    const std::vector<std::byte> prefixBytes =
-        readFileRange(path, 0, std::min<std::uint64_t>(size, kMaxHeaderBytes));
-    const std::string_view prefix(reinterpret_cast<const char*>(prefixBytes.data()),
-                                  prefixBytes.size());
+    const std::string prefix = detail::readHeaderPrefix(path);
     const NrrdHeader h = parseNrrdHeader(prefix, name);
     const int n = h.dimension;
     const auto un = static_cast<std::size_t>(n);

@@ -12,9 +12,20 @@
 #include <vector>
 
 #include "palp/error.h"
+#include "palp/volume/header_parsers.h"
 #include "palp/volume/load.h"
+#include "palp/volume/raw_data.h"
 
 namespace palp::volume::detail {
+
+/// The first bytes of @p path (at most kMaxHeaderBytes) as text for a header parser; the size
+/// is checked against the file before anything is read.
+inline std::string readHeaderPrefix(const std::filesystem::path& path) {
+    const std::uint64_t size = fileSize(path);
+    const std::vector<std::byte> bytes =
+        readFileRange(path, 0, std::min<std::uint64_t>(size, kMaxHeaderBytes));
+    return std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+}
 
 inline std::string_view trim(std::string_view s) {
     auto isWs = [](char c) { return std::isspace(static_cast<unsigned char>(c)) != 0; };
