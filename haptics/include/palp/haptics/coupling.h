@@ -1,0 +1,112 @@
+#pragma once
+/// @file
+/// Virtual coupling between proxy and probe: plain (VC), anisotropic (AVC, ALGORITHMS.md
+/// section 2) and anisotropic with energy conservation (AVCEC, section 3).
+
+#include <Eigen/Core>
+
+#include "palp/kernels/embree_scene.h"
+#include "palp/kernels/ray_bundle.h"
+#include "palp/kernels/volume_ray.h"
+
+namespace palp::haptics {
+
+enum class CouplingMode {
+    VC,     ///< k = baseStiffness, no rays
+    AVC,    ///< k = baseStiffness * m(L) from the centre ray (low-passed over the ring)
+    AVCEC,  ///< AVC plus the spherical (probe) and surface (proxy) energy terms
+};
+
+/// Where the ray length L comes from.
+enum class RaySource {
+    Mesh,              ///< closest hit against the hard meshes (mask hardMask)
+    VolumeFirstHit,    ///< first crossing of firstHit.threshold in the volume
+    VolumeAccumulate,  ///< where the integral of accumulate.sigma reaches accumulate.tauStop
+};
+
+/// Coupling settings. Validate with validateCouplingParams() at set-up; all switchable at run
+/// time through Coupling::setParams().
+struct CouplingParams {
+    CouplingMode mode = CouplingMode::AVCEC;
+    RaySource source = RaySource::VolumeFirstHit;
+    kernels::BundleParams bundle;  ///< L_max (bundle.length), ring, delta, h
+    kernels::FirstHitParams firstHit;
+    kernels::AccumulateParams accumulate;
+    unsigned hardMask = kernels::kMaskBone | kernels::kMaskPlate;  ///< Mesh source targets
+    double baseStiffness = 300;     ///< k_s, N/m: stiffness of the surface itself
+    double referenceLength = 5e-3;  ///< L_ref, m: m(L) = clamp(L_ref / L, 1, maxMultiplier)
+    double maxMultiplier = 8;       ///< m_max
+    double maxStiffness = 2400;     ///< k_max, N/m: k is always clamped here
+    double damping = 0;             ///< b, N s/m, on v_py - v_pb
+    double minDistance = 1e-6;      ///< eps, m: no ray and no force below this D
+};
+
+/// @throw palp::ValueError naming the field (non-finite or non-positive stiffness, lengths,
+///        maxMultiplier < 1, maxStiffness < baseStiffness, negative damping, and the bundle and
+///        ray parameters through their own validators).
+void validateCouplingParams(const CouplingParams& params);
+
+/// The stiffness multiplier m(L) = clamp(L_ref / L, 1, m_max) (m_max for L <= 0).
+/// @par Real-time  noexcept.
+double stiffnessMultiplier(const CouplingParams& params, double rayLength) noexcept;
+
+/// Everything one tick of the coupling computed (for the force, the proxy, traces and
+/// snapshots).
+struct CouplingOutput {
+    Eigen::Vector3d force{Eigen::Vector3d::Zero()};  ///< F_pb on the user, N (before clamping)
+    /// AVCEC's F_py = -1/2 D^2 grad_py k, in the tangent plane, N (zero otherwise): feed it to
+    /// Proxy::update().
+    Eigen::Vector3d proxyForce{Eigen::Vector3d::Zero()};
+    /// AVCEC's spherical term -1/2 D (g1 e1 + g2 e2), N (already included in force).
+    Eigen::Vector3d energyForce{Eigen::Vector3d::Zero()};
+    double stiffness = 0;              ///< k used, N/m (low-passed, clamped)
+    double rayLength = 0;              ///< centre ray's L, m (L_max when nothing was found)
+    double distance = 0;               ///< D, m
+    double energy = 0;                 ///< 1/2 k D^2, J
+    kernels::StencilGradient sphere;   ///< g1, g2, N/m per radian
+    kernels::StencilGradient surface;  ///< along t1, t2, N/m per metre
+    int rays = 0;                      ///< rays cast this tick
+};
+
+/// Computes the coupling force each tick. Holds the bundle and hit buffers, so a tick
+/// allocates nothing.
+///
+/// @par Threading  One instance per servo loop; compute() from one thread at a time. The view
+///      and scene must outlive it and must not change while compute() runs.
+/// @par Real-time  compute() is noexcept, allocation-free, lock-free and bounded by the
+///      bundle's ray count times kernels::kMaxSamplesPerRay.
+class Coupling {
+  public:
+    /// @p volume is needed for the volume sources, @p hardMeshes for the mesh source (either
+    /// may be null otherwise).
+    /// @throw palp::ValueError for invalid parameters or a source without its data.
+    Coupling(const kernels::VolumeView* volume, const kernels::EmbreeScene* hardMeshes,
+             const CouplingParams& params);
+
+    /// Replaces the parameters (validate first with validateCouplingParams(); a source without
+    /// its data falls back to VC and is reported through sourceAvailable()).
+    void setParams(const CouplingParams& params) noexcept;
+    const CouplingParams& params() const noexcept { return mParams; }
+    /// Whether the current source has its data.
+    bool sourceAvailable() const noexcept;
+
+    /// One tick. @p tangent1, @p tangent2 span the surface stencil plane (the proxy's tangent
+    /// frame). D < minDistance or non-finite input gives a zero output.
+    void compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
+                 const Eigen::Vector3d& proxyVelocity, const Eigen::Vector3d& probeVelocity,
+                 const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2,
+                 CouplingOutput& out) noexcept;
+
+    /// The last bundle cast (for viewers: the rays of this tick).
+    const kernels::RayBundle& bundle() const noexcept { return mBundle; }
+
+  private:
+    const kernels::VolumeView* mVolume;
+    const kernels::EmbreeScene* mMeshes;
+    CouplingParams mParams;
+    kernels::RayBundle mBundle;
+    kernels::BundleHits mHits;
+    kernels::BundleAccumulation mAccum;
+};
+
+}  // namespace palp::haptics

@@ -1,0 +1,122 @@
+#pragma once
+/// @file
+/// The servo loop: a dedicated thread that calls a task at a fixed rate (1 kHz by default) on
+/// absolute deadlines, pinned to a core, with SCHED_FIFO when the process may, and timing
+/// statistics (wake-up latency, period error, compute time).
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <string>
+#include <thread>
+
+namespace palp::haptics {
+
+/// Passed to the task each tick.
+struct TickInfo {
+    std::uint64_t index = 0;      ///< tick number from 0
+    double periodSeconds = 1e-3;  ///< nominal period T, s
+    double timeSeconds = 0;       ///< nominal time of this tick since start, s
+    double latencySeconds = 0;    ///< how late the thread woke for this tick, s
+};
+
+/// What runs every tick. tick() must be noexcept, allocation-free, lock-free and bounded.
+class ServoTask {
+  public:
+    virtual ~ServoTask() = default;
+    virtual void tick(const TickInfo& info) noexcept = 0;
+};
+
+struct ServoConfig {
+    double periodSeconds = 1e-3;   ///< T, s (1e-5 .. 1)
+    int cpu = -1;                  ///< core to pin to; -1: the last core the process may use
+    int priority = 80;             ///< SCHED_FIFO priority (1..99); 0: do not ask for SCHED_FIFO
+    bool requireRealtime = false;  ///< start() throws when pinning or SCHED_FIFO fails
+    double spinSeconds = 0;        ///< busy-wait this long before each deadline (0: sleep only)
+    bool lockMemory = false;       ///< mlockall(MCL_CURRENT | MCL_FUTURE) at start (reported)
+};
+
+/// @throw palp::ValueError naming the field.
+void validateServoConfig(const ServoConfig& config);
+
+/// What the loop obtained from the OS; never silently ignored: check it, print it.
+struct RealtimeStatus {
+    bool pinned = false;
+    int cpu = -1;
+    bool fifo = false;
+    int priority = 0;
+    bool memoryLocked = false;
+    std::string message;  ///< e.g. "SCHED_FIFO 80 refused: Operation not permitted (EPERM)"
+};
+
+/// A fixed-bin latency histogram (1 us bins to 20 ms, plus overflow), filled on the servo
+/// thread without allocation and read from any thread (relaxed atomics: a reader may see a
+/// tick half-counted across histograms, never a torn count).
+class LatencyHistogram {
+  public:
+    static constexpr int kBins = 20000;  ///< bin i: [i, i + 1) microseconds
+    void add(double seconds) noexcept;
+    void reset() noexcept;
+    std::uint64_t count() const noexcept;
+    /// Quantile q in [0, 1], seconds (upper edge of the bin; max() for the overflow).
+    double quantile(double q) const noexcept;
+    double max() const noexcept;   ///< exact maximum, s
+    double mean() const noexcept;  ///< s
+
+  private:
+    std::array<std::atomic<std::uint32_t>, kBins> mBins{};
+    std::atomic<std::uint64_t> mOverflow{0}, mCount{0};
+    std::atomic<double> mMax{0}, mSum{0};
+};
+
+/// Summary figures of one histogram, seconds.
+struct LatencySummary {
+    double p50 = 0, p99 = 0, p999 = 0, max = 0, mean = 0;
+    std::uint64_t count = 0;
+};
+
+struct ServoStats {
+    LatencySummary wakeLatency;  ///< actual wake-up minus deadline
+    LatencySummary periodError;  ///< |actual period - T|
+    LatencySummary compute;      ///< time in ServoTask::tick()
+    std::uint64_t ticks = 0;
+    std::uint64_t misses = 0;   ///< ticks whose tick() ended after the next deadline
+    std::uint64_t skipped = 0;  ///< deadlines dropped to catch up after an overrun
+};
+
+/// Runs a ServoTask on its own thread.
+///
+/// @par Threading  start(), stop() and the destructor from one controlling thread; stats()
+///      and running() from any thread.
+/// @par Real-time  The loop itself never allocates, locks, logs or throws after start.
+class ServoLoop {
+  public:
+    explicit ServoLoop(const ServoConfig& config = {});
+    ~ServoLoop();  ///< stops the loop
+    ServoLoop(const ServoLoop&) = delete;
+    ServoLoop& operator=(const ServoLoop&) = delete;
+
+    /// Starts the thread; returns after it has set its affinity and policy (see realtime()).
+    /// @throw palp::Error when already running, when the thread cannot start, or (with
+    ///        requireRealtime) when pinning or SCHED_FIFO failed.
+    void start(ServoTask& task);
+    /// Asks the loop to stop after the current tick and joins it. Idempotent.
+    void stop() noexcept;
+    bool running() const noexcept;
+
+    const RealtimeStatus& realtime() const noexcept { return mStatus; }
+    ServoStats stats() const noexcept;
+    void resetStats() noexcept;
+    const ServoConfig& config() const noexcept { return mConfig; }
+
+  private:
+    void run(ServoTask* task) noexcept;
+    ServoConfig mConfig;
+    RealtimeStatus mStatus;
+    std::thread mThread;
+    std::atomic<bool> mStop{false}, mRunning{false};
+    LatencyHistogram mWake, mPeriodError, mCompute;
+    std::atomic<std::uint64_t> mTicks{0}, mMisses{0}, mSkipped{0};
+};
+
+}  // namespace palp::haptics

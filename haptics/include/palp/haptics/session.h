@@ -1,0 +1,148 @@
+#pragma once
+/// @file
+/// Scene (what can be felt) and Session (device + proxy + coupling + passivity + safety + the
+/// servo loop, with lock-free snapshots and a command queue): the facade a viewer embeds.
+
+#include <Eigen/Geometry>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <optional>
+
+#include "palp/haptics/coupling.h"
+#include "palp/haptics/device.h"
+#include "palp/haptics/proxy.h"
+#include "palp/haptics/servo_loop.h"
+#include "palp/haptics/spsc_queue.h"
+#include "palp/haptics/triple_buffer.h"
+#include "palp/kernels/embree_scene.h"
+#include "palp/kernels/mesh.h"
+#include "palp/kernels/volume_ray.h"
+#include "palp/volume/volume.h"
+
+namespace palp::haptics {
+
+/// How a Scene is made from a volume.
+struct SceneOptions {
+    /// Iso-value (volume units, HU for CT) of the surface the proxy slides on (skin: between
+    /// air and fat). NaN: no surface from the volume.
+    double surfaceIso = -500;
+    /// Iso-value of the hard structures added as hard meshes (mask kMaskBone) for the Mesh ray
+    /// source. NaN: none.
+    double hardIso = std::numeric_limits<double>::quiet_NaN();
+    double adaptivity = 0.0;  ///< volumeToMesh adaptivity for both
+};
+
+/// What can be felt: a volume (for the volume ray sources), surface meshes (the proxy's
+/// constraints, mask kMaskSurface) and hard meshes (the Mesh ray source).
+/// @par Threading  Built on one thread, then immutable and shared (const) by sessions.
+class Scene {
+  public:
+    Scene();
+    /// Volume view plus the iso-surfaces of @p options. @throw palp::ValueError.
+    static std::shared_ptr<Scene> fromVolume(const volume::Volume& volume,
+                                             const SceneOptions& options = {});
+    /// Adds a mesh the proxy cannot cross.
+    void addSurfaceMesh(const kernels::TriangleMesh& mesh);
+    /// Adds a hard structure for the Mesh ray source (mask: kMaskBone, kMaskPlate, ...).
+    void addHardMesh(const kernels::TriangleMesh& mesh, unsigned mask = kernels::kMaskBone);
+    /// Sets the volume used by the volume ray sources.
+    void setVolume(openvdb::FloatGrid::ConstPtr grid);
+    /// Commits the Embree scenes; call once after the last add, before a Session uses it.
+    void commit();
+
+    const kernels::VolumeView* volumeView() const noexcept { return mView.get(); }
+    const kernels::EmbreeScene& surfaces() const noexcept { return *mSurfaces; }
+    const kernels::EmbreeScene& hardMeshes() const noexcept { return *mHard; }
+
+  private:
+    std::unique_ptr<kernels::VolumeView> mView;
+    std::unique_ptr<kernels::EmbreeScene> mSurfaces, mHard;
+};
+
+/// Device frame -> world: world = offset + scale * rotation * device.
+struct WorkspaceTransform {
+    double scale = 1;
+    Eigen::Matrix3d rotation{Eigen::Matrix3d::Identity()};
+    Eigen::Vector3d offset{Eigen::Vector3d::Zero()};
+};
+
+struct SessionParams {
+    ProxyParams proxy;
+    CouplingParams coupling;
+    WorkspaceTransform workspace;
+    bool passivityControl = false;   ///< the observer always runs; this adds the controller
+    double startupThresholdN = 0.3;  ///< force below which a start-up tick counts as quiet
+    std::uint32_t startupQuietTicks = 50;
+    double crossFadeSeconds = 0.2;  ///< parameter changes fade over this long
+    ServoConfig servo;
+};
+
+/// @throw palp::ValueError naming the field (through the parts' validators too).
+void validateSessionParams(const SessionParams& params);
+
+/// One tick's state, published lock-free for viewers and traces. Plain data.
+struct Snapshot {
+    std::uint64_t tick = 0;
+    double timeSeconds = 0;
+    Eigen::Vector3d probe{Eigen::Vector3d::Zero()};        ///< world, m
+    Eigen::Vector3d proxy{Eigen::Vector3d::Zero()};        ///< world, m
+    Eigen::Vector3d force{Eigen::Vector3d::Zero()};        ///< sent to the device (world frame), N
+    Eigen::Vector3d energyForce{Eigen::Vector3d::Zero()};  ///< AVCEC spherical term, N
+    Eigen::Vector3d proxyForce{Eigen::Vector3d::Zero()};   ///< AVCEC surface term, N
+    double stiffness = 0, rayLength = 0, distance = 0, couplingEnergy = 0;
+    double observerEnergy = 0;  ///< passivity W, J
+    double addedDamping = 0;    ///< controller alpha, N s/m
+    int contactCount = 0;
+    int rays = 0;
+    bool sticking = false, gateOpen = false, faulted = false, clamped = false;
+    CouplingMode mode = CouplingMode::VC;
+};
+
+/// A parameter change sent to a running session; applied at a tick boundary and cross-faded.
+struct Command {
+    enum class Kind : std::uint8_t { SetCoupling, SetProxy, SetPassivityControl, ResetObserver };
+    Kind kind = Kind::SetCoupling;
+    CouplingParams coupling;  ///< SetCoupling (validated by send())
+    ProxyParams proxy;        ///< SetProxy
+    bool flag = false;        ///< SetPassivityControl
+};
+
+/// Device + proxy + coupling + passivity + safety, ticked by a ServoLoop (start()) or by the
+/// caller (step(), for offline runs as fast as possible).
+///
+/// @par Threading  start/stop/step from one controlling thread; latest() from one viewer
+///      thread; send() from one producer thread. The servo thread owns everything else.
+/// @par Real-time  A tick (step() or the servo thread's) is noexcept and allocation-free.
+class Session final : public ServoTask {
+  public:
+    /// @p scene must be committed; @p device must outlive the session.
+    /// @throw palp::ValueError for invalid parameters.
+    Session(std::shared_ptr<const Scene> scene, Device& device, const SessionParams& params);
+    ~Session() override;
+
+    void start();          ///< runs on a ServoLoop; @throw palp::Error (see ServoLoop::start)
+    void stop() noexcept;  ///< idempotent
+    bool running() const noexcept;
+    /// One tick on the calling thread (only while not running). Returns that tick's snapshot.
+    const Snapshot& step() noexcept;
+
+    /// Viewer: the newest published snapshot.
+    const Snapshot& latest() noexcept;
+    /// Producer: queue a command; false when the queue is full. @throw palp::ValueError for
+    /// invalid parameters (checked here, off the servo thread).
+    bool send(const Command& command);
+
+    ServoStats stats() const noexcept;
+    const RealtimeStatus& realtime() const noexcept;
+    const SessionParams& params() const noexcept { return mParams; }
+
+    void tick(const TickInfo& info) noexcept override;
+
+  private:
+    struct Impl;
+    std::unique_ptr<Impl> mImpl;
+    SessionParams mParams;
+};
+
+}  // namespace palp::haptics
