@@ -18,6 +18,9 @@ Command addConvert(CLI::App& root);
 Command addInfo(CLI::App& root);
 Command addPhantom(CLI::App& root);
 Command addBench(CLI::App& root);
+/// `palp bench servo`, registered by addBench() on its `bench` node.
+Command addBenchServo(CLI::App& bench);
+Command addPalpate(CLI::App& root);
 
 /// Global flags shared by subcommands.
 struct Globals {

@@ -20,9 +20,9 @@ int main(int argc, char** argv) {
     app.require_subcommand(1);
     app.set_version_flag("--version", "palp 0.1.0");
     app.add_flag("-q,--quiet", palp::tool::globals().quiet, "No progress output");
-    std::vector<palp::tool::Command> commands{palp::tool::addConvert(app), palp::tool::addInfo(app),
-                                              palp::tool::addPhantom(app),
-                                              palp::tool::addBench(app)};
+    std::vector<palp::tool::Command> commands{
+        palp::tool::addConvert(app), palp::tool::addInfo(app), palp::tool::addPhantom(app),
+        palp::tool::addBench(app), palp::tool::addPalpate(app)};
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
