@@ -1,0 +1,2 @@
+// Placeholder: written in issue 4.
+#include <gtest/gtest.h>
