@@ -1,1 +1,430 @@
-// Placeholder: written in issue 4.
+#include "palp/haptics/session.h"
+
+#include <array>
+#include <atomic>
+#include <bit>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "palp/error.h"
+#include "palp/haptics/passivity.h"
+#include "palp/haptics/safety.h"
+
+namespace palp::haptics {
+namespace {
+
+constexpr std::uint32_t kMaxTraceCapacity = 1u << 24;  // 16 M snapshots (a few GB): a typo guard
+
+std::string num(double v) {
+    std::string s = std::to_string(v);
+    return s;
+}
+
+void requireFinite(const char* field, double v) {
+    if (!std::isfinite(v))
+        throw ValueError(std::string("session: expected a finite ") + field + ", found " + num(v));
+}
+
+// Eigen's fixed-size copy assignment cannot throw but is not declared noexcept; the lock-free
+// exchanges require a nothrow copy, so the values travel in this wrapper.
+template <typename T>
+struct NothrowSlot {
+    T value{};
+    NothrowSlot() = default;
+    NothrowSlot(const NothrowSlot&) = default;
+    NothrowSlot& operator=(const NothrowSlot& other) noexcept {
+        value = other.value;
+        return *this;
+    }
+};
+
+// A single-producer single-consumer ring of snapshots whose capacity is chosen at run time
+// (SpscQueue's is a template argument). Storage is allocated once, at construction.
+class TraceRing {
+  public:
+    explicit TraceRing(std::uint32_t capacity)
+        : mSlots(capacity == 0 ? 0 : std::bit_ceil(capacity)),
+          mMask(mSlots.empty() ? 0 : mSlots.size() - 1) {}
+
+    // Servo thread. Never blocks: a full ring drops the value and counts it.
+    void push(const Snapshot& s) noexcept {
+        if (mSlots.empty()) return;
+        const std::size_t tail = mTail.load(std::memory_order_relaxed);
+        // Acquire pairs with the reader's release of mHead: the slot is free.
+        if (tail - mHead.load(std::memory_order_acquire) == mSlots.size()) {
+            mDropped.fetch_add(1, std::memory_order_relaxed);
+            return;
+        }
+        mSlots[tail & mMask] = s;
+        mTail.store(tail + 1, std::memory_order_release);  // publishes the slot
+    }
+
+    // Reader thread.
+    bool pop(Snapshot& out) noexcept {
+        if (mSlots.empty()) return false;
+        const std::size_t head = mHead.load(std::memory_order_relaxed);
+        if (head == mTail.load(std::memory_order_acquire)) return false;
+        out = mSlots[head & mMask];
+        mHead.store(head + 1, std::memory_order_release);  // hands the slot back
+        return true;
+    }
+
+    std::uint64_t dropped() const noexcept { return mDropped.load(std::memory_order_relaxed); }
+
+  private:
+    std::vector<Snapshot> mSlots;
+    std::size_t mMask;
+    alignas(64) std::atomic<std::size_t> mHead{0};  // written by the reader only
+    alignas(64) std::atomic<std::size_t> mTail{0};  // written by the servo thread only
+    alignas(64) std::atomic<std::uint64_t> mDropped{0};
+};
+
+// The blend of the fading-out (a) and the new (b) coupling outputs with weight w of b.
+void blend(const CouplingOutput& a, const CouplingOutput& b, double w,
+           CouplingOutput& out) noexcept {
+    const double u = 1.0 - w;
+    out.force = u * a.force + w * b.force;
+    out.proxyForce = u * a.proxyForce + w * b.proxyForce;
+    out.energyForce = u * a.energyForce + w * b.energyForce;
+    out.stiffness = u * a.stiffness + w * b.stiffness;
+    out.energy = u * a.energy + w * b.energy;
+    out.rayLength = b.rayLength;
+    out.distance = b.distance;
+    out.sphere = b.sphere;
+    out.surface = b.surface;
+    out.rays = a.rays + b.rays;
+}
+
+bool sourceHasData(const Scene& scene, RaySource source) noexcept {
+    switch (source) {
+        case RaySource::Mesh:
+            return true;  // an empty mesh scene is valid: no hits, L = L_max
+        case RaySource::VolumeFirstHit:
+        case RaySource::VolumeAccumulate:
+            return scene.volumeView() != nullptr;
+    }
+    return false;
+}
+
+void requireSourceData(const Scene& scene, const CouplingParams& c) {
+    if (c.mode != CouplingMode::VC && !sourceHasData(scene, c.source)) {
+        throw ValueError(
+            "session: expected a scene with a volume for the volume ray sources, found a scene "
+            "without one (use RaySource::Mesh or CouplingMode::VC, or Scene::setVolume)");
+    }
+}
+
+}  // namespace
+
+void validateSessionParams(const SessionParams& params) {
+    validateProxyParams(params.proxy);
+    validateCouplingParams(params.coupling);
+    validateServoConfig(params.servo);
+    const WorkspaceTransform& w = params.workspace;
+    requireFinite("workspace.scale", w.scale);
+    if (!(w.scale > 0)) {
+        throw ValueError("session: expected workspace.scale > 0, found " + num(w.scale));
+    }
+    if (!w.rotation.allFinite() || !w.offset.allFinite()) {
+        throw ValueError("session: expected a finite workspace rotation and offset, found NaN/Inf");
+    }
+    const double orth =
+        (w.rotation.transpose() * w.rotation - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+    const double det = w.rotation.determinant();
+    if (orth > 1e-6 || std::abs(det - 1.0) > 1e-6) {
+        throw ValueError(
+            "session: expected workspace.rotation to be a rotation (R^T R = I, det 1), found "
+            "|R^T R - I| = " +
+            num(orth) + ", det " + num(det));
+    }
+    requireFinite("startupThresholdN", params.startupThresholdN);
+    if (!(params.startupThresholdN > 0)) {
+        throw ValueError("session: expected startupThresholdN > 0, found " +
+                         num(params.startupThresholdN));
+    }
+    requireFinite("crossFadeSeconds", params.crossFadeSeconds);
+    if (params.crossFadeSeconds < 0 || params.crossFadeSeconds > 60) {
+        throw ValueError("session: expected crossFadeSeconds in [0, 60], found " +
+                         num(params.crossFadeSeconds));
+    }
+    if (params.traceCapacity > kMaxTraceCapacity) {
+        throw ValueError("session: expected traceCapacity <= " + std::to_string(kMaxTraceCapacity) +
+                         ", found " + std::to_string(params.traceCapacity));
+    }
+}
+
+struct Session::Impl {
+    Impl(std::shared_ptr<const Scene> sceneIn, Device& deviceIn, const SessionParams& p)
+        : scene(std::move(sceneIn)),
+          device(deviceIn),
+          spec(deviceIn.spec()),
+          workspace(p.workspace),
+          period(p.servo.periodSeconds),
+          proxy(scene->surfaces(), p.proxy),
+          couplings{Coupling(scene->volumeView(), &scene->hardMeshes(), p.coupling),
+                    Coupling(scene->volumeView(), &scene->hardMeshes(), p.coupling)},
+          fadeTicks(static_cast<std::uint32_t>(std::lround(p.crossFadeSeconds / period))),
+          passivity(period, p.passivityControl,
+                    spec.maxDampingNspm > 0 ? spec.maxDampingNspm
+                                            : std::numeric_limits<double>::infinity()),
+          gate(p.startupThresholdN, p.startupQuietTicks),
+          trace(p.traceCapacity),
+          loop(p.servo) {}
+
+    void tick(double timeSeconds) noexcept;
+    void drainCommands() noexcept;
+    void startFade(const CouplingParams& params) noexcept;
+
+    std::shared_ptr<const Scene> scene;
+    Device& device;
+    DeviceSpec spec;
+    WorkspaceTransform workspace;
+    double period;
+
+    // Servo-thread state.
+    Proxy proxy;
+    std::array<Coupling, 2> couplings;  // [active] the newest params, [1 - active] fading out
+    std::array<CouplingOutput, 2> outputs;
+    CouplingOutput blended;
+    int active = 0;
+    bool fading = false;
+    CrossFade fade{1.0};
+    std::uint32_t fadeTicks;
+    bool hasPending = false;  // a SetCoupling that arrived during a fade (the newest wins)
+    CouplingParams pending;
+    PassivityController passivity;
+    ForceGuard guard;
+    StartupGate gate;
+    bool started = false;  // the proxy has been put at the probe
+    Eigen::Vector3d lastProxyForce{Eigen::Vector3d::Zero()};
+    double lastStiffness = 0;
+    Eigen::Vector3d lastProbe{Eigen::Vector3d::Zero()};
+    std::uint64_t ticks = 0;
+    Snapshot current;
+    Command command;  // scratch for draining
+
+    // Cross-thread exchanges.
+    SpscQueue<Command, 64> commands;                     // producer -> servo
+    TripleBuffer<NothrowSlot<Snapshot>> snapshots;       // servo -> viewer
+    TripleBuffer<NothrowSlot<kernels::RayBundle>> rays;  // servo -> viewer
+    TraceRing trace;                                     // servo -> trace reader
+
+    // Controlling thread.
+    ServoLoop loop;
+    Snapshot stepSnapshot;  // what step() returns (written only by step())
+    double timeBase = 0;    // time of the first tick of the current run, s
+};
+
+void Session::Impl::startFade(const CouplingParams& params) noexcept {
+    const int next = 1 - active;
+    couplings[static_cast<std::size_t>(next)].setParams(params);
+    active = next;
+    if (fadeTicks == 0) {
+        fading = false;
+        return;
+    }
+    fading = true;
+    fade = CrossFade(0.0);
+    fade.setTarget(1.0, fadeTicks);
+}
+
+void Session::Impl::drainCommands() noexcept {
+    // Bounded: at most the queue's capacity per tick (the producer cannot outrun a drain).
+    for (std::size_t i = 0; i < commands.capacity() && commands.tryPop(command); ++i) {
+        switch (command.kind) {
+            case Command::Kind::SetCoupling:
+                if (fading) {
+                    pending = command.coupling;
+                    hasPending = true;
+                } else {
+                    startFade(command.coupling);
+                }
+                break;
+            case Command::Kind::SetProxy:
+                proxy.setParams(command.proxy);
+                break;
+            case Command::Kind::SetPassivityControl:
+                passivity.setEnabled(command.flag);
+                break;
+            case Command::Kind::ResetObserver:
+                passivity.reset();
+                break;
+        }
+    }
+}
+
+void Session::Impl::tick(double timeSeconds) noexcept {
+    const DeviceState state = device.read();
+    const bool sampleOk = state.position.allFinite() && state.velocity.allFinite();
+    // Device -> world. The velocity in world orientation but device scale is what the
+    // passivity observer pairs with the force: F_world . (R v_device) = F_device . v_device,
+    // the power that actually flows into the user's hand.
+    const Eigen::Vector3d handVelocity = workspace.rotation * state.velocity;
+    const Eigen::Vector3d probe =
+        workspace.offset + workspace.scale * (workspace.rotation * state.position);
+    const Eigen::Vector3d probeVelocity = workspace.scale * handVelocity;
+
+    drainCommands();
+
+    Eigen::Vector3d force;
+    const ProxyState* ps = &proxy.state();
+    if (sampleOk) {
+        lastProbe = probe;
+        if (!started) {
+            proxy.reset(probe);
+            started = true;
+        }
+        const CouplingParams& now = couplings[static_cast<std::size_t>(active)].params();
+        const double k = lastStiffness > 0 ? lastStiffness : now.baseStiffness;
+        ps = &proxy.update(probe, lastProxyForce, k, period);
+
+        const auto a = static_cast<std::size_t>(active);
+        couplings[a].compute(ps->position, probe, ps->velocity, probeVelocity, ps->tangent1,
+                             ps->tangent2, outputs[a]);
+        if (fading) {
+            const double w = fade.step();
+            const std::size_t old = 1 - a;
+            couplings[old].compute(ps->position, probe, ps->velocity, probeVelocity, ps->tangent1,
+                                   ps->tangent2, outputs[old]);
+            blend(outputs[old], outputs[a], w, blended);
+            current.fadeWeight = w;
+            if (!fade.fading()) {
+                fading = false;
+                if (hasPending) {
+                    hasPending = false;
+                    startFade(pending);
+                }
+            }
+        } else {
+            blended = outputs[a];
+            current.fadeWeight = 1;
+        }
+        lastProxyForce =
+            blended.proxyForce.allFinite() ? blended.proxyForce : Eigen::Vector3d::Zero().eval();
+        lastStiffness = std::isfinite(blended.stiffness) ? blended.stiffness : 0.0;
+        force = blended.force;
+        // The observer books only finite forces (one NaN would poison W for good); a
+        // non-finite force is held by the guard below.
+        if (force.allFinite()) force = passivity.update(force, handVelocity);
+    } else {
+        force.setConstant(std::numeric_limits<double>::quiet_NaN());
+    }
+
+    const bool faultedNow = !force.allFinite();
+    force = guard.filter(force);
+    const Eigen::Vector3d limited = clampForce(force, spec.maxForceN);
+    const bool clamped = force.norm() > spec.maxForceN;
+    const Eigen::Vector3d sent = gate.filter(limited);
+    device.write(workspace.rotation.transpose() * sent);
+
+    Snapshot& s = current;
+    s.tick = ticks++;
+    s.timeSeconds = timeSeconds;
+    s.probe = lastProbe;
+    s.proxy = ps->position;
+    s.force = sent;
+    s.energyForce = blended.energyForce;
+    s.proxyForce = blended.proxyForce;
+    s.stiffness = blended.stiffness;
+    s.rayLength = blended.rayLength;
+    s.distance = blended.distance;
+    s.couplingEnergy = blended.energy;
+    s.observerEnergy = passivity.energy();
+    s.addedDamping = passivity.addedDamping();
+    s.contactCount = ps->contactCount;
+    s.rays = blended.rays;
+    s.sticking = ps->sticking;
+    s.gateOpen = gate.open();
+    s.faulted = faultedNow;
+    s.clamped = clamped;
+    s.mode = couplings[static_cast<std::size_t>(active)].params().mode;
+    s.fading = fading;
+    s.faults = guard.faultCount();
+
+    snapshots.back().value = s;
+    snapshots.publish();
+    rays.back().value = couplings[static_cast<std::size_t>(active)].bundle();
+    rays.publish();
+    trace.push(s);
+}
+
+Session::Session(std::shared_ptr<const Scene> scene, Device& device, const SessionParams& params)
+    : mParams(params) {
+    validateSessionParams(params);
+    if (!scene) throw ValueError("session: expected a scene, found a null pointer");
+    if ((!scene->surfaces().empty() && !scene->surfaces().committed()) ||
+        (!scene->hardMeshes().empty() && !scene->hardMeshes().committed())) {
+        throw ValueError(
+            "session: expected a committed scene, found meshes added after the last "
+            "Scene::commit()");
+    }
+    requireSourceData(*scene, params.coupling);
+    const DeviceSpec& spec = device.spec();
+    if (!(spec.maxForceN > 0) || !std::isfinite(spec.maxForceN)) {
+        throw ValueError("session: expected the device's maxForceN to be finite and > 0, found " +
+                         num(spec.maxForceN));
+    }
+    mImpl = std::make_unique<Impl>(std::move(scene), device, params);
+}
+
+Session::~Session() { stop(); }
+
+void Session::start() {
+    if (mImpl->loop.running()) throw Error("session: expected a stopped session, found it running");
+    mImpl->timeBase = mImpl->ticks == 0 ? 0.0 : mImpl->current.timeSeconds + mImpl->period;
+    mImpl->loop.start(*this);
+}
+
+void Session::stop() noexcept {
+    if (mImpl) mImpl->loop.stop();
+}
+
+bool Session::running() const noexcept { return mImpl->loop.running(); }
+
+const Snapshot& Session::step() noexcept {
+    if (mImpl->loop.running()) return mImpl->stepSnapshot;
+    mImpl->tick(static_cast<double>(mImpl->ticks) * mImpl->period);
+    mImpl->stepSnapshot = mImpl->current;
+    return mImpl->stepSnapshot;
+}
+
+const Snapshot& Session::latest() noexcept { return mImpl->snapshots.read().value; }
+
+const kernels::RayBundle& Session::latestRays() noexcept { return mImpl->rays.read().value; }
+
+bool Session::popTrace(Snapshot& out) noexcept { return mImpl->trace.pop(out); }
+
+std::uint64_t Session::traceDropped() const noexcept { return mImpl->trace.dropped(); }
+
+bool Session::send(const Command& command) {
+    switch (command.kind) {
+        case Command::Kind::SetCoupling:
+            validateCouplingParams(command.coupling);
+            requireSourceData(*mImpl->scene, command.coupling);
+            break;
+        case Command::Kind::SetProxy:
+            validateProxyParams(command.proxy);
+            break;
+        case Command::Kind::SetPassivityControl:
+        case Command::Kind::ResetObserver:
+            break;
+        default:
+            throw ValueError("session: expected a known command kind, found " +
+                             std::to_string(static_cast<int>(command.kind)));
+    }
+    return mImpl->commands.tryPush(command);
+}
+
+ServoStats Session::stats() const noexcept { return mImpl->loop.stats(); }
+
+const RealtimeStatus& Session::realtime() const noexcept { return mImpl->loop.realtime(); }
+
+const DeviceSpec& Session::deviceSpec() const noexcept { return mImpl->spec; }
+
+void Session::tick(const TickInfo& info) noexcept {
+    mImpl->tick(mImpl->timeBase + info.timeSeconds);
+}
+
+}  // namespace palp::haptics

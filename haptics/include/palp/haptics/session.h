@@ -76,6 +76,9 @@ struct SessionParams {
     std::uint32_t startupQuietTicks = 50;
     double crossFadeSeconds = 0.2;  ///< parameter changes fade over this long
     ServoConfig servo;
+    /// Snapshots kept for popTrace() (every tick's, in order; rounded up to a power of two;
+    /// 0: no trace). When the reader falls behind, new snapshots are dropped and counted.
+    std::uint32_t traceCapacity = 0;
 };
 
 /// @throw palp::ValueError naming the field (through the parts' validators too).
@@ -97,6 +100,9 @@ struct Snapshot {
     int rays = 0;
     bool sticking = false, gateOpen = false, faulted = false, clamped = false;
     CouplingMode mode = CouplingMode::VC;
+    bool fading = false;       ///< a SetCoupling cross-fade is running
+    double fadeWeight = 1;     ///< weight of the newest coupling params (0..1)
+    std::uint64_t faults = 0;  ///< ticks so far whose force was non-finite (held last good)
 };
 
 /// A parameter change sent to a running session; applied at a tick boundary and cross-faded.
@@ -133,9 +139,19 @@ class Session final : public ServoTask {
     /// invalid parameters (checked here, off the servo thread).
     bool send(const Command& command);
 
+    /// Trace reader (one thread): the oldest unread snapshot of the trace ring; false when
+    /// none is queued (or SessionParams::traceCapacity is 0). Never blocks the servo thread.
+    bool popTrace(Snapshot& out) noexcept;
+    /// Snapshots the servo thread could not queue because the trace ring was full.
+    std::uint64_t traceDropped() const noexcept;
+    /// Viewer (the thread that calls latest()): the newest tick's ray bundle (origins,
+    /// directions, L_max; count 0 in VC or without contact distance), for drawing.
+    const kernels::RayBundle& latestRays() noexcept;
+
     ServoStats stats() const noexcept;
     const RealtimeStatus& realtime() const noexcept;
     const SessionParams& params() const noexcept { return mParams; }
+    const DeviceSpec& deviceSpec() const noexcept;
 
     void tick(const TickInfo& info) noexcept override;
 
