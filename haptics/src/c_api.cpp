@@ -1,1 +1,915 @@
-// Placeholder: written in issue 4.
+// The C API (palp/palp.h): a thin layer over palp::haptics that converts plain C structs,
+// counts references and turns every exception into a status code plus a message.
+
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <exception>
+#include <memory>
+#include <mutex>
+#include <new>
+#include <string>
+#include <type_traits>
+#include <utility>
+
+#include "palp/error.h"
+#include "palp/haptics/session.h"
+#include "palp/haptics/simulated_device.h"
+#include "palp/haptics/trajectory.h"
+#include "palp/palp.h"
+#include "palp/volume/load.h"
+#include "palp/volume/phantom.h"
+
+namespace ph = palp::haptics;
+namespace pv = palp::volume;
+
+struct palp_volume {
+    std::atomic<int> refs{1};
+    pv::Volume volume;
+};
+
+struct palp_scene {
+    std::atomic<int> refs{1};
+    std::shared_ptr<const ph::Scene> scene;
+};
+
+struct palp_session {
+    std::atomic<int> refs{1};
+    std::string deviceName;      // params.device points here
+    palp_session_params params;  // in force (producer thread)
+    std::unique_ptr<ph::SimulatedDevice> device;
+    std::unique_ptr<ph::Session> session;  // declared last: destroyed (and stopped) first
+    ~palp_session() { session.reset(); }
+};
+
+namespace {
+
+thread_local std::string tLastError;
+
+std::mutex gCallbackMutex;  // guards the two below (set rarely, read on failures only)
+palp_error_callback gCallback = nullptr;
+void* gCallbackUser = nullptr;
+
+palp_status fail(palp_status status, const char* message) noexcept {
+    try {
+        tLastError = message;
+    } catch (...) {
+        tLastError.clear();  // no memory for the message: an empty one is still valid
+    }
+    palp_error_callback cb = nullptr;
+    void* user = nullptr;
+    {
+        std::lock_guard<std::mutex> lock(gCallbackMutex);
+        cb = gCallback;
+        user = gCallbackUser;
+    }
+    if (cb) cb(user, status, tLastError.c_str());
+    return status;
+}
+
+// Runs @p body, mapping every exception to a status (the only place exceptions stop).
+template <typename Body>
+palp_status guarded(Body&& body) noexcept {
+    try {
+        return body();
+    } catch (const palp::ValueError& e) {
+        return fail(PALP_ERROR_INVALID_ARGUMENT, e.what());
+    } catch (const palp::IoError& e) {
+        return fail(PALP_ERROR_IO, e.what());
+    } catch (const palp::FormatError& e) {
+        return fail(PALP_ERROR_FORMAT, e.what());
+    } catch (const std::bad_alloc&) {
+        return fail(PALP_ERROR_OUT_OF_MEMORY, "palp: out of memory");
+    } catch (const std::exception& e) {
+        return fail(PALP_ERROR_INTERNAL, e.what());
+    } catch (...) {
+        return fail(PALP_ERROR_INTERNAL, "palp: unknown exception");
+    }
+}
+
+palp_status nullArgument(const char* function, const char* argument) noexcept {
+    std::string m;
+    try {
+        m = std::string(function) + ": expected a non-NULL " + argument + ", found NULL";
+    } catch (...) {
+    }
+    return fail(PALP_ERROR_INVALID_ARGUMENT, m.c_str());
+}
+
+template <typename Handle>
+Handle* retain(Handle* h) noexcept {
+    if (h) h->refs.fetch_add(1, std::memory_order_relaxed);
+    return h;
+}
+
+template <typename Handle>
+void release(Handle* h) noexcept {
+    // acq_rel: the last owner sees every other owner's writes before deleting.
+    if (h && h->refs.fetch_sub(1, std::memory_order_acq_rel) == 1) delete h;
+}
+
+Eigen::Vector3d vec(const double v[3]) { return Eigen::Vector3d(v[0], v[1], v[2]); }
+void put(const Eigen::Vector3d& v, double out[3]) noexcept {
+    out[0] = v.x();
+    out[1] = v.y();
+    out[2] = v.z();
+}
+
+std::string str(double v) { return std::to_string(v); }
+
+// --- session parameters ----------------------------------------------------------------
+
+ph::CouplingMode toMode(palp_coupling_mode m) {
+    switch (m) {
+        case PALP_MODE_VC:
+            return ph::CouplingMode::VC;
+        case PALP_MODE_AVC:
+            return ph::CouplingMode::AVC;
+        case PALP_MODE_AVCEC:
+            return ph::CouplingMode::AVCEC;
+    }
+    throw palp::ValueError(
+        "palp_session_params.mode: expected PALP_MODE_VC, _AVC or _AVCEC, found " +
+        std::to_string(static_cast<int>(m)));
+}
+
+palp_coupling_mode fromMode(ph::CouplingMode m) noexcept {
+    switch (m) {
+        case ph::CouplingMode::VC:
+            return PALP_MODE_VC;
+        case ph::CouplingMode::AVC:
+            return PALP_MODE_AVC;
+        case ph::CouplingMode::AVCEC:
+            return PALP_MODE_AVCEC;
+    }
+    return PALP_MODE_VC;
+}
+
+ph::RaySource toSource(palp_ray_source s) {
+    switch (s) {
+        case PALP_SOURCE_MESH:
+            return ph::RaySource::Mesh;
+        case PALP_SOURCE_VOLUME_FIRST_HIT:
+            return ph::RaySource::VolumeFirstHit;
+        case PALP_SOURCE_VOLUME_ACCUMULATE:
+            return ph::RaySource::VolumeAccumulate;
+    }
+    throw palp::ValueError(
+        "palp_session_params.source: expected PALP_SOURCE_MESH, _VOLUME_FIRST_HIT or "
+        "_VOLUME_ACCUMULATE, found " +
+        std::to_string(static_cast<int>(s)));
+}
+
+palp_ray_source fromSource(ph::RaySource s) noexcept {
+    switch (s) {
+        case ph::RaySource::Mesh:
+            return PALP_SOURCE_MESH;
+        case ph::RaySource::VolumeFirstHit:
+            return PALP_SOURCE_VOLUME_FIRST_HIT;
+        case ph::RaySource::VolumeAccumulate:
+            return PALP_SOURCE_VOLUME_ACCUMULATE;
+    }
+    return PALP_SOURCE_MESH;
+}
+
+const ph::DeviceSpec& deviceSpec(const char* name) {
+    if (!name)
+        throw palp::ValueError("palp_session_params.device: expected a device class, found NULL");
+    if (const ph::DeviceSpec* s = ph::findDeviceSpec(name)) return *s;
+    std::string choices;
+    for (const ph::DeviceSpec& s : ph::deviceSpecs()) {
+        choices += (choices.empty() ? "'" : ", '") + std::string(s.name) + "'";
+    }
+    throw palp::ValueError("palp_session_params.device: expected one of " + choices + ", found '" +
+                           name + "'");
+}
+
+ph::CouplingParams toCoupling(const palp_session_params& p) {
+    ph::CouplingParams c;
+    c.mode = toMode(p.mode);
+    c.source = toSource(p.source);
+    c.baseStiffness = p.stiffness;
+    c.referenceLength = p.reference_length;
+    c.maxMultiplier = p.max_multiplier;
+    c.maxStiffness = p.max_stiffness;
+    c.damping = p.damping;
+    c.bundle.length = p.ray_length;
+    c.bundle.ringCount = p.ring_count;
+    c.bundle.ringHalfAngle = p.ring_half_angle;
+    c.bundle.sobelAngle = p.sobel_angle;
+    c.bundle.surfaceOffset = p.surface_offset;
+    c.firstHit.threshold = static_cast<float>(p.threshold);
+    c.firstHit.step = p.ray_step;
+    c.accumulate.step = p.ray_step;
+    c.accumulate.tauStop = p.tau_stop;
+    if (!std::isfinite(p.hardness) || p.hardness < 0 || !std::isfinite(p.threshold)) {
+        throw palp::ValueError(
+            "palp_session_params: expected a finite threshold and a finite hardness >= 0, found "
+            "threshold " +
+            str(p.threshold) + ", hardness " + str(p.hardness));
+    }
+    c.accumulate.sigma = palp::kernels::TransferFunction::step(static_cast<float>(p.threshold),
+                                                               static_cast<float>(p.hardness));
+    c.accumulate.firstHitThreshold = static_cast<float>(p.threshold);
+    return c;
+}
+
+ph::ProxyParams toProxy(const palp_session_params& p) {
+    ph::ProxyParams q;
+    q.staticFriction = p.static_friction;
+    q.dynamicFriction = p.dynamic_friction;
+    return q;
+}
+
+ph::SessionParams toSession(const palp_session_params& p) {
+    ph::SessionParams s;
+    s.proxy = toProxy(p);
+    s.coupling = toCoupling(p);
+    s.passivityControl = p.passivity_control != 0;
+    s.startupThresholdN = p.startup_threshold;
+    s.startupQuietTicks = p.startup_quiet_ticks;
+    s.crossFadeSeconds = p.cross_fade_seconds;
+    s.workspace.scale = p.workspace_scale;
+    for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 3; ++c) s.workspace.rotation(r, c) = p.workspace_rotation[3 * r + c];
+    }
+    s.workspace.offset = vec(p.workspace_offset);
+    s.traceCapacity = p.trace_capacity;
+    s.servo.periodSeconds = p.period;
+    s.servo.cpu = p.servo_cpu;
+    s.servo.priority = p.servo_priority;
+    s.servo.requireRealtime = p.require_realtime != 0;
+    ph::validateSessionParams(s);
+    return s;
+}
+
+// The fields a running session cannot change; the first that differs, or nullptr.
+const char* fixedFieldChanged(const palp_session_params& a, const palp_session_params& b) {
+    if (!b.device || std::strcmp(a.device, b.device) != 0) return "device";
+    if (a.period != b.period) return "period";
+    if (a.startup_threshold != b.startup_threshold) return "startup_threshold";
+    if (a.startup_quiet_ticks != b.startup_quiet_ticks) return "startup_quiet_ticks";
+    if (a.cross_fade_seconds != b.cross_fade_seconds) return "cross_fade_seconds";
+    if (a.workspace_scale != b.workspace_scale) return "workspace_scale";
+    for (int i = 0; i < 9; ++i) {
+        if (a.workspace_rotation[i] != b.workspace_rotation[i]) return "workspace_rotation";
+    }
+    for (int i = 0; i < 3; ++i) {
+        if (a.workspace_offset[i] != b.workspace_offset[i]) return "workspace_offset";
+    }
+    if (a.trace_capacity != b.trace_capacity) return "trace_capacity";
+    if (a.servo_cpu != b.servo_cpu) return "servo_cpu";
+    if (a.servo_priority != b.servo_priority) return "servo_priority";
+    if (a.require_realtime != b.require_realtime) return "require_realtime";
+    return nullptr;
+}
+
+// --- trajectories ------------------------------------------------------------------------
+
+void fill(const ph::PressTrajectory& t, palp_trajectory& c) noexcept {
+    put(t.start, c.centre);
+    put(t.direction, c.direction);
+    c.depth = t.depthM;
+    c.press_seconds = t.pressSeconds;
+    c.hold_seconds = t.holdSeconds;
+}
+void fill(const ph::SweepTrajectory& t, palp_trajectory& c) noexcept {
+    put(t.centre, c.centre);
+    put(t.direction, c.direction);
+    put(t.pressDirection, c.press_direction);
+    c.length = t.lengthM;
+    c.speed = t.speedMps;
+    c.depth = t.depthM;
+    c.approach = t.approachM;
+    c.approach_seconds = t.approachSeconds;
+    c.turn_seconds = t.turnSeconds;
+}
+void fill(const ph::RasterTrajectory& t, palp_trajectory& c) noexcept {
+    put(t.centre, c.centre);
+    put(t.u, c.u);
+    put(t.v, c.v);
+    put(t.pressDirection, c.press_direction);
+    c.extent_u = t.extentU;
+    c.extent_v = t.extentV;
+    c.line_spacing = t.lineSpacingM;
+    c.speed = t.speedMps;
+    c.depth = t.depthM;
+    c.approach = t.approachM;
+    c.approach_seconds = t.approachSeconds;
+}
+void fill(const ph::CircleTrajectory& t, palp_trajectory& c) noexcept {
+    put(t.centre, c.centre);
+    put(t.u, c.u);
+    put(t.v, c.v);
+    put(t.pressDirection, c.press_direction);
+    c.radius = t.radiusM;
+    c.frequency = t.frequencyHz;
+    c.depth = t.depthM;
+    c.approach = t.approachM;
+    c.approach_seconds = t.approachSeconds;
+}
+void fill(const ph::SinusoidTrajectory& t, palp_trajectory& c) noexcept {
+    put(t.start, c.centre);
+    put(t.direction, c.direction);
+    c.amplitude = t.amplitudeM;
+    c.frequency = t.frequencyHz;
+    c.grow_seconds = t.growSeconds;
+}
+
+Eigen::Vector3d unit(const double v[3], const char* field) {
+    const Eigen::Vector3d d = vec(v);
+    const double n = d.norm();
+    if (!(n > 0) || !std::isfinite(n)) {
+        throw palp::ValueError(std::string("palp_trajectory.") + field +
+                               ": expected a finite non-zero vector, found (" + str(v[0]) + ", " +
+                               str(v[1]) + ", " + str(v[2]) + ")");
+    }
+    return d / n;
+}
+
+void requireNonNegative(const char* field, double v) {
+    if (!(v >= 0) || !std::isfinite(v)) {
+        throw palp::ValueError(std::string("palp_trajectory.") + field +
+                               ": expected a finite value >= 0, found " + str(v));
+    }
+}
+
+void requirePositive(const char* field, double v) {
+    if (!(v > 0) || !std::isfinite(v)) {
+        throw palp::ValueError(std::string("palp_trajectory.") + field +
+                               ": expected a finite value > 0, found " + str(v));
+    }
+}
+
+ph::Trajectory toTrajectory(const palp_trajectory& c) {
+    if (!vec(c.centre).allFinite()) {
+        throw palp::ValueError(
+            "palp_trajectory.centre: expected finite coordinates, found NaN/Inf");
+    }
+    switch (c.kind) {
+        case PALP_TRAJECTORY_PRESS: {
+            ph::PressTrajectory t;
+            t.start = vec(c.centre);
+            t.direction = unit(c.direction, "direction");
+            requireNonNegative("depth", c.depth);
+            requirePositive("press_seconds", c.press_seconds);
+            requireNonNegative("hold_seconds", c.hold_seconds);
+            t.depthM = c.depth;
+            t.pressSeconds = c.press_seconds;
+            t.holdSeconds = c.hold_seconds;
+            return t;
+        }
+        case PALP_TRAJECTORY_SWEEP: {
+            ph::SweepTrajectory t;
+            t.centre = vec(c.centre);
+            t.direction = unit(c.direction, "direction");
+            t.pressDirection = unit(c.press_direction, "press_direction");
+            requirePositive("length", c.length);
+            requirePositive("speed", c.speed);
+            requireNonNegative("depth", c.depth);
+            requireNonNegative("approach", c.approach);
+            requirePositive("approach_seconds", c.approach_seconds);
+            requirePositive("turn_seconds", c.turn_seconds);
+            t.lengthM = c.length;
+            t.speedMps = c.speed;
+            t.depthM = c.depth;
+            t.approachM = c.approach;
+            t.approachSeconds = c.approach_seconds;
+            t.turnSeconds = c.turn_seconds;
+            return t;
+        }
+        case PALP_TRAJECTORY_RASTER: {
+            ph::RasterTrajectory t;
+            t.centre = vec(c.centre);
+            t.u = unit(c.u, "u");
+            t.v = unit(c.v, "v");
+            t.pressDirection = unit(c.press_direction, "press_direction");
+            requirePositive("extent_u", c.extent_u);
+            requireNonNegative("extent_v", c.extent_v);
+            requirePositive("line_spacing", c.line_spacing);
+            requirePositive("speed", c.speed);
+            requireNonNegative("depth", c.depth);
+            requireNonNegative("approach", c.approach);
+            requirePositive("approach_seconds", c.approach_seconds);
+            t.extentU = c.extent_u;
+            t.extentV = c.extent_v;
+            t.lineSpacingM = c.line_spacing;
+            t.speedMps = c.speed;
+            t.depthM = c.depth;
+            t.approachM = c.approach;
+            t.approachSeconds = c.approach_seconds;
+            return t;
+        }
+        case PALP_TRAJECTORY_CIRCLE: {
+            ph::CircleTrajectory t;
+            t.centre = vec(c.centre);
+            t.u = unit(c.u, "u");
+            t.v = unit(c.v, "v");
+            t.pressDirection = unit(c.press_direction, "press_direction");
+            requireNonNegative("radius", c.radius);
+            requireNonNegative("frequency", c.frequency);
+            requireNonNegative("depth", c.depth);
+            requireNonNegative("approach", c.approach);
+            requirePositive("approach_seconds", c.approach_seconds);
+            t.radiusM = c.radius;
+            t.frequencyHz = c.frequency;
+            t.depthM = c.depth;
+            t.approachM = c.approach;
+            t.approachSeconds = c.approach_seconds;
+            return t;
+        }
+        case PALP_TRAJECTORY_SINUSOID: {
+            ph::SinusoidTrajectory t;
+            t.start = vec(c.centre);
+            t.direction = unit(c.direction, "direction");
+            requireNonNegative("amplitude", c.amplitude);
+            requireNonNegative("frequency", c.frequency);
+            requireNonNegative("grow_seconds", c.grow_seconds);
+            t.amplitudeM = c.amplitude;
+            t.frequencyHz = c.frequency;
+            t.growSeconds = c.grow_seconds;
+            return t;
+        }
+    }
+    throw palp::ValueError(
+        "palp_trajectory.kind: expected PALP_TRAJECTORY_PRESS .. _SINUSOID, found " +
+        std::to_string(static_cast<int>(c.kind)));
+}
+
+ph::HandModel toHand(const palp_trajectory& c) {
+    requirePositive("hand_mass", c.hand_mass);
+    requireNonNegative("hand_stiffness", c.hand_stiffness);
+    requireNonNegative("hand_damping", c.hand_damping);
+    ph::HandModel h;
+    h.massKg = c.hand_mass;
+    h.stiffnessNpm = c.hand_stiffness;
+    h.dampingNspm = c.hand_damping;
+    return h;
+}
+
+template <typename Device = ph::SimulatedDevice>
+std::unique_ptr<Device> makeDevice(const ph::DeviceSpec& spec, const ph::Trajectory& trajectory,
+                                   const ph::HandModel& hand, double period) {
+    // TODO(session): drop the press-only branch once SimulatedDevice takes a Trajectory.
+    if constexpr (std::is_constructible_v<Device, const ph::DeviceSpec&, const ph::Trajectory&,
+                                          const ph::HandModel&, double>) {
+        return std::make_unique<Device>(spec, trajectory, hand, period);
+    } else {
+        if (const auto* press = std::get_if<ph::PressTrajectory>(&trajectory)) {
+            return std::make_unique<Device>(spec, *press, hand, period);
+        }
+        throw palp::ValueError("palp_trajectory.kind: only PALP_TRAJECTORY_PRESS is available");
+    }
+}
+
+// --- snapshots and statistics ------------------------------------------------------------
+
+void toC(const ph::Snapshot& s, palp_snapshot& c) noexcept {
+    c.tick = s.tick;
+    c.time = s.timeSeconds;
+    put(s.probe, c.probe);
+    put(s.proxy, c.proxy);
+    put(s.force, c.force);
+    put(s.energyForce, c.energy_force);
+    put(s.proxyForce, c.proxy_force);
+    c.stiffness = s.stiffness;
+    c.ray_length = s.rayLength;
+    c.distance = s.distance;
+    c.coupling_energy = s.couplingEnergy;
+    c.observer_energy = s.observerEnergy;
+    c.added_damping = s.addedDamping;
+    c.contact_count = s.contactCount;
+    c.rays = s.rays;
+    c.sticking = s.sticking ? 1 : 0;
+    c.gate_open = s.gateOpen ? 1 : 0;
+    c.faulted = s.faulted ? 1 : 0;
+    c.clamped = s.clamped ? 1 : 0;
+    c.fading = s.fading ? 1 : 0;
+    c.mode = fromMode(s.mode);
+    c.faults = s.faults;
+}
+
+palp_latency toC(const ph::LatencySummary& l) noexcept {
+    palp_latency c;
+    c.p50 = l.p50;
+    c.p99 = l.p99;
+    c.p999 = l.p999;
+    c.max = l.max;
+    c.mean = l.mean;
+    c.count = l.count;
+    return c;
+}
+
+}  // namespace
+
+extern "C" {
+
+const char* palp_version(void) { return "0.1.0"; }
+
+const char* palp_status_string(palp_status status) {
+    switch (status) {
+        case PALP_OK:
+            return "PALP_OK";
+        case PALP_ERROR_INVALID_ARGUMENT:
+            return "PALP_ERROR_INVALID_ARGUMENT";
+        case PALP_ERROR_IO:
+            return "PALP_ERROR_IO";
+        case PALP_ERROR_FORMAT:
+            return "PALP_ERROR_FORMAT";
+        case PALP_ERROR_STATE:
+            return "PALP_ERROR_STATE";
+        case PALP_ERROR_QUEUE_FULL:
+            return "PALP_ERROR_QUEUE_FULL";
+        case PALP_ERROR_OUT_OF_MEMORY:
+            return "PALP_ERROR_OUT_OF_MEMORY";
+        case PALP_ERROR_REALTIME:
+            return "PALP_ERROR_REALTIME";
+        case PALP_ERROR_INTERNAL:
+            return "PALP_ERROR_INTERNAL";
+    }
+    return "PALP_ERROR_UNKNOWN";
+}
+
+const char* palp_last_error(void) { return tLastError.c_str(); }
+
+void palp_set_error_callback(palp_error_callback callback, void* user) {
+    std::lock_guard<std::mutex> lock(gCallbackMutex);
+    gCallback = callback;
+    gCallbackUser = user;
+}
+
+// --- volumes ---------------------------------------------------------------------------
+
+palp_status palp_volume_load(const char* path, double voxel_size, palp_volume** out) {
+    if (!path) return nullArgument("palp_volume_load", "path");
+    if (!out) return nullArgument("palp_volume_load", "out");
+    return guarded([&] {
+        if (!(voxel_size >= 0) || !std::isfinite(voxel_size)) {
+            throw palp::ValueError(std::string(path) +
+                                   ": expected voxel_size >= 0 (0: default), found " +
+                                   str(voxel_size));
+        }
+        pv::LoadOptions options;
+        if (voxel_size > 0) options.resample.voxelSize = voxel_size;
+        auto handle = std::make_unique<palp_volume>();
+        handle->volume = pv::load({std::filesystem::path(path)}, options);
+        *out = handle.release();
+        return PALP_OK;
+    });
+}
+
+palp_status palp_volume_make_phantom(const char* scene, int variant, const char* shape,
+                                     double voxel_size, palp_volume** out) {
+    if (!scene) return nullArgument("palp_volume_make_phantom", "scene");
+    if (!out) return nullArgument("palp_volume_make_phantom", "out");
+    return guarded([&] {
+        pv::PhantomSpec spec;
+        spec.params.scene = pv::parseScene(scene);
+        if (spec.params.scene == pv::PhantomScene::Avc) spec.params.quadrant = variant;
+        if (spec.params.scene == pv::PhantomScene::Bone) spec.params.displacement = variant;
+        if (spec.params.scene == pv::PhantomScene::Avcec && shape) {
+            spec.params.shape = pv::parseShape(shape);
+        }
+        if (!(voxel_size > 0) || !std::isfinite(voxel_size)) {
+            throw palp::ValueError("palp_volume_make_phantom: expected voxel_size > 0, found " +
+                                   str(voxel_size));
+        }
+        spec.voxelSize = voxel_size;
+        auto handle = std::make_unique<palp_volume>();
+        handle->volume = pv::makePhantomVolume(spec);
+        *out = handle.release();
+        return PALP_OK;
+    });
+}
+
+palp_status palp_volume_geometry(const palp_volume* volume, double* voxel_size,
+                                 double bounds_min[3], double bounds_max[3]) {
+    if (!volume) return nullArgument("palp_volume_geometry", "volume");
+    return guarded([&] {
+        if (voxel_size) *voxel_size = volume->volume.voxelSize();
+        const openvdb::BBoxd b = volume->volume.worldBounds();
+        for (int i = 0; i < 3; ++i) {
+            if (bounds_min) bounds_min[i] = b.min()[i];
+            if (bounds_max) bounds_max[i] = b.max()[i];
+        }
+        return PALP_OK;
+    });
+}
+
+palp_volume* palp_volume_retain(palp_volume* volume) { return retain(volume); }
+void palp_volume_release(palp_volume* volume) { release(volume); }
+
+// --- scenes ----------------------------------------------------------------------------
+
+palp_status palp_scene_from_volume(const palp_volume* volume, double surface_iso, double hard_iso,
+                                   palp_scene** out) {
+    if (!volume) return nullArgument("palp_scene_from_volume", "volume");
+    if (!out) return nullArgument("palp_scene_from_volume", "out");
+    return guarded([&] {
+        ph::SceneOptions options;
+        options.surfaceIso = surface_iso;
+        options.hardIso = hard_iso;
+        auto handle = std::make_unique<palp_scene>();
+        handle->scene = ph::Scene::fromVolume(volume->volume, options);
+        *out = handle.release();
+        return PALP_OK;
+    });
+}
+
+palp_status palp_scene_create_empty(palp_scene** out) {
+    if (!out) return nullArgument("palp_scene_create_empty", "out");
+    return guarded([&] {
+        auto scene = std::make_shared<ph::Scene>();
+        scene->commit();
+        auto handle = std::make_unique<palp_scene>();
+        handle->scene = std::move(scene);
+        *out = handle.release();
+        return PALP_OK;
+    });
+}
+
+palp_scene* palp_scene_retain(palp_scene* scene) { return retain(scene); }
+void palp_scene_release(palp_scene* scene) { release(scene); }
+
+// --- sessions --------------------------------------------------------------------------
+
+void palp_session_params_default(palp_session_params* params) {
+    if (!params) return;
+    const ph::SessionParams d;
+    palp_session_params& p = *params;
+    std::memset(&p, 0, sizeof p);
+    p.mode = fromMode(d.coupling.mode);
+    p.source = fromSource(d.coupling.source);
+    p.stiffness = d.coupling.baseStiffness;
+    p.reference_length = d.coupling.referenceLength;
+    p.max_multiplier = d.coupling.maxMultiplier;
+    p.max_stiffness = d.coupling.maxStiffness;
+    p.damping = d.coupling.damping;
+    p.ray_length = d.coupling.bundle.length;
+    p.ring_count = d.coupling.bundle.ringCount;
+    p.ring_half_angle = d.coupling.bundle.ringHalfAngle;
+    p.sobel_angle = d.coupling.bundle.sobelAngle;
+    p.surface_offset = d.coupling.bundle.surfaceOffset;
+    p.threshold = d.coupling.firstHit.threshold;
+    p.ray_step = d.coupling.firstHit.step;
+    p.hardness = 1e4;  // 1/m: tau reaches 1 within 0.1 mm of hard material (first-hit-like)
+    p.tau_stop = d.coupling.accumulate.tauStop;
+    p.static_friction = d.proxy.staticFriction;
+    p.dynamic_friction = d.proxy.dynamicFriction;
+    p.device = "3D Systems Touch X";
+    p.passivity_control = d.passivityControl ? 1 : 0;
+    p.period = d.servo.periodSeconds;
+    p.startup_threshold = d.startupThresholdN;
+    p.startup_quiet_ticks = d.startupQuietTicks;
+    p.cross_fade_seconds = d.crossFadeSeconds;
+    p.workspace_scale = d.workspace.scale;
+    for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 3; ++c) p.workspace_rotation[3 * r + c] = d.workspace.rotation(r, c);
+    }
+    put(d.workspace.offset, p.workspace_offset);
+    p.trace_capacity = d.traceCapacity;
+    p.servo_cpu = d.servo.cpu;
+    p.servo_priority = d.servo.priority;
+    p.require_realtime = d.servo.requireRealtime ? 1 : 0;
+}
+
+palp_status palp_trajectory_default(palp_trajectory_kind kind, palp_trajectory* trajectory) {
+    if (!trajectory) return nullArgument("palp_trajectory_default", "trajectory");
+    palp_trajectory c;
+    std::memset(&c, 0, sizeof c);
+    // Every field gets a sensible value from some kind; the chosen kind's own defaults last.
+    fill(ph::PressTrajectory{}, c);
+    fill(ph::SweepTrajectory{}, c);
+    fill(ph::RasterTrajectory{}, c);
+    fill(ph::CircleTrajectory{}, c);
+    fill(ph::SinusoidTrajectory{}, c);
+    switch (kind) {
+        case PALP_TRAJECTORY_PRESS:
+            fill(ph::PressTrajectory{}, c);
+            break;
+        case PALP_TRAJECTORY_SWEEP:
+            fill(ph::SweepTrajectory{}, c);
+            break;
+        case PALP_TRAJECTORY_RASTER:
+            fill(ph::RasterTrajectory{}, c);
+            break;
+        case PALP_TRAJECTORY_CIRCLE:
+            fill(ph::CircleTrajectory{}, c);
+            break;
+        case PALP_TRAJECTORY_SINUSOID:
+            fill(ph::SinusoidTrajectory{}, c);
+            break;
+        default:
+            return fail(PALP_ERROR_INVALID_ARGUMENT,
+                        "palp_trajectory_default: expected PALP_TRAJECTORY_PRESS .. _SINUSOID, "
+                        "found an unknown kind");
+    }
+    c.kind = kind;
+    const ph::HandModel hand;
+    c.hand_mass = hand.massKg;
+    c.hand_stiffness = hand.stiffnessNpm;
+    c.hand_damping = hand.dampingNspm;
+    *trajectory = c;
+    return PALP_OK;
+}
+
+palp_status palp_session_create_simulated(palp_scene* scene, const palp_session_params* params,
+                                          const palp_trajectory* trajectory, palp_session** out) {
+    if (!scene) return nullArgument("palp_session_create_simulated", "scene");
+    if (!params) return nullArgument("palp_session_create_simulated", "params");
+    if (!trajectory) return nullArgument("palp_session_create_simulated", "trajectory");
+    if (!out) return nullArgument("palp_session_create_simulated", "out");
+    return guarded([&] {
+        const ph::DeviceSpec& spec = deviceSpec(params->device);
+        const ph::SessionParams sp = toSession(*params);
+        const ph::Trajectory path = toTrajectory(*trajectory);
+        const ph::HandModel hand = toHand(*trajectory);
+        auto handle = std::make_unique<palp_session>();
+        handle->deviceName = params->device;
+        handle->params = *params;
+        handle->params.device = handle->deviceName.c_str();
+        handle->device = makeDevice(spec, path, hand, sp.servo.periodSeconds);
+        handle->session = std::make_unique<ph::Session>(scene->scene, *handle->device, sp);
+        *out = handle.release();
+        return PALP_OK;
+    });
+}
+
+palp_session* palp_session_retain(palp_session* session) { return retain(session); }
+void palp_session_release(palp_session* session) { release(session); }
+
+palp_status palp_session_start(palp_session* session) {
+    if (!session) return nullArgument("palp_session_start", "session");
+    if (session->session->running()) {
+        return fail(PALP_ERROR_STATE,
+                    "palp_session_start: expected a stopped session, found it running");
+    }
+    return guarded([&] {
+        try {
+            session->session->start();
+        } catch (const palp::ValueError&) {
+            throw;
+        } catch (const palp::Error& e) {
+            return fail(session->params.require_realtime ? PALP_ERROR_REALTIME : PALP_ERROR_STATE,
+                        e.what());
+        }
+        return PALP_OK;
+    });
+}
+
+palp_status palp_session_stop(palp_session* session) {
+    if (!session) return nullArgument("palp_session_stop", "session");
+    session->session->stop();
+    return PALP_OK;
+}
+
+int palp_session_running(const palp_session* session) {
+    return session && session->session->running() ? 1 : 0;
+}
+
+palp_status palp_session_step(palp_session* session, uint32_t ticks, palp_snapshot* last) {
+    if (!session) return nullArgument("palp_session_step", "session");
+    if (session->session->running()) {
+        return fail(PALP_ERROR_STATE,
+                    "palp_session_step: expected a stopped session, found its servo thread "
+                    "running (call palp_session_stop first)");
+    }
+    const ph::Snapshot* s = nullptr;
+    for (uint32_t i = 0; i < ticks; ++i) s = &session->session->step();
+    if (last && s) toC(*s, *last);
+    return PALP_OK;
+}
+
+palp_status palp_session_latest(palp_session* session, palp_snapshot* out) {
+    if (!session) return nullArgument("palp_session_latest", "session");
+    if (!out) return nullArgument("palp_session_latest", "out");
+    toC(session->session->latest(), *out);
+    return PALP_OK;
+}
+
+palp_status palp_session_pop_trace(palp_session* session, palp_snapshot* out, int* got) {
+    if (!session) return nullArgument("palp_session_pop_trace", "session");
+    if (!out) return nullArgument("palp_session_pop_trace", "out");
+    if (!got) return nullArgument("palp_session_pop_trace", "got");
+    ph::Snapshot s;
+    *got = session->session->popTrace(s) ? 1 : 0;
+    if (*got) toC(s, *out);
+    return PALP_OK;
+}
+
+palp_status palp_session_set_params(palp_session* session, const palp_session_params* params) {
+    if (!session) return nullArgument("palp_session_set_params", "session");
+    if (!params) return nullArgument("palp_session_set_params", "params");
+    return guarded([&] {
+        if (const char* field = fixedFieldChanged(session->params, *params)) {
+            throw palp::ValueError(std::string("palp_session_set_params: expected ") + field +
+                                   " to stay as at creation (it cannot change while a session "
+                                   "exists), found a different value");
+        }
+        ph::Command coupling;
+        coupling.kind = ph::Command::Kind::SetCoupling;
+        coupling.coupling = toCoupling(*params);
+        ph::Command proxy;
+        proxy.kind = ph::Command::Kind::SetProxy;
+        proxy.proxy = toProxy(*params);
+        ph::Command passivity;
+        passivity.kind = ph::Command::Kind::SetPassivityControl;
+        passivity.flag = params->passivity_control != 0;
+        ph::validateProxyParams(proxy.proxy);  // all three checked before any is sent
+
+        palp_session_params& now = session->params;
+        if (!session->session->send(coupling)) {
+            return fail(PALP_ERROR_QUEUE_FULL, "palp_session_set_params: command queue full");
+        }
+        const char* device = now.device;
+        const palp_session_params before = now;
+        now = *params;
+        now.device = device;
+        now.static_friction = before.static_friction;
+        now.dynamic_friction = before.dynamic_friction;
+        now.passivity_control = before.passivity_control;
+        if (!session->session->send(proxy)) {
+            return fail(PALP_ERROR_QUEUE_FULL,
+                        "palp_session_set_params: command queue full after the coupling change "
+                        "(friction and passivity not applied)");
+        }
+        now.static_friction = params->static_friction;
+        now.dynamic_friction = params->dynamic_friction;
+        if (!session->session->send(passivity)) {
+            return fail(PALP_ERROR_QUEUE_FULL,
+                        "palp_session_set_params: command queue full after the coupling and "
+                        "friction changes (passivity control not applied)");
+        }
+        now.passivity_control = params->passivity_control;
+        return PALP_OK;
+    });
+}
+
+palp_status palp_session_set_mode(palp_session* session, palp_coupling_mode mode) {
+    if (!session) return nullArgument("palp_session_set_mode", "session");
+    return guarded([&] {
+        palp_session_params p = session->params;
+        p.mode = mode;
+        ph::Command c;
+        c.kind = ph::Command::Kind::SetCoupling;
+        c.coupling = toCoupling(p);
+        if (!session->session->send(c)) {
+            return fail(PALP_ERROR_QUEUE_FULL, "palp_session_set_mode: command queue full");
+        }
+        session->params.mode = mode;
+        return PALP_OK;
+    });
+}
+
+palp_status palp_session_get_params(const palp_session* session, palp_session_params* out) {
+    if (!session) return nullArgument("palp_session_get_params", "session");
+    if (!out) return nullArgument("palp_session_get_params", "out");
+    *out = session->params;
+    return PALP_OK;
+}
+
+palp_status palp_session_reset_observer(palp_session* session) {
+    if (!session) return nullArgument("palp_session_reset_observer", "session");
+    return guarded([&] {
+        ph::Command c;
+        c.kind = ph::Command::Kind::ResetObserver;
+        if (!session->session->send(c)) {
+            return fail(PALP_ERROR_QUEUE_FULL, "palp_session_reset_observer: command queue full");
+        }
+        return PALP_OK;
+    });
+}
+
+palp_status palp_session_stats(const palp_session* session, palp_loop_stats* out) {
+    if (!session) return nullArgument("palp_session_stats", "session");
+    if (!out) return nullArgument("palp_session_stats", "out");
+    const ph::ServoStats s = session->session->stats();
+    out->wake_latency = toC(s.wakeLatency);
+    out->period_error = toC(s.periodError);
+    out->compute = toC(s.compute);
+    out->ticks = s.ticks;
+    out->misses = s.misses;
+    out->skipped = s.skipped;
+    out->trace_dropped = session->session->traceDropped();
+    return PALP_OK;
+}
+
+palp_status palp_session_realtime(const palp_session* session, palp_realtime* out) {
+    if (!session) return nullArgument("palp_session_realtime", "session");
+    if (!out) return nullArgument("palp_session_realtime", "out");
+    const ph::RealtimeStatus& r = session->session->realtime();
+    out->pinned = r.pinned ? 1 : 0;
+    out->cpu = r.cpu;
+    out->fifo = r.fifo ? 1 : 0;
+    out->priority = r.priority;
+    out->memory_locked = r.memoryLocked ? 1 : 0;
+    out->failed = r.failed ? 1 : 0;
+    out->message = r.message.c_str();
+    return PALP_OK;
+}
+
+const char* palp_session_realtime_status(const palp_session* session) {
+    return session ? session->session->realtime().message.c_str() : nullptr;
+}
+
+}  // extern "C"

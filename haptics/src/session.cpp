@@ -100,7 +100,7 @@ void blend(const CouplingOutput& a, const CouplingOutput& b, double w,
 bool sourceHasData(const Scene& scene, RaySource source) noexcept {
     switch (source) {
         case RaySource::Mesh:
-            return true;  // an empty mesh scene is valid: no hits, L = L_max
+            return !scene.hardMeshes().empty();
         case RaySource::VolumeFirstHit:
         case RaySource::VolumeAccumulate:
             return scene.volumeView() != nullptr;
@@ -111,8 +111,11 @@ bool sourceHasData(const Scene& scene, RaySource source) noexcept {
 void requireSourceData(const Scene& scene, const CouplingParams& c) {
     if (c.mode != CouplingMode::VC && !sourceHasData(scene, c.source)) {
         throw ValueError(
-            "session: expected a scene with a volume for the volume ray sources, found a scene "
-            "without one (use RaySource::Mesh or CouplingMode::VC, or Scene::setVolume)");
+            c.source == RaySource::Mesh
+                ? "session: expected a scene with hard meshes for RaySource::Mesh in AVC/AVCEC, "
+                  "found none (add them with Scene::addHardMesh or SceneOptions::hardIso)"
+                : "session: expected a scene with a volume for the volume ray sources in "
+                  "AVC/AVCEC, found none (use Scene::setVolume, or CouplingMode::VC)");
     }
 }
 

@@ -1,0 +1,297 @@
+#ifndef PALP_PALP_H
+#define PALP_PALP_H
+/**
+ * @file
+ * palp's C API: load or generate a volume, build a scene, run a haptic session on a simulated
+ * device in real time or offline, read its state and change its parameters while it runs.
+ *
+ * Conventions
+ * - Opaque handles (palp_volume, palp_scene, palp_session) are reference counted: a create
+ *   function returns a handle holding one reference; palp_X_retain() adds one,
+ *   palp_X_release() drops one and frees the object at zero. Releasing NULL is a no-op. A
+ *   scene keeps what it needs of its volume, and a session what it needs of its scene, so
+ *   handles may be released in any order.
+ * - Every function that can fail returns a palp_status. On failure, palp_last_error() (per
+ *   calling thread) holds a message naming the value or file, what was expected and what was
+ *   found, and the error callback (if set) is called with the same status and message. Output
+ *   arguments are left untouched on failure.
+ * - No C++ exception ever crosses this boundary.
+ * - Units are SI throughout: metres, seconds, newtons, N/m. The world frame is the DICOM
+ *   patient frame (LPS) of the volume, in metres.
+ *
+ * Threading
+ * - Volumes and scenes are immutable after creation and may be shared between threads.
+ * - A session has three roles: a controlling thread (create, start, stop, step, release), one
+ *   viewer thread (palp_session_latest, palp_session_pop_trace), and one producer thread
+ *   (palp_session_set_*, palp_session_reset_observer). These may be the same thread. Statistics
+ *   and status may be read from any thread.
+ */
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define PALP_VERSION_MAJOR 0
+#define PALP_VERSION_MINOR 1
+#define PALP_VERSION_PATCH 0
+
+/** Result of every fallible call. */
+typedef enum palp_status {
+    PALP_OK = 0,
+    PALP_ERROR_INVALID_ARGUMENT = 1, /**< a NULL handle or pointer, or a value out of range */
+    PALP_ERROR_IO = 2,               /**< a file could not be opened, read or written */
+    PALP_ERROR_FORMAT = 3,           /**< a file's content is not what its format requires */
+    PALP_ERROR_STATE = 4,            /**< the call does not fit the object's state */
+    PALP_ERROR_QUEUE_FULL = 5,       /**< the session's command queue is full: retry later */
+    PALP_ERROR_OUT_OF_MEMORY = 6,
+    PALP_ERROR_REALTIME = 7, /**< real-time scheduling was required but refused */
+    PALP_ERROR_INTERNAL = 8  /**< anything else (a bug: please report the message) */
+} palp_status;
+
+typedef struct palp_volume palp_volume;
+typedef struct palp_scene palp_scene;
+typedef struct palp_session palp_session;
+
+/** "MAJOR.MINOR.PATCH" of the library (static storage). */
+const char* palp_version(void);
+/** Name of a status code, e.g. "PALP_ERROR_IO" (static storage). */
+const char* palp_status_string(palp_status status);
+/** Message of the last failed call on this thread ("" when none; valid until the next failing
+ *  call on this thread). */
+const char* palp_last_error(void);
+
+/** Called on every failure, on the failing thread, after palp_last_error() is set. */
+typedef void (*palp_error_callback)(void* user, palp_status status, const char* message);
+/** Sets (or with NULL clears) the process-wide error callback. */
+void palp_set_error_callback(palp_error_callback callback, void* user);
+
+/* ---------------------------------------------------------------------------------------- */
+/* Volumes                                                                                  */
+
+/** Loads a scan: a DICOM directory or file, NIfTI, NRRD, MetaImage or a palp .vdb.
+ *  @p voxel_size: isotropic voxel edge of the resampled grid, m (0: the format's default,
+ *  the finest input spacing). Errors: PALP_ERROR_IO (cannot read), PALP_ERROR_FORMAT,
+ *  PALP_ERROR_INVALID_ARGUMENT. */
+palp_status palp_volume_load(const char* path, double voxel_size, palp_volume** out);
+
+/** Generates one of the thesis's phantoms as a CT-like volume (HU; surface at y = 0 facing -y,
+ *  depth +y; see palp/volume/phantom.h).
+ *  @p scene: "avc", "avcec", "bone" or "stiffness".
+ *  @p variant: avc: quadrant of the hidden box 0..3; bone: displacement -1..1; else ignored.
+ *  @p shape: avcec plate outline "circle", "triangle", "rectangle", "hexagon", "pentagon"
+ *  (NULL: circle); ignored otherwise.
+ *  @p voxel_size: m (> 0; 0.5e-3 to 1e-3 is typical). */
+palp_status palp_volume_make_phantom(const char* scene, int variant, const char* shape,
+                                     double voxel_size, palp_volume** out);
+
+/** Voxel edge, m, and the world box of the active voxels, m (either pointer may be NULL). */
+palp_status palp_volume_geometry(const palp_volume* volume, double* voxel_size,
+                                 double bounds_min[3], double bounds_max[3]);
+
+palp_volume* palp_volume_retain(palp_volume* volume);
+void palp_volume_release(palp_volume* volume);
+
+/* ---------------------------------------------------------------------------------------- */
+/* Scenes                                                                                   */
+
+/** A scene from a volume: the volume for the volume ray sources, the iso-surface at
+ *  @p surface_iso (volume units, e.g. -500 HU for skin) as the surface the proxy slides on, and
+ *  the iso-surface at @p hard_iso (e.g. 500 HU for bone and plates) as hard meshes for the mesh
+ *  ray source. Pass NAN for either to leave it out. */
+palp_status palp_scene_from_volume(const palp_volume* volume, double surface_iso, double hard_iso,
+                                   palp_scene** out);
+/** An empty scene: nothing to touch (the proxy equals the probe), no volume. */
+palp_status palp_scene_create_empty(palp_scene** out);
+
+palp_scene* palp_scene_retain(palp_scene* scene);
+void palp_scene_release(palp_scene* scene);
+
+/* ---------------------------------------------------------------------------------------- */
+/* Sessions                                                                                 */
+
+typedef enum palp_coupling_mode {
+    PALP_MODE_VC = 0,   /**< plain virtual coupling, k = stiffness */
+    PALP_MODE_AVC = 1,  /**< anisotropic: k from the ray length along proxy -> probe */
+    PALP_MODE_AVCEC = 2 /**< AVC with the energy-conserving force terms */
+} palp_coupling_mode;
+
+typedef enum palp_ray_source {
+    PALP_SOURCE_MESH = 0,             /**< closest hit against the scene's hard meshes */
+    PALP_SOURCE_VOLUME_FIRST_HIT = 1, /**< first crossing of threshold in the volume */
+    PALP_SOURCE_VOLUME_ACCUMULATE = 2 /**< where the integral of hardness reaches tau_stop */
+} palp_ray_source;
+
+/** Session parameters. Always start from palp_session_params_default(). */
+typedef struct palp_session_params {
+    palp_coupling_mode mode;
+    palp_ray_source source;
+    double stiffness;        /**< k_s, N/m: stiffness of the surface itself */
+    double reference_length; /**< L_ref, m: m(L) = clamp(L_ref / L, 1, max_multiplier) */
+    double max_multiplier;   /**< m_max (>= 1) */
+    double max_stiffness;    /**< k_max, N/m: k is always clamped here */
+    double damping;          /**< b, N s/m, on v_proxy - v_probe */
+    double ray_length;       /**< L_max, m */
+    int ring_count;          /**< low-pass ring rays (0..47) */
+    double ring_half_angle;  /**< alpha, rad */
+    double sobel_angle;      /**< delta, rad: spherical Sobel spacing */
+    double surface_offset;   /**< h, m: surface Sobel spacing */
+    double threshold;        /**< first-hit threshold (volume units, e.g. HU); accumulate: the
+                                  value where the hardness steps up */
+    double ray_step;         /**< sample spacing along volume rays, m */
+    double hardness;         /**< accumulate: hardness above threshold, 1/m */
+    double tau_stop;         /**< accumulate: integral where the ray stops */
+    double static_friction;  /**< mu_s */
+    double dynamic_friction; /**< mu_d (<= mu_s) */
+    /** Device class from palp's spec table ("3D Systems Touch", "3D Systems Touch X",
+     *  "Phantom Premium 1.5", "Force Dimension omega.3", "Novint Falcon"); its maximum force
+     *  clamps every tick. The string is copied at creation. */
+    const char* device;
+    int passivity_control;    /**< non-zero: the passivity controller adds damping */
+    double period;            /**< servo period T, s (1e-3 for 1 kHz) */
+    double startup_threshold; /**< N: force below which a start-up tick is quiet */
+    uint32_t startup_quiet_ticks;
+    double cross_fade_seconds;    /**< run-time coupling changes fade over this long */
+    double workspace_scale;       /**< world = offset + scale * rotation * device */
+    double workspace_rotation[9]; /**< row-major 3x3 rotation */
+    double workspace_offset[3];   /**< m */
+    uint32_t trace_capacity;      /**< snapshots kept for palp_session_pop_trace (0: none) */
+    int servo_cpu;                /**< core to pin the servo thread to; -1: the last one */
+    int servo_priority;           /**< SCHED_FIFO priority 1..99; 0: do not ask */
+    int require_realtime;         /**< non-zero: start fails if pinning/SCHED_FIFO is refused */
+} palp_session_params;
+
+/** Fills @p params with palp's defaults (AVCEC, volume first-hit at 300 HU, k_s 300 N/m,
+ *  3D Systems Touch X, 1 kHz, identity workspace). */
+void palp_session_params_default(palp_session_params* params);
+
+typedef enum palp_trajectory_kind {
+    PALP_TRAJECTORY_PRESS = 0,   /**< in along direction by depth, hold, back out */
+    PALP_TRAJECTORY_SWEEP = 1,   /**< back and forth along direction, pressed depth */
+    PALP_TRAJECTORY_RASTER = 2,  /**< boustrophedon over extent_u x extent_v, pressed depth */
+    PALP_TRAJECTORY_CIRCLE = 3,  /**< circle of radius in (u, v), pressed depth */
+    PALP_TRAJECTORY_SINUSOID = 4 /**< centre + a(t) sin(2 pi f t) direction */
+} palp_trajectory_kind;
+
+/** A scripted path for the simulated user's hand (device frame, m), and the hand model that
+ *  follows it under the rendered force. Start from palp_trajectory_default(). */
+typedef struct palp_trajectory {
+    palp_trajectory_kind kind;
+    double centre[3];          /**< press/sinusoid: start point; others: centre on the surface */
+    double direction[3];       /**< press: into the surface; sweep: sweep axis; sinusoid: axis */
+    double press_direction[3]; /**< sweep, raster, circle: into the surface */
+    double u[3], v[3];         /**< raster, circle: the plane's axes */
+    double depth;              /**< press, sweep, raster, circle: m */
+    double length;             /**< sweep: length of the line, m */
+    double extent_u, extent_v; /**< raster: size of the rectangle, m */
+    double line_spacing;       /**< raster: m */
+    double speed;              /**< sweep, raster: m/s */
+    double radius;             /**< circle: m */
+    double frequency;          /**< circle, sinusoid: Hz */
+    double amplitude;          /**< sinusoid: m */
+    double grow_seconds;       /**< sinusoid: amplitude ramp, s (0: none) */
+    double press_seconds;      /**< press: s */
+    double hold_seconds;       /**< press: s */
+    double approach;           /**< sweep, raster, circle: start this far above the surface, m */
+    double approach_seconds;   /**< sweep, raster, circle: s */
+    double turn_seconds;       /**< sweep: s */
+    double hand_mass;          /**< kg */
+    double hand_stiffness;     /**< N/m: the arm's pull towards the path */
+    double hand_damping;       /**< N s/m */
+} palp_trajectory;
+
+/** Fills @p trajectory with the defaults of @p kind (those of palp/haptics/trajectory.h). */
+palp_status palp_trajectory_default(palp_trajectory_kind kind, palp_trajectory* trajectory);
+
+/** One tick's state (world frame, SI units). */
+typedef struct palp_snapshot {
+    uint64_t tick;
+    double time;            /**< s since the first tick */
+    double probe[3];        /**< device position in the world, m */
+    double proxy[3];        /**< m */
+    double force[3];        /**< sent to the device (world frame), N */
+    double energy_force[3]; /**< AVCEC spherical term, N */
+    double proxy_force[3];  /**< AVCEC surface term, N */
+    double stiffness;       /**< k, N/m */
+    double ray_length;      /**< L, m */
+    double distance;        /**< D = |probe - proxy|, m */
+    double coupling_energy; /**< 1/2 k D^2, J */
+    double observer_energy; /**< passivity observer W, J */
+    double added_damping;   /**< passivity controller alpha, N s/m */
+    int contact_count;      /**< active constraint planes 0..3 */
+    int rays;               /**< rays cast this tick */
+    int sticking, gate_open, faulted, clamped, fading;
+    palp_coupling_mode mode;
+    uint64_t faults; /**< ticks so far whose force was non-finite (last good held) */
+} palp_snapshot;
+
+typedef struct palp_latency {
+    double p50, p99, p999, max, mean; /**< s */
+    uint64_t count;
+} palp_latency;
+
+typedef struct palp_loop_stats {
+    palp_latency wake_latency; /**< actual wake-up minus deadline */
+    palp_latency period_error; /**< |actual period - T| */
+    palp_latency compute;      /**< time in one tick */
+    uint64_t ticks, misses, skipped;
+    uint64_t trace_dropped; /**< snapshots lost because the trace was not read in time */
+} palp_loop_stats;
+
+typedef struct palp_realtime {
+    int pinned, cpu, fifo, priority, memory_locked, failed;
+    const char* message; /**< every outcome, e.g. "pinned to CPU 1; SCHED_FIFO 80 refused: ...";
+                              valid until the session is restarted or released */
+} palp_realtime;
+
+/** A session on a simulated device whose hand follows @p trajectory.
+ *  Errors: PALP_ERROR_INVALID_ARGUMENT naming the field (unknown device class, a ray source
+ *  without its data in the scene, values out of range). */
+palp_status palp_session_create_simulated(palp_scene* scene, const palp_session_params* params,
+                                          const palp_trajectory* trajectory, palp_session** out);
+
+palp_session* palp_session_retain(palp_session* session);
+/** Drops a reference; the last one stops the servo thread and frees the session. */
+void palp_session_release(palp_session* session);
+
+/** Runs the session on its own real-time servo thread (PALP_ERROR_STATE if running). */
+palp_status palp_session_start(palp_session* session);
+/** Stops the servo thread (idempotent). */
+palp_status palp_session_stop(palp_session* session);
+/** 1 while the servo thread runs, 0 otherwise (also for NULL). */
+int palp_session_running(const palp_session* session);
+/** Runs @p ticks ticks on the calling thread as fast as possible (offline; time advances by
+ *  the period per tick) and copies the last one's state into @p last (may be NULL).
+ *  PALP_ERROR_STATE while the servo thread runs. */
+palp_status palp_session_step(palp_session* session, uint32_t ticks, palp_snapshot* last);
+
+/** Viewer: the newest published tick. */
+palp_status palp_session_latest(palp_session* session, palp_snapshot* out);
+/** Viewer: the oldest unread tick of the trace; *got = 0 when none is queued. */
+palp_status palp_session_pop_trace(palp_session* session, palp_snapshot* out, int* got);
+
+/** Producer: switch the coupling mode (cross-faded). PALP_ERROR_QUEUE_FULL: retry later. */
+palp_status palp_session_set_mode(palp_session* session, palp_coupling_mode mode);
+/** Producer: apply the coupling, friction and passivity fields of @p params (cross-faded).
+ *  The fields fixed at creation (device, period, start-up gate, cross-fade time, workspace,
+ *  trace capacity, servo) must equal the session's: PALP_ERROR_INVALID_ARGUMENT otherwise. */
+palp_status palp_session_set_params(palp_session* session, const palp_session_params* params);
+/** The parameters in force after the last successful set call (or creation). */
+palp_status palp_session_get_params(const palp_session* session, palp_session_params* out);
+/** Producer: set the passivity observer's energy back to zero. */
+palp_status palp_session_reset_observer(palp_session* session);
+
+/** Servo loop timing since start (zeros before the first start). */
+palp_status palp_session_stats(const palp_session* session, palp_loop_stats* out);
+/** What the operating system granted the servo thread (after start). */
+palp_status palp_session_realtime(const palp_session* session, palp_realtime* out);
+/** palp_realtime.message alone ("" before the first start; NULL for a NULL session). */
+const char* palp_session_realtime_status(const palp_session* session);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* PALP_PALP_H */
