@@ -1,1 +1,165 @@
-// Placeholder: written in issue 4.
+#include "palp/haptics/coupling.h"
+
+#include <algorithm>
+#include <cmath>
+#include <span>
+#include <string>
+
+#include "palp/error.h"
+
+namespace palp::haptics {
+
+namespace {
+
+bool finite3(const Eigen::Vector3d& v) noexcept {
+    return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
+
+std::string str(double v) { return std::to_string(v); }
+
+void requirePositive(const char* field, double v, const char* unit) {
+    if (!(std::isfinite(v) && v > 0))
+        throw ValueError(std::string("coupling ") + field + ": expected a finite value > 0 " +
+                         unit + ", found " + str(v));
+}
+
+}  // namespace
+
+void validateCouplingParams(const CouplingParams& p) {
+    if (p.mode != CouplingMode::VC && p.mode != CouplingMode::AVC && p.mode != CouplingMode::AVCEC)
+        throw ValueError("coupling mode: expected VC, AVC or AVCEC, found value " +
+                         std::to_string(static_cast<int>(p.mode)));
+    if (p.source != RaySource::Mesh && p.source != RaySource::VolumeFirstHit &&
+        p.source != RaySource::VolumeAccumulate)
+        throw ValueError(
+            "coupling source: expected Mesh, VolumeFirstHit or VolumeAccumulate, found value " +
+            std::to_string(static_cast<int>(p.source)));
+    requirePositive("baseStiffness", p.baseStiffness, "N/m");
+    requirePositive("referenceLength", p.referenceLength, "m");
+    if (!(std::isfinite(p.maxMultiplier) && p.maxMultiplier >= 1))
+        throw ValueError("coupling maxMultiplier: expected a finite value >= 1, found " +
+                         str(p.maxMultiplier));
+    if (!(std::isfinite(p.maxStiffness) && p.maxStiffness >= p.baseStiffness))
+        throw ValueError("coupling maxStiffness: expected a finite value >= baseStiffness (" +
+                         str(p.baseStiffness) + " N/m), found " + str(p.maxStiffness));
+    if (!(std::isfinite(p.damping) && p.damping >= 0))
+        throw ValueError("coupling damping: expected a finite value >= 0 N s/m, found " +
+                         str(p.damping));
+    requirePositive("minDistance", p.minDistance, "m");
+    if (p.source == RaySource::Mesh && p.hardMask == 0)
+        throw ValueError(
+            "coupling hardMask: expected at least one mask bit for the Mesh source, "
+            "found 0");
+    kernels::validateBundleParams(p.bundle);
+    kernels::validateFirstHitParams(p.firstHit);
+    kernels::validateAccumulateParams(p.accumulate);
+}
+
+double stiffnessMultiplier(const CouplingParams& params, double rayLength) noexcept {
+    if (std::isnan(rayLength)) return 1.0;
+    if (!(rayLength > 0)) return params.maxMultiplier;
+    return std::clamp(params.referenceLength / rayLength, 1.0, params.maxMultiplier);
+}
+
+Coupling::Coupling(const kernels::VolumeView* volume, const kernels::EmbreeScene* hardMeshes,
+                   const CouplingParams& params)
+    : mVolume(volume), mMeshes(hardMeshes), mParams(params) {
+    validateCouplingParams(params);
+    if (params.mode != CouplingMode::VC && !sourceAvailable()) {
+        const char* what = params.source == RaySource::Mesh
+                               ? "coupling source Mesh: expected a committed, non-empty Embree "
+                                 "scene of hard meshes, found "
+                               : "coupling source Volume*: expected a volume view, found ";
+        const bool none =
+            params.source == RaySource::Mesh ? hardMeshes == nullptr : volume == nullptr;
+        throw ValueError(std::string(what) + (none ? "none" : "an empty or uncommitted scene"));
+    }
+}
+
+void Coupling::setParams(const CouplingParams& params) noexcept { mParams = params; }
+
+bool Coupling::sourceAvailable() const noexcept {
+    switch (mParams.source) {
+        case RaySource::Mesh:
+            return mMeshes != nullptr && !mMeshes->empty() && mMeshes->committed();
+        case RaySource::VolumeFirstHit:
+        case RaySource::VolumeAccumulate:
+            return mVolume != nullptr;
+    }
+    return false;
+}
+
+void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
+                       const Eigen::Vector3d& proxyVelocity, const Eigen::Vector3d& probeVelocity,
+                       const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2,
+                       CouplingOutput& out) noexcept {
+    out = CouplingOutput{};
+    const CouplingParams& p = mParams;
+    if (!finite3(proxy) || !finite3(probe) || !finite3(proxyVelocity) || !finite3(probeVelocity) ||
+        !finite3(tangent1) || !finite3(tangent2))
+        return;
+    const Eigen::Vector3d delta = probe - proxy;
+    const double D = delta.norm();
+    if (!std::isfinite(D) || !(D >= p.minDistance)) return;
+    const Eigen::Vector3d d = delta / D;
+    out.distance = D;
+    const Eigen::Vector3d dampingForce = p.damping * (proxyVelocity - probeVelocity);
+
+    const bool rays = p.mode != CouplingMode::VC && sourceAvailable() &&
+                      kernels::generateBundle(proxy, d, tangent1, tangent2, p.bundle, mBundle);
+    if (!rays) {
+        mBundle.count = 0;
+        mBundle.valid = false;
+        out.stiffness = std::min(p.baseStiffness, p.maxStiffness);
+        out.force = -out.stiffness * D * d + dampingForce;
+        out.energy = 0.5 * out.stiffness * D * D;
+        return;
+    }
+    const bool ec = p.mode == CouplingMode::AVCEC;
+    // AVC needs only the centre and the ring: the stencil rays are not traced at all.
+    if (!ec) mBundle.count = 1 + mBundle.ringCount;
+    const int n = mBundle.count;
+
+    // Per-ray lengths L_r -> per-ray stiffness k_r (kept in a fixed buffer: no allocation).
+    std::array<double, kernels::kMaxBundleRays> k{};
+    auto stiffness = [&](double length) {
+        return std::min(p.baseStiffness * stiffnessMultiplier(p, length), p.maxStiffness);
+    };
+    double centreLength = 0;
+    switch (p.source) {
+        case RaySource::Mesh:
+        case RaySource::VolumeFirstHit:
+            if (p.source == RaySource::Mesh)
+                kernels::traceBundle(*mMeshes, mBundle, p.hardMask, mHits);
+            else
+                kernels::traceFirstHit(*mVolume, mBundle, p.firstHit, mHits);
+            for (int r = 0; r < mHits.count; ++r)
+                k[static_cast<std::size_t>(r)] = stiffness(mHits.t[static_cast<std::size_t>(r)]);
+            centreLength = mHits.count > 0 ? mHits.t[0] : p.bundle.length;
+            break;
+        case RaySource::VolumeAccumulate:
+            kernels::traceAccumulate(*mVolume, mBundle, p.accumulate, mAccum);
+            for (int r = 0; r < mAccum.count; ++r)
+                k[static_cast<std::size_t>(r)] = stiffness(mAccum.t[static_cast<std::size_t>(r)]);
+            centreLength = mAccum.count > 0 ? mAccum.t[0] : p.bundle.length;
+            break;
+    }
+    const std::span<const double> perRay(k.data(), static_cast<std::size_t>(n));
+
+    out.rays = n;
+    out.rayLength = centreLength;
+    out.stiffness = kernels::lowPass(mBundle, perRay);
+    out.force = -out.stiffness * D * d + dampingForce;
+    out.energy = 0.5 * out.stiffness * D * D;
+    if (!ec) return;
+
+    // E = 1/2 k D^2: the probe gradient adds -1/2 D (g1 e1 + g2 e2), the proxy gradient
+    // -1/2 D^2 (gs1 t1 + gs2 t2). Both stencils read the raw per-ray k (centre ray in the middle).
+    out.sphere = kernels::sphericalSobel(mBundle, perRay);
+    out.surface = kernels::surfaceSobel(mBundle, perRay);
+    out.energyForce = -0.5 * D * (out.sphere.g1 * mBundle.e1 + out.sphere.g2 * mBundle.e2);
+    out.proxyForce = -0.5 * D * D * (out.surface.g1 * mBundle.t1 + out.surface.g2 * mBundle.t2);
+    out.force += out.energyForce;
+}
+
+}  // namespace palp::haptics

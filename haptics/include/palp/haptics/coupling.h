@@ -42,11 +42,13 @@ struct CouplingParams {
 };
 
 /// @throw palp::ValueError naming the field (non-finite or non-positive stiffness, lengths,
-///        maxMultiplier < 1, maxStiffness < baseStiffness, negative damping, and the bundle and
-///        ray parameters through their own validators).
+///        maxMultiplier < 1, maxStiffness < baseStiffness, negative damping, an unknown mode or
+///        source, hardMask 0 with the Mesh source, and the bundle, first-hit and accumulate
+///        parameters through their own validators, whatever the source).
 void validateCouplingParams(const CouplingParams& params);
 
-/// The stiffness multiplier m(L) = clamp(L_ref / L, 1, m_max) (m_max for L <= 0).
+/// The stiffness multiplier m(L) = clamp(L_ref / L, 1, m_max) (m_max for L <= 0, 1 for a NaN
+/// length: no information gives no stiffening).
 /// @par Real-time  noexcept.
 double stiffnessMultiplier(const CouplingParams& params, double rayLength) noexcept;
 
@@ -71,6 +73,21 @@ struct CouplingOutput {
 /// Computes the coupling force each tick. Holds the bundle and hit buffers, so a tick
 /// allocates nothing.
 ///
+/// What a tick computes (D = |x_pb - x_py|, d = (x_pb - x_py) / D, b = damping):
+/// * VC (or a source without data): k = baseStiffness, F_pb = -k D d + b (v_py - v_pb); no ray,
+///   rays = 0, rayLength = 0.
+/// * AVC: the bundle from x_py along d; only the centre and ring rays are traced (bundle().count
+///   is 1 + ringCount). Per ray k_r = min(k_s m(L_r), k_max) with L_r the mesh hit, the
+///   first-hit t, or the accumulate stop t (L_max when nothing is found); k = lowPass(k_r)
+///   (k_centre without a ring); F_pb = -k D d + b (v_py - v_pb).
+/// * AVCEC: all rays. g = sphericalSobel(k_r), gs = surfaceSobel(k_r) on the raw per-ray k (the
+///   stencil centre is the centre ray's unfiltered k, not the low-passed k);
+///   energyForce = -1/2 D (g1 e1 + g2 e2) is added to F_pb; proxyForce = -1/2 D^2 (gs1 t1 +
+///   gs2 t2) with e1, e2, t1, t2 from bundle(). With a ring the low-passed k and the raw-k
+///   gradient do not belong to one potential, so the closed-loop work is only ~0 without a ring
+///   (see test_coupling's energy test for the figures).
+/// * energy = 1/2 k D^2 in every mode; the damping force is not in energy.
+///
 /// @par Threading  One instance per servo loop; compute() from one thread at a time. The view
 ///      and scene must outlive it and must not change while compute() runs.
 /// @par Real-time  compute() is noexcept, allocation-free, lock-free and bounded by the
@@ -79,7 +96,8 @@ class Coupling {
   public:
     /// @p volume is needed for the volume sources, @p hardMeshes for the mesh source (either
     /// may be null otherwise).
-    /// @throw palp::ValueError for invalid parameters or a source without its data.
+    /// @throw palp::ValueError for invalid parameters, or (in AVC and AVCEC mode only) a source
+    ///        without its data: a null view, or a null, empty or uncommitted mesh scene.
     Coupling(const kernels::VolumeView* volume, const kernels::EmbreeScene* hardMeshes,
              const CouplingParams& params);
 
@@ -87,11 +105,14 @@ class Coupling {
     /// its data falls back to VC and is reported through sourceAvailable()).
     void setParams(const CouplingParams& params) noexcept;
     const CouplingParams& params() const noexcept { return mParams; }
-    /// Whether the current source has its data.
+    /// Whether the current source has its data: a view for the volume sources, a non-empty
+    /// committed scene for the mesh source (read each tick).
     bool sourceAvailable() const noexcept;
 
     /// One tick. @p tangent1, @p tangent2 span the surface stencil plane (the proxy's tangent
-    /// frame). D < minDistance or non-finite input gives a zero output.
+    /// frame; orthonormalised, and replaced by e1, e2 when degenerate). D < minDistance or
+    /// any non-finite input (positions, velocities, tangents) gives a zero output, damping
+    /// included. Positions in metres, velocities in m/s.
     void compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
                  const Eigen::Vector3d& proxyVelocity, const Eigen::Vector3d& probeVelocity,
                  const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2,
