@@ -4,6 +4,42 @@
 /// (ALGORITHMS.md section 1): the proxy follows the probe in free space, stops on the first
 /// surface the segment proxy -> probe hits, and in contact stays on up to three constraint
 /// planes (faces, edges, corners), sticking or slipping on the friction cone.
+///
+/// One update() (all in double precision except Embree's ray test):
+/// 1. Trace the segment x_py -> x_pb (extended by epsilon, so that a probe just short of a
+///    surface counts as touching it). No hit: the proxy moves to the probe (free motion).
+/// 2. A hit gives the constraint plane of the hit triangle, computed from its vertices, with the
+///    normal n = -sign(Ng.u) Ng/|Ng| facing the side the segment came from (meshes need no
+///    consistent winding) and offset epsilon: n.x = n.v0 + epsilon. The proxy advances along the
+///    hit-free segment to that offset plane, or stays where it is when already on it (within
+///    1e-3 epsilon) or below it.
+/// 3. Coulomb friction on this first plane: f = k (x_pb - x_py) + F_t, where F_t is
+///    tangentialForce with its component along n removed. f_n = -f.n (pressing), f_t the rest.
+///    |f_t| <= mu_s f_n: the proxy sticks (no motion, sticking = true). Otherwise it slides by
+///    (|f_t| - mu_d f_n) / k along f_t, which never passes the goal x + f_t / k (the projection
+///    of the probe onto the plane, shifted by F_t / k); with mu = 0 it reaches the goal.
+/// 4. Each further motion segment is traced again; a new hit advances to its offset plane and
+///    adds it (at most three). The goal is then the point closest to the step-3 target in the
+///    intersection of the half-spaces n_i.x >= d_i, i.e. a projection onto 1 plane, the line of
+///    2 or the point of 3, chosen so that no plane is violated (planes the target is above are
+///    released). Normal forces of the second and third plane do not enter the friction test.
+/// 5. Embree's ray test is not watertight (a ray through a shared edge can slip between two
+///    triangles), so every move is confirmed by tracing it backwards; a surface the reverse ray
+///    meets blocks the move like a forward hit.
+/// 6. At most maxIterations + 1 segments are traced (two rays each); when they run out, when a
+/// fourth plane or
+///    a degenerate one (grazing, parallel) is met, the proxy stays at the last position it
+///    reached along traced hit-free segments. It therefore never crosses a surface of
+///    surfaceMask it did not start inside, up to Embree's single-precision ray test: a proxy
+///    that free motion leaves within float rounding (about 1e-9 m at centimetre coordinates)
+///    of a surface can, in principle, slip through it on the next tick.
+///
+/// Constraint planes are found again every tick (nothing is carried over but the position), so
+/// moving or deforming surfaces and faceted curved surfaces need no special handling, and a
+/// proxy that slides past a convex edge leaves the face's plane when the probe is not under
+/// it. Active planes reported in ProxyState are those the proxy lies on (within 1e-3 epsilon)
+/// and the probe is below; normals[0] is the friction plane. Against a convex object at most
+/// one plane is active; two and three occur in concave edges and corners.
 
 #include <Eigen/Core>
 #include <array>
@@ -31,11 +67,13 @@ struct ProxyState {
     Eigen::Vector3d velocity{Eigen::Vector3d::Zero()};  ///< v_py, m/s (finite difference)
     int contactCount = 0;                               ///< active constraint planes, 0..3
     std::array<Eigen::Vector3d, 3> normals{};  ///< unit outward normals of the active planes
-    /// Orthonormal tangent frame at the contact (t1, t2 perpendicular to the first normal);
-    /// arbitrary but continuous in free space. Used for the surface Sobel stencil.
+    /// Orthonormal tangent frame at the contact (t1, t2 perpendicular to the first normal,
+    /// t2 = n x t1); t1 is the previous t1 with its normal part removed, so the frame turns
+    /// continuously; in free space the last frame is kept. Used for the surface Sobel stencil.
     Eigen::Vector3d tangent1{Eigen::Vector3d::UnitX()};
     Eigen::Vector3d tangent2{Eigen::Vector3d::UnitZ()};
     bool sticking = false;  ///< in contact and inside the static friction cone
+    int queries = 0;        ///< rays traced by the last update(), <= 2 (maxIterations + 1)
 };
 
 /// God-object proxy against an EmbreeScene.
@@ -43,7 +81,7 @@ struct ProxyState {
 /// @par Threading  One instance per servo loop; update() from the servo thread only. The scene
 ///      must be committed and not modified while update() runs.
 /// @par Real-time  update() and reset() are noexcept, allocation-free and bounded
-///      (at most maxIterations + 1 closest-hit queries of a few rays each).
+///      (at most 2 (maxIterations + 1) closest-hit rays).
 class Proxy {
   public:
     /// @p scene must outlive the proxy. An empty scene is allowed (the proxy then equals the
@@ -57,7 +95,8 @@ class Proxy {
     /// tangent plane (AVCEC's F_py, N), added to the coupling's pull k (x_pb - x_py) in the
     /// friction test; @p stiffness is k (N/m, > 0), used to turn forces into displacements.
     /// @p dt is the tick period (s) for the velocity estimate.
-    /// Non-finite input leaves the proxy where it was.
+    /// Non-finite input, or a non-positive stiffness or dt, leaves the whole state unchanged.
+    /// An empty or uncommitted scene: the proxy equals the probe.
     const ProxyState& update(const Eigen::Vector3d& probe, const Eigen::Vector3d& tangentialForce,
                              double stiffness, double dt) noexcept;
 
