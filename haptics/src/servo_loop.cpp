@@ -1,1 +1,354 @@
-// Placeholder: written in issue 4.
+#include "palp/haptics/servo_loop.h"
+
+#include <pthread.h>
+#include <sched.h>
+#include <sys/mman.h>
+#include <time.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <string>
+#include <system_error>
+
+#include "palp/error.h"
+
+namespace palp::haptics {
+
+namespace {
+
+constexpr std::int64_t kNsPerSecond = 1'000'000'000;
+
+std::int64_t nowNs() noexcept {
+    timespec ts{};
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return static_cast<std::int64_t>(ts.tv_sec) * kNsPerSecond + ts.tv_nsec;
+}
+
+/// Sleeps until the absolute CLOCK_MONOTONIC time t (ns); restarts after signals.
+void sleepUntilNs(std::int64_t t) noexcept {
+    timespec ts{};
+    ts.tv_sec = static_cast<time_t>(t / kNsPerSecond);
+    ts.tv_nsec = static_cast<long>(t % kNsPerSecond);
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+    }
+}
+
+void cpuRelax() noexcept {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#endif
+}
+
+/// "Operation not permitted (EPERM)" for an errno value.
+std::string errorText(int err) {
+    std::string s = std::strerror(err);
+    if (const char* name = strerrorname_np(err)) s += std::string(" (") + name + ")";
+    return s;
+}
+
+/// "0-1,4" for the CPUs in a set of setSize bytes.
+std::string cpuList(const cpu_set_t* set, std::size_t setSize) {
+    std::string out;
+    const int n = static_cast<int>(setSize * 8);
+    for (int c = 0; c < n; ++c) {
+        if (!CPU_ISSET_S(static_cast<std::size_t>(c), setSize, set)) continue;
+        int last = c;
+        while (last + 1 < n && CPU_ISSET_S(static_cast<std::size_t>(last + 1), setSize, set))
+            ++last;
+        if (!out.empty()) out += ',';
+        out += std::to_string(c);
+        if (last > c) out += '-' + std::to_string(last);
+        c = last;
+    }
+    return out.empty() ? "none" : out;
+}
+
+std::string microseconds(double seconds) { return std::to_string(seconds * 1e6) + " us"; }
+
+}  // namespace
+
+void validateServoConfig(const ServoConfig& c) {
+    if (!std::isfinite(c.periodSeconds) || c.periodSeconds < 1e-5 || c.periodSeconds > 1.0)
+        throw ValueError("servo config: periodSeconds must be in [1e-5, 1] s, found " +
+                         std::to_string(c.periodSeconds));
+    if (c.priority < 0 || c.priority > 99)
+        throw ValueError(
+            "servo config: priority must be 0 (no SCHED_FIFO) or a SCHED_FIFO priority 1..99, "
+            "found " +
+            std::to_string(c.priority));
+    if (c.cpu < -1 || c.cpu > 65535)
+        throw ValueError("servo config: cpu must be -1 (last allowed CPU) or 0..65535, found " +
+                         std::to_string(c.cpu));
+    if (!std::isfinite(c.spinSeconds) || c.spinSeconds < 0 || c.spinSeconds >= c.periodSeconds)
+        throw ValueError("servo config: spinSeconds must be in [0, periodSeconds = " +
+                         microseconds(c.periodSeconds) + "), found " +
+                         std::to_string(c.spinSeconds) + " s");
+}
+
+// ---------------------------------------------------------------------------------------------
+// LatencyHistogram. One writer (the servo thread), any number of readers; reset() may come from
+// another thread, so the running sums use read-modify-write atomics rather than load + store.
+
+void LatencyHistogram::add(double seconds) noexcept {
+    if (!(seconds > 0)) seconds = 0;  // also NaN
+    const double us = seconds * 1e6;
+    if (us < static_cast<double>(kBins))
+        mBins[static_cast<std::size_t>(us)].fetch_add(1, std::memory_order_relaxed);
+    else
+        mOverflow.fetch_add(1, std::memory_order_relaxed);
+    mSum.fetch_add(seconds, std::memory_order_relaxed);
+    double m = mMax.load(std::memory_order_relaxed);
+    while (seconds > m && !mMax.compare_exchange_weak(m, seconds, std::memory_order_relaxed)) {
+    }
+    mCount.fetch_add(1, std::memory_order_relaxed);
+}
+
+void LatencyHistogram::reset() noexcept {
+    for (auto& b : mBins) b.store(0, std::memory_order_relaxed);
+    mOverflow.store(0, std::memory_order_relaxed);
+    mCount.store(0, std::memory_order_relaxed);
+    mMax.store(0, std::memory_order_relaxed);
+    mSum.store(0, std::memory_order_relaxed);
+}
+
+std::uint64_t LatencyHistogram::count() const noexcept {
+    return mCount.load(std::memory_order_relaxed);
+}
+
+double LatencyHistogram::max() const noexcept { return mMax.load(std::memory_order_relaxed); }
+
+double LatencyHistogram::mean() const noexcept {
+    const std::uint64_t n = count();
+    return n ? mSum.load(std::memory_order_relaxed) / static_cast<double>(n) : 0.0;
+}
+
+double LatencyHistogram::quantile(double q) const noexcept {
+    // Count from the bins themselves, so that a concurrent add() cannot make the target rank
+    // unreachable.
+    std::uint64_t n = mOverflow.load(std::memory_order_relaxed);
+    for (const auto& b : mBins) n += b.load(std::memory_order_relaxed);
+    if (n == 0) return 0.0;
+    q = std::clamp(std::isnan(q) ? 1.0 : q, 0.0, 1.0);
+    // Rank r (1-based) is the smallest with r >= q n; the small slack keeps q n = 999.0000001
+    // from meaning rank 1000.
+    const double target = std::ceil(q * static_cast<double>(n) - 1e-9);
+    const std::uint64_t rank =
+        std::clamp<std::uint64_t>(static_cast<std::uint64_t>(std::max(target, 1.0)), 1, n);
+    const double top = max();
+    std::uint64_t cumulative = 0;
+    for (int i = 0; i < kBins; ++i) {
+        cumulative += mBins[static_cast<std::size_t>(i)].load(std::memory_order_relaxed);
+        // The upper edge of the bin, but never above the exact maximum (which lies in the
+        // highest non-empty bin), so p50 <= p99 <= p99.9 <= max always holds.
+        if (cumulative >= rank) return std::min(static_cast<double>(i + 1) * 1e-6, top);
+    }
+    return top;  // in the overflow
+}
+
+namespace {
+LatencySummary summarise(const LatencyHistogram& h) noexcept {
+    LatencySummary s;
+    s.count = h.count();
+    s.p50 = h.quantile(0.5);
+    s.p99 = h.quantile(0.99);
+    s.p999 = h.quantile(0.999);
+    s.max = h.max();
+    s.mean = h.mean();
+    return s;
+}
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// ServoLoop
+
+ServoLoop::ServoLoop(const ServoConfig& config) : mConfig(config) { validateServoConfig(config); }
+
+ServoLoop::~ServoLoop() { stop(); }
+
+bool ServoLoop::running() const noexcept { return mRunning.load(std::memory_order_acquire); }
+
+void ServoLoop::start(ServoTask& task) {
+    if (mThread.joinable())
+        throw Error("servo loop: start() called while the loop is running; call stop() first");
+    mStop.store(false, std::memory_order_relaxed);
+    mReady.store(false, std::memory_order_relaxed);
+    mStatus = RealtimeStatus{};
+    try {
+        mThread = std::thread([this, t = &task] { run(t); });
+    } catch (const std::system_error& e) {
+        throw Error(std::string("servo loop: cannot start the servo thread: ") + e.what());
+    }
+    // Set-up hand-off: the thread fills mStatus, then publishes mReady (release).
+    mReady.wait(false, std::memory_order_acquire);
+    if (mConfig.requireRealtime && mStatus.failed) {
+        mThread.join();  // the thread returns without ticking when it failed and must not run
+        throw Error("servo loop: real-time set-up required but refused: " + mStatus.message);
+    }
+}
+
+void ServoLoop::stop() noexcept {
+    mStop.store(true, std::memory_order_relaxed);
+    if (mThread.joinable()) mThread.join();
+}
+
+ServoStats ServoLoop::stats() const noexcept {
+    ServoStats s;
+    s.ticks = mTicks.load(std::memory_order_relaxed);
+    s.misses = mMisses.load(std::memory_order_relaxed);
+    s.skipped = mSkipped.load(std::memory_order_relaxed);
+    s.wakeLatency = summarise(mWake);
+    s.periodError = summarise(mPeriodError);
+    s.compute = summarise(mCompute);
+    return s;
+}
+
+void ServoLoop::resetStats() noexcept {
+    mWake.reset();
+    mPeriodError.reset();
+    mCompute.reset();
+    mTicks.store(0, std::memory_order_relaxed);
+    mMisses.store(0, std::memory_order_relaxed);
+    mSkipped.store(0, std::memory_order_relaxed);
+}
+
+void ServoLoop::setUpThread() noexcept {
+    // Runs on the servo thread before the loop; may allocate (set-up, not real-time).
+    RealtimeStatus& st = mStatus;
+    std::string msg;
+    auto append = [&msg](const std::string& part) {
+        if (!msg.empty()) msg += "; ";
+        msg += part;
+    };
+
+    // Affinity. cpu -1: the last CPU of this thread's mask (inherited from the process).
+    int cpu = mConfig.cpu;
+    cpu_set_t allowed;
+    CPU_ZERO(&allowed);
+    const bool haveMask = sched_getaffinity(0, sizeof(allowed), &allowed) == 0;
+    const std::string allowedText = haveMask ? cpuList(&allowed, sizeof(allowed)) : "unknown";
+    if (cpu < 0 && haveMask) {
+        for (std::size_t c = CPU_SETSIZE; c-- > 0;) {
+            if (CPU_ISSET(c, &allowed)) {
+                cpu = static_cast<int>(c);
+                break;
+            }
+        }
+    }
+    if (cpu < 0) {
+        st.failed = true;
+        append("not pinned: cannot read the process's CPU affinity mask: " + errorText(errno));
+    } else {
+        const auto cpus = static_cast<std::size_t>(cpu) + 1;
+        const std::size_t setSize = CPU_ALLOC_SIZE(cpus);
+        cpu_set_t* set = CPU_ALLOC(cpus);
+        int rc = ENOMEM;
+        if (set) {
+            CPU_ZERO_S(setSize, set);
+            CPU_SET_S(static_cast<std::size_t>(cpu), setSize, set);
+            rc = pthread_setaffinity_np(pthread_self(), setSize, set);
+            CPU_FREE(set);
+        }
+        if (rc == 0) {
+            st.pinned = true;
+            st.cpu = cpu;
+            append("pinned to CPU " + std::to_string(cpu));
+        } else {
+            st.failed = true;
+            append("pinning to CPU " + std::to_string(cpu) + " refused: " + errorText(rc) +
+                   " (the process may use CPUs " + allowedText + ")");
+        }
+    }
+
+    // Scheduling policy.
+    if (mConfig.priority > 0) {
+        sched_param p{};
+        p.sched_priority = mConfig.priority;
+        const int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &p);
+        if (rc == 0) {
+            st.fifo = true;
+            st.priority = mConfig.priority;
+            append("SCHED_FIFO " + std::to_string(mConfig.priority));
+        } else {
+            st.failed = true;
+            append("SCHED_FIFO " + std::to_string(mConfig.priority) + " refused: " + errorText(rc));
+        }
+    } else {
+        append("SCHED_OTHER (priority 0: SCHED_FIFO not asked)");
+    }
+
+    // Memory.
+    if (mConfig.lockMemory) {
+        if (mlockall(MCL_CURRENT | MCL_FUTURE) == 0) {
+            st.memoryLocked = true;
+            append("memory locked");
+            // Fault in some stack now rather than on a first deep call inside a tick.
+            volatile char stack[64 * 1024];
+            for (std::size_t i = 0; i < sizeof(stack); i += 4096) stack[i] = 0;
+        } else {
+            st.failed = true;
+            append("mlockall refused: " + errorText(errno));
+        }
+    } else {
+        append("memory not locked (not asked)");
+    }
+    st.message = std::move(msg);
+}
+
+void ServoLoop::run(ServoTask* task) noexcept {
+    setUpThread();
+    const bool abort = mConfig.requireRealtime && mStatus.failed;
+    if (!abort) mRunning.store(true, std::memory_order_release);
+    mReady.store(true, std::memory_order_release);
+    mReady.notify_one();
+    if (abort) return;
+
+    // From here on: no allocation, no lock, no I/O.
+    const std::int64_t periodNs = std::llround(mConfig.periodSeconds * 1e9);
+    const std::int64_t spinNs = std::llround(mConfig.spinSeconds * 1e9);
+    const std::int64_t startNs = nowNs() + periodNs;  // nominal time 0 = first deadline
+    std::int64_t deadline = startNs;
+    std::int64_t previousWake = 0;
+    std::uint64_t index = 0;
+    while (!mStop.load(std::memory_order_relaxed)) {
+        if (spinNs > 0) {
+            sleepUntilNs(deadline - spinNs);
+            while (nowNs() < deadline) cpuRelax();
+        } else {
+            sleepUntilNs(deadline);
+        }
+        const std::int64_t wake = nowNs();
+        const std::int64_t latency = std::max<std::int64_t>(0, wake - deadline);
+        mWake.add(static_cast<double>(latency) * 1e-9);
+        if (index > 0)
+            mPeriodError.add(static_cast<double>(std::llabs(wake - previousWake - periodNs)) *
+                             1e-9);
+
+        TickInfo info;
+        info.index = index;
+        info.periodSeconds = mConfig.periodSeconds;
+        info.timeSeconds = static_cast<double>(deadline - startNs) * 1e-9;
+        info.latencySeconds = static_cast<double>(latency) * 1e-9;
+        task->tick(info);
+
+        const std::int64_t end = nowNs();
+        mCompute.add(static_cast<double>(end - wake) * 1e-9);
+        mTicks.fetch_add(1, std::memory_order_relaxed);
+
+        deadline += periodNs;
+        if (end > deadline) {
+            // Overrun: drop every deadline that has already passed instead of running the
+            // late ticks back to back.
+            mMisses.fetch_add(1, std::memory_order_relaxed);
+            const std::int64_t passed = (end - deadline) / periodNs + 1;
+            mSkipped.fetch_add(static_cast<std::uint64_t>(passed), std::memory_order_relaxed);
+            deadline += passed * periodNs;
+        }
+        previousWake = wake;
+        ++index;
+    }
+    mRunning.store(false, std::memory_order_release);
+}
+
+}  // namespace palp::haptics

@@ -46,7 +46,10 @@ struct RealtimeStatus {
     bool fifo = false;
     int priority = 0;
     bool memoryLocked = false;
-    std::string message;  ///< e.g. "SCHED_FIFO 80 refused: Operation not permitted (EPERM)"
+    /// Every outcome, "; "-separated, e.g. "pinned to CPU 1; SCHED_FIFO 80 refused: Operation
+    /// not permitted (EPERM); memory not locked (not asked)". Never empty after start().
+    std::string message;
+    bool failed = false;  ///< something asked for (pinning, SCHED_FIFO, mlockall) was refused
 };
 
 /// A fixed-bin latency histogram (1 us bins to 20 ms, plus overflow), filled on the servo
@@ -111,10 +114,12 @@ class ServoLoop {
 
   private:
     void run(ServoTask* task) noexcept;
+    void setUpThread() noexcept;  // affinity, policy, mlockall: fills mStatus
     ServoConfig mConfig;
     RealtimeStatus mStatus;
     std::thread mThread;
     std::atomic<bool> mStop{false}, mRunning{false};
+    std::atomic<bool> mReady{false};  // set (release) by the thread once mStatus is final
     LatencyHistogram mWake, mPeriodError, mCompute;
     std::atomic<std::uint64_t> mTicks{0}, mMisses{0}, mSkipped{0};
 };
