@@ -38,8 +38,9 @@
 /// moving or deforming surfaces and faceted curved surfaces need no special handling, and a
 /// proxy that slides past a convex edge leaves the face's plane when the probe is not under
 /// it. Active planes reported in ProxyState are those the proxy lies on (within 1e-3 epsilon)
-/// and the probe is below; normals[0] is the friction plane. Against a convex object at most
-/// one plane is active; two and three occur in concave edges and corners.
+/// and the probe is below; normals[0] is the friction plane. Against a convex object one plane
+/// is active (two only on the line where two offset planes meet, rare); two and three are
+/// the rule in concave edges and corners.
 
 #include <Eigen/Core>
 #include <array>
