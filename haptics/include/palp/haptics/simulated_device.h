@@ -6,23 +6,9 @@
 #include <Eigen/Core>
 
 #include "palp/haptics/device.h"
+#include "palp/haptics/trajectory.h"  // PressTrajectory, Trajectory
 
 namespace palp::haptics {
-
-/// A press: the target starts at @p start, moves along @p direction (unit) by @p depthM over
-/// @p pressSeconds, holds for @p holdSeconds, returns over @p pressSeconds and stays at start.
-/// Motion along the path uses a smooth (cosine) velocity profile.
-struct PressTrajectory {
-    Eigen::Vector3d start{Eigen::Vector3d::Zero()};  ///< m
-    Eigen::Vector3d direction{0.0, 0.0, -1.0};       ///< unit vector
-    double depthM = 0.01;                            ///< m
-    double pressSeconds = 0.5;                       ///< s
-    double holdSeconds = 0.5;                        ///< s
-
-    /// Target position, m, and velocity, m/s, at time @p t (s).
-    /// @par Real-time
-    void sample(double t, Eigen::Vector3d& position, Eigen::Vector3d& velocity) const noexcept;
-};
 
 /// Hand model parameters: the hand is a point mass pulled toward the target by a spring and a
 /// damper (the user's arm and grip), and pushed by the device force.
@@ -32,7 +18,18 @@ struct HandModel {
     double dampingNspm = 6.0;     ///< N s/m
 };
 
-/// A Device driven by a PressTrajectory and a HandModel, stepped at a fixed period.
+/// A Device driven by a scripted Trajectory (any path in trajectory.h; a PressTrajectory
+/// converts implicitly) and a HandModel, stepped at a fixed period.
+///
+/// Each read() advances time by the period (the n-th read() is at t = n periodSeconds; the
+/// state before the first read is the target at t = 0, at the target's velocity) and takes
+/// one semi-implicit Euler step of
+///   m a = k (target - x) + c (targetVelocity - v) + F,
+/// velocity first, then position with the new velocity, where target is sampled at the new
+/// time and F is the force last passed to write() (after clamping). In free space (F = 0) the
+/// hand follows the target with the lag of this second-order filter (natural frequency
+/// sqrt(k / m), damping ratio c / (2 sqrt(k m))); under a constant force F it settles
+/// F / k away from a resting target.
 ///
 /// @par Threading
 /// Like any Device: read() and write() from the servo thread only.
@@ -42,8 +39,9 @@ class SimulatedDevice final : public Device {
   public:
     /// @param spec limits reported by spec() (write() clamps the force to spec.maxForceN)
     /// @param periodSeconds simulation step per read(), s
-    SimulatedDevice(const DeviceSpec& spec, const PressTrajectory& trajectory,
-                    const HandModel& hand, double periodSeconds) noexcept;
+    /// @param trajectory the target path (copied)
+    SimulatedDevice(const DeviceSpec& spec, const Trajectory& trajectory, const HandModel& hand,
+                    double periodSeconds) noexcept;
 
     /// Advances the hand model by one period under the last written force and returns it.
     DeviceState read() noexcept override;
@@ -53,10 +51,12 @@ class SimulatedDevice final : public Device {
 
     /// The force applied in the next step, N (after clamping).
     const Eigen::Vector3d& appliedForce() const noexcept { return mForce; }
+    /// The scripted path the hand follows.
+    const Trajectory& trajectory() const noexcept { return mTrajectory; }
 
   private:
     DeviceSpec mSpec;
-    PressTrajectory mTrajectory;
+    Trajectory mTrajectory;
     HandModel mHand;
     double mPeriod;
     long long mTick = 0;
