@@ -407,6 +407,8 @@ TEST(Proxy, SphereIsoSurfaceStaysOutside) {
         dir.normalize();
         Vector3d probe = sphere.centre + 6e-3 * dir;
         proxy.reset(probe);
+        Vector3d lastN = Vector3d::Zero(), lastT1 = proxy.state().tangent1;
+        Vector3d lastT2 = proxy.state().tangent2;
         for (int i = 0; i < 500; ++i) {
             // Toward a point up to 2.5 mm deep under a wandering surface point.
             Vector3d wander(uni(rng), uni(rng), uni(rng));
@@ -422,6 +424,16 @@ TEST(Proxy, SphereIsoSurfaceStaysOutside) {
             ASSERT_GE(sphere.sdf(s.position), -tol)
                 << "path " << path << " tick " << i << " proxy " << s.position.transpose();
             ASSERT_LE(s.queries, 2 * (params.maxIterations + 1));
+            // The tangent frame turns with the normal, no faster (|dt1| <= ~|dn|).
+            if (s.contactCount > 0 && lastN != Vector3d::Zero()) {
+                const double dn = (s.normals[0] - lastN).norm();
+                ASSERT_LE((s.tangent1 - lastT1).norm(), 2 * dn + 1e-12);
+                ASSERT_LE((s.tangent2 - lastT2).norm(), 4 * dn + 1e-12);
+                ASSERT_NEAR(s.tangent1.dot(s.normals[0]), 0, 1e-12);
+            }
+            lastN = s.contactCount > 0 ? s.normals[0] : Vector3d::Zero();
+            lastT1 = s.tangent1;
+            lastT2 = s.tangent2;
         }
     }
     std::cout << "sphere: tolerance " << tol << " m, ticks " << ticks << ", in contact " << contacts
