@@ -190,6 +190,20 @@ void PressTrajectory::sample(double t, Eigen::Vector3d& position,
     velocity = (ds * depth) * dir;
 }
 
+double SweepTrajectory::effectiveTurnSeconds() const noexcept {
+    const double length = nonNegative(lengthM);
+    const double speed = nonNegative(speedMps);
+    if (!(length > 0.0 && speed > 0.0)) return 0.0;
+    return std::min(nonNegative(turnSeconds), length / (speed * (0.5 + 2.0 / kPi)));
+}
+
+double SweepTrajectory::periodSeconds() const noexcept {
+    const double speed = nonNegative(speedMps);
+    const double turn = effectiveTurnSeconds();
+    if (!(nonNegative(lengthM) > 0.0 && speed > 0.0)) return 0.0;
+    return 2.0 * (nonNegative(lengthM) - 2.0 * speed * turn / kPi) / speed + 2.0 * turn;
+}
+
 void SweepTrajectory::sample(double t, Eigen::Vector3d& position,
                              Eigen::Vector3d& velocity) const noexcept {
     const Eigen::Vector3d dir = unitOr(direction, Eigen::Vector3d::UnitX());
@@ -206,8 +220,7 @@ void SweepTrajectory::sample(double t, Eigen::Vector3d& position,
     double dx = 0.0;
     const double tau = t - approachTime;
     if (tau > 0.0 && length > 0.0 && speed > 0.0) {
-        const double turn =
-            std::min(nonNegative(turnSeconds), length / (speed * (0.5 + 2.0 / kPi)));
+        const double turn = effectiveTurnSeconds();
         const double ramp = 0.5 * turn;
         if (tau < ramp) {
             rampUp(tau, speed, ramp, x, dx);
@@ -216,7 +229,7 @@ void SweepTrajectory::sample(double t, Eigen::Vector3d& position,
             // x = speed ramp / 2, i.e. pattern time ramp / 2.
             const double straight = length - 2.0 * speed * turn / kPi;  // >= 0 by the clamp
             const double a1 = 0.5 * straight / speed;                   // to the first turn
-            const double period = 2.0 * straight / speed + 2.0 * turn;
+            const double period = periodSeconds();
             const double p = std::fmod(tau - 0.5 * ramp, period);
             const double bulge = speed * turn / kPi;
             const double w = turn > 0.0 ? kPi / turn : 0.0;

@@ -126,6 +126,8 @@ SweepTimes sweepTimes(const SweepTrajectory& s) {
     // After the speed-up (at pattern time ramp / 2), the first turn begins at pattern time
     // straight / 2 / speed.
     t.firstTurn = s.approachSeconds + t.ramp + (0.5 * t.straight / s.speedMps - 0.5 * t.ramp);
+    EXPECT_NEAR(s.effectiveTurnSeconds(), t.turn, 1e-15);
+    EXPECT_NEAR(s.periodSeconds(), t.period, 1e-14);
     return t;
 }
 

@@ -75,6 +75,10 @@ struct SweepTrajectory {
     double approachM = 0.005;
     double approachSeconds = 0.3;
     double turnSeconds = 0.1;
+    /// turnSeconds after the clamp above, s.
+    double effectiveTurnSeconds() const noexcept;
+    /// Time of one back-and-forth cycle after the speed-up, s (0 when the sweep does not move).
+    double periodSeconds() const noexcept;
     void sample(double t, Eigen::Vector3d& position, Eigen::Vector3d& velocity) const noexcept;
 };
 
