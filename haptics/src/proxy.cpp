@@ -287,7 +287,8 @@ const ProxyState& Proxy::update(const Eigen::Vector3d& probe,
                 mState.sticking = true;
                 break;
             }
-            const double slide = (ftNorm - mParams.dynamicFriction * normal) / stiffness;
+            const double slide =
+                std::max(ftNorm - mParams.dynamicFriction * normal, 0.0) / stiffness;
             target = x + (slide / ftNorm) * ft;
             target += (plane.d - n.dot(target)) * n;  // onto the offset plane
         } else if (!closestFeasible(target, planes, m, target)) {
