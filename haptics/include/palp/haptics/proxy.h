@@ -24,15 +24,14 @@
 ///    2 or the point of 3, chosen so that no plane is violated (planes the target is above are
 ///    released). Normal forces of the second and third plane do not enter the friction test.
 /// 5. Embree's ray test is not watertight (a ray through a shared edge can slip between two
-///    triangles), so every move is confirmed by tracing it backwards; a surface the reverse ray
-///    meets blocks the move like a forward hit.
-/// 6. At most maxIterations + 1 segments are traced (two rays each); when they run out, when a
-/// fourth plane or
-///    a degenerate one (grazing, parallel) is met, the proxy stays at the last position it
-///    reached along traced hit-free segments. It therefore never crosses a surface of
-///    surfaceMask it did not start inside, up to Embree's single-precision ray test: a proxy
-///    that free motion leaves within float rounding (about 1e-9 m at centimetre coordinates)
-///    of a surface can, in principle, slip through it on the next tick.
+///    triangles, in both directions), so every move is confirmed by a reverse ray on a line
+///    shifted sideways by 0.05 epsilon; a surface it meets blocks the move like a forward hit.
+/// 6. At most maxIterations + 1 segments are traced (two rays each). When they run out, or a
+///    fourth plane or a degenerate one (grazing, parallel) is met, the proxy stays at the last
+///    position it reached along confirmed segments. It therefore never crosses a surface of
+///    surfaceMask it did not start inside, up to single-precision ray tests: a proxy that free
+///    motion leaves within float rounding (about 1e-9 m at centimetre coordinates) of a
+///    surface has no reliable side, and may then stick to it or slip through it.
 ///
 /// Constraint planes are found again every tick (nothing is carried over but the position), so
 /// moving or deforming surfaces and faceted curved surfaces need no special handling, and a
