@@ -221,13 +221,27 @@ void DeviceRecorder::write(const std::filesystem::path& path) const {
                       std::strerror(errno));
     }
     bool ok = std::fprintf(out, "%.*s\n", static_cast<int>(kHeader.size()), kHeader.data()) > 0;
+    // std::to_chars gives the shortest text that reads back to the same double, so the round
+    // trip is exact and the file stays small (0.001 rather than 0.0010000000000000000208).
+    std::array<char, 11 * 32> row{};
     for (std::size_t i = 0; ok && i < mSize; ++i) {
         const DeviceState& st = mRows[i].state;
         const Eigen::Vector3d& f = mRows[i].force;
-        ok = std::fprintf(out, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%u,%.17g,%.17g,%.17g\n",
-                          st.timestampSeconds, st.position.x(), st.position.y(), st.position.z(),
-                          st.velocity.x(), st.velocity.y(), st.velocity.z(),
-                          static_cast<unsigned>(st.buttons), f.x(), f.y(), f.z()) > 0;
+        const std::array<double, 10> values = {
+            st.timestampSeconds, st.position.x(), st.position.y(), st.position.z(), st.velocity.x(),
+            st.velocity.y(),     st.velocity.z(), f.x(),           f.y(),           f.z()};
+        char* p = row.data();
+        char* const end = row.data() + row.size();
+        for (std::size_t k = 0; k < values.size(); ++k) {
+            if (k == 7) {  // the buttons column sits between velocity and force
+                p = std::to_chars(p, end, st.buttons).ptr;
+                *p++ = ',';
+            }
+            p = std::to_chars(p, end, values[k]).ptr;  // at most 24 characters each
+            *p++ = (k + 1 == values.size()) ? '\n' : ',';
+        }
+        const auto length = static_cast<std::size_t>(p - row.data());
+        ok = std::fwrite(row.data(), 1, length, out) == length;
     }
     const int writeErrno = errno;
     ok = (std::fflush(out) == 0) && ok;

@@ -8,8 +8,9 @@
 /// t in seconds (strictly increasing), position m, velocity m/s, buttons as an integer bit set,
 /// the force rendered at that tick in N (ignored on playback).
 ///
-/// Numbers are written with 17 significant digits (%.17g), so a log reads back to exactly the
-/// doubles that were recorded. On reading, fields may carry surrounding spaces, a trailing
+/// Numbers are written in the shortest form that reads back to the same double (std::to_chars),
+/// so a log reads back to exactly the doubles that were recorded. On reading, fields may carry
+/// surrounding spaces, a trailing
 /// '\r' (CRLF files) is ignored, and blank lines are skipped; numbers must be finite and
 /// buttons an unsigned 32-bit integer.
 
