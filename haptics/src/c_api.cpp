@@ -9,7 +9,6 @@
 #include <mutex>
 #include <new>
 #include <string>
-#include <type_traits>
 #include <utility>
 
 #include "palp/error.h"
@@ -447,19 +446,10 @@ ph::HandModel toHand(const palp_trajectory& c) {
     return h;
 }
 
-template <typename Device = ph::SimulatedDevice>
-std::unique_ptr<Device> makeDevice(const ph::DeviceSpec& spec, const ph::Trajectory& trajectory,
-                                   const ph::HandModel& hand, double period) {
-    // TODO(session): drop the press-only branch once SimulatedDevice takes a Trajectory.
-    if constexpr (std::is_constructible_v<Device, const ph::DeviceSpec&, const ph::Trajectory&,
-                                          const ph::HandModel&, double>) {
-        return std::make_unique<Device>(spec, trajectory, hand, period);
-    } else {
-        if (const auto* press = std::get_if<ph::PressTrajectory>(&trajectory)) {
-            return std::make_unique<Device>(spec, *press, hand, period);
-        }
-        throw palp::ValueError("palp_trajectory.kind: only PALP_TRAJECTORY_PRESS is available");
-    }
+std::unique_ptr<ph::SimulatedDevice> makeDevice(const ph::DeviceSpec& spec,
+                                                const ph::Trajectory& trajectory,
+                                                const ph::HandModel& hand, double period) {
+    return std::make_unique<ph::SimulatedDevice>(spec, trajectory, hand, period);
 }
 
 // --- snapshots and statistics ------------------------------------------------------------

@@ -97,6 +97,48 @@ void blend(const CouplingOutput& a, const CouplingOutput& b, double w,
     out.rays = a.rays + b.rays;
 }
 
+// Whether @p p lies inside the closed surfaces of @p scene (geometries of @p mask): the parity
+// of the crossings along three rays in directions no axis-aligned face is parallel to, by
+// majority (a ray through a shared edge can miscount). Bounded: at most 3 x 65 ray queries.
+bool insideSurfaces(const kernels::EmbreeScene& scene, unsigned mask,
+                    const Eigen::Vector3d& p) noexcept {
+    if (scene.empty() || !scene.committed() || !p.allFinite()) return false;
+    static constexpr std::array<std::array<float, 3>, 3> kDirs = {
+        {{0.267261f, 0.534522f, 0.801784f},
+         {-0.639602f, 0.426401f, 0.639602f},
+         {0.562254f, -0.749672f, 0.349215f}}};
+    int insideVotes = 0;
+    for (const auto& d : kDirs) {
+        int crossings = 0;
+        float tnear = 0.0f;
+        for (int i = 0; i < 65; ++i) {
+            RTCIntersectContext ctx;
+            rtcInitIntersectContext(&ctx);
+            alignas(16) RTCRayHit rh;
+            rh.ray.org_x = static_cast<float>(p.x());
+            rh.ray.org_y = static_cast<float>(p.y());
+            rh.ray.org_z = static_cast<float>(p.z());
+            rh.ray.dir_x = d[0];
+            rh.ray.dir_y = d[1];
+            rh.ray.dir_z = d[2];
+            rh.ray.tnear = tnear;
+            rh.ray.tfar = std::numeric_limits<float>::infinity();
+            rh.ray.time = 0.0f;
+            rh.ray.mask = mask;
+            rh.ray.id = 0;
+            rh.ray.flags = 0;
+            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+            rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+            rtcIntersect1(scene.handle(), &ctx, &rh);
+            if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) break;
+            ++crossings;
+            tnear = rh.ray.tfar * (1.0f + 1e-6f) + 1e-7f;  // step past this hit
+        }
+        insideVotes += crossings % 2;
+    }
+    return insideVotes >= 2;
+}
+
 bool sourceHasData(const Scene& scene, RaySource source) noexcept {
     switch (source) {
         case RaySource::Mesh:
@@ -200,7 +242,8 @@ struct Session::Impl {
     PassivityController passivity;
     ForceGuard guard;
     StartupGate gate;
-    bool started = false;  // the proxy has been put at the probe
+    bool started = false;    // the first good sample has been seen
+    bool freeProxy = false;  // the probe started inside: the proxy follows it until outside
     Eigen::Vector3d lastProxyForce{Eigen::Vector3d::Zero()};
     double lastStiffness = 0;
     Eigen::Vector3d lastProbe{Eigen::Vector3d::Zero()};
@@ -276,12 +319,19 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     if (sampleOk) {
         lastProbe = probe;
         if (!started) {
-            proxy.reset(probe);
+            // A hand that starts inside an object must not be trapped there by its surface:
+            // the proxy follows the probe freely until the probe is outside.
+            freeProxy = true;
             started = true;
         }
-        const CouplingParams& now = couplings[static_cast<std::size_t>(active)].params();
-        const double k = lastStiffness > 0 ? lastStiffness : now.baseStiffness;
-        ps = &proxy.update(probe, lastProxyForce, k, period);
+        if (freeProxy) {
+            freeProxy = insideSurfaces(scene->surfaces(), proxy.params().surfaceMask, probe);
+            proxy.reset(probe);
+        } else {
+            const CouplingParams& now = couplings[static_cast<std::size_t>(active)].params();
+            const double k = lastStiffness > 0 ? lastStiffness : now.baseStiffness;
+            ps = &proxy.update(probe, lastProxyForce, k, period);
+        }
 
         const auto a = static_cast<std::size_t>(active);
         couplings[a].compute(ps->position, probe, ps->velocity, probeVelocity, ps->tangent1,
@@ -377,6 +427,10 @@ Session::~Session() { stop(); }
 void Session::start() {
     if (mImpl->loop.running()) throw Error("session: expected a stopped session, found it running");
     mImpl->timeBase = mImpl->ticks == 0 ? 0.0 : mImpl->current.timeSeconds + mImpl->period;
+    // The hand may have moved into an object while the loop was stopped: close the start-up
+    // gate again so that a restart cannot kick (the servo thread is not running here, and
+    // ServoLoop::start() orders this write before its first tick).
+    mImpl->gate.reset();
     mImpl->loop.start(*this);
 }
 

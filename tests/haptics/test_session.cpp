@@ -1,2 +1,559 @@
-// Placeholder: written in issue 4.
+// Scene and Session: the per-tick pipeline's physics (VC press, passivity observer), safety at
+// every tick (start inside, D -> 0, NaN samples, empty scene), zero allocations per tick,
+// cross-faded parameter changes, and a real-time run with a viewer and a producer thread.
 #include <gtest/gtest.h>
+
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <thread>
+#include <vector>
+
+#include "alloc_counter.h"
+#include "palp/error.h"
+#include "palp/haptics/session.h"
+#include "palp/volume/phantom.h"
+
+namespace palp::haptics {
+namespace {
+
+constexpr double kT = 1e-3;
+
+const DeviceSpec& touchX() {
+    const DeviceSpec* s = findDeviceSpec("3D Systems Touch X");
+    EXPECT_NE(s, nullptr);
+    return *s;
+}
+
+// A kinematic device: the hand follows a piecewise-linear path through keyframes exactly
+// (the force does not move it), so every tick's probe is known. Optionally it reports NaN
+// positions for a range of ticks.
+class PathDevice final : public Device {
+  public:
+    struct Key {
+        double t;
+        Eigen::Vector3d p;
+    };
+    PathDevice(std::initializer_list<Key> keys, const DeviceSpec& spec = touchX()) : mSpec(spec) {
+        for (const Key& k : keys) mKeys[mCount++] = k;
+    }
+    void corrupt(std::uint64_t from, std::uint64_t to) {
+        mNanFrom = from;
+        mNanTo = to;
+    }
+    DeviceState read() noexcept override {
+        const double t = static_cast<double>(mTick) * kT;
+        DeviceState s;
+        sample(t, s.position, s.velocity);
+        if (mTick >= mNanFrom && mTick < mNanTo) {
+            s.position.x() = std::numeric_limits<double>::quiet_NaN();
+        }
+        s.timestampSeconds = t;
+        ++mTick;
+        mLast = s;
+        return s;
+    }
+    void write(const Eigen::Vector3d& f) noexcept override { mForce = f; }
+    const DeviceSpec& spec() const noexcept override { return mSpec; }
+
+    void sample(double t, Eigen::Vector3d& p, Eigen::Vector3d& v) const noexcept {
+        v.setZero();
+        if (t <= mKeys[0].t) {
+            p = mKeys[0].p;
+            return;
+        }
+        for (std::size_t i = 1; i < mCount; ++i) {
+            if (t <= mKeys[i].t) {
+                const double s = (t - mKeys[i - 1].t) / (mKeys[i].t - mKeys[i - 1].t);
+                p = mKeys[i - 1].p + s * (mKeys[i].p - mKeys[i - 1].p);
+                v = (mKeys[i].p - mKeys[i - 1].p) / (mKeys[i].t - mKeys[i - 1].t);
+                return;
+            }
+        }
+        p = mKeys[mCount - 1].p;
+    }
+    const DeviceState& last() const { return mLast; }
+    const Eigen::Vector3d& force() const { return mForce; }
+
+  private:
+    DeviceSpec mSpec;
+    std::array<Key, 8> mKeys{};
+    std::size_t mCount = 0;
+    std::uint64_t mTick = 0;
+    std::uint64_t mNanFrom = std::numeric_limits<std::uint64_t>::max(), mNanTo = 0;
+    DeviceState mLast;
+    Eigen::Vector3d mForce{Eigen::Vector3d::Zero()};
+};
+
+Eigen::Vector3d at(double x, double y, double z) { return Eigen::Vector3d(x, y, z); }
+
+// The AVC phantom (surface at y = 0, depth +y; rigid plate at y in [10, 12] mm over x, z in
+// +-30 mm), 1 mm voxels, skin surface at -500 HU and hard meshes at 500 HU. Built once.
+class SessionTest : public ::testing::Test {
+  protected:
+    static void SetUpTestSuite() {
+        volume::PhantomSpec spec;
+        spec.params.scene = volume::PhantomScene::Avc;
+        spec.voxelSize = 1e-3;
+        sVolume = new volume::Volume(volume::makePhantomVolume(spec));
+        SceneOptions options;
+        options.surfaceIso = -500;
+        options.hardIso = 500;
+        sScene = Scene::fromVolume(*sVolume, options);
+    }
+    static void TearDownTestSuite() {
+        sScene.reset();
+        delete sVolume;
+        sVolume = nullptr;
+    }
+    static SessionParams params(CouplingMode mode, RaySource source = RaySource::VolumeFirstHit) {
+        SessionParams p;
+        p.coupling.mode = mode;
+        p.coupling.source = source;
+        p.coupling.baseStiffness = 300;
+        p.coupling.maxStiffness = 1400;
+        p.proxy.staticFriction = 0;
+        p.proxy.dynamicFriction = 0;
+        return p;
+    }
+    static volume::Volume* sVolume;
+    static std::shared_ptr<Scene> sScene;
+};
+volume::Volume* SessionTest::sVolume = nullptr;
+std::shared_ptr<Scene> SessionTest::sScene;
+
+constexpr std::array<CouplingMode, 3> kModes = {CouplingMode::VC, CouplingMode::AVC,
+                                                CouplingMode::AVCEC};
+
+// Every tick: finite force, within the device maximum.
+void expectSafe(const Snapshot& s, const DeviceSpec& spec) {
+    ASSERT_TRUE(s.force.allFinite()) << "tick " << s.tick;
+    ASSERT_LE(s.force.norm(), spec.maxForceN * (1 + 1e-12)) << "tick " << s.tick;
+}
+
+TEST_F(SessionTest, SceneFromVolumeHasSurfacesHardMeshesAndView) {
+    EXPECT_NE(sScene->volumeView(), nullptr);
+    EXPECT_GT(sScene->surfaces().triangleCount(), 1000u);
+    EXPECT_GT(sScene->hardMeshes().triangleCount(), 100u);
+    EXPECT_TRUE(sScene->surfaces().committed());
+
+    SceneOptions above;
+    above.surfaceIso = 5000;  // above every value: no surface
+    EXPECT_THROW(Scene::fromVolume(*sVolume, above), ValueError);
+    SceneOptions none;
+    none.surfaceIso = std::numeric_limits<double>::quiet_NaN();
+    const auto bare = Scene::fromVolume(*sVolume, none);
+    EXPECT_TRUE(bare->surfaces().empty());
+    EXPECT_TRUE(bare->hardMeshes().empty());
+}
+
+TEST_F(SessionTest, RejectsBadParamsAndSourcesWithoutData) {
+    PathDevice dev({{0, at(0, -0.01, 0)}});
+    SessionParams p = params(CouplingMode::VC);
+    p.workspace.scale = 0;
+    EXPECT_THROW(Session(sScene, dev, p), ValueError);
+    p = params(CouplingMode::VC);
+    p.workspace.rotation(0, 0) = 2;
+    EXPECT_THROW(Session(sScene, dev, p), ValueError);
+    p = params(CouplingMode::VC);
+    p.crossFadeSeconds = -1;
+    EXPECT_THROW(Session(sScene, dev, p), ValueError);
+    EXPECT_THROW(Session(nullptr, dev, params(CouplingMode::VC)), ValueError);
+
+    auto empty = std::make_shared<Scene>();
+    empty->commit();
+    EXPECT_THROW(Session(empty, dev, params(CouplingMode::AVC)), ValueError);  // no volume
+    EXPECT_THROW(Session(empty, dev, params(CouplingMode::AVC, RaySource::Mesh)), ValueError);
+    Session vc(empty, dev, params(CouplingMode::VC));
+    Command c;
+    c.kind = Command::Kind::SetCoupling;
+    c.coupling = params(CouplingMode::AVCEC).coupling;
+    EXPECT_THROW(vc.send(c), ValueError);  // checked off the servo thread
+    c.coupling.mode = CouplingMode::VC;
+    c.coupling.baseStiffness = -1;
+    EXPECT_THROW(vc.send(c), ValueError);
+    c.kind = Command::Kind::SetProxy;
+    c.proxy.staticFriction = 0.1;
+    c.proxy.dynamicFriction = 0.2;  // mu_d > mu_s
+    EXPECT_THROW(vc.send(c), ValueError);
+}
+
+// VC press: the probe held 2 mm below the surface; F = k (x_py - x_pb) with the proxy on the
+// surface, pointing out of it (-y), |F| = k D.
+TEST_F(SessionTest, VcPressGivesSpringForceOutOfTheSurface) {
+    PathDevice dev({{0, at(0.004, -0.004, 0.003)},
+                    {0.3, at(0.004, 0.002, 0.003)},
+                    {1.0, at(0.004, 0.002, 0.003)}});
+    Session session(sScene, dev, params(CouplingMode::VC));
+    Snapshot s;
+    for (int i = 0; i < 600; ++i) s = session.step();
+    EXPECT_TRUE(s.gateOpen);
+    EXPECT_EQ(s.contactCount, 1);
+    EXPECT_NEAR(s.proxy.y(), 0.0, 0.5e-3);  // on the skin iso-surface
+    EXPECT_NEAR(s.proxy.x(), 0.004, 1e-6);  // no friction, normal press: straight above
+    EXPECT_NEAR(s.proxy.z(), 0.003, 1e-6);
+    const double depth = s.probe.y() - s.proxy.y();
+    EXPECT_GT(depth, 1.4e-3);
+    EXPECT_NEAR(s.distance, depth, 1e-9);
+    EXPECT_NEAR(s.force.y(), -300 * depth, 1e-9);
+    EXPECT_NEAR(s.force.x(), 0, 1e-6);
+    EXPECT_NEAR(s.force.z(), 0, 1e-6);
+    EXPECT_DOUBLE_EQ(s.stiffness, 300);
+    EXPECT_NEAR(s.couplingEnergy, 0.5 * 300 * depth * depth, 1e-12);
+    EXPECT_FALSE(s.clamped);
+    // The device got the same force (identity workspace).
+    EXPECT_TRUE(dev.force().isApprox(s.force, 1e-12));
+}
+
+// A rotated and scaled workspace: the probe is the mapped device position, and the force is
+// rotated back into the device frame.
+TEST_F(SessionTest, WorkspaceTransformMapsProbeAndForce) {
+    // Device frame: z is "into the surface"; world: +y. Rotation about x by -90 degrees maps
+    // device +z to world +y.
+    SessionParams p = params(CouplingMode::VC);
+    p.workspace.rotation = Eigen::AngleAxisd(-M_PI / 2, Eigen::Vector3d::UnitX()).matrix();
+    p.workspace.scale = 2;
+    p.workspace.offset = at(0.001, 0, 0);
+    PathDevice dev({{0, at(0, 0, -0.002)}, {0.3, at(0, 0, 0.001)}, {1.0, at(0, 0, 0.001)}});
+    Session session(sScene, dev, p);
+    Snapshot s;
+    for (int i = 0; i < 500; ++i) s = session.step();
+    const Eigen::Vector3d expectedProbe =
+        p.workspace.offset + 2 * (p.workspace.rotation * at(0, 0, 0.001));
+    EXPECT_TRUE(s.probe.isApprox(expectedProbe, 1e-12));
+    EXPECT_NEAR(s.probe.y(), 0.002, 1e-12);
+    EXPECT_LT(s.force.y(), -0.3);  // out of the surface in the world
+    const Eigen::Vector3d deviceForce = p.workspace.rotation.transpose() * s.force;
+    EXPECT_TRUE(dev.force().isApprox(deviceForce, 1e-12));
+    EXPECT_LT(dev.force().z(), -0.3);  // out of the surface in the device frame
+}
+
+// (a) The probe starts 5 mm inside the block, then withdraws and presses again: nothing is
+// sent before the gate opens, the opening tick sends less than the threshold, the force then
+// changes continuously (bounded step per tick), the proxy is not trapped inside the surface
+// while the probe leaves, and the surface holds once the probe comes back.
+TEST_F(SessionTest, StartInsideGeometryDoesNotKick) {
+    for (CouplingMode mode : kModes) {
+        PathDevice dev({{0, at(0.0, 0.005, 0.0)},
+                        {0.1, at(0.0, 0.005, 0.0)},
+                        {0.6, at(0.0, -0.005, 0.0)},
+                        {1.2, at(0.0, 0.004, 0.0)},
+                        {2.5, at(0.0, 0.004, 0.0)}});
+        SessionParams p = params(mode);
+        Session session(sScene, dev, p);
+        bool wasOpen = false;
+        Eigen::Vector3d previous = Eigen::Vector3d::Zero();
+        double maxStep = 0;
+        for (int i = 0; i < 2500; ++i) {
+            const Snapshot& s = session.step();
+            expectSafe(s, touchX());
+            if (!s.gateOpen) {
+                ASSERT_EQ(s.force, Eigen::Vector3d::Zero()) << "tick " << i;
+            } else if (!wasOpen) {
+                EXPECT_LT(s.force.norm(), p.startupThresholdN) << "opening tick " << i;
+                EXPECT_EQ(s.tick, p.startupQuietTicks - 1);  // quiet from the first tick
+            }
+            if (i < 100) {
+                EXPECT_TRUE(s.proxy.isApprox(s.probe, 1e-12)) << "free inside, tick " << i;
+            }
+            if (s.probe.y() < -1e-3) {
+                EXPECT_EQ(s.force, Eigen::Vector3d::Zero()) << "outside, tick " << i;
+            }
+            if (wasOpen) maxStep = std::max(maxStep, (s.force - previous).norm());
+            wasOpen = s.gateOpen;
+            previous = s.force;
+        }
+        EXPECT_TRUE(wasOpen);
+        // Not trapped inside: the proxy left with the probe and, pressed in again, stays on
+        // the skin and pushes out.
+        const Snapshot& last = session.step();
+        EXPECT_EQ(last.contactCount, 1) << static_cast<int>(mode);
+        EXPECT_NEAR(last.proxy.y(), 0.0, 0.5e-3);
+        EXPECT_LT(last.force.y(), -0.3);
+        // Probe speed <= 18 mm/s: k_max |dx| per tick is 1400 * 18e-6 = 0.025 N; the AVCEC
+        // energy term and stiffness changes add to it but never a kick of ~1 N.
+        EXPECT_LT(maxStep, 0.5) << static_cast<int>(mode);
+    }
+}
+
+// (b) D -> 0: the probe presses 2 mm and comes back out to the surface and past it; the force
+// goes to zero with D and stays finite.
+TEST_F(SessionTest, VanishingDistanceGivesVanishingForce) {
+    for (CouplingMode mode : kModes) {
+        PathDevice dev({{0, at(-0.002, -0.003, 0.001)},
+                        {0.2, at(-0.002, 0.002, 0.001)},
+                        {1.2, at(-0.002, -0.001, 0.001)},
+                        {2.0, at(-0.002, -0.001, 0.001)}});
+        const SessionParams p = params(mode);
+        Session session(sScene, dev, p);
+        int tiny = 0;
+        for (int i = 0; i < 2000; ++i) {
+            const Snapshot& s = session.step();
+            expectSafe(s, touchX());
+            ASSERT_TRUE(std::isfinite(s.stiffness) && std::isfinite(s.distance));
+            if (s.gateOpen && s.distance < 2e-5) {
+                ++tiny;
+                // |F| <= k_max D (1 + 1 / delta): the spring plus the largest energy term.
+                EXPECT_LE(s.force.norm(), p.coupling.maxStiffness * s.distance *
+                                                  (1 + 1 / p.coupling.bundle.sobelAngle) +
+                                              1e-12)
+                    << "tick " << i;
+            }
+        }
+        EXPECT_GT(tiny, 3) << "the path should pass through D ~ 0";
+    }
+}
+
+// (c) The device reports NaN positions for 60 ticks while pressed in: the last good force is
+// held (finite, bounded), the fault is flagged and counted, and rendering resumes afterwards.
+TEST_F(SessionTest, NanSamplesHoldTheLastGoodForce) {
+    for (CouplingMode mode : kModes) {
+        PathDevice dev(
+            {{0, at(0.0, -0.003, 0.0)}, {0.3, at(0.0, 0.002, 0.0)}, {2.0, at(0.0, 0.002, 0.0)}});
+        dev.corrupt(500, 560);
+        Session session(sScene, dev, params(mode));
+        Eigen::Vector3d before = Eigen::Vector3d::Zero();
+        for (int i = 0; i < 1000; ++i) {
+            const Snapshot& s = session.step();
+            expectSafe(s, touchX());
+            if (i == 499) before = s.force;
+            if (i >= 500 && i < 560) {
+                EXPECT_TRUE(s.faulted);
+                EXPECT_EQ(s.force, before);
+                EXPECT_EQ(s.faults, static_cast<std::uint64_t>(i - 499));
+                EXPECT_TRUE(s.probe.allFinite());
+            }
+            if (i >= 560) {
+                EXPECT_FALSE(s.faulted);
+                EXPECT_EQ(s.faults, 60u);
+            }
+        }
+        EXPECT_GT(before.norm(), 0.3);
+    }
+}
+
+// (d) An empty scene (nothing to touch; a volume only for the volume sources): the proxy is
+// the probe and no force is ever sent, in every mode, over thousands of ticks.
+TEST_F(SessionTest, EmptySceneIsSafeAndForceFree) {
+    auto empty = std::make_shared<Scene>();
+    empty->commit();
+    auto volumeOnly = std::make_shared<Scene>();
+    volumeOnly->setVolume(sVolume->grid);
+    volumeOnly->commit();
+    for (CouplingMode mode : kModes) {
+        PathDevice dev(
+            {{0, at(0.0, -0.01, 0.0)}, {1.0, at(0.01, 0.02, -0.01)}, {2.0, at(-0.01, 0.0, 0.01)}});
+        Session session(mode == CouplingMode::VC ? empty : volumeOnly, dev, params(mode));
+        for (int i = 0; i < 2500; ++i) {
+            const Snapshot& s = session.step();
+            expectSafe(s, touchX());
+            ASSERT_TRUE(s.proxy.isApprox(s.probe, 1e-12) || (s.proxy - s.probe).norm() < 1e-15);
+            ASSERT_EQ(s.force, Eigen::Vector3d::Zero());
+            ASSERT_EQ(s.contactCount, 0);
+        }
+    }
+}
+
+// No tick allocates: every mode x source, after warm-up, while commands arrive and a
+// cross-fade runs.
+TEST_F(SessionTest, TicksDoNotAllocate) {
+    constexpr std::array<RaySource, 3> kSources = {RaySource::Mesh, RaySource::VolumeFirstHit,
+                                                   RaySource::VolumeAccumulate};
+    for (CouplingMode mode : kModes) {
+        for (RaySource source : kSources) {
+            PathDevice dev({{0, at(0.0, -0.003, 0.0)},
+                            {0.2, at(0.0, 0.003, 0.0)},
+                            {0.5, at(0.01, 0.003, 0.005)},
+                            {1.0, at(-0.01, 0.004, -0.005)}});
+            SessionParams p = params(mode, source);
+            p.coupling.accumulate.sigma = kernels::TransferFunction::step(300, 1e4);
+            p.traceCapacity = 64;
+            p.crossFadeSeconds = 0.05;
+            Session session(sScene, dev, p);
+            for (int i = 0; i < 250; ++i) session.step();  // warm-up, into contact
+
+            Command toggle;
+            toggle.kind = Command::Kind::SetCoupling;
+            toggle.coupling = p.coupling;
+            toggle.coupling.mode =
+                mode == CouplingMode::AVCEC ? CouplingMode::AVC : CouplingMode::AVCEC;
+            Command friction;
+            friction.kind = Command::Kind::SetProxy;
+            friction.proxy.staticFriction = 0.4;
+            friction.proxy.dynamicFriction = 0.2;
+            Command control;
+            control.kind = Command::Kind::SetPassivityControl;
+            control.flag = true;
+            Command resetW;
+            resetW.kind = Command::Kind::ResetObserver;
+            ASSERT_TRUE(session.send(toggle));
+            ASSERT_TRUE(session.send(friction));
+            ASSERT_TRUE(session.send(control));
+            ASSERT_TRUE(session.send(resetW));
+            ASSERT_TRUE(session.send(toggle));  // arrives during the fade: pending
+
+            Snapshot trace;
+            bool sawFade = false;
+            const std::uint64_t before = palp::test::allocationCount();
+            for (int i = 0; i < 300; ++i) {
+                const Snapshot& s = session.step();
+                sawFade = sawFade || s.fading;
+                while (session.popTrace(trace)) {
+                }
+            }
+            const std::uint64_t allocations = palp::test::allocationCount() - before;
+            EXPECT_EQ(allocations, 0u)
+                << "mode " << static_cast<int>(mode) << " source " << static_cast<int>(source);
+            EXPECT_TRUE(sawFade);
+        }
+    }
+}
+
+// Switching VC -> AVCEC while pressed above the plate: the stiffness rises 4x. Without a fade
+// the force jumps in one tick; with a 0.2 s fade the largest per-tick step is ~1/200 of it.
+TEST_F(SessionTest, CrossFadeRemovesTheForceStep) {
+    auto run = [&](double fadeSeconds, double& finalForce) {
+        PathDevice dev(
+            {{0, at(0.0, -0.003, 0.0)}, {0.2, at(0.0, 0.002, 0.0)}, {2.0, at(0.0, 0.002, 0.0)}});
+        SessionParams p = params(CouplingMode::VC);
+        p.coupling.referenceLength = 0.04;  // plate at L ~ 10 mm: m = 4
+        p.coupling.bundle.length = 0.03;
+        p.crossFadeSeconds = fadeSeconds;
+        Session session(sScene, dev, p);
+        for (int i = 0; i < 400; ++i) session.step();
+        Command c;
+        c.kind = Command::Kind::SetCoupling;
+        c.coupling = p.coupling;
+        c.coupling.mode = CouplingMode::AVCEC;
+        Eigen::Vector3d previous = session.step().force;  // before the switch
+        EXPECT_TRUE(session.send(c));
+        double maxStep = 0;
+        for (int i = 0; i < 400; ++i) {
+            const Snapshot& s = session.step();
+            maxStep = std::max(maxStep, (s.force - previous).norm());
+            previous = s.force;
+            EXPECT_EQ(s.mode, CouplingMode::AVCEC);
+        }
+        finalForce = previous.norm();
+        return maxStep;
+    };
+    double fadedForce = 0, abruptForce = 0;
+    const double faded = run(0.2, fadedForce);
+    const double abrupt = run(0.0, abruptForce);
+    EXPECT_NEAR(fadedForce, abruptForce, 1e-9);  // same end state
+    EXPECT_GT(abruptForce, 3.0 * 300 * 0.0015);  // AVCEC really is stiffer here
+    EXPECT_GT(abrupt, 1.0);
+    EXPECT_LT(faded, abrupt / 50);
+    RecordProperty("max_step_faded_N", std::to_string(faded));
+    RecordProperty("max_step_abrupt_N", std::to_string(abrupt));
+}
+
+// The passivity observer: W(n) = -T sum F.v over the forces sent, equal to the spring's
+// stored energy 1/2 k D^2 at the bottom of a press (to the sampling error), never negative
+// for a VC spring, and reset by the ResetObserver command.
+TEST_F(SessionTest, PassivityObserverBooksTheSpringEnergy) {
+    PathDevice dev({{0, at(0.0, -0.002, 0.0)},
+                    {0.4, at(0.0, 0.003, 0.0)},
+                    {0.6, at(0.0, 0.003, 0.0)},
+                    {1.0, at(0.0, -0.002, 0.0)},
+                    {1.5, at(0.0, -0.002, 0.0)}});
+    Session session(sScene, dev, params(CouplingMode::VC));
+    double w = 0;
+    for (int i = 0; i < 1500; ++i) {
+        const Snapshot& s = session.step();
+        w -= kT * s.force.dot(dev.last().velocity);
+        EXPECT_NEAR(s.observerEnergy, w, 1e-12 + 1e-9 * std::abs(w)) << "tick " << i;
+        EXPECT_GE(s.observerEnergy, -1e-6) << "tick " << i;
+        if (i == 500) {
+            const double stored = s.couplingEnergy;
+            EXPECT_GT(stored, 1e-4);
+            EXPECT_NEAR(s.observerEnergy, stored, 0.03 * stored);
+        }
+    }
+    // Back in free space: the spring gave its energy back (up to the sampling error).
+    EXPECT_NEAR(session.step().observerEnergy, 0.0, 2e-5);
+    Command c;
+    c.kind = Command::Kind::ResetObserver;
+    ASSERT_TRUE(session.send(c));
+    EXPECT_EQ(session.step().observerEnergy, 0.0);
+}
+
+// A real-time run: a viewer thread reads latest() and the trace, a producer thread sends
+// commands, the controlling thread starts and stops. Every published snapshot is complete
+// (finite, bounded), latest() never goes back in time, and the trace holds every tick
+// exactly once (popped + dropped = ticks).
+TEST_F(SessionTest, RealTimeRunWithViewerAndProducer) {
+    PathDevice dev(
+        {{0, at(0.0, -0.003, 0.0)}, {0.15, at(0.0, 0.002, 0.0)}, {0.4, at(0.005, 0.002, 0.0)}});
+    SessionParams p = params(CouplingMode::AVCEC);
+    p.traceCapacity = 1024;
+    p.crossFadeSeconds = 0.02;
+    p.servo.priority = 0;  // no SCHED_FIFO request in a test
+    Session session(sScene, dev, p);
+    std::atomic<bool> done{false};
+    std::uint64_t popped = 0, lastTraceTick = 0, viewerReads = 0;
+    bool traceInOrder = true, viewerMonotonic = true, allSafe = true;
+    std::thread viewer([&] {
+        std::uint64_t lastSeen = 0;
+        Snapshot t;
+        while (!done.load(std::memory_order_acquire)) {
+            const Snapshot& s = session.latest();
+            if (s.tick < lastSeen) viewerMonotonic = false;
+            lastSeen = s.tick;
+            if (!s.force.allFinite() || s.force.norm() > touchX().maxForceN) allSafe = false;
+            ++viewerReads;
+            while (session.popTrace(t)) {
+                if (popped > 0 && t.tick <= lastTraceTick) traceInOrder = false;
+                lastTraceTick = t.tick;
+                ++popped;
+            }
+            session.latestRays();
+            std::this_thread::sleep_for(std::chrono::microseconds(200));
+        }
+    });
+    std::atomic<int> sent{0};
+    std::thread producer([&] {
+        Command c;
+        c.kind = Command::Kind::SetCoupling;
+        c.coupling = p.coupling;
+        for (int i = 0; !done.load(std::memory_order_acquire); ++i) {
+            c.kind = static_cast<Command::Kind>(i % 4);
+            c.coupling.mode = kModes[static_cast<std::size_t>(i % 3)];
+            c.flag = (i % 2) == 0;
+            if (session.send(c)) sent.fetch_add(1);
+            std::this_thread::sleep_for(std::chrono::milliseconds(3));
+        }
+    });
+    session.start();
+    EXPECT_TRUE(session.running());
+    EXPECT_FALSE(session.realtime().message.empty());
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    session.stop();
+    EXPECT_FALSE(session.running());
+    done.store(true, std::memory_order_release);
+    viewer.join();
+    producer.join();
+    Snapshot t;
+    while (session.popTrace(t)) {
+        if (popped > 0 && t.tick <= lastTraceTick) traceInOrder = false;
+        lastTraceTick = t.tick;
+        ++popped;
+    }
+    const ServoStats stats = session.stats();
+    EXPECT_GT(stats.ticks, 30u);
+    EXPECT_EQ(popped + session.traceDropped(), stats.ticks);
+    EXPECT_TRUE(traceInOrder);
+    EXPECT_TRUE(viewerMonotonic);
+    EXPECT_TRUE(allSafe);
+    EXPECT_GT(viewerReads, 10u);
+    EXPECT_GT(sent.load(), 10);
+    EXPECT_EQ(session.latest().tick + 1, stats.ticks);
+    // Offline steps continue where the run stopped.
+    const Snapshot& next = session.step();
+    EXPECT_EQ(next.tick, stats.ticks);
+}
+
+}  // namespace
+}  // namespace palp::haptics

@@ -127,7 +127,9 @@ class Session final : public ServoTask {
     Session(std::shared_ptr<const Scene> scene, Device& device, const SessionParams& params);
     ~Session() override;
 
-    void start();          ///< runs on a ServoLoop; @throw palp::Error (see ServoLoop::start)
+    /// Runs on a ServoLoop; closes the start-up gate again first (no kick on a restart with
+    /// the hand inside an object). @throw palp::Error (see ServoLoop::start)
+    void start();
     void stop() noexcept;  ///< idempotent
     bool running() const noexcept;
     /// One tick on the calling thread (only while not running). Returns that tick's snapshot.
