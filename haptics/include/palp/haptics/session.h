@@ -117,8 +117,23 @@ struct Command {
 /// Device + proxy + coupling + passivity + safety, ticked by a ServoLoop (start()) or by the
 /// caller (step(), for offline runs as fast as possible).
 ///
-/// @par Threading  start/stop/step from one controlling thread; latest() from one viewer
-///      thread; send() from one producer thread. The servo thread owns everything else.
+/// One tick: read the device; probe = workspace(device position), probe velocity = scale *
+/// rotation * device velocity; drain the command queue; proxy.update(probe, last tick's AVCEC
+/// proxy force, last tick's k (baseStiffness before any), T); coupling.compute(); during a
+/// SetCoupling cross-fade the old and the new coupling both run and force, proxy force, k and
+/// energy are blended linearly over crossFadeSeconds (a SetCoupling that arrives during a fade
+/// waits for it to end; the newest waiting one wins); the passivity observer (and controller
+/// when enabled) books the coupling force against the device velocity in the device's scale,
+/// so W is the energy exchanged with the hand; ForceGuard (a non-finite force or device sample
+/// holds the last good force and flags the tick); clampForce to the device's maxForceN;
+/// StartupGate; the force is rotated back (F_device = R^T F_world, not scaled) and written;
+/// the Snapshot is published (latest()), queued for popTrace() and the bundle for latestRays().
+/// A probe that starts inside a closed surface (ray parity) is not trapped by it: the proxy
+/// follows the probe freely until the probe is outside.
+///
+/// @par Threading  start/stop/step from one controlling thread; latest() and latestRays() from
+///      one viewer thread; popTrace() from one trace reader thread (may be the viewer); send()
+///      from one producer thread. The servo thread owns everything else.
 /// @par Real-time  A tick (step() or the servo thread's) is noexcept and allocation-free.
 class Session final : public ServoTask {
   public:
@@ -132,7 +147,8 @@ class Session final : public ServoTask {
     void start();
     void stop() noexcept;  ///< idempotent
     bool running() const noexcept;
-    /// One tick on the calling thread (only while not running). Returns that tick's snapshot.
+    /// One tick on the calling thread; time advances by T per step. While the servo thread
+    /// runs it does nothing and returns the last step()'s snapshot.
     const Snapshot& step() noexcept;
 
     /// Viewer: the newest published snapshot.
