@@ -10,9 +10,8 @@
 ///
 /// Numbers are written in the shortest form that reads back to the same double (std::to_chars),
 /// so a log reads back to exactly the doubles that were recorded. On reading, fields may carry
-/// surrounding spaces, a trailing
-/// '\r' (CRLF files) is ignored, and blank lines are skipped; numbers must be finite and
-/// buttons an unsigned 32-bit integer.
+/// surrounding spaces, a trailing '\r' (CRLF files) is ignored, and blank lines are skipped;
+/// numbers must be finite and buttons an unsigned 32-bit integer.
 
 #include <cstdint>
 #include <filesystem>
@@ -33,9 +32,9 @@ struct DeviceSample {
 /// Reads a device log. @throw palp::IoError (cannot open) or palp::FormatError naming the file,
 /// the line and what was expected (wrong header, wrong column count, a non-number, time not
 /// increasing) ; refuses files over @p maxRows rows before storing them.
-/// The file is read twice: once to count its rows (nothing stored), then to parse them into a
-/// vector reserved to that count. A log with a header and no rows gives an empty vector.
-/// Messages read `<file>:<line>: expected ..., found ...`.
+/// The file is read twice (so it must be a regular file, not a pipe): once to count its rows
+/// (nothing stored), then to parse them into a vector reserved to that count. A log with a header
+/// and no rows gives an empty vector. Messages read `<file>:<line>: expected ..., found ...`.
 std::vector<DeviceSample> readDeviceLog(const std::filesystem::path& path,
                                         std::size_t maxRows = 10'000'000);
 
