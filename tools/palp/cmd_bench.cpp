@@ -65,8 +65,10 @@ Command addBench(CLI::App& root) {
     app->add_flag("--json", args->json, "Print the figures as JSON");
     app->add_flag("--no-pin", args->noPin, "Do not pin the measuring thread to one core");
     app->add_flag("--no-batch", args->noBatch, "Skip the batch-throughput figures");
+    const Command servo = addBenchServo(*bench);
 
-    return {bench, [args]() -> int {
+    return {bench, [args, servo]() -> int {
+                if (servo.app->parsed()) return servo.run();
                 kernels::RayBenchOptions o;
                 o.frames = args->frames;
                 o.warmUp = std::min(500, args->frames);
