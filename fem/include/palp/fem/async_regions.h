@@ -1,0 +1,166 @@
+#pragma once
+/// @file
+/// AsyncRegions: asynchronous FEM regions (ALGORITHMS.md section 6, thesis paper I). A small
+/// primary region around the contact is integrated explicitly every servo tick; the rest of the
+/// body (the secondary region) is solved implicitly at a lower rate, optionally on a coarser
+/// grid, on its own thread.
+///
+/// Regions. The N nodes nearest the contact node(s) in graph distance (lattice edges between
+/// active nodes, ties broken by Euclidean distance) seed the primary. Primary cells are the cells
+/// touching a seed; with level of detail L > 1 they are widened to whole coarse cells (L^3 fine
+/// cells) so that the secondary is exactly a set of coarse cells. The primary nodes P are the
+/// nodes all of whose active cells are primary (so P contains the seeds, and every cell touching
+/// P is primary); every other node is secondary (S). The secondary border (Gamma) is the free
+/// S nodes of primary cells; the primary border is the P nodes coupled to S.
+///
+/// Primary: central difference (same scheme as ExplicitSolver, substepped below the stable step)
+/// over the primary cells only; Gamma follows `u~_S(t)`, linear in time from the displayed value
+/// to the newest secondary solution over one secondary period (or the newest solution at once
+/// when interpolation is off: the "moving wall").
+///
+/// With `condensed` (the default, beyond the thesis) Gamma additionally follows the secondary's
+/// linear response to the primary border's motion since the last solve, so the stiff part of the
+/// coupling acts without delay; in the quasi-static limit this is the condensed (Schur) system.
+///
+/// Secondary: Newmark (or backward Euler, or quasi-static) in the Galerkin coarse space
+/// `u_S = I u_c` (I: trilinear fine-from-coarse interpolation on the secondary coarse cells, the
+/// identity for L = 1): `I^T A_SS I u_c = I^T (b_S - K_SP u_P)`. Coupling forces are thus
+/// restricted with the transpose of the interpolation; for L = 1 this is exactly
+/// `A_SS u_S = b_S - K_SP u_P`. Solved with CHOLMOD (factorised once per layout) or warm-started
+/// Jacobi PCG parallelised with TBB.
+///
+/// Modes. Synchronous (deterministic, for accuracy tests and tables): the secondary is solved
+/// inline at the end of every secondary period of simulated time and used from the next tick.
+/// Threaded: the secondary runs on a std::thread inside a tbb::task_arena; border data crosses
+/// through lock-free triple buffers; the primary uses a solution from the tick it arrives at and
+/// otherwise keeps running on the last good data (a stalled secondary never blocks a tick).
+///
+/// Adaptive primary size (synchronous mode, plain coupling only: layout changes with the
+/// condensed coupling excite growing oscillations, not yet understood): the seed count grows
+/// linearly with the contact strain `|u_contact| / strainReferenceLength` from primaryNodes to
+/// maxPrimaryNodes, quantised to adaptiveLevels layouts prepared at construction; a layout change
+/// happens at a secondary period boundary and transfers the state (new primary nodes take the
+/// secondary's solution, new secondary nodes the primary's).
+///
+/// @par Threading  One thread (the servo thread) calls tick() and the accessors; the model and
+/// constraints must outlive the object. In threaded mode the object owns one extra thread, which
+/// is joined by the destructor.
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "palp/fem/constraints.h"
+#include "palp/fem/fem_model.h"
+#include "palp/fem/implicit_solver.h"
+
+namespace palp::fem {
+
+/// Options of AsyncRegions.
+struct AsyncRegionsOptions {
+    double tickSeconds = 1e-3;    ///< servo period, seconds (> 0)
+    double secondaryRate = 50.0;  ///< f_s, Hz: period = max(1, round(1 / (f_s tick))) ticks
+    int primaryNodes = 30;        ///< N seeds of the primary region (>= contact node count)
+    int lod = 1;                  ///< secondary level of detail: 1, 2 or 4 (times h)
+    bool interpolate = true;      ///< interpolate the secondary border in time
+    /// Condensed (Schur/Norton) coupling: Gamma also follows the secondary's instantaneous linear
+    /// response `G = -I_Gamma A^-1 sK K_SB` to the primary border's motion since the solution it
+    /// shows (`u_Gamma = u~_Gamma + G (u_B - u~_B)`). Off: the thesis's plain staggered coupling,
+    /// which goes unstable at high secondary rates with larger borders (bench/README.md).
+    bool condensed = true;
+    /// Default quasi-static: the far field's inertia is small in the haptic band, and Newmark
+    /// combined with the condensed coupling is unstable (bench/README.md); Newmark works with
+    /// the plain coupling at low rates.
+    Integrator secondaryIntegrator = Integrator::quasiStatic;
+    LinearSolverKind secondarySolver = LinearSolverKind::cholmod;  ///< cholmod or pcg
+    double pcgRelativeTolerance = 1e-8;                            ///< PCG: on ||r|| / ||b||
+    int pcgMaxIterations = 2000;  ///< PCG: bound per secondary solve
+    double safetyFactor = 0.9;    ///< primary substep = safety * critical step, (0, 1]
+    int maxSubsteps = 64;         ///< bound on primary substeps per tick
+    bool threaded = false;        ///< secondary on its own thread (else synchronous)
+    int secondaryThreads = 1;     ///< concurrency of the secondary's tbb::task_arena
+    int secondaryCpu = -1;      ///< threaded: pin the secondary thread to this CPU (-1: no pinning)
+    int maxPrimaryNodes = 0;    ///< > primaryNodes enables the adaptive primary (synchronous)
+    int adaptiveLevels = 4;     ///< number of prepared layouts between the two sizes
+    double strainAtMax = 0.05;  ///< contact strain at which the size is maximal
+    double strainReferenceLength = 0.06;  ///< metres, divides |u_contact| to give the strain
+};
+
+/// What one tick did.
+struct AsyncTickResult {
+    Eigen::Vector3d contactForce = Eigen::Vector3d::Zero();  ///< reaction at the contact, N
+    int substeps = 0;                                        ///< primary substeps
+    unsigned flags = 0;                                      ///< StepFlag bits
+    bool secondaryUpdated = false;  ///< a new secondary solution entered at this tick
+};
+
+/// Counters of the secondary (read from the servo thread; threaded values are approximate).
+struct AsyncSecondaryStats {
+    std::uint64_t solves = 0;       ///< secondary solves finished
+    std::uint64_t used = 0;         ///< solutions taken up by the primary
+    double lastSolveSeconds = 0.0;  ///< wall time of the last solve
+    double maxSolveSeconds = 0.0;   ///< longest solve so far
+    int lastIterations = 0;         ///< PCG iterations of the last solve
+};
+
+/// Primary region (explicit, every tick) coupled to a secondary region (implicit, f_s).
+/// The contact nodes are driven by a prescribed displacement (the same for all of them); the
+/// contact force is their reaction, as ExplicitSolver::reactionSum() gives it.
+class AsyncRegions {
+  public:
+    /// Builds the regions, the primary operator and the secondary system (assembly and, for
+    /// CHOLMOD, a factorisation per layout: seconds for large meshes), and starts the secondary
+    /// thread in threaded mode.
+    /// @throw palp::ValueError for bad options, contact nodes outside the model or inactive, a
+    /// lod that does not divide the cell counts, constraints that do not match the model, or
+    /// non-zero prescribed displacements on secondary nodes.
+    AsyncRegions(const FemModel& model, const Constraints& constraints,
+                 std::vector<int> contactNodes, const AsyncRegionsOptions& options = {});
+    ~AsyncRegions();
+    AsyncRegions(const AsyncRegions&) = delete;
+    AsyncRegions& operator=(const AsyncRegions&) = delete;
+
+    /// Advances one servo tick with the contact nodes reaching @p contactDisplacement (metres)
+    /// at its end.
+    /// @par Real-time  Threaded mode: noexcept, allocation-free, lock-free, at most maxSubsteps
+    /// substeps over the primary cells. Synchronous mode: the same except at secondary period
+    /// boundaries, where the secondary solve (and a layout change) runs inline.
+    AsyncTickResult tick(const Eigen::Vector3d& contactDisplacement) noexcept;
+
+    /// Fine nodes of the current primary region (sorted).
+    const std::vector<int>& primaryNodes() const;
+    /// Number of primary nodes that are not fully fixed (the "N" of the thesis's table).
+    int primaryFreeNodeCount() const;
+    /// Fine secondary-border nodes (Gamma) of the current layout.
+    const std::vector<int>& secondaryBorderNodes() const;
+    /// Number of cells the primary integrates.
+    int primaryCellCount() const;
+    /// Secondary unknowns (coarse dofs).
+    int secondaryDofCount() const;
+    /// Index of the current layout (0 = smallest primary; adaptive mode only changes it).
+    int layoutIndex() const;
+    /// Ticks per secondary period.
+    int periodTicks() const;
+    /// Primary substep, seconds.
+    double substepSeconds() const;
+    /// Simulated time, seconds.
+    double time() const;
+
+    /// Whole fine displacement field, metres (#dofs): primary values on P, the secondary's
+    /// latest solution interpolated to the fine grid elsewhere. Not real-time (allocates).
+    Eigen::VectorXd displacement() const;
+
+    /// Secondary counters.
+    AsyncSecondaryStats secondaryStats() const;
+
+    /// Test hook: while true, the secondary thread stops solving (it neither reads snapshots nor
+    /// publishes), as a secondary that has fallen far behind would. Threaded mode only.
+    void setSecondaryStalledForTest(bool stalled) noexcept;
+
+  private:
+    struct Impl;
+    std::unique_ptr<Impl> mImpl;
+};
+
+}  // namespace palp::fem

@@ -1,0 +1,976 @@
+#include "palp/fem/async_regions.h"
+
+#include <pthread.h>
+#include <sched.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/task_arena.h>
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/SparseCore>
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <queue>
+#include <sstream>
+#include <thread>
+
+#include "palp/error.h"
+
+namespace palp::fem {
+
+namespace {
+
+std::size_t sz(int v) { return static_cast<std::size_t>(v); }
+
+using RowMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
+using Triplet = Eigen::Triplet<double, int>;
+
+/// Single-producer single-consumer triple buffer: the writer fills back() and publish()es it; the
+/// reader calls update() and, when it returns true, reads the newest published slot at front().
+/// Wait-free on both sides; the slots are preallocated by the owner.
+template <class T>
+class TripleBuffer {
+  public:
+    T& slot(int i) { return mSlots[sz(i)]; }
+    T& back() noexcept { return mSlots[mBack]; }
+    void publish() noexcept {
+        mBack = mMiddle.exchange(mBack | kDirty, std::memory_order_acq_rel) & 3u;
+    }
+    bool update() noexcept {
+        if ((mMiddle.load(std::memory_order_relaxed) & kDirty) == 0) return false;
+        mFront = mMiddle.exchange(mFront, std::memory_order_acq_rel) & 3u;
+        return true;
+    }
+    const T& front() const noexcept { return mSlots[mFront]; }
+
+  private:
+    static constexpr unsigned kDirty = 4u;
+    std::array<T, 3> mSlots;
+    std::atomic<unsigned> mMiddle{1u};
+    unsigned mBack = 0u;   // writer-owned
+    unsigned mFront = 2u;  // reader-owned
+};
+
+/// Border data crossing threads, preallocated.
+struct Packet {
+    std::vector<double> values;
+    double time = 0.0;
+    std::uint64_t sequence = 0;
+};
+
+/// One arrangement of the regions with its secondary system.
+struct Layout {
+    int seeds = 0;
+    std::vector<int> primaryNodes;             // P, sorted
+    std::vector<std::uint8_t> isPrimary;       // per fine node
+    std::vector<std::array<int, 8>> cellDofs;  // 3 * node of the 8 nodes of each primary cell
+    std::vector<double> cellE;                 // Young's modulus per primary cell
+    std::vector<int> touchedDofs;              // dofs of all nodes of primary cells
+    std::vector<int> freeDofs;                 // free P dofs the primary integrates
+    std::vector<int> gammaNodes, gammaDofs;    // secondary border: free S dofs of primary cells
+    std::vector<int> borderDofs;               // P dofs coupled to the secondary
+    int freeNodeCount = 0;
+    // Secondary (coarse unknowns).
+    std::vector<int> unknownCoarseDof;  // unknown -> coarse dof
+    RowMatrix interp;                   // fine dofs x unknowns (rows of P / fixed dofs empty)
+    RowMatrix interpGamma;              // gamma dofs x unknowns
+    SparseMatrix kc, mc;                // unknowns x unknowns
+    RowMatrix kcb;                      // unknowns x border dofs
+    Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
+    RowMatrix rowA;
+    Eigen::VectorXd inverseDiagonal;
+    Eigen::MatrixXd response;  // G: gamma dofs x border dofs (condensed coupling)
+    // Secondary work vectors (secondary thread only).
+    Eigen::VectorXd x, v, a, rhs, xNew, yc, ym, r, z, p, q, border;
+};
+
+struct NewmarkCoefficients {
+    double a0 = 0, a1 = 0, a2 = 0, a3 = 0, a4 = 0, a5 = 0;
+};
+
+NewmarkCoefficients coefficients(Integrator integrator, double dt) {
+    NewmarkCoefficients c;
+    if (integrator == Integrator::newmark) {
+        constexpr double beta = 0.25, gamma = 0.5;
+        c.a0 = 1.0 / (beta * dt * dt);
+        c.a1 = gamma / (beta * dt);
+        c.a2 = 1.0 / (beta * dt);
+        c.a3 = 1.0 / (2.0 * beta) - 1.0;
+        c.a4 = gamma / beta - 1.0;
+        c.a5 = dt * (gamma / (2.0 * beta) - 1.0);
+    } else if (integrator == Integrator::backwardEuler) {
+        c.a0 = 1.0 / (dt * dt);
+        c.a1 = 1.0 / dt;
+        c.a2 = 1.0 / dt;
+    }
+    return c;
+}
+
+void pinCurrentThread(int cpu) {
+    if (cpu < 0) return;
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    CPU_SET(static_cast<unsigned>(cpu), &set);
+    pthread_setaffinity_np(pthread_self(), sizeof(set), &set);
+}
+
+}  // namespace
+
+struct AsyncRegions::Impl {
+    const FemModel& model;
+    AsyncRegionsOptions options;
+    std::vector<int> contact;
+    std::vector<int> contactDofs;
+    std::vector<std::uint8_t> fixed;  // per fine dof: constrained by the caller
+    int lod = 1;
+    std::array<int, 3> coarseCounts{};
+    int coarseDofs = 0;
+    SparseMatrix stiffness;  // fine K
+    std::vector<std::unique_ptr<Layout>> layouts;
+    int current = 0;
+    int period = 1;
+    double periodSeconds = 0.0;
+    NewmarkCoefficients nm;
+    double sK = 1.0, sM = 0.0;
+
+    // Primary state (servo thread).
+    double dtSub = 0.0;
+    int substeps = 1;
+    double time = 0.0;
+    std::uint64_t ticks = 0;
+    Eigen::VectorXd u, uPrev, fInt, work, invDen, prevCoef, twoMass, contactStart;
+    std::vector<double> gPrev, gCur;  // Gamma values the interpolation runs between
+    Eigen::VectorXd bPrev, bCur;      // primary border values those Gamma values answer
+    Eigen::VectorXd bNow, gFix;       // condensed coupling work vectors
+    double gStart = 0.0;
+
+    // Secondary state in full coarse dof indexing (secondary thread in threaded mode).
+    Eigen::VectorXd uC, vC, aC;
+
+    // Threaded mode.
+    TripleBuffer<Packet> snapshots, results;
+    std::thread worker;
+    std::atomic<bool> stop{false}, stalled{false};
+    std::atomic<std::uint64_t> solves{0}, used{0};
+    std::atomic<double> lastSolve{0.0}, maxSolve{0.0};
+    std::atomic<int> lastIterations{0};
+    std::unique_ptr<tbb::task_arena> arena;
+
+    Impl(const FemModel& m, const Constraints& c, std::vector<int> contactNodes,
+         const AsyncRegionsOptions& o);
+    ~Impl();
+
+    std::unique_ptr<Layout> buildLayout(int seedCount) const;
+    void prepareSolver(Layout& layout) const;
+    bool solveSecondary(Layout& layout, const double* border, double* gammaOut) noexcept;
+    void switchLayout(int next);
+    void secondaryLoop();
+    void setGamma(double* target, double t) noexcept;
+    void acceptSolution(const double* gamma, const double* border) noexcept;
+    void sizeCoupling(const Layout& layout);
+    void primarySubsteps(const Eigen::Vector3d& target, AsyncTickResult& result) noexcept;
+};
+
+AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<int> contactNodes,
+                         const AsyncRegionsOptions& o)
+    : model(m), options(o), contact(std::move(contactNodes)) {
+    const HexMesh& mesh = model.mesh();
+    const int dofs = model.dofCount();
+    auto fail = [](const std::string& what, const std::string& expected, auto found) {
+        std::ostringstream s;
+        s << "async regions " << what << ": expected " << expected << ", found " << found;
+        throw ValueError(s.str());
+    };
+    if (c.dofCount() != dofs) fail("constraints", std::to_string(dofs) + " dofs", c.dofCount());
+    if (!(o.tickSeconds > 0.0) || !std::isfinite(o.tickSeconds))
+        fail("tick", "a finite period > 0 s", o.tickSeconds);
+    if (!(o.secondaryRate > 0.0) || !std::isfinite(o.secondaryRate))
+        fail("secondary rate", "a finite rate > 0 Hz", o.secondaryRate);
+    if (o.lod != 1 && o.lod != 2 && o.lod != 4) fail("lod", "1, 2 or 4", o.lod);
+    if (!(o.safetyFactor > 0.0 && o.safetyFactor <= 1.0))
+        fail("safety factor", "a value in (0, 1]", o.safetyFactor);
+    if (o.maxSubsteps < 1) fail("max substeps", ">= 1", o.maxSubsteps);
+    if (o.secondaryThreads < 1) fail("secondary threads", ">= 1", o.secondaryThreads);
+    if (o.secondarySolver == LinearSolverKind::simplicialLdlt)
+        fail("secondary solver", "cholmod or pcg", "simplicialLdlt");
+    if (contact.empty()) fail("contact nodes", "at least one node", "none");
+    for (int n : contact) {
+        if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)])
+            fail("contact node", "an active node of the mesh", n);
+    }
+    if (o.primaryNodes < static_cast<int>(contact.size()))
+        fail("primary nodes", ">= the number of contact nodes", o.primaryNodes);
+    const bool adaptive = o.maxPrimaryNodes > o.primaryNodes;
+    if (adaptive && o.threaded) fail("adaptive primary", "synchronous mode", "threaded mode");
+    if (adaptive && o.condensed)
+        fail("adaptive primary", "the plain coupling (condensed = false)", "condensed coupling");
+    if (adaptive &&
+        (o.adaptiveLevels < 2 || !(o.strainAtMax > 0.0) || !(o.strainReferenceLength > 0.0)))
+        fail("adaptive primary", "levels >= 2 and positive strain scales", o.adaptiveLevels);
+    lod = o.lod;
+    for (int a = 0; a < 3; ++a) {
+        const int cells = mesh.nodeCounts()[sz(a)] - 1;
+        if (cells % lod != 0) fail("lod", "a factor of every cell count", cells);
+        coarseCounts[sz(a)] = cells / lod + 1;
+    }
+    coarseDofs = 3 * coarseCounts[0] * coarseCounts[1] * coarseCounts[2];
+
+    fixed.assign(sz(dofs), 0);
+    for (int d = 0; d < dofs; ++d) fixed[sz(d)] = c.isFixed(d) ? 1 : 0;
+    for (int n : contact) {
+        for (int k = 0; k < 3; ++k) {
+            contactDofs.push_back(3 * n + k);
+            fixed[sz(3 * n + k)] = 1;
+        }
+    }
+
+    period = std::max(1, static_cast<int>(std::lround(1.0 / (o.secondaryRate * o.tickSeconds))));
+    periodSeconds = period * o.tickSeconds;
+    if (o.secondaryIntegrator == Integrator::quasiStatic) {
+        sK = 1.0;
+        sM = 0.0;
+    } else {
+        nm = coefficients(o.secondaryIntegrator, periodSeconds);
+        sK = 1.0 + nm.a1 * model.material().dampingBeta;
+        sM = nm.a0 + nm.a1 * model.material().dampingAlpha;
+    }
+
+    // Primary state and central-difference coefficients (the same for every layout).
+    const double critical = o.safetyFactor * model.criticalTimeStep();
+    substeps =
+        std::min(o.maxSubsteps, std::max(1, static_cast<int>(std::ceil(o.tickSeconds / critical))));
+    dtSub = o.tickSeconds / substeps;
+    u = Eigen::VectorXd::Zero(dofs);
+    for (int d = 0; d < dofs; ++d) {
+        if (c.isFixed(d)) u[d] = c.values()[d];
+    }
+    for (int d : contactDofs) u[d] = 0.0;
+    uPrev = u;
+    fInt = Eigen::VectorXd::Zero(dofs);
+    work = u;
+    invDen = Eigen::VectorXd::Zero(dofs);
+    prevCoef = Eigen::VectorXd::Zero(dofs);
+    twoMass = Eigen::VectorXd::Zero(dofs);
+    const Eigen::VectorXd& mass = model.lumpedMass();
+    const double alpha = model.material().dampingAlpha;
+    for (int d = 0; d < dofs; ++d) {
+        if (fixed[sz(d)] || mass[d] <= 0.0) continue;
+        invDen[d] = 1.0 / (mass[d] + 0.5 * dtSub * alpha * mass[d]);
+        prevCoef[d] = mass[d] - 0.5 * dtSub * alpha * mass[d];
+        twoMass[d] = 2.0 * mass[d];
+    }
+    contactStart = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(contactDofs.size()));
+
+    stiffness = model.assembleStiffness();
+    uC = Eigen::VectorXd::Zero(coarseDofs);
+    vC = uC;
+    aC = uC;
+    arena = std::make_unique<tbb::task_arena>(o.secondaryThreads);
+
+    // Layouts: one, or adaptiveLevels sizes from primaryNodes to maxPrimaryNodes.
+    const int levels = adaptive ? o.adaptiveLevels : 1;
+    for (int k = 0; k < levels; ++k) {
+        const int seeds =
+            levels == 1
+                ? o.primaryNodes
+                : o.primaryNodes + static_cast<int>(std::lround(
+                                       static_cast<double>(k) *
+                                       (o.maxPrimaryNodes - o.primaryNodes) / (levels - 1)));
+        layouts.push_back(buildLayout(seeds));
+        // Non-zero prescribed values on secondary nodes are not supported (the secondary's
+        // right-hand side has no term for them).
+        for (int d = 0; d < dofs; ++d) {
+            if (c.isFixed(d) && c.values()[d] != 0.0 && !layouts.back()->isPrimary[sz(d / 3)])
+                fail("constraints", "zero prescribed displacement on secondary nodes",
+                     "a non-zero value at dof " + std::to_string(d));
+        }
+        arena->execute([&] { prepareSolver(*layouts.back()); });
+    }
+    const Layout& first = *layouts[0];
+    sizeCoupling(first);
+
+    if (o.threaded) {
+        for (int i = 0; i < 3; ++i) {
+            snapshots.slot(i).values.assign(first.borderDofs.size(), 0.0);
+            results.slot(i).values.assign(first.gammaDofs.size() + first.borderDofs.size(), 0.0);
+        }
+        worker = std::thread([this] { secondaryLoop(); });
+    }
+}
+
+AsyncRegions::Impl::~Impl() {
+    stop.store(true, std::memory_order_release);
+    if (worker.joinable()) worker.join();
+}
+
+void AsyncRegions::Impl::sizeCoupling(const Layout& L) {
+    const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
+    gPrev.assign(L.gammaDofs.size(), 0.0);
+    gCur = gPrev;
+    bPrev = Eigen::VectorXd::Zero(nb);
+    for (Eigen::Index i = 0; i < nb; ++i) bPrev[i] = u[L.borderDofs[static_cast<std::size_t>(i)]];
+    bCur = bPrev;
+    bNow = bPrev;
+    gFix = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(L.gammaDofs.size()));
+}
+
+std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(int seedCount) const {
+    const HexMesh& mesh = model.mesh();
+    const auto& nc = mesh.nodeCounts();
+    const int nodes = mesh.nodeCount();
+    const auto& active = mesh.nodeActive();
+    auto layout = std::make_unique<Layout>();
+    Layout& L = *layout;
+    L.seeds = seedCount;
+
+    // Graph distance over lattice edges between active nodes (BFS from all contact nodes).
+    std::vector<int> dist(sz(nodes), -1);
+    std::queue<int> frontier;
+    for (int n : contact) {
+        if (dist[sz(n)] < 0) {
+            dist[sz(n)] = 0;
+            frontier.push(n);
+        }
+    }
+    while (!frontier.empty()) {
+        const int n = frontier.front();
+        frontier.pop();
+        const auto ijk = mesh.nodeCoords(n);
+        for (int a = 0; a < 3; ++a) {
+            for (int s = -1; s <= 1; s += 2) {
+                std::array<int, 3> q = ijk;
+                q[sz(a)] += s;
+                if (q[sz(a)] < 0 || q[sz(a)] >= nc[sz(a)]) continue;
+                const int m = mesh.node(q[0], q[1], q[2]);
+                if (!active[sz(m)] || dist[sz(m)] >= 0) continue;
+                dist[sz(m)] = dist[sz(n)] + 1;
+                frontier.push(m);
+            }
+        }
+    }
+    std::vector<std::pair<double, int>> order;
+    for (int n = 0; n < nodes; ++n) {
+        if (dist[sz(n)] < 0) continue;
+        double e = std::numeric_limits<double>::infinity();
+        for (int cn : contact)
+            e = std::min(e, (mesh.nodePosition(n) - mesh.nodePosition(cn)).norm());
+        order.emplace_back(dist[sz(n)] * 1e6 + e / mesh.edge(), n);
+    }
+    std::sort(order.begin(), order.end());
+    const std::size_t seeds = std::min(order.size(), sz(seedCount));
+
+    // Primary cells: cells touching a seed, widened to whole coarse cells.
+    const std::array<int, 3> cc = mesh.cellCounts();
+    std::vector<std::uint8_t> primaryCell(sz(mesh.cellCount()), 0);
+    for (std::size_t s = 0; s < seeds; ++s) {
+        const auto ijk = mesh.nodeCoords(order[s].second);
+        for (int dk = -1; dk <= 0; ++dk) {
+            for (int dj = -1; dj <= 0; ++dj) {
+                for (int di = -1; di <= 0; ++di) {
+                    const int ci = ijk[0] + di, cj = ijk[1] + dj, ck = ijk[2] + dk;
+                    if (ci < 0 || cj < 0 || ck < 0 || ci >= cc[0] || cj >= cc[1] || ck >= cc[2])
+                        continue;
+                    if (!mesh.cellActive(mesh.cell(ci, cj, ck))) continue;
+                    const int bi = ci / lod * lod, bj = cj / lod * lod, bk = ck / lod * lod;
+                    for (int k = bk; k < bk + lod; ++k) {
+                        for (int j = bj; j < bj + lod; ++j) {
+                            for (int i = bi; i < bi + lod; ++i) {
+                                primaryCell[sz(mesh.cell(i, j, k))] = 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // P: active nodes all of whose active cells are primary.
+    std::vector<std::uint8_t> touchesPrimary(sz(nodes), 0), touchesSecondary(sz(nodes), 0);
+    for (int c = 0; c < mesh.cellCount(); ++c) {
+        if (!mesh.cellActive(c)) continue;
+        for (int n : mesh.cellNodes(c)) {
+            (primaryCell[sz(c)] ? touchesPrimary : touchesSecondary)[sz(n)] = 1;
+        }
+    }
+    L.isPrimary.assign(sz(nodes), 0);
+    for (int n = 0; n < nodes; ++n) {
+        if (touchesPrimary[sz(n)] && !touchesSecondary[sz(n)]) {
+            L.isPrimary[sz(n)] = 1;
+            L.primaryNodes.push_back(n);
+            bool allFixed = true;
+            for (int k = 0; k < 3; ++k) allFixed = allFixed && fixed[sz(3 * n + k)];
+            if (!allFixed || std::find(contact.begin(), contact.end(), n) != contact.end())
+                ++L.freeNodeCount;
+        }
+    }
+    const Eigen::VectorXd& mass = model.lumpedMass();
+    for (int c = 0; c < mesh.cellCount(); ++c) {
+        if (!mesh.cellActive(c) || !primaryCell[sz(c)]) continue;
+        std::array<int, 8> d{};
+        const auto cn = mesh.cellNodes(c);
+        for (int a = 0; a < 8; ++a) d[sz(a)] = 3 * cn[sz(a)];
+        L.cellDofs.push_back(d);
+        L.cellE.push_back(mesh.cellYoungs()[sz(c)]);
+    }
+    for (int n = 0; n < nodes; ++n) {
+        if (!touchesPrimary[sz(n)]) continue;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            L.touchedDofs.push_back(d);
+            const bool free = !fixed[sz(d)] && mass[d] > 0.0;
+            if (L.isPrimary[sz(n)]) {
+                if (free) L.freeDofs.push_back(d);
+            } else if (free) {
+                L.gammaDofs.push_back(d);
+            }
+        }
+        if (!L.isPrimary[sz(n)]) L.gammaNodes.push_back(n);
+    }
+
+    // Interpolation from the coarse secondary: each free fine S dof takes trilinear weights of
+    // the corners of a secondary coarse cell containing its node.
+    const std::array<int, 3> ccc{coarseCounts[0] - 1, coarseCounts[1] - 1, coarseCounts[2] - 1};
+    auto coarseCellSecondary = [&](int I, int J, int K) {
+        bool anyActive = false;
+        for (int k = K * lod; k < (K + 1) * lod; ++k) {
+            for (int j = J * lod; j < (J + 1) * lod; ++j) {
+                for (int i = I * lod; i < (I + 1) * lod; ++i) {
+                    const int c = mesh.cell(i, j, k);
+                    if (primaryCell[sz(c)]) return false;
+                    anyActive = anyActive || mesh.cellActive(c);
+                }
+            }
+        }
+        return anyActive;
+    };
+    std::vector<int> unknownOf(sz(coarseDofs), -1);
+    std::vector<Triplet> trip;
+    std::vector<int> rowOfFine(sz(3 * nodes), -1);
+    for (int n = 0; n < nodes; ++n) {
+        if (!active[sz(n)] || L.isPrimary[sz(n)]) continue;
+        const auto ijk = mesh.nodeCoords(n);
+        // Candidate coarse cells along each axis.
+        std::array<std::array<int, 2>, 3> cand{};
+        std::array<int, 3> candCount{};
+        for (int a = 0; a < 3; ++a) {
+            const int q = ijk[sz(a)] / lod;
+            int count = 0;
+            if (q < ccc[sz(a)]) cand[sz(a)][sz(count++)] = q;
+            if (ijk[sz(a)] % lod == 0 && q - 1 >= 0) cand[sz(a)][sz(count++)] = q - 1;
+            candCount[sz(a)] = count;
+        }
+        int I = -1, J = -1, K = -1;
+        for (int a = 0; a < candCount[0] && I < 0; ++a) {
+            for (int b = 0; b < candCount[1] && I < 0; ++b) {
+                for (int e = 0; e < candCount[2] && I < 0; ++e) {
+                    if (coarseCellSecondary(cand[0][sz(a)], cand[1][sz(b)], cand[2][sz(e)])) {
+                        I = cand[0][sz(a)];
+                        J = cand[1][sz(b)];
+                        K = cand[2][sz(e)];
+                    }
+                }
+            }
+        }
+        if (I < 0) continue;  // no secondary cell (cannot happen on a box): held at rest
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            if (fixed[sz(d)] || mass[d] <= 0.0) continue;
+            for (int corner = 0; corner < 8; ++corner) {
+                const int X = I + (corner & 1), Y = J + ((corner >> 1) & 1), Z = K + (corner >> 2);
+                const double w = (1.0 - std::abs(ijk[0] - X * lod) / static_cast<double>(lod)) *
+                                 (1.0 - std::abs(ijk[1] - Y * lod) / static_cast<double>(lod)) *
+                                 (1.0 - std::abs(ijk[2] - Z * lod) / static_cast<double>(lod));
+                if (w == 0.0) continue;
+                const int fineCorner = mesh.node(X * lod, Y * lod, Z * lod);
+                const int fineDof = 3 * fineCorner + k;
+                if (fixed[sz(fineDof)] || L.isPrimary[sz(fineCorner)]) continue;
+                const int coarseDof = 3 * (X + coarseCounts[0] * (Y + coarseCounts[1] * Z)) + k;
+                int& idx = unknownOf[sz(coarseDof)];
+                if (idx < 0) {
+                    idx = static_cast<int>(L.unknownCoarseDof.size());
+                    L.unknownCoarseDof.push_back(coarseDof);
+                }
+                trip.emplace_back(d, idx, w);
+            }
+        }
+    }
+    const int unknowns = static_cast<int>(L.unknownCoarseDof.size());
+    const int dofs = model.dofCount();
+    SparseMatrix interp(dofs, unknowns);
+    interp.setFromTriplets(trip.begin(), trip.end());
+    L.interp = interp;
+    {
+        std::vector<Triplet> g;
+        for (std::size_t r = 0; r < L.gammaDofs.size(); ++r) {
+            for (RowMatrix::InnerIterator it(L.interp, L.gammaDofs[r]); it; ++it)
+                g.emplace_back(static_cast<int>(r), static_cast<int>(it.col()), it.value());
+        }
+        L.interpGamma.resize(static_cast<int>(L.gammaDofs.size()), unknowns);
+        L.interpGamma.setFromTriplets(g.begin(), g.end());
+    }
+    const SparseMatrix interpT = interp.transpose();
+    const SparseMatrix ik = interpT * stiffness;  // unknowns x fine dofs
+    L.kc = ik * interp;
+    Eigen::VectorXd m = mass;
+    L.mc = interpT * m.asDiagonal() * interp;
+    // Coupling to the P dofs: columns of I^T K at primary nodes that are not all zero.
+    std::vector<Triplet> kb;
+    for (int n : L.primaryNodes) {
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            bool any = false;
+            for (SparseMatrix::InnerIterator it(ik, d); it; ++it) {
+                if (it.value() == 0.0) continue;
+                if (!any) {
+                    any = true;
+                    L.borderDofs.push_back(d);
+                }
+                kb.emplace_back(static_cast<int>(it.row()),
+                                static_cast<int>(L.borderDofs.size()) - 1, it.value());
+            }
+        }
+    }
+    L.kcb.resize(unknowns, static_cast<int>(L.borderDofs.size()));
+    L.kcb.setFromTriplets(kb.begin(), kb.end());
+    L.x = Eigen::VectorXd::Zero(unknowns);
+    L.v = L.x;
+    L.a = L.x;
+    L.rhs = L.x;
+    L.xNew = L.x;
+    L.yc = L.x;
+    L.ym = L.x;
+    L.r = L.x;
+    L.z = L.x;
+    L.p = L.x;
+    L.q = L.x;
+    L.border = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(L.borderDofs.size()));
+    return layout;
+}
+
+void AsyncRegions::Impl::prepareSolver(Layout& L) const {
+    if (L.unknownCoarseDof.empty()) return;
+    SparseMatrix a = sK * L.kc + sM * L.mc;
+    if (options.secondarySolver == LinearSolverKind::cholmod) {
+        L.cholmod.compute(a);
+        if (L.cholmod.info() != Eigen::Success) {
+            std::ostringstream s;
+            s << "async regions secondary: expected a positive definite system, found a failed "
+                 "CHOLMOD factorisation ("
+              << a.rows() << " unknowns; do the supports remove every rigid-body motion?)";
+            throw ValueError(s.str());
+        }
+    } else {
+        L.rowA = a;
+        L.inverseDiagonal = a.diagonal().cwiseInverse();
+    }
+    if (options.condensed && !L.borderDofs.empty() && !L.gammaDofs.empty()) {
+        Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> own;
+        Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower>* llt = &L.cholmod;
+        if (options.secondarySolver != LinearSolverKind::cholmod) {
+            own.compute(a);
+            llt = &own;
+        }
+        const Eigen::MatrixXd rhs = -sK * Eigen::MatrixXd(L.kcb);
+        const Eigen::MatrixXd x = llt->solve(rhs);
+        L.response = L.interpGamma * x;
+    }
+}
+
+bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
+                                        double* gammaOut) noexcept {
+    const auto begin = std::chrono::steady_clock::now();
+    const int unknowns = static_cast<int>(L.unknownCoarseDof.size());
+    const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
+    int iterations = 0;
+    bool ok = true;
+    if (unknowns > 0) {
+        try {
+            for (int i = 0; i < unknowns; ++i) {
+                const int cd = L.unknownCoarseDof[sz(i)];
+                L.x[i] = uC[cd];
+                L.v[i] = vC[cd];
+                L.a[i] = aC[cd];
+            }
+            for (Eigen::Index i = 0; i < nb; ++i) L.border[i] = borderValues[i];
+            const bool dynamic = options.secondaryIntegrator != Integrator::quasiStatic;
+            const double alpha = model.material().dampingAlpha;
+            const double beta = model.material().dampingBeta;
+            L.rhs.noalias() = -sK * (L.kcb * L.border);
+            if (dynamic) {
+                L.yc = nm.a1 * L.x + nm.a4 * L.v + nm.a5 * L.a;
+                L.ym = nm.a0 * L.x + nm.a2 * L.v + nm.a3 * L.a + alpha * L.yc;
+                L.rhs.noalias() += L.mc * L.ym;
+                if (beta > 0.0) L.rhs.noalias() += beta * (L.kc * L.yc);
+            }
+            if (options.secondarySolver == LinearSolverKind::cholmod) {
+                L.xNew = L.cholmod.solve(L.rhs);
+            } else {
+                // Warm-started Jacobi PCG, SpMV and dots on the arena's TBB threads.
+                auto spmv = [&](const Eigen::VectorXd& in, Eigen::VectorXd& out) {
+                    const RowMatrix& A = L.rowA;
+                    tbb::parallel_for(tbb::blocked_range<int>(0, unknowns, 512),
+                                      [&](const tbb::blocked_range<int>& rg) {
+                                          for (int i = rg.begin(); i != rg.end(); ++i)
+                                              out[i] = A.row(i).dot(in);
+                                      });
+                };
+                auto dot = [&](const Eigen::VectorXd& x1, const Eigen::VectorXd& x2) {
+                    return tbb::parallel_reduce(
+                        tbb::blocked_range<Eigen::Index>(0, x1.size(), 4096), 0.0,
+                        [&](const tbb::blocked_range<Eigen::Index>& rg, double s) {
+                            const Eigen::Index len = rg.end() - rg.begin();
+                            return s + x1.segment(rg.begin(), len).dot(x2.segment(rg.begin(), len));
+                        },
+                        [](double s1, double s2) { return s1 + s2; });
+                };
+                L.xNew = L.x;  // warm start: the previous solution
+                const double bnorm = std::sqrt(dot(L.rhs, L.rhs));
+                if (bnorm == 0.0) {
+                    L.xNew.setZero();
+                } else {
+                    spmv(L.xNew, L.q);
+                    L.r = L.rhs - L.q;
+                    L.z = L.inverseDiagonal.cwiseProduct(L.r);
+                    L.p = L.z;
+                    double rz = dot(L.r, L.z);
+                    const double tol = options.pcgRelativeTolerance * bnorm;
+                    while (std::sqrt(dot(L.r, L.r)) > tol &&
+                           iterations < options.pcgMaxIterations) {
+                        spmv(L.p, L.q);
+                        const double step = rz / dot(L.p, L.q);
+                        L.xNew += step * L.p;
+                        L.r -= step * L.q;
+                        L.z = L.inverseDiagonal.cwiseProduct(L.r);
+                        const double rzNew = dot(L.r, L.z);
+                        L.p = L.z + (rzNew / rz) * L.p;
+                        rz = rzNew;
+                        ++iterations;
+                    }
+                }
+            }
+            ok = L.xNew.allFinite();
+            if (ok) {
+                if (dynamic) {
+                    const double dt = periodSeconds;
+                    if (options.secondaryIntegrator == Integrator::newmark) {
+                        L.ym = nm.a0 * (L.xNew - L.x) - nm.a2 * L.v - nm.a3 * L.a;  // a(n+1)
+                        L.v += dt * 0.5 * (L.a + L.ym);
+                        L.a = L.ym;
+                    } else {
+                        L.ym = (L.xNew - L.x) / dt;  // v(n+1)
+                        L.a = (L.ym - L.v) / dt;
+                        L.v = L.ym;
+                    }
+                }
+                for (int i = 0; i < unknowns; ++i) {
+                    const int cd = L.unknownCoarseDof[sz(i)];
+                    uC[cd] = L.xNew[i];
+                    vC[cd] = L.v[i];
+                    aC[cd] = L.a[i];
+                }
+                L.x = L.xNew;
+            }
+        } catch (...) {
+            ok = false;
+        }
+    }
+    if (ok) {
+        const Eigen::Index ng = static_cast<Eigen::Index>(L.gammaDofs.size());
+        Eigen::Map<Eigen::VectorXd> out(gammaOut, ng);
+        if (unknowns > 0) {
+            out.noalias() = L.interpGamma * L.x;
+        } else {
+            out.setZero();
+        }
+    }
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count();
+    lastSolve.store(seconds, std::memory_order_relaxed);
+    if (seconds > maxSolve.load(std::memory_order_relaxed))
+        maxSolve.store(seconds, std::memory_order_relaxed);
+    lastIterations.store(iterations, std::memory_order_relaxed);
+    if (ok) solves.fetch_add(1, std::memory_order_release);
+    return ok;
+}
+
+void AsyncRegions::Impl::secondaryLoop() {
+    pinCurrentThread(options.secondaryCpu);
+    arena->execute([this] {
+        Layout& L = *layouts[0];
+        while (!stop.load(std::memory_order_acquire)) {
+            if (stalled.load(std::memory_order_acquire) || !snapshots.update()) {
+                std::this_thread::sleep_for(std::chrono::microseconds(50));
+                continue;
+            }
+            const Packet& in = snapshots.front();
+            Packet& out = results.back();
+            if (solveSecondary(L, in.values.data(), out.values.data())) {
+                std::copy(in.values.begin(), in.values.end(),
+                          out.values.begin() + static_cast<std::ptrdiff_t>(L.gammaDofs.size()));
+                out.time = in.time;
+                out.sequence = in.sequence;
+                results.publish();
+            }
+        }
+    });
+}
+
+void AsyncRegions::Impl::setGamma(double* target, double t) noexcept {
+    const Layout& L = *layouts[sz(current)];
+    double frac = 1.0;
+    if (options.interpolate) frac = std::clamp((t - gStart) / periodSeconds, 0.0, 1.0);
+    const std::size_t n = L.gammaDofs.size();
+    if (L.response.size() > 0) {
+        const std::size_t nb = L.borderDofs.size();
+        for (std::size_t i = 0; i < nb; ++i) {
+            const Eigen::Index k = static_cast<Eigen::Index>(i);
+            bNow[k] = target[L.borderDofs[i]] - (bPrev[k] + frac * (bCur[k] - bPrev[k]));
+        }
+        gFix.noalias() = L.response * bNow;
+        for (std::size_t i = 0; i < n; ++i)
+            target[L.gammaDofs[i]] =
+                gPrev[i] + frac * (gCur[i] - gPrev[i]) + gFix[static_cast<Eigen::Index>(i)];
+        return;
+    }
+    for (std::size_t i = 0; i < n; ++i)
+        target[L.gammaDofs[i]] = gPrev[i] + frac * (gCur[i] - gPrev[i]);
+}
+
+void AsyncRegions::Impl::acceptSolution(const double* gamma, const double* border) noexcept {
+    // Start from the value shown now, so a solution arriving mid-period does not jump.
+    const Layout& L = *layouts[sz(current)];
+    double frac = 1.0;
+    if (options.interpolate) frac = std::clamp((time - gStart) / periodSeconds, 0.0, 1.0);
+    for (std::size_t i = 0; i < L.gammaDofs.size(); ++i) {
+        gPrev[i] = gPrev[i] + frac * (gCur[i] - gPrev[i]);
+        gCur[i] = gamma[i];
+    }
+    for (std::size_t i = 0; i < L.borderDofs.size(); ++i) {
+        const Eigen::Index k = static_cast<Eigen::Index>(i);
+        bPrev[k] = bPrev[k] + frac * (bCur[k] - bPrev[k]);
+        bCur[k] = border[i];
+    }
+    gStart = time;
+    used.fetch_add(1, std::memory_order_relaxed);
+}
+
+void AsyncRegions::Impl::primarySubsteps(const Eigen::Vector3d& target,
+                                         AsyncTickResult& result) noexcept {
+    const Layout& L = *layouts[sz(current)];
+    const double* ke = model.unitStiffness();
+    const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64> K(ke);
+    const double beta = model.material().dampingBeta;
+    const double dt = dtSub;
+    const double dt2 = dt * dt;
+    for (std::size_t i = 0; i < contactDofs.size(); ++i)
+        contactStart[static_cast<Eigen::Index>(i)] = u[contactDofs[i]];
+    for (int s = 0; s < substeps; ++s) {
+        setGamma(u.data(), time);
+        const double* operand = u.data();
+        if (beta > 0.0) {
+            setGamma(uPrev.data(), time - dt);
+            const double b = beta / dt;
+            for (int d : L.touchedDofs) work[d] = u[d] + b * (u[d] - uPrev[d]);
+            operand = work.data();
+        }
+        for (int d : L.touchedDofs) fInt[d] = 0.0;
+        const std::size_t cells = L.cellDofs.size();
+        for (std::size_t c = 0; c < cells; ++c) {
+            const std::array<int, 8>& nd = L.cellDofs[c];
+            Eigen::Matrix<double, 24, 1> ue;
+            for (int a = 0; a < 8; ++a) {
+                for (int k = 0; k < 3; ++k) ue[3 * a + k] = operand[nd[sz(a)] + k];
+            }
+            const Eigen::Matrix<double, 24, 1> fe = L.cellE[c] * (K * ue);
+            for (int a = 0; a < 8; ++a) {
+                for (int k = 0; k < 3; ++k) fInt[nd[sz(a)] + k] += fe[3 * a + k];
+            }
+        }
+        for (int d : L.freeDofs)
+            uPrev[d] = (-dt2 * fInt[d] + twoMass[d] * u[d] - prevCoef[d] * uPrev[d]) * invDen[d];
+        const double frac = static_cast<double>(s + 1) / substeps;
+        for (std::size_t i = 0; i < contactDofs.size(); ++i) {
+            const double start = contactStart[static_cast<Eigen::Index>(i)];
+            uPrev[contactDofs[i]] =
+                start + frac * (target[static_cast<Eigen::Index>(i % 3)] - start);
+        }
+        u.swap(uPrev);
+        time += dt;
+        ++result.substeps;
+    }
+    bool finite = true;
+    for (int d : L.freeDofs) finite = finite && std::isfinite(u[d]);
+    if (!finite) {
+        for (int d : L.freeDofs) {
+            u[d] = 0.0;
+            uPrev[d] = 0.0;
+        }
+        result.flags |= kStepDiverged;
+    }
+    Eigen::Vector3d force = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < contactDofs.size(); ++i)
+        force[static_cast<Eigen::Index>(i % 3)] += fInt[contactDofs[i]];
+    result.contactForce = finite ? force : Eigen::Vector3d::Zero();
+}
+
+void AsyncRegions::Impl::switchLayout(int next) {
+    Layout& oldL = *layouts[sz(current)];
+    Layout& newL = *layouts[sz(next)];
+    // The border as the primary sees it now (current and previous substep): border nodes that
+    // enter the primary keep that motion; deeper nodes take the secondary's solution at rest.
+    setGamma(u.data(), time);
+    setGamma(uPrev.data(), time - dtSub);
+    std::vector<std::uint8_t> wasBorder(oldL.isPrimary.size(), 0);
+    for (int n : oldL.gammaNodes) wasBorder[sz(n)] = 1;
+    for (int n : newL.primaryNodes) {
+        if (oldL.isPrimary[sz(n)] || wasBorder[sz(n)]) continue;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            if (fixed[sz(d)]) continue;
+            const double value = oldL.interp.row(d).dot(oldL.x);
+            u[d] = value;
+            uPrev[d] = value;
+        }
+    }
+    // Coarse unknowns leaving the primary take the primary's values.
+    const HexMesh& mesh = model.mesh();
+    for (int cd : newL.unknownCoarseDof) {
+        const int cn = cd / 3, k = cd % 3;
+        const int X = cn % coarseCounts[0], Y = (cn / coarseCounts[0]) % coarseCounts[1],
+                  Z = cn / (coarseCounts[0] * coarseCounts[1]);
+        const int fine = mesh.node(X * lod, Y * lod, Z * lod);
+        if (!oldL.isPrimary[sz(fine)]) continue;
+        const int d = 3 * fine + k;
+        uC[cd] = u[d];
+        vC[cd] = (u[d] - uPrev[d]) / dtSub;
+        aC[cd] = 0.0;
+    }
+    const int unknowns = static_cast<int>(newL.unknownCoarseDof.size());
+    for (int i = 0; i < unknowns; ++i) {
+        const int cd = newL.unknownCoarseDof[sz(i)];
+        newL.x[i] = uC[cd];
+        newL.v[i] = vC[cd];
+        newL.a[i] = aC[cd];
+    }
+    current = next;
+    sizeCoupling(newL);
+    if (unknowns > 0) {
+        Eigen::Map<Eigen::VectorXd> g(gPrev.data(), static_cast<Eigen::Index>(gPrev.size()));
+        g.noalias() = newL.interpGamma * newL.x;
+    }
+    gCur = gPrev;
+}
+
+AsyncRegions::AsyncRegions(const FemModel& model, const Constraints& constraints,
+                           std::vector<int> contactNodes, const AsyncRegionsOptions& options)
+    : mImpl(std::make_unique<Impl>(model, constraints, std::move(contactNodes), options)) {}
+
+AsyncRegions::~AsyncRegions() = default;
+
+AsyncTickResult AsyncRegions::tick(const Eigen::Vector3d& contactDisplacement) noexcept {
+    Impl& m = *mImpl;
+    AsyncTickResult result;
+    if (m.options.threaded && m.results.update()) {
+        const std::vector<double>& in = m.results.front().values;
+        m.acceptSolution(in.data(), in.data() + m.layouts[sz(m.current)]->gammaDofs.size());
+        result.secondaryUpdated = true;
+    }
+    Eigen::Vector3d target = contactDisplacement;
+    if (!target.allFinite()) {
+        target =
+            Eigen::Vector3d(m.u[m.contactDofs[0]], m.u[m.contactDofs[1]], m.u[m.contactDofs[2]]);
+        result.flags |= kStepBadForce;
+    }
+    m.primarySubsteps(target, result);
+    ++m.ticks;
+    if (m.ticks % static_cast<std::uint64_t>(m.period) != 0) return result;
+
+    if (m.options.threaded) {
+        const Layout& L = *m.layouts[sz(m.current)];
+        Packet& out = m.snapshots.back();
+        for (std::size_t i = 0; i < L.borderDofs.size(); ++i) out.values[i] = m.u[L.borderDofs[i]];
+        out.time = m.time;
+        out.sequence = m.ticks;
+        m.snapshots.publish();
+        return result;
+    }
+    // Synchronous: adapt the layout, then solve the secondary inline.
+    if (m.layouts.size() > 1) {
+        const double strain = target.norm() / m.options.strainReferenceLength;
+        const int levels = static_cast<int>(m.layouts.size());
+        const int want = static_cast<int>(
+            std::lround(std::clamp(strain / m.options.strainAtMax, 0.0, 1.0) * (levels - 1)));
+        if (want != m.current) m.switchLayout(want);
+    }
+    Layout& L = *m.layouts[sz(m.current)];
+    std::vector<double>& border = m.snapshots.slot(0).values;
+    std::vector<double>& gamma = m.results.slot(0).values;
+    border.resize(L.borderDofs.size());
+    gamma.resize(L.gammaDofs.size());
+    for (std::size_t i = 0; i < L.borderDofs.size(); ++i) border[i] = m.u[L.borderDofs[i]];
+    bool ok = false;
+    m.arena->execute([&] { ok = m.solveSecondary(L, border.data(), gamma.data()); });
+    if (ok) {
+        m.acceptSolution(gamma.data(), border.data());
+        result.secondaryUpdated = true;
+    }
+    return result;
+}
+
+const std::vector<int>& AsyncRegions::primaryNodes() const {
+    return mImpl->layouts[sz(mImpl->current)]->primaryNodes;
+}
+int AsyncRegions::primaryFreeNodeCount() const {
+    return mImpl->layouts[sz(mImpl->current)]->freeNodeCount;
+}
+const std::vector<int>& AsyncRegions::secondaryBorderNodes() const {
+    return mImpl->layouts[sz(mImpl->current)]->gammaNodes;
+}
+int AsyncRegions::primaryCellCount() const {
+    return static_cast<int>(mImpl->layouts[sz(mImpl->current)]->cellDofs.size());
+}
+int AsyncRegions::secondaryDofCount() const {
+    return static_cast<int>(mImpl->layouts[sz(mImpl->current)]->unknownCoarseDof.size());
+}
+int AsyncRegions::layoutIndex() const { return mImpl->current; }
+int AsyncRegions::periodTicks() const { return mImpl->period; }
+double AsyncRegions::substepSeconds() const { return mImpl->dtSub; }
+double AsyncRegions::time() const { return mImpl->time; }
+
+Eigen::VectorXd AsyncRegions::displacement() const {
+    const Impl& m = *mImpl;
+    const Layout& L = *m.layouts[sz(m.current)];
+    Eigen::VectorXd out = m.u;
+    if (!m.options.threaded && !L.unknownCoarseDof.empty()) {
+        const Eigen::VectorXd s = L.interp * L.x;
+        for (int n = 0; n < m.model.mesh().nodeCount(); ++n) {
+            if (L.isPrimary[sz(n)]) continue;
+            for (int k = 0; k < 3; ++k) {
+                const int d = 3 * n + k;
+                if (!m.fixed[sz(d)]) out[d] = s[d];
+            }
+        }
+    }
+    return out;
+}
+
+AsyncSecondaryStats AsyncRegions::secondaryStats() const {
+    const Impl& m = *mImpl;
+    AsyncSecondaryStats s;
+    s.solves = m.solves.load(std::memory_order_acquire);
+    s.used = m.used.load(std::memory_order_relaxed);
+    s.lastSolveSeconds = m.lastSolve.load(std::memory_order_relaxed);
+    s.maxSolveSeconds = m.maxSolve.load(std::memory_order_relaxed);
+    s.lastIterations = m.lastIterations.load(std::memory_order_relaxed);
+    return s;
+}
+
+void AsyncRegions::setSecondaryStalledForTest(bool stalled) noexcept {
+    mImpl->stalled.store(stalled, std::memory_order_release);
+}
+
+}  // namespace palp::fem
