@@ -79,6 +79,10 @@ void writeFileAtomically(const fs::path& path, const std::string& what, const ch
 
 bool finite(const Eigen::Vector3d& v) { return v.allFinite(); }
 
+// Pressing on a surface: the proxy is held back from the probe (D above 1 um) or sits on a
+// constraint. The distance also counts ticks in which the proxy changes constraint planes.
+bool inContact(const Snapshot& s) { return s.contactCount > 0 || s.distance > 1e-6; }
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -108,7 +112,6 @@ CouplingParams sceneCouplingDefaults(volume::PhantomScene scene) {
 CouplingParams scanCouplingDefaults() {
     CouplingParams p = commonDefaults();
     p.firstHit.threshold = 300;
-    p.referenceLength = 0.020;
     return p;
 }
 
@@ -178,7 +181,7 @@ RunSummary summarize(std::span<const Snapshot> snapshots) noexcept {
             ++rayTicks;
         }
         r.maxRays = std::max(r.maxRays, s.rays);
-        if (s.contactCount > 0) {
+        if (inContact(s)) {
             ++contacts;
             r.minStiffness = std::min(r.minStiffness, s.stiffness);
             r.maxStiffness = std::max(r.maxStiffness, s.stiffness);
@@ -365,13 +368,29 @@ std::vector<double> ScalarMap::finiteValues() const {
     return out;
 }
 
+const char* mapAnchorName(MapAnchor anchor) noexcept {
+    return anchor == MapAnchor::Proxy ? "proxy" : "ray-end";
+}
+
+MapAnchor parseMapAnchor(const std::string& name) {
+    if (name == "proxy") return MapAnchor::Proxy;
+    if (name == "ray-end") return MapAnchor::RayEnd;
+    throw ValueError("map anchor: expected proxy or ray-end, found '" + name + "'");
+}
+
 ScalarMap binSnapshots(std::span<const Snapshot> snapshots, const MapPlane& plane,
-                       MapQuantity quantity, bool contactOnly) {
+                       MapQuantity quantity, bool contactOnly, MapAnchor anchor) {
     ScalarMap map(plane);
     for (const Snapshot& s : snapshots) {
-        if (contactOnly && (s.contactCount == 0 || (s.rays == 0 && s.mode != CouplingMode::VC)))
-            continue;
-        map.add(s.proxy, mapValue(s, quantity));
+        if (contactOnly && !(inContact(s) && (s.rays > 0 || s.mode == CouplingMode::VC))) continue;
+        Eigen::Vector3d at = s.proxy;
+        if (anchor == MapAnchor::RayEnd) {
+            const Eigen::Vector3d d = s.probe - s.proxy;
+            const double n = d.norm();
+            if (!(n > 0) || !std::isfinite(s.rayLength)) continue;
+            at = s.proxy + (s.rayLength / n) * d;
+        }
+        map.add(at, mapValue(s, quantity));
     }
     return map;
 }

@@ -45,8 +45,9 @@ namespace palp::haptics {
 /// 0.1 rad and surface offset 1 mm (the stencils must straddle structures a few mm wide).
 CouplingParams sceneCouplingDefaults(volume::PhantomScene scene);
 
-/// Coupling defaults for a scan (CT assumed): VolumeFirstHit at 300 HU (bone), L_max 40 mm,
-/// L_ref 20 mm, otherwise as sceneCouplingDefaults().
+/// Coupling defaults for a scan (CT assumed): AVC, VolumeFirstHit at 300 HU (bone), L_max =
+/// L_ref = 40 mm (k_s when nothing hard lies within 40 mm, 4 k_s for bone 10 mm deep),
+/// otherwise as sceneCouplingDefaults().
 CouplingParams scanCouplingDefaults();
 
 /// Lowers maxStiffness to the device's maxStiffnessNpm and to the sampled-wall passivity bound
@@ -151,10 +152,23 @@ class ScalarMap {
     std::vector<std::uint32_t> mCount;
 };
 
-/// Bins @p snapshots at the proxy position; with @p contactOnly, only ticks in contact whose
-/// coupling had a ray (rays > 0 or mode VC) count.
+/// Where a snapshot lands on a map.
+enum class MapAnchor {
+    Proxy,   ///< the proxy: what the hand feels where it is
+    RayEnd,  ///< the end of the centre ray, proxy + L d (d = unit proxy -> probe): where the
+             ///< structure that set k lies. Friction tilts d by up to atan(mu_s) toward the
+             ///< motion, so a structure 20 mm deep shows ~9 mm ahead of the proxy in each sweep
+             ///< direction; the ray end undoes that shift for the rays that hit it.
+};
+/// "proxy", "ray-end". parseMapAnchor() @throw palp::ValueError naming the text.
+const char* mapAnchorName(MapAnchor anchor) noexcept;
+MapAnchor parseMapAnchor(const std::string& name);
+
+/// Bins @p snapshots at @p anchor; with @p contactOnly, only ticks pressing a surface (contact
+/// planes, or D > 1 um) whose coupling had a ray (rays > 0 or mode VC) count.
 ScalarMap binSnapshots(std::span<const Snapshot> snapshots, const MapPlane& plane,
-                       MapQuantity quantity, bool contactOnly = true);
+                       MapQuantity quantity, bool contactOnly = true,
+                       MapAnchor anchor = MapAnchor::Proxy);
 
 /// A binary image over a MapPlane (row-major from the bottom row), 1 = inside.
 using Mask = std::vector<std::uint8_t>;
