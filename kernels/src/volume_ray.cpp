@@ -103,6 +103,17 @@ PALP_HOT float interpolate(const Cell& c, const float (&v)[8]) noexcept {
     return b0 + (b1 - b0) * c.tz;
 }
 
+/// Trilinear value in a cell of a 9^3 padded block: @p p points at the base corner.
+PALP_HOT float lerp8(const float* p, float fx, float fy, float fz) noexcept {
+    const float a00 = p[0] + (p[81] - p[0]) * fx;
+    const float a01 = p[1] + (p[82] - p[1]) * fx;
+    const float a10 = p[9] + (p[90] - p[9]) * fx;
+    const float a11 = p[10] + (p[91] - p[10]) * fx;
+    const float b0 = a00 + (a10 - a00) * fy;
+    const float b1 = a01 + (a11 - a01) * fy;
+    return b0 + (b1 - b0) * fz;
+}
+
 PALP_HOT float sampleCell(const Table& tb, float background, const Cell& c) noexcept {
     if (!c.finite) [[unlikely]]
         return background;
@@ -591,19 +602,34 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
     const Table& tb = view.table();
     const float bg = view.background();
     const bool skip = params.skipEmpty;
-    float prev = 0;
-    bool prevValid = false;
     Cell c;
     CornerCache cache;
+    // Refines the crossing between samples j - 1 and j from their values. The first sample of
+    // every run below reads its predecessor on the exact (double) position instead of taking a
+    // march value, so a result does not depend on whether the blocks before were skipped.
+    auto refineAt = [&](std::int64_t j, float vPrev, float v) -> RayHit {
+        const double th =
+            refineCrossing(view, r, thr, r.t(j - 1), static_cast<double>(vPrev) - thr, r.t(j),
+                           static_cast<double>(v) - thr, params.refineIterations, cache);
+        return {static_cast<float>(th), true};
+    };
+    auto hitAt = [&](std::int64_t j, float v) -> RayHit {
+        if (j == 0) return {0.0f, true};
+        return refineAt(j, sampleAt(view, r, r.t(j - 1), cache), v);
+    };
     // Table-relative ray origin: inside the table every coordinate is >= 0, so floor is a plain
     // truncation and the block and offset come from integer shifts.
     const double ox = r.o[0] - tb.origin[0], oy = r.o[1] - tb.origin[1], oz = r.o[2] - tb.origin[2];
     const double limX = 8.0 * tb.blocks[0], limY = 8.0 * tb.blocks[1], limZ = 8.0 * tb.blocks[2];
     const std::int64_t nby = tb.blocks[1], nbz = tb.blocks[2];
+    // Samples before kLast lie exactly at k * step (the last one may be cut to the length).
+    const std::int64_t kRunLast = std::min(r.kEnd, r.kLast - 1);
+    // One lattice step in index units, in float, for the incremental march inside a block.
+    const float sx = static_cast<float>(r.d[0] * r.step), sy = static_cast<float>(r.d[1] * r.step),
+                sz = static_cast<float>(r.d[2] * r.step);
     for (std::int64_t k = r.kBegin; k <= r.kEnd;) {
         const double t = r.t(k);
         const double xr = ox + t * r.d[0], yr = oy + t * r.d[1], zr = oz + t * r.d[2];
-        float v;
         if (xr >= 0 && xr < limX && yr >= 0 && yr < limY && zr >= 0 && zr < limZ) [[likely]] {
             const auto ix = static_cast<std::int32_t>(xr), iy = static_cast<std::int32_t>(yr),
                        iz = static_cast<std::int32_t>(zr);
@@ -614,32 +640,58 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
                 c.iz = iz;
                 c.block = b;
                 k = skipBlocks(tb, r, c, k, [thr](float mx, float) { return mx < thr; });
-                prevValid = false;
                 continue;
             }
-            const float* p =
-                tb.data[static_cast<std::size_t>(b)] + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7));
-            const float vv[8] = {p[0], p[1], p[9], p[10], p[81], p[82], p[90], p[91]};
-            c.tx = static_cast<float>(xr - ix);
-            c.ty = static_cast<float>(yr - iy);
-            c.tz = static_cast<float>(zr - iz);
-            v = interpolate(c, vv);
-        } else {
-            // Outside the table (background) or non-finite: the general path.
-            locate(tb, r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
-            v = sampleCell(tb, bg, c);
+            if (k <= kRunLast) {
+                // The first sample of the run on its exact position (a run often ends right
+                // there: a hit at the first sample after skipped blocks).
+                const float* base = tb.data[static_cast<std::size_t>(b)];
+                float v = lerp8(base + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7)),
+                                static_cast<float>(xr - ix), static_cast<float>(yr - iy),
+                                static_cast<float>(zr - iz));
+                if (v >= thr) return hitAt(k, v);
+                // The rest of the run through this block: block-local float positions, advanced
+                // by one float step per sample, recomputed exactly at every block entry (drift
+                // over one block is below 1e-4 voxel). The run ends at the block's exit; a sample
+                // that rounding puts a hair past the exit still reads its cell through the clamp
+                // below (the 9^3 copy holds the +1 layer), and one the run leaves out is simply
+                // the first of the next run.
+                const double lx = xr - (ix & ~7), ly = yr - (iy & ~7), lz = zr - (iz & ~7);
+                double tRel = kInf;
+                if (r.d[0] > 0) tRel = std::min(tRel, (8.0 - lx) * r.inv[0]);
+                if (r.d[0] < 0) tRel = std::min(tRel, -lx * r.inv[0]);
+                if (r.d[1] > 0) tRel = std::min(tRel, (8.0 - ly) * r.inv[1]);
+                if (r.d[1] < 0) tRel = std::min(tRel, -ly * r.inv[1]);
+                if (r.d[2] > 0) tRel = std::min(tRel, (8.0 - lz) * r.inv[2]);
+                if (r.d[2] < 0) tRel = std::min(tRel, -lz * r.inv[2]);
+                // At most ~28 samples fit in a block (0.5-voxel steps), far below kMaxSamples.
+                const double more = std::min(tRel * r.invStep, static_cast<double>(kRunLast - k));
+                const std::int64_t n = 1 + static_cast<std::int64_t>(more);
+                float px = static_cast<float>(lx) + sx, py = static_cast<float>(ly) + sy,
+                      pz = static_cast<float>(lz) + sz;
+                for (std::int64_t i = 1; i < n; ++i) {
+                    // Truncation; -0.x (a hair before the entry) gives cell 0, and the unsigned
+                    // min keeps every index inside the 9^3 copy.
+                    const unsigned cx = std::min(static_cast<unsigned>(static_cast<int>(px)), 7u);
+                    const unsigned cy = std::min(static_cast<unsigned>(static_cast<int>(py)), 7u);
+                    const unsigned cz = std::min(static_cast<unsigned>(static_cast<int>(pz)), 7u);
+                    const float prev = v;
+                    v = lerp8(base + ((cx * 9 + cy) * 9 + cz), px - static_cast<float>(cx),
+                              py - static_cast<float>(cy), pz - static_cast<float>(cz));
+                    if (v >= thr) return refineAt(k + i, prev, v);
+                    px += sx;
+                    py += sy;
+                    pz += sz;
+                }
+                k += n;
+                continue;
+            }
         }
-        if (v >= thr) {
-            if (k == 0) return {0.0f, true};
-            const double tp = r.t(k - 1);
-            if (!prevValid) prev = sampleAt(view, r, tp, cache);
-            const double th =
-                refineCrossing(view, r, thr, tp, static_cast<double>(prev) - thr, t,
-                               static_cast<double>(v) - thr, params.refineIterations, cache);
-            return {static_cast<float>(th), true};
-        }
-        prev = v;
-        prevValid = true;
+        // The last sample (cut to the length), outside the table (background) or non-finite:
+        // the general path.
+        locate(tb, r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
+        const float v = sampleCell(tb, bg, c);
+        if (v >= thr) return hitAt(k, v);
         ++k;
     }
     return noHit(r.length);

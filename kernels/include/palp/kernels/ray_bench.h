@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "palp/kernels/mesh.h"
+#include "palp/kernels/ray_bundle.h"
 
 namespace palp::kernels {
 
@@ -72,6 +73,13 @@ void benchMeshRays(const RayBenchOptions& options, const TriangleMesh* userMesh,
 /// Batch throughput (rays per second) of traceFirstHitBatch with 1 thread and all threads.
 void benchBatchRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string& label,
                     const RayBenchOptions& options, RayBenchReport& report);
+
+/// The bundles one volume line measures, for profiling outside the harness: @p trajectory picks
+/// the Lissajous proxy path (1 mm under the top face when @p phantom, else through the middle of
+/// the active box), otherwise uniform random positions and directions in the active box.
+/// @throw palp::ValueError for unusable options (rays outside 17..64, frames < 1).
+std::vector<RayBundle> volumeBenchBundles(const openvdb::FloatGrid& grid, bool phantom,
+                                          bool trajectory, const RayBenchOptions& options);
 
 /// Pins the calling thread to the last allowed CPU; false when not possible.
 bool pinCurrentThread() noexcept;
