@@ -255,6 +255,16 @@ Command addPalpate(CLI::App& root) {
                 throw ValueError("--device: expected one of " + names + ", found '" + a.device +
                                  "'");
             }
+            for (const std::string* out : {&a.trace, &a.map}) {
+                if (out->empty()) continue;
+                const fs::path path(*out);
+                const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+                std::error_code ec;
+                if (!fs::is_directory(dir, ec)) {
+                    throw IoError(path.string() + ": expected an existing directory '" +
+                                  dir.string() + "' for the output, found none");
+                }
+            }
             requirePositive(a.depthMm, "--depth", "mm");
             requirePositive(a.spacingMm, "--spacing", "mm");
             if (a.seconds < 0 || !std::isfinite(a.seconds))
