@@ -139,9 +139,11 @@ Run asyncRun(const Config& c, const Problem& p, AsyncRegionsOptions o, bool grow
         const auto b = Clock::now();
         const AsyncTickResult res = a.tick(Eigen::Vector3d(0, 0, inputAt(c, t * 1e-3, growing)));
         const double dt = std::chrono::duration<double>(Clock::now() - b).count();
-        // Synchronous mode: ticks that ran the secondary inline are booked as solve time.
+        // Synchronous mode: the inline secondary solve is booked as solve time, the rest as tick.
         if (res.secondaryUpdated) {
-            r.solveSeconds += dt;
+            const double solve = a.secondaryStats().lastSolveSeconds;
+            r.solveSeconds += solve;
+            r.tickSeconds.push_back(std::max(0.0, dt - solve));
         } else {
             r.tickSeconds.push_back(dt);
         }
@@ -186,6 +188,11 @@ void table(const Config& c) {
             const Run r = asyncRun(c, p, o, false);
             const double tick = mean(r.tickSeconds);
             const double solves = std::max(1.0, c.seconds * f);
+            if (!(peak(r.force) < 100.0 * peak(ref.force))) {
+                std::printf("%-24s %6d %10.0f %10.4f   diverged (peak %.3g N)\n", "asynchronous",
+                            r.primaryNodes, f, tick * 1e3, peak(r.force));
+                continue;
+            }
             std::printf("%-24s %6d %10.0f %10.4f %7.1f%% %12.3f %10.4f %7.1f%% %7.1f%%\n",
                         "asynchronous", r.primaryNodes, f, tick * 1e3,
                         100.0 * (1.0 - tick / refTick), r.solveSeconds / solves * 1e3,
@@ -331,15 +338,16 @@ void threaded(const Config& c) {
         std::printf(
             "threaded %d^3 lod %d %s N %d f %.0f Hz: tick mean %.4f ms, p99 %.4f ms, max "
             "%.4f ms, overruns %d; secondary %llu solves in %.2f s (%.1f Hz, wanted %.0f), "
-            "last solve %.2f ms, max %.2f ms, %llu used; peak %.4f N vs reference %.4f N "
+            "last solve %.2f ms (CPU %.2f ms), max %.2f ms, %llu used; peak %.4f N vs reference "
+            "%.4f N "
             "(%.2f%%), rms err %.2f%%\n",
             c.size, c.lod, c.solver == LinearSolverKind::cholmod ? "CHOLMOD" : "PCG",
             a.primaryFreeNodeCount(), f, mean(tickTimes) * 1e3, percentile(tickTimes, 0.99) * 1e3,
             percentile(tickTimes, 1.0) * 1e3, overruns, static_cast<unsigned long long>(s.solves),
             wall, static_cast<double>(s.solves) / wall, f, s.lastSolveSeconds * 1e3,
-            s.maxSolveSeconds * 1e3, static_cast<unsigned long long>(s.used), peak(force),
-            peak(ref.force), 100.0 * relErr(peak(force), peak(ref.force)),
-            100.0 * rmsErr(force, ref.force));
+            s.lastSolveCpuSeconds * 1e3, s.maxSolveSeconds * 1e3,
+            static_cast<unsigned long long>(s.used), peak(force), peak(ref.force),
+            100.0 * relErr(peak(force), peak(ref.force)), 100.0 * rmsErr(force, ref.force));
     }
 }
 

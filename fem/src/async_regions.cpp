@@ -14,6 +14,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <limits>
 #include <queue>
 #include <sstream>
@@ -84,7 +85,7 @@ struct Layout {
     Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
     RowMatrix rowA;
     Eigen::VectorXd inverseDiagonal;
-    Eigen::MatrixXd response;  // G: gamma dofs x border dofs (condensed coupling)
+    RowMatrix response;  // G: gamma dofs x border dofs (condensed coupling), small entries dropped
     // Secondary work vectors (secondary thread only).
     Eigen::VectorXd x, v, a, rhs, xNew, yc, ym, r, z, p, q, border;
 };
@@ -157,7 +158,7 @@ struct AsyncRegions::Impl {
     std::thread worker;
     std::atomic<bool> stop{false}, stalled{false};
     std::atomic<std::uint64_t> solves{0}, used{0};
-    std::atomic<double> lastSolve{0.0}, maxSolve{0.0};
+    std::atomic<double> lastSolve{0.0}, maxSolve{0.0}, lastSolveCpu{0.0};
     std::atomic<int> lastIterations{0};
     std::unique_ptr<tbb::task_arena> arena;
 
@@ -576,13 +577,27 @@ void AsyncRegions::Impl::prepareSolver(Layout& L) const {
         }
         const Eigen::MatrixXd rhs = -sK * Eigen::MatrixXd(L.kcb);
         const Eigen::MatrixXd x = llt->solve(rhs);
-        L.response = L.interpGamma * x;
+        const Eigen::MatrixXd g = L.interpGamma * x;
+        const double drop = options.condensedDropTolerance * g.cwiseAbs().maxCoeff();
+        std::vector<Triplet> t;
+        for (Eigen::Index c = 0; c < g.cols(); ++c) {
+            for (Eigen::Index r = 0; r < g.rows(); ++r) {
+                if (std::abs(g(r, c)) > drop)
+                    t.emplace_back(static_cast<int>(r), static_cast<int>(c), g(r, c));
+            }
+        }
+        L.response.resize(static_cast<int>(g.rows()), static_cast<int>(g.cols()));
+        L.response.setFromTriplets(t.begin(), t.end());
     }
 }
 
 bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
                                         double* gammaOut) noexcept {
     const auto begin = std::chrono::steady_clock::now();
+    timespec cpu0{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu0);
+    const double cpuBegin =
+        static_cast<double>(cpu0.tv_sec) + 1e-9 * static_cast<double>(cpu0.tv_nsec);
     const int unknowns = static_cast<int>(L.unknownCoarseDof.size());
     const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
     int iterations = 0;
@@ -690,6 +705,10 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
     const double seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count();
     lastSolve.store(seconds, std::memory_order_relaxed);
+    timespec cpu{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu);
+    const double cpuNow = static_cast<double>(cpu.tv_sec) + 1e-9 * static_cast<double>(cpu.tv_nsec);
+    lastSolveCpu.store(cpuNow - cpuBegin, std::memory_order_relaxed);
     if (seconds > maxSolve.load(std::memory_order_relaxed))
         maxSolve.store(seconds, std::memory_order_relaxed);
     lastIterations.store(iterations, std::memory_order_relaxed);
@@ -724,7 +743,7 @@ void AsyncRegions::Impl::setGamma(double* target, double t) noexcept {
     double frac = 1.0;
     if (options.interpolate) frac = std::clamp((t - gStart) / periodSeconds, 0.0, 1.0);
     const std::size_t n = L.gammaDofs.size();
-    if (L.response.size() > 0) {
+    if (L.response.nonZeros() > 0) {
         const std::size_t nb = L.borderDofs.size();
         for (std::size_t i = 0; i < nb; ++i) {
             const Eigen::Index k = static_cast<Eigen::Index>(i);
@@ -965,6 +984,7 @@ AsyncSecondaryStats AsyncRegions::secondaryStats() const {
     s.used = m.used.load(std::memory_order_relaxed);
     s.lastSolveSeconds = m.lastSolve.load(std::memory_order_relaxed);
     s.maxSolveSeconds = m.maxSolve.load(std::memory_order_relaxed);
+    s.lastSolveCpuSeconds = m.lastSolveCpu.load(std::memory_order_relaxed);
     s.lastIterations = m.lastIterations.load(std::memory_order_relaxed);
     return s;
 }

@@ -22,12 +22,16 @@
 /// linear response to the primary border's motion since the last solve, so the stiff part of the
 /// coupling acts without delay; in the quasi-static limit this is the condensed (Schur) system.
 ///
-/// Secondary: Newmark (or backward Euler, or quasi-static) in the Galerkin coarse space
+/// Secondary: quasi-static by default (or Newmark, or backward Euler, with dt = one period; the
+/// dynamic ones only with the plain coupling at low rates) in the Galerkin coarse space
 /// `u_S = I u_c` (I: trilinear fine-from-coarse interpolation on the secondary coarse cells, the
 /// identity for L = 1): `I^T A_SS I u_c = I^T (b_S - K_SP u_P)`. Coupling forces are thus
 /// restricted with the transpose of the interpolation; for L = 1 this is exactly
 /// `A_SS u_S = b_S - K_SP u_P`. Solved with CHOLMOD (factorised once per layout) or warm-started
 /// Jacobi PCG parallelised with TBB.
+///
+/// Not modelled: a force-driven (virtual coupling) contact; re-allocation when the contact node
+/// changes (the contact nodes are fixed at construction; layouts are prepared there).
 ///
 /// Modes. Synchronous (deterministic, for accuracy tests and tables): the secondary is solved
 /// inline at the end of every secondary period of simulated time and used from the next tick.
@@ -44,7 +48,9 @@
 ///
 /// @par Threading  One thread (the servo thread) calls tick() and the accessors; the model and
 /// constraints must outlive the object. In threaded mode the object owns one extra thread, which
-/// is joined by the destructor.
+/// is joined by the destructor. Threaded mode: the servo thread owns the primary state, the
+/// secondary thread the secondary state; they share only the two triple buffers (acquire/release
+/// index exchange) and atomic counters.
 
 #include <Eigen/Core>
 #include <cstdint>
@@ -69,6 +75,8 @@ struct AsyncRegionsOptions {
     /// shows (`u_Gamma = u~_Gamma + G (u_B - u~_B)`). Off: the thesis's plain staggered coupling,
     /// which goes unstable at high secondary rates with larger borders (bench/README.md).
     bool condensed = true;
+    /// Entries of G below this fraction of its largest are dropped (G is applied every substep).
+    double condensedDropTolerance = 1e-3;
     /// Default quasi-static: the far field's inertia is small in the haptic band, and Newmark
     /// combined with the condensed coupling is unstable (bench/README.md); Newmark works with
     /// the plain coupling at low rates.
@@ -97,11 +105,12 @@ struct AsyncTickResult {
 
 /// Counters of the secondary (read from the servo thread; threaded values are approximate).
 struct AsyncSecondaryStats {
-    std::uint64_t solves = 0;       ///< secondary solves finished
-    std::uint64_t used = 0;         ///< solutions taken up by the primary
-    double lastSolveSeconds = 0.0;  ///< wall time of the last solve
-    double maxSolveSeconds = 0.0;   ///< longest solve so far
-    int lastIterations = 0;         ///< PCG iterations of the last solve
+    std::uint64_t solves = 0;          ///< secondary solves finished
+    std::uint64_t used = 0;            ///< solutions taken up by the primary
+    double lastSolveSeconds = 0.0;     ///< wall time of the last solve
+    double maxSolveSeconds = 0.0;      ///< longest solve so far
+    double lastSolveCpuSeconds = 0.0;  ///< thread CPU time of the last solve (without preemption)
+    int lastIterations = 0;            ///< PCG iterations of the last solve
 };
 
 /// Primary region (explicit, every tick) coupled to a secondary region (implicit, f_s).
