@@ -2,6 +2,7 @@
 // every tick (start inside, D -> 0, NaN samples, empty scene), zero allocations per tick,
 // cross-faded parameter changes, and a real-time run with a viewer and a producer thread.
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <array>
 #include <atomic>
@@ -94,14 +95,20 @@ Eigen::Vector3d at(double x, double y, double z) { return Eigen::Vector3d(x, y, 
 class SessionTest : public ::testing::Test {
   protected:
     static void SetUpTestSuite() {
-        volume::PhantomSpec spec;
-        spec.params.scene = volume::PhantomScene::Avc;
-        spec.voxelSize = 1e-3;
-        sVolume = new volume::Volume(volume::makePhantomVolume(spec));
-        SceneOptions options;
-        options.surfaceIso = -500;
-        options.hardIso = 500;
-        sScene = Scene::fromVolume(*sVolume, options);
+        // One TBB thread: the set-up's parallel loops then run on this thread, so that the
+        // ThreadSanitizer build reports only what the session's own threads do (volume's TBB
+        // hand-offs are not annotated for it). The result does not depend on the threads.
+        tbb::task_arena single(1);
+        single.execute([] {
+            volume::PhantomSpec spec;
+            spec.params.scene = volume::PhantomScene::Avc;
+            spec.voxelSize = 1e-3;
+            sVolume = new volume::Volume(volume::makePhantomVolume(spec));
+            SceneOptions options;
+            options.surfaceIso = -500;
+            options.hardIso = 500;
+            sScene = Scene::fromVolume(*sVolume, options);
+        });
     }
     static void TearDownTestSuite() {
         sScene.reset();
@@ -139,14 +146,17 @@ TEST_F(SessionTest, SceneFromVolumeHasSurfacesHardMeshesAndView) {
     EXPECT_GT(sScene->hardMeshes().triangleCount(), 100u);
     EXPECT_TRUE(sScene->surfaces().committed());
 
-    SceneOptions above;
-    above.surfaceIso = 5000;  // above every value: no surface
-    EXPECT_THROW(Scene::fromVolume(*sVolume, above), ValueError);
-    SceneOptions none;
-    none.surfaceIso = std::numeric_limits<double>::quiet_NaN();
-    const auto bare = Scene::fromVolume(*sVolume, none);
-    EXPECT_TRUE(bare->surfaces().empty());
-    EXPECT_TRUE(bare->hardMeshes().empty());
+    tbb::task_arena single(1);  // as in SetUpTestSuite
+    single.execute([] {
+        SceneOptions above;
+        above.surfaceIso = 5000;  // above every value: no surface
+        EXPECT_THROW(Scene::fromVolume(*sVolume, above), ValueError);
+        SceneOptions none;
+        none.surfaceIso = std::numeric_limits<double>::quiet_NaN();
+        const auto bare = Scene::fromVolume(*sVolume, none);
+        EXPECT_TRUE(bare->surfaces().empty());
+        EXPECT_TRUE(bare->hardMeshes().empty());
+    });
 }
 
 TEST_F(SessionTest, RejectsBadParamsAndSourcesWithoutData) {
