@@ -75,8 +75,10 @@ template <int B>
 /// AVX-512, AVX2 and baseline x86-64 and chosen at load time (GCC function multiversioning), so
 /// the library stays portable while the fixed-size 24x24 product is vectorised. Cells go in
 /// batches of four along x; a batch containing void cells (E = 0) adds exact zeros for them, and
-/// a batch of only void cells is skipped.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+/// a batch of only void cells is skipped. Sanitizer builds get the baseline only: the ifunc
+/// resolver runs before the sanitizer runtime is up and crashes under TSan.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && \
+    !defined(__SANITIZE_THREAD__) && !defined(__SANITIZE_ADDRESS__)
 __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #endif
 void elementKernel(const double* __restrict ke, const double* __restrict cellE, int nx, int ny,
