@@ -6,7 +6,10 @@
 //
 // Usage: bench_async [table|interp|growing|lod|threaded] [--size N] [--seconds S]
 //        [--amplitude M] [--frequency HZ] [--lod L] [--solver cholmod|pcg] [--n LIST]
-//        [--f LIST] [--integrator newmark|static]
+//        [--f LIST] [--integrator newmark|static] [--coupling plain|condensed]
+//        [--once-per-tick 0|1] [--move MS]
+// --move MS (threaded): every MS milliseconds the contact moves one node along +x across the
+// top face (re-allocation prepared on the secondary thread, adopted by the tick).
 #include <pthread.h>
 #include <sched.h>
 
@@ -39,6 +42,8 @@ struct Config {
     LinearSolverKind solver = LinearSolverKind::cholmod;
     Integrator integrator = Integrator::quasiStatic;
     bool condensed = true;
+    bool oncePerTick = false;
+    int moveMs = 0;
     std::vector<int> nodes{5, 30, 120};
     std::vector<double> rates{50, 500, 1000};
     double alpha = 10.0;  // mass-proportional damping, 1/s
@@ -131,6 +136,7 @@ Run asyncRun(const Config& c, const Problem& p, AsyncRegionsOptions o, bool grow
     o.secondarySolver = c.solver;
     o.secondaryIntegrator = c.integrator;
     if (o.maxPrimaryNodes == 0) o.condensed = c.condensed;
+    o.condensedOncePerTick = c.oncePerTick;
     AsyncRegions a(p.model, p.constraints, {p.contact}, o);
     Run r;
     r.primaryNodes = a.primaryFreeNodeCount();
@@ -312,19 +318,31 @@ void threaded(const Config& c) {
         o.secondarySolver = c.solver;
         o.secondaryIntegrator = c.integrator;
         o.condensed = c.condensed;
+        o.condensedOncePerTick = c.oncePerTick;
         o.threaded = true;
         o.secondaryCpu = 1;
         AsyncRegions a(p.model, p.constraints, {p.contact}, o);
         const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
-        std::vector<double> tickTimes, force;
-        int overruns = 0;
+        std::vector<double> tickTimes, force, swapTicks;
+        int overruns = 0, moves = 0, adopted = 0;
+        const int y = c.size / 2, z = c.size - 1;
+        int x = c.size / 2;
         const auto start = Clock::now();
         auto deadline = start;
         for (int t = 1; t <= ticks; ++t) {
+            if (c.moveMs > 0 && t % c.moveMs == 0) {
+                x = x + 1 < c.size - 1 ? x + 1 : 1;
+                a.requestContactNode(p.model.mesh().node(x, y, z));
+                ++moves;
+            }
             const auto b = Clock::now();
             const AsyncTickResult res = a.tick(Eigen::Vector3d(0, 0, inputAt(c, t * 1e-3, false)));
             const auto e = Clock::now();
             tickTimes.push_back(std::chrono::duration<double>(e - b).count());
+            if (res.layoutChanged) {
+                ++adopted;
+                swapTicks.push_back(tickTimes.back());
+            }
             force.push_back(-res.contactForce.z());
             deadline += std::chrono::microseconds(1000);
             if (e > deadline) {
@@ -348,6 +366,16 @@ void threaded(const Config& c) {
             s.lastSolveCpuSeconds * 1e3, s.maxSolveSeconds * 1e3,
             static_cast<unsigned long long>(s.used), peak(force), peak(ref.force),
             100.0 * relErr(peak(force), peak(ref.force)), 100.0 * rmsErr(force, ref.force));
+        if (c.moveMs > 0) {
+            std::printf(
+                "  moving contact: %d requests, %d layouts adopted, last preparation %.1f ms "
+                "(secondary thread), swap ticks max %.4f ms, force finite %s, max |F| %.4f N\n",
+                moves, adopted, s.lastPrepareSeconds * 1e3, percentile(swapTicks, 1.0) * 1e3,
+                std::all_of(force.begin(), force.end(), [](double v) { return std::isfinite(v); })
+                    ? "yes"
+                    : "no",
+                peak(force));
+        }
     }
 }
 
@@ -375,6 +403,10 @@ int main(int argc, char** argv) {
             c.solver = v == "pcg" ? LinearSolverKind::pcg : LinearSolverKind::cholmod;
         } else if (k == "--integrator") {
             c.integrator = v == "static" ? Integrator::quasiStatic : Integrator::newmark;
+        } else if (k == "--once-per-tick") {
+            c.oncePerTick = v != "0";
+        } else if (k == "--move") {
+            c.moveMs = std::stoi(v);
         } else if (k == "--coupling") {
             c.condensed = v != "plain";
         } else if (k == "--n") {

@@ -62,11 +62,18 @@ struct Packet {
     std::vector<double> values;
     double time = 0.0;
     std::uint64_t sequence = 0;
+    std::uint64_t generation = 0;  // layout the values belong to
 };
 
 /// One arrangement of the regions with its secondary system.
 struct Layout {
     int seeds = 0;
+    std::uint64_t generation = 0;                // unique per prepared layout
+    std::vector<int> contactNodes, contactDofs;  // driven nodes (always in P)
+    // State handed to the primary at a contact change: fine dofs of P and Gamma that were
+    // secondary interior before, with the secondary's latest values there.
+    std::vector<int> entryDofs;
+    std::vector<double> entryValues;
     std::vector<int> primaryNodes;             // P, sorted
     std::vector<std::uint8_t> isPrimary;       // per fine node
     std::vector<std::array<int, 8>> cellDofs;  // 3 * node of the 8 nodes of each primary cell
@@ -86,6 +93,10 @@ struct Layout {
     RowMatrix rowA;
     Eigen::VectorXd inverseDiagonal;
     RowMatrix response;  // G: gamma dofs x border dofs (condensed coupling), small entries dropped
+    // Quasi-static CHOLMOD secondary: the exact Gamma response to the border (dense), so that a
+    // secondary solve needs only Gamma = R u_B; the whole field x is solved when asked for.
+    Eigen::MatrixXd gammaResponse;
+    bool fieldStale = false;  // x (and uC) lag the last border (direct Gamma solves)
     // Secondary work vectors (secondary thread only).
     Eigen::VectorXd x, v, a, rhs, xNew, yc, ym, r, z, p, q, border;
 };
@@ -125,9 +136,8 @@ void pinCurrentThread(int cpu) {
 struct AsyncRegions::Impl {
     const FemModel& model;
     AsyncRegionsOptions options;
-    std::vector<int> contact;
-    std::vector<int> contactDofs;
-    std::vector<std::uint8_t> fixed;  // per fine dof: constrained by the caller
+    std::vector<std::uint8_t> fixed;              // per fine dof: constrained by the caller
+    std::vector<std::uint8_t> nonZeroPrescribed;  // per fine node
     int lod = 1;
     std::array<int, 3> coarseCounts{};
     int coarseDofs = 0;
@@ -145,6 +155,8 @@ struct AsyncRegions::Impl {
     double time = 0.0;
     std::uint64_t ticks = 0;
     Eigen::VectorXd u, uPrev, fInt, work, invDen, prevCoef, twoMass, contactStart;
+    // Coupling state, sized to the dof count once so that a layout change never allocates;
+    // the first |Gamma| / |border| entries are used.
     std::vector<double> gPrev, gCur;  // Gamma values the interpolation runs between
     Eigen::VectorXd bPrev, bCur;      // primary border values those Gamma values answer
     Eigen::VectorXd bNow, gFix;       // condensed coupling work vectors
@@ -162,24 +174,40 @@ struct AsyncRegions::Impl {
     std::atomic<int> lastIterations{0};
     std::unique_ptr<tbb::task_arena> arena;
 
+    // Contact changes: the servo stores the requested node; the secondary thread (threaded) or
+    // the period boundary (synchronous) prepares a layout for it; the servo adopts a prepared
+    // layout with one pointer exchange and hands the old one back for deletion.
+    std::atomic<int> requested{-1};
+    int rejected = -1;                      // preparer-owned: a request that failed to build
+    std::atomic<Layout*> pending{nullptr};  // prepared, not yet adopted (secondary -> servo)
+    std::atomic<Layout*> retired{nullptr};  // adopted over, to delete (servo -> secondary)
+    mutable std::atomic<std::uint64_t> nextGeneration{1};
+    std::atomic<std::uint64_t> prepared{0};
+    std::atomic<double> lastPrepare{0.0};
+
     Impl(const FemModel& m, const Constraints& c, std::vector<int> contactNodes,
          const AsyncRegionsOptions& o);
     ~Impl();
 
-    std::unique_ptr<Layout> buildLayout(int seedCount) const;
+    std::unique_ptr<Layout> buildLayout(const std::vector<int>& contactNodes, int seedCount) const;
     void prepareSolver(Layout& layout) const;
+    std::unique_ptr<Layout> prepareForContact(Layout& from, int node, int seeds);
+    void adoptLayout(const Layout& from, const Layout& to) noexcept;
+    bool contactChangeWanted(const Layout& layout, int want) const noexcept;
     bool solveSecondary(Layout& layout, const double* border, double* gammaOut) noexcept;
+    void refreshField(Layout& layout);
     void switchLayout(int next);
     void secondaryLoop();
-    void setGamma(double* target, double t) noexcept;
+    void setGamma(const Layout& layout, double* target, double t, bool product) noexcept;
     void acceptSolution(const double* gamma, const double* border) noexcept;
-    void sizeCoupling(const Layout& layout);
+    void sizeCoupling(const Layout& layout) noexcept;
     void primarySubsteps(const Eigen::Vector3d& target, AsyncTickResult& result) noexcept;
 };
 
 AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<int> contactNodes,
                          const AsyncRegionsOptions& o)
-    : model(m), options(o), contact(std::move(contactNodes)) {
+    : model(m), options(o) {
+    std::vector<int> contact = std::move(contactNodes);
     const HexMesh& mesh = model.mesh();
     const int dofs = model.dofCount();
     auto fail = [](const std::string& what, const std::string& expected, auto found) {
@@ -222,12 +250,10 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
     coarseDofs = 3 * coarseCounts[0] * coarseCounts[1] * coarseCounts[2];
 
     fixed.assign(sz(dofs), 0);
-    for (int d = 0; d < dofs; ++d) fixed[sz(d)] = c.isFixed(d) ? 1 : 0;
-    for (int n : contact) {
-        for (int k = 0; k < 3; ++k) {
-            contactDofs.push_back(3 * n + k);
-            fixed[sz(3 * n + k)] = 1;
-        }
+    nonZeroPrescribed.assign(sz(mesh.nodeCount()), 0);
+    for (int d = 0; d < dofs; ++d) {
+        fixed[sz(d)] = c.isFixed(d) ? 1 : 0;
+        if (c.isFixed(d) && c.values()[d] != 0.0) nonZeroPrescribed[sz(d / 3)] = 1;
     }
 
     period = std::max(1, static_cast<int>(std::lround(1.0 / (o.secondaryRate * o.tickSeconds))));
@@ -250,7 +276,9 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
     for (int d = 0; d < dofs; ++d) {
         if (c.isFixed(d)) u[d] = c.values()[d];
     }
-    for (int d : contactDofs) u[d] = 0.0;
+    for (int n : contact) {
+        for (int k = 0; k < 3; ++k) u[3 * n + k] = 0.0;
+    }
     uPrev = u;
     fInt = Eigen::VectorXd::Zero(dofs);
     work = u;
@@ -265,7 +293,13 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
         prevCoef[d] = mass[d] - 0.5 * dtSub * alpha * mass[d];
         twoMass[d] = 2.0 * mass[d];
     }
-    contactStart = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(contactDofs.size()));
+    contactStart = Eigen::VectorXd::Zero(dofs);
+    gPrev.assign(sz(dofs), 0.0);
+    gCur = gPrev;
+    bPrev = Eigen::VectorXd::Zero(dofs);
+    bCur = bPrev;
+    bNow = bPrev;
+    gFix = bPrev;
 
     stiffness = model.assembleStiffness();
     uC = Eigen::VectorXd::Zero(coarseDofs);
@@ -282,23 +316,16 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
                 : o.primaryNodes + static_cast<int>(std::lround(
                                        static_cast<double>(k) *
                                        (o.maxPrimaryNodes - o.primaryNodes) / (levels - 1)));
-        layouts.push_back(buildLayout(seeds));
-        // Non-zero prescribed values on secondary nodes are not supported (the secondary's
-        // right-hand side has no term for them).
-        for (int d = 0; d < dofs; ++d) {
-            if (c.isFixed(d) && c.values()[d] != 0.0 && !layouts.back()->isPrimary[sz(d / 3)])
-                fail("constraints", "zero prescribed displacement on secondary nodes",
-                     "a non-zero value at dof " + std::to_string(d));
-        }
+        layouts.push_back(buildLayout(contact, seeds));
         arena->execute([&] { prepareSolver(*layouts.back()); });
     }
-    const Layout& first = *layouts[0];
-    sizeCoupling(first);
+    sizeCoupling(*layouts[0]);
 
     if (o.threaded) {
+        // Capacity for any layout: Gamma and the primary border are disjoint sets of dofs.
         for (int i = 0; i < 3; ++i) {
-            snapshots.slot(i).values.assign(first.borderDofs.size(), 0.0);
-            results.slot(i).values.assign(first.gammaDofs.size() + first.borderDofs.size(), 0.0);
+            snapshots.slot(i).values.assign(sz(dofs), 0.0);
+            results.slot(i).values.assign(sz(dofs), 0.0);
         }
         worker = std::thread([this] { secondaryLoop(); });
     }
@@ -307,20 +334,26 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
 AsyncRegions::Impl::~Impl() {
     stop.store(true, std::memory_order_release);
     if (worker.joinable()) worker.join();
+    delete pending.exchange(nullptr);
+    delete retired.exchange(nullptr);
 }
 
-void AsyncRegions::Impl::sizeCoupling(const Layout& L) {
-    const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
-    gPrev.assign(L.gammaDofs.size(), 0.0);
-    gCur = gPrev;
-    bPrev = Eigen::VectorXd::Zero(nb);
-    for (Eigen::Index i = 0; i < nb; ++i) bPrev[i] = u[L.borderDofs[static_cast<std::size_t>(i)]];
-    bCur = bPrev;
-    bNow = bPrev;
-    gFix = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(L.gammaDofs.size()));
+void AsyncRegions::Impl::sizeCoupling(const Layout& L) noexcept {
+    // Gamma and the border start from the values the primary shows now.
+    for (std::size_t i = 0; i < L.gammaDofs.size(); ++i) {
+        gPrev[i] = u[L.gammaDofs[i]];
+        gCur[i] = gPrev[i];
+    }
+    for (std::size_t i = 0; i < L.borderDofs.size(); ++i) {
+        const Eigen::Index k = static_cast<Eigen::Index>(i);
+        bPrev[k] = u[L.borderDofs[i]];
+        bCur[k] = bPrev[k];
+    }
+    gStart = time;
 }
 
-std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(int seedCount) const {
+std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(const std::vector<int>& contact,
+                                                        int seedCount) const {
     const HexMesh& mesh = model.mesh();
     const auto& nc = mesh.nodeCounts();
     const int nodes = mesh.nodeCount();
@@ -328,6 +361,16 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(int seedCount) const {
     auto layout = std::make_unique<Layout>();
     Layout& L = *layout;
     L.seeds = seedCount;
+    L.generation = nextGeneration.fetch_add(1, std::memory_order_relaxed);
+    L.contactNodes = contact;
+    // The contact dofs are driven: fixed for this layout.
+    std::vector<std::uint8_t> driven = fixed;
+    for (int n : contact) {
+        for (int k = 0; k < 3; ++k) {
+            L.contactDofs.push_back(3 * n + k);
+            driven[sz(3 * n + k)] = 1;
+        }
+    }
 
     // Graph distance over lattice edges between active nodes (BFS from all contact nodes).
     std::vector<int> dist(sz(nodes), -1);
@@ -403,7 +446,7 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(int seedCount) const {
             L.isPrimary[sz(n)] = 1;
             L.primaryNodes.push_back(n);
             bool allFixed = true;
-            for (int k = 0; k < 3; ++k) allFixed = allFixed && fixed[sz(3 * n + k)];
+            for (int k = 0; k < 3; ++k) allFixed = allFixed && driven[sz(3 * n + k)];
             if (!allFixed || std::find(contact.begin(), contact.end(), n) != contact.end())
                 ++L.freeNodeCount;
         }
@@ -422,7 +465,7 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(int seedCount) const {
         for (int k = 0; k < 3; ++k) {
             const int d = 3 * n + k;
             L.touchedDofs.push_back(d);
-            const bool free = !fixed[sz(d)] && mass[d] > 0.0;
+            const bool free = !driven[sz(d)] && mass[d] > 0.0;
             if (L.isPrimary[sz(n)]) {
                 if (free) L.freeDofs.push_back(d);
             } else if (free) {
@@ -479,7 +522,7 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(int seedCount) const {
         if (I < 0) continue;  // no secondary cell (cannot happen on a box): held at rest
         for (int k = 0; k < 3; ++k) {
             const int d = 3 * n + k;
-            if (fixed[sz(d)] || mass[d] <= 0.0) continue;
+            if (driven[sz(d)] || mass[d] <= 0.0) continue;
             for (int corner = 0; corner < 8; ++corner) {
                 const int X = I + (corner & 1), Y = J + ((corner >> 1) & 1), Z = K + (corner >> 2);
                 const double w = (1.0 - std::abs(ijk[0] - X * lod) / static_cast<double>(lod)) *
@@ -488,7 +531,7 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(int seedCount) const {
                 if (w == 0.0) continue;
                 const int fineCorner = mesh.node(X * lod, Y * lod, Z * lod);
                 const int fineDof = 3 * fineCorner + k;
-                if (fixed[sz(fineDof)] || L.isPrimary[sz(fineCorner)]) continue;
+                if (driven[sz(fineDof)] || L.isPrimary[sz(fineCorner)]) continue;
                 const int coarseDof = 3 * (X + coarseCounts[0] * (Y + coarseCounts[1] * Z)) + k;
                 int& idx = unknownOf[sz(coarseDof)];
                 if (idx < 0) {
@@ -549,7 +592,82 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(int seedCount) const {
     L.p = L.x;
     L.q = L.x;
     L.border = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(L.borderDofs.size()));
+    // Non-zero prescribed values on secondary nodes are not supported (the secondary's
+    // right-hand side has no term for them).
+    for (int n = 0; n < nodes; ++n) {
+        if (nonZeroPrescribed[sz(n)] && !L.isPrimary[sz(n)]) {
+            throw ValueError(
+                "async regions constraints: expected zero prescribed displacement on secondary "
+                "nodes, found a non-zero value at node " +
+                std::to_string(n));
+        }
+    }
     return layout;
+}
+
+void AsyncRegions::Impl::refreshField(Layout& L) {
+    if (!L.fieldStale) return;
+    L.fieldStale = false;
+    if (L.unknownCoarseDof.empty()) return;
+    L.rhs.noalias() = -sK * (L.kcb * L.border);
+    L.x = L.cholmod.solve(L.rhs);
+    for (std::size_t i = 0; i < L.unknownCoarseDof.size(); ++i)
+        uC[L.unknownCoarseDof[i]] = L.x[static_cast<Eigen::Index>(i)];
+}
+
+std::unique_ptr<Layout> AsyncRegions::Impl::prepareForContact(Layout& from, int node, int seeds) {
+    const auto begin = std::chrono::steady_clock::now();
+    refreshField(from);
+    std::unique_ptr<Layout> next = buildLayout({node}, seeds);
+    prepareSolver(*next);
+    // Entry state: nodes of the new P and Gamma that were interior secondary nodes of `from`
+    // take the secondary's latest solution (the servo keeps its own values for the others).
+    std::vector<std::uint8_t> known(from.isPrimary);
+    for (int n : from.gammaNodes) known[sz(n)] = 1;
+    auto enter = [&](int n) {
+        if (known[sz(n)]) return;
+        known[sz(n)] = 1;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            if (fixed[sz(d)]) continue;
+            next->entryDofs.push_back(d);
+            next->entryValues.push_back(
+                from.unknownCoarseDof.empty() ? 0.0 : from.interp.row(d).dot(from.x));
+        }
+    };
+    for (int n : next->primaryNodes) enter(n);
+    for (int n : next->gammaNodes) enter(n);
+    // Warm state of the secondary in its own indexing.
+    for (std::size_t i = 0; i < next->unknownCoarseDof.size(); ++i) {
+        const Eigen::Index k = static_cast<Eigen::Index>(i);
+        const int cd = next->unknownCoarseDof[i];
+        next->x[k] = uC[cd];
+        next->v[k] = vC[cd];
+        next->a[k] = aC[cd];
+    }
+    lastPrepare.store(
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count(),
+        std::memory_order_relaxed);
+    prepared.fetch_add(1, std::memory_order_release);
+    return next;
+}
+
+bool AsyncRegions::Impl::contactChangeWanted(const Layout& L, int want) const noexcept {
+    return want >= 0 && want != rejected &&
+           !(L.contactNodes.size() == 1 && L.contactNodes[0] == want);
+}
+
+void AsyncRegions::Impl::adoptLayout(const Layout& from, const Layout& to) noexcept {
+    // The border as the primary shows it now (current and previous substep); nodes the servo
+    // did not integrate or show take the prepared secondary values; the coupling restarts from
+    // the shown values, so nothing jumps at the swap.
+    setGamma(from, u.data(), time, true);
+    setGamma(from, uPrev.data(), time - dtSub, true);
+    for (std::size_t i = 0; i < to.entryDofs.size(); ++i) {
+        u[to.entryDofs[i]] = to.entryValues[i];
+        uPrev[to.entryDofs[i]] = to.entryValues[i];
+    }
+    sizeCoupling(to);
 }
 
 void AsyncRegions::Impl::prepareSolver(Layout& L) const {
@@ -568,7 +686,10 @@ void AsyncRegions::Impl::prepareSolver(Layout& L) const {
         L.rowA = a;
         L.inverseDiagonal = a.diagonal().cwiseInverse();
     }
-    if (options.condensed && !L.borderDofs.empty() && !L.gammaDofs.empty()) {
+    const bool direct = options.secondarySolver == LinearSolverKind::cholmod &&
+                        options.secondaryIntegrator == Integrator::quasiStatic &&
+                        !options.secondaryFullField;
+    if ((options.condensed || direct) && !L.borderDofs.empty() && !L.gammaDofs.empty()) {
         Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> own;
         Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower>* llt = &L.cholmod;
         if (options.secondarySolver != LinearSolverKind::cholmod) {
@@ -578,6 +699,8 @@ void AsyncRegions::Impl::prepareSolver(Layout& L) const {
         const Eigen::MatrixXd rhs = -sK * Eigen::MatrixXd(L.kcb);
         const Eigen::MatrixXd x = llt->solve(rhs);
         const Eigen::MatrixXd g = L.interpGamma * x;
+        if (direct) L.gammaResponse = g;
+        if (!options.condensed) return;
         const double drop = options.condensedDropTolerance * g.cwiseAbs().maxCoeff();
         std::vector<Triplet> t;
         for (Eigen::Index c = 0; c < g.cols(); ++c) {
@@ -602,7 +725,14 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
     const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
     int iterations = 0;
     bool ok = true;
-    if (unknowns > 0) {
+    if (L.gammaResponse.size() > 0) {
+        // Quasi-static: Gamma = R u_B exactly (R from the factorisation, at set-up).
+        for (Eigen::Index i = 0; i < nb; ++i) L.border[i] = borderValues[i];
+        Eigen::Map<Eigen::VectorXd> out(gammaOut, L.gammaResponse.rows());
+        out.noalias() = L.gammaResponse * L.border;
+        ok = out.allFinite();
+        L.fieldStale = true;
+    } else if (unknowns > 0) {
         try {
             for (int i = 0; i < unknowns; ++i) {
                 const int cd = L.unknownCoarseDof[sz(i)];
@@ -693,7 +823,7 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
             ok = false;
         }
     }
-    if (ok) {
+    if (ok && L.gammaResponse.size() == 0) {
         const Eigen::Index ng = static_cast<Eigen::Index>(L.gammaDofs.size());
         Eigen::Map<Eigen::VectorXd> out(gammaOut, ng);
         if (unknowns > 0) {
@@ -719,37 +849,65 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
 void AsyncRegions::Impl::secondaryLoop() {
     pinCurrentThread(options.secondaryCpu);
     arena->execute([this] {
-        Layout& L = *layouts[0];
+        // `sec` is the layout the servo uses (or will, once it adopts `offered`).
+        Layout* sec = layouts[0].get();
+        Layout* offered = nullptr;
         while (!stop.load(std::memory_order_acquire)) {
-            if (stalled.load(std::memory_order_acquire) || !snapshots.update()) {
+            if (Layout* old = retired.exchange(nullptr, std::memory_order_acq_rel)) {
+                sec = offered;
+                offered = nullptr;
+                delete old;
+            }
+            if (offered != nullptr || stalled.load(std::memory_order_acquire)) {
+                std::this_thread::sleep_for(std::chrono::microseconds(50));
+                continue;
+            }
+            const int want = requested.load(std::memory_order_acquire);
+            if (contactChangeWanted(*sec, want)) {
+                try {
+                    std::unique_ptr<Layout> next = prepareForContact(*sec, want, sec->seeds);
+                    offered = next.release();
+                    pending.store(offered, std::memory_order_release);
+                } catch (...) {
+                    rejected = want;  // e.g. a failed factorisation: keep the current layout
+                }
+                continue;
+            }
+            if (!snapshots.update()) {
                 std::this_thread::sleep_for(std::chrono::microseconds(50));
                 continue;
             }
             const Packet& in = snapshots.front();
+            if (in.generation != sec->generation) continue;  // from before the last swap
             Packet& out = results.back();
-            if (solveSecondary(L, in.values.data(), out.values.data())) {
-                std::copy(in.values.begin(), in.values.end(),
-                          out.values.begin() + static_cast<std::ptrdiff_t>(L.gammaDofs.size()));
+            if (solveSecondary(*sec, in.values.data(), out.values.data())) {
+                std::copy(in.values.begin(),
+                          in.values.begin() + static_cast<std::ptrdiff_t>(sec->borderDofs.size()),
+                          out.values.begin() + static_cast<std::ptrdiff_t>(sec->gammaDofs.size()));
                 out.time = in.time;
                 out.sequence = in.sequence;
+                out.generation = sec->generation;
                 results.publish();
             }
         }
     });
 }
 
-void AsyncRegions::Impl::setGamma(double* target, double t) noexcept {
-    const Layout& L = *layouts[sz(current)];
+void AsyncRegions::Impl::setGamma(const Layout& L, double* target, double t,
+                                  bool product) noexcept {
     double frac = 1.0;
     if (options.interpolate) frac = std::clamp((t - gStart) / periodSeconds, 0.0, 1.0);
     const std::size_t n = L.gammaDofs.size();
     if (L.response.nonZeros() > 0) {
         const std::size_t nb = L.borderDofs.size();
-        for (std::size_t i = 0; i < nb; ++i) {
-            const Eigen::Index k = static_cast<Eigen::Index>(i);
-            bNow[k] = target[L.borderDofs[i]] - (bPrev[k] + frac * (bCur[k] - bPrev[k]));
+        if (product) {
+            for (std::size_t i = 0; i < nb; ++i) {
+                const Eigen::Index k = static_cast<Eigen::Index>(i);
+                bNow[k] = target[L.borderDofs[i]] - (bPrev[k] + frac * (bCur[k] - bPrev[k]));
+            }
+            gFix.head(static_cast<Eigen::Index>(n)).noalias() =
+                L.response * bNow.head(static_cast<Eigen::Index>(nb));
         }
-        gFix.noalias() = L.response * bNow;
         for (std::size_t i = 0; i < n; ++i)
             target[L.gammaDofs[i]] =
                 gPrev[i] + frac * (gCur[i] - gPrev[i]) + gFix[static_cast<Eigen::Index>(i)];
@@ -785,13 +943,15 @@ void AsyncRegions::Impl::primarySubsteps(const Eigen::Vector3d& target,
     const double beta = model.material().dampingBeta;
     const double dt = dtSub;
     const double dt2 = dt * dt;
+    const std::vector<int>& contactDofs = L.contactDofs;
     for (std::size_t i = 0; i < contactDofs.size(); ++i)
         contactStart[static_cast<Eigen::Index>(i)] = u[contactDofs[i]];
     for (int s = 0; s < substeps; ++s) {
-        setGamma(u.data(), time);
+        const bool product = s == 0 || !options.condensedOncePerTick;
+        setGamma(L, u.data(), time, product);
         const double* operand = u.data();
         if (beta > 0.0) {
-            setGamma(uPrev.data(), time - dt);
+            setGamma(L, uPrev.data(), time - dt, product);
             const double b = beta / dt;
             for (int d : L.touchedDofs) work[d] = u[d] + b * (u[d] - uPrev[d]);
             operand = work.data();
@@ -839,22 +999,27 @@ void AsyncRegions::Impl::primarySubsteps(const Eigen::Vector3d& target,
 void AsyncRegions::Impl::switchLayout(int next) {
     Layout& oldL = *layouts[sz(current)];
     Layout& newL = *layouts[sz(next)];
+    refreshField(oldL);
     // The border as the primary sees it now (current and previous substep): border nodes that
     // enter the primary keep that motion; deeper nodes take the secondary's solution at rest.
-    setGamma(u.data(), time);
-    setGamma(uPrev.data(), time - dtSub);
-    std::vector<std::uint8_t> wasBorder(oldL.isPrimary.size(), 0);
-    for (int n : oldL.gammaNodes) wasBorder[sz(n)] = 1;
-    for (int n : newL.primaryNodes) {
-        if (oldL.isPrimary[sz(n)] || wasBorder[sz(n)]) continue;
+    setGamma(oldL, u.data(), time, true);
+    setGamma(oldL, uPrev.data(), time - dtSub, true);
+    std::vector<std::uint8_t> known(oldL.isPrimary);
+    for (int n : oldL.gammaNodes) known[sz(n)] = 1;
+    auto enter = [&](int n) {
+        if (known[sz(n)]) return;
+        known[sz(n)] = 1;
         for (int k = 0; k < 3; ++k) {
             const int d = 3 * n + k;
             if (fixed[sz(d)]) continue;
-            const double value = oldL.interp.row(d).dot(oldL.x);
+            const double value =
+                oldL.unknownCoarseDof.empty() ? 0.0 : oldL.interp.row(d).dot(oldL.x);
             u[d] = value;
             uPrev[d] = value;
         }
-    }
+    };
+    for (int n : newL.primaryNodes) enter(n);
+    for (int n : newL.gammaNodes) enter(n);
     // Coarse unknowns leaving the primary take the primary's values.
     const HexMesh& mesh = model.mesh();
     for (int cd : newL.unknownCoarseDof) {
@@ -877,11 +1042,17 @@ void AsyncRegions::Impl::switchLayout(int next) {
     }
     current = next;
     sizeCoupling(newL);
+    // Condensed coupling: restart from the shown Gamma, consistent with the shown border (the
+    // correction G (u_B - u~_B) starts at zero). Plain coupling: from the secondary's solution.
+    if (options.condensed) return;
+    const Eigen::Index ng = static_cast<Eigen::Index>(newL.gammaDofs.size());
+    Eigen::Map<Eigen::VectorXd> g(gPrev.data(), ng);
     if (unknowns > 0) {
-        Eigen::Map<Eigen::VectorXd> g(gPrev.data(), static_cast<Eigen::Index>(gPrev.size()));
         g.noalias() = newL.interpGamma * newL.x;
+    } else {
+        g.setZero();
     }
-    gCur = gPrev;
+    std::copy(gPrev.begin(), gPrev.begin() + ng, gCur.begin());
 }
 
 AsyncRegions::AsyncRegions(const FemModel& model, const Constraints& constraints,
@@ -893,15 +1064,29 @@ AsyncRegions::~AsyncRegions() = default;
 AsyncTickResult AsyncRegions::tick(const Eigen::Vector3d& contactDisplacement) noexcept {
     Impl& m = *mImpl;
     AsyncTickResult result;
-    if (m.options.threaded && m.results.update()) {
-        const std::vector<double>& in = m.results.front().values;
-        m.acceptSolution(in.data(), in.data() + m.layouts[sz(m.current)]->gammaDofs.size());
-        result.secondaryUpdated = true;
+    if (m.options.threaded) {
+        // A layout prepared for a new contact: one pointer exchange, state hand-over over the
+        // primary's nodes, and the old layout goes back to the secondary thread for deletion.
+        if (Layout* next = m.pending.exchange(nullptr, std::memory_order_acq_rel)) {
+            m.adoptLayout(*m.layouts[0], *next);
+            Layout* old = m.layouts[0].release();
+            m.layouts[0].reset(next);
+            m.retired.store(old, std::memory_order_release);
+            result.layoutChanged = true;
+        }
+        if (m.results.update()) {
+            const Packet& in = m.results.front();
+            const Layout& L = *m.layouts[0];
+            if (in.generation == L.generation) {
+                m.acceptSolution(in.values.data(), in.values.data() + L.gammaDofs.size());
+                result.secondaryUpdated = true;
+            }
+        }
     }
+    const std::vector<int>& contactDofs = m.layouts[sz(m.current)]->contactDofs;
     Eigen::Vector3d target = contactDisplacement;
     if (!target.allFinite()) {
-        target =
-            Eigen::Vector3d(m.u[m.contactDofs[0]], m.u[m.contactDofs[1]], m.u[m.contactDofs[2]]);
+        target = Eigen::Vector3d(m.u[contactDofs[0]], m.u[contactDofs[1]], m.u[contactDofs[2]]);
         result.flags |= kStepBadForce;
     }
     m.primarySubsteps(target, result);
@@ -914,16 +1099,36 @@ AsyncTickResult AsyncRegions::tick(const Eigen::Vector3d& contactDisplacement) n
         for (std::size_t i = 0; i < L.borderDofs.size(); ++i) out.values[i] = m.u[L.borderDofs[i]];
         out.time = m.time;
         out.sequence = m.ticks;
+        out.generation = L.generation;
         m.snapshots.publish();
         return result;
     }
-    // Synchronous: adapt the layout, then solve the secondary inline.
+    // Synchronous: change the contact, adapt the layout, then solve the secondary inline.
+    const int want = m.requested.load(std::memory_order_relaxed);
+    if (m.contactChangeWanted(*m.layouts[sz(m.current)], want)) {
+        try {
+            std::vector<std::unique_ptr<Layout>> next(m.layouts.size());
+            for (std::size_t k = 0; k < next.size(); ++k) {
+                if (k == sz(m.current)) {
+                    next[k] = m.prepareForContact(*m.layouts[k], want, m.layouts[k]->seeds);
+                } else {
+                    next[k] = m.buildLayout({want}, m.layouts[k]->seeds);
+                    m.arena->execute([&] { m.prepareSolver(*next[k]); });
+                }
+            }
+            m.adoptLayout(*m.layouts[sz(m.current)], *next[sz(m.current)]);
+            m.layouts = std::move(next);
+            result.layoutChanged = true;
+        } catch (...) {
+            m.rejected = want;
+        }
+    }
     if (m.layouts.size() > 1) {
         const double strain = target.norm() / m.options.strainReferenceLength;
         const int levels = static_cast<int>(m.layouts.size());
-        const int want = static_cast<int>(
+        const int level = static_cast<int>(
             std::lround(std::clamp(strain / m.options.strainAtMax, 0.0, 1.0) * (levels - 1)));
-        if (want != m.current) m.switchLayout(want);
+        if (level != m.current) m.switchLayout(level);
     }
     Layout& L = *m.layouts[sz(m.current)];
     std::vector<double>& border = m.snapshots.slot(0).values;
@@ -956,13 +1161,24 @@ int AsyncRegions::secondaryDofCount() const {
     return static_cast<int>(mImpl->layouts[sz(mImpl->current)]->unknownCoarseDof.size());
 }
 int AsyncRegions::layoutIndex() const { return mImpl->current; }
+const std::vector<int>& AsyncRegions::contactNodes() const {
+    return mImpl->layouts[sz(mImpl->current)]->contactNodes;
+}
+
+bool AsyncRegions::requestContactNode(int node) noexcept {
+    const HexMesh& mesh = mImpl->model.mesh();
+    if (node < 0 || node >= mesh.nodeCount() || !mesh.nodeActive()[sz(node)]) return false;
+    mImpl->requested.store(node, std::memory_order_release);
+    return true;
+}
 int AsyncRegions::periodTicks() const { return mImpl->period; }
 double AsyncRegions::substepSeconds() const { return mImpl->dtSub; }
 double AsyncRegions::time() const { return mImpl->time; }
 
 Eigen::VectorXd AsyncRegions::displacement() const {
-    const Impl& m = *mImpl;
-    const Layout& L = *m.layouts[sz(m.current)];
+    Impl& m = *mImpl;
+    Layout& L = *m.layouts[sz(m.current)];
+    if (!m.options.threaded) m.refreshField(L);
     Eigen::VectorXd out = m.u;
     if (!m.options.threaded && !L.unknownCoarseDof.empty()) {
         const Eigen::VectorXd s = L.interp * L.x;
@@ -986,6 +1202,8 @@ AsyncSecondaryStats AsyncRegions::secondaryStats() const {
     s.maxSolveSeconds = m.maxSolve.load(std::memory_order_relaxed);
     s.lastSolveCpuSeconds = m.lastSolveCpu.load(std::memory_order_relaxed);
     s.lastIterations = m.lastIterations.load(std::memory_order_relaxed);
+    s.layoutsPrepared = m.prepared.load(std::memory_order_acquire);
+    s.lastPrepareSeconds = m.lastPrepare.load(std::memory_order_relaxed);
     return s;
 }
 

@@ -301,6 +301,153 @@ TEST(AsyncRegions, ThreadedFollowsSynchronousClosely) {
     EXPECT_LT(std::abs(peak(f) - peak(sync)) / peak(sync), 0.1);
 }
 
+/// Pressed contact that moves across the top face one node at a time (requests aligned with
+/// the secondary period), against the whole-mesh explicit solution with the same switches (the
+/// primary covering the mesh, which equals ExplicitSolver: first test).
+struct MovingPath {
+    std::vector<int> nodes;
+    static constexpr int kPress = 200, kDwell = 100;
+    explicit MovingPath(const Problem& p) {
+        const int n = 9;
+        for (int x : {4, 5, 6, 5, 4, 3, 2}) nodes.push_back(p.model.mesh().node(x, n / 2, n - 1));
+    }
+    int ticks() const { return kPress + kDwell * static_cast<int>(nodes.size()); }
+    double depth(int t) const { return -0.002 * std::min(1.0, t / static_cast<double>(kPress)); }
+    /// Node to request before tick t (or -1).
+    int requestBefore(int t) const {
+        if (t < kPress || (t - kPress) % kDwell != 0) return -1;
+        const std::size_t k = static_cast<std::size_t>((t - kPress) / kDwell) + 1;
+        return k < nodes.size() ? nodes[k] : -1;
+    }
+};
+
+struct MovingRun {
+    std::vector<double> force;
+    std::vector<int> changedAt;
+};
+
+MovingRun movingRun(const Problem& p, const MovingPath& path, AsyncRegionsOptions o) {
+    AsyncRegions a(p.model, p.constraints, {path.nodes[0]}, o);
+    MovingRun r;
+    for (int t = 1; t <= path.ticks(); ++t) {
+        const int want = path.requestBefore(t);
+        if (want >= 0) {
+            EXPECT_TRUE(a.requestContactNode(want));
+        }
+        const AsyncTickResult res = a.tick(Eigen::Vector3d(0, 0, path.depth(t)));
+        EXPECT_TRUE(res.contactForce.allFinite()) << "tick " << t;
+        r.force.push_back(-res.contactForce.z());
+        if (res.layoutChanged) {
+            r.changedAt.push_back(t);
+            EXPECT_EQ(a.contactNodes().size(), 1u);
+            const auto& prim = a.primaryNodes();
+            EXPECT_TRUE(std::binary_search(prim.begin(), prim.end(), a.contactNodes()[0]));
+        }
+    }
+    EXPECT_EQ(a.contactNodes()[0], path.nodes.back());
+    return r;
+}
+
+TEST(AsyncRegions, MovingContactFollowsWholeMeshAndSwitchesWithinOnePeriod) {
+    const Problem p(9, 150.0);  // damped tissue: the switch's ringing decays within a dwell
+    const MovingPath path(p);
+    AsyncRegionsOptions whole;
+    whole.primaryNodes = p.model.mesh().nodeCount();
+    whole.secondaryRate = 1000.0;
+    const MovingRun ref = movingRun(p, path, whole);
+    AsyncRegionsOptions o;
+    o.primaryNodes = 30;
+    o.secondaryRate = 100.0;  // period 10 ticks: the requests fall on period boundaries
+    const MovingRun got = movingRun(p, path, o);
+    ASSERT_EQ(got.changedAt.size(), path.nodes.size() - 1);
+    ASSERT_EQ(ref.changedAt, got.changedAt);
+    for (std::size_t k = 0; k < got.changedAt.size(); ++k)  // adopted at the request's tick
+        EXPECT_EQ(got.changedAt[k], MovingPath::kPress + MovingPath::kDwell * static_cast<int>(k));
+    // The switch itself is a step in the input (the new node is pulled to the full depth within
+    // one tick); the regions may not add to it, and the force follows the whole mesh.
+    EXPECT_LT(maxJump(got.force), 1.1 * maxJump(ref.force));
+    EXPECT_LT(peak(got.force), 1.05 * peak(ref.force));
+    EXPECT_LT(rmsError(got.force, ref.force), 0.05);
+    // At the end of each dwell (settled) the force is within 2 % of the whole mesh's.
+    for (int k : got.changedAt) {
+        const std::size_t e = static_cast<std::size_t>(k - 2);
+        EXPECT_NEAR(got.force[e], ref.force[e], 0.02 * ref.force[e]) << "tick " << k - 1;
+    }
+}
+
+TEST(AsyncRegions, ThreadedContactChangeIsPreparedOffTheTickAndSwappedWithoutAllocation) {
+    const Problem p(9, 150.0);  // damped tissue: the switch's ringing decays within a dwell
+    const MovingPath path(p);
+    AsyncRegionsOptions o;
+    o.primaryNodes = 30;
+    o.secondaryRate = 200.0;
+    o.threaded = true;
+    // The whole mesh's own swing after each switch (the new node is pulled to full depth in a
+    // tick): largest |F - F before the switch| over the 51 ticks from the switch.
+    AsyncRegionsOptions whole;
+    whole.primaryNodes = p.model.mesh().nodeCount();
+    whole.secondaryRate = 1000.0;
+    const MovingRun ref = movingRun(p, path, whole);
+    auto refSwing = [&](std::size_t k) {
+        const int at = ref.changedAt[k - 1];  // force of tick `at + 1` is the first with it
+        const double before = ref.force[static_cast<std::size_t>(at - 1)];
+        double w = 0.0;
+        for (int i = at; i <= at + 50; ++i)
+            w = std::max(w, std::abs(ref.force[static_cast<std::size_t>(i)] - before));
+        return w;
+    };
+    AsyncRegions a(p.model, p.constraints, {path.nodes[0]}, o);
+    double force = 0.0;
+    int t = 0;
+    for (; t < MovingPath::kPress; ++t) {
+        force = -a.tick(Eigen::Vector3d(0, 0, path.depth(t + 1))).contactForce.z();
+        std::this_thread::sleep_for(std::chrono::microseconds(200));
+    }
+    ASSERT_GT(force, 0.0);
+    for (std::size_t k = 1; k < path.nodes.size(); ++k) {
+        const double pressed = force;
+        const std::uint64_t preparedBefore = a.secondaryStats().layoutsPrepared;
+        ASSERT_TRUE(a.requestContactNode(path.nodes[k]));
+        // Preparation runs on the secondary thread while the servo keeps ticking the old
+        // layout; wait for it without ticking, then count the servo's allocations only.
+        for (int w = 0; w < 10000 && a.secondaryStats().layoutsPrepared == preparedBefore; ++w)
+            std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        ASSERT_EQ(a.secondaryStats().layoutsPrepared, preparedBefore + 1);
+        a.setSecondaryStalledForTest(true);
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+        const std::uint64_t before = palp::test::allocationCount();
+        const AsyncTickResult r = a.tick(Eigen::Vector3d(0, 0, path.depth(++t)));
+        double worst = std::abs(-r.contactForce.z() - pressed);
+        for (int i = 0; i < 50; ++i) {
+            const AsyncTickResult ri = a.tick(Eigen::Vector3d(0, 0, path.depth(++t)));
+            ASSERT_TRUE(ri.contactForce.allFinite());
+            EXPECT_FALSE(ri.layoutChanged);
+            force = -ri.contactForce.z();
+            worst = std::max(worst, std::abs(force - pressed));
+        }
+        EXPECT_EQ(palp::test::allocationCount() - before, 0u) << "contact " << k;
+        EXPECT_TRUE(r.layoutChanged);  // adopted at the first tick after it was prepared
+        EXPECT_EQ(a.contactNodes()[0], path.nodes[k]);
+        // The swing at the swap is the whole mesh's own, not more (the secondary is held
+        // meanwhile: Gamma follows the condensed response only).
+        EXPECT_LT(worst, 1.3 * refSwing(k)) << "contact " << k;
+        EXPECT_GT(worst, 0.0);
+        a.setSecondaryStalledForTest(false);
+        bool resumed = false;
+        for (int i = 0; i < 3000 && !resumed; ++i) {
+            const AsyncTickResult ri = a.tick(Eigen::Vector3d(0, 0, path.depth(++t)));
+            resumed = ri.secondaryUpdated;
+            force = -ri.contactForce.z();
+            std::this_thread::sleep_for(std::chrono::microseconds(200));
+        }
+        EXPECT_TRUE(resumed) << "the secondary solves the new layout";
+        for (int i = 0; i < 50; ++i)  // settle before the next move
+            force = -a.tick(Eigen::Vector3d(0, 0, path.depth(++t))).contactForce.z();
+    }
+    EXPECT_FALSE(a.requestContactNode(-3));
+    EXPECT_FALSE(a.requestContactNode(p.model.mesh().nodeCount()));
+}
+
 TEST(AsyncRegions, RejectsBadInput) {
     const Problem p(9, 0.0);
     AsyncRegionsOptions o;

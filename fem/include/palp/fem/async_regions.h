@@ -30,8 +30,20 @@
 /// `A_SS u_S = b_S - K_SP u_P`. Solved with CHOLMOD (factorised once per layout) or warm-started
 /// Jacobi PCG parallelised with TBB.
 ///
-/// Not modelled: a force-driven (virtual coupling) contact; re-allocation when the contact node
-/// changes (the contact nodes are fixed at construction; layouts are prepared there).
+/// Contact changes (re-allocation). requestContactNode() asks for a new contact node; a layout
+/// for it (regions, primary operator, secondary factorisation, condensed response, and the
+/// secondary's latest values on the nodes that enter the primary or its border) is prepared off
+/// the servo path: on the secondary thread in threaded mode (which pauses its solves meanwhile),
+/// inline at the next secondary period boundary in synchronous mode. The servo tick adopts a
+/// prepared layout with one pointer exchange and an O(|P| + |Gamma|) state hand-over, so it
+/// never waits; until then the old contact stays driven. At the swap the old contact node is
+/// released with its current displacement and velocity, the new one moves from its current
+/// displacement to the tick's target within that tick, and the coupling restarts from the
+/// values the primary shows (no jump in Gamma). Only single-node contacts move; the seed count
+/// is kept; a contact that cannot be prepared (e.g. a non-zero prescribed value would fall in
+/// the secondary) is ignored until another node is requested.
+///
+/// Not modelled: a force-driven (virtual coupling) contact.
 ///
 /// Modes. Synchronous (deterministic, for accuracy tests and tables): the secondary is solved
 /// inline at the end of every secondary period of simulated time and used from the next tick.
@@ -75,19 +87,28 @@ struct AsyncRegionsOptions {
     /// shows (`u_Gamma = u~_Gamma + G (u_B - u~_B)`). Off: the thesis's plain staggered coupling,
     /// which goes unstable at high secondary rates with larger borders (bench/README.md).
     bool condensed = true;
-    /// Entries of G below this fraction of its largest are dropped (G is applied every substep).
+    /// Entries of G below this fraction of its largest are dropped.
     double condensedDropTolerance = 1e-3;
+    /// Apply G once per tick (at the first substep; later substeps reuse that correction)
+    /// instead of at every substep: cheaper for large borders with several substeps.
+    bool condensedOncePerTick = false;
     /// Default quasi-static: the far field's inertia is small in the haptic band, and Newmark
     /// combined with the condensed coupling is unstable (bench/README.md); Newmark works with
     /// the plain coupling at low rates.
     Integrator secondaryIntegrator = Integrator::quasiStatic;
     LinearSolverKind secondarySolver = LinearSolverKind::cholmod;  ///< cholmod or pcg
-    double pcgRelativeTolerance = 1e-8;                            ///< PCG: on ||r|| / ||b||
-    int pcgMaxIterations = 2000;  ///< PCG: bound per secondary solve
-    double safetyFactor = 0.9;    ///< primary substep = safety * critical step, (0, 1]
-    int maxSubsteps = 64;         ///< bound on primary substeps per tick
-    bool threaded = false;        ///< secondary on its own thread (else synchronous)
-    int secondaryThreads = 1;     ///< concurrency of the secondary's tbb::task_arena
+    /// Quasi-static CHOLMOD secondary: false (default) solves only Gamma per secondary solve,
+    /// `u_Gamma = R u_B` with the exact response R = -I_Gamma A^-1 K_SB taken from the
+    /// factorisation at set-up (|Gamma| x |border| multiply-adds); the whole secondary field is
+    /// then solved (two triangular solves) only when it is needed (displacement(), a layout
+    /// change). true: the two triangular solves at every secondary solve.
+    bool secondaryFullField = false;
+    double pcgRelativeTolerance = 1e-8;  ///< PCG: on ||r|| / ||b||
+    int pcgMaxIterations = 2000;         ///< PCG: bound per secondary solve
+    double safetyFactor = 0.9;           ///< primary substep = safety * critical step, (0, 1]
+    int maxSubsteps = 64;                ///< bound on primary substeps per tick
+    bool threaded = false;               ///< secondary on its own thread (else synchronous)
+    int secondaryThreads = 1;            ///< concurrency of the secondary's tbb::task_arena
     int secondaryCpu = -1;      ///< threaded: pin the secondary thread to this CPU (-1: no pinning)
     int maxPrimaryNodes = 0;    ///< > primaryNodes enables the adaptive primary (synchronous)
     int adaptiveLevels = 4;     ///< number of prepared layouts between the two sizes
@@ -101,16 +122,19 @@ struct AsyncTickResult {
     int substeps = 0;                                        ///< primary substeps
     unsigned flags = 0;                                      ///< StepFlag bits
     bool secondaryUpdated = false;  ///< a new secondary solution entered at this tick
+    bool layoutChanged = false;     ///< a layout for a new contact node was adopted at this tick
 };
 
 /// Counters of the secondary (read from the servo thread; threaded values are approximate).
 struct AsyncSecondaryStats {
-    std::uint64_t solves = 0;          ///< secondary solves finished
-    std::uint64_t used = 0;            ///< solutions taken up by the primary
-    double lastSolveSeconds = 0.0;     ///< wall time of the last solve
-    double maxSolveSeconds = 0.0;      ///< longest solve so far
-    double lastSolveCpuSeconds = 0.0;  ///< thread CPU time of the last solve (without preemption)
-    int lastIterations = 0;            ///< PCG iterations of the last solve
+    std::uint64_t solves = 0;           ///< secondary solves finished
+    std::uint64_t used = 0;             ///< solutions taken up by the primary
+    double lastSolveSeconds = 0.0;      ///< wall time of the last solve
+    double maxSolveSeconds = 0.0;       ///< longest solve so far
+    double lastSolveCpuSeconds = 0.0;   ///< thread CPU time of the last solve (without preemption)
+    int lastIterations = 0;             ///< PCG iterations of the last solve
+    std::uint64_t layoutsPrepared = 0;  ///< layouts prepared for contact changes
+    double lastPrepareSeconds = 0.0;    ///< wall time of the last preparation
 };
 
 /// Primary region (explicit, every tick) coupled to a secondary region (implicit, f_s).
@@ -149,6 +173,15 @@ class AsyncRegions {
     int secondaryDofCount() const;
     /// Index of the current layout (0 = smallest primary; adaptive mode only changes it).
     int layoutIndex() const;
+    /// Contact nodes of the current layout (the driven nodes).
+    const std::vector<int>& contactNodes() const;
+
+    /// Asks for the contact to move to @p node (a single node; see "Contact changes" above).
+    /// The change takes effect at the tick that adopts the prepared layout
+    /// (AsyncTickResult::layoutChanged); contactNodes() tells which node is driven.
+    /// @return false (and nothing changes) if @p node is not an active node of the mesh.
+    /// @par Real-time  noexcept, allocation-free, lock-free (one atomic store).
+    bool requestContactNode(int node) noexcept;
     /// Ticks per secondary period.
     int periodTicks() const;
     /// Primary substep, seconds.
