@@ -2,6 +2,7 @@
 // instruction counts under callgrind:
 //   valgrind --tool=callgrind --toggle-collect='palp::kernels::traceFirstHit*'
 //       build/rays/bench/kernels/profile_rays phantom|FILE.vdb trajectory|random FRAMES [RAYS]
+//       [scalar]
 // (one command line)
 // and prints the number of rays hit (so the work cannot be optimised away).
 #include <cstdio>
@@ -16,8 +17,9 @@ int main(int argc, char** argv) {
     try {
         using namespace palp::kernels;
         if (argc < 4) {
-            std::fprintf(stderr,
-                         "usage: profile_rays phantom|FILE.vdb trajectory|random FRAMES [RAYS]\n");
+            std::fprintf(
+                stderr,
+                "usage: profile_rays phantom|FILE.vdb trajectory|random FRAMES [RAYS] [scalar]\n");
             return 2;
         }
         const std::string src = argv[1];
@@ -39,6 +41,7 @@ int main(int argc, char** argv) {
         FirstHitParams fp;
         fp.threshold = o.threshold;
         fp.step = o.step;
+        fp.simd = !(argc > 5 && std::string(argv[5]) == "scalar");
         BundleHits hits;
         long hitCount = 0;
         for (const auto& b : bundles) {

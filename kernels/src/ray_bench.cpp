@@ -309,6 +309,8 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
         float sink = 0;
         FirstHitParams noSkip = fp;
         noSkip.skipEmpty = false;
+        FirstHitParams scalar = fp;
+        scalar.simd = false;
         const auto t = timeInterleaved(o.warmUp, frames,
                                        {[&](std::size_t f) {
                                             traceFirstHit(view, set.bundles[f], fp, hits);
@@ -319,6 +321,10 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
                                             sink += hits.t[0];
                                         },
                                         [&](std::size_t f) {
+                                            traceFirstHit(view, set.bundles[f], scalar, hits);
+                                            sink += hits.t[0];
+                                        },
+                                        [&](std::size_t f) {
                                             const RayBundle& b = set.bundles[f];
                                             for (int r = 0; r < b.count; ++r) {
                                                 bool hit;
@@ -326,7 +332,7 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
                                                                    o.step, o.threshold, hit);
                                             }
                                         }});
-        const TimingStats palp = t[0], palpNoSkip = t[1], baseline = t[2];
+        const TimingStats palp = t[0], palpNoSkip = t[1], palpScalar = t[2], baseline = t[3];
         // Agreement: palp vs baseline hits within 0.05 voxel.
         std::size_t agree = 0, total = 0, hitsN = 0;
         for (std::size_t f = 0; f < frames; f += std::max<std::size_t>(1, frames / 500)) {
@@ -366,13 +372,18 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
         const std::string name =
             "volume " + std::to_string(o.rays) + " rays, " + label + ", " + set.name;
         BenchComparison c = compare(name, "palp", "OpenVDB baseline", palp, baseline);
-        char note[320];
+        char note[512];
         std::snprintf(
             note, sizeof(note),
             "%zu/%zu rays agree with the baseline, %zu hits; bundles completed per "
-            "1 ms window: min %d, median %d over %zu windows (1 ms over the mean: %.0f)%s",
+            "1 ms window: min %d, median %d over %zu windows (1 ms over the mean: %.0f); %s "
+            "%.2f / %.2f us (CPU %.2f) vs scalar path %.2f / %.2f us (CPU %.2f), %.2fx / %.2fx%s",
             agree, total, hitsN, perWindow.front(), perWindow[perWindow.size() / 2],
-            perWindow.size(), 1000.0 / std::max(1e-9, palp.meanUs), sink == 12345.f ? " " : "");
+            perWindow.size(), 1000.0 / std::max(1e-9, palp.meanUs),
+            bundleSimdAvailable() ? "AVX2 lockstep" : "no AVX2: scalar", palp.meanUs, palp.p99Us,
+            palp.cpuMeanUs, palpScalar.meanUs, palpScalar.p99Us, palpScalar.cpuMeanUs,
+            palpScalar.meanUs / std::max(1e-9, palp.meanUs),
+            palpScalar.p99Us / std::max(1e-9, palp.p99Us), sink == 12345.f ? " " : "");
         c.note = note;
         report.lines.push_back(c);
         BenchComparison c2 = compare(name + ", no empty-space skipping", "palp", "OpenVDB baseline",

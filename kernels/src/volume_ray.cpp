@@ -7,6 +7,10 @@
 
 #include "palp/error.h"
 
+#if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
 namespace palp::kernels {
 
 namespace {
@@ -434,22 +438,33 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
         return true;
     };
     std::size_t unique = 0;
+    std::vector<float> constants;  // distinct constants of constant neighbourhoods (few)
+    auto constantIndex = [&](float v) -> std::size_t {
+        for (std::size_t i = 0; i < constants.size(); ++i)
+            if (sameBits(constants[i], v)) return i;
+        constants.push_back(v);
+        return constants.size() - 1;
+    };
     for (std::int64_t bx = 0; bx < n[0]; ++bx)
         for (std::int64_t by = 0; by < n[1]; ++by)
             for (std::int64_t bz = 0; bz < n[2]; ++bz) {
                 float v;
-                if (!constantNeighbourhood(bx, by, bz, v)) ++unique;
+                if (constantNeighbourhood(bx, by, bz, v))
+                    constantIndex(v);
+                else
+                    ++unique;
             }
-    mPadded.assign(unique * static_cast<std::size_t>(Table::kPadded), 0.0f);
+    const auto padded = static_cast<std::size_t>(Table::kPadded);
+    mPadded.assign((unique + constants.size()) * padded, 0.0f);
+    for (std::size_t i = 0; i < constants.size(); ++i)
+        std::fill_n(mPadded.data() + (unique + i) * padded, padded, constants[i]);
+    mTable.padded = mPadded.data();
+    mTable.paddedSize = mPadded.size();
     mTable.data.assign(count, nullptr);
     mTable.maxDilated.assign(count, mBackground);
     mTable.minDilated.assign(count, mBackground);
-    auto constantBlock = [this, &sameBits](float v) -> const float* {
-        for (const auto& b : mConstantBlocks)
-            if (sameBits((*b)[0], v)) return b->data();
-        mConstantBlocks.push_back(std::make_unique<std::array<float, Table::kPadded>>());
-        mConstantBlocks.back()->fill(v);
-        return mConstantBlocks.back()->data();
+    auto constantBlock = [&](float v) -> const float* {
+        return mPadded.data() + (unique + constantIndex(v)) * padded;
     };
     // Pass 2: the padded copies and their exact value ranges.
     std::size_t next = 0;
@@ -592,49 +607,111 @@ void validateAccumulateParams(const AccumulateParams& p) {
         throw ValueError("accumulate firstHitThreshold: expected a number, found NaN");
 }
 
-RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
-                const Eigen::Vector3d& direction, double length,
-                const FirstHitParams& params) noexcept {
-    const float thr = params.threshold;
-    const bool clip = !(view.background() >= thr);
+namespace {
+
+/// Everything a first-hit march reads that is the same for every ray of a call.
+struct HitContext {
+    const VolumeView* view = nullptr;
+    const Table* tb = nullptr;
+    float thr = 0;
+    float bg = 0;
+    bool skip = true;
+    bool clip = true;
+    int refine = 0;
+    double step = 0;
+    double limX = 0, limY = 0, limZ = 0;  // table extent, index units
+    std::int64_t nby = 0, nbz = 0;
+
+    HitContext(const VolumeView& v, const FirstHitParams& p) noexcept
+        : view(&v),
+          tb(&v.table()),
+          thr(p.threshold),
+          bg(v.background()),
+          skip(p.skipEmpty),
+          clip(!(v.background() >= p.threshold)),
+          refine(p.refineIterations),
+          step(p.step),
+          limX(8.0 * v.table().blocks[0]),
+          limY(8.0 * v.table().blocks[1]),
+          limZ(8.0 * v.table().blocks[2]),
+          nby(v.table().blocks[1]),
+          nbz(v.table().blocks[2]) {}
+};
+
+/// One ray's first-hit march, resumable at the runs of float-stepped samples through a block
+/// (so that a bundle can take those runs eight rays at a time).
+struct HitMarch {
     IndexRay r;
-    if (!setupRay(view, origin, direction, length, params.step, clip, r)) return noHit(length);
-    const Table& tb = view.table();
-    const float bg = view.background();
-    const bool skip = params.skipEmpty;
-    Cell c;
+    double ox = 0, oy = 0, oz = 0;  // table-relative origin
+    std::int64_t k = 0;             // next sample to visit
+    std::int64_t kRunLast = 0;      // samples before kLast lie exactly at k * step
+    float sx = 0, sy = 0, sz = 0;   // one lattice step in index units
+    // The pending run (after advanceHit() returned true): samples runK + i, i = 1 .. runN - 1,
+    // at block-local positions p + (i - 1) s in block copy `base`; `prev` is sample runK.
+    const float* base = nullptr;
+    float px = 0, py = 0, pz = 0, prev = 0;
+    std::int64_t runK = 0, runN = 0;
+};
+
+/// Sets up @p m; false (and @p out set) when the ray is degenerate or empty.
+PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
+                       const Eigen::Vector3d& direction, double length, HitMarch& m,
+                       RayHit& out) noexcept {
+    if (!setupRay(*cx.view, origin, direction, length, cx.step, cx.clip, m.r)) {
+        out = noHit(length);
+        return false;
+    }
+    const Table& tb = *cx.tb;
+    m.ox = m.r.o[0] - tb.origin[0];
+    m.oy = m.r.o[1] - tb.origin[1];
+    m.oz = m.r.o[2] - tb.origin[2];
+    m.k = m.r.kBegin;
+    m.kRunLast = std::min(m.r.kEnd, m.r.kLast - 1);
+    m.sx = static_cast<float>(m.r.d[0] * m.r.step);
+    m.sy = static_cast<float>(m.r.d[1] * m.r.step);
+    m.sz = static_cast<float>(m.r.d[2] * m.r.step);
+    return true;
+}
+
+/// Refines the crossing between samples j - 1 and j from their values.
+RayHit refineHit(const HitContext& cx, const HitMarch& m, std::int64_t j, float vPrev,
+                 float v) noexcept {
     CornerCache cache;
-    // Refines the crossing between samples j - 1 and j from their values. The first sample of
-    // every run below reads its predecessor on the exact (double) position instead of taking a
-    // march value, so a result does not depend on whether the blocks before were skipped.
-    auto refineAt = [&](std::int64_t j, float vPrev, float v) -> RayHit {
-        const double th =
-            refineCrossing(view, r, thr, r.t(j - 1), static_cast<double>(vPrev) - thr, r.t(j),
-                           static_cast<double>(v) - thr, params.refineIterations, cache);
-        return {static_cast<float>(th), true};
-    };
-    auto hitAt = [&](std::int64_t j, float v) -> RayHit {
-        if (j == 0) return {0.0f, true};
-        return refineAt(j, sampleAt(view, r, r.t(j - 1), cache), v);
-    };
-    // Table-relative ray origin: inside the table every coordinate is >= 0, so floor is a plain
-    // truncation and the block and offset come from integer shifts.
-    const double ox = r.o[0] - tb.origin[0], oy = r.o[1] - tb.origin[1], oz = r.o[2] - tb.origin[2];
-    const double limX = 8.0 * tb.blocks[0], limY = 8.0 * tb.blocks[1], limZ = 8.0 * tb.blocks[2];
-    const std::int64_t nby = tb.blocks[1], nbz = tb.blocks[2];
-    // Samples before kLast lie exactly at k * step (the last one may be cut to the length).
-    const std::int64_t kRunLast = std::min(r.kEnd, r.kLast - 1);
-    // One lattice step in index units, in float, for the incremental march inside a block.
-    const float sx = static_cast<float>(r.d[0] * r.step), sy = static_cast<float>(r.d[1] * r.step),
-                sz = static_cast<float>(r.d[2] * r.step);
-    for (std::int64_t k = r.kBegin; k <= r.kEnd;) {
+    const double th =
+        refineCrossing(*cx.view, m.r, cx.thr, m.r.t(j - 1), static_cast<double>(vPrev) - cx.thr,
+                       m.r.t(j), static_cast<double>(v) - cx.thr, cx.refine, cache);
+    return {static_cast<float>(th), true};
+}
+
+/// A hit at sample j whose predecessor has not been sampled: the first sample of every run reads
+/// its predecessor on the exact (double) position instead of taking a march value, so a result
+/// does not depend on whether the blocks before were skipped.
+RayHit hitAtSample(const HitContext& cx, const HitMarch& m, std::int64_t j, float v) noexcept {
+    if (j == 0) return {0.0f, true};
+    CornerCache cache;
+    const float vPrev = sampleAt(*cx.view, m.r, m.r.t(j - 1), cache);
+    const double th =
+        refineCrossing(*cx.view, m.r, cx.thr, m.r.t(j - 1), static_cast<double>(vPrev) - cx.thr,
+                       m.r.t(j), static_cast<double>(v) - cx.thr, cx.refine, cache);
+    return {static_cast<float>(th), true};
+}
+
+/// Marches from sample m.k until the ray ends (false, @p out set) or reaches a run of at least
+/// one more float-stepped sample inside a block (true, the run set in @p m).
+bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
+    const Table& tb = *cx.tb;
+    const IndexRay& r = m.r;
+    const float thr = cx.thr;
+    Cell c;
+    for (std::int64_t k = m.k; k <= r.kEnd;) {
         const double t = r.t(k);
-        const double xr = ox + t * r.d[0], yr = oy + t * r.d[1], zr = oz + t * r.d[2];
-        if (xr >= 0 && xr < limX && yr >= 0 && yr < limY && zr >= 0 && zr < limZ) [[likely]] {
+        const double xr = m.ox + t * r.d[0], yr = m.oy + t * r.d[1], zr = m.oz + t * r.d[2];
+        if (xr >= 0 && xr < cx.limX && yr >= 0 && yr < cx.limY && zr >= 0 && zr < cx.limZ)
+            [[likely]] {
             const auto ix = static_cast<std::int32_t>(xr), iy = static_cast<std::int32_t>(yr),
                        iz = static_cast<std::int32_t>(zr);
-            const std::int64_t b = ((ix >> 3) * nby + (iy >> 3)) * nbz + (iz >> 3);
-            if (skip && tb.maxDilated[static_cast<std::size_t>(b)] < thr) {
+            const std::int64_t b = ((ix >> 3) * cx.nby + (iy >> 3)) * cx.nbz + (iz >> 3);
+            if (cx.skip && tb.maxDilated[static_cast<std::size_t>(b)] < thr) {
                 c.ix = ix;
                 c.iy = iy;
                 c.iz = iz;
@@ -642,20 +719,23 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
                 k = skipBlocks(tb, r, c, k, [thr](float mx, float) { return mx < thr; });
                 continue;
             }
-            if (k <= kRunLast) {
+            if (k <= m.kRunLast) {
                 // The first sample of the run on its exact position (a run often ends right
                 // there: a hit at the first sample after skipped blocks).
                 const float* base = tb.data[static_cast<std::size_t>(b)];
-                float v = lerp8(base + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7)),
-                                static_cast<float>(xr - ix), static_cast<float>(yr - iy),
-                                static_cast<float>(zr - iz));
-                if (v >= thr) return hitAt(k, v);
+                const float v = lerp8(base + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7)),
+                                      static_cast<float>(xr - ix), static_cast<float>(yr - iy),
+                                      static_cast<float>(zr - iz));
+                if (v >= thr) {
+                    out = hitAtSample(cx, m, k, v);
+                    return false;
+                }
                 // The rest of the run through this block: block-local float positions, advanced
                 // by one float step per sample, recomputed exactly at every block entry (drift
                 // over one block is below 1e-4 voxel). The run ends at the block's exit; a sample
                 // that rounding puts a hair past the exit still reads its cell through the clamp
-                // below (the 9^3 copy holds the +1 layer), and one the run leaves out is simply
-                // the first of the next run.
+                // in the run loop (the 9^3 copy holds the +1 layer), and one the run leaves out
+                // is simply the first of the next run.
                 const double lx = xr - (ix & ~7), ly = yr - (iy & ~7), lz = zr - (iz & ~7);
                 double tRel = kInf;
                 if (r.d[0] > 0) tRel = std::min(tRel, (8.0 - lx) * r.inv[0]);
@@ -665,36 +745,248 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
                 if (r.d[2] > 0) tRel = std::min(tRel, (8.0 - lz) * r.inv[2]);
                 if (r.d[2] < 0) tRel = std::min(tRel, -lz * r.inv[2]);
                 // At most ~28 samples fit in a block (0.5-voxel steps), far below kMaxSamples.
-                const double more = std::min(tRel * r.invStep, static_cast<double>(kRunLast - k));
+                const double more = std::min(tRel * r.invStep, static_cast<double>(m.kRunLast - k));
                 const std::int64_t n = 1 + static_cast<std::int64_t>(more);
-                float px = static_cast<float>(lx) + sx, py = static_cast<float>(ly) + sy,
-                      pz = static_cast<float>(lz) + sz;
-                for (std::int64_t i = 1; i < n; ++i) {
-                    // Truncation; -0.x (a hair before the entry) gives cell 0, and the unsigned
-                    // min keeps every index inside the 9^3 copy.
-                    const unsigned cx = std::min(static_cast<unsigned>(static_cast<int>(px)), 7u);
-                    const unsigned cy = std::min(static_cast<unsigned>(static_cast<int>(py)), 7u);
-                    const unsigned cz = std::min(static_cast<unsigned>(static_cast<int>(pz)), 7u);
-                    const float prev = v;
-                    v = lerp8(base + ((cx * 9 + cy) * 9 + cz), px - static_cast<float>(cx),
-                              py - static_cast<float>(cy), pz - static_cast<float>(cz));
-                    if (v >= thr) return refineAt(k + i, prev, v);
-                    px += sx;
-                    py += sy;
-                    pz += sz;
+                if (n == 1) {
+                    ++k;
+                    continue;
                 }
-                k += n;
-                continue;
+                m.base = base;
+                m.px = static_cast<float>(lx) + m.sx;
+                m.py = static_cast<float>(ly) + m.sy;
+                m.pz = static_cast<float>(lz) + m.sz;
+                m.prev = v;
+                m.runK = k;
+                m.runN = n;
+                m.k = k + n;
+                return true;
             }
         }
         // The last sample (cut to the length), outside the table (background) or non-finite:
         // the general path.
         locate(tb, r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], c);
-        const float v = sampleCell(tb, bg, c);
-        if (v >= thr) return hitAt(k, v);
+        const float v = sampleCell(tb, cx.bg, c);
+        if (v >= thr) {
+            out = hitAtSample(cx, m, k, v);
+            return false;
+        }
         ++k;
     }
-    return noHit(r.length);
+    out = noHit(r.length);
+    return false;
+}
+
+/// Cell index (clamped into the 9^3 copy) of a block-local float coordinate: truncation; -0.x (a
+/// hair before the entry) gives cell 0, and the unsigned min keeps every index inside the copy.
+PALP_HOT unsigned runCell(float p) noexcept {
+    return std::min(static_cast<unsigned>(static_cast<int>(p)), 7u);
+}
+
+/// The pending run of @p m, one ray at a time: true (and @p out set) on a hit.
+bool runScalar(const HitContext& cx, const HitMarch& m, RayHit& out) noexcept {
+    float px = m.px, py = m.py, pz = m.pz, v = m.prev;
+    for (std::int64_t i = 1; i < m.runN; ++i) {
+        const unsigned cx0 = runCell(px), cy0 = runCell(py), cz0 = runCell(pz);
+        const float prev = v;
+        v = lerp8(m.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
+                  py - static_cast<float>(cy0), pz - static_cast<float>(cz0));
+        if (v >= cx.thr) {
+            out = refineHit(cx, m, m.runK + i, prev, v);
+            return true;
+        }
+        px += m.sx;
+        py += m.sy;
+        pz += m.sz;
+    }
+    return false;
+}
+
+PALP_HOT void storeHit(BundleHits& out, int i, const RayHit& h) noexcept {
+    const auto r = static_cast<std::size_t>(i);
+    out.t[r] = h.t;
+    out.hit[r] = h.hit ? 1 : 0;
+    out.geomId[r] = 0;
+}
+
+PALP_HOT bool startBundleRay(const HitContext& cx, const RayBundle& bundle, int i, HitMarch& m,
+                             RayHit& out) noexcept {
+    const auto r = static_cast<std::size_t>(i);
+    return startHit(cx, Eigen::Vector3d(bundle.ox[r], bundle.oy[r], bundle.oz[r]),
+                    Eigen::Vector3d(bundle.dx[r], bundle.dy[r], bundle.dz[r]), bundle.length[r], m,
+                    out);
+}
+
+void traceFirstHitScalar(const HitContext& cx, const RayBundle& bundle, BundleHits& out) noexcept {
+    for (int i = 0; i < out.count; ++i) {
+        HitMarch m;
+        RayHit h;
+        if (startBundleRay(cx, bundle, i, m, h))
+            while (advanceHit(cx, m, h) && !runScalar(cx, m, h)) {
+            }
+        storeHit(out, i, h);
+    }
+}
+
+#if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
+#define PALP_RAY_AVX2 1
+
+/// a + (b - a) w in each lane, as in lerp8().
+__attribute__((target("avx2"), always_inline)) inline __m256 lerpAvx(__m256 a, __m256 b,
+                                                                     __m256 w) noexcept {
+    return _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w));
+}
+
+/// The bundle's rays eight at a time: every lane holds one ray's pending run, and one AVX2 step
+/// takes the next sample of every lane (eight gathers of the cell corners from the padded block
+/// copies, the trilinear blend in the same float operations and order as lerp8(), so the values
+/// are bit-identical to runScalar()'s; no FMA, which would round differently). A lane whose run
+/// hits or ends goes back to the scalar march (skipping, block entry, refinement) until it has a
+/// new run or its ray is done, when the lane takes the bundle's next ray.
+__attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
+                                                       const RayBundle& bundle,
+                                                       BundleHits& out) noexcept {
+    constexpr int kLanes = 8;
+    const float* const padded = cx.tb->padded;
+    HitMarch m[kLanes];
+    int ray[kLanes] = {};
+    alignas(32) std::int32_t off[kLanes] = {};   // lane's block copy, floats from `padded`
+    alignas(32) std::int32_t left[kLanes] = {};  // samples left in the run
+    alignas(32) std::int32_t idx[kLanes] = {};   // sample i of the run taken next
+    alignas(32) float px[kLanes] = {}, py[kLanes] = {}, pz[kLanes] = {};
+    alignas(32) float sx[kLanes] = {}, sy[kLanes] = {}, sz[kLanes] = {};
+    alignas(32) float prev[kLanes] = {};
+    alignas(32) float vNew[kLanes], vOld[kLanes];
+    alignas(32) std::int32_t iOld[kLanes];
+    unsigned active = 0;
+    int next = 0;
+    auto load = [&](int l) {
+        const HitMarch& h = m[l];
+        off[l] = static_cast<std::int32_t>(h.base - padded);
+        left[l] = static_cast<std::int32_t>(h.runN - 1);
+        idx[l] = 1;
+        px[l] = h.px;
+        py[l] = h.py;
+        pz[l] = h.pz;
+        sx[l] = h.sx;
+        sy[l] = h.sy;
+        sz[l] = h.sz;
+        prev[l] = h.prev;
+    };
+    // Gives lane l the next ray that reaches a run (rays that end before are stored).
+    auto refill = [&](int l) {
+        while (next < out.count) {
+            const int i = next++;
+            RayHit h;
+            if (startBundleRay(cx, bundle, i, m[l], h) && advanceHit(cx, m[l], h)) {
+                ray[l] = i;
+                load(l);
+                active |= 1u << l;
+                return;
+            }
+            storeHit(out, i, h);
+        }
+        active &= ~(1u << l);
+        off[l] = 0;  // an idle lane reads a valid cell and is ignored
+        left[l] = 1;
+        px[l] = py[l] = pz[l] = 0;
+        sx[l] = sy[l] = sz[l] = 0;
+    };
+    for (int l = 0; l < kLanes; ++l) refill(l);
+    const __m256i seven = _mm256_set1_epi32(7);
+    const __m256i one = _mm256_set1_epi32(1);
+    const __m256 thr = _mm256_set1_ps(cx.thr);
+    // Bounded: every step takes one sample of every active run, and each ray's samples are
+    // bounded as in firstHit().
+    while (active != 0) {
+        const __m256 vx = _mm256_load_ps(px), vy = _mm256_load_ps(py), vz = _mm256_load_ps(pz);
+        const __m256i cxi = _mm256_min_epu32(_mm256_cvttps_epi32(vx), seven);
+        const __m256i cyi = _mm256_min_epu32(_mm256_cvttps_epi32(vy), seven);
+        const __m256i czi = _mm256_min_epu32(_mm256_cvttps_epi32(vz), seven);
+        const __m256 fx = _mm256_sub_ps(vx, _mm256_cvtepi32_ps(cxi));
+        const __m256 fy = _mm256_sub_ps(vy, _mm256_cvtepi32_ps(cyi));
+        const __m256 fz = _mm256_sub_ps(vz, _mm256_cvtepi32_ps(czi));
+        // (cx * 9 + cy) * 9 + cz = 81 cx + 9 cy + cz, by shifts.
+        const __m256i c81 = _mm256_add_epi32(
+            _mm256_add_epi32(_mm256_slli_epi32(cxi, 6), _mm256_slli_epi32(cxi, 4)), cxi);
+        const __m256i c9 = _mm256_add_epi32(_mm256_slli_epi32(cyi, 3), cyi);
+        const __m256i at =
+            _mm256_add_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(off)),
+                             _mm256_add_epi32(_mm256_add_epi32(c81, c9), czi));
+        const __m256 p0 = _mm256_i32gather_ps(padded, at, 4);
+        const __m256 p1 = _mm256_i32gather_ps(padded + 1, at, 4);
+        const __m256 p9 = _mm256_i32gather_ps(padded + 9, at, 4);
+        const __m256 p10 = _mm256_i32gather_ps(padded + 10, at, 4);
+        const __m256 p81 = _mm256_i32gather_ps(padded + 81, at, 4);
+        const __m256 p82 = _mm256_i32gather_ps(padded + 82, at, 4);
+        const __m256 p90 = _mm256_i32gather_ps(padded + 90, at, 4);
+        const __m256 p91 = _mm256_i32gather_ps(padded + 91, at, 4);
+        const __m256 a00 = lerpAvx(p0, p81, fx), a01 = lerpAvx(p1, p82, fx);
+        const __m256 a10 = lerpAvx(p9, p90, fx), a11 = lerpAvx(p10, p91, fx);
+        const __m256 b0 = lerpAvx(a00, a10, fy), b1 = lerpAvx(a01, a11, fy);
+        const __m256 v = lerpAvx(b0, b1, fz);
+        const __m256i li =
+            _mm256_sub_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(left)), one);
+        const __m256i ii = _mm256_load_si256(reinterpret_cast<const __m256i*>(idx));
+        const unsigned hitBits =
+            static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, thr, _CMP_GE_OQ)));
+        const unsigned endBits = static_cast<unsigned>(_mm256_movemask_ps(
+            _mm256_castsi256_ps(_mm256_cmpeq_epi32(li, _mm256_setzero_si256()))));
+        _mm256_store_ps(vNew, v);
+        _mm256_store_ps(vOld, _mm256_load_ps(prev));
+        _mm256_store_si256(reinterpret_cast<__m256i*>(iOld), ii);
+        _mm256_store_ps(prev, v);
+        _mm256_store_ps(px, _mm256_add_ps(vx, _mm256_load_ps(sx)));
+        _mm256_store_ps(py, _mm256_add_ps(vy, _mm256_load_ps(sy)));
+        _mm256_store_ps(pz, _mm256_add_ps(vz, _mm256_load_ps(sz)));
+        _mm256_store_si256(reinterpret_cast<__m256i*>(left), li);
+        _mm256_store_si256(reinterpret_cast<__m256i*>(idx), _mm256_add_epi32(ii, one));
+        for (unsigned ev = (hitBits | endBits) & active; ev != 0; ev &= ev - 1) {
+            const int l = __builtin_ctz(ev);
+            RayHit h;
+            if ((hitBits >> l) & 1u) {
+                storeHit(out, ray[l], refineHit(cx, m[l], m[l].runK + iOld[l], vOld[l], vNew[l]));
+            } else if (advanceHit(cx, m[l], h)) {
+                load(l);
+                continue;
+            } else {
+                storeHit(out, ray[l], h);
+            }
+            refill(l);
+        }
+    }
+}
+#endif
+
+}  // namespace
+
+#ifdef PALP_RAY_AVX2
+namespace {
+bool detectAvx2() noexcept {
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx2");
+}
+const bool kHasAvx2 = detectAvx2();  // once, at load
+}  // namespace
+#endif
+
+bool bundleSimdAvailable() noexcept {
+#ifdef PALP_RAY_AVX2
+    return kHasAvx2;
+#else
+    return false;
+#endif
+}
+
+RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
+                const Eigen::Vector3d& direction, double length,
+                const FirstHitParams& params) noexcept {
+    const HitContext cx(view, params);
+    HitMarch m;
+    RayHit h;
+    if (startHit(cx, origin, direction, length, m, h))
+        while (advanceHit(cx, m, h) && !runScalar(cx, m, h)) {
+        }
+    return h;
 }
 
 AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
@@ -804,15 +1096,16 @@ AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
 void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstHitParams& params,
                    BundleHits& out) noexcept {
     out.count = bundle.valid ? std::clamp(bundle.count, 0, kMaxBundleRays) : 0;
-    for (int i = 0; i < out.count; ++i) {
-        const auto r = static_cast<std::size_t>(i);
-        const RayHit h = firstHit(view, Eigen::Vector3d(bundle.ox[r], bundle.oy[r], bundle.oz[r]),
-                                  Eigen::Vector3d(bundle.dx[r], bundle.dy[r], bundle.dz[r]),
-                                  bundle.length[r], params);
-        out.t[r] = h.t;
-        out.hit[r] = h.hit ? 1 : 0;
-        out.geomId[r] = 0;
+    const HitContext cx(view, params);
+#ifdef PALP_RAY_AVX2
+    // 32-bit gather offsets must reach every block copy.
+    if (params.simd && kHasAvx2 && out.count > 1 && view.table().padded != nullptr &&
+        view.table().paddedSize < (std::size_t{1} << 31) - 128) {
+        traceFirstHitAvx2(cx, bundle, out);
+        return;
     }
+#endif
+    traceFirstHitScalar(cx, bundle, out);
 }
 
 void traceAccumulate(const VolumeView& view, const RayBundle& bundle,

@@ -77,14 +77,19 @@ class VolumeView {
         std::vector<const float*> data;
         std::vector<float> maxDilated;  ///< max over the block's padded copy
         std::vector<float> minDilated;  ///< min over the same
+        /// Every padded copy (constant ones included) lies in one buffer starting here, so a
+        /// gather can address any block's values with 32-bit offsets from this base.
+        const float* padded = nullptr;
+        std::size_t paddedSize = 0;  ///< floats in that buffer
     };
     const Table& table() const noexcept { return mTable; }
 
   private:
     openvdb::FloatGrid::ConstPtr mGrid;
     Table mTable;
-    std::vector<float> mPadded;  // padded copies of the blocks that are not constant
-    std::vector<std::unique_ptr<std::array<float, Table::kPadded>>> mConstantBlocks;  // shared
+    /// Padded copies of the blocks that are not constant, then one shared copy per distinct
+    /// constant.
+    std::vector<float> mPadded;
     Eigen::Vector3d mWorldOrigin = Eigen::Vector3d::Zero();
     double mVoxelSize = 1;
     double mInvVoxelSize = 1;
@@ -127,6 +132,10 @@ struct FirstHitParams {
     double step = 0.25e-3;  ///< sample spacing along the ray, metres
     int refineIterations = 2;  ///< regula-falsi steps below the step size (0: linear interpolation)
     bool skipEmpty = true;     ///< skip blocks whose dilated maximum is below the threshold
+    /// traceFirstHit() only: march the rays of a bundle eight at a time in lockstep with AVX2
+    /// where the CPU has it (bundleSimdAvailable()). The results are bit-identical to the scalar
+    /// path (false), which stays the reference and the fallback.
+    bool simd = true;
 };
 
 /// Accumulate settings.
@@ -198,11 +207,18 @@ AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
                          const Eigen::Vector3d& direction, double length,
                          const AccumulateParams& params) noexcept;
 
-/// First-hit for every ray of @p bundle (an invalid bundle gives count = 0).
+/// First-hit for every ray of @p bundle (an invalid bundle gives count = 0). Each result is
+/// bit-identical to firstHit() on that ray. With params.simd on a CPU with AVX2 the rays are
+/// marched eight at a time in lockstep through their non-skippable blocks (one gather of the
+/// cell corners per lane and sample); skipping, block entries and the refinement stay scalar.
 /// @par Threading  Any number of threads on one view, each with its own @p out.
 /// @par Real-time  noexcept, no allocation, no lock; bounded by count * kMaxSamplesPerRay.
 void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstHitParams& params,
                    BundleHits& out) noexcept;
+
+/// True when traceFirstHit() can take its AVX2 lockstep path on this CPU (x86-64 with AVX2, a
+/// GCC or Clang build). @par Real-time noexcept.
+bool bundleSimdAvailable() noexcept;
 
 /// Accumulate for every ray of @p bundle.
 /// @par Threading  Any number of threads on one view, each with its own @p out.
