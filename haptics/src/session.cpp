@@ -139,6 +139,40 @@ bool insideSurfaces(const kernels::EmbreeScene& scene, unsigned mask,
     return insideVotes >= 2;
 }
 
+// The nearest way out of the closed surfaces of @p scene from @p p along the six axis
+// directions: the exit point plus @p offset beyond it; @p p when no ray leaves.
+Eigen::Vector3d nearestExit(const kernels::EmbreeScene& scene, unsigned mask,
+                            const Eigen::Vector3d& p, double offset) noexcept {
+    float best = std::numeric_limits<float>::infinity();
+    Eigen::Vector3d out = p;
+    for (int k = 0; k < 6; ++k) {
+        Eigen::Vector3f d = Eigen::Vector3f::Zero();
+        d[k / 2] = (k % 2) ? -1.0f : 1.0f;
+        RTCIntersectContext ctx;
+        rtcInitIntersectContext(&ctx);
+        alignas(16) RTCRayHit rh;
+        rh.ray.org_x = static_cast<float>(p.x());
+        rh.ray.org_y = static_cast<float>(p.y());
+        rh.ray.org_z = static_cast<float>(p.z());
+        rh.ray.dir_x = d.x();
+        rh.ray.dir_y = d.y();
+        rh.ray.dir_z = d.z();
+        rh.ray.tnear = 0.0f;
+        rh.ray.tfar = best;
+        rh.ray.time = 0.0f;
+        rh.ray.mask = mask;
+        rh.ray.id = 0;
+        rh.ray.flags = 0;
+        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+        rtcIntersect1(scene.handle(), &ctx, &rh);
+        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
+        best = rh.ray.tfar;
+        out = p + (static_cast<double>(best) + offset) * d.cast<double>();
+    }
+    return out;
+}
+
 bool sourceHasData(const Scene& scene, RaySource source) noexcept {
     switch (source) {
         case RaySource::Mesh:
@@ -151,6 +185,12 @@ bool sourceHasData(const Scene& scene, RaySource source) noexcept {
 }
 
 void requireSourceData(const Scene& scene, const CouplingParams& c) {
+    if (scene.deformable() && c.mode != CouplingMode::VC) {
+        throw ValueError(
+            std::string("session: expected VC coupling on a deformable scene, found ") +
+            (c.mode == CouplingMode::AVC ? "AVC" : "AVCEC") +
+            " (AVC/AVCEC on deformable tissue are not built yet)");
+    }
     if (c.mode != CouplingMode::VC && !sourceHasData(scene, c.source)) {
         throw ValueError(
             c.source == RaySource::Mesh
@@ -207,7 +247,9 @@ struct Session::Impl {
           spec(deviceIn.spec()),
           workspace(p.workspace),
           period(p.servo.periodSeconds),
-          proxy(scene->surfaces(), p.proxy),
+          body(scene->deformable() ? std::make_unique<DeformableBody>(scene->deformable())
+                                   : nullptr),
+          proxy(body ? body->surfaces() : scene->surfaces(), p.proxy),
           couplings{Coupling(scene->volumeView(), &scene->hardMeshes(), p.coupling),
                     Coupling(scene->volumeView(), &scene->hardMeshes(), p.coupling)},
           fadeTicks(static_cast<std::uint32_t>(std::lround(p.crossFadeSeconds / period))),
@@ -229,6 +271,7 @@ struct Session::Impl {
     double period;
 
     // Servo-thread state.
+    std::unique_ptr<DeformableBody> body;  // deformable scenes only; before proxy (it traces it)
     Proxy proxy;
     std::array<Coupling, 2> couplings;  // [active] the newest params, [1 - active] fading out
     std::array<CouplingOutput, 2> outputs;
@@ -325,7 +368,8 @@ void Session::Impl::tick(double timeSeconds) noexcept {
             started = true;
         }
         if (freeProxy) {
-            freeProxy = insideSurfaces(scene->surfaces(), proxy.params().surfaceMask, probe);
+            freeProxy = insideSurfaces(body ? body->surfaces() : scene->surfaces(),
+                                       proxy.params().surfaceMask, probe);
             proxy.reset(probe);
         } else {
             const CouplingParams& now = couplings[static_cast<std::size_t>(active)].params();
@@ -372,6 +416,24 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     const Eigen::Vector3d sent = gate.filter(limited);
     device.write(workspace.rotation.transpose() * sent);
 
+    // Deformable tissue: the reaction of the force on the hand acts on the tissue at the
+    // contact, the FEM steps, and a proxy in contact is carried with the deformed surface.
+    Eigen::Vector3d tissueForce = Eigen::Vector3d::Zero();
+    bool anchored = false;
+    if (body) {
+        if (ps->contactCount > 0 && sent.allFinite()) {
+            body->applyContactForce(ps->position, -sent);
+            anchored = body->anchor(ps->position, ps->normals[0]);
+        } else {
+            body->clearForce();
+        }
+        tissueForce = body->loadSum();
+        const int cn = body->contactNode();
+        current.femFlags = body->step(period);
+        current.contactNode = cn;
+        current.maxDisplacement = body->maxSurfaceDisplacement();
+    }
+
     Snapshot& s = current;
     s.tick = ticks++;
     s.timeSeconds = timeSeconds;
@@ -395,12 +457,26 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     s.mode = couplings[static_cast<std::size_t>(active)].params().mode;
     s.fading = fading;
     s.faults = guard.faultCount();
+    s.tissueForce = tissueForce;
 
     snapshots.back().value = s;
     snapshots.publish();
     rays.back().value = couplings[static_cast<std::size_t>(active)].bundle();
     rays.publish();
     trace.push(s);
+
+    // After publishing (the snapshot shows the proxy the force was computed with).
+    if (anchored) {
+        const Eigen::Vector3d carried = body->anchoredPosition();
+        if (carried.allFinite()) proxy.reset(carried);
+    } else if (body && !freeProxy && started) {
+        // A free proxy that the moving surface overtook (a fast spring-back) is put back out
+        // along the shortest axis-aligned way out, 2 epsilon clear.
+        const unsigned mask = proxy.params().surfaceMask;
+        const Eigen::Vector3d p = proxy.state().position;
+        if (insideSurfaces(body->surfaces(), mask, p))
+            proxy.reset(nearestExit(body->surfaces(), mask, p, 2 * proxy.params().epsilon));
+    }
 }
 
 Session::Session(std::shared_ptr<const Scene> scene, Device& device, const SessionParams& params)
@@ -479,6 +555,8 @@ ServoStats Session::stats() const noexcept { return mImpl->loop.stats(); }
 const RealtimeStatus& Session::realtime() const noexcept { return mImpl->loop.realtime(); }
 
 const DeviceSpec& Session::deviceSpec() const noexcept { return mImpl->spec; }
+
+const DeformableBody* Session::deformable() const noexcept { return mImpl->body.get(); }
 
 void Session::tick(const TickInfo& info) noexcept {
     mImpl->tick(mImpl->timeBase + info.timeSeconds);

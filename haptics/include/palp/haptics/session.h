@@ -10,6 +10,7 @@
 #include <optional>
 
 #include "palp/haptics/coupling.h"
+#include "palp/haptics/deformable.h"
 #include "palp/haptics/device.h"
 #include "palp/haptics/proxy.h"
 #include "palp/haptics/servo_loop.h"
@@ -50,6 +51,17 @@ class Scene {
     void setVolume(openvdb::FloatGrid::ConstPtr grid);
     /// Commits the Embree scenes; call once after the last add, before a Session uses it.
     void commit();
+    /// Makes the scene deformable: every Session builds its own DeformableBody from @p model
+    /// and its proxy slides on that body's deformed surface instead of surfaces() (which the
+    /// proxy then ignores); only VC coupling is accepted (AVC/AVCEC on deformable tissue are
+    /// not built yet). nullptr: rigid again. @throw nothing.
+    void setDeformable(std::shared_ptr<const DeformableModel> model) noexcept {
+        mDeformable = std::move(model);
+    }
+    /// The deformable body's template, or nullptr for a rigid scene.
+    const std::shared_ptr<const DeformableModel>& deformable() const noexcept {
+        return mDeformable;
+    }
 
     const kernels::VolumeView* volumeView() const noexcept { return mView.get(); }
     const kernels::EmbreeScene& surfaces() const noexcept { return *mSurfaces; }
@@ -58,6 +70,7 @@ class Scene {
   private:
     std::unique_ptr<kernels::VolumeView> mView;
     std::unique_ptr<kernels::EmbreeScene> mSurfaces, mHard;
+    std::shared_ptr<const DeformableModel> mDeformable;
 };
 
 /// Device frame -> world: world = offset + scale * rotation * device.
@@ -103,6 +116,12 @@ struct Snapshot {
     bool fading = false;       ///< a SetCoupling cross-fade is running
     double fadeWeight = 1;     ///< weight of the newest coupling params (0..1)
     std::uint64_t faults = 0;  ///< ticks so far whose force was non-finite (held last good)
+    // Deformable scenes only (zero / -1 otherwise).
+    /// Sum of the nodal forces put on the tissue this tick, N (-force while in contact).
+    Eigen::Vector3d tissueForce{Eigen::Vector3d::Zero()};
+    int contactNode = -1;        ///< FEM node with the largest share of the load, -1: none
+    double maxDisplacement = 0;  ///< largest surface node displacement after the step, m
+    unsigned femFlags = 0;       ///< fem::StepFlag bits | DeformableBody::kRefitFailed
 };
 
 /// A parameter change sent to a running session; applied at a tick boundary and cross-faded.
@@ -130,6 +149,16 @@ struct Command {
 /// the Snapshot is published (latest()), queued for popTrace() and the bundle for latestRays().
 /// A probe that starts inside a closed surface (ray parity) is not trapped by it: the proxy
 /// follows the probe freely until the probe is outside.
+///
+/// Deformable scene (Scene::setDeformable): the proxy updates against the body's deformed
+/// surface; the coupling is VC (AVC/AVCEC are refused at construction and by send()); after the
+/// chain above, the opposite of the force sent to the user, -F, acts on the tissue at the proxy
+/// (spread by the body's Gaussian filter) while the proxy is in contact (zero otherwise, when
+/// F is zero too up to damping); the FEM steps by T and the surface is refitted; a proxy in
+/// contact is then carried with the surface point under it (same triangle, barycentric
+/// coordinates and offset), so a surface that springs back pushes the proxy out instead of
+/// swallowing it. The carry resets the proxy's velocity estimate (only the coupling damping b
+/// sees it). A free proxy (no contact) that a fast-moving surface overtakes is not handled.
 ///
 /// @par Threading  start/stop/step from one controlling thread; latest() and latestRays() from
 ///      one viewer thread; popTrace() from one trace reader thread (may be the viewer); send()
@@ -170,6 +199,9 @@ class Session final : public ServoTask {
     const RealtimeStatus& realtime() const noexcept;
     const SessionParams& params() const noexcept { return mParams; }
     const DeviceSpec& deviceSpec() const noexcept;
+    /// The session's deformable body (nullptr for a rigid scene). Read it only while the
+    /// session is stopped (the servo thread owns it while running).
+    const DeformableBody* deformable() const noexcept;
 
     void tick(const TickInfo& info) noexcept override;
 

@@ -1,0 +1,208 @@
+#pragma once
+/// @file
+/// Deformable tissue for palpation with plain virtual coupling (ALGORITHMS.md sections 5 and 10):
+/// a hexahedral FEM body with fixed nodes (a support face, nodes inside static inhomogeneities
+/// such as bone), stepped by the whole-mesh explicit solver every servo tick under the reaction
+/// of the coupling force, spread over the surface nodes near the contact by a Gaussian low-pass
+/// filter; its boundary surface is a deforming Embree mesh (mask kMaskSurface) refitted every
+/// tick, so the proxy moves on the deformed surface.
+///
+/// Split in two: DeformableModel (built off the servo thread, immutable, shared by sessions:
+/// mesh, material, constraints, surface topology) and DeformableBody (one per session: the
+/// solver state, the nodal forces and the Embree scene).
+///
+/// Choices where the spec is silent:
+/// * Filter: weights w_i = exp(-|x_i - c|^2 / (2 sigma^2)) over the free surface nodes within
+///   filterCutoff * sigma of the contact point c, on their deformed positions; the nearest
+///   free surface node always carries a weight (so a contact farther than the cutoff from every
+///   node still loads one node) and takes the rounding remainder, so the nodal forces sum to the
+///   total force to rounding (1 ulp per component). sigma = 0: the nearest node only.
+/// * Fixed nodes take no load (their share would vanish into the support); only free nodes
+///   of the boundary surface are candidates.
+/// * The asynchronous-regions solver (fem/async_regions.h) is driven by a prescribed contact
+///   displacement and has no force input yet, so the whole mesh is stepped explicitly (with
+///   automatic substeps): the per-tick cost grows with the element count (see bench figures in
+///   DeformableBody's docs).
+
+#include <Eigen/Core>
+#include <array>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "palp/fem/constraints.h"
+#include "palp/fem/explicit_solver.h"
+#include "palp/fem/fem_model.h"
+#include "palp/fem/hex_mesh.h"
+#include "palp/fem/voxelize.h"
+#include "palp/kernels/embree_scene.h"
+#include "palp/volume/volume.h"
+
+namespace palp::haptics {
+
+/// Settings of a deformable body.
+struct DeformableOptions {
+    /// sigma of the Gaussian that spreads the contact force over surface nodes, m (>= 0).
+    /// 0: the nearest surface node carries all of it (force steps when it changes).
+    double filterWidth = 3e-3;
+    /// Nodes farther than filterCutoff * filterWidth from the contact get no load (>= 1).
+    double filterCutoff = 3.0;
+    /// The explicit solver (substeps of safetyFactor times the critical step, bounded).
+    fem::ExplicitOptions solver;
+};
+
+/// @throw palp::ValueError naming the field.
+void validateDeformableOptions(const DeformableOptions& options);
+
+/// What can deform: the FEM model, its fixed nodes and boundary surface.
+/// @par Threading  Built on one thread, then immutable; shared (const) by sessions.
+class DeformableModel {
+  public:
+    /// @p fixedNodes (all three components fixed) must leave no rigid-body motion free in
+    /// practice (a support face does). @throw palp::ValueError for bad options, nodes outside the
+    /// model, no fixed node, or no free surface node.
+    DeformableModel(fem::FemModel model, std::vector<int> fixedNodes,
+                    const DeformableOptions& options = {});
+
+    /// A box of @p size metres with @p nodeCounts nodes per axis (cubic cells), uniform
+    /// @p material, fixed on @p supportFace. @throw palp::ValueError as HexMesh::box.
+    static std::shared_ptr<DeformableModel> box(const Eigen::Vector3d& size,
+                                                const std::array<int, 3>& nodeCounts,
+                                                const fem::ElasticMaterial& material,
+                                                fem::BoxFace supportFace,
+                                                const DeformableOptions& options = {},
+                                                const Eigen::Vector3d& origin = {0, 0, 0});
+
+    /// Voxelises @p volume (fem::voxelizeVolume with @p voxelize) into tissue of uniform
+    /// @p material (voxelize.youngsFromValue, when set, gives per-element moduli instead), fixes
+    /// the nodes of bone cells (value above voxelize.boneThreshold), the nodes of
+    /// @p supportFace when given and the nodes where @p fixedMask (world point -> bool) is true.
+    /// Bone cells stay elements (their nodes are fixed, so their modulus only enters the stable
+    /// time step: give them the tissue's). @throw palp::ValueError (voxelisation, no support).
+    static std::shared_ptr<DeformableModel> fromVolume(
+        const volume::Volume& volume, fem::VoxelizeOptions voxelize,
+        const fem::ElasticMaterial& material, std::optional<fem::BoxFace> supportFace,
+        const DeformableOptions& options = {},
+        const std::function<bool(const Eigen::Vector3d&)>& fixedMask = {});
+
+    const fem::FemModel& model() const noexcept { return mModel; }
+    const fem::Constraints& constraints() const noexcept { return mConstraints; }
+    /// Sorted fixed nodes (support and inhomogeneities).
+    const std::vector<int>& fixedNodes() const noexcept { return mFixed; }
+    /// Boundary surface (rest positions, outward triangles, vertex -> node).
+    const fem::SurfaceMesh& surface() const noexcept { return mSurface; }
+    /// Free nodes of the boundary surface: the nodes a contact force may load.
+    const std::vector<int>& loadNodes() const noexcept { return mLoadNodes; }
+    const DeformableOptions& options() const noexcept { return mOptions; }
+    /// Surface vertex of node @p n, -1 for a node not on the surface.
+    int vertexOfNode(int n) const noexcept { return mVertexOfNode[static_cast<std::size_t>(n)]; }
+    /// Triangles around surface vertex @p v: entries [triangleStart[v], triangleStart[v + 1]) of
+    /// vertexTriangles().
+    const std::vector<int>& triangleStart() const noexcept { return mTriStart; }
+    const std::vector<int>& vertexTriangles() const noexcept { return mVertexTris; }
+
+  private:
+    fem::FemModel mModel;
+    std::vector<int> mFixed;
+    fem::Constraints mConstraints;
+    fem::SurfaceMesh mSurface;
+    std::vector<int> mLoadNodes;
+    std::vector<int> mVertexOfNode, mTriStart, mVertexTris;
+    DeformableOptions mOptions;
+};
+
+/// The per-session state of a deformable body: explicit solver, nodal forces and the deformed
+/// surface in its own EmbreeScene (one deforming mesh, mask kMaskSurface).
+///
+/// One tick: applyContactForce() (or clearForce()), optionally anchor() a point on the surface,
+/// step() (FEM step by T, copy of the deformed surface into Embree, refit), then
+/// anchoredPosition() is the anchored point carried with the surface.
+///
+/// Cost (Release, loaded 2-core VM, `palp palpate --deformable --fast`, the whole tick):
+/// see the figures in the report of the change that added it and bench/README.md; the refit is
+/// O(#triangles) (~0.3 ms for 2k triangles measured earlier), the FEM step O(#elements x
+/// substeps). Keep real-time meshes to about a 13^3-node cube (1,700 surface triangles).
+///
+/// @par Threading  One thread (the servo thread) drives a body; surfaces() may be traced from
+///      that thread between steps.
+/// @par Real-time  applyContactForce, clearForce, anchor, step and the accessors are noexcept
+///      and allocation-free; step() is bounded by maxSubsteps and the refit is O(#triangles)
+///      inside Embree (measured allocation-free with palp's counting operator new).
+class DeformableBody {
+  public:
+    /// Allocates everything. @throw palp::ValueError for a null model, palp::Error from Embree.
+    explicit DeformableBody(std::shared_ptr<const DeformableModel> model);
+    ~DeformableBody();
+    DeformableBody(const DeformableBody&) = delete;
+    DeformableBody& operator=(const DeformableBody&) = delete;
+
+    const DeformableModel& model() const noexcept { return *mModel; }
+    /// The deformed surface (committed), for the proxy.
+    const kernels::EmbreeScene& surfaces() const noexcept { return *mScene; }
+
+    /// Replaces the external load by @p force (N, world) acting at @p point (m, on or near the
+    /// surface), spread by the Gaussian filter. Returns the node with the largest share (the
+    /// nearest), or -1 (and no load) for non-finite input.
+    /// @par Real-time  O(#surface nodes).
+    int applyContactForce(const Eigen::Vector3d& point, const Eigen::Vector3d& force) noexcept;
+    /// Removes the external load. @par Real-time
+    void clearForce() noexcept;
+
+    /// Finds the surface triangle under @p point along -@p normal (within 1 mm; when the ray
+    /// slips through an edge or vertex, the closest triangle around the contact node) and
+    /// remembers the point in its barycentric frame with its offset along the triangle's normal;
+    /// false when no triangle is found. @par Real-time
+    bool anchor(const Eigen::Vector3d& point, const Eigen::Vector3d& normal) noexcept;
+    /// The anchored point on the current (deformed) triangle, at the same offset along its
+    /// current normal. @par Real-time
+    Eigen::Vector3d anchoredPosition() const noexcept;
+
+    /// FEM step by @p dtSeconds under the current load, then the deformed surface into Embree
+    /// and a refit. Returns the solver's flags (fem::StepFlag); a failed refit adds
+    /// kRefitFailed and leaves the previous surface. @par Real-time
+    unsigned step(double dtSeconds) noexcept;
+    /// Flag of step(): Embree's refit reported an error.
+    static constexpr unsigned kRefitFailed = 1u << 8;
+
+    /// Nodal displacement, m (#dofs).
+    const Eigen::VectorXd& displacement() const noexcept { return mSolver.displacement(); }
+    /// Current external nodal forces, N (#dofs).
+    const Eigen::VectorXd& nodalForce() noexcept { return mSolver.externalForce(); }
+    /// Nodes loaded by the last applyContactForce() (the first loadedCount() entries).
+    const std::vector<int>& loadedNodes() const noexcept { return mLoaded; }
+    std::size_t loadedCount() const noexcept { return mLoadedCount; }
+    /// Sum of the current external nodal forces (over the loaded nodes), N. @par Real-time
+    Eigen::Vector3d loadSum() const noexcept;
+    /// Current deformed position of node @p n, m.
+    Eigen::Vector3d nodePosition(int n) const noexcept;
+    /// The node with the largest share of the last load, -1 without load.
+    int contactNode() const noexcept { return mContactNode; }
+    /// Largest displacement magnitude over the surface vertices after the last step, m.
+    double maxSurfaceDisplacement() const noexcept { return mMaxSurfaceDisplacement; }
+    /// Substeps of the last step().
+    int lastSubsteps() const noexcept { return mLastSubsteps; }
+
+  private:
+    bool anchorOn(int tri, const Eigen::Vector3d& point, const Eigen::Vector3d& normal) noexcept;
+
+    std::shared_ptr<const DeformableModel> mModel;
+    fem::ExplicitSolver mSolver;
+    std::unique_ptr<kernels::EmbreeScene> mScene;
+    unsigned mGeom = 0;
+    std::vector<float> mRest;       // #V by 3, rest surface positions
+    std::vector<float> mPositions;  // #V by 3, deformed, as handed to Embree
+    std::vector<int> mLoaded;       // nodes loaded by the last applyContactForce
+    std::vector<double> mWeights;   // scratch, one per load node
+    std::size_t mLoadedCount = 0;
+    int mContactNode = -1;
+    double mMaxSurfaceDisplacement = 0;
+    int mLastSubsteps = 0;
+    // Anchor: triangle, barycentric weights, offset along the oriented normal.
+    int mAnchorTri = -1;
+    std::array<double, 3> mAnchorBary{};
+    double mAnchorOffset = 0;
+    double mAnchorSign = 1;
+};
+
+}  // namespace palp::haptics

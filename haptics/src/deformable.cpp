@@ -1,0 +1,350 @@
+#include "palp/haptics/deformable.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <span>
+#include <string>
+
+#include "palp/error.h"
+
+namespace palp::haptics {
+namespace {
+
+std::string num(double v) { return std::to_string(v); }
+
+// Rest positions of the surface vertices as a kernels::TriangleMesh.
+kernels::TriangleMesh toTriangleMesh(const fem::SurfaceMesh& s) {
+    kernels::TriangleMesh m;
+    m.positions.reserve(3 * s.vertices.size());
+    for (const Eigen::Vector3f& v : s.vertices) {
+        m.positions.push_back(v.x());
+        m.positions.push_back(v.y());
+        m.positions.push_back(v.z());
+    }
+    m.indices.reserve(3 * s.triangles.size());
+    for (const auto& t : s.triangles) m.indices.insert(m.indices.end(), t.begin(), t.end());
+    return m;
+}
+
+}  // namespace
+
+void validateDeformableOptions(const DeformableOptions& o) {
+    if (!(o.filterWidth >= 0) || !std::isfinite(o.filterWidth)) {
+        throw ValueError("deformable: expected a finite filterWidth >= 0 m, found " +
+                         num(o.filterWidth));
+    }
+    if (!(o.filterCutoff >= 1) || !std::isfinite(o.filterCutoff)) {
+        throw ValueError("deformable: expected a finite filterCutoff >= 1, found " +
+                         num(o.filterCutoff));
+    }
+    if (!(o.solver.safetyFactor > 0 && o.solver.safetyFactor <= 1)) {
+        throw ValueError("deformable: expected solver.safetyFactor in (0, 1], found " +
+                         num(o.solver.safetyFactor));
+    }
+    if (o.solver.maxSubsteps < 1) {
+        throw ValueError("deformable: expected solver.maxSubsteps >= 1, found " +
+                         std::to_string(o.solver.maxSubsteps));
+    }
+}
+
+DeformableModel::DeformableModel(fem::FemModel model, std::vector<int> fixedNodes,
+                                 const DeformableOptions& options)
+    : mModel(std::move(model)),
+      mFixed(std::move(fixedNodes)),
+      mConstraints(mModel.dofCount()),
+      mOptions(options) {
+    validateDeformableOptions(options);
+    std::sort(mFixed.begin(), mFixed.end());
+    mFixed.erase(std::unique(mFixed.begin(), mFixed.end()), mFixed.end());
+    if (mFixed.empty()) {
+        throw ValueError(
+            "deformable: expected fixed nodes (a support face or an inhomogeneity), found none");
+    }
+    mConstraints.fixNodes(mFixed);  // throws for nodes outside the model
+    mSurface = mModel.mesh().boundarySurface();
+    std::vector<std::uint8_t> seen(static_cast<std::size_t>(mModel.mesh().nodeCount()), 0);
+    for (const std::int32_t n : mSurface.vertexNode) {
+        const auto i = static_cast<std::size_t>(n);
+        if (seen[i]) continue;
+        seen[i] = 1;
+        if (!mConstraints.isFixed(3 * n)) mLoadNodes.push_back(n);
+    }
+    std::sort(mLoadNodes.begin(), mLoadNodes.end());
+    mVertexOfNode.assign(seen.size(), -1);
+    for (std::size_t v = 0; v < mSurface.vertexNode.size(); ++v)
+        mVertexOfNode[static_cast<std::size_t>(mSurface.vertexNode[v])] = static_cast<int>(v);
+    mTriStart.assign(mSurface.vertices.size() + 1, 0);
+    for (const auto& t : mSurface.triangles)
+        for (const std::uint32_t v : t) ++mTriStart[v + 1];
+    for (std::size_t v = 0; v + 1 < mTriStart.size(); ++v) mTriStart[v + 1] += mTriStart[v];
+    mVertexTris.resize(static_cast<std::size_t>(mTriStart.back()));
+    std::vector<int> fill(mTriStart.begin(), mTriStart.end() - 1);
+    for (std::size_t i = 0; i < mSurface.triangles.size(); ++i)
+        for (const std::uint32_t v : mSurface.triangles[i])
+            mVertexTris[static_cast<std::size_t>(fill[v]++)] = static_cast<int>(i);
+    if (mLoadNodes.empty()) {
+        throw ValueError("deformable: expected free nodes on the boundary surface, found all " +
+                         std::to_string(mSurface.vertices.size()) + " surface nodes fixed");
+    }
+}
+
+std::shared_ptr<DeformableModel> DeformableModel::box(const Eigen::Vector3d& size,
+                                                      const std::array<int, 3>& nodeCounts,
+                                                      const fem::ElasticMaterial& material,
+                                                      fem::BoxFace supportFace,
+                                                      const DeformableOptions& options,
+                                                      const Eigen::Vector3d& origin) {
+    fem::FemModel model(fem::HexMesh::box(size, nodeCounts, material.youngsModulus, origin),
+                        material);
+    std::vector<int> fixed = model.mesh().faceNodes(supportFace);
+    return std::make_shared<DeformableModel>(std::move(model), std::move(fixed), options);
+}
+
+std::shared_ptr<DeformableModel> DeformableModel::fromVolume(
+    const volume::Volume& volume, fem::VoxelizeOptions voxelize,
+    const fem::ElasticMaterial& material, std::optional<fem::BoxFace> supportFace,
+    const DeformableOptions& options,
+    const std::function<bool(const Eigen::Vector3d&)>& fixedMask) {
+    validateDeformableOptions(options);
+    fem::validate(material);
+    if (!voxelize.youngsFromValue) {
+        const double e = material.youngsModulus;
+        voxelize.youngsFromValue = [e](double) { return e; };
+    }
+    fem::VoxelizedMesh vm = fem::voxelizeVolume(volume, voxelize);
+    std::vector<int> fixed = vm.boneNodes;
+    if (supportFace) {
+        const std::vector<int> face = vm.mesh.faceNodes(*supportFace);
+        fixed.insert(fixed.end(), face.begin(), face.end());
+    }
+    if (fixedMask) {
+        const std::vector<int> masked = vm.mesh.nodesWhere(fixedMask);
+        fixed.insert(fixed.end(), masked.begin(), masked.end());
+    }
+    fem::FemModel model(std::move(vm.mesh), material);
+    return std::make_shared<DeformableModel>(std::move(model), std::move(fixed), options);
+}
+
+DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
+    : mModel(model ? std::move(model)
+                   : throw ValueError("deformable body: expected a model, found a null pointer")),
+      mSolver(mModel->model(), mModel->constraints(), mModel->options().solver),
+      mScene(std::make_unique<kernels::EmbreeScene>()) {
+    const kernels::TriangleMesh mesh = toTriangleMesh(mModel->surface());
+    mRest = mesh.positions;
+    mPositions = mesh.positions;
+    mGeom = mScene->addDeformingMesh(mesh, kernels::kMaskSurface);
+    mScene->commit();
+    mLoaded.resize(mModel->loadNodes().size());
+    mWeights.resize(mModel->loadNodes().size());
+    mSolver.externalForce().setZero();
+}
+
+DeformableBody::~DeformableBody() = default;
+
+Eigen::Vector3d DeformableBody::nodePosition(int n) const noexcept {
+    const Eigen::VectorXd& u = mSolver.displacement();
+    return mModel->model().mesh().nodePosition(n) + u.segment<3>(3 * n);
+}
+
+Eigen::Vector3d DeformableBody::loadSum() const noexcept {
+    // externalForce() is non-const in ExplicitSolver; reading it does not change the solver.
+    const Eigen::VectorXd& f = const_cast<fem::ExplicitSolver&>(mSolver).externalForce();
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < mLoadedCount; ++i) sum += f.segment<3>(3 * mLoaded[i]);
+    return sum;
+}
+
+void DeformableBody::clearForce() noexcept {
+    Eigen::VectorXd& f = mSolver.externalForce();
+    for (std::size_t i = 0; i < mLoadedCount; ++i) f.segment<3>(3 * mLoaded[i]).setZero();
+    mLoadedCount = 0;
+    mContactNode = -1;
+}
+
+int DeformableBody::applyContactForce(const Eigen::Vector3d& point,
+                                      const Eigen::Vector3d& force) noexcept {
+    clearForce();
+    if (!point.allFinite() || !force.allFinite()) return -1;
+    const std::vector<int>& nodes = mModel->loadNodes();
+    const double sigma = mModel->options().filterWidth;
+    const double cutoff2 = sigma > 0 ? std::pow(mModel->options().filterCutoff * sigma, 2) : 0;
+    const double inv2s2 = sigma > 0 ? 1.0 / (2 * sigma * sigma) : 0;
+    double best = std::numeric_limits<double>::infinity();
+    int nearest = -1;
+    double total = 0;
+    for (std::size_t i = 0; i < nodes.size(); ++i) {
+        const int n = nodes[i];
+        const double d2 = (nodePosition(n) - point).squaredNorm();
+        if (d2 < best) {
+            best = d2;
+            nearest = n;
+        }
+        if (sigma > 0 && d2 <= cutoff2) {
+            const double w = std::exp(-d2 * inv2s2);
+            mLoaded[mLoadedCount] = n;
+            mWeights[mLoadedCount] = w;
+            ++mLoadedCount;
+            total += w;
+        }
+    }
+    if (nearest < 0) return -1;
+    Eigen::VectorXd& f = mSolver.externalForce();
+    // The nearest node takes the remainder, so the shares sum to the force to rounding.
+    Eigen::Vector3d rest = force;
+    bool nearestListed = false;
+    if (total > 0) {
+        for (std::size_t i = 0; i < mLoadedCount; ++i) {
+            if (mLoaded[i] == nearest) {
+                nearestListed = true;
+                continue;
+            }
+            const Eigen::Vector3d share = (mWeights[i] / total) * force;
+            f.segment<3>(3 * mLoaded[i]) = share;
+            rest -= share;
+        }
+    }
+    if (!nearestListed) {
+        // Sigma 0, or every node farther than the cutoff (then none was listed): the nearest
+        // node carries all of the force.
+        mLoaded[0] = nearest;
+        mLoadedCount = 1;
+    }
+    f.segment<3>(3 * nearest) = rest;
+    mContactNode = nearest;
+    return nearest;
+}
+
+bool DeformableBody::anchorOn(int tri, const Eigen::Vector3d& point,
+                              const Eigen::Vector3d& normal) noexcept {
+    const auto& t = mModel->surface().triangles[static_cast<std::size_t>(tri)];
+    Eigen::Vector3d v[3];
+    for (int k = 0; k < 3; ++k) {
+        const std::size_t i = 3 * static_cast<std::size_t>(t[static_cast<std::size_t>(k)]);
+        v[k] = Eigen::Vector3d(mPositions[i], mPositions[i + 1], mPositions[i + 2]);
+    }
+    const Eigen::Vector3d ng = (v[1] - v[0]).cross(v[2] - v[0]);
+    const double ngn = ng.norm();
+    if (!(ngn > 0)) return false;
+    // Barycentric coordinates of the point's projection, in double (Embree's u, v are float).
+    const Eigen::Vector3d e1 = v[1] - v[0], e2 = v[2] - v[0], w = point - v[0];
+    const double a11 = e1.dot(e1), a12 = e1.dot(e2), a22 = e2.dot(e2);
+    const double det = a11 * a22 - a12 * a12;
+    if (!(det > 0)) return false;
+    const double b1 = (a22 * w.dot(e1) - a12 * w.dot(e2)) / det;
+    const double b2 = (a11 * w.dot(e2) - a12 * w.dot(e1)) / det;
+    mAnchorBary = {1 - b1 - b2, b1, b2};
+    mAnchorSign = ng.dot(normal) >= 0 ? 1.0 : -1.0;
+    mAnchorOffset = mAnchorSign * ng.dot(w) / ngn;
+    mAnchorTri = tri;
+    return true;
+}
+
+bool DeformableBody::anchor(const Eigen::Vector3d& point, const Eigen::Vector3d& normal) noexcept {
+    mAnchorTri = -1;
+    const double nn = normal.norm();
+    if (!point.allFinite() || !(nn > 0) || !std::isfinite(nn)) return false;
+    const Eigen::Vector3d d = -normal / nn;
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    alignas(16) RTCRayHit rh;
+    rh.ray.org_x = static_cast<float>(point.x());
+    rh.ray.org_y = static_cast<float>(point.y());
+    rh.ray.org_z = static_cast<float>(point.z());
+    rh.ray.dir_x = static_cast<float>(d.x());
+    rh.ray.dir_y = static_cast<float>(d.y());
+    rh.ray.dir_z = static_cast<float>(d.z());
+    rh.ray.tnear = 0.0f;
+    rh.ray.tfar = 1e-3f;
+    rh.ray.time = 0.0f;
+    rh.ray.mask = kernels::kMaskSurface;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(mScene->handle(), &ctx, &rh);
+    if (rh.hit.geomID == mGeom && anchorOn(static_cast<int>(rh.hit.primID), point, normal))
+        return true;
+    // Embree's test is not watertight: a ray through a vertex or an edge can slip between the
+    // triangles. Then take the triangle around the nearest surface node whose (clamped)
+    // barycentric point is closest, among those facing the normal.
+    const int node = mContactNode;
+    if (node < 0) return false;
+    const int vertex = mModel->vertexOfNode(node);
+    if (vertex < 0) return false;
+    const std::vector<int>& start = mModel->triangleStart();
+    const std::vector<int>& tris = mModel->vertexTriangles();
+    int best = -1;
+    double bestD = std::numeric_limits<double>::infinity();
+    for (int i = start[static_cast<std::size_t>(vertex)];
+         i < start[static_cast<std::size_t>(vertex) + 1]; ++i) {
+        const int tri = tris[static_cast<std::size_t>(i)];
+        if (!anchorOn(tri, point, normal)) continue;
+        const auto& t = mModel->surface().triangles[static_cast<std::size_t>(tri)];
+        Eigen::Vector3d v[3];
+        for (int k = 0; k < 3; ++k) {
+            const std::size_t j = 3 * static_cast<std::size_t>(t[static_cast<std::size_t>(k)]);
+            v[k] = Eigen::Vector3d(mPositions[j], mPositions[j + 1], mPositions[j + 2]);
+        }
+        const Eigen::Vector3d ng = (v[1] - v[0]).cross(v[2] - v[0]);
+        if (ng.dot(normal) * mAnchorSign <= 0 || std::abs(ng.normalized().dot(d)) < 0.5) continue;
+        std::array<double, 3> b = mAnchorBary;
+        for (double& x : b) x = std::max(x, 0.0);
+        const double sum = b[0] + b[1] + b[2];
+        const Eigen::Vector3d q = (b[0] * v[0] + b[1] * v[1] + b[2] * v[2]) / sum;
+        const double dist = (point - q).squaredNorm();
+        if (dist < bestD) {
+            bestD = dist;
+            best = tri;
+        }
+    }
+    mAnchorTri = -1;
+    return best >= 0 && anchorOn(best, point, normal);
+}
+
+Eigen::Vector3d DeformableBody::anchoredPosition() const noexcept {
+    if (mAnchorTri < 0) return Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+    const auto& tri = mModel->surface().triangles[static_cast<std::size_t>(mAnchorTri)];
+    Eigen::Vector3d v[3];
+    for (int k = 0; k < 3; ++k) {
+        const std::size_t i = 3 * static_cast<std::size_t>(tri[static_cast<std::size_t>(k)]);
+        v[k] = Eigen::Vector3d(mPositions[i], mPositions[i + 1], mPositions[i + 2]);
+    }
+    const Eigen::Vector3d ng = (v[1] - v[0]).cross(v[2] - v[0]);
+    const double ngn = ng.norm();
+    const Eigen::Vector3d onTri =
+        mAnchorBary[0] * v[0] + mAnchorBary[1] * v[1] + mAnchorBary[2] * v[2];
+    if (!(ngn > 0)) return onTri;
+    return onTri + (mAnchorSign * mAnchorOffset / ngn) * ng;
+}
+
+unsigned DeformableBody::step(double dtSeconds) noexcept {
+    const fem::StepResult r = mSolver.step(dtSeconds);
+    mLastSubsteps = r.substeps;
+    unsigned flags = r.flags;
+    const Eigen::VectorXd& u = mSolver.displacement();
+    const std::vector<std::int32_t>& vn = mModel->surface().vertexNode;
+    double maxD2 = 0;
+    for (std::size_t i = 0; i < vn.size(); ++i) {
+        const auto n = static_cast<Eigen::Index>(vn[i]);
+        const double ux = u[3 * n], uy = u[3 * n + 1], uz = u[3 * n + 2];
+        maxD2 = std::max(maxD2, ux * ux + uy * uy + uz * uz);
+        mPositions[3 * i] = static_cast<float>(mRest[3 * i] + ux);
+        mPositions[3 * i + 1] = static_cast<float>(mRest[3 * i + 1] + uy);
+        mPositions[3 * i + 2] = static_cast<float>(mRest[3 * i + 2] + uz);
+    }
+    mMaxSurfaceDisplacement = std::sqrt(maxD2);
+    if (!mScene->updateVertices(mGeom, std::span<const float>(mPositions))) {
+        return flags | kRefitFailed;
+    }
+    try {
+        mScene->commit();
+    } catch (...) {
+        flags |= kRefitFailed;
+    }
+    return flags;
+}
+
+}  // namespace palp::haptics

@@ -1,0 +1,446 @@
+// Deformable palpation with plain virtual coupling (ALGORITHMS.md sections 5 and 10): the
+// quasi-static consistency of the explicit body with the implicit solve, Newton's third law
+// between hand and tissue, the Gaussian filter (sum, width, single node, force steps of a moving
+// contact), the proxy never inside the deformed surface, bone nodes fixed, and safety / zero
+// allocations per tick.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include "alloc_counter.h"
+#include "palp/error.h"
+#include "palp/fem/implicit_solver.h"
+#include "palp/haptics/deformable.h"
+#include "palp/haptics/session.h"
+#include "palp/volume/phantom.h"
+
+namespace palp::haptics {
+namespace {
+
+constexpr double kT = 1e-3;
+
+const DeviceSpec& touchX() {
+    const DeviceSpec* s = findDeviceSpec("3D Systems Touch X");
+    EXPECT_NE(s, nullptr);
+    return *s;
+}
+
+// A kinematic hand: the probe follows a piecewise-linear path through keyframes exactly.
+class PathDevice final : public Device {
+  public:
+    struct Key {
+        double t;
+        Eigen::Vector3d p;
+    };
+    explicit PathDevice(std::vector<Key> keys) : mKeys(std::move(keys)) {}
+    DeviceState read() noexcept override {
+        const double t = static_cast<double>(mTick++) * kT;
+        DeviceState s;
+        s.velocity.setZero();
+        s.position = mKeys.back().p;
+        if (t <= mKeys.front().t) s.position = mKeys.front().p;
+        for (std::size_t i = 1; i < mKeys.size(); ++i) {
+            if (t > mKeys[i - 1].t && t <= mKeys[i].t) {
+                const double a = (t - mKeys[i - 1].t) / (mKeys[i].t - mKeys[i - 1].t);
+                s.position = mKeys[i - 1].p + a * (mKeys[i].p - mKeys[i - 1].p);
+                s.velocity = (mKeys[i].p - mKeys[i - 1].p) / (mKeys[i].t - mKeys[i - 1].t);
+                break;
+            }
+        }
+        s.timestampSeconds = t;
+        mLast = s;
+        return s;
+    }
+    void write(const Eigen::Vector3d& f) noexcept override { mForce = f; }
+    const DeviceSpec& spec() const noexcept override { return touchX(); }
+    const DeviceState& last() const { return mLast; }
+    double endTime() const { return mKeys.back().t; }
+
+  private:
+    std::vector<Key> mKeys;
+    std::uint64_t mTick = 0;
+    DeviceState mLast;
+    Eigen::Vector3d mForce{Eigen::Vector3d::Zero()};
+};
+
+Eigen::Vector3d mm(double x, double y, double z) { return 1e-3 * Eigen::Vector3d(x, y, z); }
+
+// Soft cube, 40 mm, 9 nodes per axis (h = 5 mm): surface y = 0 facing -y (the phantoms'
+// frame, pressed along +y), x and z in +-20 mm, fixed on its bottom face y = 40 mm.
+fem::ElasticMaterial softTissue() {
+    fem::ElasticMaterial m;
+    m.youngsModulus = 5e3;
+    m.poissonRatio = 0.45;
+    m.density = 1e3;
+    m.dampingAlpha = 60;  // about critical for the lowest modes: steady within ~0.3 s
+    return m;
+}
+
+std::shared_ptr<DeformableModel> cube(double filterWidth, int nodes = 9) {
+    DeformableOptions o;
+    o.filterWidth = filterWidth;
+    return DeformableModel::box(Eigen::Vector3d::Constant(0.04), {nodes, nodes, nodes},
+                                softTissue(), fem::BoxFace::yMax, o, mm(-20, 0, -20));
+}
+
+int topCentreNode(const DeformableModel& m) {
+    const fem::HexMesh& mesh = m.model().mesh();
+    const auto c = mesh.nodeCounts();
+    return mesh.node(c[0] / 2, 0, c[2] / 2);
+}
+
+// Quasi-static displacement under the nodal load @p f (the zero-error baseline).
+Eigen::VectorXd quasiStatic(const DeformableModel& m, const Eigen::VectorXd& f) {
+    fem::ImplicitOptions o;
+    o.integrator = fem::Integrator::quasiStatic;
+    o.solver = fem::LinearSolverKind::simplicialLdlt;
+    fem::ImplicitSolver s(m.model(), m.constraints(), o);
+    s.externalForce() = f;
+    s.step(kT);
+    return s.displacement();
+}
+
+// Ray parity (majority of three skew directions), in double precision and independent of
+// Embree, against the surface of @p m displaced by @p u.
+bool inside(const DeformableModel& m, const Eigen::VectorXd& u, const Eigen::Vector3d& p) {
+    const fem::SurfaceMesh& sm = m.surface();
+    std::vector<Eigen::Vector3d> x(sm.vertices.size());
+    for (std::size_t i = 0; i < x.size(); ++i)
+        x[i] = sm.vertices[i].cast<double>() + u.segment<3>(3 * sm.vertexNode[i]);
+    const std::array<Eigen::Vector3d, 3> dirs = {Eigen::Vector3d(0.267261, 0.534522, 0.801784),
+                                                 Eigen::Vector3d(-0.639602, 0.426401, 0.639602),
+                                                 Eigen::Vector3d(0.562254, -0.749672, 0.349215)};
+    int votes = 0;
+    for (const Eigen::Vector3d& d : dirs) {
+        int crossings = 0;
+        for (const auto& t : sm.triangles) {
+            // Moller-Trumbore.
+            const Eigen::Vector3d &a = x[t[0]], &b = x[t[1]], &c = x[t[2]];
+            const Eigen::Vector3d e1 = b - a, e2 = c - a, q = d.cross(e2);
+            const double det = e1.dot(q);
+            if (std::abs(det) < 1e-30) continue;
+            const Eigen::Vector3d s = p - a;
+            const double bu = s.dot(q) / det;
+            const Eigen::Vector3d r = s.cross(e1);
+            const double bv = d.dot(r) / det;
+            const double tt = e2.dot(r) / det;
+            if (bu >= 0 && bv >= 0 && bu + bv <= 1 && tt > 0) ++crossings;
+        }
+        votes += crossings % 2;
+    }
+    return votes >= 2;
+}
+
+SessionParams vcParams(double k = 300) {
+    SessionParams p;
+    p.coupling.mode = CouplingMode::VC;
+    p.coupling.baseStiffness = k;
+    p.coupling.maxStiffness = k;
+    p.proxy.staticFriction = 0.5;
+    p.proxy.dynamicFriction = 0.3;
+    return p;
+}
+
+std::shared_ptr<Scene> deformableScene(std::shared_ptr<const DeformableModel> model) {
+    auto scene = std::make_shared<Scene>();
+    scene->commit();
+    scene->setDeformable(std::move(model));
+    return scene;
+}
+
+// (1) A constant force held on the explicit body settles where the implicit quasi-static
+// solve of the same nodal load puts it.
+TEST(DeformableBody, ConstantForceSettlesOnQuasiStaticSolution) {
+    auto model = cube(3e-3);
+    DeformableBody body(model);
+    const Eigen::Vector3d force(0.05, 0.3, -0.02);  // N on the tissue: mostly pressing in
+    const int node = body.applyContactForce(Eigen::Vector3d::Zero(), force);
+    EXPECT_EQ(node, topCentreNode(*model));
+    for (int i = 0; i < 1500; ++i) EXPECT_EQ(body.step(kT), 0u) << "tick " << i;
+    const Eigen::VectorXd ref = quasiStatic(*model, body.nodalForce());
+    const Eigen::Vector3d u = body.displacement().segment<3>(3 * node);
+    const Eigen::Vector3d uRef = ref.segment<3>(3 * node);
+    EXPECT_GT(uRef.y(), 1e-4);  // a real indentation (about a millimetre)
+    EXPECT_NEAR(u.y(), uRef.y(), 0.01 * uRef.y());
+    EXPECT_LT((body.displacement() - ref).lpNorm<Eigen::Infinity>(), 0.02 * uRef.norm());
+    EXPECT_NEAR(body.maxSurfaceDisplacement(),
+                ref.reshaped(3, ref.size() / 3).colwise().norm().maxCoeff(), 0.02 * uRef.norm());
+}
+
+// (1) Through a session: a slow press held still reaches a steady state whose indentation is
+// the quasi-static one under the final nodal load, and at every tick the nodal forces on the
+// tissue sum to minus the force on the hand (Newton's third law).
+TEST(DeformableSession, SteadyPressMatchesQuasiStaticAndThirdLaw) {
+    auto model = cube(3e-3);
+    auto scene = deformableScene(model);
+    PathDevice device({{0.0, mm(0, -5, 0)}, {0.6, mm(0, 4, 0)}, {2.0, mm(0, 4, 0)}});
+    // k below the local stiffness of the tissue at a 3 mm filter: the explicit (one tick
+    // delayed) coupling is stable there (deformable.h).
+    Session session(scene, device, vcParams(100));
+    int contactTicks = 0;
+    Snapshot s;
+    for (int i = 0; i < 2000; ++i) {
+        s = session.step();
+        ASSERT_TRUE(s.force.allFinite());
+        if (s.contactCount > 0) {
+            ++contactTicks;
+            // Exact up to the rounding of the nodal shares' sum.
+            EXPECT_LT((s.tissueForce + s.force).norm(), 1e-12 + 1e-12 * s.force.norm())
+                << "tick " << i;
+        } else {
+            EXPECT_EQ(s.tissueForce.norm(), 0.0) << "tick " << i;
+        }
+    }
+    EXPECT_GT(contactTicks, 1200);
+    ASSERT_GT(s.contactCount, 0);
+    const DeformableBody* body = session.deformable();
+    ASSERT_NE(body, nullptr);
+    // The force the user feels is the VC spring, pressing back out of the tissue.
+    EXPECT_NEAR(s.force.y(), -100 * (s.probe.y() - s.proxy.y()), 1e-9);
+    EXPECT_GT(-s.force.y(), 0.05);
+    // The nodal load on the tissue sums to -F_user and gives the quasi-static indentation.
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    const Eigen::VectorXd& f = const_cast<DeformableBody*>(body)->nodalForce();
+    for (Eigen::Index d = 0; d < f.size(); d += 3) sum += f.segment<3>(d);
+    EXPECT_LT((sum + s.force).norm(), 1e-12);
+    const Eigen::VectorXd ref = quasiStatic(*model, f);
+    const int node = s.contactNode;
+    ASSERT_GE(node, 0);
+    const double uy = body->displacement()[3 * node + 1], uyRef = ref[3 * node + 1];
+    EXPECT_GT(uyRef, 1e-3);
+    EXPECT_NEAR(uy, uyRef, 0.03 * uyRef);
+    // The proxy sits on the deformed surface: at the contact node's depth (node under it).
+    EXPECT_NEAR(s.proxy.y(), uy, 0.1e-3);
+}
+
+// (2) The filter: the shares sum to the total; width 0 loads one node; a wider filter gives a
+// wider and shallower indentation.
+TEST(DeformableBody, GaussianFilterSumWidthAndSingleNode) {
+    const Eigen::Vector3d point = mm(1.2, 0, -0.7), force(0.1, 0.4, 0.05);
+    std::vector<double> depth, spread;
+    for (double sigma : {0.0, 2e-3, 6e-3}) {
+        auto model = cube(sigma);
+        DeformableBody body(model);
+        body.applyContactForce(point, force);
+        const Eigen::VectorXd& f = body.nodalForce();
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        int loaded = 0;
+        for (Eigen::Index d = 0; d < f.size(); d += 3) {
+            sum += f.segment<3>(d);
+            if (f.segment<3>(d).norm() > 0) ++loaded;
+        }
+        EXPECT_LT((sum - force).norm(), 1e-15) << "sigma " << sigma;
+        EXPECT_EQ((sum - body.loadSum()).norm(), 0.0);
+        if (sigma == 0) {
+            EXPECT_EQ(loaded, 1);
+            EXPECT_EQ(f.segment<3>(3 * topCentreNode(*model)), force);
+        } else {
+            EXPECT_GT(loaded, 4) << "sigma " << sigma;
+        }
+        // Depth at the contact and the load-weighted spread of the surface indentation.
+        const Eigen::VectorXd u = quasiStatic(*model, f);
+        depth.push_back(u[3 * topCentreNode(*model) + 1]);
+        double m0 = 0, m2 = 0;
+        for (int n : model->loadNodes()) {
+            const Eigen::Vector3d x = model->model().mesh().nodePosition(n);
+            if (x.y() != 0) continue;  // top face only
+            const double w = std::max(0.0, u[3 * n + 1]);
+            m0 += w;
+            m2 += w * (x - point).squaredNorm();
+        }
+        spread.push_back(std::sqrt(m2 / m0));
+    }
+    EXPECT_GT(depth[0], depth[1]);
+    EXPECT_GT(depth[1], depth[2]);
+    EXPECT_LT(spread[0], spread[1]);
+    EXPECT_LT(spread[1], spread[2]);
+}
+
+// (2) A contact sliding across the nodes: without the filter the whole force jumps from node to
+// node; with it the largest nodal force step per tick is far smaller (paper VI).
+TEST(DeformableBody, FilterSmoothsMovingContact) {
+    std::vector<double> largestStep;
+    for (double sigma : {0.0, 3e-3}) {
+        auto model = cube(sigma);
+        DeformableBody body(model);
+        Eigen::VectorXd prev = Eigen::VectorXd::Zero(model->model().dofCount());
+        double largest = 0;
+        for (int i = 0; i <= 1000; ++i) {  // 20 mm in 1 s at 1 kHz: 20 um per tick
+            const Eigen::Vector3d p = mm(-10 + 0.02 * i, 0, 0.3);
+            body.applyContactForce(p, Eigen::Vector3d(0, 1, 0));
+            const Eigen::VectorXd& f = body.nodalForce();
+            if (i > 0) {
+                for (Eigen::Index d = 0; d < f.size(); d += 3)
+                    largest = std::max(largest, (f.segment<3>(d) - prev.segment<3>(d)).norm());
+            }
+            prev = f;
+        }
+        largestStep.push_back(largest);
+    }
+    EXPECT_NEAR(largestStep[0], 1.0, 1e-12);  // the full force changes node
+    EXPECT_LT(largestStep[1], 0.02 * largestStep[0]);
+}
+
+// (3) Random presses, slides and releases (fast releases included): the proxy is never inside
+// the deformed surface mesh, while the probe is inside it for many ticks.
+TEST(DeformableSession, ProxyNeverInsideDeformedSurface) {
+    auto model = cube(3e-3);
+    auto scene = deformableScene(model);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> lateral(-12, 12), deep(2, 8), secs(0.05, 0.4);
+    std::vector<PathDevice::Key> keys;
+    double t = 0;
+    keys.push_back({t, mm(0, -5, 0)});
+    for (int press = 0; press < 6; ++press) {
+        const double x = lateral(rng), z = lateral(rng);
+        keys.push_back({t += secs(rng), mm(x, -3, z)});
+        keys.push_back({t += secs(rng), mm(x, deep(rng), z)});
+        keys.push_back({t += secs(rng), mm(lateral(rng), deep(rng), lateral(rng))});
+        keys.push_back({t += 0.3 * secs(rng), mm(x, -4, z)});  // quick release
+    }
+    keys.push_back({t += 0.2, mm(0, -5, 0)});
+    PathDevice device(keys);
+    Session session(scene, device, vcParams(100));
+    const DeformableBody* body = session.deformable();
+    const auto ticks = static_cast<int>(device.endTime() / kT);
+    int probeInside = 0, proxyInside = 0;
+    Eigen::VectorXd surface = body->displacement();  // the surface the tick's proxy update sees
+    for (int i = 0; i < ticks; ++i) {
+        const Snapshot& s = session.step();
+        if (inside(*model, surface, s.probe)) ++probeInside;
+        if (inside(*model, surface, s.proxy)) {
+            ++proxyInside;
+            ADD_FAILURE() << "proxy inside at tick " << i << ": " << s.proxy.transpose();
+            if (proxyInside > 5) break;
+        }
+        surface = body->displacement();
+    }
+    EXPECT_GT(probeInside, ticks / 4);
+    EXPECT_EQ(proxyInside, 0);
+}
+
+// (4) Nodes inside the bone stay exactly where they are while the tissue above them moves.
+TEST(DeformableBody, BoneNodesStayFixed) {
+    volume::PhantomSpec spec;
+    spec.params.scene = volume::PhantomScene::Bone;
+    spec.voxelSize = 2e-3;
+    const volume::Volume vol = volume::makePhantomVolume(spec);
+    fem::VoxelizeOptions vo;
+    vo.elementSize = 5e-3;
+    vo.boneThreshold = 500;
+    const auto model =
+        DeformableModel::fromVolume(vol, vo, softTissue(), fem::BoxFace::yMax, DeformableOptions{});
+    const fem::VoxelizedMesh vm = fem::voxelizeVolume(vol, [&] {
+        fem::VoxelizeOptions o = vo;
+        o.youngsFromValue = [](double) { return 5e3; };
+        return o;
+    }());
+    ASSERT_GT(vm.boneNodes.size(), 100u);
+    for (int n : vm.boneNodes) {
+        ASSERT_TRUE(model->constraints().isFixed(3 * n));
+        // Bone nodes lie in the slab (depth 25..31 mm, to a cell).
+        const double y = model->model().mesh().nodePosition(n).y();
+        EXPECT_GT(y, 0.020);
+        EXPECT_LT(y, 0.036);
+    }
+    DeformableBody body(model);
+    body.applyContactForce(mm(0, 0, 0), Eigen::Vector3d(0, 1.0, 0));
+    for (int i = 0; i < 200; ++i) body.step(kT);
+    const Eigen::VectorXd& u = body.displacement();
+    EXPECT_GT(body.maxSurfaceDisplacement(), 1e-3);
+    // Nodes just above the bone move; bone nodes are exactly zero.
+    double aboveBone = 0;
+    for (int n = 0; n < model->model().mesh().nodeCount(); ++n) {
+        const Eigen::Vector3d x = model->model().mesh().nodePosition(n);
+        if (std::abs(x.x()) < 3e-3 && std::abs(x.z()) < 3e-3 && std::abs(x.y() - 0.02) < 1e-4)
+            aboveBone = std::max(aboveBone, u.segment<3>(3 * n).norm());
+    }
+    EXPECT_GT(aboveBone, 1e-6);
+    for (int n : vm.boneNodes) {
+        EXPECT_EQ(u[3 * n], 0.0);
+        EXPECT_EQ(u[3 * n + 1], 0.0);
+        EXPECT_EQ(u[3 * n + 2], 0.0);
+    }
+}
+
+// (5) A hard, deep press with a stiff coupling: the force is finite and within the device's
+// maximum at every tick, and a tick (proxy, coupling, FEM step, refit) allocates nothing.
+TEST(DeformableSession, SafeAndAllocationFreeTicks) {
+    auto model = cube(6e-3);  // the wider filter keeps k = 300 N/m stable
+    auto scene = deformableScene(model);
+    PathDevice device({{0.0, mm(0, -5, 0)},
+                       {0.3, mm(0, 60, 0)},
+                       {0.6, mm(8, 30, -5)},
+                       {0.7, mm(8, -5, -5)},
+                       {1.0, mm(-5, 20, 5)}});
+    Session session(scene, device, vcParams(300));
+    for (int i = 0; i < 20; ++i) session.step();  // warm-up (Embree's first refits)
+    const std::uint64_t before = test::allocationCount();
+    double largest = 0;
+    int clamped = 0;
+    for (int i = 20; i < 1000; ++i) {
+        const Snapshot& s = session.step();
+        if (!s.force.allFinite() || !s.tissueForce.allFinite()) {
+            ADD_FAILURE() << "non-finite force at tick " << i;
+            break;
+        }
+        largest = std::max(largest, s.force.norm());
+        clamped += s.clamped ? 1 : 0;
+        if (s.femFlags != 0) {
+            ADD_FAILURE() << "fem flags " << s.femFlags << " at tick " << i;
+            break;
+        }
+    }
+    const std::uint64_t tickAllocations = test::allocationCount() - before;
+    // Embree's refit (rtcCommitScene) calls operator new a few times per commit; measure that
+    // alone on a deforming mesh of the same size: everything else in a tick allocates nothing.
+    kernels::EmbreeScene refitOnly;
+    kernels::TriangleMesh mesh;
+    for (const Eigen::Vector3f& v : model->surface().vertices)
+        mesh.positions.insert(mesh.positions.end(), {v.x(), v.y(), v.z()});
+    for (const auto& t : model->surface().triangles)
+        mesh.indices.insert(mesh.indices.end(), t.begin(), t.end());
+    const unsigned geom = refitOnly.addDeformingMesh(mesh, kernels::kMaskSurface);
+    refitOnly.commit();
+    for (int i = 0; i < 20; ++i) refitOnly.commit();
+    const std::uint64_t refitBefore = test::allocationCount();
+    for (int i = 20; i < 1000; ++i) {
+        mesh.positions[0] += 1e-6f;
+        refitOnly.updateVertices(geom, mesh.positions);
+        refitOnly.commit();
+    }
+    const std::uint64_t refitAllocations = test::allocationCount() - refitBefore;
+    EXPECT_EQ(tickAllocations, refitAllocations);
+    EXPECT_LE(refitAllocations, 8u * 980u);  // a bounded few per refit, nothing that grows
+    EXPECT_LE(largest, touchX().maxForceN * (1 + 1e-12));
+    EXPECT_GT(clamped, 0);  // the press was hard enough to reach the clamp
+}
+
+TEST(DeformableSession, RefusesAvcAndBadOptions) {
+    auto scene = deformableScene(cube(3e-3));
+    PathDevice device({{0.0, mm(0, -5, 0)}});
+    SessionParams p = vcParams();
+    p.coupling.mode = CouplingMode::AVC;
+    p.coupling.source = RaySource::Mesh;
+    EXPECT_THROW(Session(scene, device, p), ValueError);
+    Session ok(scene, device, vcParams());
+    Command c;
+    c.kind = Command::Kind::SetCoupling;
+    c.coupling = vcParams().coupling;
+    c.coupling.mode = CouplingMode::AVCEC;
+    EXPECT_THROW(ok.send(c), ValueError);
+    DeformableOptions o;
+    o.filterWidth = -1e-3;
+    EXPECT_THROW(validateDeformableOptions(o), ValueError);
+    o = {};
+    o.filterCutoff = 0.5;
+    EXPECT_THROW(validateDeformableOptions(o), ValueError);
+    EXPECT_THROW(DeformableBody(nullptr), ValueError);
+}
+
+}  // namespace
+}  // namespace palp::haptics
