@@ -7,7 +7,7 @@
 // Usage: bench_async [table|interp|growing|lod|threaded] [--size N] [--seconds S]
 //        [--amplitude M] [--frequency HZ] [--lod L] [--solver cholmod|pcg] [--n LIST]
 //        [--f LIST] [--integrator newmark|static] [--coupling plain|condensed]
-//        [--once-per-tick 0|1] [--move MS]
+//        [--once-per-tick 0|1] [--full-field 0|1] [--move MS]
 // --move MS (threaded): every MS milliseconds the contact moves one node along +x across the
 // top face (re-allocation prepared on the secondary thread, adopted by the tick).
 #include <pthread.h>
@@ -43,6 +43,7 @@ struct Config {
     Integrator integrator = Integrator::quasiStatic;
     bool condensed = true;
     bool oncePerTick = false;
+    bool fullField = false;
     int moveMs = 0;
     std::vector<int> nodes{5, 30, 120};
     std::vector<double> rates{50, 500, 1000};
@@ -135,8 +136,9 @@ Run asyncRun(const Config& c, const Problem& p, AsyncRegionsOptions o, bool grow
     o.lod = c.lod;
     o.secondarySolver = c.solver;
     o.secondaryIntegrator = c.integrator;
-    if (o.maxPrimaryNodes == 0) o.condensed = c.condensed;
+    o.condensed = c.condensed;
     o.condensedOncePerTick = c.oncePerTick;
+    o.secondaryFullField = c.fullField;
     AsyncRegions a(p.model, p.constraints, {p.contact}, o);
     Run r;
     r.primaryNodes = a.primaryFreeNodeCount();
@@ -249,7 +251,6 @@ void growing(const Config& c) {
             AsyncRegionsOptions o;
             o.secondaryRate = f;
             o.primaryNodes = c.nodes.front();
-            o.condensed = false;  // adaptive layouts need the plain coupling
             std::string name = "fixed N seeds " + std::to_string(c.nodes.front());
             if (variant == 1) {
                 o.primaryNodes = c.nodes.back();
@@ -319,6 +320,7 @@ void threaded(const Config& c) {
         o.secondaryIntegrator = c.integrator;
         o.condensed = c.condensed;
         o.condensedOncePerTick = c.oncePerTick;
+        o.secondaryFullField = c.fullField;
         o.threaded = true;
         o.secondaryCpu = 1;
         AsyncRegions a(p.model, p.constraints, {p.contact}, o);
@@ -354,16 +356,18 @@ void threaded(const Config& c) {
         const double wall = std::chrono::duration<double>(Clock::now() - start).count();
         const AsyncSecondaryStats s = a.secondaryStats();
         std::printf(
-            "threaded %d^3 lod %d %s N %d f %.0f Hz: tick mean %.4f ms, p99 %.4f ms, max "
+            "threaded %d^3 lod %d %s%s N %d f %.0f Hz (%d substeps): tick mean %.4f ms, p99 %.4f "
+            "ms, max "
             "%.4f ms, overruns %d; secondary %llu solves in %.2f s (%.1f Hz, wanted %.0f), "
             "last solve %.2f ms (CPU %.2f ms), max %.2f ms, %llu used; peak %.4f N vs reference "
             "%.4f N "
             "(%.2f%%), rms err %.2f%%\n",
             c.size, c.lod, c.solver == LinearSolverKind::cholmod ? "CHOLMOD" : "PCG",
-            a.primaryFreeNodeCount(), f, mean(tickTimes) * 1e3, percentile(tickTimes, 0.99) * 1e3,
-            percentile(tickTimes, 1.0) * 1e3, overruns, static_cast<unsigned long long>(s.solves),
-            wall, static_cast<double>(s.solves) / wall, f, s.lastSolveSeconds * 1e3,
-            s.lastSolveCpuSeconds * 1e3, s.maxSolveSeconds * 1e3,
+            c.fullField ? " full field" : "", a.primaryFreeNodeCount(), f,
+            static_cast<int>(std::lround(1e-3 / a.substepSeconds())), mean(tickTimes) * 1e3,
+            percentile(tickTimes, 0.99) * 1e3, percentile(tickTimes, 1.0) * 1e3, overruns,
+            static_cast<unsigned long long>(s.solves), wall, static_cast<double>(s.solves) / wall,
+            f, s.lastSolveSeconds * 1e3, s.lastSolveCpuSeconds * 1e3, s.maxSolveSeconds * 1e3,
             static_cast<unsigned long long>(s.used), peak(force), peak(ref.force),
             100.0 * relErr(peak(force), peak(ref.force)), 100.0 * rmsErr(force, ref.force));
         if (c.moveMs > 0) {
@@ -405,6 +409,8 @@ int main(int argc, char** argv) {
             c.integrator = v == "static" ? Integrator::quasiStatic : Integrator::newmark;
         } else if (k == "--once-per-tick") {
             c.oncePerTick = v != "0";
+        } else if (k == "--full-field") {
+            c.fullField = v != "0";
         } else if (k == "--move") {
             c.moveMs = std::stoi(v);
         } else if (k == "--coupling") {

@@ -2,10 +2,12 @@
 
 #include <pthread.h>
 #include <sched.h>
+#include <sys/resource.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <tbb/task_arena.h>
+#include <unistd.h>
 
 #include <Eigen/CholmodSupport>
 #include <Eigen/SparseCore>
@@ -191,6 +193,8 @@ struct AsyncRegions::Impl {
 
     std::unique_ptr<Layout> buildLayout(const std::vector<int>& contactNodes, int seedCount) const;
     void prepareSolver(Layout& layout) const;
+    std::unique_ptr<Layout> buildPrepared(int node, int seeds) const;
+    void finishForContact(Layout& from, Layout& next, std::chrono::steady_clock::time_point begin);
     std::unique_ptr<Layout> prepareForContact(Layout& from, int node, int seeds);
     void adoptLayout(const Layout& from, const Layout& to) noexcept;
     bool contactChangeWanted(const Layout& layout, int want) const noexcept;
@@ -236,8 +240,6 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
         fail("primary nodes", ">= the number of contact nodes", o.primaryNodes);
     const bool adaptive = o.maxPrimaryNodes > o.primaryNodes;
     if (adaptive && o.threaded) fail("adaptive primary", "synchronous mode", "threaded mode");
-    if (adaptive && o.condensed)
-        fail("adaptive primary", "the plain coupling (condensed = false)", "condensed coupling");
     if (adaptive &&
         (o.adaptiveLevels < 2 || !(o.strainAtMax > 0.0) || !(o.strainReferenceLength > 0.0)))
         fail("adaptive primary", "levels >= 2 and positive strain scales", o.adaptiveLevels);
@@ -615,11 +617,23 @@ void AsyncRegions::Impl::refreshField(Layout& L) {
         uC[L.unknownCoarseDof[i]] = L.x[static_cast<Eigen::Index>(i)];
 }
 
-std::unique_ptr<Layout> AsyncRegions::Impl::prepareForContact(Layout& from, int node, int seeds) {
-    const auto begin = std::chrono::steady_clock::now();
-    refreshField(from);
+std::unique_ptr<Layout> AsyncRegions::Impl::buildPrepared(int node, int seeds) const {
     std::unique_ptr<Layout> next = buildLayout({node}, seeds);
     prepareSolver(*next);
+    return next;
+}
+
+std::unique_ptr<Layout> AsyncRegions::Impl::prepareForContact(Layout& from, int node, int seeds) {
+    const auto begin = std::chrono::steady_clock::now();
+    std::unique_ptr<Layout> next = buildPrepared(node, seeds);
+    finishForContact(from, *next, begin);
+    return next;
+}
+
+void AsyncRegions::Impl::finishForContact(Layout& from, Layout& nextL,
+                                          std::chrono::steady_clock::time_point begin) {
+    Layout* next = &nextL;
+    refreshField(from);
     // Entry state: nodes of the new P and Gamma that were interior secondary nodes of `from`
     // take the secondary's latest solution (the servo keeps its own values for the others).
     std::vector<std::uint8_t> known(from.isPrimary);
@@ -649,7 +663,6 @@ std::unique_ptr<Layout> AsyncRegions::Impl::prepareForContact(Layout& from, int 
         std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count(),
         std::memory_order_relaxed);
     prepared.fetch_add(1, std::memory_order_release);
-    return next;
 }
 
 bool AsyncRegions::Impl::contactChangeWanted(const Layout& L, int want) const noexcept {
@@ -852,6 +865,15 @@ void AsyncRegions::Impl::secondaryLoop() {
         // `sec` is the layout the servo uses (or will, once it adopts `offered`).
         Layout* sec = layouts[0].get();
         Layout* offered = nullptr;
+        // Contact changes: a builder thread (same CPU, lower priority) assembles and factorises
+        // the new layout while this thread keeps solving the current one; this thread then adds
+        // the entry state from its latest solution and offers the layout to the servo.
+        enum : int { kIdle, kBuilding, kBuilt, kFailed };
+        std::atomic<int> buildState{kIdle};
+        std::unique_ptr<Layout> built;
+        std::thread builder;
+        int building = -1;
+        auto buildBegin = std::chrono::steady_clock::now();
         while (!stop.load(std::memory_order_acquire)) {
             if (Layout* old = retired.exchange(nullptr, std::memory_order_acq_rel)) {
                 sec = offered;
@@ -862,16 +884,39 @@ void AsyncRegions::Impl::secondaryLoop() {
                 std::this_thread::sleep_for(std::chrono::microseconds(50));
                 continue;
             }
-            const int want = requested.load(std::memory_order_acquire);
-            if (contactChangeWanted(*sec, want)) {
-                try {
-                    std::unique_ptr<Layout> next = prepareForContact(*sec, want, sec->seeds);
-                    offered = next.release();
-                    pending.store(offered, std::memory_order_release);
-                } catch (...) {
-                    rejected = want;  // e.g. a failed factorisation: keep the current layout
+            const int state = buildState.load(std::memory_order_acquire);
+            if (state == kBuilt || state == kFailed) {
+                builder.join();
+                buildState.store(kIdle, std::memory_order_relaxed);
+                if (state == kBuilt) {
+                    try {
+                        finishForContact(*sec, *built, buildBegin);
+                        offered = built.release();
+                        pending.store(offered, std::memory_order_release);
+                    } catch (...) {
+                        rejected = building;
+                    }
+                } else {
+                    rejected = building;  // e.g. a failed factorisation: keep the current layout
                 }
+                built.reset();
                 continue;
+            }
+            const int want = requested.load(std::memory_order_acquire);
+            if (state == kIdle && contactChangeWanted(*sec, want)) {
+                building = want;
+                buildBegin = std::chrono::steady_clock::now();
+                buildState.store(kBuilding, std::memory_order_relaxed);
+                const int seeds = sec->seeds;
+                builder = std::thread([this, want, seeds, &built, &buildState] {
+                    setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), 10);
+                    try {
+                        built = buildPrepared(want, seeds);
+                        buildState.store(kBuilt, std::memory_order_release);
+                    } catch (...) {
+                        buildState.store(kFailed, std::memory_order_release);
+                    }
+                });
             }
             if (!snapshots.update()) {
                 std::this_thread::sleep_for(std::chrono::microseconds(50));
@@ -890,6 +935,7 @@ void AsyncRegions::Impl::secondaryLoop() {
                 results.publish();
             }
         }
+        if (builder.joinable()) builder.join();
     });
 }
 
