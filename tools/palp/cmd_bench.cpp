@@ -66,9 +66,11 @@ Command addBench(CLI::App& root) {
     app->add_flag("--no-pin", args->noPin, "Do not pin the measuring thread to one core");
     app->add_flag("--no-batch", args->noBatch, "Skip the batch-throughput figures");
     const Command servo = addBenchServo(*bench);
+    const Command tick = addBenchTick(*bench);
 
-    return {bench, [args, servo]() -> int {
+    return {bench, [args, servo, tick]() -> int {
                 if (servo.app->parsed()) return servo.run();
+                if (tick.app->parsed()) return tick.run();
                 kernels::RayBenchOptions o;
                 o.frames = args->frames;
                 o.warmUp = std::min(500, args->frames);

@@ -20,6 +20,8 @@ Command addPhantom(CLI::App& root);
 Command addBench(CLI::App& root);
 /// `palp bench servo`, registered by addBench() on its `bench` node.
 Command addBenchServo(CLI::App& bench);
+/// `palp bench tick`, registered by addBench() on its `bench` node.
+Command addBenchTick(CLI::App& bench);
 Command addPalpate(CLI::App& root);
 
 /// Global flags shared by subcommands.
