@@ -296,10 +296,14 @@ const ProxyState& Proxy::update(const Eigen::Vector3d& probe,
         }
     }
 
-    // Active: planes the proxy lies on and the probe presses into.
+    // Active: planes whose clearance shell holds the proxy (on the offset plane, or between it
+    // and the surface: where a stuck proxy stays when a neighbouring facet rises closer than
+    // epsilon, e.g. at every concave facet junction of a noisy iso-surface) and that the probe
+    // presses into. A proxy farther below a plane than epsilon has left it (past a convex edge).
     for (int i = 0; i < m; ++i) {
         const Plane& q = planes[static_cast<std::size_t>(i)];
-        if (std::abs(q.n.dot(x) - q.d) <= onTol && q.n.dot(probe) < q.d)
+        const double above = q.n.dot(x) - q.d;
+        if (above <= onTol && above >= -eps - onTol && q.n.dot(probe) < q.d)
             mState.normals[static_cast<std::size_t>(mState.contactCount++)] = q.n;
     }
     if (mState.contactCount == 0) mState.sticking = false;

@@ -36,10 +36,14 @@
 /// Constraint planes are found again every tick (nothing is carried over but the position), so
 /// moving or deforming surfaces and faceted curved surfaces need no special handling, and a
 /// proxy that slides past a convex edge leaves the face's plane when the probe is not under
-/// it. Active planes reported in ProxyState are those the proxy lies on (within 1e-3 epsilon)
-/// and the probe is below; normals[0] is the friction plane. Against a convex object one plane
-/// is active (two only on the line where two offset planes meet, rare); two and three are
-/// the rule in concave edges and corners.
+/// it. Active planes reported in ProxyState are those whose clearance shell holds the proxy
+/// (on the offset plane within 1e-3 epsilon, or between it and the surface) and the probe is
+/// below; normals[0] is the friction plane. The shell matters on faceted surfaces: past a
+/// concave facet junction (on a noisy scan's iso-surface, nearly every one) a proxy that slid
+/// on one facet's offset plane is closer than epsilon to the next facet, and while it sticks
+/// it stays there, held by that facet. Against a convex object one plane is active (two only
+/// on the line where two offset planes meet, rare); two and three are the rule in concave
+/// edges and corners.
 
 #include <Eigen/Core>
 #include <array>
