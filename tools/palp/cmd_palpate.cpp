@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -149,6 +150,15 @@ Command addPalpate(CLI::App& root) {
         bool grey = false;
         std::string device = "3D Systems Touch";
         bool json = false;
+        bool deformable = false;
+        double femCellMm = 5;
+        double youngKpa = 5;
+        double poisson = 0.45;
+        double femAlpha = 60;
+        double femBeta = 0;
+        double filterMm = 3;
+        double boneHu = 500;
+        double tissueHu = -200;
     };
     auto args = std::make_shared<Args>();
     CLI::App* app = root.add_subcommand(
@@ -158,17 +168,41 @@ Command addPalpate(CLI::App& root) {
     app->add_option("file", args->file, "Volume to palpate (.vdb or any scan palp reads)");
     app->add_option("--phantom", args->phantom, "Built-in scene instead of a file")
         ->check(CLI::IsMember({"avc", "avcec", "bone", "stiffness"}));
-    app->add_option("--quadrant", args->quadrant, "avc: quadrant of the hidden box, 0-3")
-        ->check(CLI::Range(0, 3));
-    app->add_option("--shape", args->shape, "avcec: plate outline")
-        ->check(CLI::IsMember({"circle", "triangle", "rectangle", "hexagon", "pentagon"}));
-    app->add_option("--displacement", args->displacement, "bone: -1, 0 or 1")
-        ->check(CLI::Range(-1, 1));
-    app->add_option("--profile", args->profile, "stiffness: CL transition profile")
-        ->check(CLI::IsMember({"linear", "cosine", "tanh"}));
-    app->add_option("--voxel-mm", args->voxelMm, "Phantom voxel edge, mm (default 1)");
-    app->add_option("--noise", args->noiseHu, "Phantom noise standard deviation, HU");
-    app->add_option("--seed", args->seed, "Phantom noise seed");
+    CLI::Option* quadrantOpt =
+        app->add_option("--quadrant", args->quadrant, "avc: quadrant of the hidden box, 0-3")
+            ->check(CLI::Range(0, 3));
+    CLI::Option* shapeOpt =
+        app->add_option("--shape", args->shape, "avcec: plate outline")
+            ->check(CLI::IsMember({"circle", "triangle", "rectangle", "hexagon", "pentagon"}));
+    CLI::Option* displacementOpt =
+        app->add_option("--displacement", args->displacement, "bone: -1, 0 or 1")
+            ->check(CLI::Range(-1, 1));
+    CLI::Option* profileOpt =
+        app->add_option("--profile", args->profile, "stiffness: CL transition profile")
+            ->check(CLI::IsMember({"linear", "cosine", "tanh"}));
+    CLI::Option* voxelOpt =
+        app->add_option("--voxel-mm", args->voxelMm, "Phantom voxel edge, mm (default 1)");
+    CLI::Option* noiseOpt =
+        app->add_option("--noise", args->noiseHu, "Phantom noise standard deviation, HU");
+    CLI::Option* seedOpt = app->add_option("--seed", args->seed, "Phantom noise seed");
+    CLI::Option* deformableOpt = app->add_flag(
+        "--deformable", args->deformable,
+        "Deformable tissue: voxelised hexahedral FEM (fixed on the face opposite the press and "
+        "inside bone), VC only, the coupling force spread by a Gaussian filter");
+    std::vector<CLI::Option*> femOpts = {
+        app->add_option("--fem-cell-mm", args->femCellMm, "deformable: element edge, mm (5)"),
+        app->add_option("--young-kpa", args->youngKpa, "deformable: Young's modulus, kPa (5)"),
+        app->add_option("--poisson", args->poisson, "deformable: Poisson's ratio (0.45)"),
+        app->add_option("--fem-damping", args->femAlpha,
+                        "deformable: mass-proportional damping alpha, 1/s (60)"),
+        app->add_option("--fem-beta", args->femBeta,
+                        "deformable: stiffness-proportional damping beta, s (0)"),
+        app->add_option("--filter-mm", args->filterMm,
+                        "deformable: Gaussian filter width sigma, mm (3; 0 = nearest node)"),
+        app->add_option("--bone-hu", args->boneHu,
+                        "deformable: cells above this are bone, their nodes fixed (500 HU)"),
+        app->add_option("--tissue-hu", args->tissueHu,
+                        "deformable: cells above this are tissue (-200 HU)")};
     app->add_option("--mode", args->mode, "Coupling: vc, avc or avcec (default per scene)");
     app->add_option("--source", args->source,
                     "Ray source: mesh, first-hit or accumulate (default per scene)");
@@ -241,12 +275,44 @@ Command addPalpate(CLI::App& root) {
     app->add_flag("--json", args->json, "Print the figures as JSON");
 
     return {
-        app, [args]() -> int {
+        app,
+        [args, quadrantOpt, shapeOpt, displacementOpt, profileOpt, voxelOpt, noiseOpt, seedOpt,
+         deformableOpt, femOpts]() -> int {
             const Args& a = *args;
             if (a.file.empty() == a.phantom.empty()) {
                 throw ValueError("palpate: expected a FILE or --phantom SCENE, found " +
                                  std::string(a.file.empty() ? "neither" : "both"));
             }
+            // Scene options apply to one phantom each; say so instead of ignoring them.
+            const struct {
+                CLI::Option* option;
+                const char* scene;  // nullptr: any phantom
+            } sceneOpts[] = {{quadrantOpt, "avc"},      {shapeOpt, "avcec"},
+                             {displacementOpt, "bone"}, {profileOpt, "stiffness"},
+                             {voxelOpt, nullptr},       {noiseOpt, nullptr},
+                             {seedOpt, nullptr}};
+            for (const auto& so : sceneOpts) {
+                if (so.option->count() == 0) continue;
+                const std::string what =
+                    so.scene ? "--phantom " + std::string(so.scene) : "--phantom";
+                if (a.phantom.empty()) {
+                    throw ValueError(so.option->get_name() + ": expected " + what +
+                                     " (a phantom scene option), found a FILE '" + a.file + "'");
+                }
+                if (so.scene && a.phantom != so.scene) {
+                    throw ValueError(so.option->get_name() + ": expected " + what +
+                                     ", found --phantom " + a.phantom);
+                }
+            }
+            if (!a.deformable) {
+                for (CLI::Option* o : femOpts) {
+                    if (o->count() > 0)
+                        throw ValueError(o->get_name() +
+                                         ": expected --deformable, found a rigid "
+                                         "scene");
+                }
+            }
+            (void)deformableOpt;
             const haptics::DeviceSpec* spec = haptics::findDeviceSpec(a.device);
             if (!spec) {
                 std::string names;
@@ -294,6 +360,18 @@ Command addPalpate(CLI::App& root) {
                 label = a.file;
             }
             if (!a.mode.empty()) cp.mode = parseMode(a.mode);
+            if (a.deformable) {
+                if (!a.mode.empty() && cp.mode != haptics::CouplingMode::VC) {
+                    throw ValueError(
+                        "--mode: expected vc with --deformable (AVC/AVCEC on "
+                        "deformable tissue are not built yet), found '" +
+                        a.mode + "'");
+                }
+                cp.mode = haptics::CouplingMode::VC;
+                // Explicit tissue coupling is stable for k below the tissue's local stiffness
+                // (deformable.h): a softer default than the rigid scenes' 300 N/m.
+                if (!std::isfinite(a.kBase)) cp.baseStiffness = 100;
+            }
             if (!a.source.empty()) cp.source = parseSource(a.source);
             if (std::isfinite(a.kBase)) cp.baseStiffness = a.kBase;
             if (std::isfinite(a.kMax)) cp.maxStiffness = a.kMax;
@@ -323,6 +401,7 @@ Command addPalpate(CLI::App& root) {
             haptics::SceneOptions so;
             so.surfaceIso = a.surfaceIso;
             if (cp.source == haptics::RaySource::Mesh) so.hardIso = cp.firstHit.threshold;
+            if (a.deformable) so.surfaceIso = std::numeric_limits<double>::quiet_NaN();
             auto scene = haptics::Scene::fromVolume(vol, so);
 
             // The path: lateral box of the volume, surface on the face against the press.
@@ -331,6 +410,26 @@ Command addPalpate(CLI::App& root) {
             const openvdb::BBoxd box = vol.worldBounds();
             if (box.empty()) {
                 throw ValueError(label + ": expected a volume with active voxels, found none");
+            }
+            std::shared_ptr<const haptics::DeformableModel> body;
+            if (a.deformable) {
+                requirePositive(a.femCellMm, "--fem-cell-mm", "mm");
+                requirePositive(a.youngKpa, "--young-kpa", "kPa");
+                fem::VoxelizeOptions vo;
+                vo.elementSize = a.femCellMm * 1e-3;
+                vo.tissueThreshold = a.tissueHu;
+                vo.boneThreshold = a.boneHu;
+                fem::ElasticMaterial mat;
+                mat.youngsModulus = a.youngKpa * 1e3;
+                mat.poissonRatio = a.poisson;
+                mat.dampingAlpha = a.femAlpha;
+                mat.dampingBeta = a.femBeta;
+                haptics::DeformableOptions dopt;
+                dopt.filterWidth = a.filterMm * 1e-3;
+                // Supported on the face opposite the pressed one.
+                const auto support = static_cast<fem::BoxFace>(2 * pa + (press[pa] > 0 ? 1 : 0));
+                body = haptics::DeformableModel::fromVolume(vol, vo, mat, support, dopt);
+                scene->setDeformable(body);
             }
             const double half = 0.5 * vol.voxelSize();
             Eigen::Vector3d lo(box.min().x() - half, box.min().y() - half, box.min().z() - half);
@@ -531,6 +630,18 @@ Command addPalpate(CLI::App& root) {
                 j["stiffness_max_npm"] = sum.maxStiffness;
                 j["faulted_ticks"] = sum.faultedTicks;
                 j["clamped_ticks"] = sum.clampedTicks;
+                if (body) {
+                    double maxDisp = 0;
+                    for (const auto& s : snaps) maxDisp = std::max(maxDisp, s.maxDisplacement);
+                    j["deformable"] = {{"nodes", body->model().mesh().nodeCount()},
+                                       {"elements", body->model().mesh().elementCount()},
+                                       {"surface_triangles", body->surface().triangles.size()},
+                                       {"fixed_nodes", body->fixedNodes().size()},
+                                       {"filter_mm", a.filterMm},
+                                       {"cell_mm", a.femCellMm},
+                                       {"young_kpa", a.youngKpa},
+                                       {"max_displacement_mm", maxDisp * 1e3}};
+                }
                 if (!a.trace.empty()) j["trace"] = a.trace;
                 if (!a.map.empty()) {
                     j["map"] = a.map;
@@ -567,6 +678,17 @@ Command addPalpate(CLI::App& root) {
                     sum.maxForceN, static_cast<unsigned long long>(sum.clampedTicks),
                     static_cast<unsigned long long>(sum.faultedTicks), sum.finalObserverEnergy,
                     sum.minObserverEnergy);
+                if (body) {
+                    double maxDisp = 0;
+                    for (const auto& s : snaps) maxDisp = std::max(maxDisp, s.maxDisplacement);
+                    std::printf(
+                        "deformable: %d nodes, %d elements, %zu surface triangles, %zu fixed "
+                        "nodes (support + bone), filter %.1f mm, E %.1f kPa; largest surface "
+                        "displacement %.2f mm\n",
+                        body->model().mesh().nodeCount(), body->model().mesh().elementCount(),
+                        body->surface().triangles.size(), body->fixedNodes().size(), a.filterMm,
+                        a.youngKpa, maxDisp * 1e3);
+                }
                 if (!a.trace.empty()) std::printf("wrote %s\n", a.trace.c_str());
                 if (!a.map.empty())
                     std::printf("wrote %s: %s from %.3g to %.3g; image right = %s, up = %s\n",

@@ -119,16 +119,23 @@ class DeformableModel {
 /// step() (FEM step by T, copy of the deformed surface into Embree, refit), then
 /// anchoredPosition() is the anchored point carried with the surface.
 ///
-/// Cost (Release, loaded 2-core VM, `palp palpate --deformable --fast`, the whole tick):
-/// see the figures in the report of the change that added it and bench/README.md; the refit is
-/// O(#triangles) (~0.3 ms for 2k triangles measured earlier), the FEM step O(#elements x
-/// substeps). Keep real-time meshes to about a 13^3-node cube (1,700 surface triangles).
+/// Cost: the FEM step is O(#elements x substeps), the refit O(#triangles) (~0.3 ms for 2k
+/// triangles measured earlier on the shared VM); keep real-time meshes to about a 13^3-node cube
+/// (1,700 surface triangles). Figures: `palp palpate --deformable --fast` prints ticks/s.
+///
+/// Stability: the force on the tissue is the coupling force of the tick (explicit, one tick
+/// late), so when the surface under the contact responds within a tick (light, soft), the
+/// coupling stiffness k must stay below about the local stiffness of the tissue at the contact,
+/// which grows with the filter width: on a 5 kPa cube with 5 mm elements, k = 100 N/m is stable
+/// at sigma = 3 mm, k = 300 N/m needs sigma = 6 mm (or stiffness damping dampingBeta ~ 2 ms,
+/// at ~5x the substeps). An implicit coupling through the contact's compliance would lift this.
 ///
 /// @par Threading  One thread (the servo thread) drives a body; surfaces() may be traced from
 ///      that thread between steps.
 /// @par Real-time  applyContactForce, clearForce, anchor, step and the accessors are noexcept
-///      and allocation-free; step() is bounded by maxSubsteps and the refit is O(#triangles)
-///      inside Embree (measured allocation-free with palp's counting operator new).
+///      and allocation-free, except that Embree's refit inside step() calls operator new a few
+///      times per commit (test_deformable measures it); step() is bounded by maxSubsteps and
+///      the refit is O(#triangles).
 class DeformableBody {
   public:
     /// Allocates everything. @throw palp::ValueError for a null model, palp::Error from Embree.

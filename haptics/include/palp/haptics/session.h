@@ -163,7 +163,8 @@ struct Command {
 /// @par Threading  start/stop/step from one controlling thread; latest() and latestRays() from
 ///      one viewer thread; popTrace() from one trace reader thread (may be the viewer); send()
 ///      from one producer thread. The servo thread owns everything else.
-/// @par Real-time  A tick (step() or the servo thread's) is noexcept and allocation-free.
+/// @par Real-time  A tick (step() or the servo thread's) is noexcept and allocation-free (on a
+///      deformable scene except Embree's refit, which calls operator new a few times).
 class Session final : public ServoTask {
   public:
     /// @p scene must be committed; @p device must outlive the session.
