@@ -414,7 +414,10 @@ TEST(DeformableSession, SafeAndAllocationFreeTicks) {
         refitOnly.commit();
     }
     const std::uint64_t refitAllocations = test::allocationCount() - refitBefore;
-    EXPECT_EQ(tickAllocations, refitAllocations);
+    // Embree's own count varies by a few between runs (its TBB tasks), so allow 2 % of it: one
+    // allocation per tick of palp's own (980 here) would still fail this.
+    EXPECT_LE(tickAllocations, refitAllocations + refitAllocations / 50);
+    EXPECT_GE(tickAllocations + refitAllocations / 50, refitAllocations);
     EXPECT_LE(refitAllocations, 8u * 980u);  // a bounded few per refit, nothing that grows
     EXPECT_LE(largest, touchX().maxForceN * (1 + 1e-12));
     EXPECT_GT(clamped, 0);  // the press was hard enough to reach the clamp
