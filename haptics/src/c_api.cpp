@@ -34,8 +34,9 @@ struct palp_scene {
 
 struct palp_session {
     std::atomic<int> refs{1};
-    std::string deviceName;      // params.device points here
-    palp_session_params params;  // in force (producer thread)
+    std::string deviceName;          // params.device points here
+    palp_session_params params;      // in force; guarded by paramsMutex (producer and controller)
+    mutable std::mutex paramsMutex;  // never taken by the servo thread
     std::unique_ptr<ph::SimulatedDevice> device;
     std::unique_ptr<ph::Session> session;  // declared last: destroyed (and stopped) first
     ~palp_session() { session.reset(); }
@@ -740,8 +741,12 @@ palp_status palp_session_start(palp_session* session) {
         } catch (const palp::ValueError&) {
             throw;
         } catch (const palp::Error& e) {
-            return fail(session->params.require_realtime ? PALP_ERROR_REALTIME : PALP_ERROR_STATE,
-                        e.what());
+            bool requireRealtime = false;
+            {
+                const std::lock_guard<std::mutex> lock(session->paramsMutex);
+                requireRealtime = session->params.require_realtime != 0;
+            }
+            return fail(requireRealtime ? PALP_ERROR_REALTIME : PALP_ERROR_STATE, e.what());
         }
         return PALP_OK;
     });
@@ -791,6 +796,7 @@ palp_status palp_session_set_params(palp_session* session, const palp_session_pa
     if (!session) return nullArgument("palp_session_set_params", "session");
     if (!params) return nullArgument("palp_session_set_params", "params");
     return guarded([&] {
+        const std::lock_guard<std::mutex> lock(session->paramsMutex);
         if (const char* field = fixedFieldChanged(session->params, *params)) {
             throw palp::ValueError(std::string("palp_session_set_params: expected ") + field +
                                    " to stay as at creation (it cannot change while a session "
@@ -838,6 +844,7 @@ palp_status palp_session_set_params(palp_session* session, const palp_session_pa
 palp_status palp_session_set_mode(palp_session* session, palp_coupling_mode mode) {
     if (!session) return nullArgument("palp_session_set_mode", "session");
     return guarded([&] {
+        const std::lock_guard<std::mutex> lock(session->paramsMutex);
         palp_session_params p = session->params;
         p.mode = mode;
         ph::Command c;
@@ -854,6 +861,7 @@ palp_status palp_session_set_mode(palp_session* session, palp_coupling_mode mode
 palp_status palp_session_get_params(const palp_session* session, palp_session_params* out) {
     if (!session) return nullArgument("palp_session_get_params", "session");
     if (!out) return nullArgument("palp_session_get_params", "out");
+    const std::lock_guard<std::mutex> lock(session->paramsMutex);
     *out = session->params;
     return PALP_OK;
 }

@@ -243,7 +243,7 @@ void DeviceRecorder::write(const std::filesystem::path& path) const {
         const auto length = static_cast<std::size_t>(p - row.data());
         ok = std::fwrite(row.data(), 1, length, out) == length;
     }
-    const int writeErrno = errno;
+    const int writeErrno = ok ? 0 : errno;  // a stale errno from earlier calls must not show
     ok = (std::fflush(out) == 0) && ok;
     ok = (std::fclose(out) == 0) && ok;
     if (!ok) {

@@ -402,18 +402,22 @@ void Session::Impl::tick(double timeSeconds) noexcept {
             blended.proxyForce.allFinite() ? blended.proxyForce : Eigen::Vector3d::Zero().eval();
         lastStiffness = std::isfinite(blended.stiffness) ? blended.stiffness : 0.0;
         force = blended.force;
-        // The observer books only finite forces (one NaN would poison W for good); a
-        // non-finite force is held by the guard below.
-        if (force.allFinite()) force = passivity.update(force, handVelocity);
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
     }
 
     const bool faultedNow = !force.allFinite();
     force = guard.filter(force);
-    const Eigen::Vector3d limited = clampForce(force, spec.maxForceN);
-    const bool clamped = force.norm() > spec.maxForceN;
-    const Eigen::Vector3d sent = gate.filter(limited);
+    bool clamped = force.norm() > spec.maxForceN;
+    Eigen::Vector3d sent = gate.filter(clampForce(force, spec.maxForceN));
+    // The observer books the force that is actually sent (after guard, clamp and gate: always
+    // finite), so W is the energy exchanged with the hand; the controller's damping is added to
+    // it and clamped again (when that second clamp binds, W books the damping before the cut).
+    sent = passivity.update(sent, handVelocity);
+    if (sent.norm() > spec.maxForceN) {
+        clamped = true;
+        sent = clampForce(sent, spec.maxForceN);
+    }
     device.write(workspace.rotation.transpose() * sent);
 
     // Deformable tissue: the reaction of the force on the hand acts on the tissue at the

@@ -490,6 +490,38 @@ TEST_F(SessionTest, PassivityObserverBooksTheSpringEnergy) {
     EXPECT_EQ(session.step().observerEnergy, 0.0);
 }
 
+// The observer books the force actually sent: while the start-up gate holds the force at zero
+// nothing is exchanged with the hand, however hard the (unsent) coupling pulls; and a clamped
+// force is booked as clamped.
+TEST_F(SessionTest, PassivityObserverBooksOnlyTheForceSent) {
+    PathDevice dev({{0, at(0.0, -0.002, 0.0)},
+                    {0.4, at(0.0, 0.003, 0.0)},
+                    {0.6, at(0.0, 0.003, 0.0)},
+                    {1.0, at(0.0, -0.002, 0.0)}});
+    SessionParams p = params(CouplingMode::VC);
+    p.startupQuietTicks = 1000000;  // never enough quiet ticks: the gate stays shut
+    Session gated(sScene, dev, p);
+    for (int i = 0; i < 1000; ++i) {
+        const Snapshot& s = gated.step();
+        ASSERT_EQ(s.force.norm(), 0.0) << "tick " << i;
+        ASSERT_EQ(s.observerEnergy, 0.0) << "tick " << i;
+    }
+
+    PathDevice dev2({{0, at(0.0, -0.002, 0.0)}, {0.4, at(0.0, 0.012, 0.0)}});
+    SessionParams hard = params(CouplingMode::VC);
+    hard.coupling.baseStiffness = 1400;  // 14 mm deep: far past the device's maximum force
+    Session clamped(sScene, dev2, hard);
+    double w = 0;
+    int clampedTicks = 0;
+    for (int i = 0; i < 400; ++i) {
+        const Snapshot& s = clamped.step();
+        w -= kT * s.force.dot(dev2.last().velocity);
+        clampedTicks += s.clamped ? 1 : 0;
+        ASSERT_NEAR(s.observerEnergy, w, 1e-12 + 1e-9 * std::abs(w)) << "tick " << i;
+    }
+    EXPECT_GT(clampedTicks, 0);
+}
+
 // A real-time run: a viewer thread reads latest() and the trace, a producer thread sends
 // commands, the controlling thread starts and stops. Every published snapshot is complete
 // (finite, bounded), latest() never goes back in time, and the trace holds every tick

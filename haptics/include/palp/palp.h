@@ -23,8 +23,11 @@
  * - Volumes and scenes are immutable after creation and may be shared between threads.
  * - A session has three roles: a controlling thread (create, start, stop, step, release), one
  *   viewer thread (palp_session_latest, palp_session_pop_trace), and one producer thread
- *   (palp_session_set_*, palp_session_reset_observer). These may be the same thread. Statistics
- *   and status may be read from any thread.
+ *   (palp_session_set_*, palp_session_reset_observer). These may be the same thread. Loop
+ *   statistics may be read from any thread; the realtime status (palp_session_realtime*) is
+ *   written while palp_session_start runs, so read it from the controlling thread (or after
+ *   synchronising with it), never during a start. palp_session_get_params may be called from
+ *   any thread.
  */
 
 #include <stddef.h>

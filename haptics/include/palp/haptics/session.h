@@ -141,11 +141,12 @@ struct Command {
 /// proxy force, last tick's k (baseStiffness before any), T); coupling.compute(); during a
 /// SetCoupling cross-fade the old and the new coupling both run and force, proxy force, k and
 /// energy are blended linearly over crossFadeSeconds (a SetCoupling that arrives during a fade
-/// waits for it to end; the newest waiting one wins); the passivity observer (and controller
-/// when enabled) books the coupling force against the device velocity in the device's scale,
-/// so W is the energy exchanged with the hand; ForceGuard (a non-finite force or device sample
-/// holds the last good force and flags the tick); clampForce to the device's maxForceN;
-/// StartupGate; the force is rotated back (F_device = R^T F_world, not scaled) and written;
+/// waits for it to end; the newest waiting one wins); ForceGuard (a non-finite force or device
+/// sample holds the last good force and flags the tick); clampForce to the device's maxForceN;
+/// StartupGate; the passivity observer (and controller when enabled) books that force, the one
+/// actually sent, against the device velocity in the device's scale, so W is the energy
+/// exchanged with the hand (the controller's damping is added and clamped again); the force is
+/// rotated back (F_device = R^T F_world, not scaled) and written;
 /// the Snapshot is published (latest()), queued for popTrace() and the bundle for latestRays().
 /// A probe that starts inside a closed surface (ray parity) is not trapped by it: the proxy
 /// follows the probe freely until the probe is outside.
@@ -158,7 +159,8 @@ struct Command {
 /// contact is then carried with the surface point under it (same triangle, barycentric
 /// coordinates and offset), so a surface that springs back pushes the proxy out instead of
 /// swallowing it. The carry resets the proxy's velocity estimate (only the coupling damping b
-/// sees it). A free proxy (no contact) that a fast-moving surface overtakes is not handled.
+/// sees it). A free proxy (no contact) that a fast-moving surface overtakes is pushed back out
+/// along the shortest axis-aligned exit.
 ///
 /// @par Threading  start/stop/step from one controlling thread; latest() and latestRays() from
 ///      one viewer thread; popTrace() from one trace reader thread (may be the viewer); send()

@@ -46,6 +46,9 @@ class VolumeView {
     /// @throw palp::ValueError for a null grid, a transform that is not an axis-aligned
     ///        isotropic scale plus translation, or a table above kMaxViewBlocks blocks.
     explicit VolumeView(openvdb::FloatGrid::ConstPtr grid);
+    /// Not copyable: the block table points into this object's own buffer.
+    VolumeView(const VolumeView&) = delete;
+    VolumeView& operator=(const VolumeView&) = delete;
 
     /// Trilinear value at index position (x, y, z) (voxel centres at integers); background
     /// outside the table. Bit-compatible with sampleIndex() through an accessor (same weights,
