@@ -131,7 +131,7 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
     : mModel(model ? std::move(model)
                    : throw ValueError("deformable body: expected a model, found a null pointer")),
       mSolver(mModel->model(), mModel->constraints(), mModel->options().solver),
-      mScene(std::make_unique<kernels::EmbreeScene>()) {
+      mScene(std::make_unique<kernels::EmbreeScene>(/*robust=*/true)) {
     const kernels::TriangleMesh mesh = toTriangleMesh(mModel->surface());
     mRest = mesh.positions;
     mPositions = mesh.positions;

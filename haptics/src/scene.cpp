@@ -32,7 +32,7 @@ kernels::TriangleMesh isoMesh(const openvdb::FloatGrid& grid, double iso, double
 }  // namespace
 
 Scene::Scene()
-    : mSurfaces(std::make_unique<kernels::EmbreeScene>()),
+    : mSurfaces(std::make_unique<kernels::EmbreeScene>(/*robust=*/true)),
       mHard(std::make_unique<kernels::EmbreeScene>()) {}
 
 std::shared_ptr<Scene> Scene::fromVolume(const volume::Volume& volume,

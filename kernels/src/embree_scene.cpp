@@ -45,14 +45,15 @@ RTCDevice sharedDevice() {
 
 }  // namespace
 
-EmbreeScene::EmbreeScene() {
+EmbreeScene::EmbreeScene(bool robust) {
     mDevice = sharedDevice();
     if (!mDevice)
         throw Error("embree: expected a device, found rtcNewDevice error " +
                     std::to_string(static_cast<int>(rtcGetDeviceError(nullptr))));
     rtcRetainDevice(mDevice);
     mScene = rtcNewScene(mDevice);
-    rtcSetSceneFlags(mScene, RTC_SCENE_FLAG_DYNAMIC);
+    rtcSetSceneFlags(
+        mScene, robust ? (RTC_SCENE_FLAG_DYNAMIC | RTC_SCENE_FLAG_ROBUST) : RTC_SCENE_FLAG_DYNAMIC);
     rtcSetSceneBuildQuality(mScene, RTC_BUILD_QUALITY_MEDIUM);
 }
 

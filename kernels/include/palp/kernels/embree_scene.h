@@ -34,8 +34,12 @@ inline constexpr unsigned kMaskAll = 0xffffffffu;
 ///      meshes and only after measuring (`palp bench rays` prints refit costs).
 class EmbreeScene {
   public:
+    /// @param robust  RTC_SCENE_FLAG_ROBUST: Embree's watertight traversal, so a ray through a
+    ///        shared edge or vertex cannot slip between two triangles (about 10-30 % more per
+    ///        ray here). palp's haptics Scene sets it for the surfaces the proxy must never
+    ///        cross; the AVC ray targets leave it off.
     /// @throw palp::Error when Embree cannot create the shared device.
-    EmbreeScene();
+    explicit EmbreeScene(bool robust = false);
     ~EmbreeScene();
     EmbreeScene(const EmbreeScene&) = delete;
     EmbreeScene& operator=(const EmbreeScene&) = delete;
