@@ -519,6 +519,9 @@ Command addPalpate(CLI::App& root) {
             sp.proxy.dynamicFriction = a.muDynamic;
             sp.passivityControl = a.passivityControl;
             sp.servo.periodSeconds = period;
+            // Real time: every tick's snapshot is queued in the trace ring and drained below
+            // (16 Ki snapshots: seconds of slack at servo rates before any is dropped).
+            if (a.realtime) sp.traceCapacity = 1u << 14;
             haptics::validateSessionParams(sp);
             haptics::SimulatedDevice device(*spec, traj, haptics::HandModel{}, period);
             haptics::Session session(scene, device, sp);
@@ -528,6 +531,7 @@ Command addPalpate(CLI::App& root) {
             double wallSeconds = 0;
             std::string loopText;
             json loopJson;
+            std::uint64_t traceDropped = 0;  // real time: ticks the trace ring could not hold
             const auto t0 = std::chrono::steady_clock::now();
             if (!a.realtime) {
                 snaps = haptics::runOffline(session, ticks);
@@ -536,17 +540,25 @@ Command addPalpate(CLI::App& root) {
             } else {
                 snaps.reserve(static_cast<std::size_t>(ticks) + 16);
                 session.start();
-                std::uint64_t lastTick = ~std::uint64_t{0};
-                while (true) {
-                    const haptics::Snapshot& s = session.latest();
-                    if (s.tick != lastTick) {
-                        snaps.push_back(s);
-                        lastTick = s.tick;
-                    }
-                    if (s.tick + 1 >= ticks) break;
-                    std::this_thread::sleep_for(std::chrono::microseconds(200));
+                // Drain the per-tick trace ring (one row per tick, in order) until the servo
+                // has run the asked-for ticks, then once more after stop() for the last ones.
+                haptics::Snapshot s;
+                const auto drain = [&] {
+                    while (session.popTrace(s)) snaps.push_back(s);
+                };
+                while (session.latest().tick + 1 < ticks) {
+                    drain();
+                    std::this_thread::sleep_for(std::chrono::milliseconds(1));
                 }
                 session.stop();
+                drain();
+                traceDropped = session.traceDropped();
+                if (traceDropped > 0)
+                    std::fprintf(stderr,
+                                 "palp: warning: the trace ring dropped %llu snapshots (the "
+                                 "reader fell behind); the trace, map and summary miss those "
+                                 "ticks\n",
+                                 static_cast<unsigned long long>(traceDropped));
                 wallSeconds =
                     std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
                 const haptics::ServoStats st = session.stats();
@@ -574,7 +586,8 @@ Command addPalpate(CLI::App& root) {
                              {{"p50", st.compute.p50 * 1e6},
                               {"p99", st.compute.p99 * 1e6},
                               {"max", st.compute.max * 1e6}}},
-                            {"realtime", rs.message}};
+                            {"realtime", rs.message},
+                            {"trace_dropped", traceDropped}};
             }
             const haptics::RunSummary sum = haptics::summarize(snaps);
 
@@ -661,6 +674,8 @@ Command addPalpate(CLI::App& root) {
                     cp.bundle.length * 1e3, cp.referenceLength * 1e3);
                 if (a.realtime) {
                     std::printf("%s\n", loopText.c_str());
+                    std::printf("trace: %zu snapshots, %llu dropped\n", snaps.size(),
+                                static_cast<unsigned long long>(traceDropped));
                 } else {
                     std::printf(
                         "fast: %llu ticks (%.2f s simulated) in %.3f s wall: %.0f "
