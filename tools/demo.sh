@@ -26,4 +26,4 @@ raster=(--trajectory raster --spacing 1 --speed 100 --depth 4 --map-pixel 2 --ma
   --map "$out/avc-map.png" --trace "$out/avc-trace.csv"
 "$palp" palpate "$out/avc.vdb" --mode avc --source first-hit --threshold 500 "${raster[@]}" \
   --map "$out/avc-map-first-hit.png"
-echo "demo: the hidden box shows in $out/avc-map.png (upper left: quadrant 2, x < 0, z > 0)"
+echo "demo: see $out/avc-map.png; the phantom hid the box in quadrant 2 (upper left: x < 0, z > 0)"
