@@ -192,7 +192,7 @@ typedef struct palp_trajectory {
     double line_spacing;       /**< raster: m */
     double speed;              /**< sweep, raster: m/s */
     double radius;             /**< circle: m */
-    double frequency;          /**< circle, sinusoid: Hz */
+    double frequency;          /**< circle, sinusoid: Hz, >= 0 (a circle turns from u toward v) */
     double amplitude;          /**< sinusoid: m */
     double grow_seconds;       /**< sinusoid: amplitude ramp, s (0: none) */
     double press_seconds;      /**< press: s */
