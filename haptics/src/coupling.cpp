@@ -162,4 +162,28 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
     out.force += out.energyForce;
 }
 
+const char* couplingModeName(CouplingMode mode) noexcept {
+    switch (mode) {
+        case CouplingMode::VC:
+            return "vc";
+        case CouplingMode::AVC:
+            return "avc";
+        case CouplingMode::AVCEC:
+            return "avcec";
+    }
+    return "?";
+}
+
+const char* raySourceName(RaySource source) noexcept {
+    switch (source) {
+        case RaySource::Mesh:
+            return "mesh";
+        case RaySource::VolumeFirstHit:
+            return "first-hit";
+        case RaySource::VolumeAccumulate:
+            return "accumulate";
+    }
+    return "?";
+}
+
 }  // namespace palp::haptics

@@ -247,24 +247,8 @@ bool DeformableBody::anchor(const Eigen::Vector3d& point, const Eigen::Vector3d&
     const double nn = normal.norm();
     if (!point.allFinite() || !(nn > 0) || !std::isfinite(nn)) return false;
     const Eigen::Vector3d d = -normal / nn;
-    RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
     alignas(16) RTCRayHit rh;
-    rh.ray.org_x = static_cast<float>(point.x());
-    rh.ray.org_y = static_cast<float>(point.y());
-    rh.ray.org_z = static_cast<float>(point.z());
-    rh.ray.dir_x = static_cast<float>(d.x());
-    rh.ray.dir_y = static_cast<float>(d.y());
-    rh.ray.dir_z = static_cast<float>(d.z());
-    rh.ray.tnear = 0.0f;
-    rh.ray.tfar = 1e-3f;
-    rh.ray.time = 0.0f;
-    rh.ray.mask = kernels::kMaskSurface;
-    rh.ray.id = 0;
-    rh.ray.flags = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(mScene->handle(), &ctx, &rh);
+    kernels::intersectOne(mScene->handle(), point, d, 0.0f, 1e-3f, kernels::kMaskSurface, rh);
     if (rh.hit.geomID == mGeom && anchorOn(static_cast<int>(rh.hit.primID), point, normal))
         return true;
     // Embree's test is not watertight: a ray through a vertex or an edge can slip between the

@@ -54,25 +54,9 @@ struct Hit {
 /// Closest hit of the ray x + t u, t in [0, length], against geometries of @p mask.
 bool trace(RTCScene scene, const Eigen::Vector3d& x, const Eigen::Vector3d& u, double length,
            unsigned mask, Hit& hit) noexcept {
-    RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
     alignas(16) RTCRayHit rh;
-    rh.ray.org_x = static_cast<float>(x.x());
-    rh.ray.org_y = static_cast<float>(x.y());
-    rh.ray.org_z = static_cast<float>(x.z());
-    rh.ray.dir_x = static_cast<float>(u.x());
-    rh.ray.dir_y = static_cast<float>(u.y());
-    rh.ray.dir_z = static_cast<float>(u.z());
-    rh.ray.tnear = 0.0f;
-    rh.ray.tfar = static_cast<float>(length);
-    rh.ray.time = 0.0f;
-    rh.ray.mask = mask;
-    rh.ray.id = 0;
-    rh.ray.flags = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(scene, &ctx, &rh);
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    if (!kernels::intersectOne(scene, x, u, 0.0f, static_cast<float>(length), mask, rh))
+        return false;
     hit.geomId = rh.hit.geomID;
     hit.primId = rh.hit.primID;
     hit.ng = Eigen::Vector3d(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);

@@ -112,25 +112,11 @@ bool insideSurfaces(const kernels::EmbreeScene& scene, unsigned mask,
         int crossings = 0;
         float tnear = 0.0f;
         for (int i = 0; i < 65; ++i) {
-            RTCIntersectContext ctx;
-            rtcInitIntersectContext(&ctx);
             alignas(16) RTCRayHit rh;
-            rh.ray.org_x = static_cast<float>(p.x());
-            rh.ray.org_y = static_cast<float>(p.y());
-            rh.ray.org_z = static_cast<float>(p.z());
-            rh.ray.dir_x = d[0];
-            rh.ray.dir_y = d[1];
-            rh.ray.dir_z = d[2];
-            rh.ray.tnear = tnear;
-            rh.ray.tfar = std::numeric_limits<float>::infinity();
-            rh.ray.time = 0.0f;
-            rh.ray.mask = mask;
-            rh.ray.id = 0;
-            rh.ray.flags = 0;
-            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-            rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-            rtcIntersect1(scene.handle(), &ctx, &rh);
-            if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) break;
+            const Eigen::Vector3d dir(d[0], d[1], d[2]);
+            if (!kernels::intersectOne(scene.handle(), p, dir, tnear,
+                                       std::numeric_limits<float>::infinity(), mask, rh))
+                break;
             ++crossings;
             tnear = rh.ray.tfar * (1.0f + 1e-6f) + 1e-7f;  // step past this hit
         }
@@ -148,25 +134,9 @@ Eigen::Vector3d nearestExit(const kernels::EmbreeScene& scene, unsigned mask,
     for (int k = 0; k < 6; ++k) {
         Eigen::Vector3f d = Eigen::Vector3f::Zero();
         d[k / 2] = (k % 2) ? -1.0f : 1.0f;
-        RTCIntersectContext ctx;
-        rtcInitIntersectContext(&ctx);
         alignas(16) RTCRayHit rh;
-        rh.ray.org_x = static_cast<float>(p.x());
-        rh.ray.org_y = static_cast<float>(p.y());
-        rh.ray.org_z = static_cast<float>(p.z());
-        rh.ray.dir_x = d.x();
-        rh.ray.dir_y = d.y();
-        rh.ray.dir_z = d.z();
-        rh.ray.tnear = 0.0f;
-        rh.ray.tfar = best;
-        rh.ray.time = 0.0f;
-        rh.ray.mask = mask;
-        rh.ray.id = 0;
-        rh.ray.flags = 0;
-        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-        rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-        rtcIntersect1(scene.handle(), &ctx, &rh);
-        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
+        if (!kernels::intersectOne(scene.handle(), p, d.cast<double>(), 0.0f, best, mask, rh))
+            continue;
         best = rh.ray.tfar;
         out = p + (static_cast<double>(best) + offset) * d.cast<double>();
     }

@@ -114,6 +114,28 @@ void EmbreeScene::commit() {
     mCommitted = true;
 }
 
+bool intersectOne(RTCScene scene, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                  float tnear, float tfar, unsigned mask, RTCRayHit& rh) noexcept {
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    rh.ray.org_x = static_cast<float>(origin.x());
+    rh.ray.org_y = static_cast<float>(origin.y());
+    rh.ray.org_z = static_cast<float>(origin.z());
+    rh.ray.dir_x = static_cast<float>(direction.x());
+    rh.ray.dir_y = static_cast<float>(direction.y());
+    rh.ray.dir_z = static_cast<float>(direction.z());
+    rh.ray.tnear = tnear;
+    rh.ray.tfar = tfar;
+    rh.ray.time = 0.0f;
+    rh.ray.mask = mask;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene, &ctx, &rh);
+    return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+}
+
 namespace {
 
 inline void setRay(RTCRayHit& rh, const RayBundle& b, std::size_t r, unsigned mask) noexcept {

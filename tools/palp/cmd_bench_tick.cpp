@@ -68,18 +68,6 @@ const char* modeText(haptics::CouplingMode m) {
     return "?";
 }
 
-const char* sourceText(haptics::RaySource s) {
-    switch (s) {
-        case haptics::RaySource::Mesh:
-            return "mesh";
-        case haptics::RaySource::VolumeFirstHit:
-            return "first-hit";
-        case haptics::RaySource::VolumeAccumulate:
-            return "accumulate";
-    }
-    return "?";
-}
-
 // Rays a tick of @p v casts (Coupling's documentation: AVC traces centre + ring, AVCEC all).
 int nominalRays(const Variant& v) {
     if (v.mode == haptics::CouplingMode::VC) return 0;
@@ -90,7 +78,7 @@ std::string variantName(const Variant& v) {
     if (v.mode == haptics::CouplingMode::VC) return "VC";
     const int r = nominalRays(v);
     std::string s = std::string(modeText(v.mode)) + " (" + std::to_string(r) +
-                    (r == 1 ? " ray, " : " rays, ") + sourceText(v.source);
+                    (r == 1 ? " ray, " : " rays, ") + haptics::raySourceName(v.source);
     if (v.ring > 0) s += ", ring " + std::to_string(v.ring);
     return s + ")";
 }
@@ -489,7 +477,7 @@ Command addBenchTick(CLI::App& bench) {
                 if (a.json) {
                     j["lines"].push_back({{"name", name},
                                           {"mode", modeText(r.variant.mode)},
-                                          {"source", sourceText(r.variant.source)},
+                                          {"source", haptics::raySourceName(r.variant.source)},
                                           {"ring", r.variant.ring},
                                           {"rays_nominal", nominalRays(r.variant)},
                                           {"rays_mean", meanRays},

@@ -82,30 +82,6 @@ haptics::RaySource parseSource(const std::string& s) {
     throw ValueError("--source: expected mesh, first-hit or accumulate, found '" + s + "'");
 }
 
-const char* modeName(haptics::CouplingMode m) {
-    switch (m) {
-        case haptics::CouplingMode::VC:
-            return "vc";
-        case haptics::CouplingMode::AVC:
-            return "avc";
-        case haptics::CouplingMode::AVCEC:
-            return "avcec";
-    }
-    return "?";
-}
-
-const char* sourceName(haptics::RaySource s) {
-    switch (s) {
-        case haptics::RaySource::Mesh:
-            return "mesh";
-        case haptics::RaySource::VolumeFirstHit:
-            return "first-hit";
-        case haptics::RaySource::VolumeAccumulate:
-            return "accumulate";
-    }
-    return "?";
-}
-
 }  // namespace
 
 Command addPalpate(CLI::App& root) {
@@ -619,8 +595,8 @@ Command addPalpate(CLI::App& root) {
                 json j;
                 j["input"] = label;
                 j["device"] = std::string(spec->name);
-                j["mode"] = modeName(cp.mode);
-                j["source"] = sourceName(cp.source);
+                j["mode"] = haptics::couplingModeName(cp.mode);
+                j["source"] = haptics::raySourceName(cp.source);
                 j["trajectory"] = tk;
                 j["k_base_npm"] = cp.baseStiffness;
                 j["k_max_npm"] = cp.maxStiffness;
@@ -669,9 +645,10 @@ Command addPalpate(CLI::App& root) {
                 std::printf(
                     "palp palpate: %s, %s/%s, %s on %s, k_s %.0f N/m, k_max %.0f "
                     "N/m, L_max %.0f mm, L_ref %.0f mm\n",
-                    label.c_str(), modeName(cp.mode), sourceName(cp.source), tk.c_str(),
-                    std::string(spec->name).c_str(), cp.baseStiffness, cp.maxStiffness,
-                    cp.bundle.length * 1e3, cp.referenceLength * 1e3);
+                    label.c_str(), haptics::couplingModeName(cp.mode),
+                    haptics::raySourceName(cp.source), tk.c_str(), std::string(spec->name).c_str(),
+                    cp.baseStiffness, cp.maxStiffness, cp.bundle.length * 1e3,
+                    cp.referenceLength * 1e3);
                 if (a.realtime) {
                     std::printf("%s\n", loopText.c_str());
                     std::printf("trace: %zu snapshots, %llu dropped\n", snaps.size(),

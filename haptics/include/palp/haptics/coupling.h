@@ -17,12 +17,18 @@ enum class CouplingMode {
     AVCEC,  ///< AVC plus the spherical (probe) and surface (proxy) energy terms
 };
 
+/// "vc", "avc" or "avcec". @par Real-time noexcept.
+const char* couplingModeName(CouplingMode mode) noexcept;
+
 /// Where the ray length L comes from.
 enum class RaySource {
     Mesh,              ///< closest hit against the hard meshes (mask hardMask)
     VolumeFirstHit,    ///< first crossing of firstHit.threshold in the volume
     VolumeAccumulate,  ///< where the integral of accumulate.sigma reaches accumulate.tauStop
 };
+
+/// "mesh", "first-hit" or "accumulate". @par Real-time noexcept.
+const char* raySourceName(RaySource source) noexcept;
 
 /// Coupling settings. Validate with validateCouplingParams() at set-up; all switchable at run
 /// time through Coupling::setParams().

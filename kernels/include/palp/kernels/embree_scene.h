@@ -78,6 +78,15 @@ class EmbreeScene {
     bool mCommitted = false;
 };
 
+/// Closest hit of one ray from @p origin along @p direction (t in units of |direction|) with
+/// t in [tnear, tfar], against geometries whose mask shares a bit with @p mask: fills @p rh
+/// (rh.hit.geomID is RTC_INVALID_GEOMETRY_ID when nothing was hit; rh.ray.tfar is the hit t).
+/// @return whether something was hit
+/// @par Threading  Any number of threads on one committed scene.
+/// @par Real-time  noexcept, no allocation.
+bool intersectOne(RTCScene scene, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                  float tnear, float tfar, unsigned mask, RTCRayHit& rh) noexcept;
+
 /// How a bundle is handed to Embree.
 enum class MeshTraceMode {
     Loop1,     ///< one rtcIntersect1 per ray
