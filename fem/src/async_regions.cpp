@@ -62,6 +62,10 @@ class TripleBuffer {
 /// Border data crossing threads, preallocated.
 struct Packet {
     std::vector<double> values;
+    // Snapshots, force drive: period-averaged loads on secondary dofs (fine dof, newtons).
+    std::vector<int> loadDofs;
+    std::vector<double> loadValues;
+    int loadCount = 0;
     double time = 0.0;
     std::uint64_t sequence = 0;
     std::uint64_t generation = 0;  // layout the values belong to
@@ -83,12 +87,14 @@ struct Layout {
     std::vector<int> touchedDofs;              // dofs of all nodes of primary cells
     std::vector<int> freeDofs;                 // free P dofs the primary integrates
     std::vector<int> gammaNodes, gammaDofs;    // secondary border: free S dofs of primary cells
+    std::vector<std::uint8_t> isGamma;         // per fine node
     std::vector<int> borderDofs;               // P dofs coupled to the secondary
     int freeNodeCount = 0;
     // Secondary (coarse unknowns).
     std::vector<int> unknownCoarseDof;  // unknown -> coarse dof
     RowMatrix interp;                   // fine dofs x unknowns (rows of P / fixed dofs empty)
     RowMatrix interpGamma;              // gamma dofs x unknowns
+    RowMatrix interpWatch;              // 3 * #watched x unknowns (rows of interp)
     SparseMatrix kc, mc;                // unknowns x unknowns
     RowMatrix kcb;                      // unknowns x border dofs
     Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
@@ -138,7 +144,9 @@ void pinCurrentThread(int cpu) {
 struct AsyncRegions::Impl {
     const FemModel& model;
     AsyncRegionsOptions options;
-    std::vector<std::uint8_t> fixed;              // per fine dof: constrained by the caller
+    bool forceDrive = false;
+    std::vector<int> watchIndex;      // per fine node: index in options.watchNodes, or -1
+    std::vector<std::uint8_t> fixed;  // per fine dof: constrained by the caller
     std::vector<std::uint8_t> nonZeroPrescribed;  // per fine node
     int lod = 1;
     std::array<int, 3> coarseCounts{};
@@ -163,6 +171,16 @@ struct AsyncRegions::Impl {
     Eigen::VectorXd bPrev, bCur;      // primary border values those Gamma values answer
     Eigen::VectorXd bNow, gFix;       // condensed coupling work vectors
     double gStart = 0.0;
+    // Watched secondary values the interpolation runs between (3 per watched node).
+    std::vector<double> wPrev, wCur;
+    // Force drive (servo thread): loads on free primary dofs this tick, and the sum over the
+    // current period of the loads on secondary nodes.
+    Eigen::VectorXd fExt, fAcc;
+    std::vector<int> fExtDofs;  // capacity 3 * maxLoads
+    std::size_t fExtCount = 0;
+    std::vector<int> accNodes;  // nodes with a non-zero fAcc entry, capacity #nodes
+    std::size_t accCount = 0;
+    std::vector<std::uint8_t> accMark;  // per node
 
     // Secondary state in full coarse dof indexing (secondary thread in threaded mode).
     Eigen::VectorXd uC, vC, aC;
@@ -198,12 +216,18 @@ struct AsyncRegions::Impl {
     std::unique_ptr<Layout> prepareForContact(Layout& from, int node, int seeds);
     void adoptLayout(const Layout& from, const Layout& to) noexcept;
     bool contactChangeWanted(const Layout& layout, int want) const noexcept;
-    bool solveSecondary(Layout& layout, const double* border, double* gammaOut) noexcept;
+    bool solveSecondary(Layout& layout, const double* border, const Packet* loads, double* gammaOut,
+                        double* watchOut) noexcept;
     void refreshField(Layout& layout);
     void switchLayout(int next);
     void secondaryLoop();
     void setGamma(const Layout& layout, double* target, double t, bool product) noexcept;
-    void acceptSolution(const double* gamma, const double* border) noexcept;
+    void acceptSolution(const double* gamma, const double* border, const double* watch) noexcept;
+    void seedWatched(const Layout& from) noexcept;
+    void takeLoads(std::span<const NodalLoad> loads, AsyncTickResult& result) noexcept;
+    void packLoads(Packet& out) noexcept;
+    AsyncTickResult advance(const Eigen::Vector3d& contactDisplacement,
+                            std::span<const NodalLoad> loads) noexcept;
     void sizeCoupling(const Layout& layout) noexcept;
     void primarySubsteps(const Eigen::Vector3d& target, AsyncTickResult& result) noexcept;
 };
@@ -232,6 +256,16 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
     if (o.secondarySolver == LinearSolverKind::simplicialLdlt)
         fail("secondary solver", "cholmod or pcg", "simplicialLdlt");
     if (contact.empty()) fail("contact nodes", "at least one node", "none");
+    if (o.maxLoads < 1) fail("max loads", ">= 1", o.maxLoads);
+    forceDrive = o.drive == ContactDrive::force;
+    watchIndex.assign(sz(mesh.nodeCount()), -1);
+    for (std::size_t i = 0; i < o.watchNodes.size(); ++i) {
+        const int n = o.watchNodes[i];
+        if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)])
+            fail("watch node", "an active node of the mesh", n);
+        if (watchIndex[sz(n)] >= 0) fail("watch node", "distinct nodes", n);
+        watchIndex[sz(n)] = static_cast<int>(i);
+    }
     for (int n : contact) {
         if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)])
             fail("contact node", "an active node of the mesh", n);
@@ -302,6 +336,21 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
     bCur = bPrev;
     bNow = bPrev;
     gFix = bPrev;
+    wPrev.assign(3 * o.watchNodes.size(), 0.0);
+    wCur = wPrev;
+    fExt = Eigen::VectorXd::Zero(dofs);
+    fAcc = fExt;
+    fExtDofs.assign(3 * sz(o.maxLoads), 0);
+    accNodes.assign(sz(mesh.nodeCount()), 0);
+    accMark.assign(sz(mesh.nodeCount()), 0);
+    // Cross-thread packets (also the synchronous mode's work buffers), sized once for any
+    // layout: Gamma and the primary border are disjoint sets of dofs.
+    for (int i = 0; i < 3; ++i) {
+        snapshots.slot(i).values.assign(sz(dofs), 0.0);
+        snapshots.slot(i).loadDofs.assign(sz(dofs), 0);
+        snapshots.slot(i).loadValues.assign(sz(dofs), 0.0);
+        results.slot(i).values.assign(sz(dofs) + wPrev.size(), 0.0);
+    }
 
     stiffness = model.assembleStiffness();
     uC = Eigen::VectorXd::Zero(coarseDofs);
@@ -323,14 +372,7 @@ AsyncRegions::Impl::Impl(const FemModel& m, const Constraints& c, std::vector<in
     }
     sizeCoupling(*layouts[0]);
 
-    if (o.threaded) {
-        // Capacity for any layout: Gamma and the primary border are disjoint sets of dofs.
-        for (int i = 0; i < 3; ++i) {
-            snapshots.slot(i).values.assign(sz(dofs), 0.0);
-            results.slot(i).values.assign(sz(dofs), 0.0);
-        }
-        worker = std::thread([this] { secondaryLoop(); });
-    }
+    if (o.threaded) worker = std::thread([this] { secondaryLoop(); });
 }
 
 AsyncRegions::Impl::~Impl() {
@@ -365,9 +407,11 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(const std::vector<int>& 
     L.seeds = seedCount;
     L.generation = nextGeneration.fetch_add(1, std::memory_order_relaxed);
     L.contactNodes = contact;
-    // The contact dofs are driven: fixed for this layout.
+    // Displacement drive: the contact dofs are driven, fixed for this layout. Force drive: they
+    // are free and only centre the regions.
     std::vector<std::uint8_t> driven = fixed;
     for (int n : contact) {
+        if (forceDrive) break;
         for (int k = 0; k < 3; ++k) {
             L.contactDofs.push_back(3 * n + k);
             driven[sz(3 * n + k)] = 1;
@@ -476,6 +520,8 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(const std::vector<int>& 
         }
         if (!L.isPrimary[sz(n)]) L.gammaNodes.push_back(n);
     }
+    L.isGamma.assign(sz(nodes), 0);
+    for (int n : L.gammaNodes) L.isGamma[sz(n)] = 1;
 
     // Interpolation from the coarse secondary: each free fine S dof takes trilinear weights of
     // the corners of a secondary coarse cell containing its node.
@@ -557,6 +603,17 @@ std::unique_ptr<Layout> AsyncRegions::Impl::buildLayout(const std::vector<int>& 
         }
         L.interpGamma.resize(static_cast<int>(L.gammaDofs.size()), unknowns);
         L.interpGamma.setFromTriplets(g.begin(), g.end());
+        std::vector<Triplet> w;
+        const std::vector<int>& watch = options.watchNodes;
+        for (std::size_t i = 0; i < watch.size(); ++i) {
+            for (int k = 0; k < 3; ++k) {
+                for (RowMatrix::InnerIterator it(L.interp, 3 * watch[i] + k); it; ++it)
+                    w.emplace_back(static_cast<int>(3 * i) + k, static_cast<int>(it.col()),
+                                   it.value());
+            }
+        }
+        L.interpWatch.resize(3 * static_cast<int>(watch.size()), unknowns);
+        L.interpWatch.setFromTriplets(w.begin(), w.end());
     }
     const SparseMatrix interpT = interp.transpose();
     const SparseMatrix ik = interpT * stiffness;  // unknowns x fine dofs
@@ -676,6 +733,7 @@ void AsyncRegions::Impl::adoptLayout(const Layout& from, const Layout& to) noexc
     // the shown values, so nothing jumps at the swap.
     setGamma(from, u.data(), time, true);
     setGamma(from, uPrev.data(), time - dtSub, true);
+    seedWatched(from);
     for (std::size_t i = 0; i < to.entryDofs.size(); ++i) {
         u[to.entryDofs[i]] = to.entryValues[i];
         uPrev[to.entryDofs[i]] = to.entryValues[i];
@@ -727,8 +785,8 @@ void AsyncRegions::Impl::prepareSolver(Layout& L) const {
     }
 }
 
-bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
-                                        double* gammaOut) noexcept {
+bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues, const Packet* loads,
+                                        double* gammaOut, double* watchOut) noexcept {
     const auto begin = std::chrono::steady_clock::now();
     timespec cpu0{};
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &cpu0);
@@ -738,7 +796,11 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
     const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
     int iterations = 0;
     bool ok = true;
-    if (L.gammaResponse.size() > 0) {
+    const int loadCount = loads != nullptr ? loads->loadCount : 0;
+    const bool watching = watchOut != nullptr && L.interpWatch.rows() > 0;
+    // Loads and watched nodes need the whole field; otherwise Gamma alone when R is at hand.
+    const bool direct = L.gammaResponse.size() > 0 && loadCount == 0 && !watching;
+    if (direct) {
         // Quasi-static: Gamma = R u_B exactly (R from the factorisation, at set-up).
         for (Eigen::Index i = 0; i < nb; ++i) L.border[i] = borderValues[i];
         Eigen::Map<Eigen::VectorXd> out(gammaOut, L.gammaResponse.rows());
@@ -758,6 +820,12 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
             const double alpha = model.material().dampingAlpha;
             const double beta = model.material().dampingBeta;
             L.rhs.noalias() = -sK * (L.kcb * L.border);
+            // External loads on secondary dofs, restricted with I^T (rows of P dofs are empty).
+            for (int i = 0; i < loadCount; ++i) {
+                const double f = loads->loadValues[sz(i)];
+                for (RowMatrix::InnerIterator it(L.interp, loads->loadDofs[sz(i)]); it; ++it)
+                    L.rhs[it.col()] += it.value() * f;
+            }
             if (dynamic) {
                 L.yc = nm.a1 * L.x + nm.a4 * L.v + nm.a5 * L.a;
                 L.ym = nm.a0 * L.x + nm.a2 * L.v + nm.a3 * L.a + alpha * L.yc;
@@ -831,16 +899,25 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues,
                     aC[cd] = L.a[i];
                 }
                 L.x = L.xNew;
+                L.fieldStale = false;
             }
         } catch (...) {
             ok = false;
         }
     }
-    if (ok && L.gammaResponse.size() == 0) {
+    if (ok && !direct) {
         const Eigen::Index ng = static_cast<Eigen::Index>(L.gammaDofs.size());
         Eigen::Map<Eigen::VectorXd> out(gammaOut, ng);
         if (unknowns > 0) {
             out.noalias() = L.interpGamma * L.x;
+        } else {
+            out.setZero();
+        }
+    }
+    if (ok && watchOut != nullptr) {
+        Eigen::Map<Eigen::VectorXd> out(watchOut, L.interpWatch.rows());
+        if (unknowns > 0) {
+            out.noalias() = L.interpWatch * L.x;
         } else {
             out.setZero();
         }
@@ -925,7 +1002,9 @@ void AsyncRegions::Impl::secondaryLoop() {
             const Packet& in = snapshots.front();
             if (in.generation != sec->generation) continue;  // from before the last swap
             Packet& out = results.back();
-            if (solveSecondary(*sec, in.values.data(), out.values.data())) {
+            const std::size_t ng = sec->gammaDofs.size(), nb = sec->borderDofs.size();
+            double* watchOut = wPrev.empty() ? nullptr : out.values.data() + ng + nb;
+            if (solveSecondary(*sec, in.values.data(), &in, out.values.data(), watchOut)) {
                 std::copy(in.values.begin(),
                           in.values.begin() + static_cast<std::ptrdiff_t>(sec->borderDofs.size()),
                           out.values.begin() + static_cast<std::ptrdiff_t>(sec->gammaDofs.size()));
@@ -963,7 +1042,8 @@ void AsyncRegions::Impl::setGamma(const Layout& L, double* target, double t,
         target[L.gammaDofs[i]] = gPrev[i] + frac * (gCur[i] - gPrev[i]);
 }
 
-void AsyncRegions::Impl::acceptSolution(const double* gamma, const double* border) noexcept {
+void AsyncRegions::Impl::acceptSolution(const double* gamma, const double* border,
+                                        const double* watch) noexcept {
     // Start from the value shown now, so a solution arriving mid-period does not jump.
     const Layout& L = *layouts[sz(current)];
     double frac = 1.0;
@@ -977,8 +1057,28 @@ void AsyncRegions::Impl::acceptSolution(const double* gamma, const double* borde
         bPrev[k] = bPrev[k] + frac * (bCur[k] - bPrev[k]);
         bCur[k] = border[i];
     }
+    if (watch != nullptr) {
+        for (std::size_t i = 0; i < wPrev.size(); ++i) {
+            wPrev[i] = wPrev[i] + frac * (wCur[i] - wPrev[i]);
+            wCur[i] = watch[i];
+        }
+    }
     gStart = time;
     used.fetch_add(1, std::memory_order_relaxed);
+}
+
+void AsyncRegions::Impl::seedWatched(const Layout& from) noexcept {
+    // Watched nodes the servo showed (P and Gamma of the layout being left) start from those
+    // values: the secondary's last solution has nothing (zero) for primary nodes.
+    const std::vector<int>& watch = options.watchNodes;
+    for (std::size_t i = 0; i < watch.size(); ++i) {
+        const int n = watch[i];
+        if (!from.isPrimary[sz(n)] && !from.isGamma[sz(n)]) continue;
+        for (std::size_t k = 0; k < 3; ++k) {
+            wPrev[3 * i + k] = u[3 * n + static_cast<int>(k)];
+            wCur[3 * i + k] = wPrev[3 * i + k];
+        }
+    }
 }
 
 void AsyncRegions::Impl::primarySubsteps(const Eigen::Vector3d& target,
@@ -1016,7 +1116,8 @@ void AsyncRegions::Impl::primarySubsteps(const Eigen::Vector3d& target,
             }
         }
         for (int d : L.freeDofs)
-            uPrev[d] = (-dt2 * fInt[d] + twoMass[d] * u[d] - prevCoef[d] * uPrev[d]) * invDen[d];
+            uPrev[d] = (dt2 * (fExt[d] - fInt[d]) + twoMass[d] * u[d] - prevCoef[d] * uPrev[d]) *
+                       invDen[d];
         const double frac = static_cast<double>(s + 1) / substeps;
         for (std::size_t i = 0; i < contactDofs.size(); ++i) {
             const double start = contactStart[static_cast<Eigen::Index>(i)];
@@ -1027,6 +1128,9 @@ void AsyncRegions::Impl::primarySubsteps(const Eigen::Vector3d& target,
         time += dt;
         ++result.substeps;
     }
+    // Gamma as of now (with the tick's last condensed correction), for nodeDisplacement(); the
+    // next substep sets it again before using it.
+    setGamma(L, u.data(), time, false);
     bool finite = true;
     for (int d : L.freeDofs) finite = finite && std::isfinite(u[d]);
     if (!finite) {
@@ -1039,7 +1143,7 @@ void AsyncRegions::Impl::primarySubsteps(const Eigen::Vector3d& target,
     Eigen::Vector3d force = Eigen::Vector3d::Zero();
     for (std::size_t i = 0; i < contactDofs.size(); ++i)
         force[static_cast<Eigen::Index>(i % 3)] += fInt[contactDofs[i]];
-    result.contactForce = finite ? force : Eigen::Vector3d::Zero();
+    if (!forceDrive) result.contactForce = finite ? force : Eigen::Vector3d::Zero();
 }
 
 void AsyncRegions::Impl::switchLayout(int next) {
@@ -1050,6 +1154,7 @@ void AsyncRegions::Impl::switchLayout(int next) {
     // enter the primary keep that motion; deeper nodes take the secondary's solution at rest.
     setGamma(oldL, u.data(), time, true);
     setGamma(oldL, uPrev.data(), time - dtSub, true);
+    seedWatched(oldL);
     std::vector<std::uint8_t> known(oldL.isPrimary);
     for (int n : oldL.gammaNodes) known[sz(n)] = 1;
     auto enter = [&](int n) {
@@ -1107,8 +1212,83 @@ AsyncRegions::AsyncRegions(const FemModel& model, const Constraints& constraints
 
 AsyncRegions::~AsyncRegions() = default;
 
+void AsyncRegions::Impl::takeLoads(std::span<const NodalLoad> loads,
+                                   AsyncTickResult& result) noexcept {
+    const Layout& L = *layouts[sz(current)];
+    const HexMesh& mesh = model.mesh();
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    std::size_t taken = 0;
+    for (const NodalLoad& load : loads) {
+        const int n = load.node;
+        if (taken >= sz(options.maxLoads) || n < 0 || n >= mesh.nodeCount() ||
+            !mesh.nodeActive()[sz(n)] || !load.force.allFinite()) {
+            ++result.loadsRefused;
+            continue;
+        }
+        ++taken;
+        sum += load.force;
+        const bool primary = L.isPrimary[sz(n)] != 0;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            if (fixed[sz(d)]) continue;  // taken by the support
+            if (primary) {
+                fExtDofs[fExtCount++] = d;  // a repeated dof is listed twice: harmless
+                fExt[d] += load.force[k];
+            } else {
+                fAcc[d] += load.force[k];
+                if (!accMark[sz(n)]) {
+                    accMark[sz(n)] = 1;
+                    accNodes[accCount++] = n;
+                }
+            }
+        }
+    }
+    result.contactForce = sum;
+    if (result.loadsRefused > 0) result.flags |= kAsyncLoadsRefused;
+}
+
+void AsyncRegions::Impl::packLoads(Packet& out) noexcept {
+    // The period's mean load on each secondary dof (its impulse over the period).
+    const double inv = 1.0 / period;
+    int count = 0;
+    for (std::size_t i = 0; i < accCount; ++i) {
+        const int n = accNodes[i];
+        accMark[sz(n)] = 0;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            const double f = fAcc[d];
+            fAcc[d] = 0.0;
+            if (f == 0.0) continue;
+            out.loadDofs[sz(count)] = d;
+            out.loadValues[sz(count)] = f * inv;
+            ++count;
+        }
+    }
+    accCount = 0;
+    out.loadCount = count;
+}
+
 AsyncTickResult AsyncRegions::tick(const Eigen::Vector3d& contactDisplacement) noexcept {
-    Impl& m = *mImpl;
+    if (mImpl->forceDrive) {
+        AsyncTickResult r;
+        r.flags |= kStepBadForce;
+        return r;
+    }
+    return mImpl->advance(contactDisplacement, {});
+}
+
+AsyncTickResult AsyncRegions::tick(std::span<const NodalLoad> loads) noexcept {
+    if (!mImpl->forceDrive) {
+        AsyncTickResult r;
+        r.flags |= kStepBadForce;
+        return r;
+    }
+    return mImpl->advance(Eigen::Vector3d::Zero(), loads);
+}
+
+AsyncTickResult AsyncRegions::Impl::advance(const Eigen::Vector3d& contactDisplacement,
+                                            std::span<const NodalLoad> loads) noexcept {
+    Impl& m = *this;
     AsyncTickResult result;
     if (m.options.threaded) {
         // A layout prepared for a new contact: one pointer exchange, state hand-over over the
@@ -1124,18 +1304,27 @@ AsyncTickResult AsyncRegions::tick(const Eigen::Vector3d& contactDisplacement) n
             const Packet& in = m.results.front();
             const Layout& L = *m.layouts[0];
             if (in.generation == L.generation) {
-                m.acceptSolution(in.values.data(), in.values.data() + L.gammaDofs.size());
+                const std::size_t ng = L.gammaDofs.size(), nb = L.borderDofs.size();
+                m.acceptSolution(in.values.data(), in.values.data() + ng,
+                                 m.wPrev.empty() ? nullptr : in.values.data() + ng + nb);
                 result.secondaryUpdated = true;
             }
         }
     }
+    if (m.forceDrive) m.takeLoads(loads, result);
     const std::vector<int>& contactDofs = m.layouts[sz(m.current)]->contactDofs;
     Eigen::Vector3d target = contactDisplacement;
-    if (!target.allFinite()) {
+    if (!m.forceDrive && !target.allFinite()) {
         target = Eigen::Vector3d(m.u[contactDofs[0]], m.u[contactDofs[1]], m.u[contactDofs[2]]);
         result.flags |= kStepBadForce;
     }
     m.primarySubsteps(target, result);
+    for (std::size_t i = 0; i < m.fExtCount; ++i) m.fExt[m.fExtDofs[i]] = 0.0;
+    m.fExtCount = 0;
+    {
+        const int c = m.layouts[sz(m.current)]->contactNodes[0];
+        result.contactDisplacement = m.u.segment<3>(3 * c);
+    }
     ++m.ticks;
     if (m.ticks % static_cast<std::uint64_t>(m.period) != 0) return result;
 
@@ -1143,6 +1332,7 @@ AsyncTickResult AsyncRegions::tick(const Eigen::Vector3d& contactDisplacement) n
         const Layout& L = *m.layouts[sz(m.current)];
         Packet& out = m.snapshots.back();
         for (std::size_t i = 0; i < L.borderDofs.size(); ++i) out.values[i] = m.u[L.borderDofs[i]];
+        m.packLoads(out);
         out.time = m.time;
         out.sequence = m.ticks;
         out.generation = L.generation;
@@ -1170,22 +1360,24 @@ AsyncTickResult AsyncRegions::tick(const Eigen::Vector3d& contactDisplacement) n
         }
     }
     if (m.layouts.size() > 1) {
-        const double strain = target.norm() / m.options.strainReferenceLength;
+        const double strain = (m.forceDrive ? result.contactDisplacement.norm() : target.norm()) /
+                              m.options.strainReferenceLength;
         const int levels = static_cast<int>(m.layouts.size());
         const int level = static_cast<int>(
             std::lround(std::clamp(strain / m.options.strainAtMax, 0.0, 1.0) * (levels - 1)));
         if (level != m.current) m.switchLayout(level);
     }
     Layout& L = *m.layouts[sz(m.current)];
-    std::vector<double>& border = m.snapshots.slot(0).values;
-    std::vector<double>& gamma = m.results.slot(0).values;
-    border.resize(L.borderDofs.size());
-    gamma.resize(L.gammaDofs.size());
+    Packet& in = m.snapshots.slot(0);
+    std::vector<double>& border = in.values;
+    double* gamma = m.results.slot(0).values.data();
+    double* watch = m.wPrev.empty() ? nullptr : gamma + m.model.dofCount();
     for (std::size_t i = 0; i < L.borderDofs.size(); ++i) border[i] = m.u[L.borderDofs[i]];
+    m.packLoads(in);
     bool ok = false;
-    m.arena->execute([&] { ok = m.solveSecondary(L, border.data(), gamma.data()); });
+    m.arena->execute([&] { ok = m.solveSecondary(L, border.data(), &in, gamma, watch); });
     if (ok) {
-        m.acceptSolution(gamma.data(), border.data());
+        m.acceptSolution(gamma, border.data(), watch);
         result.secondaryUpdated = true;
     }
     return result;
@@ -1226,6 +1418,9 @@ Eigen::VectorXd AsyncRegions::displacement() const {
     Layout& L = *m.layouts[sz(m.current)];
     if (!m.options.threaded) m.refreshField(L);
     Eigen::VectorXd out = m.u;
+    if (m.options.threaded) {  // the secondary's field is its thread's: the watched nodes only
+        for (int n : m.options.watchNodes) out.segment<3>(3 * n) = nodeDisplacement(n);
+    }
     if (!m.options.threaded && !L.unknownCoarseDof.empty()) {
         const Eigen::VectorXd s = L.interp * L.x;
         for (int n = 0; n < m.model.mesh().nodeCount(); ++n) {
@@ -1238,6 +1433,39 @@ Eigen::VectorXd AsyncRegions::displacement() const {
     }
     return out;
 }
+
+Eigen::Vector3d AsyncRegions::nodeDisplacement(int node) const noexcept {
+    const Impl& m = *mImpl;
+    const HexMesh& mesh = m.model.mesh();
+    if (node < 0 || node >= mesh.nodeCount())
+        return Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+    const Layout& L = *m.layouts[sz(m.current)];
+    const std::size_t n = sz(node);
+    if (L.isPrimary[n] || L.isGamma[n]) return m.u.segment<3>(3 * node);
+    const int w = m.watchIndex[n];
+    Eigen::Vector3d out = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+    double frac = 1.0;
+    if (m.options.interpolate) frac = std::clamp((m.time - m.gStart) / m.periodSeconds, 0.0, 1.0);
+    for (int k = 0; k < 3; ++k) {
+        const int d = 3 * node + k;
+        if (m.fixed[sz(d)] || !mesh.nodeActive()[n]) {
+            out[k] = m.u[d];
+        } else if (w >= 0) {
+            const std::size_t i = 3 * sz(w) + sz(k);
+            out[k] = m.wPrev[i] + frac * (m.wCur[i] - m.wPrev[i]);
+        }
+    }
+    return out;
+}
+
+std::size_t AsyncRegions::watchedDisplacements(std::span<Eigen::Vector3d> out) const noexcept {
+    const std::vector<int>& watch = mImpl->options.watchNodes;
+    const std::size_t count = std::min(out.size(), watch.size());
+    for (std::size_t i = 0; i < count; ++i) out[i] = nodeDisplacement(watch[i]);
+    return count;
+}
+
+const std::vector<int>& AsyncRegions::watchNodes() const { return mImpl->options.watchNodes; }
 
 AsyncSecondaryStats AsyncRegions::secondaryStats() const {
     const Impl& m = *mImpl;

@@ -43,7 +43,26 @@
 /// is kept; a contact that cannot be prepared (e.g. a non-zero prescribed value would fall in
 /// the secondary) is ignored until another node is requested.
 ///
-/// Not modelled: a force-driven (virtual coupling) contact.
+/// Drives. `ContactDrive::displacement` (the thesis's input): the contact nodes are driven by a
+/// prescribed displacement and tick(const Eigen::Vector3d&) returns their reaction.
+/// `ContactDrive::force` (virtual coupling on deformable tissue): every node is free and
+/// tick(std::span<const NodalLoad>) takes external nodal loads for that tick (at most
+/// maxLoads; extra ones are refused with kAsyncLoadsRefused). Loads on free primary dofs enter
+/// the primary's central-difference update at once. Loads on secondary nodes (Gamma included)
+/// are averaged over the secondary period (sum over the period's ticks / its tick count: the
+/// period's impulse, so nothing is lost when a load acts between solves) and enter the
+/// secondary's right-hand side restricted with I^T: `I^T A_SS I u_c = I^T (f_S - K_SP u_P)`.
+/// They act one to two periods late (the staggered delay). The region centre stays the contact
+/// node(s): move it with requestContactNode() when the load moves. A secondary solve with
+/// loads solves the whole secondary field (two triangular solves, see secondaryFullField).
+///
+/// Watched nodes. `watchNodes` (fixed at construction) are nodes whose displacement the servo
+/// needs every tick without displacement(): each secondary solve also publishes the watched
+/// nodes' values interpolated from its field, which then requires the whole field at every
+/// solve (with secondaryFullField = false the direct Gamma-only solve is replaced by the two
+/// triangular solves; at 33^3 lod 2 that is bench_async's `force` row), and nodeDisplacement()
+/// / watchedDisplacements() give the primary's values on P and Gamma and the time-interpolated
+/// secondary values elsewhere, allocation- and lock-free.
 ///
 /// Modes. Synchronous (deterministic, for accuracy tests and tables): the secondary is solved
 /// inline at the end of every secondary period of simulated time and used from the next tick.
@@ -71,6 +90,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <vector>
 
 #include "palp/fem/constraints.h"
@@ -79,8 +99,30 @@
 
 namespace palp::fem {
 
+/// What drives the contact (see "Drives" above).
+enum class ContactDrive {
+    displacement,  ///< contact nodes follow a prescribed displacement; the result is their reaction
+    force,         ///< all nodes free; external nodal loads each tick
+};
+
+/// An external load on one node for one tick (force drive).
+struct NodalLoad {
+    int node = -1;                                    ///< fine node index
+    Eigen::Vector3d force = Eigen::Vector3d::Zero();  ///< newtons, world frame
+};
+
+/// Flag of tick(): loads beyond maxLoads, on inactive or out-of-range nodes, or with non-finite
+/// components were refused (the tick ran with the others). Outside the StepFlag bits.
+constexpr unsigned kAsyncLoadsRefused = 1u << 12;
+
 /// Options of AsyncRegions.
 struct AsyncRegionsOptions {
+    ContactDrive drive = ContactDrive::displacement;  ///< prescribed displacement or nodal loads
+    int maxLoads = 64;  ///< force drive: capacity of tick()'s load list (>= 1)
+    /// Nodes whose displacement nodeDisplacement()/watchedDisplacements() give every tick
+    /// (distinct active nodes; e.g. a deformable body's surface nodes). Non-empty: every
+    /// secondary solve solves the whole field (see "Watched nodes").
+    std::vector<int> watchNodes;
     double tickSeconds = 1e-3;    ///< servo period, seconds (> 0)
     double secondaryRate = 50.0;  ///< f_s, Hz: period = max(1, round(1 / (f_s tick))) ticks
     int primaryNodes = 30;        ///< N seeds of the primary region (>= contact node count)
@@ -122,9 +164,13 @@ struct AsyncRegionsOptions {
 
 /// What one tick did.
 struct AsyncTickResult {
-    Eigen::Vector3d contactForce = Eigen::Vector3d::Zero();  ///< reaction at the contact, N
-    int substeps = 0;                                        ///< primary substeps
-    unsigned flags = 0;                                      ///< StepFlag bits
+    /// Displacement drive: reaction at the contact, N. Force drive: the sum of the loads taken.
+    Eigen::Vector3d contactForce = Eigen::Vector3d::Zero();
+    /// Displacement of the first contact node at the end of the tick, m.
+    Eigen::Vector3d contactDisplacement = Eigen::Vector3d::Zero();
+    int loadsRefused = 0;           ///< force drive: loads refused (kAsyncLoadsRefused)
+    int substeps = 0;               ///< primary substeps
+    unsigned flags = 0;             ///< StepFlag bits
     bool secondaryUpdated = false;  ///< a new secondary solution entered at this tick
     bool layoutChanged = false;     ///< a layout for a new contact node was adopted at this tick
 };
@@ -142,8 +188,9 @@ struct AsyncSecondaryStats {
 };
 
 /// Primary region (explicit, every tick) coupled to a secondary region (implicit, f_s).
-/// The contact nodes are driven by a prescribed displacement (the same for all of them); the
-/// contact force is their reaction, as ExplicitSolver::reactionSum() gives it.
+/// Displacement drive: the contact nodes are driven by a prescribed displacement (the same for
+/// all of them); the contact force is their reaction, as ExplicitSolver::reactionSum() gives it.
+/// Force drive: the contact nodes only centre the primary region; nodal loads drive the body.
 class AsyncRegions {
   public:
     /// Builds the regions, the primary operator and the secondary system (assembly and, for
@@ -151,7 +198,8 @@ class AsyncRegions {
     /// thread in threaded mode.
     /// @throw palp::ValueError for bad options, contact nodes outside the model or inactive, a
     /// lod that does not divide the cell counts, constraints that do not match the model, or
-    /// non-zero prescribed displacements on secondary nodes.
+    /// non-zero prescribed displacements on secondary nodes, watch nodes that are repeated,
+    /// inactive or outside the model, or maxLoads < 1.
     AsyncRegions(const FemModel& model, const Constraints& constraints,
                  std::vector<int> contactNodes, const AsyncRegionsOptions& options = {});
     ~AsyncRegions();
@@ -163,7 +211,26 @@ class AsyncRegions {
     /// @par Real-time  Threaded mode: noexcept, allocation-free, lock-free, at most maxSubsteps
     /// substeps over the primary cells. Synchronous mode: the same except at secondary period
     /// boundaries, where the secondary solve (and a layout change) runs inline.
+    /// Displacement drive only (in force drive it does nothing and flags kStepBadForce).
     AsyncTickResult tick(const Eigen::Vector3d& contactDisplacement) noexcept;
+
+    /// Advances one servo tick under the external nodal @p loads (N, held over the tick; several
+    /// loads on one node add up). Force drive only (in displacement drive it does nothing and
+    /// flags kStepBadForce). Loads beyond maxLoads, on bad nodes or non-finite are refused
+    /// (kAsyncLoadsRefused, loadsRefused); loads on fixed dofs vanish into the support.
+    /// @par Real-time  As the other tick().
+    AsyncTickResult tick(std::span<const NodalLoad> loads) noexcept;
+
+    /// Displacement of node @p node now, m: the primary's value on P and Gamma (Gamma as shown in
+    /// the last substep), the constraint value on fixed dofs, the time-interpolated secondary
+    /// value on other watched nodes; NaN for an unwatched secondary node or a bad index.
+    /// @par Real-time  noexcept, allocation-free, lock-free, O(1). Servo thread.
+    Eigen::Vector3d nodeDisplacement(int node) const noexcept;
+    /// nodeDisplacement() of every watched node, in watchNodes order, into @p out (at most
+    /// out.size() entries). @return the number written. @par Real-time  O(#watched).
+    std::size_t watchedDisplacements(std::span<Eigen::Vector3d> out) const noexcept;
+    /// The watched nodes (options().watchNodes).
+    const std::vector<int>& watchNodes() const;
 
     /// Fine nodes of the current primary region (sorted).
     const std::vector<int>& primaryNodes() const;
