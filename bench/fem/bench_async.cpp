@@ -4,10 +4,15 @@
 // primary on a growing sinusoid; level of detail; and a threaded real-time run with the servo
 // thread and the secondary pinned to different cores.
 //
-// Usage: bench_async [table|interp|growing|lod|threaded] [--size N] [--seconds S]
+// force: the force drive (deformable palpation): a raised-cosine force of --force N at the
+// contact node, the whole mesh stepped explicitly every tick as the reference; per secondary
+// rate a synchronous and a threaded (servo pinned to CPU 0 at 1 kHz wall clock, secondary on
+// CPU 1) run with the top face watched (--watch 0: none; then the Gamma-only direct solve).
+//
+// Usage: bench_async [table|interp|growing|lod|threaded|force] [--size N] [--seconds S]
 //        [--amplitude M] [--frequency HZ] [--lod L] [--solver cholmod|pcg] [--n LIST]
 //        [--f LIST] [--integrator newmark|static] [--coupling plain|condensed]
-//        [--once-per-tick 0|1] [--full-field 0|1] [--move MS]
+//        [--once-per-tick 0|1] [--full-field 0|1] [--move MS] [--force N] [--watch 0|1]
 // --move MS (threaded): every MS milliseconds the contact moves one node along +x across the
 // top face (re-allocation prepared on the secondary thread, adopted by the tick).
 #include <pthread.h>
@@ -45,6 +50,8 @@ struct Config {
     bool oncePerTick = false;
     bool fullField = false;
     int moveMs = 0;
+    double force = 0.05;  // newtons, force mode
+    bool watch = true;    // force mode: watch the top face
     std::vector<int> nodes{5, 30, 120};
     std::vector<double> rates{50, 500, 1000};
     double alpha = 10.0;  // mass-proportional damping, 1/s
@@ -383,6 +390,117 @@ void threaded(const Config& c) {
     }
 }
 
+/// Force drive: contact displacement and watched top-face displacement against the whole mesh
+/// stepped explicitly under the same force.
+void forceDrive(const Config& c) {
+    const Problem p(c);
+    const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
+    auto forceAt = [&](int t) {
+        return -c.force * 0.5 * (1.0 - std::cos(2.0 * std::numbers::pi * c.frequency * t * 1e-3));
+    };
+    // The error over the top face is taken at the tick of the largest reference displacement.
+    std::vector<int> watch = p.model.mesh().faceNodes(BoxFace::zMax);
+    std::vector<double> ref;
+    double refTick = 0.0;
+    int peakTick = 1;
+    std::vector<Eigen::Vector3d> refSurface(watch.size());
+    {
+        ExplicitSolver s(p.model, p.constraints);
+        std::vector<double> times;
+        double best = -1.0;
+        for (int t = 1; t <= ticks; ++t) {
+            s.externalForce()[3 * p.contact + 2] = forceAt(t);
+            const auto b = Clock::now();
+            s.step(1e-3);
+            times.push_back(std::chrono::duration<double>(Clock::now() - b).count());
+            const double z = s.displacement()[3 * p.contact + 2];
+            ref.push_back(z);
+            if (std::abs(z) > best) {
+                best = std::abs(z);
+                peakTick = t;
+                for (std::size_t i = 0; i < watch.size(); ++i)
+                    refSurface[i] = s.displacement().segment<3>(3 * watch[i]);
+            }
+        }
+        refTick = mean(times);
+    }
+    double refSurfaceMax = 0.0;
+    for (const auto& v : refSurface) refSurfaceMax = std::max(refSurfaceMax, v.norm());
+    std::printf(
+        "force drive, cube %d^3 (%d dofs), alpha %.0f/s: %.3f N raised cosine %.1f Hz at the top "
+        "centre, %.1f s; lod %d, %s, %s coupling, %zu watched nodes; whole mesh explicit: tick "
+        "%.3f ms, peak %.4f mm at tick %d\n",
+        c.size, p.model.dofCount(), c.alpha, c.force, c.frequency, c.seconds, c.lod,
+        c.solver == LinearSolverKind::cholmod ? "CHOLMOD" : "PCG",
+        c.condensed ? "condensed" : "plain", c.watch ? watch.size() : std::size_t{0}, refTick * 1e3,
+        peak(ref) * 1e3, peakTick);
+    std::printf("%-9s %5s %6s %9s %9s %9s %8s %9s %9s %10s %9s %8s %8s %9s\n", "mode", "N", "f",
+                "tick ms", "p99 ms", "max ms", "overrun", "sec Hz", "solve ms", "solve CPU",
+                "peak mm", "error", "rms err", "surf err");
+    pin(0);
+    for (double f : c.rates) {
+        for (bool threadedRun : {false, true}) {
+            AsyncRegionsOptions o;
+            o.drive = ContactDrive::force;
+            o.primaryNodes = c.nodes.front();
+            o.secondaryRate = f;
+            o.lod = c.lod;
+            o.secondarySolver = c.solver;
+            o.secondaryIntegrator = Integrator::quasiStatic;
+            o.condensed = c.condensed;
+            o.condensedOncePerTick = c.oncePerTick;
+            o.secondaryFullField = c.fullField;
+            if (c.watch) o.watchNodes = watch;
+            o.threaded = threadedRun;
+            o.secondaryCpu = threadedRun ? 1 : -1;
+            AsyncRegions a(p.model, p.constraints, {p.contact}, o);
+            std::vector<Eigen::Vector3d> w(o.watchNodes.size());
+            std::vector<double> z, tickTimes;
+            double surfErr = 0.0;
+            int overruns = 0;
+            const auto start = Clock::now();
+            auto deadline = start;
+            for (int t = 1; t <= ticks; ++t) {
+                const NodalLoad load{p.contact, {0, 0, forceAt(t)}};
+                const auto b = Clock::now();
+                const AsyncTickResult r = a.tick(std::span<const NodalLoad>(&load, 1));
+                a.watchedDisplacements(w);
+                const auto e = Clock::now();
+                double dt = std::chrono::duration<double>(e - b).count();
+                if (!threadedRun && r.secondaryUpdated) {  // inline solve: booked apart
+                    dt = std::max(0.0, dt - a.secondaryStats().lastSolveSeconds);
+                }
+                tickTimes.push_back(dt);
+                z.push_back(r.contactDisplacement.z());
+                if (t == peakTick && !w.empty()) {
+                    for (std::size_t i = 0; i < w.size(); ++i)
+                        surfErr = std::max(surfErr, (w[i] - refSurface[i]).norm());
+                }
+                if (threadedRun) {
+                    deadline += std::chrono::microseconds(1000);
+                    if (e > deadline) {
+                        ++overruns;
+                    } else {
+                        std::this_thread::sleep_until(deadline);
+                    }
+                }
+            }
+            const double wall = std::chrono::duration<double>(Clock::now() - start).count();
+            const AsyncSecondaryStats st = a.secondaryStats();
+            const double rate =
+                threadedRun ? static_cast<double>(st.solves) / wall : 1e3 / a.periodTicks();
+            std::printf(
+                "%-9s %5d %6.0f %9.4f %9.4f %9.4f %8d %9.1f %9.3f %10.3f %9.4f %7.2f%% %7.2f%% "
+                "%8.2f%%\n",
+                threadedRun ? "threaded" : "sync", a.primaryFreeNodeCount(), f,
+                mean(tickTimes) * 1e3, percentile(tickTimes, 0.99) * 1e3,
+                percentile(tickTimes, 1.0) * 1e3, overruns, rate, st.lastSolveSeconds * 1e3,
+                st.lastSolveCpuSeconds * 1e3, peak(z) * 1e3, 100.0 * relErr(peak(z), peak(ref)),
+                100.0 * rmsErr(z, ref), w.empty() ? 0.0 : 100.0 * surfErr / refSurfaceMax);
+        }
+    }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -411,6 +529,10 @@ int main(int argc, char** argv) {
             c.oncePerTick = v != "0";
         } else if (k == "--full-field") {
             c.fullField = v != "0";
+        } else if (k == "--force") {
+            c.force = std::stod(v);
+        } else if (k == "--watch") {
+            c.watch = v != "0";
         } else if (k == "--move") {
             c.moveMs = std::stoi(v);
         } else if (k == "--coupling") {
@@ -435,6 +557,8 @@ int main(int argc, char** argv) {
         lod(c);
     } else if (c.mode == "threaded") {
         threaded(c);
+    } else if (c.mode == "force") {
+        forceDrive(c);
     } else {
         std::fprintf(stderr, "bench_async: unknown mode %s\n", c.mode.c_str());
         return 2;

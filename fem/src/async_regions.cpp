@@ -104,7 +104,8 @@ struct Layout {
     // Quasi-static CHOLMOD secondary: the exact Gamma response to the border (dense), so that a
     // secondary solve needs only Gamma = R u_B; the whole field x is solved when asked for.
     Eigen::MatrixXd gammaResponse;
-    bool fieldStale = false;  // x (and uC) lag the last border (direct Gamma solves)
+    Eigen::MatrixXd watchResponse;  // the same for the watched dofs (3 * #watched x border)
+    bool fieldStale = false;        // x (and uC) lag the last border (direct Gamma solves)
     // Secondary work vectors (secondary thread only).
     Eigen::VectorXd x, v, a, rhs, xNew, yc, ym, r, z, p, q, border;
 };
@@ -770,7 +771,10 @@ void AsyncRegions::Impl::prepareSolver(Layout& L) const {
         const Eigen::MatrixXd rhs = -sK * Eigen::MatrixXd(L.kcb);
         const Eigen::MatrixXd x = llt->solve(rhs);
         const Eigen::MatrixXd g = L.interpGamma * x;
-        if (direct) L.gammaResponse = g;
+        if (direct) {
+            L.gammaResponse = g;
+            if (L.interpWatch.rows() > 0) L.watchResponse = L.interpWatch * x;
+        }
         if (!options.condensed) return;
         const double drop = options.condensedDropTolerance * g.cwiseAbs().maxCoeff();
         std::vector<Triplet> t;
@@ -798,14 +802,21 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues, c
     bool ok = true;
     const int loadCount = loads != nullptr ? loads->loadCount : 0;
     const bool watching = watchOut != nullptr && L.interpWatch.rows() > 0;
-    // Loads and watched nodes need the whole field; otherwise Gamma alone when R is at hand.
-    const bool direct = L.gammaResponse.size() > 0 && loadCount == 0 && !watching;
+    // Loads on secondary nodes need the whole field; otherwise Gamma (and the watched nodes)
+    // alone when their responses to the border are at hand.
+    const bool direct =
+        L.gammaResponse.size() > 0 && loadCount == 0 && (!watching || L.watchResponse.size() > 0);
     if (direct) {
         // Quasi-static: Gamma = R u_B exactly (R from the factorisation, at set-up).
         for (Eigen::Index i = 0; i < nb; ++i) L.border[i] = borderValues[i];
         Eigen::Map<Eigen::VectorXd> out(gammaOut, L.gammaResponse.rows());
         out.noalias() = L.gammaResponse * L.border;
         ok = out.allFinite();
+        if (watching) {
+            Eigen::Map<Eigen::VectorXd> w(watchOut, L.watchResponse.rows());
+            w.noalias() = L.watchResponse * L.border;
+            ok = ok && w.allFinite();
+        }
         L.fieldStale = true;
     } else if (unknowns > 0) {
         try {
@@ -914,7 +925,7 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues, c
             out.setZero();
         }
     }
-    if (ok && watchOut != nullptr) {
+    if (ok && !direct && watchOut != nullptr) {
         Eigen::Map<Eigen::VectorXd> out(watchOut, L.interpWatch.rows());
         if (unknowns > 0) {
             out.noalias() = L.interpWatch * L.x;

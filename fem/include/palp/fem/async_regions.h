@@ -57,12 +57,15 @@
 /// loads solves the whole secondary field (two triangular solves, see secondaryFullField).
 ///
 /// Watched nodes. `watchNodes` (fixed at construction) are nodes whose displacement the servo
-/// needs every tick without displacement(): each secondary solve also publishes the watched
-/// nodes' values interpolated from its field, which then requires the whole field at every
-/// solve (with secondaryFullField = false the direct Gamma-only solve is replaced by the two
-/// triangular solves; at 33^3 lod 2 that is bench_async's `force` row), and nodeDisplacement()
-/// / watchedDisplacements() give the primary's values on P and Gamma and the time-interpolated
-/// secondary values elsewhere, allocation- and lock-free.
+/// needs every tick without displacement() (a deformable body's surface). Each secondary solve
+/// also publishes the watched nodes' values from its field; nodeDisplacement() /
+/// watchedDisplacements() give the primary's values on P and Gamma and the time-interpolated
+/// secondary values elsewhere, allocation- and lock-free. Cost: with the direct quasi-static
+/// CHOLMOD secondary (secondaryFullField = false) the watched values come, like Gamma, from a
+/// dense response to the border taken at set-up (3 #watched x |border| doubles per layout, as
+/// many multiply-adds per solve); a solve with loads on secondary nodes, and the other
+/// secondaries, solve the whole field (two triangular solves: ~14 ms at 33^3 lod 2 against
+/// ~1 ms, bench_async force).
 ///
 /// Modes. Synchronous (deterministic, for accuracy tests and tables): the secondary is solved
 /// inline at the end of every secondary period of simulated time and used from the next tick.
