@@ -1,6 +1,6 @@
 // Ray kernel benchmark: volume bundles vs the OpenVDB baseline, Embree bundles vs raw Embree calls,
 // refit costs and batch scaling, each line with both figures and the ratio (see bench/README.md).
-// Usage: bench_rays [frames] [real-ct.vdb]
+// Usage: bench_rays [frames] [real-ct.vdb] [volume]   ("volume": the volume lines only)
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
@@ -13,6 +13,7 @@ int main(int argc, char** argv) {
         using namespace palp::kernels;
         RayBenchOptions o;
         if (argc > 1) o.frames = std::atoi(argv[1]);
+        const bool volumeOnly = argc > 3 && std::string(argv[3]) == "volume";
         o.warmUp = std::min(500, o.frames);
         o.batchBundles = std::max(200, std::min(20000, 2 * o.frames));
         RayBenchReport report;
@@ -33,8 +34,10 @@ int main(int argc, char** argv) {
             }
         }
         o.rays = 17;
-        benchMeshRays(o, nullptr, report);
-        benchBatchRays(phantom, "phantom", o, report);
+        if (!volumeOnly) {
+            benchMeshRays(o, nullptr, report);
+            benchBatchRays(phantom, "phantom", o, report);
+        }
         std::printf("machine: %s; measuring thread %s\n", report.machine.c_str(),
                     report.pinned ? "pinned to one core" : "not pinned");
         for (const auto& line : report.lines) std::printf("%s\n", formatComparison(line).c_str());

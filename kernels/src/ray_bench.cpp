@@ -75,7 +75,7 @@ std::vector<TimingStats> timeInterleaved(int warmUp, std::size_t frames,
         overhead = (cpuNow() - c0) / 1000.0;
     }
     std::vector<std::vector<double>> us(n, std::vector<double>(frames));
-    std::vector<double> cpu(n, 0.0);
+    std::vector<std::vector<double>> cpu(n, std::vector<double>(frames));
     for (std::size_t f = 0; f < frames; ++f)
         for (std::size_t j = 0; j < n; ++j) {
             const std::size_t k = (j + f) % n;
@@ -83,13 +83,15 @@ std::vector<TimingStats> timeInterleaved(int warmUp, std::size_t frames,
             const auto t0 = Clock::now();
             fns[k](f);
             const auto t1 = Clock::now();
-            cpu[k] += cpuNow() - c0;
+            cpu[k][f] = cpuNow() - c0 - overhead;
             us[k][f] = std::chrono::duration<double, std::micro>(t1 - t0).count();
         }
     std::vector<TimingStats> out;
     for (std::size_t k = 0; k < n; ++k) {
         out.push_back(stats(us[k]));
-        out.back().cpuMeanUs = std::max(0.0, cpu[k] / static_cast<double>(frames) - overhead);
+        const TimingStats c = stats(cpu[k]);
+        out.back().cpuMeanUs = std::max(0.0, c.meanUs);
+        out.back().cpuP99Us = std::max(0.0, c.p99Us);
     }
     return out;
 }
@@ -377,11 +379,13 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
             note, sizeof(note),
             "%zu/%zu rays agree with the baseline, %zu hits; bundles completed per "
             "1 ms window: min %d, median %d over %zu windows (1 ms over the mean: %.0f); %s "
-            "%.2f / %.2f us (CPU %.2f) vs scalar path %.2f / %.2f us (CPU %.2f), %.2fx / %.2fx%s",
+            "%.2f / %.2f us (CPU %.2f / %.2f p99) vs scalar path %.2f / %.2f us (CPU %.2f / %.2f "
+            "p99), %.2fx / %.2fx%s",
             agree, total, hitsN, perWindow.front(), perWindow[perWindow.size() / 2],
             perWindow.size(), 1000.0 / std::max(1e-9, palp.meanUs),
             bundleSimdAvailable() ? "AVX2 lockstep" : "no AVX2: scalar", palp.meanUs, palp.p99Us,
-            palp.cpuMeanUs, palpScalar.meanUs, palpScalar.p99Us, palpScalar.cpuMeanUs,
+            palp.cpuMeanUs, palp.cpuP99Us, palpScalar.meanUs, palpScalar.p99Us,
+            palpScalar.cpuMeanUs, palpScalar.cpuP99Us,
             palpScalar.meanUs / std::max(1e-9, palp.meanUs),
             palpScalar.p99Us / std::max(1e-9, palp.p99Us), sink == 12345.f ? " " : "");
         c.note = note;
@@ -605,6 +609,11 @@ std::string formatComparison(const BenchComparison& c) {
         std::snprintf(buf, sizeof(buf), "; thread CPU time %.2f vs %.2f us, %.2fx", c.a.cpuMeanUs,
                       c.b.cpuMeanUs, c.b.cpuMeanUs / c.a.cpuMeanUs);
         s += buf;
+        if (c.a.cpuP99Us > 0 && c.b.cpuP99Us > 0) {
+            std::snprintf(buf, sizeof(buf), "; CPU p99 %.2f vs %.2f us, %.2fx", c.a.cpuP99Us,
+                          c.b.cpuP99Us, c.b.cpuP99Us / c.a.cpuP99Us);
+            s += buf;
+        }
     }
     if (!c.note.empty()) s += " (" + c.note + ")";
     return s;

@@ -499,6 +499,33 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
                 mTable.minDilated[b] = *mn;
                 mTable.maxDilated[b] = *mx;
             }
+    // Sub-block bounds of every copy (the constant ones included, so that the index of a copy
+    // is all a march needs).
+    const std::size_t copies = unique + constants.size();
+    mSubMax.assign(copies * Table::kSubBlocks, 0.0f);
+    for (std::size_t c = 0; c < copies; ++c) {
+        const float* src = mPadded.data() + c * padded;
+        for (int sb = 0; sb < Table::kSubBlocks; ++sb) {
+            const int x0 = 4 * ((sb >> 2) & 1), y0 = 4 * ((sb >> 1) & 1), z0 = 4 * (sb & 1);
+            // NaN never reaches a threshold and never raises the bound; +-inf does.
+            float mx = -std::numeric_limits<float>::infinity();
+            float mn = std::numeric_limits<float>::infinity();
+            for (int x = x0; x <= x0 + 4; ++x)
+                for (int y = y0; y <= y0 + 4; ++y)
+                    for (int z = z0; z <= z0 + 4; ++z) {
+                        const float v = src[(x * Table::kPad + y) * Table::kPad + z];
+                        if (v > mx) mx = v;
+                        if (v < mn) mn = v;
+                    }
+            // A blend of values in [mn, mx] with weights in [0, 1] stays in [mn, mx] up to a few
+            // ulps of mx; a run sample can sit a float rounding (well below 1e-4 voxel) outside
+            // its cell, which extrapolates by that fraction of the range.
+            float bound = mx + (mx - mn) * 1e-4f + std::fabs(mx) * 1e-6f;
+            if (!(bound >= mx)) bound = mx;  // inf - inf, or an all-NaN sub-block
+            mSubMax[c * Table::kSubBlocks + static_cast<std::size_t>(sb)] = bound;
+        }
+    }
+    mTable.subMax = mSubMax.data();
 }
 
 float VolumeView::sampleIndex(double x, double y, double z) const noexcept {
@@ -706,12 +733,27 @@ struct HitMarch {
     std::int64_t k = 0;             // next sample to visit
     std::int64_t kRunLast = 0;      // samples before kLast lie exactly at k * step
     float sx = 0, sy = 0, sz = 0;   // one lattice step in index units
+    // For the sub-block jumps, per axis: 1 / s (0 where s = 0, else clamped to +-1e30), the
+    // side of a sub-block the ray leaves by (4 when s > 0, else 0), and 1e30 where s = 0 (the
+    // ray never leaves along that axis).
+    float ivx = 0, ivy = 0, ivz = 0;
+    float hix = 0, hiy = 0, hiz = 0;
+    float farx = 0, fary = 0, farz = 0;
     // The pending run (after advanceHit() returned true): samples runK + i, i = 1 .. runN - 1,
-    // at block-local positions p + (i - 1) s in block copy `base`; `prev` is sample runK.
+    // at block-local positions q + float(i) s (each one rounded the same way wherever it is
+    // computed) in block copy `base`; `prev` is sample runK (taken on its exact position).
+    // Bit s of `occ` is set when the copy's sub-block s may hold a value >= the threshold.
     const float* base = nullptr;
-    float px = 0, py = 0, pz = 0, prev = 0;
+    float qx = 0, qy = 0, qz = 0, prev = 0;
+    unsigned occ = 0xFFu;
     std::int64_t runK = 0, runN = 0;
 };
+
+/// Block-local position of run sample @p i (i >= 1), one axis: the same float operations in the
+/// scalar and AVX2 runs, so a sample's value does not depend on which samples were taken before.
+PALP_HOT float runPos(float q, float s, std::int64_t i) noexcept {
+    return q + static_cast<float>(i) * s;
+}
 
 /// Sets up @p m; false (and @p out set) when the ray is degenerate or empty.
 PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
@@ -730,6 +772,14 @@ PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
     m.sx = static_cast<float>(m.r.d[0] * m.r.step);
     m.sy = static_cast<float>(m.r.d[1] * m.r.step);
     m.sz = static_cast<float>(m.r.d[2] * m.r.step);
+    auto axis = [](float sa, float& iv, float& hi, float& far) {
+        iv = sa == 0 ? 0.0f : static_cast<float>(std::clamp(1.0 / sa, -1e30, 1e30));
+        hi = sa > 0 ? 4.0f : 0.0f;
+        far = sa == 0 ? 1e30f : 0.0f;
+    };
+    axis(m.sx, m.ivx, m.hix, m.farx);
+    axis(m.sy, m.ivy, m.hiy, m.fary);
+    axis(m.sz, m.ivz, m.hiz, m.farz);
     return true;
 }
 
@@ -754,6 +804,24 @@ RayHit hitAtSample(const HitContext& cx, const HitMarch& m, std::int64_t j, floa
         refineCrossing(*cx.view, m.r, cx.thr, m.r.t(j - 1), static_cast<double>(vPrev) - cx.thr,
                        m.r.t(j), static_cast<double>(v) - cx.thr, cx.refine, cache);
     return {static_cast<float>(th), true};
+}
+
+/// Bit s set where sub-block s of the padded copy at @p base may reach @p thr.
+PALP_HOT unsigned occupancy(const Table& tb, const float* base, float thr) noexcept {
+    const auto copy = static_cast<std::size_t>(base - tb.padded) / Table::kPadded;
+    const float* b = tb.subMax + copy * Table::kSubBlocks;
+#if defined(__SSE2__) && defined(__x86_64__)
+    const __m128 t = _mm_set1_ps(thr);
+    // _CMP_GE_OQ as in the scalar test: NaN bounds never occur (see the view's set-up).
+    const int lo = _mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(b), t));
+    const int hi = _mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(b + 4), t));
+    return static_cast<unsigned>(lo | (hi << 4));
+#else
+    unsigned occ = 0;
+    for (int s = 0; s < Table::kSubBlocks; ++s)
+        if (b[s] >= thr) occ |= 1u << s;
+    return occ;
+#endif
 }
 
 /// Marches from sample m.k until the ray ends (false, @p out set) or reaches a run of at least
@@ -812,9 +880,10 @@ bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
                     continue;
                 }
                 m.base = base;
-                m.px = static_cast<float>(lx) + m.sx;
-                m.py = static_cast<float>(ly) + m.sy;
-                m.pz = static_cast<float>(lz) + m.sz;
+                m.qx = static_cast<float>(lx);
+                m.qy = static_cast<float>(ly);
+                m.qz = static_cast<float>(lz);
+                m.occ = cx.skip ? occupancy(tb, base, thr) : 0xFFu;
                 m.prev = v;
                 m.runK = k;
                 m.runN = n;
@@ -842,21 +911,63 @@ PALP_HOT unsigned runCell(float p) noexcept {
     return std::min(static_cast<unsigned>(static_cast<int>(p)), 7u);
 }
 
-/// The pending run of @p m, one ray at a time: true (and @p out set) on a hit.
+/// Sub-block index (0..7) of a cell of a padded copy.
+PALP_HOT unsigned subBlock(unsigned cx0, unsigned cy0, unsigned cz0) noexcept {
+    return ((cx0 >> 2) << 2) | ((cy0 >> 2) << 1) | (cz0 >> 2);
+}
+
+/// The value of run sample @p i of @p m (the run's first sample for i = 0).
+PALP_HOT float runValue(const HitMarch& m, std::int64_t i) noexcept {
+    if (i == 0) return m.prev;
+    const float px = runPos(m.qx, m.sx, i), py = runPos(m.qy, m.sy, i), pz = runPos(m.qz, m.sz, i);
+    const unsigned cx0 = runCell(px), cy0 = runCell(py), cz0 = runCell(pz);
+    return lerp8(m.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
+                 py - static_cast<float>(cy0), pz - static_cast<float>(cz0));
+}
+
+/// The next run sample to take after sample @p i, which lies in cell (cx0, cy0, cz0) of a
+/// sub-block that cannot reach the threshold: the first sample estimated past that sub-block
+/// (at most runN), or i + 1 when the samples in between are not all provably inside it. Every
+/// sample it passes over lies in the same sub-block: the estimate stops a whole step short of
+/// the exit, and the last sample passed over is checked on its exact float position (positions
+/// are monotone in i along every axis, so the ones between lie in the sub-block too).
+PALP_HOT std::int64_t subBlockJump(const HitMarch& m, std::int64_t i, unsigned cx0, unsigned cy0,
+                                   unsigned cz0) noexcept {
+    const float ex = (static_cast<float>((cx0 >> 2) * 4) + m.hix - m.qx) * m.ivx + m.farx;
+    const float ey = (static_cast<float>((cy0 >> 2) * 4) + m.hiy - m.qy) * m.ivy + m.fary;
+    const float ez = (static_cast<float>((cz0 >> 2) * 4) + m.hiz - m.qz) * m.ivz + m.farz;
+    const float e = std::min(std::min(ex, ey), std::min(ez, static_cast<float>(m.runN)));
+    const std::int64_t j = std::max(i + 1, static_cast<std::int64_t>(std::max(e, 0.0f)));
+    if (j - 1 == i) return j;
+    const std::int64_t l = j - 1;  // the last sample passed over
+    const unsigned lx = runCell(runPos(m.qx, m.sx, l)), ly = runCell(runPos(m.qy, m.sy, l)),
+                   lz = runCell(runPos(m.qz, m.sz, l));
+    return subBlock(lx, ly, lz) == subBlock(cx0, cy0, cz0) ? j : i + 1;
+}
+
+/// The pending run of @p m, one ray at a time: true (and @p out set) on a hit. Samples in
+/// sub-blocks that cannot reach the threshold are passed over; a hit whose predecessor was
+/// passed over reads it then (the same float position, so the same value as when taken).
 bool runScalar(const HitContext& cx, const HitMarch& m, RayHit& out) noexcept {
-    float px = m.px, py = m.py, pz = m.pz, v = m.prev;
-    for (std::int64_t i = 1; i < m.runN; ++i) {
+    float vPrev = m.prev;
+    std::int64_t iPrev = 0;
+    for (std::int64_t i = 1; i < m.runN;) {
+        const float px = runPos(m.qx, m.sx, i), py = runPos(m.qy, m.sy, i),
+                    pz = runPos(m.qz, m.sz, i);
         const unsigned cx0 = runCell(px), cy0 = runCell(py), cz0 = runCell(pz);
-        const float prev = v;
-        v = lerp8(m.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
-                  py - static_cast<float>(cy0), pz - static_cast<float>(cz0));
+        if (!((m.occ >> subBlock(cx0, cy0, cz0)) & 1u)) {
+            i = subBlockJump(m, i, cx0, cy0, cz0);
+            continue;
+        }
+        const float v = lerp8(m.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
+                              py - static_cast<float>(cy0), pz - static_cast<float>(cz0));
         if (v >= cx.thr) {
-            out = refineHit(cx, m, m.runK + i, prev, v);
+            out = refineHit(cx, m, m.runK + i, iPrev == i - 1 ? vPrev : runValue(m, i - 1), v);
             return true;
         }
-        px += m.sx;
-        py += m.sy;
-        pz += m.sz;
+        vPrev = v;
+        iPrev = i;
+        ++i;
     }
     return false;
 }
@@ -896,12 +1007,44 @@ __attribute__((target("avx2"), always_inline)) inline __m256 lerpAvx(__m256 a, _
     return _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w));
 }
 
+#define PALP_AVX2_HOT __attribute__((target("avx2"), always_inline)) inline
+
+/// Cell index (runCell()) of block-local positions.
+PALP_AVX2_HOT __m256i cellsAvx(__m256 p) noexcept {
+    return _mm256_min_epu32(_mm256_cvttps_epi32(p), _mm256_set1_epi32(7));
+}
+
+/// Sub-block index (subBlock()) of cells.
+PALP_AVX2_HOT __m256i subsAvx(__m256i a, __m256i b, __m256i c) noexcept {
+    return _mm256_or_si256(_mm256_or_si256(_mm256_slli_epi32(_mm256_srli_epi32(a, 2), 2),
+                                           _mm256_slli_epi32(_mm256_srli_epi32(b, 2), 1)),
+                           _mm256_srli_epi32(c, 2));
+}
+
+/// Run sample index where the ray leaves the sub-block of cells @p c along one axis, as in
+/// subBlockJump().
+PALP_AVX2_HOT __m256 exitAvx(__m256i c, __m256 hi, __m256 q, __m256 iv, __m256 far) noexcept {
+    const __m256 side =
+        _mm256_add_ps(_mm256_cvtepi32_ps(_mm256_slli_epi32(_mm256_srli_epi32(c, 2), 2)), hi);
+    return _mm256_add_ps(_mm256_mul_ps(_mm256_sub_ps(side, q), iv), far);
+}
+
+PALP_AVX2_HOT __m256i loadAvx(const std::int32_t* p) noexcept {
+    return _mm256_load_si256(reinterpret_cast<const __m256i*>(p));
+}
+
+PALP_AVX2_HOT void storeAvx(std::int32_t* p, __m256i v) noexcept {
+    _mm256_store_si256(reinterpret_cast<__m256i*>(p), v);
+}
+
 /// The bundle's rays eight at a time: every lane holds one ray's pending run, and one AVX2 step
 /// takes the next sample of every lane (eight gathers of the cell corners from the padded block
-/// copies, the trilinear blend in the same float operations and order as lerp8(), so the values
-/// are bit-identical to runScalar()'s; no FMA, which would round differently). A lane whose run
-/// hits or ends goes back to the scalar march (skipping, block entry, refinement) until it has a
-/// new run or its ray is done, when the lane takes the bundle's next ray.
+/// copies, the trilinear blend in the same float operations and order as lerp8(), at the same
+/// float positions runPos(), so the values are bit-identical to runScalar()'s; no FMA, which
+/// would round differently). A lane whose sample lies in a sub-block that cannot reach the
+/// threshold jumps instead, as subBlockJump() does. A lane whose run hits or ends goes back to
+/// the scalar march (skipping, block entry, refinement) until it has a new run or its ray is
+/// done, when the lane takes the bundle's next ray.
 __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
                                                        const RayBundle& bundle,
                                                        BundleHits& out) noexcept {
@@ -909,27 +1052,51 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
     const float* const padded = cx.tb->padded;
     HitMarch m[kLanes];
     int ray[kLanes] = {};
+    // Per run.
     alignas(32) std::int32_t off[kLanes] = {};   // lane's block copy, floats from `padded`
-    alignas(32) std::int32_t left[kLanes] = {};  // samples left in the run
-    alignas(32) std::int32_t idx[kLanes] = {};   // sample i of the run taken next
-    alignas(32) float px[kLanes] = {}, py[kLanes] = {}, pz[kLanes] = {};
-    alignas(32) float sx[kLanes] = {}, sy[kLanes] = {}, sz[kLanes] = {};
+    alignas(32) std::int32_t idx[kLanes] = {};   // run sample taken next
+    alignas(32) std::int32_t last[kLanes] = {};  // runN - 1
+    alignas(32) std::int32_t occ[kLanes] = {};   // HitMarch::occ
+    alignas(32) std::int32_t pidx[kLanes] = {};  // run sample whose value `prev` holds
+    alignas(32) float qx[kLanes] = {}, qy[kLanes] = {}, qz[kLanes] = {};
+    alignas(32) float runN[kLanes] = {};
     alignas(32) float prev[kLanes] = {};
+    // Per ray.
+    alignas(32) float sx[kLanes] = {}, sy[kLanes] = {}, sz[kLanes] = {};
+    alignas(32) float ivx[kLanes] = {}, ivy[kLanes] = {}, ivz[kLanes] = {};
+    alignas(32) float hix[kLanes] = {}, hiy[kLanes] = {}, hiz[kLanes] = {};
+    alignas(32) float farx[kLanes] = {}, fary[kLanes] = {}, farz[kLanes] = {};
+    // Per step, for the lanes with events.
     alignas(32) float vNew[kLanes], vOld[kLanes];
-    alignas(32) std::int32_t iOld[kLanes];
+    alignas(32) std::int32_t iOld[kLanes], pOld[kLanes];
     unsigned active = 0;
     int next = 0;
-    auto load = [&](int l) {
+    auto loadRay = [&](int l) {
         const HitMarch& h = m[l];
-        off[l] = static_cast<std::int32_t>(h.base - padded);
-        left[l] = static_cast<std::int32_t>(h.runN - 1);
-        idx[l] = 1;
-        px[l] = h.px;
-        py[l] = h.py;
-        pz[l] = h.pz;
         sx[l] = h.sx;
         sy[l] = h.sy;
         sz[l] = h.sz;
+        ivx[l] = h.ivx;
+        ivy[l] = h.ivy;
+        ivz[l] = h.ivz;
+        hix[l] = h.hix;
+        hiy[l] = h.hiy;
+        hiz[l] = h.hiz;
+        farx[l] = h.farx;
+        fary[l] = h.fary;
+        farz[l] = h.farz;
+    };
+    auto loadRun = [&](int l) {
+        const HitMarch& h = m[l];
+        off[l] = static_cast<std::int32_t>(h.base - padded);
+        idx[l] = 1;
+        last[l] = static_cast<std::int32_t>(h.runN - 1);
+        occ[l] = static_cast<std::int32_t>(h.occ);
+        pidx[l] = 0;
+        qx[l] = h.qx;
+        qy[l] = h.qy;
+        qz[l] = h.qz;
+        runN[l] = static_cast<float>(h.runN);
         prev[l] = h.prev;
     };
     // Gives lane l the next ray that reaches a run (rays that end before are stored).
@@ -939,32 +1106,45 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
             RayHit h;
             if (startBundleRay(cx, bundle, i, m[l], h) && advanceHit(cx, m[l], h)) {
                 ray[l] = i;
-                load(l);
+                loadRay(l);
+                loadRun(l);
                 active |= 1u << l;
                 return;
             }
             storeHit(out, i, h);
         }
+        // An idle lane reads a valid cell (offset 0, position 0), never jumps and is ignored.
         active &= ~(1u << l);
-        off[l] = 0;  // an idle lane reads a valid cell and is ignored
-        left[l] = 1;
-        px[l] = py[l] = pz[l] = 0;
+        off[l] = 0;
+        idx[l] = 1;
+        last[l] = 1 << 30;
+        occ[l] = 0xFF;
+        qx[l] = qy[l] = qz[l] = 0;
         sx[l] = sy[l] = sz[l] = 0;
+        runN[l] = 0;
     };
     // GCC builds the lambdas' closures above with 256-bit stores and calls the SSE code in
     // refill() without a vzeroupper of its own.
     _mm256_zeroupper();
     for (int l = 0; l < kLanes; ++l) refill(l);
-    const __m256i seven = _mm256_set1_epi32(7);
     const __m256i one = _mm256_set1_epi32(1);
     const __m256 thr = _mm256_set1_ps(cx.thr);
-    // Bounded: every step takes one sample of every active run, and each ray's samples are
-    // bounded as in firstHit().
+    // Bounded: every step takes or passes over at least one sample of every active run, and
+    // each ray's samples are bounded as in firstHit().
     while (active != 0) {
-        const __m256 vx = _mm256_load_ps(px), vy = _mm256_load_ps(py), vz = _mm256_load_ps(pz);
-        const __m256i cxi = _mm256_min_epu32(_mm256_cvttps_epi32(vx), seven);
-        const __m256i cyi = _mm256_min_epu32(_mm256_cvttps_epi32(vy), seven);
-        const __m256i czi = _mm256_min_epu32(_mm256_cvttps_epi32(vz), seven);
+        const __m256i ii = loadAvx(idx);
+        const __m256 fi = _mm256_cvtepi32_ps(ii);
+        const __m256 vqx = _mm256_load_ps(qx), vqy = _mm256_load_ps(qy), vqz = _mm256_load_ps(qz);
+        const __m256 vsx = _mm256_load_ps(sx), vsy = _mm256_load_ps(sy), vsz = _mm256_load_ps(sz);
+        const __m256 vx = _mm256_add_ps(vqx, _mm256_mul_ps(fi, vsx));
+        const __m256 vy = _mm256_add_ps(vqy, _mm256_mul_ps(fi, vsy));
+        const __m256 vz = _mm256_add_ps(vqz, _mm256_mul_ps(fi, vsz));
+        const __m256i cxi = cellsAvx(vx), cyi = cellsAvx(vy), czi = cellsAvx(vz);
+        const __m256i sub = subsAvx(cxi, cyi, czi);
+        const __m256i filled =
+            _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_srlv_epi32(loadAvx(occ), sub), one), one);
+        const unsigned filledBits =
+            static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(filled)));
         const __m256 fx = _mm256_sub_ps(vx, _mm256_cvtepi32_ps(cxi));
         const __m256 fy = _mm256_sub_ps(vy, _mm256_cvtepi32_ps(cyi));
         const __m256 fz = _mm256_sub_ps(vz, _mm256_cvtepi32_ps(czi));
@@ -973,8 +1153,7 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
             _mm256_add_epi32(_mm256_slli_epi32(cxi, 6), _mm256_slli_epi32(cxi, 4)), cxi);
         const __m256i c9 = _mm256_add_epi32(_mm256_slli_epi32(cyi, 3), cyi);
         const __m256i at =
-            _mm256_add_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(off)),
-                             _mm256_add_epi32(_mm256_add_epi32(c81, c9), czi));
+            _mm256_add_epi32(loadAvx(off), _mm256_add_epi32(_mm256_add_epi32(c81, c9), czi));
         const __m256 p0 = _mm256_i32gather_ps(padded, at, 4);
         const __m256 p1 = _mm256_i32gather_ps(padded + 1, at, 4);
         const __m256 p9 = _mm256_i32gather_ps(padded + 9, at, 4);
@@ -987,22 +1166,42 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
         const __m256 a10 = lerpAvx(p9, p90, fx), a11 = lerpAvx(p10, p91, fx);
         const __m256 b0 = lerpAvx(a00, a10, fy), b1 = lerpAvx(a01, a11, fy);
         const __m256 v = lerpAvx(b0, b1, fz);
-        const __m256i li =
-            _mm256_sub_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(left)), one);
-        const __m256i ii = _mm256_load_si256(reinterpret_cast<const __m256i*>(idx));
+        const __m256i inc = _mm256_add_epi32(ii, one);
+        __m256i nextIdx = inc;
+        if ((~filledBits & active & 0xFFu) != 0) {
+            // Jumps (subBlockJump()) for the lanes in sub-blocks that cannot reach the threshold.
+            const __m256 ex =
+                exitAvx(cxi, _mm256_load_ps(hix), vqx, _mm256_load_ps(ivx), _mm256_load_ps(farx));
+            const __m256 ey =
+                exitAvx(cyi, _mm256_load_ps(hiy), vqy, _mm256_load_ps(ivy), _mm256_load_ps(fary));
+            const __m256 ez =
+                exitAvx(czi, _mm256_load_ps(hiz), vqz, _mm256_load_ps(ivz), _mm256_load_ps(farz));
+            const __m256 e = _mm256_max_ps(
+                _mm256_min_ps(_mm256_min_ps(ex, ey), _mm256_min_ps(ez, _mm256_load_ps(runN))),
+                _mm256_setzero_ps());
+            const __m256i j = _mm256_max_epi32(inc, _mm256_cvttps_epi32(e));
+            const __m256 fl = _mm256_cvtepi32_ps(_mm256_sub_epi32(j, one));
+            const __m256i lsub = subsAvx(cellsAvx(_mm256_add_ps(vqx, _mm256_mul_ps(fl, vsx))),
+                                         cellsAvx(_mm256_add_ps(vqy, _mm256_mul_ps(fl, vsy))),
+                                         cellsAvx(_mm256_add_ps(vqz, _mm256_mul_ps(fl, vsz))));
+            const __m256i jump = _mm256_blendv_epi8(inc, j, _mm256_cmpeq_epi32(lsub, sub));
+            nextIdx = _mm256_blendv_epi8(jump, inc, filled);
+        }
         const unsigned hitBits =
-            static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, thr, _CMP_GE_OQ)));
-        const unsigned endBits = static_cast<unsigned>(_mm256_movemask_ps(
-            _mm256_castsi256_ps(_mm256_cmpeq_epi32(li, _mm256_setzero_si256()))));
+            static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, thr, _CMP_GE_OQ))) &
+            filledBits;
+        const unsigned endBits = static_cast<unsigned>(
+            _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(nextIdx, loadAvx(last)))));
+        const __m256 vp = _mm256_load_ps(prev);
+        const __m256i pi = loadAvx(pidx);
         _mm256_store_ps(vNew, v);
-        _mm256_store_ps(vOld, _mm256_load_ps(prev));
-        _mm256_store_si256(reinterpret_cast<__m256i*>(iOld), ii);
-        _mm256_store_ps(prev, v);
-        _mm256_store_ps(px, _mm256_add_ps(vx, _mm256_load_ps(sx)));
-        _mm256_store_ps(py, _mm256_add_ps(vy, _mm256_load_ps(sy)));
-        _mm256_store_ps(pz, _mm256_add_ps(vz, _mm256_load_ps(sz)));
-        _mm256_store_si256(reinterpret_cast<__m256i*>(left), li);
-        _mm256_store_si256(reinterpret_cast<__m256i*>(idx), _mm256_add_epi32(ii, one));
+        _mm256_store_ps(vOld, vp);
+        storeAvx(iOld, ii);
+        storeAvx(pOld, pi);
+        const __m256 filledPs = _mm256_castsi256_ps(filled);
+        _mm256_store_ps(prev, _mm256_blendv_ps(vp, v, filledPs));
+        storeAvx(pidx, _mm256_blendv_epi8(pi, ii, filled));
+        storeAvx(idx, nextIdx);
         const unsigned events = (hitBits | endBits) & active;
         if (events == 0) continue;
         // The scalar march below is SSE code: with dirty upper halves every SSE instruction
@@ -1012,9 +1211,10 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
             const int l = __builtin_ctz(ev);
             RayHit h;
             if ((hitBits >> l) & 1u) {
-                storeHit(out, ray[l], refineHit(cx, m[l], m[l].runK + iOld[l], vOld[l], vNew[l]));
+                const float before = pOld[l] == iOld[l] - 1 ? vOld[l] : runValue(m[l], iOld[l] - 1);
+                storeHit(out, ray[l], refineHit(cx, m[l], m[l].runK + iOld[l], before, vNew[l]));
             } else if (advanceHit(cx, m[l], h)) {
-                load(l);
+                loadRun(l);
                 continue;
             } else {
                 storeHit(out, ray[l], h);

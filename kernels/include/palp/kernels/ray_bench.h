@@ -32,6 +32,10 @@ struct RayBenchOptions {
 struct TimingStats {
     double meanUs = 0, p99Us = 0, maxUs = 0;  ///< wall clock per frame
     double cpuMeanUs = 0;  ///< thread CPU time per frame (excludes preemption), 0 when not measured
+    /// p99 of the per-frame thread CPU time (the clock's read cost subtracted; its resolution
+    /// is the kernel's, about 1 us or better), 0 when not measured. Unlike the wall p99 it does
+    /// not count preemption, so it is the p99 to compare on a loaded machine.
+    double cpuP99Us = 0;
     std::size_t samples = 0;
 };
 

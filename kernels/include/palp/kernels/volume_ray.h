@@ -9,7 +9,9 @@
 /// one copy: a trilinear sample costs one table load and eight float loads with no branch on
 /// the position in the block, instead of a tree walk through a ValueAccessor. Blocks whose
 /// values cannot matter (the maximum of their 9^3 copy is below the threshold, or the transfer
-/// function is zero there) are skipped with a 3D DDA over the block grid, without sampling.
+/// function is zero there) are skipped with a 3D DDA over the block grid, without sampling; in
+/// the blocks that remain, first-hit also jumps over the 4^3 sub-blocks whose bound is below
+/// the threshold.
 /// Skipping never changes a result: samples stay on the lattice t_k = k * step.
 
 #include <openvdb/openvdb.h>
@@ -84,6 +86,15 @@ class VolumeView {
         /// gather can address any block's values with 32-bit offsets from this base.
         const float* padded = nullptr;
         std::size_t paddedSize = 0;  ///< floats in that buffer
+        /// Per padded copy c (the one at padded + c * kPadded), 8 floats: for each 4^3 sub-block
+        /// s = 4 (lx >> 2) + 2 (ly >> 2) + (lz >> 2) of the cells based in the block, an upper
+        /// bound on every value a first-hit sample in those cells can take (the maximum of the
+        /// sub-block's 5^3 corner values, raised by a hair for the rounding of the trilinear
+        /// blend and for positions a rounding step outside the cell). A sample there can only
+        /// reach a threshold above the bound, so the march skips such sub-blocks in a block it
+        /// cannot skip whole.
+        const float* subMax = nullptr;
+        static constexpr int kSubBlocks = 8;
     };
     const Table& table() const noexcept { return mTable; }
 
@@ -93,6 +104,7 @@ class VolumeView {
     /// Padded copies of the blocks that are not constant, then one shared copy per distinct
     /// constant.
     std::vector<float> mPadded;
+    std::vector<float> mSubMax;  ///< Table::subMax
     Eigen::Vector3d mWorldOrigin = Eigen::Vector3d::Zero();
     double mVoxelSize = 1;
     double mInvVoxelSize = 1;
