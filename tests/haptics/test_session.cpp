@@ -16,79 +16,15 @@
 #include "palp/error.h"
 #include "palp/haptics/session.h"
 #include "palp/volume/phantom.h"
+#include "session_fixtures.h"
 
 namespace palp::haptics {
 namespace {
 
-constexpr double kT = 1e-3;
-
-const DeviceSpec& touchX() {
-    const DeviceSpec* s = findDeviceSpec("3D Systems Touch X");
-    EXPECT_NE(s, nullptr);
-    return *s;
-}
-
-// A kinematic device: the hand follows a piecewise-linear path through keyframes exactly
-// (the force does not move it), so every tick's probe is known. Optionally it reports NaN
-// positions for a range of ticks.
-class PathDevice final : public Device {
-  public:
-    struct Key {
-        double t;
-        Eigen::Vector3d p;
-    };
-    PathDevice(std::initializer_list<Key> keys, const DeviceSpec& spec = touchX()) : mSpec(spec) {
-        for (const Key& k : keys) mKeys[mCount++] = k;
-    }
-    void corrupt(std::uint64_t from, std::uint64_t to) {
-        mNanFrom = from;
-        mNanTo = to;
-    }
-    DeviceState read() noexcept override {
-        const double t = static_cast<double>(mTick) * kT;
-        DeviceState s;
-        sample(t, s.position, s.velocity);
-        if (mTick >= mNanFrom && mTick < mNanTo) {
-            s.position.x() = std::numeric_limits<double>::quiet_NaN();
-        }
-        s.timestampSeconds = t;
-        ++mTick;
-        mLast = s;
-        return s;
-    }
-    void write(const Eigen::Vector3d& f) noexcept override { mForce = f; }
-    const DeviceSpec& spec() const noexcept override { return mSpec; }
-
-    void sample(double t, Eigen::Vector3d& p, Eigen::Vector3d& v) const noexcept {
-        v.setZero();
-        if (t <= mKeys[0].t) {
-            p = mKeys[0].p;
-            return;
-        }
-        for (std::size_t i = 1; i < mCount; ++i) {
-            if (t <= mKeys[i].t) {
-                const double s = (t - mKeys[i - 1].t) / (mKeys[i].t - mKeys[i - 1].t);
-                p = mKeys[i - 1].p + s * (mKeys[i].p - mKeys[i - 1].p);
-                v = (mKeys[i].p - mKeys[i - 1].p) / (mKeys[i].t - mKeys[i - 1].t);
-                return;
-            }
-        }
-        p = mKeys[mCount - 1].p;
-    }
-    const DeviceState& last() const { return mLast; }
-    const Eigen::Vector3d& force() const { return mForce; }
-
-  private:
-    DeviceSpec mSpec;
-    std::array<Key, 8> mKeys{};
-    std::size_t mCount = 0;
-    std::uint64_t mTick = 0;
-    std::uint64_t mNanFrom = std::numeric_limits<std::uint64_t>::max(), mNanTo = 0;
-    DeviceState mLast;
-    Eigen::Vector3d mForce{Eigen::Vector3d::Zero()};
-};
-
-Eigen::Vector3d at(double x, double y, double z) { return Eigen::Vector3d(x, y, z); }
+using fixtures::at;
+using fixtures::kT;
+using fixtures::PathDevice;
+using fixtures::touchX;
 
 // The AVC phantom (surface at y = 0, depth +y; rigid plate at y in [10, 12] mm over x, z in
 // +-30 mm), 1 mm voxels, skin surface at -500 HU and hard meshes at 500 HU. Built once.
