@@ -233,6 +233,8 @@ struct Session::Impl {
     void tick(double timeSeconds) noexcept;
     void drainCommands() noexcept;
     void startFade(const CouplingParams& params) noexcept;
+    // The time of the tick after the newest one (0 before any), s.
+    double nextTime() const noexcept { return ticks == 0 ? 0.0 : current.timeSeconds + period; }
 
     std::shared_ptr<const Scene> scene;
     Device& device;
@@ -274,6 +276,11 @@ struct Session::Impl {
     ServoLoop loop;
     Snapshot stepSnapshot;  // what step() returns (written only by step())
     double timeBase = 0;    // time of the first tick of the current run, s
+    // Offline steps: step n since the last start()/construction runs at stepOrigin + n T
+    // (multiplied, not summed, so long offline runs keep exact tick times).
+    double stepOrigin = 0;
+    std::uint64_t stepIndex = 0;
+    bool resyncSteps = false;  // a real-time run happened since: move stepOrigin past it
 };
 
 void Session::Impl::startFade(const CouplingParams& params) noexcept {
@@ -476,7 +483,8 @@ Session::~Session() { stop(); }
 
 void Session::start() {
     if (mImpl->loop.running()) throw Error("session: expected a stopped session, found it running");
-    mImpl->timeBase = mImpl->ticks == 0 ? 0.0 : mImpl->current.timeSeconds + mImpl->period;
+    mImpl->timeBase = mImpl->nextTime();
+    mImpl->resyncSteps = true;
     // The hand may have moved into an object while the loop was stopped: close the start-up
     // gate again so that a restart cannot kick (the servo thread is not running here, and
     // ServoLoop::start() orders this write before its first tick).
@@ -491,10 +499,17 @@ void Session::stop() noexcept {
 bool Session::running() const noexcept { return mImpl->loop.running(); }
 
 const Snapshot& Session::step() noexcept {
-    if (mImpl->loop.running()) return mImpl->stepSnapshot;
-    mImpl->tick(static_cast<double>(mImpl->ticks) * mImpl->period);
-    mImpl->stepSnapshot = mImpl->current;
-    return mImpl->stepSnapshot;
+    Impl& m = *mImpl;
+    if (m.loop.running()) return m.stepSnapshot;
+    if (m.resyncSteps) {
+        // The servo thread has stopped (joined in stop()): its last tick is in current.
+        m.stepOrigin = m.nextTime();
+        m.stepIndex = 0;
+        m.resyncSteps = false;
+    }
+    m.tick(m.stepOrigin + static_cast<double>(m.stepIndex++) * m.period);
+    m.stepSnapshot = m.current;
+    return m.stepSnapshot;
 }
 
 const Snapshot& Session::latest() noexcept { return mImpl->snapshots.read().value; }

@@ -458,6 +458,64 @@ TEST_F(SessionTest, PassivityObserverBooksOnlyTheForceSent) {
     EXPECT_GT(clampedTicks, 0);
 }
 
+// A device that stalls the servo thread for 15 ms every 50th tick, so the real-time loop
+// overruns and skips deadlines (its nominal clock then runs ahead of ticks x T).
+class StallingDevice final : public Device {
+  public:
+    DeviceState read() noexcept override {
+        if (mTick++ % 50 == 25) std::this_thread::sleep_for(std::chrono::milliseconds(15));
+        DeviceState s;
+        s.position = at(0.0, -0.01, 0.0);  // in free space
+        return s;
+    }
+    void write(const Eigen::Vector3d&) noexcept override {}
+    const DeviceSpec& spec() const noexcept override { return touchX(); }
+
+  private:
+    std::atomic<std::uint64_t> mTick{0};
+};
+
+// Snapshot time never goes backwards across step / start / stop / step / start / stop / step,
+// also when the real-time runs skipped deadlines; every tick is in the trace once, in order.
+TEST_F(SessionTest, TimeIsMonotonicAcrossRunsAndSteps) {
+    StallingDevice dev;
+    SessionParams p = params(CouplingMode::VC);
+    p.traceCapacity = 1u << 14;
+    p.servo.priority = 0;
+    Session session(sScene, dev, p);
+    std::uint64_t skipped = 0;
+    auto realtime = [&](std::uint64_t ticks) {
+        const std::uint64_t before = session.stats().ticks;
+        session.start();
+        for (int i = 0; i < 5000 && session.stats().ticks < before + ticks; ++i)
+            std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        session.stop();
+        skipped = session.stats().skipped;
+    };
+    for (int i = 0; i < 100; ++i) session.step();
+    realtime(80);
+    EXPECT_GT(skipped, 0u) << "the stalls must make the loop skip deadlines";
+    const double lastRun = session.latest().timeSeconds;
+    const Snapshot& after = session.step();
+    EXPECT_NEAR(after.timeSeconds, lastRun + kT, 1e-12);
+    for (int i = 0; i < 49; ++i) session.step();
+    realtime(80);
+    for (int i = 0; i < 10; ++i) session.step();
+
+    Snapshot t;
+    std::uint64_t count = 0;
+    double previous = -1;
+    while (session.popTrace(t)) {
+        ASSERT_EQ(t.tick, count) << "trace in order, none lost";
+        ASSERT_GT(t.timeSeconds, previous) << "tick " << t.tick;
+        ASSERT_GE(t.timeSeconds - previous, kT * (1 - 1e-9)) << "tick " << t.tick;
+        previous = t.timeSeconds;
+        ++count;
+    }
+    EXPECT_EQ(session.traceDropped(), 0u);
+    EXPECT_GT(count, 100u + 80 + 50 + 80 + 10 - 1);
+}
+
 // A real-time run: a viewer thread reads latest() and the trace, a producer thread sends
 // commands, the controlling thread starts and stops. Every published snapshot is complete
 // (finite, bounded), latest() never goes back in time, and the trace holds every tick

@@ -162,6 +162,11 @@ struct Command {
 /// sees it). A free proxy (no contact) that a fast-moving surface overtakes is pushed back out
 /// along the shortest axis-aligned exit.
 ///
+/// Time: Snapshot::timeSeconds never goes backwards. Offline steps advance it by T; a
+/// real-time run continues from the last tick's time + T on the servo loop's nominal clock
+/// (which skips the deadlines of overrun ticks); step() after a run continues from the run's
+/// last tick + T, and so on across any sequence of start/stop/step.
+///
 /// @par Threading  start/stop/step from one controlling thread; latest() and latestRays() from
 ///      one viewer thread; popTrace() from one trace reader thread (may be the viewer); send()
 ///      from one producer thread. The servo thread owns everything else.
