@@ -135,8 +135,15 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
     const kernels::TriangleMesh mesh = toTriangleMesh(mModel->surface());
     mRest = mesh.positions;
     mPositions = mesh.positions;
-    mGeom = mScene->addDeformingMesh(mesh, kernels::kMaskSurface);
-    mScene->commit();
+    mSurface = std::make_unique<kernels::RefitMesh>(mesh);
+    // Embree's box of the surface: the rest box grown by its largest extent on every side. A
+    // body deformed by more than its own size has left any regime this model describes; step()
+    // flags kSurfaceOutsideBounds if it happens.
+    const kernels::Box3f rest = mSurface->bounds();
+    float extent = 0;
+    for (std::size_t k = 0; k < 3; ++k) extent = std::max(extent, rest.hi[k] - rest.lo[k]);
+    mGeom = mScene->addRefitMesh(*mSurface, kernels::kMaskSurface, extent);
+    mScene->commit();  // once: later steps refit palp's BVH only
     mLoaded.resize(mModel->loadNodes().size());
     mWeights.resize(mModel->loadNodes().size());
     mSolver.externalForce().setZero();
@@ -251,9 +258,9 @@ bool DeformableBody::anchor(const Eigen::Vector3d& point, const Eigen::Vector3d&
     kernels::intersectOne(mScene->handle(), point, d, 0.0f, 1e-3f, kernels::kMaskSurface, rh);
     if (rh.hit.geomID == mGeom && anchorOn(static_cast<int>(rh.hit.primID), point, normal))
         return true;
-    // Embree's test is not watertight: a ray through a vertex or an edge can slip between the
-    // triangles. Then take the triangle around the nearest surface node whose (clamped)
-    // barycentric point is closest, among those facing the normal.
+    // The surface's ray test is watertight, but the point may lie more than 1 mm off the
+    // surface or the ray may graze it. Then take the triangle around the nearest surface node
+    // whose (clamped) barycentric point is closest, among those facing the normal.
     const int node = mContactNode;
     if (node < 0) return false;
     const int vertex = mModel->vertexOfNode(node);
@@ -320,13 +327,15 @@ unsigned DeformableBody::step(double dtSeconds) noexcept {
         mPositions[3 * i + 2] = static_cast<float>(mRest[3 * i + 2] + uz);
     }
     mMaxSurfaceDisplacement = std::sqrt(maxD2);
-    if (!mScene->updateVertices(mGeom, std::span<const float>(mPositions))) {
-        return flags | kRefitFailed;
-    }
-    try {
-        mScene->commit();
-    } catch (...) {
-        flags |= kRefitFailed;
+    switch (mSurface->refit(std::span<const float>(mPositions))) {
+        case kernels::RefitStatus::Ok:
+            break;
+        case kernels::RefitStatus::OutsideLimit:
+            flags |= kSurfaceOutsideBounds;
+            break;
+        case kernels::RefitStatus::Rejected:
+            flags |= kRefitFailed;
+            break;
     }
     return flags;
 }

@@ -1,8 +1,10 @@
 #include "palp/kernels/embree_scene.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <string>
 
 #include "palp/error.h"
@@ -93,6 +95,126 @@ unsigned EmbreeScene::addRigidMesh(const TriangleMesh& mesh, unsigned mask) {
 }
 unsigned EmbreeScene::addDeformingMesh(const TriangleMesh& mesh, unsigned mask) {
     return add(mesh, mask, true);
+}
+
+namespace detail {
+/// What the user-geometry callbacks see (a stable address owned by the scene).
+struct RefitUser {
+    const RefitMesh* mesh = nullptr;
+    unsigned mask = 0;
+    unsigned reportId = 0;  // the twin triangle geometry's id
+};
+}  // namespace detail
+
+namespace {
+
+void refitBounds(const RTCBoundsFunctionArguments* args) {
+    const auto* user = static_cast<const detail::RefitUser*>(args->geometryUserPtr);
+    const Box3f& b = user->mesh->limit();
+    args->bounds_o->lower_x = b.lo[0];
+    args->bounds_o->lower_y = b.lo[1];
+    args->bounds_o->lower_z = b.lo[2];
+    args->bounds_o->upper_x = b.hi[0];
+    args->bounds_o->upper_y = b.hi[1];
+    args->bounds_o->upper_z = b.hi[2];
+}
+
+void refitIntersect(const RTCIntersectFunctionNArguments* args) {
+    const auto* user = static_cast<const detail::RefitUser*>(args->geometryUserPtr);
+    const unsigned n = args->N;
+    RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, n);
+    RTCHitN* hit = RTCRayHitN_HitN(args->rayhit, n);
+    for (unsigned i = 0; i < n; ++i) {
+        if (args->valid[i] == 0) continue;
+        if ((RTCRayN_mask(ray, n, i) & user->mask) == 0) continue;
+        const std::array<float, 3> org = {RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i),
+                                          RTCRayN_org_z(ray, n, i)};
+        const std::array<float, 3> dir = {RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i),
+                                          RTCRayN_dir_z(ray, n, i)};
+        TriangleHit h;
+        if (!user->mesh->intersect(org, dir, RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i), h))
+            continue;
+        RTCRayN_tfar(ray, n, i) = h.t;
+        RTCHitN_Ng_x(hit, n, i) = h.ng[0];
+        RTCHitN_Ng_y(hit, n, i) = h.ng[1];
+        RTCHitN_Ng_z(hit, n, i) = h.ng[2];
+        RTCHitN_u(hit, n, i) = h.u;
+        RTCHitN_v(hit, n, i) = h.v;
+        RTCHitN_primID(hit, n, i) = h.primId;
+        RTCHitN_geomID(hit, n, i) = user->reportId;
+        for (unsigned l = 0; l < RTC_MAX_INSTANCE_LEVEL_COUNT; ++l)
+            RTCHitN_instID(hit, n, i, l) = args->context->instID[l];
+    }
+}
+
+void refitOccluded(const RTCOccludedFunctionNArguments* args) {
+    const auto* user = static_cast<const detail::RefitUser*>(args->geometryUserPtr);
+    const unsigned n = args->N;
+    RTCRayN* ray = args->ray;
+    for (unsigned i = 0; i < n; ++i) {
+        if (args->valid[i] == 0) continue;
+        if ((RTCRayN_mask(ray, n, i) & user->mask) == 0) continue;
+        const std::array<float, 3> org = {RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i),
+                                          RTCRayN_org_z(ray, n, i)};
+        const std::array<float, 3> dir = {RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i),
+                                          RTCRayN_dir_z(ray, n, i)};
+        if (user->mesh->occluded(org, dir, RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i)))
+            RTCRayN_tfar(ray, n, i) = -std::numeric_limits<float>::infinity();
+    }
+}
+
+}  // namespace
+
+unsigned EmbreeScene::addRefitMesh(RefitMesh& mesh, unsigned mask, float margin) {
+    if (!(margin >= 0) || !std::isfinite(margin))
+        throw ValueError("refit mesh margin: expected a finite value >= 0 m, found " +
+                         std::to_string(margin));
+    Box3f limit = mesh.bounds();
+    for (std::size_t k = 0; k < 3; ++k) {
+        limit.lo[k] -= margin;
+        limit.hi[k] += margin;
+    }
+    mesh.setLimit(limit);
+
+    // The twin: a disabled triangle geometry (never traversed) that shares the mesh's arrays,
+    // so a hit's geometry id leads to the current vertices as for any Embree mesh.
+    RTCGeometry twin = rtcNewGeometry(mDevice, RTC_GEOMETRY_TYPE_TRIANGLE);
+    rtcSetSharedGeometryBuffer(twin, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                               mesh.positions().data(), 0, 3 * sizeof(float), mesh.vertexCount());
+    rtcSetSharedGeometryBuffer(twin, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                               mesh.indices().data(), 0, 3 * sizeof(std::uint32_t),
+                               mesh.triangleCount());
+    rtcSetGeometryMask(twin, 0);
+    rtcCommitGeometry(twin);
+    const unsigned twinId = rtcAttachGeometry(mScene, twin);
+    rtcDisableGeometry(twin);
+    rtcReleaseGeometry(twin);
+
+    auto user = std::make_unique<detail::RefitUser>();
+    user->mesh = &mesh;
+    user->mask = mask;
+    user->reportId = twinId;
+    RTCGeometry g = rtcNewGeometry(mDevice, RTC_GEOMETRY_TYPE_USER);
+    rtcSetGeometryUserPrimitiveCount(g, 1);
+    rtcSetGeometryUserData(g, user.get());
+    rtcSetGeometryBoundsFunction(g, refitBounds, user.get());
+    rtcSetGeometryIntersectFunction(g, refitIntersect);
+    rtcSetGeometryOccludedFunction(g, refitOccluded);
+    rtcSetGeometryMask(g, mask);
+    rtcCommitGeometry(g);
+    const unsigned id = rtcAttachGeometry(mScene, g);
+    rtcReleaseGeometry(g);
+    const RTCError e = rtcGetDeviceError(mDevice);
+    if (e != RTC_ERROR_NONE)
+        throw Error("embree user geometry: expected no error, found error code " +
+                    std::to_string(static_cast<int>(e)));
+    mRefits.push_back(std::move(user));
+    if (mGeoms.size() <= std::max(id, twinId)) mGeoms.resize(std::max(id, twinId) + 1);
+    mGeoms[twinId] = Geom{twin, nullptr, mesh.vertexCount(), false};
+    mGeoms[id] = Geom{g, nullptr, 0, false};
+    mTriangles += mesh.triangleCount();
+    mCommitted = false;
+    return twinId;
 }
 
 bool EmbreeScene::updateVertices(unsigned geomId, std::span<const float> positions) noexcept {

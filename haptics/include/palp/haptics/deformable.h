@@ -4,12 +4,13 @@
 /// a hexahedral FEM body with fixed nodes (a support face, nodes inside static inhomogeneities
 /// such as bone), stepped by the whole-mesh explicit solver every servo tick under the reaction
 /// of the coupling force, spread over the surface nodes near the contact by a Gaussian low-pass
-/// filter; its boundary surface is a deforming Embree mesh (mask kMaskSurface) refitted every
-/// tick, so the proxy moves on the deformed surface.
+/// filter; its boundary surface is a kernels::RefitMesh (palp's own BVH, refitted in place every
+/// tick without allocating) registered in an Embree scene as user geometry (mask kMaskSurface)
+/// that is committed once, so the proxy moves on the deformed surface.
 ///
 /// Split in two: DeformableModel (built off the servo thread, immutable, shared by sessions:
 /// mesh, material, constraints, surface topology) and DeformableBody (one per session: the
-/// solver state, the nodal forces and the Embree scene).
+/// solver state, the nodal forces, the refit surface and its Embree scene).
 ///
 /// Choices where the spec is silent:
 /// * Filter: weights w_i = exp(-|x_i - c|^2 / (2 sigma^2)) over the free surface nodes within
@@ -37,6 +38,7 @@
 #include "palp/fem/hex_mesh.h"
 #include "palp/fem/voxelize.h"
 #include "palp/kernels/embree_scene.h"
+#include "palp/kernels/refit_bvh.h"
 #include "palp/volume/volume.h"
 
 namespace palp::haptics {
@@ -113,15 +115,16 @@ class DeformableModel {
 };
 
 /// The per-session state of a deformable body: explicit solver, nodal forces and the deformed
-/// surface in its own EmbreeScene (one deforming mesh, mask kMaskSurface).
+/// surface (a kernels::RefitMesh) in its own EmbreeScene (user geometry, mask kMaskSurface).
 ///
 /// One tick: applyContactForce() (or clearForce()), optionally anchor() a point on the surface,
-/// step() (FEM step by T, copy of the deformed surface into Embree, refit), then
+/// step() (FEM step by T, copy of the deformed surface, refit of its BVH), then
 /// anchoredPosition() is the anchored point carried with the surface.
 ///
-/// Cost: the FEM step is O(#elements x substeps), the refit O(#triangles) (~0.3 ms for 2k
-/// triangles measured earlier on the shared VM); keep real-time meshes to about a 13^3-node cube
-/// (1,700 surface triangles). Figures: `palp palpate --deformable --fast` prints ticks/s.
+/// Cost: the FEM step is O(#elements x substeps), the refit O(#triangles) (bench_refit: a few
+/// microseconds for 2k triangles, against ~0.3 ms for Embree's refit commit it replaces); keep
+/// real-time meshes to about a 13^3-node cube for the FEM step. Figures:
+/// `palp palpate --deformable --fast` prints ticks/s, bench_refit the refit and trace costs.
 ///
 /// Stability: the force on the tissue is the coupling force of the tick (explicit, one tick
 /// late), so when the surface under the contact responds within a tick (light, soft), the
@@ -133,19 +136,19 @@ class DeformableModel {
 /// @par Threading  One thread (the servo thread) drives a body; surfaces() may be traced from
 ///      that thread between steps.
 /// @par Real-time  applyContactForce, clearForce, anchor, step and the accessors are noexcept
-///      and allocation-free, except that Embree's refit inside step() calls operator new a few
-///      times per commit (test_deformable measures it); step() is bounded by maxSubsteps and
-///      the refit is O(#triangles).
+///      and allocation-free (test_deformable counts zero allocations per tick); step() is
+///      bounded by maxSubsteps and the refit is O(#triangles).
 class DeformableBody {
   public:
-    /// Allocates everything. @throw palp::ValueError for a null model, palp::Error from Embree.
+    /// Allocates everything, builds the surface BVH and commits the Embree scene (the only
+    /// commit). @throw palp::ValueError for a null model, palp::Error from Embree.
     explicit DeformableBody(std::shared_ptr<const DeformableModel> model);
     ~DeformableBody();
     DeformableBody(const DeformableBody&) = delete;
     DeformableBody& operator=(const DeformableBody&) = delete;
 
     const DeformableModel& model() const noexcept { return *mModel; }
-    /// The deformed surface (committed), for the proxy.
+    /// The deformed surface (committed once; its BVH follows every step()), for the proxy.
     const kernels::EmbreeScene& surfaces() const noexcept { return *mScene; }
 
     /// Replaces the external load by @p force (N, world) acting at @p point (m, on or near the
@@ -165,12 +168,16 @@ class DeformableBody {
     /// current normal. @par Real-time
     Eigen::Vector3d anchoredPosition() const noexcept;
 
-    /// FEM step by @p dtSeconds under the current load, then the deformed surface into Embree
-    /// and a refit. Returns the solver's flags (fem::StepFlag); a failed refit adds
-    /// kRefitFailed and leaves the previous surface. @par Real-time
+    /// FEM step by @p dtSeconds under the current load, then the deformed surface into the
+    /// surface BVH and a refit. Returns the solver's flags (fem::StepFlag) plus kRefitFailed or
+    /// kSurfaceOutsideBounds. @par Real-time
     unsigned step(double dtSeconds) noexcept;
-    /// Flag of step(): Embree's refit reported an error.
+    /// Flag of step(): the deformed surface had a non-finite coordinate; the previous surface
+    /// stays.
     static constexpr unsigned kRefitFailed = 1u << 8;
+    /// Flag of step(): the surface left the box registered with Embree (the rest box grown by
+    /// its largest extent); rays may miss the parts outside it.
+    static constexpr unsigned kSurfaceOutsideBounds = 1u << 9;
 
     /// Nodal displacement, m (#dofs).
     const Eigen::VectorXd& displacement() const noexcept { return mSolver.displacement(); }
@@ -195,10 +202,11 @@ class DeformableBody {
 
     std::shared_ptr<const DeformableModel> mModel;
     fem::ExplicitSolver mSolver;
+    std::unique_ptr<kernels::RefitMesh> mSurface;  // declared before mScene: outlives it
     std::unique_ptr<kernels::EmbreeScene> mScene;
-    unsigned mGeom = 0;
+    unsigned mGeom = 0;             // the geometry id hits on the surface report
     std::vector<float> mRest;       // #V by 3, rest surface positions
-    std::vector<float> mPositions;  // #V by 3, deformed, as handed to Embree
+    std::vector<float> mPositions;  // #V by 3, deformed, as handed to the refit
     std::vector<int> mLoaded;       // nodes loaded by the last applyContactForce
     std::vector<double> mWeights;   // scratch, one per load node
     std::size_t mLoadedCount = 0;

@@ -6,11 +6,13 @@
 #include <embree3/rtcore.h>
 
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <vector>
 
 #include "palp/kernels/mesh.h"
 #include "palp/kernels/ray_bundle.h"
+#include "palp/kernels/refit_bvh.h"
 #include "palp/kernels/volume_ray.h"
 
 namespace palp::kernels {
@@ -21,6 +23,10 @@ inline constexpr unsigned kMaskBone = 1u;
 inline constexpr unsigned kMaskPlate = 2u;
 inline constexpr unsigned kMaskSurface = 4u;
 inline constexpr unsigned kMaskAll = 0xffffffffu;
+
+namespace detail {
+struct RefitUser;  // embree_scene.cpp
+}  // namespace detail
 
 /// Owns an RTCScene on palp's one process-wide RTCDevice (created on first use, retained per
 /// scene). Add meshes, commit(), then trace.
@@ -50,6 +56,22 @@ class EmbreeScene {
     /// Adds a mesh whose vertices move (refit BVH); topology is fixed. Returns its geometry id.
     /// @throw palp::ValueError as addRigidMesh.
     unsigned addDeformingMesh(const TriangleMesh& mesh, unsigned mask = kMaskAll);
+    /// Adds @p mesh as an Embree user geometry traced by palp's own BVH: Embree sees one box,
+    /// the mesh's current bounds grown by @p margin metres on every side (the caller's bound on
+    /// the deformation), fixed at this call and set as the mesh's limit (RefitMesh::setLimit).
+    /// Later mesh.refit() calls need no commit(): the scene is committed once. A refit that
+    /// leaves the box reports RefitStatus::OutsideLimit (rays may then miss the parts outside).
+    ///
+    /// Hits look like triangle hits (primID, u, v, unnormalised Ng, tfar) with the returned
+    /// geometry id: that of a disabled triangle geometry sharing the mesh's vertex and index
+    /// arrays, so rtcGetGeometryBufferData() on a hit's geomID reads the current triangle as for
+    /// any Embree mesh. Honours the ray mask against @p mask, tnear/tfar, every ray count Embree
+    /// passes (rtcIntersect1, 1M streams, packets) and rtcOccluded*. Intersection filter
+    /// functions are not called.
+    ///
+    /// @p mesh must outlive the scene and keep its vertex count (refit() does).
+    /// @throw palp::ValueError for a negative or non-finite margin; palp::Error from Embree.
+    unsigned addRefitMesh(RefitMesh& mesh, unsigned mask, float margin);
     /// Copies new positions (#V by 3, metres) of deforming mesh @p geomId into Embree; takes
     /// effect at the next commit(). Returns false (and changes nothing) for an unknown or rigid
     /// id or a wrong size.
@@ -73,7 +95,8 @@ class EmbreeScene {
     unsigned add(const TriangleMesh& mesh, unsigned mask, bool deforming);
     RTCDevice mDevice = nullptr;
     RTCScene mScene = nullptr;
-    std::vector<Geom> mGeoms;  // indexed by geometry id
+    std::vector<Geom> mGeoms;                                 // indexed by geometry id
+    std::vector<std::unique_ptr<detail::RefitUser>> mRefits;  // user data of refit meshes
     std::size_t mTriangles = 0;
     bool mCommitted = false;
 };

@@ -1,0 +1,331 @@
+#include "palp/kernels/refit_bvh.h"
+
+// The watertight test relies on the edge functions of a shared edge being exact negatives of
+// each other in the two triangles; a fused multiply-add would round them differently, so this
+// file is compiled with -ffp-contract=off (kernels/CMakeLists.txt).
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <string>
+
+#include "palp/error.h"
+
+namespace palp::kernels {
+
+namespace {
+
+constexpr float kInf = std::numeric_limits<float>::infinity();
+
+/// 2 gamma(3) (pbrt's bound on the relative rounding of the slab distances): widening each
+/// slab interval by it keeps the box test conservative (Ize 2013), so a triangle lying in the
+/// face of a flat box is still reached.
+constexpr float kBoxSlack = 2.0f * (3.0f * std::numeric_limits<float>::epsilon() * 0.5f) /
+                            (1.0f - 3.0f * std::numeric_limits<float>::epsilon() * 0.5f);
+constexpr std::size_t kNoParent = std::numeric_limits<std::size_t>::max();
+
+bool finite3(const std::array<float, 3>& a) noexcept {
+    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
+}
+
+/// Per-ray set-up of the watertight test: the axis of the largest direction component becomes
+/// z, the other two are sheared onto the plane orthogonal to the ray.
+struct WatertightRay {
+    std::array<float, 3> org;
+    int kx, ky, kz;
+    float sx, sy, sz;
+    std::array<float, 3> invDir;
+    std::array<int, 3> nearSide;  // per axis: 1 when the direction is negative
+
+    bool init(const std::array<float, 3>& o, const std::array<float, 3>& d) noexcept {
+        org = o;
+        const std::array<float, 3> a = {std::abs(d[0]), std::abs(d[1]), std::abs(d[2])};
+        kz = a[0] >= a[1] ? (a[0] >= a[2] ? 0 : 2) : (a[1] >= a[2] ? 1 : 2);
+        if (!(a[static_cast<std::size_t>(kz)] > 0)) return false;
+        kx = (kz + 1) % 3;
+        ky = (kx + 1) % 3;
+        // Keep the winding (the sign of the edge functions) independent of the direction.
+        if (d[static_cast<std::size_t>(kz)] < 0) std::swap(kx, ky);
+        const float dz = d[static_cast<std::size_t>(kz)];
+        sx = d[static_cast<std::size_t>(kx)] / dz;
+        sy = d[static_cast<std::size_t>(ky)] / dz;
+        sz = 1.0f / dz;
+        for (std::size_t i = 0; i < 3; ++i) {
+            invDir[i] = 1.0f / d[i];  // +-inf for a zero component
+            nearSide[i] = d[i] < 0 ? 1 : 0;
+        }
+        return true;
+    }
+
+    /// Slab test of the box against (tnear, tfar]. NaN slab distances (a ray in the plane of
+    /// a flat box) are ignored, which keeps the test conservative.
+    bool hitsBox(const std::array<float, 3>& lo, const std::array<float, 3>& hi, float tnear,
+                 float tfar) const noexcept {
+        float t0 = tnear, t1 = tfar;
+        for (std::size_t i = 0; i < 3; ++i) {
+            float tn = (lo[i] - org[i]) * invDir[i];
+            float tf = (hi[i] - org[i]) * invDir[i];
+            if (tn > tf) std::swap(tn, tf);
+            tn -= std::abs(tn) * kBoxSlack;  // an infinite slab turns NaN here: ignored below
+            tf += std::abs(tf) * kBoxSlack;
+            t0 = tn > t0 ? tn : t0;
+            t1 = tf < t1 ? tf : t1;
+            if (t0 > t1) return false;
+        }
+        return true;
+    }
+
+    /// Woop, Benthin and Wald 2013. Fills t, u, v when the triangle is hit with
+    /// tnear < t <= tfar.
+    bool hitsTriangle(const float* p0, const float* p1, const float* p2, float tnear, float tfar,
+                      float& t, float& u, float& v) const noexcept {
+        const auto ux = static_cast<std::size_t>(kx), uy = static_cast<std::size_t>(ky),
+                   uz = static_cast<std::size_t>(kz);
+        const float ax = p0[ux] - org[ux], ay = p0[uy] - org[uy], az = p0[uz] - org[uz];
+        const float bx = p1[ux] - org[ux], by = p1[uy] - org[uy], bz = p1[uz] - org[uz];
+        const float cx = p2[ux] - org[ux], cy = p2[uy] - org[uy], cz = p2[uz] - org[uz];
+        const float axs = ax - sx * az, ays = ay - sy * az;
+        const float bxs = bx - sx * bz, bys = by - sy * bz;
+        const float cxs = cx - sx * cz, cys = cy - sy * cz;
+        float e0 = cxs * bys - cys * bxs;
+        float e1 = axs * cys - ays * cxs;
+        float e2 = bxs * ays - bys * axs;
+        if (e0 == 0.0f || e1 == 0.0f || e2 == 0.0f) {
+            // On an edge to float precision: decide in double, where the products are exact.
+            e0 =
+                static_cast<float>(static_cast<double>(cxs) * bys - static_cast<double>(cys) * bxs);
+            e1 =
+                static_cast<float>(static_cast<double>(axs) * cys - static_cast<double>(ays) * cxs);
+            e2 =
+                static_cast<float>(static_cast<double>(bxs) * ays - static_cast<double>(bys) * axs);
+        }
+        if ((e0 < 0 || e1 < 0 || e2 < 0) && (e0 > 0 || e1 > 0 || e2 > 0)) return false;
+        const float det = e0 + e1 + e2;
+        if (det == 0.0f || !std::isfinite(det)) return false;  // degenerate or edge-on
+        const float tScaled = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz);
+        const float tt = tScaled / det;
+        if (!(tt > tnear && tt <= tfar)) return false;
+        const float inv = 1.0f / det;
+        t = tt;
+        u = e1 * inv;
+        v = e2 * inv;
+        return true;
+    }
+};
+
+}  // namespace
+
+bool Box3f::contains(const Box3f& b) const noexcept {
+    for (std::size_t i = 0; i < 3; ++i)
+        if (!(b.lo[i] >= lo[i] && b.hi[i] <= hi[i])) return false;
+    return true;
+}
+
+RefitMesh::RefitMesh(const TriangleMesh& mesh, int leafSize) {
+    if (leafSize < 1 || leafSize > 16)
+        throw ValueError("refit mesh: expected a leaf size in [1, 16], found " +
+                         std::to_string(leafSize));
+    if (mesh.triangleCount() == 0 || mesh.positions.size() % 3 != 0 || mesh.indices.size() % 3 != 0)
+        throw ValueError(
+            "refit mesh: expected at least one triangle and 3 floats per vertex, "
+            "found " +
+            std::to_string(mesh.positions.size()) + " position floats and " +
+            std::to_string(mesh.indices.size()) + " indices");
+    if (mesh.triangleCount() >= kInner)
+        throw ValueError("refit mesh: expected fewer than 2^31 triangles, found " +
+                         std::to_string(mesh.triangleCount()));
+    mVertexCount = mesh.vertexCount();
+    for (std::size_t i = 0; i < mesh.indices.size(); ++i)
+        if (mesh.indices[i] >= mVertexCount)
+            throw ValueError("refit mesh index " + std::to_string(i) + ": expected < " +
+                             std::to_string(mVertexCount) + ", found " +
+                             std::to_string(mesh.indices[i]));
+    for (std::size_t i = 0; i < mesh.positions.size(); ++i)
+        if (!std::isfinite(mesh.positions[i]))
+            throw ValueError("refit mesh position " + std::to_string(i / 3) +
+                             ": expected finite coordinates, found " +
+                             std::to_string(mesh.positions[i]));
+    mPositions.assign(mesh.positions.size() + 1, 0.0f);
+    std::copy(mesh.positions.begin(), mesh.positions.end(), mPositions.begin());
+    mIndices = mesh.indices;
+    mLimit.lo = {-kInf, -kInf, -kInf};
+    mLimit.hi = {kInf, kInf, kInf};
+
+    // Median split on triangle centroids along the axis of their widest spread: balanced, so
+    // the depth is ceil(log2(#T / leafSize)) + 1 at most.
+    const std::size_t nt = triangleCount();
+    std::vector<std::array<float, 3>> centroid(nt);
+    for (std::size_t t = 0; t < nt; ++t)
+        for (std::size_t k = 0; k < 3; ++k)
+            centroid[t][k] =
+                (mPositions[3 * mIndices[3 * t] + k] + mPositions[3 * mIndices[3 * t + 1] + k] +
+                 mPositions[3 * mIndices[3 * t + 2] + k]) /
+                3.0f;
+    mSlotPrim.resize(nt);
+    std::iota(mSlotPrim.begin(), mSlotPrim.end(), 0u);
+    mNodes.reserve(2 * nt / static_cast<std::size_t>(leafSize) + 2);
+    const auto leaf = static_cast<std::size_t>(leafSize);
+    struct Task {
+        std::size_t begin, end;
+        int depth;
+        std::size_t parent;  // node whose right child this is, or kNoParent
+    };
+    std::vector<Task> tasks{{0, nt, 1, kNoParent}};
+    while (!tasks.empty()) {
+        const Task task = tasks.back();
+        tasks.pop_back();
+        const std::size_t id = mNodes.size();
+        mNodes.push_back(Node{});
+        if (task.parent != kNoParent) mNodes[task.parent].first = static_cast<std::uint32_t>(id);
+        mDepth = std::max(mDepth, task.depth);
+        const std::size_t n = task.end - task.begin;
+        if (n <= leaf) {
+            mNodes[id].first = static_cast<std::uint32_t>(task.begin);
+            mNodes[id].count = static_cast<std::uint32_t>(n);
+            continue;
+        }
+        std::array<float, 3> lo = {kInf, kInf, kInf}, hi = {-kInf, -kInf, -kInf};
+        for (std::size_t s = task.begin; s < task.end; ++s)
+            for (std::size_t k = 0; k < 3; ++k) {
+                lo[k] = std::min(lo[k], centroid[mSlotPrim[s]][k]);
+                hi[k] = std::max(hi[k], centroid[mSlotPrim[s]][k]);
+            }
+        std::size_t axis = 0;
+        for (std::size_t k = 1; k < 3; ++k)
+            if (hi[k] - lo[k] > hi[axis] - lo[axis]) axis = k;
+        const std::size_t mid = task.begin + n / 2;
+        const auto first = mSlotPrim.begin() + static_cast<std::ptrdiff_t>(task.begin);
+        std::nth_element(first, mSlotPrim.begin() + static_cast<std::ptrdiff_t>(mid),
+                         mSlotPrim.begin() + static_cast<std::ptrdiff_t>(task.end),
+                         [&](std::uint32_t a, std::uint32_t b) {
+                             return centroid[a][axis] < centroid[b][axis] ||
+                                    (centroid[a][axis] == centroid[b][axis] && a < b);
+                         });
+        mNodes[id].count = kInner | static_cast<std::uint32_t>(axis);
+        // Depth-first: the left child is processed next (it becomes node id + 1), the right
+        // child after the whole left subtree.
+        tasks.push_back({mid, task.end, task.depth + 1, id});
+        tasks.push_back({task.begin, mid, task.depth + 1, kNoParent});
+    }
+    if (mDepth > kMaxDepth)
+        throw ValueError("refit mesh: expected a tree depth <= " + std::to_string(kMaxDepth) +
+                         ", found " + std::to_string(mDepth));
+    mSlotIndex.resize(3 * nt);
+    for (std::size_t s = 0; s < nt; ++s)
+        for (std::size_t k = 0; k < 3; ++k) mSlotIndex[3 * s + k] = mIndices[3 * mSlotPrim[s] + k];
+    refitNodes();
+}
+
+void RefitMesh::refitNodes() noexcept {
+    // Children follow their parent in the array: a reverse sweep sees them first.
+    for (std::size_t i = mNodes.size(); i-- > 0;) {
+        Node& n = mNodes[i];
+        if (n.count & kInner) {
+            const Node& l = mNodes[i + 1];
+            const Node& r = mNodes[n.first];
+            for (std::size_t k = 0; k < 3; ++k) {
+                n.lo[k] = std::min(l.lo[k], r.lo[k]);
+                n.hi[k] = std::max(l.hi[k], r.hi[k]);
+            }
+            continue;
+        }
+        n.lo = {kInf, kInf, kInf};
+        n.hi = {-kInf, -kInf, -kInf};
+        for (std::size_t s = 3 * n.first; s < 3 * (n.first + n.count); ++s) {
+            const float* p = &mPositions[3 * static_cast<std::size_t>(mSlotIndex[s])];
+            for (std::size_t k = 0; k < 3; ++k) {
+                n.lo[k] = std::min(n.lo[k], p[k]);
+                n.hi[k] = std::max(n.hi[k], p[k]);
+            }
+        }
+    }
+}
+
+RefitStatus RefitMesh::refit(std::span<const float> positions) noexcept {
+    if (positions.size() != 3 * mVertexCount) return RefitStatus::Rejected;
+    for (const float x : positions)
+        if (!std::isfinite(x)) return RefitStatus::Rejected;
+    std::copy(positions.begin(), positions.end(), mPositions.begin());
+    refitNodes();
+    return mLimit.contains(bounds()) ? RefitStatus::Ok : RefitStatus::OutsideLimit;
+}
+
+Box3f RefitMesh::bounds() const noexcept {
+    Box3f b;
+    b.lo = mNodes[0].lo;
+    b.hi = mNodes[0].hi;
+    return b;
+}
+
+template <bool kAny>
+bool RefitMesh::traverse(const std::array<float, 3>& org, const std::array<float, 3>& dir,
+                         float tnear, float tfar, TriangleHit* hit) const noexcept {
+    if (!finite3(org) || !finite3(dir) || std::isnan(tnear) || std::isnan(tfar) || !(tnear <= tfar))
+        return false;
+    WatertightRay ray;
+    if (!ray.init(org, dir)) return false;
+    std::array<std::uint32_t, kMaxDepth> stack;
+    int top = 0;
+    std::uint32_t node = 0;
+    float best = tfar;
+    std::uint32_t bestSlot = 0;
+    float bestU = 0, bestV = 0;
+    bool found = false;
+    for (;;) {
+        const Node& n = mNodes[node];
+        if (ray.hitsBox(n.lo, n.hi, tnear, best)) {
+            if (n.count & kInner) {
+                const auto axis = static_cast<std::size_t>(n.count & ~kInner);
+                const std::uint32_t left = node + 1, right = n.first;
+                // Near child first; the stack never holds more than depth - 1 entries.
+                const bool flip = ray.nearSide[axis] != 0;
+                stack[static_cast<std::size_t>(top++)] = flip ? left : right;
+                node = flip ? right : left;
+                continue;
+            }
+            for (std::uint32_t s = n.first; s < n.first + n.count; ++s) {
+                const std::size_t i = 3 * static_cast<std::size_t>(s);
+                float t, u, v;
+                if (ray.hitsTriangle(&mPositions[3 * static_cast<std::size_t>(mSlotIndex[i])],
+                                     &mPositions[3 * static_cast<std::size_t>(mSlotIndex[i + 1])],
+                                     &mPositions[3 * static_cast<std::size_t>(mSlotIndex[i + 2])],
+                                     tnear, best, t, u, v)) {
+                    if constexpr (kAny) return true;
+                    found = true;
+                    best = t;
+                    bestSlot = s;
+                    bestU = u;
+                    bestV = v;
+                }
+            }
+        }
+        if (top == 0) break;
+        node = stack[static_cast<std::size_t>(--top)];
+    }
+    if (!found || hit == nullptr) return found;
+    const std::size_t i = 3 * static_cast<std::size_t>(bestSlot);
+    const float* p0 = &mPositions[3 * static_cast<std::size_t>(mSlotIndex[i])];
+    const float* p1 = &mPositions[3 * static_cast<std::size_t>(mSlotIndex[i + 1])];
+    const float* p2 = &mPositions[3 * static_cast<std::size_t>(mSlotIndex[i + 2])];
+    const float e1x = p1[0] - p0[0], e1y = p1[1] - p0[1], e1z = p1[2] - p0[2];
+    const float e2x = p2[0] - p0[0], e2y = p2[1] - p0[1], e2z = p2[2] - p0[2];
+    hit->t = best;
+    hit->primId = mSlotPrim[bestSlot];
+    hit->u = bestU;
+    hit->v = bestV;
+    hit->ng = {e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x};
+    return true;
+}
+
+bool RefitMesh::intersect(const std::array<float, 3>& org, const std::array<float, 3>& dir,
+                          float tnear, float tfar, TriangleHit& hit) const noexcept {
+    return traverse<false>(org, dir, tnear, tfar, &hit);
+}
+
+bool RefitMesh::occluded(const std::array<float, 3>& org, const std::array<float, 3>& dir,
+                         float tnear, float tfar) const noexcept {
+    return traverse<true>(org, dir, tnear, tfar, nullptr);
+}
+
+}  // namespace palp::kernels
