@@ -478,6 +478,7 @@ void toC(const ph::Snapshot& s, palp_snapshot& c) noexcept {
     c.fading = s.fading ? 1 : 0;
     c.mode = fromMode(s.mode);
     c.faults = s.faults;
+    c.stiffness_limited = s.stiffnessLimited ? 1 : 0;
 }
 
 palp_latency toC(const ph::LatencySummary& l) noexcept {
@@ -721,6 +722,9 @@ palp_status palp_session_create_simulated(palp_scene* scene, const palp_session_
         handle->params.device = handle->deviceName.c_str();
         handle->device = makeDevice(spec, path, hand, sp.servo.periodSeconds);
         handle->session = std::make_unique<ph::Session>(scene->scene, *handle->device, sp);
+        // The stiffness in force: lowered to the device's limit when above it.
+        handle->params.stiffness = handle->session->params().coupling.baseStiffness;
+        handle->params.max_stiffness = handle->session->params().coupling.maxStiffness;
         *out = handle.release();
         return PALP_OK;
     });
@@ -817,10 +821,14 @@ palp_status palp_session_set_params(palp_session* session, const palp_session_pa
         if (!session->session->send(coupling)) {
             return fail(PALP_ERROR_QUEUE_FULL, "palp_session_set_params: command queue full");
         }
+        ph::CouplingParams inForce = coupling.coupling;  // what the session renders
+        ph::limitStiffnessToDevice(inForce, session->session->deviceSpec());
         const char* device = now.device;
         const palp_session_params before = now;
         now = *params;
         now.device = device;
+        now.stiffness = inForce.baseStiffness;
+        now.max_stiffness = inForce.maxStiffness;
         now.static_friction = before.static_friction;
         now.dynamic_friction = before.dynamic_friction;
         now.passivity_control = before.passivity_control;

@@ -173,6 +173,21 @@ void requireSourceData(const Scene& scene, const CouplingParams& c) {
 
 }  // namespace
 
+bool limitStiffnessToDevice(CouplingParams& params, const DeviceSpec& spec) noexcept {
+    const double limit = spec.maxStiffnessNpm;
+    if (!(limit > 0) || !std::isfinite(limit)) return false;
+    bool lowered = false;
+    if (!(params.maxStiffness <= limit)) {
+        params.maxStiffness = limit;
+        lowered = true;
+    }
+    if (!(params.baseStiffness <= params.maxStiffness)) {
+        params.baseStiffness = params.maxStiffness;
+        lowered = true;
+    }
+    return lowered;
+}
+
 void validateSessionParams(const SessionParams& params) {
     validateProxyParams(params.proxy);
     validateCouplingParams(params.coupling);
@@ -211,7 +226,8 @@ void validateSessionParams(const SessionParams& params) {
 }
 
 struct Session::Impl {
-    Impl(std::shared_ptr<const Scene> sceneIn, Device& deviceIn, const SessionParams& p)
+    Impl(std::shared_ptr<const Scene> sceneIn, Device& deviceIn, const SessionParams& p,
+         bool stiffnessLimited)
         : scene(std::move(sceneIn)),
           device(deviceIn),
           spec(deviceIn.spec()),
@@ -228,11 +244,14 @@ struct Session::Impl {
                                             : std::numeric_limits<double>::infinity()),
           gate(p.startupThresholdN, p.startupQuietTicks),
           trace(p.traceCapacity),
-          loop(p.servo) {}
+          loop(p.servo) {
+        limited.fill(stiffnessLimited);
+    }
 
     void tick(double timeSeconds) noexcept;
     void drainCommands() noexcept;
-    void startFade(const CouplingParams& params) noexcept;
+    void setCoupling(const CouplingParams& params, bool stiffnessLimited) noexcept;
+    void startFade(const CouplingParams& params, bool stiffnessLimited) noexcept;
     // The time of the tick after the newest one (0 before any), s.
     double nextTime() const noexcept { return ticks == 0 ? 0.0 : current.timeSeconds + period; }
 
@@ -246,6 +265,7 @@ struct Session::Impl {
     std::unique_ptr<DeformableBody> body;  // deformable scenes only; before proxy (it traces it)
     Proxy proxy;
     std::array<Coupling, 2> couplings;  // [active] the newest params, [1 - active] fading out
+    std::array<bool, 2> limited{};      // couplings[i]'s stiffness was lowered to the device's
     std::array<CouplingOutput, 2> outputs;
     CouplingOutput blended;
     int active = 0;
@@ -254,6 +274,7 @@ struct Session::Impl {
     std::uint32_t fadeTicks;
     bool hasPending = false;  // a SetCoupling that arrived during a fade (the newest wins)
     CouplingParams pending;
+    bool pendingLimited = false;
     PassivityController passivity;
     ForceGuard guard;
     StartupGate gate;
@@ -283,9 +304,10 @@ struct Session::Impl {
     bool resyncSteps = false;  // a real-time run happened since: move stepOrigin past it
 };
 
-void Session::Impl::startFade(const CouplingParams& params) noexcept {
+void Session::Impl::startFade(const CouplingParams& params, bool stiffnessLimited) noexcept {
     const int next = 1 - active;
     couplings[static_cast<std::size_t>(next)].setParams(params);
+    limited[static_cast<std::size_t>(next)] = stiffnessLimited;
     active = next;
     if (fadeTicks == 0) {
         fading = false;
@@ -296,17 +318,22 @@ void Session::Impl::startFade(const CouplingParams& params) noexcept {
     fade.setTarget(1.0, fadeTicks);
 }
 
+void Session::Impl::setCoupling(const CouplingParams& params, bool stiffnessLimited) noexcept {
+    if (fading) {
+        pending = params;
+        pendingLimited = stiffnessLimited;
+        hasPending = true;
+    } else {
+        startFade(params, stiffnessLimited);
+    }
+}
+
 void Session::Impl::drainCommands() noexcept {
     // Bounded: at most the queue's capacity per tick (the producer cannot outrun a drain).
     for (std::size_t i = 0; i < commands.capacity() && commands.tryPop(command); ++i) {
         switch (command.kind) {
             case Command::Kind::SetCoupling:
-                if (fading) {
-                    pending = command.coupling;
-                    hasPending = true;
-                } else {
-                    startFade(command.coupling);
-                }
+                setCoupling(command.coupling, command.stiffnessLimited);
                 break;
             case Command::Kind::SetProxy:
                 proxy.setParams(command.proxy);
@@ -368,7 +395,7 @@ void Session::Impl::tick(double timeSeconds) noexcept {
                 fading = false;
                 if (hasPending) {
                     hasPending = false;
-                    startFade(pending);
+                    startFade(pending, pendingLimited);
                 }
             }
         } else {
@@ -436,6 +463,7 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     s.faulted = faultedNow;
     s.clamped = clamped;
     s.mode = couplings[static_cast<std::size_t>(active)].params().mode;
+    s.stiffnessLimited = limited[static_cast<std::size_t>(active)];
     s.fading = fading;
     s.faults = guard.faultCount();
     s.tissueForce = tissueForce;
@@ -476,7 +504,8 @@ Session::Session(std::shared_ptr<const Scene> scene, Device& device, const Sessi
         throw ValueError("session: expected the device's maxForceN to be finite and > 0, found " +
                          num(spec.maxForceN));
     }
-    mImpl = std::make_unique<Impl>(std::move(scene), device, params);
+    mStiffnessLimited = limitStiffnessToDevice(mParams.coupling, spec);
+    mImpl = std::make_unique<Impl>(std::move(scene), device, mParams, mStiffnessLimited);
 }
 
 Session::~Session() { stop(); }
@@ -521,10 +550,13 @@ bool Session::popTrace(Snapshot& out) noexcept { return mImpl->trace.pop(out); }
 std::uint64_t Session::traceDropped() const noexcept { return mImpl->trace.dropped(); }
 
 bool Session::send(const Command& command) {
+    Command checked = command;
+    checked.stiffnessLimited = false;
     switch (command.kind) {
         case Command::Kind::SetCoupling:
             validateCouplingParams(command.coupling);
             requireSourceData(*mImpl->scene, command.coupling);
+            checked.stiffnessLimited = limitStiffnessToDevice(checked.coupling, mImpl->spec);
             break;
         case Command::Kind::SetProxy:
             validateProxyParams(command.proxy);
@@ -536,7 +568,7 @@ bool Session::send(const Command& command) {
             throw ValueError("session: expected a known command kind, found " +
                              std::to_string(static_cast<int>(command.kind)));
     }
-    return mImpl->commands.tryPush(command);
+    return mImpl->commands.tryPush(checked);
 }
 
 ServoStats Session::stats() const noexcept { return mImpl->loop.stats(); }

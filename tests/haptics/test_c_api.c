@@ -206,12 +206,75 @@ static void test_press(void) {
     palp_session_release(again);
 }
 
+/* A VC session on @p scene (the AVC phantom) whose hand presses 4 mm into the skin and holds:
+ * after 600 ticks the proxy is in contact and the snapshot's stiffness is k. */
+static palp_session* pressed_session(palp_scene* scene, const palp_session_params* params) {
+    palp_trajectory path;
+    CHECK(palp_trajectory_default(PALP_TRAJECTORY_PRESS, &path) == PALP_OK);
+    path.centre[0] = 0.002;
+    path.centre[1] = -0.005;
+    path.centre[2] = 0.001;
+    path.direction[0] = 0;
+    path.direction[1] = 1;
+    path.direction[2] = 0;
+    path.depth = 0.009;
+    path.press_seconds = 0.4;
+    path.hold_seconds = 10.0;
+    palp_session* session = NULL;
+    CHECK(palp_session_create_simulated(scene, params, &path, &session) == PALP_OK);
+    palp_snapshot s;
+    if (session) CHECK(palp_session_step(session, 600, &s) == PALP_OK);
+    if (session) CHECK(s.contact_count == 1);
+    return session;
+}
+
+/* Stiffness above the device's maximum (3D Systems Touch X: 1480 N/m) is lowered to it at
+ * creation and by set_params, reported in get_params and on the snapshot. */
+static void test_stiffness_limit(palp_scene* scene) {
+    palp_session_params params;
+    palp_session_params_default(&params);
+    params.mode = PALP_MODE_VC;
+    params.stiffness = 2000;
+    params.max_stiffness = 2400;
+    params.cross_fade_seconds = 0;
+    palp_session* session = pressed_session(scene, &params);
+    if (!session) return;
+    palp_session_params now;
+    CHECK(palp_session_get_params(session, &now) == PALP_OK);
+    CHECK(now.max_stiffness == 1480.0 && now.stiffness == 1480.0);
+    palp_snapshot s;
+    CHECK(palp_session_step(session, 1, &s) == PALP_OK);
+    CHECK(s.stiffness == 1480.0);
+    CHECK(s.stiffness_limited == 1);
+    now.stiffness = 400;
+    CHECK(palp_session_set_params(session, &now) == PALP_OK);
+    CHECK(palp_session_step(session, 1, &s) == PALP_OK);
+    CHECK(s.stiffness == 400.0);
+    CHECK(s.stiffness_limited == 0);
+    now.max_stiffness = 5000;
+    CHECK(palp_session_set_params(session, &now) == PALP_OK);
+    CHECK(palp_session_get_params(session, &now) == PALP_OK);
+    CHECK(now.max_stiffness == 1480.0 && now.stiffness == 400.0);
+    CHECK(palp_session_step(session, 1, &s) == PALP_OK);
+    CHECK(s.stiffness_limited == 1);
+    palp_session_release(session);
+}
+
 int main(void) {
     CHECK(strcmp(palp_version(), "0.1.0") == 0);
     CHECK(strcmp(palp_status_string(PALP_ERROR_IO), "PALP_ERROR_IO") == 0);
     CHECK(strcmp(palp_last_error(), "") == 0);
     test_errors();
     test_press();
+    palp_volume* volume = NULL;
+    CHECK(palp_volume_make_phantom("avc", 0, NULL, 1e-3, &volume) == PALP_OK);
+    palp_scene* scene = NULL;
+    if (volume) CHECK(palp_scene_from_volume(volume, -500.0, 500.0, &scene) == PALP_OK);
+    palp_volume_release(volume);
+    if (scene) {
+        test_stiffness_limit(scene);
+    }
+    palp_scene_release(scene);
     if (gFailures)
         fprintf(stderr, "test_c_api: %d failure(s)\n", gFailures);
     else

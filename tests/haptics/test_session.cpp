@@ -458,6 +458,76 @@ TEST_F(SessionTest, PassivityObserverBooksOnlyTheForceSent) {
     EXPECT_GT(clampedTicks, 0);
 }
 
+// The device's stability limit: a coupling asking for more than the Touch X's 1480 N/m is
+// rendered at 1480 N/m (at construction and through send()), flagged on the session, in
+// params() and on every snapshot; one within the limit is untouched.
+TEST_F(SessionTest, StiffnessAboveTheDeviceLimitIsClamped) {
+    const double limit = touchX().maxStiffnessNpm;
+    ASSERT_GT(limit, 0);
+
+    CouplingParams c = params(CouplingMode::VC).coupling;
+    c.baseStiffness = 2 * limit;
+    c.maxStiffness = 3 * limit;
+    EXPECT_TRUE(limitStiffnessToDevice(c, touchX()));
+    EXPECT_EQ(c.maxStiffness, limit);
+    EXPECT_EQ(c.baseStiffness, limit);
+    EXPECT_FALSE(limitStiffnessToDevice(c, touchX()));  // already within: unchanged
+    DeviceSpec unlimited = touchX();
+    unlimited.maxStiffnessNpm = 0;  // no limit known
+    c.maxStiffness = 3 * limit;
+    EXPECT_FALSE(limitStiffnessToDevice(c, unlimited));
+    EXPECT_EQ(c.maxStiffness, 3 * limit);
+
+    // VC at twice the limit, pressed ~2 mm: F = limit D, not 2 limit D.
+    PathDevice dev({{0, at(0.004, -0.004, 0.003)},
+                    {0.3, at(0.004, 0.002, 0.003)},
+                    {1.0, at(0.004, 0.002, 0.003)}});
+    SessionParams p = params(CouplingMode::VC);
+    p.coupling.baseStiffness = 2 * limit;
+    p.coupling.maxStiffness = 3 * limit;
+    p.crossFadeSeconds = 0;
+    Session session(sScene, dev, p);
+    EXPECT_TRUE(session.stiffnessLimited());
+    EXPECT_EQ(session.params().coupling.maxStiffness, limit);
+    EXPECT_EQ(session.params().coupling.baseStiffness, limit);
+    Snapshot s;
+    for (int i = 0; i < 600; ++i) {
+        s = session.step();
+        ASSERT_TRUE(s.stiffnessLimited) << "tick " << i;
+        ASSERT_LE(s.stiffness, limit) << "tick " << i;
+    }
+    EXPECT_EQ(s.contactCount, 1);
+    EXPECT_GT(s.distance, 1e-3);
+    EXPECT_NEAR(s.force.norm(), limit * s.distance, 1e-9);
+    EXPECT_FALSE(s.clamped);  // 1480 N/m x ~2 mm is below the 7.9 N maximum
+
+    // Through send(): back within the limit (flag off), then AVC whose k_max is above it.
+    Command within;
+    within.kind = Command::Kind::SetCoupling;
+    within.coupling = params(CouplingMode::VC).coupling;  // 300 / 1400 N/m
+    ASSERT_TRUE(session.send(within));
+    s = session.step();
+    EXPECT_FALSE(s.stiffnessLimited);
+    EXPECT_EQ(s.stiffness, 300);
+    Command avc;
+    avc.kind = Command::Kind::SetCoupling;
+    avc.coupling = params(CouplingMode::AVC).coupling;
+    avc.coupling.referenceLength = 0.08;  // plate at ~10 mm: m = 8, k_s m = 2400 N/m
+    avc.coupling.maxMultiplier = 8;
+    avc.coupling.maxStiffness = 2400;
+    avc.coupling.bundle.length = 0.03;
+    ASSERT_TRUE(session.send(avc));
+    double largest = 0;
+    for (int i = 0; i < 400; ++i) {
+        s = session.step();
+        largest = std::max(largest, s.stiffness);
+        ASSERT_LE(s.stiffness, limit + 1e-9) << "tick " << i;
+    }
+    EXPECT_TRUE(s.stiffnessLimited);
+    EXPECT_EQ(s.mode, CouplingMode::AVC);
+    EXPECT_GT(largest, 0.99 * limit);  // the limit really binds above the plate
+}
+
 // A device that stalls the servo thread for 15 ms every 50th tick, so the real-time loop
 // overruns and skips deadlines (its nominal clock then runs ahead of ticks x T).
 class StallingDevice final : public Device {

@@ -134,7 +134,9 @@ typedef struct palp_session_params {
     double stiffness;        /**< k_s, N/m: stiffness of the surface itself */
     double reference_length; /**< L_ref, m: m(L) = clamp(L_ref / L, 1, max_multiplier) */
     double max_multiplier;   /**< m_max (>= 1) */
-    double max_stiffness;    /**< k_max, N/m: k is always clamped here */
+    double max_stiffness;    /**< k_max, N/m: k is always clamped here; above the device's
+                                  maximum stiffness both k_max and k_s are lowered to it
+                                  (palp_snapshot.stiffness_limited says so) */
     double damping;          /**< b, N s/m, on v_proxy - v_probe */
     double ray_length;       /**< L_max, m */
     int ring_count;          /**< low-pass ring rays (0..47) */
@@ -228,6 +230,9 @@ typedef struct palp_snapshot {
     int sticking, gate_open, faulted, clamped, fading;
     palp_coupling_mode mode;
     uint64_t faults; /**< ticks so far whose force was non-finite (last good held) */
+    /** 1: the coupling in force asked for more stiffness than the device renders stably and
+     *  k_max (and k_s if above it) were lowered to the device's maximum stiffness. */
+    int stiffness_limited;
 } palp_snapshot;
 
 typedef struct palp_latency {
@@ -281,7 +286,8 @@ palp_status palp_session_set_mode(palp_session* session, palp_coupling_mode mode
  *  The fields fixed at creation (device, period, start-up gate, cross-fade time, workspace,
  *  trace capacity, servo) must equal the session's: PALP_ERROR_INVALID_ARGUMENT otherwise. */
 palp_status palp_session_set_params(palp_session* session, const palp_session_params* params);
-/** The parameters in force after the last successful set call (or creation). */
+/** The parameters in force after the last successful set call (or creation), with stiffness
+ *  and max_stiffness as rendered (lowered to the device's maximum when they were above). */
 palp_status palp_session_get_params(const palp_session* session, palp_session_params* out);
 /** Producer: set the passivity observer's energy back to zero. */
 palp_status palp_session_reset_observer(palp_session* session);

@@ -97,6 +97,14 @@ struct SessionParams {
 /// @throw palp::ValueError naming the field (through the parts' validators too).
 void validateSessionParams(const SessionParams& params);
 
+/// The device's stability limit on a coupling: maxStiffness is lowered to the device's
+/// maxStiffnessNpm (the highest stiffness it renders stably) and baseStiffness to maxStiffness
+/// when above it. A spec with maxStiffnessNpm <= 0 or non-finite sets no limit. Returns whether
+/// anything was lowered. Session applies this to every coupling it renders (see Session); the
+/// sampled-wall bound for other servo periods (clampToDevice in study.h) stays the caller's.
+/// @par Real-time  noexcept, allocation-free.
+bool limitStiffnessToDevice(CouplingParams& params, const DeviceSpec& spec) noexcept;
+
 /// One tick's state, published lock-free for viewers and traces. Plain data.
 struct Snapshot {
     std::uint64_t tick = 0;
@@ -113,6 +121,9 @@ struct Snapshot {
     int rays = 0;
     bool sticking = false, gateOpen = false, faulted = false, clamped = false;
     CouplingMode mode = CouplingMode::VC;
+    /// The coupling in force (the newest one during a fade) asked for a maxStiffness or
+    /// baseStiffness above the device's maxStiffnessNpm and renders the lowered one.
+    bool stiffnessLimited = false;
     bool fading = false;       ///< a SetCoupling cross-fade is running
     double fadeWeight = 1;     ///< weight of the newest coupling params (0..1)
     std::uint64_t faults = 0;  ///< ticks so far whose force was non-finite (held last good)
@@ -124,13 +135,22 @@ struct Snapshot {
     unsigned femFlags = 0;       ///< fem::StepFlag bits | DeformableBody::kRefitFailed
 };
 
-/// A parameter change sent to a running session; applied at a tick boundary and cross-faded.
+/// A parameter change sent to a running session; applied at a tick boundary (coupling changes
+/// cross-faded).
 struct Command {
-    enum class Kind : std::uint8_t { SetCoupling, SetProxy, SetPassivityControl, ResetObserver };
+    enum class Kind : std::uint8_t {
+        SetCoupling,
+        SetProxy,
+        SetPassivityControl,
+        ResetObserver,
+    };
     Kind kind = Kind::SetCoupling;
     CouplingParams coupling;  ///< SetCoupling (validated by send())
     ProxyParams proxy;        ///< SetProxy
     bool flag = false;        ///< SetPassivityControl
+    /// Set by send() (ignored on input): the coupling's stiffness was lowered to the device's
+    /// limit (limitStiffnessToDevice); shown as Snapshot::stiffnessLimited.
+    bool stiffnessLimited = false;
 };
 
 /// Device + proxy + coupling + passivity + safety, ticked by a ServoLoop (start()) or by the
@@ -162,6 +182,13 @@ struct Command {
 /// sees it). A free proxy (no contact) that a fast-moving surface overtakes is pushed back out
 /// along the shortest axis-aligned exit.
 ///
+/// Device stability limit: every coupling the session renders (the one in SessionParams and
+/// each SetCoupling) goes through limitStiffnessToDevice(), so k never exceeds the
+/// device's maxStiffnessNpm whatever the caller asked for. The session clamps rather than
+/// refuses (as `palp palpate` does), so one set of parameters works on every device class;
+/// the clamp is reported by stiffnessLimited(), params() (the lowered values) and every
+/// Snapshot's stiffnessLimited.
+///
 /// Time: Snapshot::timeSeconds never goes backwards. Offline steps advance it by T; a
 /// real-time run continues from the last tick's time + T on the servo loop's nominal clock
 /// (which skips the deadlines of overrun ticks); step() after a run continues from the run's
@@ -190,8 +217,10 @@ class Session final : public ServoTask {
 
     /// Viewer: the newest published snapshot.
     const Snapshot& latest() noexcept;
-    /// Producer: queue a command; false when the queue is full. @throw palp::ValueError for
-    /// invalid parameters (checked here, off the servo thread).
+    /// Producer: queue a command; false when the queue is full (nothing queued). A coupling
+    /// (SetCoupling) is first limited to the device (limitStiffnessToDevice).
+    /// @throw palp::ValueError for invalid parameters (checked here, off the servo thread;
+    /// nothing is queued).
     bool send(const Command& command);
 
     /// Trace reader (one thread): the oldest unread snapshot of the trace ring; false when
@@ -205,7 +234,10 @@ class Session final : public ServoTask {
 
     ServoStats stats() const noexcept;
     const RealtimeStatus& realtime() const noexcept;
+    /// The parameters given at construction, with the coupling limited to the device.
     const SessionParams& params() const noexcept { return mParams; }
+    /// Whether construction lowered the coupling's stiffness to the device's limit.
+    bool stiffnessLimited() const noexcept { return mStiffnessLimited; }
     const DeviceSpec& deviceSpec() const noexcept;
     /// The session's deformable body (nullptr for a rigid scene). Read it only while the
     /// session is stopped (the servo thread owns it while running).
@@ -217,6 +249,7 @@ class Session final : public ServoTask {
     struct Impl;
     std::unique_ptr<Impl> mImpl;
     SessionParams mParams;
+    bool mStiffnessLimited = false;
 };
 
 }  // namespace palp::haptics
