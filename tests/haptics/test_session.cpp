@@ -528,6 +528,108 @@ TEST_F(SessionTest, StiffnessAboveTheDeviceLimitIsClamped) {
     EXPECT_GT(largest, 0.99 * limit);  // the limit really binds above the plate
 }
 
+// A device whose position is a zero-order hold (updated every kHold ticks) of a sinusoidal
+// press y(t) = -A cos(2 pi f t) into the skin at y = 0, while its velocity is exact: the wall
+// feels the position late, pushes less on the way in than on the way out, and so returns more
+// energy than it received (an active, energy-generating loop).
+class HeldPositionDevice final : public Device {
+  public:
+    static constexpr int kHold = 3;
+    static constexpr double kAmplitude = 0.002, kFrequency = 2;
+    DeviceState read() noexcept override {
+        const double t = static_cast<double>(mTick) * kT;
+        if (mTick % kHold == 0) mHeld = position(t);
+        DeviceState s;
+        s.position = mHeld;
+        s.velocity =
+            at(0, 2 * M_PI * kFrequency * kAmplitude * std::sin(2 * M_PI * kFrequency * t), 0);
+        s.timestampSeconds = t;
+        ++mTick;
+        mLast = s;
+        mTrue = position(t);
+        return s;
+    }
+    void write(const Eigen::Vector3d&) noexcept override {}
+    const DeviceSpec& spec() const noexcept override { return omega3(); }
+    // A device with room to dissipate: 20 N s/m of rendered damping (the Touch X's 3 N s/m
+    // cannot absorb this wall's surplus, 1000 N/m x 1 ms, as fast as it comes back).
+    static const DeviceSpec& omega3() {
+        const DeviceSpec* s = findDeviceSpec("Force Dimension omega.3");
+        EXPECT_NE(s, nullptr);
+        return *s;
+    }
+    static Eigen::Vector3d position(double t) {
+        return at(0.004, -kAmplitude * std::cos(2 * M_PI * kFrequency * t), 0.003);
+    }
+    const DeviceState& last() const { return mLast; }
+    const Eigen::Vector3d& truePosition() const { return mTrue; }
+
+  private:
+    std::uint64_t mTick = 0;
+    Eigen::Vector3d mHeld{Eigen::Vector3d::Zero()}, mTrue{Eigen::Vector3d::Zero()};
+    DeviceState mLast;
+};
+
+// The passivity controller inside Session: on the held-position wall the observer's W goes
+// negative without the controller (the energy the wall generated, estimated independently from
+// the hold error, is what W lacks once the spring is relaxed); with the controller W stays at
+// or above zero at every tick, the added damping stays within the device's maxDampingNspm, and
+// the force stays finite and bounded by the spring plus that damping.
+TEST_F(SessionTest, PassivityControllerKeepsAnActiveWallPassive) {
+    constexpr double k = 1000;  // N/m; the omega.3 renders up to 14500
+    constexpr int kTicks = 3000;  // six press cycles
+    struct Run {
+        double minW = 0, finalW = 0, generated = 0, maxAlpha = 0, maxForce = 0, maxBound = 0;
+        int dampedTicks = 0;
+        bool finite = true;
+    };
+    auto run = [&](bool control) {
+        HeldPositionDevice dev;
+        SessionParams p = params(CouplingMode::VC);
+        p.coupling.baseStiffness = k;
+        p.coupling.maxStiffness = k;
+        p.passivityControl = control;
+        Session session(sScene, dev, p);
+        Run r;
+        for (int i = 0; i < kTicks; ++i) {
+            const Snapshot& s = session.step();
+            r.finite = r.finite && s.force.allFinite() && std::isfinite(s.observerEnergy);
+            r.minW = std::min(r.minW, s.observerEnergy);
+            r.maxAlpha = std::max(r.maxAlpha, s.addedDamping);
+            r.dampedTicks += s.addedDamping > 0 ? 1 : 0;
+            r.maxForce = std::max(r.maxForce, s.force.norm());
+            // Spring on the held probe plus the controller's damping on the true velocity.
+            const double v = dev.last().velocity.norm();
+            r.maxBound = std::max(r.maxBound, s.force.norm() - k * s.distance - s.addedDamping * v);
+            // The hold error's power: the spring k (y - y_held) pushes with the true motion.
+            if (s.contactCount > 0 && s.gateOpen) {
+                r.generated += kT * k * (dev.truePosition().y() - dev.last().position.y()) *
+                               dev.last().velocity.y();
+            }
+            r.finalW = s.observerEnergy;
+        }
+        return r;
+    };
+    const Run passive = run(false);
+    const Run controlled = run(true);
+    ASSERT_GT(passive.generated, 0);
+    // Without the controller: the probe ends outside (spring relaxed), W is about minus the
+    // energy the hold generated.
+    EXPECT_LT(passive.finalW, -0.5 * passive.generated);
+    EXPECT_LT(passive.minW, -0.5 * passive.generated);
+    EXPECT_EQ(passive.dampedTicks, 0);
+    // With it: never negative (to rounding), damping within the device's cap, force bounded.
+    EXPECT_GE(controlled.minW, -1e-12);
+    EXPECT_GT(controlled.dampedTicks, 0);
+    EXPECT_LE(controlled.maxAlpha, HeldPositionDevice::omega3().maxDampingNspm);
+    EXPECT_TRUE(controlled.finite);
+    EXPECT_LE(controlled.maxForce, HeldPositionDevice::omega3().maxForceN);
+    EXPECT_LE(controlled.maxBound, 1e-9);
+    RecordProperty("W_final_without_J", std::to_string(passive.finalW));
+    RecordProperty("W_min_with_J", std::to_string(controlled.minW));
+    RecordProperty("generated_J", std::to_string(passive.generated));
+}
+
 // A device that stalls the servo thread for 15 ms every 50th tick, so the real-time loop
 // overruns and skips deadlines (its nominal clock then runs ahead of ticks x T).
 class StallingDevice final : public Device {
