@@ -806,45 +806,25 @@ palp_status palp_session_set_params(palp_session* session, const palp_session_pa
                                    " to stay as at creation (it cannot change while a session "
                                    "exists), found a different value");
         }
-        ph::Command coupling;
-        coupling.kind = ph::Command::Kind::SetCoupling;
-        coupling.coupling = toCoupling(*params);
-        ph::Command proxy;
-        proxy.kind = ph::Command::Kind::SetProxy;
-        proxy.proxy = toProxy(*params);
-        ph::Command passivity;
-        passivity.kind = ph::Command::Kind::SetPassivityControl;
-        passivity.flag = params->passivity_control != 0;
-        ph::validateProxyParams(proxy.proxy);  // all three checked before any is sent
-
-        palp_session_params& now = session->params;
-        if (!session->session->send(coupling)) {
-            return fail(PALP_ERROR_QUEUE_FULL, "palp_session_set_params: command queue full");
-        }
-        ph::CouplingParams inForce = coupling.coupling;  // what the session renders
+        // One SetAll command: the coupling, friction and passivity changes take one queue slot
+        // and land on the same tick, so a full queue refuses all of them (all or nothing).
+        ph::Command all;
+        all.kind = ph::Command::Kind::SetAll;
+        all.coupling = toCoupling(*params);
+        all.proxy = toProxy(*params);
+        all.flag = params->passivity_control != 0;
+        ph::CouplingParams inForce = all.coupling;  // what the session renders (see send())
         ph::limitStiffnessToDevice(inForce, session->session->deviceSpec());
+        if (!session->session->send(all)) {  // validates everything before queueing anything
+            return fail(PALP_ERROR_QUEUE_FULL,
+                        "palp_session_set_params: command queue full (nothing applied)");
+        }
+        palp_session_params& now = session->params;
         const char* device = now.device;
-        const palp_session_params before = now;
         now = *params;
         now.device = device;
         now.stiffness = inForce.baseStiffness;
         now.max_stiffness = inForce.maxStiffness;
-        now.static_friction = before.static_friction;
-        now.dynamic_friction = before.dynamic_friction;
-        now.passivity_control = before.passivity_control;
-        if (!session->session->send(proxy)) {
-            return fail(PALP_ERROR_QUEUE_FULL,
-                        "palp_session_set_params: command queue full after the coupling change "
-                        "(friction and passivity not applied)");
-        }
-        now.static_friction = params->static_friction;
-        now.dynamic_friction = params->dynamic_friction;
-        if (!session->session->send(passivity)) {
-            return fail(PALP_ERROR_QUEUE_FULL,
-                        "palp_session_set_params: command queue full after the coupling and "
-                        "friction changes (passivity control not applied)");
-        }
-        now.passivity_control = params->passivity_control;
         return PALP_OK;
     });
 }

@@ -335,6 +335,11 @@ void Session::Impl::drainCommands() noexcept {
             case Command::Kind::SetCoupling:
                 setCoupling(command.coupling, command.stiffnessLimited);
                 break;
+            case Command::Kind::SetAll:
+                setCoupling(command.coupling, command.stiffnessLimited);
+                proxy.setParams(command.proxy);
+                passivity.setEnabled(command.flag);
+                break;
             case Command::Kind::SetProxy:
                 proxy.setParams(command.proxy);
                 break;
@@ -554,8 +559,10 @@ bool Session::send(const Command& command) {
     checked.stiffnessLimited = false;
     switch (command.kind) {
         case Command::Kind::SetCoupling:
+        case Command::Kind::SetAll:
             validateCouplingParams(command.coupling);
             requireSourceData(*mImpl->scene, command.coupling);
+            if (command.kind == Command::Kind::SetAll) validateProxyParams(command.proxy);
             checked.stiffnessLimited = limitStiffnessToDevice(checked.coupling, mImpl->spec);
             break;
         case Command::Kind::SetProxy:

@@ -228,6 +228,64 @@ static palp_session* pressed_session(palp_scene* scene, const palp_session_param
     return session;
 }
 
+/* palp_session_set_params is all or nothing: with one free slot in the command queue the
+ * coupling, friction and passivity changes all go through (one command); with none, nothing
+ * changes (neither get_params nor what the servo renders). */
+static void test_set_params_all_or_nothing(palp_scene* scene) {
+    palp_session_params params;
+    palp_session_params_default(&params);
+    params.mode = PALP_MODE_VC;
+    params.stiffness = 300;
+    params.static_friction = 0;
+    params.dynamic_friction = 0;
+    params.cross_fade_seconds = 0; /* a coupling change shows on the next tick */
+    palp_session* session = pressed_session(scene, &params);
+    if (!session) return;
+    palp_snapshot s;
+    CHECK(palp_session_step(session, 1, &s) == PALP_OK);
+    CHECK(s.stiffness == 300.0);
+
+    /* Fill the queue (nothing drains it while no tick runs). */
+    int queued = 0;
+    while (queued < 1000 && palp_session_reset_observer(session) == PALP_OK) ++queued;
+    CHECK(queued > 1 && queued < 1000);
+    palp_session_params change = params;
+    change.stiffness = 500;
+    change.static_friction = 0.4;
+    change.dynamic_friction = 0.2;
+    change.passivity_control = 1;
+    CHECK(palp_session_set_params(session, &change) == PALP_ERROR_QUEUE_FULL);
+    palp_session_params now;
+    CHECK(palp_session_get_params(session, &now) == PALP_OK);
+    CHECK(now.stiffness == 300.0 && now.static_friction == params.static_friction &&
+          now.passivity_control == params.passivity_control);
+    CHECK(palp_session_step(session, 1, &s) == PALP_OK); /* drains the queue */
+    CHECK(s.stiffness == 300.0);
+
+    /* One free slot: the whole change fits. */
+    for (int i = 0; i < queued - 1; ++i) CHECK(palp_session_reset_observer(session) == PALP_OK);
+    CHECK(palp_session_set_params(session, &change) == PALP_OK);
+    CHECK(palp_session_get_params(session, &now) == PALP_OK);
+    CHECK(now.stiffness == 500.0 && now.static_friction == 0.4 && now.dynamic_friction == 0.2 &&
+          now.passivity_control == 1);
+    CHECK(palp_session_set_params(session, &params) == PALP_ERROR_QUEUE_FULL); /* full again */
+    CHECK(palp_session_get_params(session, &now) == PALP_OK);
+    CHECK(now.stiffness == 500.0 && now.static_friction == 0.4);
+    CHECK(palp_session_step(session, 1, &s) == PALP_OK);
+    CHECK(s.stiffness == 500.0);
+
+    /* An invalid field anywhere leaves everything as it was. */
+    palp_session_params bad = change;
+    bad.stiffness = 700;
+    bad.dynamic_friction = 0.9; /* > static_friction */
+    CHECK(palp_session_set_params(session, &bad) == PALP_ERROR_INVALID_ARGUMENT);
+    CHECK(palp_session_get_params(session, &now) == PALP_OK);
+    CHECK(now.stiffness == 500.0 && now.dynamic_friction == 0.2);
+    CHECK(palp_session_step(session, 1, &s) == PALP_OK);
+    CHECK(s.stiffness == 500.0);
+    palp_session_release(session);
+}
+
 /* Stiffness above the device's maximum (3D Systems Touch X: 1480 N/m) is lowered to it at
  * creation and by set_params, reported in get_params and on the snapshot. */
 static void test_stiffness_limit(palp_scene* scene) {
@@ -272,6 +330,7 @@ int main(void) {
     if (volume) CHECK(palp_scene_from_volume(volume, -500.0, 500.0, &scene) == PALP_OK);
     palp_volume_release(volume);
     if (scene) {
+        test_set_params_all_or_nothing(scene);
         test_stiffness_limit(scene);
     }
     palp_scene_release(scene);

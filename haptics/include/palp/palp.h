@@ -282,9 +282,13 @@ palp_status palp_session_pop_trace(palp_session* session, palp_snapshot* out, in
 
 /** Producer: switch the coupling mode (cross-faded). PALP_ERROR_QUEUE_FULL: retry later. */
 palp_status palp_session_set_mode(palp_session* session, palp_coupling_mode mode);
-/** Producer: apply the coupling, friction and passivity fields of @p params (cross-faded).
+/** Producer: apply the coupling, friction and passivity fields of @p params (the coupling
+ *  cross-faded). All or nothing: everything is validated first, and the three changes travel
+ *  as one command that takes effect at one tick, so on PALP_ERROR_QUEUE_FULL (retry later) or
+ *  any other error nothing was applied and palp_session_get_params is unchanged.
  *  The fields fixed at creation (device, period, start-up gate, cross-fade time, workspace,
- *  trace capacity, servo) must equal the session's: PALP_ERROR_INVALID_ARGUMENT otherwise. */
+ *  trace capacity, servo) must equal the session's: PALP_ERROR_INVALID_ARGUMENT otherwise.
+ *  Stiffness above the device's maximum is lowered to it (see max_stiffness). */
 palp_status palp_session_set_params(palp_session* session, const palp_session_params* params);
 /** The parameters in force after the last successful set call (or creation), with stiffness
  *  and max_stiffness as rendered (lowered to the device's maximum when they were above). */

@@ -143,11 +143,15 @@ struct Command {
         SetProxy,
         SetPassivityControl,
         ResetObserver,
+        /// coupling, proxy and flag together: one queue slot, applied at one tick boundary, so
+        /// a full queue refuses all three and none is applied alone (the coupling part then
+        /// follows SetCoupling's cross-fade rules).
+        SetAll,
     };
     Kind kind = Kind::SetCoupling;
-    CouplingParams coupling;  ///< SetCoupling (validated by send())
-    ProxyParams proxy;        ///< SetProxy
-    bool flag = false;        ///< SetPassivityControl
+    CouplingParams coupling;  ///< SetCoupling, SetAll (validated by send())
+    ProxyParams proxy;        ///< SetProxy, SetAll
+    bool flag = false;        ///< SetPassivityControl, SetAll: the controller on or off
     /// Set by send() (ignored on input): the coupling's stiffness was lowered to the device's
     /// limit (limitStiffnessToDevice); shown as Snapshot::stiffnessLimited.
     bool stiffnessLimited = false;
@@ -183,7 +187,7 @@ struct Command {
 /// along the shortest axis-aligned exit.
 ///
 /// Device stability limit: every coupling the session renders (the one in SessionParams and
-/// each SetCoupling) goes through limitStiffnessToDevice(), so k never exceeds the
+/// each SetCoupling / SetAll) goes through limitStiffnessToDevice(), so k never exceeds the
 /// device's maxStiffnessNpm whatever the caller asked for. The session clamps rather than
 /// refuses (as `palp palpate` does), so one set of parameters works on every device class;
 /// the clamp is reported by stiffnessLimited(), params() (the lowered values) and every
@@ -218,7 +222,7 @@ class Session final : public ServoTask {
     /// Viewer: the newest published snapshot.
     const Snapshot& latest() noexcept;
     /// Producer: queue a command; false when the queue is full (nothing queued). A coupling
-    /// (SetCoupling) is first limited to the device (limitStiffnessToDevice).
+    /// (SetCoupling, SetAll) is first limited to the device (limitStiffnessToDevice).
     /// @throw palp::ValueError for invalid parameters (checked here, off the servo thread;
     /// nothing is queued).
     bool send(const Command& command);
