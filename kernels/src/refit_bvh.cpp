@@ -24,6 +24,41 @@ constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr float kBoxSlack = 2.0f * (3.0f * std::numeric_limits<float>::epsilon() * 0.5f) /
                             (1.0f - 3.0f * std::numeric_limits<float>::epsilon() * 0.5f);
 constexpr std::size_t kNoParent = std::numeric_limits<std::size_t>::max();
+constexpr int kSahDepth = 32;
+constexpr std::size_t kBins = 16;
+
+/// A box for the build's surface-area heuristic.
+struct AreaBox {
+    std::array<float, 3> lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf};
+    void grow(const float* p) noexcept {
+        for (std::size_t k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], p[k]);
+            hi[k] = std::max(hi[k], p[k]);
+        }
+    }
+    void grow(const AreaBox& b) noexcept {
+        for (std::size_t k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], b.lo[k]);
+            hi[k] = std::max(hi[k], b.hi[k]);
+        }
+    }
+    double area() const noexcept {
+        if (!(hi[0] >= lo[0])) return 0;
+        const double x = static_cast<double>(hi[0]) - lo[0], y = static_cast<double>(hi[1]) - lo[1],
+                     z = static_cast<double>(hi[2]) - lo[2];
+        return x * y + y * z + z * x;
+    }
+};
+
+struct Bin {
+    AreaBox box;
+    std::size_t count = 0;
+};
+
+std::size_t binOf(float c, float lo, double scale) noexcept {
+    const double b = (static_cast<double>(c) - lo) * scale;
+    return std::min(kBins - 1, static_cast<std::size_t>(std::max(0.0, b)));
+}
 
 bool finite3(const std::array<float, 3>& a) noexcept {
     return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
@@ -36,7 +71,6 @@ struct WatertightRay {
     int kx, ky, kz;
     float sx, sy, sz;
     std::array<float, 3> invDir;
-    std::array<int, 3> nearSide;  // per axis: 1 when the direction is negative
 
     bool init(const std::array<float, 3>& o, const std::array<float, 3>& d) noexcept {
         org = o;
@@ -51,17 +85,14 @@ struct WatertightRay {
         sx = d[static_cast<std::size_t>(kx)] / dz;
         sy = d[static_cast<std::size_t>(ky)] / dz;
         sz = 1.0f / dz;
-        for (std::size_t i = 0; i < 3; ++i) {
-            invDir[i] = 1.0f / d[i];  // +-inf for a zero component
-            nearSide[i] = d[i] < 0 ? 1 : 0;
-        }
+        for (std::size_t i = 0; i < 3; ++i) invDir[i] = 1.0f / d[i];  // +-inf for a zero one
         return true;
     }
 
     /// Slab test of the box against (tnear, tfar]. NaN slab distances (a ray in the plane of
     /// a flat box) are ignored, which keeps the test conservative.
     bool hitsBox(const std::array<float, 3>& lo, const std::array<float, 3>& hi, float tnear,
-                 float tfar) const noexcept {
+                 float tfar, float& tEntry) const noexcept {
         float t0 = tnear, t1 = tfar;
         for (std::size_t i = 0; i < 3; ++i) {
             float tn = (lo[i] - org[i]) * invDir[i];
@@ -73,6 +104,7 @@ struct WatertightRay {
             t1 = tf < t1 ? tf : t1;
             if (t0 > t1) return false;
         }
+        tEntry = t0;
         return true;
     }
 
@@ -152,10 +184,14 @@ RefitMesh::RefitMesh(const TriangleMesh& mesh, int leafSize) {
     mLimit.lo = {-kInf, -kInf, -kInf};
     mLimit.hi = {kInf, kInf, kInf};
 
-    // Median split on triangle centroids along the axis of their widest spread: balanced, so
-    // the depth is ceil(log2(#T / leafSize)) + 1 at most.
+    // Binned SAH on triangle centroids (rest positions) down to depth kSahDepth, median splits
+    // below it, so the depth stays under kSahDepth + log2(#T) + 1 <= kMaxDepth.
     const std::size_t nt = triangleCount();
     std::vector<std::array<float, 3>> centroid(nt);
+    std::vector<AreaBox> triBox(nt);
+    for (std::size_t t = 0; t < nt; ++t)
+        for (std::size_t c = 0; c < 3; ++c)
+            triBox[t].grow(&mPositions[3 * static_cast<std::size_t>(mIndices[3 * t + c])]);
     for (std::size_t t = 0; t < nt; ++t)
         for (std::size_t k = 0; k < 3; ++k)
             centroid[t][k] =
@@ -194,14 +230,66 @@ RefitMesh::RefitMesh(const TriangleMesh& mesh, int leafSize) {
         std::size_t axis = 0;
         for (std::size_t k = 1; k < 3; ++k)
             if (hi[k] - lo[k] > hi[axis] - lo[axis]) axis = k;
-        const std::size_t mid = task.begin + n / 2;
+        std::size_t mid = task.begin + n / 2;
         const auto first = mSlotPrim.begin() + static_cast<std::ptrdiff_t>(task.begin);
-        std::nth_element(first, mSlotPrim.begin() + static_cast<std::ptrdiff_t>(mid),
-                         mSlotPrim.begin() + static_cast<std::ptrdiff_t>(task.end),
-                         [&](std::uint32_t a, std::uint32_t b) {
-                             return centroid[a][axis] < centroid[b][axis] ||
-                                    (centroid[a][axis] == centroid[b][axis] && a < b);
-                         });
+        const auto last = mSlotPrim.begin() + static_cast<std::ptrdiff_t>(task.end);
+        bool split = false;
+        if (task.depth < kSahDepth && hi[axis] > lo[axis]) {
+            // Binned SAH over the centroid extent of every axis (nodes split down to leafSize
+            // regardless of cost: leaves stay small for the refit's sake).
+            double bestCost = std::numeric_limits<double>::infinity();
+            std::size_t bestAxis = 0, bestBin = 0;
+            for (std::size_t k = 0; k < 3; ++k) {
+                if (!(hi[k] > lo[k])) continue;
+                std::array<Bin, kBins> bins{};
+                const double scale = kBins / (static_cast<double>(hi[k]) - lo[k]);
+                for (std::size_t s2 = task.begin; s2 < task.end; ++s2) {
+                    const std::uint32_t t = mSlotPrim[s2];
+                    Bin& b = bins[binOf(centroid[t][k], lo[k], scale)];
+                    ++b.count;
+                    b.box.grow(triBox[t]);
+                }
+                // Sweep from the right, then from the left.
+                std::array<double, kBins> rightCost{};
+                AreaBox acc;
+                std::size_t cnt = 0;
+                for (std::size_t b = kBins - 1; b > 0; --b) {
+                    acc.grow(bins[b].box);
+                    cnt += bins[b].count;
+                    rightCost[b] = acc.area() * static_cast<double>(cnt);
+                }
+                acc = AreaBox{};
+                cnt = 0;
+                for (std::size_t b = 0; b + 1 < kBins; ++b) {
+                    acc.grow(bins[b].box);
+                    cnt += bins[b].count;
+                    if (cnt == 0 || cnt == n) continue;
+                    const double cost = acc.area() * static_cast<double>(cnt) + rightCost[b + 1];
+                    if (cost < bestCost) {
+                        bestCost = cost;
+                        bestAxis = k;
+                        bestBin = b;
+                    }
+                }
+            }
+            if (std::isfinite(bestCost)) {
+                axis = bestAxis;
+                const double scale = kBins / (static_cast<double>(hi[axis]) - lo[axis]);
+                const auto cut = std::partition(first, last, [&](std::uint32_t t) {
+                    return binOf(centroid[t][axis], lo[axis], scale) <= bestBin;
+                });
+                mid = static_cast<std::size_t>(cut - mSlotPrim.begin());
+                split = true;
+            }
+        }
+        if (!split) {
+            // Median split (beyond kSahDepth, or when SAH found nothing): balanced.
+            std::nth_element(first, mSlotPrim.begin() + static_cast<std::ptrdiff_t>(mid), last,
+                             [&](std::uint32_t a, std::uint32_t b) {
+                                 return centroid[a][axis] < centroid[b][axis] ||
+                                        (centroid[a][axis] == centroid[b][axis] && a < b);
+                             });
+        }
         mNodes[id].count = kInner | static_cast<std::uint32_t>(axis);
         // Depth-first: the left child is processed next (it becomes node id + 1), the right
         // child after the whole left subtree.
@@ -272,18 +360,31 @@ bool RefitMesh::traverse(const std::array<float, 3>& org, const std::array<float
     std::uint32_t bestSlot = 0;
     float bestU = 0, bestV = 0;
     bool found = false;
+    // Children are tested at their parent and visited nearest first; the far one waits on the
+    // stack with its entry distance and is dropped when a closer hit has been found since.
+    std::array<float, kMaxDepth> stackT;
+    float entry;
+    if (!ray.hitsBox(mNodes[0].lo, mNodes[0].hi, tnear, best, entry)) return false;
     for (;;) {
         const Node& n = mNodes[node];
-        if (ray.hitsBox(n.lo, n.hi, tnear, best)) {
-            if (n.count & kInner) {
-                const auto axis = static_cast<std::size_t>(n.count & ~kInner);
-                const std::uint32_t left = node + 1, right = n.first;
-                // Near child first; the stack never holds more than depth - 1 entries.
-                const bool flip = ray.nearSide[axis] != 0;
-                stack[static_cast<std::size_t>(top++)] = flip ? left : right;
-                node = flip ? right : left;
+        if (n.count & kInner) {
+            const std::uint32_t left = node + 1, right = n.first;
+            float tl, tr;
+            const bool hl = ray.hitsBox(mNodes[left].lo, mNodes[left].hi, tnear, best, tl);
+            const bool hr = ray.hitsBox(mNodes[right].lo, mNodes[right].hi, tnear, best, tr);
+            if (hl && hr) {
+                const bool leftFirst = tl <= tr;
+                stack[static_cast<std::size_t>(top)] = leftFirst ? right : left;
+                stackT[static_cast<std::size_t>(top)] = leftFirst ? tr : tl;
+                ++top;
+                node = leftFirst ? left : right;
                 continue;
             }
+            if (hl || hr) {
+                node = hl ? left : right;
+                continue;
+            }
+        } else {
             for (std::uint32_t s = n.first; s < n.first + n.count; ++s) {
                 const std::size_t i = 3 * static_cast<std::size_t>(s);
                 float t, u, v;
@@ -300,8 +401,18 @@ bool RefitMesh::traverse(const std::array<float, 3>& org, const std::array<float
                 }
             }
         }
-        if (top == 0) break;
-        node = stack[static_cast<std::size_t>(--top)];
+        // Pop the next subtree whose box starts no later than the best hit so far (its entry
+        // distance is conservative: computed with the slack of hitsBox).
+        bool next = false;
+        while (top > 0) {
+            --top;
+            if (stackT[static_cast<std::size_t>(top)] <= best) {
+                node = stack[static_cast<std::size_t>(top)];
+                next = true;
+                break;
+            }
+        }
+        if (!next) break;
     }
     if (!found || hit == nullptr) return found;
     const std::size_t i = 3 * static_cast<std::size_t>(bestSlot);

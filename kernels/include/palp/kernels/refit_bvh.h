@@ -42,9 +42,11 @@ enum class RefitStatus {
     Rejected,      ///< wrong size or a non-finite coordinate: nothing changed
 };
 
-/// A triangle mesh with a median-split BVH (leaves of at most leafSize triangles) over fixed
-/// topology. Nodes are stored in depth-first order (children after their parent), so a refit is
-/// one reverse sweep over the node array: O(#T), no allocation.
+/// A triangle mesh with a binary BVH over fixed topology, built by binned SAH on the rest
+/// positions (median splits below depth 32 or when centroids coincide; leaves of at most
+/// leafSize triangles). Nodes are stored in depth-first order (children after their parent), so
+/// a refit is one reverse sweep over the node array: O(#T), no allocation. Queries test both
+/// children at their parent and descend into the nearer first.
 ///
 /// @par Threading  Construction, refit() and setLimit() are for one thread at a time and must
 ///      not overlap with queries; any number of threads may query at once between refits.
@@ -53,7 +55,7 @@ enum class RefitStatus {
 ///      kMaxDepth entries (the build guarantees the depth) and visits each node at most once.
 class RefitMesh {
   public:
-    /// Largest tree depth (root = 1); a median split reaches log2(#T) + 1.
+    /// Largest tree depth (root = 1); the build stays below 32 + log2(#T) + 1.
     static constexpr int kMaxDepth = 64;
 
     /// Builds the hierarchy over @p mesh (rest positions). Degenerate triangles are allowed
