@@ -927,17 +927,17 @@ PALP_HOT float runValue(const HitMarch& m, std::int64_t i) noexcept {
 
 /// The next run sample to take after sample @p i, which lies in cell (cx0, cy0, cz0) of a
 /// sub-block that cannot reach the threshold: the first sample estimated past that sub-block
-/// (at most runN), or i + 1 when the samples in between are not all provably inside it. Every
-/// sample it passes over lies in the same sub-block: the estimate stops a whole step short of
-/// the exit, and the last sample passed over is checked on its exact float position (positions
-/// are monotone in i along every axis, so the ones between lie in the sub-block too).
+/// (at most runN), or i + 1 when the samples in between are not all provably inside it. The
+/// last sample passed over is checked on its exact float position (positions are monotone in
+/// i along every axis, so the ones between lie in the sub-block too), so an estimate that
+/// rounding puts one sample too far only costs the jump, never a skipped sample.
 PALP_HOT std::int64_t subBlockJump(const HitMarch& m, std::int64_t i, unsigned cx0, unsigned cy0,
                                    unsigned cz0) noexcept {
     const float ex = (static_cast<float>((cx0 >> 2) * 4) + m.hix - m.qx) * m.ivx + m.farx;
     const float ey = (static_cast<float>((cy0 >> 2) * 4) + m.hiy - m.qy) * m.ivy + m.fary;
     const float ez = (static_cast<float>((cz0 >> 2) * 4) + m.hiz - m.qz) * m.ivz + m.farz;
     const float e = std::min(std::min(ex, ey), std::min(ez, static_cast<float>(m.runN)));
-    const std::int64_t j = std::max(i + 1, static_cast<std::int64_t>(std::max(e, 0.0f)));
+    const std::int64_t j = std::max(i + 1, static_cast<std::int64_t>(std::max(e, 0.0f)) + 1);
     if (j - 1 == i) return j;
     const std::int64_t l = j - 1;  // the last sample passed over
     const unsigned lx = runCell(runPos(m.qx, m.sx, l)), ly = runCell(runPos(m.qy, m.sy, l)),
@@ -1179,7 +1179,7 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
             const __m256 e = _mm256_max_ps(
                 _mm256_min_ps(_mm256_min_ps(ex, ey), _mm256_min_ps(ez, _mm256_load_ps(runN))),
                 _mm256_setzero_ps());
-            const __m256i j = _mm256_max_epi32(inc, _mm256_cvttps_epi32(e));
+            const __m256i j = _mm256_max_epi32(inc, _mm256_add_epi32(_mm256_cvttps_epi32(e), one));
             const __m256 fl = _mm256_cvtepi32_ps(_mm256_sub_epi32(j, one));
             const __m256i lsub = subsAvx(cellsAvx(_mm256_add_ps(vqx, _mm256_mul_ps(fl, vsx))),
                                          cellsAvx(_mm256_add_ps(vqy, _mm256_mul_ps(fl, vsy))),
