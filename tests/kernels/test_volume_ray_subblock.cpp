@@ -1,0 +1,221 @@
+// First-hit skipping of 4^3 sub-blocks inside blocks that cannot be skipped whole: the bounds
+// the view stores, and bit-identical results with and without skipping, scalar and AVX2, on
+// volumes built so that thin bone slabs and single hot voxels sit on block and sub-block faces,
+// edges and corners, with rays along the axes and nearly parallel to the faces.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "palp/kernels/volume_ray.h"
+
+namespace {
+
+using namespace palp::kernels;
+
+constexpr double kVox = 0.5e-3;
+constexpr float kThreshold = 300;
+
+// Soft tissue (40 HU +- 20) in [-16, 31]^3 with a -1000 HU inactive background, 1000 HU slabs one
+// voxel thick at x = 3 (inside a block, on a sub-block face), y = 7 (last layer of a block),
+// z = 16 (first layer of a block), and hot voxels on block and sub-block corners and edges.
+openvdb::FloatGrid::Ptr makeGrid(std::uint32_t seed) {
+    auto grid = openvdb::FloatGrid::create(-1000.0f);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(kVox));
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<float> tissue(20.0f, 60.0f);
+    auto acc = grid->getAccessor();
+    for (int x = -16; x < 32; ++x)
+        for (int y = -16; y < 32; ++y)
+            for (int z = -16; z < 32; ++z) {
+                float v = tissue(rng);
+                // One voxel thick: the blocks holding a slab have empty sub-blocks beside it.
+                if (x == 3 && y < 20) v = 1000;
+                if (y == 7 && x >= 8) v = 1000;
+                if (z == 16 && x < 0) v = 1000;
+                acc.setValue(openvdb::Coord(x, y, z), v);
+            }
+    const int hot[][3] = {{0, 0, 0},    {4, 4, 4},   {7, 7, 7},     {8, 3, 4},   {-1, 4, 8},
+                          {20, 20, 24}, {12, 23, 3}, {-9, -5, -13}, {27, 8, 19}, {15, 0, 12}};
+    for (const auto& h : hot) acc.setValue(openvdb::Coord(h[0], h[1], h[2]), 1000.0f);
+    return grid;
+}
+
+struct Ray {
+    Eigen::Vector3d o, d;
+    double length;
+};
+
+// Random rays in the tissue box; every fifth along an axis (two direction components exactly
+// zero), every seventh with one component a hair from zero (nearly parallel to block faces),
+// every eleventh starting exactly on a sub-block corner.
+std::vector<Ray> makeRays(std::uint32_t seed, int n) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(-1, 1);
+    std::normal_distribution<double> g;
+    std::uniform_int_distribution<int> axis(0, 2), corner(-3, 6);
+    std::vector<Ray> rays;
+    for (int i = 0; i < n; ++i) {
+        Ray r;
+        r.o = Eigen::Vector3d(8 + 22 * u(rng), 8 + 22 * u(rng), 8 + 22 * u(rng)) * kVox;
+        if (i % 11 == 3)
+            r.o = Eigen::Vector3d(4.0 * corner(rng), 4.0 * corner(rng), 4.0 * corner(rng)) * kVox;
+        r.d = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+        if (i % 5 == 0) {
+            r.d.setZero();
+            r.d[axis(rng)] = u(rng) < 0 ? -1 : 1;
+        } else if (i % 7 == 0) {
+            r.d[axis(rng)] = 1e-7 * u(rng);
+        }
+        r.length = (0.25 + std::fabs(u(rng))) * 48 * kVox;
+        rays.push_back(r);
+    }
+    return rays;
+}
+
+FirstHitParams params(bool skip, bool simd) {
+    FirstHitParams p;
+    p.threshold = kThreshold;
+    p.step = 0.25e-3;
+    p.skipEmpty = skip;
+    p.simd = simd;
+    return p;
+}
+
+}  // namespace
+
+// Every sub-block bound is at least the largest of the 5^3 values its cells interpolate, and
+// below the threshold exactly when all of them are (the bound exceeds that maximum by a hair
+// only). The test volume holds blocks with both kinds of sub-block, so the march has sub-blocks
+// to skip inside blocks it cannot skip.
+TEST(VolumeRaySubBlocks, BoundsCoverTheirCellsValues) {
+    const VolumeView view(makeGrid(3));
+    const auto& tb = view.table();
+    ASSERT_NE(tb.subMax, nullptr);
+    const std::size_t blocks = tb.data.size();
+    int mixed = 0;
+    for (std::size_t b = 0; b < blocks; ++b) {
+        const float* copy = tb.data[b];
+        const auto c = static_cast<std::size_t>(copy - tb.padded) / VolumeView::Table::kPadded;
+        int empty = 0;
+        for (int s = 0; s < VolumeView::Table::kSubBlocks; ++s) {
+            const int x0 = 4 * ((s >> 2) & 1), y0 = 4 * ((s >> 1) & 1), z0 = 4 * (s & 1);
+            float mx = -1e30f;
+            for (int x = x0; x <= x0 + 4; ++x)
+                for (int y = y0; y <= y0 + 4; ++y)
+                    for (int z = z0; z <= z0 + 4; ++z) mx = std::max(mx, copy[(x * 9 + y) * 9 + z]);
+            const float bound =
+                tb.subMax[c * VolumeView::Table::kSubBlocks + static_cast<std::size_t>(s)];
+            ASSERT_GE(bound, mx) << "block " << b << " sub-block " << s;
+            ASSERT_LE(bound, mx + 1e-3f * (std::fabs(mx) + 2000.0f));
+            EXPECT_EQ(bound < kThreshold, mx < kThreshold) << "block " << b << " sub-block " << s;
+            empty += bound < kThreshold ? 1 : 0;
+        }
+        if (tb.maxDilated[b] >= kThreshold && empty > 0) ++mixed;
+    }
+    EXPECT_GE(mixed, 20);
+}
+
+// Single rays: skipping (blocks and sub-blocks) never changes a hit or its t, to the bit; and
+// the hit sample is the first lattice sample at or above the threshold as read without skipping.
+TEST(VolumeRaySubBlocks, SkippingIsBitIdenticalForSingleRays) {
+    const auto grid = makeGrid(5);
+    const VolumeView view(grid);
+    int hits = 0, misses = 0;
+    const auto rays = makeRays(17, 4000);
+    for (std::size_t i = 0; i < rays.size(); ++i) {
+        const Ray& r = rays[i];
+        const RayHit a = firstHit(view, r.o, r.d, r.length, params(true, false));
+        const RayHit b = firstHit(view, r.o, r.d, r.length, params(false, false));
+        ASSERT_EQ(a.hit, b.hit) << "ray " << i;
+        ASSERT_EQ(a.t, b.t) << "ray " << i;  // bit-equal
+        (a.hit ? hits : misses) += 1;
+    }
+    EXPECT_GT(hits, 600);  // both outcomes, many times
+    EXPECT_GT(misses, 600);
+}
+
+// Bundles: the AVX2 lockstep path and the scalar path, each with and without skipping, give the
+// same bits as single-ray firstHit() without skipping.
+TEST(VolumeRaySubBlocks, BundlesAreBitIdenticalWithAndWithoutSkippingAndSimd) {
+    const auto grid = makeGrid(7);
+    const VolumeView view(grid);
+    const auto rays = makeRays(29, 6000);
+    std::mt19937 rng(31);
+    std::uniform_int_distribution<int> count(2, kMaxBundleRays);
+    std::size_t next = 0;
+    int hits = 0, lanes = 0;
+    while (next + kMaxBundleRays <= rays.size()) {
+        RayBundle b;
+        b.count = count(rng);
+        b.valid = true;
+        for (int r = 0; r < b.count; ++r, ++next) {
+            const auto i = static_cast<std::size_t>(r);
+            const Ray& ray = rays[next];
+            b.ox[i] = static_cast<float>(ray.o.x());
+            b.oy[i] = static_cast<float>(ray.o.y());
+            b.oz[i] = static_cast<float>(ray.o.z());
+            b.dx[i] = static_cast<float>(ray.d.x());
+            b.dy[i] = static_cast<float>(ray.d.y());
+            b.dz[i] = static_cast<float>(ray.d.z());
+            b.length[i] = static_cast<float>(ray.length);
+        }
+        std::array<BundleHits, 4> out;
+        traceFirstHit(view, b, params(true, true), out[0]);
+        traceFirstHit(view, b, params(false, true), out[1]);
+        traceFirstHit(view, b, params(true, false), out[2]);
+        traceFirstHit(view, b, params(false, false), out[3]);
+        for (int r = 0; r < b.count; ++r) {
+            const auto i = static_cast<std::size_t>(r);
+            const RayHit one = firstHit(view, Eigen::Vector3d(b.ox[i], b.oy[i], b.oz[i]),
+                                        Eigen::Vector3d(b.dx[i], b.dy[i], b.dz[i]), b.length[i],
+                                        params(false, false));
+            for (std::size_t v = 0; v < out.size(); ++v) {
+                ASSERT_EQ(out[v].count, b.count);
+                ASSERT_EQ(out[v].hit[i], one.hit ? 1 : 0) << "variant " << v << " ray " << r;
+                ASSERT_EQ(out[v].t[i], one.t) << "variant " << v << " ray " << r;  // bit-equal
+            }
+            hits += one.hit ? 1 : 0;
+            ++lanes;
+        }
+    }
+    EXPECT_GT(hits, lanes / 10);
+    EXPECT_LT(hits, lanes - lanes / 10);
+}
+
+// A ray grazing a single hot voxel on a sub-block corner: the hit is found (the sub-block next to
+// it is not skipped) and lies where the trilinear field first reaches the threshold.
+TEST(VolumeRaySubBlocks, HotVoxelOnASubBlockCornerIsHit) {
+    auto grid = openvdb::FloatGrid::create(-1000.0f);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(kVox));
+    auto acc = grid->getAccessor();
+    for (int x = -8; x < 24; ++x)
+        for (int y = -8; y < 24; ++y)
+            for (int z = -8; z < 24; ++z) acc.setValue(openvdb::Coord(x, y, z), 0.0f);
+    acc.setValue(openvdb::Coord(4, 4, 4), 1000.0f);
+    const VolumeView view(grid);
+    // Along +x through the voxel centre's row: v(x) = 1000 (1 - |x - 4|) near it, so the field
+    // reaches 300 at x = 3.3.
+    for (bool simd : {false, true}) {
+        RayBundle b;
+        b.count = 2;
+        b.valid = true;
+        for (std::size_t i = 0; i < 2; ++i) {
+            b.ox[i] = static_cast<float>(-6 * kVox);
+            b.oy[i] = static_cast<float>(4 * kVox);
+            b.oz[i] = static_cast<float>(4 * kVox);
+            b.dx[i] = 1;
+            b.dy[i] = 0;
+            b.dz[i] = 0;
+            b.length[i] = static_cast<float>(20 * kVox);
+        }
+        BundleHits h;
+        traceFirstHit(view, b, params(true, simd), h);
+        ASSERT_EQ(h.hit[0], 1);
+        EXPECT_NEAR(h.t[0], 9.3 * kVox, 0.05 * kVox);
+        EXPECT_EQ(h.t[1], h.t[0]);
+    }
+}
