@@ -37,7 +37,10 @@ struct RefitUser;  // embree_scene.cpp
 /// @par Real-time  Tracing is real-time safe. updateVertices() is noexcept and copies into
 ///      Embree's buffer; commit() refits deforming meshes (REFIT quality, O(#T)) but lives in
 ///      Embree, which may allocate and use TBB: call it on the servo thread only for small
-///      meshes and only after measuring (`palp bench rays` prints refit costs).
+///      meshes and only after measuring (`palp bench rays` prints refit costs). A mesh that
+///      deforms every servo tick belongs in addRefitMesh(): its RefitMesh::refit() is
+///      allocation-free, about 30x cheaper than Embree's refit commit (bench_refit), and needs
+///      no commit; like updateVertices() it must not overlap with tracing.
 class EmbreeScene {
   public:
     /// @param robust  RTC_SCENE_FLAG_ROBUST: Embree's watertight traversal, so a ray through a
