@@ -1,14 +1,17 @@
 // The C API (palp/palp.h): a thin layer over palp::haptics that converts plain C structs,
 // counts references and turns every exception into a status code plus a message.
 
+#include <array>
 #include <atomic>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <exception>
 #include <memory>
 #include <mutex>
 #include <new>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "palp/error.h"
@@ -265,55 +268,153 @@ const char* fixedFieldChanged(const palp_session_params& a, const palp_session_p
 }
 
 // --- trajectories ------------------------------------------------------------------------
+//
+// Each kind's C <-> C++ correspondence is written once, as a table of (C field, C++ member,
+// check); palp_trajectory_default (fill) and toTrajectory (convert) both walk it. Vectors come
+// first, then scalars, each in table order: the first invalid field is the one reported.
 
-void fill(const ph::PressTrajectory& t, palp_trajectory& c) noexcept {
-    put(t.start, c.centre);
-    put(t.direction, c.direction);
-    c.depth = t.depthM;
-    c.press_seconds = t.pressSeconds;
-    c.hold_seconds = t.holdSeconds;
+enum class Check : std::uint8_t {
+    Finite,       // vector: finite coordinates
+    Unit,         // vector: finite and non-zero, normalised
+    NonNegative,  // scalar: finite, >= 0
+    Positive      // scalar: finite, > 0
+};
+
+template <typename T>
+struct VectorField {
+    double (palp_trajectory::*c)[3];
+    Eigen::Vector3d T::*t;
+    const char* name;
+    Check check;
+};
+
+template <typename T>
+struct ScalarField {
+    double palp_trajectory::*c;
+    double T::*t;
+    const char* name;
+    Check check;
+};
+
+template <typename T>
+struct Layout;
+
+template <>
+struct Layout<ph::PressTrajectory> {
+    using T = ph::PressTrajectory;
+    static constexpr std::array vectors = {
+        VectorField<T>{&palp_trajectory::centre, &T::start, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::direction, &T::direction, "direction", Check::Unit}};
+    static constexpr std::array scalars = {
+        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::press_seconds, &T::pressSeconds, "press_seconds",
+                       Check::Positive},
+        ScalarField<T>{&palp_trajectory::hold_seconds, &T::holdSeconds, "hold_seconds",
+                       Check::NonNegative}};
+};
+
+template <>
+struct Layout<ph::SweepTrajectory> {
+    using T = ph::SweepTrajectory;
+    static constexpr std::array vectors = {
+        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::direction, &T::direction, "direction", Check::Unit},
+        VectorField<T>{&palp_trajectory::press_direction, &T::pressDirection, "press_direction",
+                       Check::Unit}};
+    static constexpr std::array scalars = {
+        ScalarField<T>{&palp_trajectory::length, &T::lengthM, "length", Check::Positive},
+        ScalarField<T>{&palp_trajectory::speed, &T::speedMps, "speed", Check::Positive},
+        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::approach_seconds, &T::approachSeconds, "approach_seconds",
+                       Check::Positive},
+        ScalarField<T>{&palp_trajectory::turn_seconds, &T::turnSeconds, "turn_seconds",
+                       Check::Positive}};
+};
+
+template <>
+struct Layout<ph::RasterTrajectory> {
+    using T = ph::RasterTrajectory;
+    static constexpr std::array vectors = {
+        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::u, &T::u, "u", Check::Unit},
+        VectorField<T>{&palp_trajectory::v, &T::v, "v", Check::Unit},
+        VectorField<T>{&palp_trajectory::press_direction, &T::pressDirection, "press_direction",
+                       Check::Unit}};
+    static constexpr std::array scalars = {
+        ScalarField<T>{&palp_trajectory::extent_u, &T::extentU, "extent_u", Check::Positive},
+        ScalarField<T>{&palp_trajectory::extent_v, &T::extentV, "extent_v", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::line_spacing, &T::lineSpacingM, "line_spacing",
+                       Check::Positive},
+        ScalarField<T>{&palp_trajectory::speed, &T::speedMps, "speed", Check::Positive},
+        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::approach_seconds, &T::approachSeconds, "approach_seconds",
+                       Check::Positive}};
+};
+
+template <>
+struct Layout<ph::CircleTrajectory> {
+    using T = ph::CircleTrajectory;
+    static constexpr std::array vectors = {
+        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::u, &T::u, "u", Check::Unit},
+        VectorField<T>{&palp_trajectory::v, &T::v, "v", Check::Unit},
+        VectorField<T>{&palp_trajectory::press_direction, &T::pressDirection, "press_direction",
+                       Check::Unit}};
+    static constexpr std::array scalars = {
+        ScalarField<T>{&palp_trajectory::radius, &T::radiusM, "radius", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::frequency, &T::frequencyHz, "frequency",
+                       Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::approach_seconds, &T::approachSeconds, "approach_seconds",
+                       Check::Positive}};
+};
+
+template <>
+struct Layout<ph::SinusoidTrajectory> {
+    using T = ph::SinusoidTrajectory;
+    static constexpr std::array vectors = {
+        VectorField<T>{&palp_trajectory::centre, &T::start, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::direction, &T::direction, "direction", Check::Unit}};
+    static constexpr std::array scalars = {
+        ScalarField<T>{&palp_trajectory::amplitude, &T::amplitudeM, "amplitude",
+                       Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::frequency, &T::frequencyHz, "frequency",
+                       Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::grow_seconds, &T::growSeconds, "grow_seconds",
+                       Check::NonNegative}};
+};
+
+// Calls @p f with a default-constructed trajectory of @p kind; false for an unknown kind.
+template <typename F>
+bool forKind(palp_trajectory_kind kind, F&& f) {
+    switch (kind) {
+        case PALP_TRAJECTORY_PRESS:
+            f(ph::PressTrajectory{});
+            return true;
+        case PALP_TRAJECTORY_SWEEP:
+            f(ph::SweepTrajectory{});
+            return true;
+        case PALP_TRAJECTORY_RASTER:
+            f(ph::RasterTrajectory{});
+            return true;
+        case PALP_TRAJECTORY_CIRCLE:
+            f(ph::CircleTrajectory{});
+            return true;
+        case PALP_TRAJECTORY_SINUSOID:
+            f(ph::SinusoidTrajectory{});
+            return true;
+    }
+    return false;
 }
-void fill(const ph::SweepTrajectory& t, palp_trajectory& c) noexcept {
-    put(t.centre, c.centre);
-    put(t.direction, c.direction);
-    put(t.pressDirection, c.press_direction);
-    c.length = t.lengthM;
-    c.speed = t.speedMps;
-    c.depth = t.depthM;
-    c.approach = t.approachM;
-    c.approach_seconds = t.approachSeconds;
-    c.turn_seconds = t.turnSeconds;
-}
-void fill(const ph::RasterTrajectory& t, palp_trajectory& c) noexcept {
-    put(t.centre, c.centre);
-    put(t.u, c.u);
-    put(t.v, c.v);
-    put(t.pressDirection, c.press_direction);
-    c.extent_u = t.extentU;
-    c.extent_v = t.extentV;
-    c.line_spacing = t.lineSpacingM;
-    c.speed = t.speedMps;
-    c.depth = t.depthM;
-    c.approach = t.approachM;
-    c.approach_seconds = t.approachSeconds;
-}
-void fill(const ph::CircleTrajectory& t, palp_trajectory& c) noexcept {
-    put(t.centre, c.centre);
-    put(t.u, c.u);
-    put(t.v, c.v);
-    put(t.pressDirection, c.press_direction);
-    c.radius = t.radiusM;
-    c.frequency = t.frequencyHz;
-    c.depth = t.depthM;
-    c.approach = t.approachM;
-    c.approach_seconds = t.approachSeconds;
-}
-void fill(const ph::SinusoidTrajectory& t, palp_trajectory& c) noexcept {
-    put(t.start, c.centre);
-    put(t.direction, c.direction);
-    c.amplitude = t.amplitudeM;
-    c.frequency = t.frequencyHz;
-    c.grow_seconds = t.growSeconds;
+
+// C++ -> C: writes the fields of @p t's kind into @p c (the others untouched).
+template <typename T>
+void fill(const T& t, palp_trajectory& c) noexcept {
+    for (const VectorField<T>& f : Layout<T>::vectors) put(t.*f.t, c.*f.c);
+    for (const ScalarField<T>& f : Layout<T>::scalars) c.*f.c = t.*f.t;
 }
 
 Eigen::Vector3d unit(const double v[3], const char* field) {
@@ -325,6 +426,14 @@ Eigen::Vector3d unit(const double v[3], const char* field) {
                                str(v[1]) + ", " + str(v[2]) + ")");
     }
     return d / n;
+}
+
+Eigen::Vector3d finite(const double v[3], const char* field) {
+    if (!vec(v).allFinite()) {
+        throw palp::ValueError(std::string("palp_trajectory.") + field +
+                               ": expected finite coordinates, found NaN/Inf");
+    }
+    return vec(v);
 }
 
 void requireNonNegative(const char* field, double v) {
@@ -341,99 +450,34 @@ void requirePositive(const char* field, double v) {
     }
 }
 
+// C -> C++ for the kind of T, checking every field. @throw palp::ValueError naming the field.
+template <typename T>
+T convert(const palp_trajectory& c) {
+    T t;
+    for (const VectorField<T>& f : Layout<T>::vectors) {
+        t.*f.t = f.check == Check::Unit ? unit(c.*f.c, f.name) : finite(c.*f.c, f.name);
+    }
+    for (const ScalarField<T>& f : Layout<T>::scalars) {
+        if (f.check == Check::Positive) {
+            requirePositive(f.name, c.*f.c);
+        } else {
+            requireNonNegative(f.name, c.*f.c);
+        }
+        t.*f.t = c.*f.c;
+    }
+    return t;
+}
+
 ph::Trajectory toTrajectory(const palp_trajectory& c) {
-    if (!vec(c.centre).allFinite()) {
+    finite(c.centre, "centre");  // every kind has one; reported before an unknown kind
+    ph::Trajectory out;
+    if (!forKind(c.kind,
+                 [&](const auto& kind) { out = convert<std::decay_t<decltype(kind)>>(c); })) {
         throw palp::ValueError(
-            "palp_trajectory.centre: expected finite coordinates, found NaN/Inf");
+            "palp_trajectory.kind: expected PALP_TRAJECTORY_PRESS .. _SINUSOID, found " +
+            std::to_string(static_cast<int>(c.kind)));
     }
-    switch (c.kind) {
-        case PALP_TRAJECTORY_PRESS: {
-            ph::PressTrajectory t;
-            t.start = vec(c.centre);
-            t.direction = unit(c.direction, "direction");
-            requireNonNegative("depth", c.depth);
-            requirePositive("press_seconds", c.press_seconds);
-            requireNonNegative("hold_seconds", c.hold_seconds);
-            t.depthM = c.depth;
-            t.pressSeconds = c.press_seconds;
-            t.holdSeconds = c.hold_seconds;
-            return t;
-        }
-        case PALP_TRAJECTORY_SWEEP: {
-            ph::SweepTrajectory t;
-            t.centre = vec(c.centre);
-            t.direction = unit(c.direction, "direction");
-            t.pressDirection = unit(c.press_direction, "press_direction");
-            requirePositive("length", c.length);
-            requirePositive("speed", c.speed);
-            requireNonNegative("depth", c.depth);
-            requireNonNegative("approach", c.approach);
-            requirePositive("approach_seconds", c.approach_seconds);
-            requirePositive("turn_seconds", c.turn_seconds);
-            t.lengthM = c.length;
-            t.speedMps = c.speed;
-            t.depthM = c.depth;
-            t.approachM = c.approach;
-            t.approachSeconds = c.approach_seconds;
-            t.turnSeconds = c.turn_seconds;
-            return t;
-        }
-        case PALP_TRAJECTORY_RASTER: {
-            ph::RasterTrajectory t;
-            t.centre = vec(c.centre);
-            t.u = unit(c.u, "u");
-            t.v = unit(c.v, "v");
-            t.pressDirection = unit(c.press_direction, "press_direction");
-            requirePositive("extent_u", c.extent_u);
-            requireNonNegative("extent_v", c.extent_v);
-            requirePositive("line_spacing", c.line_spacing);
-            requirePositive("speed", c.speed);
-            requireNonNegative("depth", c.depth);
-            requireNonNegative("approach", c.approach);
-            requirePositive("approach_seconds", c.approach_seconds);
-            t.extentU = c.extent_u;
-            t.extentV = c.extent_v;
-            t.lineSpacingM = c.line_spacing;
-            t.speedMps = c.speed;
-            t.depthM = c.depth;
-            t.approachM = c.approach;
-            t.approachSeconds = c.approach_seconds;
-            return t;
-        }
-        case PALP_TRAJECTORY_CIRCLE: {
-            ph::CircleTrajectory t;
-            t.centre = vec(c.centre);
-            t.u = unit(c.u, "u");
-            t.v = unit(c.v, "v");
-            t.pressDirection = unit(c.press_direction, "press_direction");
-            requireNonNegative("radius", c.radius);
-            requireNonNegative("frequency", c.frequency);
-            requireNonNegative("depth", c.depth);
-            requireNonNegative("approach", c.approach);
-            requirePositive("approach_seconds", c.approach_seconds);
-            t.radiusM = c.radius;
-            t.frequencyHz = c.frequency;
-            t.depthM = c.depth;
-            t.approachM = c.approach;
-            t.approachSeconds = c.approach_seconds;
-            return t;
-        }
-        case PALP_TRAJECTORY_SINUSOID: {
-            ph::SinusoidTrajectory t;
-            t.start = vec(c.centre);
-            t.direction = unit(c.direction, "direction");
-            requireNonNegative("amplitude", c.amplitude);
-            requireNonNegative("frequency", c.frequency);
-            requireNonNegative("grow_seconds", c.grow_seconds);
-            t.amplitudeM = c.amplitude;
-            t.frequencyHz = c.frequency;
-            t.growSeconds = c.grow_seconds;
-            return t;
-        }
-    }
-    throw palp::ValueError(
-        "palp_trajectory.kind: expected PALP_TRAJECTORY_PRESS .. _SINUSOID, found " +
-        std::to_string(static_cast<int>(c.kind)));
+    return out;
 }
 
 ph::HandModel toHand(const palp_trajectory& c) {
@@ -675,26 +719,10 @@ palp_status palp_trajectory_default(palp_trajectory_kind kind, palp_trajectory* 
     fill(ph::RasterTrajectory{}, c);
     fill(ph::CircleTrajectory{}, c);
     fill(ph::SinusoidTrajectory{}, c);
-    switch (kind) {
-        case PALP_TRAJECTORY_PRESS:
-            fill(ph::PressTrajectory{}, c);
-            break;
-        case PALP_TRAJECTORY_SWEEP:
-            fill(ph::SweepTrajectory{}, c);
-            break;
-        case PALP_TRAJECTORY_RASTER:
-            fill(ph::RasterTrajectory{}, c);
-            break;
-        case PALP_TRAJECTORY_CIRCLE:
-            fill(ph::CircleTrajectory{}, c);
-            break;
-        case PALP_TRAJECTORY_SINUSOID:
-            fill(ph::SinusoidTrajectory{}, c);
-            break;
-        default:
-            return fail(PALP_ERROR_INVALID_ARGUMENT,
-                        "palp_trajectory_default: expected PALP_TRAJECTORY_PRESS .. _SINUSOID, "
-                        "found an unknown kind");
+    if (!forKind(kind, [&](const auto& defaults) { fill(defaults, c); })) {
+        return fail(PALP_ERROR_INVALID_ARGUMENT,
+                    "palp_trajectory_default: expected PALP_TRAJECTORY_PRESS .. _SINUSOID, "
+                    "found an unknown kind");
     }
     c.kind = kind;
     const ph::HandModel hand;

@@ -318,6 +318,59 @@ static void test_stiffness_limit(palp_scene* scene) {
     palp_session_release(session);
 }
 
+/* Every trajectory kind's defaults make a working session, and a bad field of each kind is
+ * reported by name (the C <-> C++ conversion tables). */
+static void test_trajectory_kinds(void) {
+    palp_scene* scene = NULL;
+    CHECK(palp_scene_create_empty(&scene) == PALP_OK);
+    palp_session_params params;
+    palp_session_params_default(&params);
+    params.mode = PALP_MODE_VC;
+    const palp_trajectory_kind kinds[5] = {PALP_TRAJECTORY_PRESS, PALP_TRAJECTORY_SWEEP,
+                                           PALP_TRAJECTORY_RASTER, PALP_TRAJECTORY_CIRCLE,
+                                           PALP_TRAJECTORY_SINUSOID};
+    const char* bad_field[5] = {"press_seconds", "turn_seconds", "line_spacing", "approach_seconds",
+                                "grow_seconds"};
+    for (int k = 0; k < 5; ++k) {
+        palp_trajectory path;
+        CHECK(palp_trajectory_default(kinds[k], &path) == PALP_OK);
+        CHECK(path.kind == kinds[k]);
+        CHECK(path.hand_mass > 0);
+        palp_session* session = NULL;
+        CHECK(palp_session_create_simulated(scene, &params, &path, &session) == PALP_OK);
+        palp_snapshot s;
+        CHECK(palp_session_step(session, 200, &s) == PALP_OK);
+        CHECK(isfinite(s.probe[0]) && isfinite(s.probe[1]) && isfinite(s.probe[2]));
+        palp_session_release(session);
+        session = NULL;
+
+        if (k == 4) {
+            path.grow_seconds = -1;
+        } else if (k == 0) {
+            path.press_seconds = 0;
+        } else if (k == 1) {
+            path.turn_seconds = 0;
+        } else if (k == 2) {
+            path.line_spacing = 0;
+        } else {
+            path.approach_seconds = 0;
+        }
+        CHECK(palp_session_create_simulated(scene, &params, &path, &session) ==
+              PALP_ERROR_INVALID_ARGUMENT);
+        CHECK(strstr(palp_last_error(), bad_field[k]) != NULL);
+        CHECK(session == NULL);
+        CHECK(palp_trajectory_default(kinds[k], &path) == PALP_OK);
+        path.press_direction[0] = path.press_direction[1] = path.press_direction[2] = 0;
+        path.direction[0] = path.direction[1] = path.direction[2] = 0;
+        CHECK(palp_session_create_simulated(scene, &params, &path, &session) ==
+              PALP_ERROR_INVALID_ARGUMENT);
+        CHECK(strstr(palp_last_error(), "direction") != NULL);
+    }
+    palp_trajectory path;
+    CHECK(palp_trajectory_default((palp_trajectory_kind)9, &path) == PALP_ERROR_INVALID_ARGUMENT);
+    palp_scene_release(scene);
+}
+
 int main(void) {
     CHECK(strcmp(palp_version(), "0.1.0") == 0);
     CHECK(strcmp(palp_status_string(PALP_ERROR_IO), "PALP_ERROR_IO") == 0);
@@ -334,6 +387,7 @@ int main(void) {
         test_stiffness_limit(scene);
     }
     palp_scene_release(scene);
+    test_trajectory_kinds();
     if (gFailures)
         fprintf(stderr, "test_c_api: %d failure(s)\n", gFailures);
     else
