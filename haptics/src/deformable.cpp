@@ -47,6 +47,10 @@ void validateDeformableOptions(const DeformableOptions& o) {
         throw ValueError("deformable: expected solver.maxSubsteps >= 1, found " +
                          std::to_string(o.solver.maxSubsteps));
     }
+    if (!(o.recentreHysteresis >= 0 && o.recentreHysteresis < 1)) {
+        throw ValueError("deformable: expected recentreHysteresis in [0, 1), found " +
+                         num(o.recentreHysteresis));
+    }
 }
 
 DeformableModel::DeformableModel(fem::FemModel model, std::vector<int> fixedNodes,
@@ -130,8 +134,37 @@ std::shared_ptr<DeformableModel> DeformableModel::fromVolume(
 DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
     : mModel(model ? std::move(model)
                    : throw ValueError("deformable body: expected a model, found a null pointer")),
-      mSolver(mModel->model(), mModel->constraints(), mModel->options().solver),
       mScene(std::make_unique<kernels::EmbreeScene>(/*robust=*/true)) {
+    const DeformableOptions& options = mModel->options();
+    if (options.solverKind == DeformableSolver::asyncRegions) {
+        const std::vector<int>& nodes = mModel->loadNodes();
+        fem::AsyncRegionsOptions o = options.regions;
+        o.drive = fem::ContactDrive::force;
+        o.watchNodes = nodes;
+        o.maxLoads = static_cast<int>(nodes.size());
+        mU = Eigen::VectorXd::Zero(mModel->model().dofCount());
+        mForce = mU;
+        mCentre = nodes.front();
+        if (options.regionsCentre.allFinite()) {  // on the rest mesh
+            double best = std::numeric_limits<double>::infinity();
+            for (const int n : nodes) {
+                const double d2 =
+                    (mModel->model().mesh().nodePosition(n) - options.regionsCentre).squaredNorm();
+                if (d2 < best) {
+                    best = d2;
+                    mCentre = n;
+                }
+            }
+        }
+        mRegions = std::make_unique<fem::AsyncRegions>(mModel->model(), mModel->constraints(),
+                                                       std::vector<int>{mCentre}, o);
+        mLoads.resize(nodes.size());
+        mWatched.resize(nodes.size());
+    } else {
+        mSolver = std::make_unique<fem::ExplicitSolver>(mModel->model(), mModel->constraints(),
+                                                        options.solver);
+        mSolver->externalForce().setZero();
+    }
     const kernels::TriangleMesh mesh = toTriangleMesh(mModel->surface());
     mRest = mesh.positions;
     mPositions = mesh.positions;
@@ -146,26 +179,49 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
     mScene->commit();  // once: later steps refit palp's BVH only
     mLoaded.resize(mModel->loadNodes().size());
     mWeights.resize(mModel->loadNodes().size());
-    mSolver.externalForce().setZero();
 }
 
 DeformableBody::~DeformableBody() = default;
 
 Eigen::Vector3d DeformableBody::nodePosition(int n) const noexcept {
-    const Eigen::VectorXd& u = mSolver.displacement();
+    const Eigen::VectorXd& u = displacement();
     return mModel->model().mesh().nodePosition(n) + u.segment<3>(3 * n);
 }
 
+int DeformableBody::nearestLoadNode(const Eigen::Vector3d& point) const noexcept {
+    double best = std::numeric_limits<double>::infinity();
+    int nearest = -1;
+    for (const int n : mModel->loadNodes()) {
+        const double d2 = (nodePosition(n) - point).squaredNorm();
+        if (d2 < best) {
+            best = d2;
+            nearest = n;
+        }
+    }
+    return nearest;
+}
+
+bool DeformableBody::requestRegionsCentre(const Eigen::Vector3d& point) noexcept {
+    if (!mRegions || !point.allFinite()) return false;
+    const int n = nearestLoadNode(point);
+    if (n < 0) return false;
+    if (n != mCentre && mRegions->requestContactNode(n)) {
+        mCentre = n;
+        ++mRecentres;
+    }
+    return true;
+}
+
 Eigen::Vector3d DeformableBody::loadSum() const noexcept {
-    // externalForce() is non-const in ExplicitSolver; reading it does not change the solver.
-    const Eigen::VectorXd& f = const_cast<fem::ExplicitSolver&>(mSolver).externalForce();
+    // loadVector() is non-const (ExplicitSolver::externalForce()); reading it changes nothing.
+    const Eigen::VectorXd& f = const_cast<DeformableBody*>(this)->loadVector();
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();
     for (std::size_t i = 0; i < mLoadedCount; ++i) sum += f.segment<3>(3 * mLoaded[i]);
     return sum;
 }
 
 void DeformableBody::clearForce() noexcept {
-    Eigen::VectorXd& f = mSolver.externalForce();
+    Eigen::VectorXd& f = loadVector();
     for (std::size_t i = 0; i < mLoadedCount; ++i) f.segment<3>(3 * mLoaded[i]).setZero();
     mLoadedCount = 0;
     mContactNode = -1;
@@ -198,7 +254,7 @@ int DeformableBody::applyContactForce(const Eigen::Vector3d& point,
         }
     }
     if (nearest < 0) return -1;
-    Eigen::VectorXd& f = mSolver.externalForce();
+    Eigen::VectorXd& f = loadVector();
     // The nearest node takes the remainder, so the shares sum to the force to rounding.
     Eigen::Vector3d rest = force;
     bool nearestListed = false;
@@ -221,6 +277,14 @@ int DeformableBody::applyContactForce(const Eigen::Vector3d& point,
     }
     f.segment<3>(3 * nearest) = rest;
     mContactNode = nearest;
+    // Regions: move the centre once the contact is clearly nearer another node (hysteresis).
+    if (mRegions && nearest != mCentre &&
+        (point - nodePosition(mCentre)).norm() - std::sqrt(best) >
+            mModel->options().recentreHysteresis * mModel->model().mesh().edge() &&
+        mRegions->requestContactNode(nearest)) {
+        mCentre = nearest;
+        ++mRecentres;
+    }
     return nearest;
 }
 
@@ -312,10 +376,26 @@ Eigen::Vector3d DeformableBody::anchoredPosition() const noexcept {
 }
 
 unsigned DeformableBody::step(double dtSeconds) noexcept {
-    const fem::StepResult r = mSolver.step(dtSeconds);
-    mLastSubsteps = r.substeps;
-    unsigned flags = r.flags;
-    const Eigen::VectorXd& u = mSolver.displacement();
+    unsigned flags = 0;
+    if (mRegions) {
+        const double tick = mModel->options().regions.tickSeconds;
+        if (!(std::abs(dtSeconds - tick) <= 1e-9 * tick)) return fem::kStepBadTimeStep;
+        const Eigen::VectorXd& f = mForce;
+        for (std::size_t i = 0; i < mLoadedCount; ++i)
+            mLoads[i] = fem::NodalLoad{mLoaded[i], f.segment<3>(3 * mLoaded[i])};
+        const fem::AsyncTickResult r =
+            mRegions->tick(std::span<const fem::NodalLoad>(mLoads.data(), mLoadedCount));
+        mLastSubsteps = r.substeps;
+        flags = r.flags;
+        mRegions->watchedDisplacements(mWatched);
+        const std::vector<int>& nodes = mModel->loadNodes();
+        for (std::size_t i = 0; i < nodes.size(); ++i) mU.segment<3>(3 * nodes[i]) = mWatched[i];
+    } else {
+        const fem::StepResult r = mSolver->step(dtSeconds);
+        mLastSubsteps = r.substeps;
+        flags = r.flags;
+    }
+    const Eigen::VectorXd& u = displacement();
     const std::vector<std::int32_t>& vn = mModel->surface().vertexNode;
     double maxD2 = 0;
     for (std::size_t i = 0; i < vn.size(); ++i) {

@@ -2,11 +2,13 @@
 /// @file
 /// Deformable tissue for palpation with plain virtual coupling (ALGORITHMS.md sections 5 and 10):
 /// a hexahedral FEM body with fixed nodes (a support face, nodes inside static inhomogeneities
-/// such as bone), stepped by the whole-mesh explicit solver every servo tick under the reaction
-/// of the coupling force, spread over the surface nodes near the contact by a Gaussian low-pass
-/// filter; its boundary surface is a kernels::RefitMesh (palp's own BVH, refitted in place every
-/// tick without allocating) registered in an Embree scene as user geometry (mask kMaskSurface)
-/// that is committed once, so the proxy moves on the deformed surface.
+/// such as bone), stepped every servo tick under the reaction of the coupling force (by the
+/// whole-mesh explicit solver, or by asynchronous regions: an explicit primary region around the
+/// contact every tick and an implicit secondary at a lower rate, fem/async_regions.h), spread over
+/// the surface nodes near the contact by a Gaussian low-pass filter; its boundary surface is a
+/// kernels::RefitMesh (palp's own BVH, refitted in place every tick without allocating) registered
+/// in an Embree scene as user geometry (mask kMaskSurface) that is committed once, so the proxy
+/// moves on the deformed surface.
 ///
 /// Split in two: DeformableModel (built off the servo thread, immutable, shared by sessions:
 /// mesh, material, constraints, surface topology) and DeformableBody (one per session: the
@@ -20,18 +22,22 @@
 ///   total force to rounding (1 ulp per component). sigma = 0: the nearest node only.
 /// * Fixed nodes take no load (their share would vanish into the support); only free nodes
 ///   of the boundary surface are candidates.
-/// * The asynchronous-regions solver (fem/async_regions.h) is driven by a prescribed contact
-///   displacement and has no force input yet, so the whole mesh is stepped explicitly (with
-///   automatic substeps): the per-tick cost grows with the element count (see bench figures in
-///   DeformableBody's docs).
+/// * Solver: the whole-mesh explicit solver (default; per-tick cost grows with the element
+///   count) or asynchronous regions in force drive (DeformableSolver::asyncRegions: the
+///   per-tick cost is the primary region's, so larger meshes stay real-time). With the regions
+///   the filtered nodal loads are the regions' loads, the region centre follows the load's
+///   nearest node with a hysteresis (recentreEdges), and the surface is fed from the regions'
+///   watched nodes (the free surface nodes) every tick.
 
 #include <Eigen/Core>
 #include <array>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <vector>
 
+#include "palp/fem/async_regions.h"
 #include "palp/fem/constraints.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/fem_model.h"
@@ -43,6 +49,12 @@
 
 namespace palp::haptics {
 
+/// FEM solver of a deformable body.
+enum class DeformableSolver {
+    wholeMeshExplicit,  ///< fem::ExplicitSolver over the whole mesh every tick
+    asyncRegions,       ///< fem::AsyncRegions, force drive (primary region around the contact)
+};
+
 /// Settings of a deformable body.
 struct DeformableOptions {
     /// sigma of the Gaussian that spreads the contact force over surface nodes, m (>= 0).
@@ -52,6 +64,31 @@ struct DeformableOptions {
     double filterCutoff = 3.0;
     /// The explicit solver (substeps of safetyFactor times the critical step, bounded).
     fem::ExplicitOptions solver;
+    /// Whole-mesh explicit (default) or asynchronous regions.
+    DeformableSolver solverKind = DeformableSolver::wholeMeshExplicit;
+    /// asyncRegions: the regions' options. The body sets drive = force, watchNodes = the free
+    /// surface nodes and maxLoads = their count; tickSeconds must be the period step() is
+    /// called with. threaded (true here, as a live session needs: the secondary and contact
+    /// changes run on their own threads) or false: synchronous and deterministic (tests,
+    /// offline runs; the secondary is solved inline every period).
+    fem::AsyncRegionsOptions regions = [] {
+        fem::AsyncRegionsOptions o;
+        o.threaded = true;
+        return o;
+    }();
+    /// asyncRegions: the region centre moves to the load's nearest free surface node once the
+    /// contact point is nearer to it than to the current centre node by more than
+    /// recentreHysteresis element edges (in [0, 1); the hysteresis keeps a contact on the
+    /// boundary between two nodes from asking for a new layout every tick). Each move costs a
+    /// new layout (regions, primary operator, secondary factorisation and responses: built off
+    /// the servo thread, ~0.1-1 s on a 13^3 cube); until it is adopted the old centre stays,
+    /// and loads outside its primary reach the tissue through the secondary, one to two
+    /// secondary periods late.
+    double recentreHysteresis = 0.25;
+    /// asyncRegions: the free surface node nearest this point (m, world) is the initial region
+    /// centre; NaN: the first free surface node (the first contact then asks for a move).
+    Eigen::Vector3d regionsCentre =
+        Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
 };
 
 /// @throw palp::ValueError naming the field.
@@ -133,15 +170,32 @@ class DeformableModel {
 /// at sigma = 3 mm, k = 300 N/m needs sigma = 6 mm (or stiffness damping dampingBeta ~ 2 ms,
 /// at ~5x the substeps). An implicit coupling through the contact's compliance would lift this.
 ///
+/// Asynchronous regions (DeformableSolver::asyncRegions): step() is one AsyncRegions tick under
+/// the filtered loads (the primary: explicit, substepped, O(primary cells); the secondary:
+/// implicit at regions.secondaryRate), and the free surface nodes' displacements are read from
+/// the regions' watched nodes. displacement() then holds the surface nodes only (interior nodes
+/// stay 0: use regions()->displacement() off the servo path for the whole field).
+/// Stability with regions: the quasi-static secondary has no inertia, so the tissue answers the
+/// coupling force with about its static compliance, and the one-tick-late coupling then needs k
+/// near or below the contact's static stiffness unless the primary region carries enough mass:
+/// on the 40 mm, 5 kPa test cube (h 5 mm, sigma 3 mm, static stiffness at the contact ~35 N/m)
+/// k = 100 N/m grows into a ~12 Hz oscillation with 30 seeds, is marginal with 60 and steady
+/// with 100; k = 50 N/m is steady with 30 seeds (test_deformable). A Newmark secondary did not
+/// help (plain or condensed coupling).
+///
 /// @par Threading  One thread (the servo thread) drives a body; surfaces() may be traced from
-///      that thread between steps.
+///      that thread between steps. With threaded regions the body owns their threads.
 /// @par Real-time  applyContactForce, clearForce, anchor, step and the accessors are noexcept
 ///      and allocation-free (test_deformable counts zero allocations per tick); step() is
-///      bounded by maxSubsteps and the refit is O(#triangles).
+///      bounded by maxSubsteps and the refit is O(#triangles). Synchronous regions solve the
+///      secondary inline every period inside step() (which may allocate in CHOLMOD when loads
+///      fall on secondary nodes): threaded regions for live use.
 class DeformableBody {
   public:
     /// Allocates everything, builds the surface BVH and commits the Embree scene (the only
-    /// commit). @throw palp::ValueError for a null model, palp::Error from Embree.
+    /// commit); with asyncRegions, builds the regions centred on the free surface node nearest
+    /// options().regionsCentre (NaN: the first free surface node) and starts their threads.
+    /// @throw palp::ValueError for a null model or bad regions options, palp::Error from Embree.
     explicit DeformableBody(std::shared_ptr<const DeformableModel> model);
     ~DeformableBody();
     DeformableBody(const DeformableBody&) = delete;
@@ -169,8 +223,10 @@ class DeformableBody {
     Eigen::Vector3d anchoredPosition() const noexcept;
 
     /// FEM step by @p dtSeconds under the current load, then the deformed surface into the
-    /// surface BVH and a refit. Returns the solver's flags (fem::StepFlag) plus kRefitFailed or
-    /// kSurfaceOutsideBounds. @par Real-time
+    /// surface BVH and a refit. Returns the solver's flags (fem::StepFlag, and
+    /// fem::kAsyncLoadsRefused) plus kRefitFailed or kSurfaceOutsideBounds. asyncRegions: a
+    /// @p dtSeconds other than regions.tickSeconds does nothing and returns
+    /// fem::kStepBadTimeStep. @par Real-time
     unsigned step(double dtSeconds) noexcept;
     /// Flag of step(): the deformed surface had a non-finite coordinate; the previous surface
     /// stays.
@@ -179,10 +235,23 @@ class DeformableBody {
     /// its largest extent); rays may miss the parts outside it.
     static constexpr unsigned kSurfaceOutsideBounds = 1u << 9;
 
-    /// Nodal displacement, m (#dofs).
-    const Eigen::VectorXd& displacement() const noexcept { return mSolver.displacement(); }
+    /// Nodal displacement, m (#dofs); asyncRegions: surface nodes only (see above).
+    const Eigen::VectorXd& displacement() const noexcept {
+        return mRegions ? mU : mSolver->displacement();
+    }
     /// Current external nodal forces, N (#dofs).
-    const Eigen::VectorXd& nodalForce() noexcept { return mSolver.externalForce(); }
+    const Eigen::VectorXd& nodalForce() noexcept { return loadVector(); }
+    /// The asynchronous regions (asyncRegions), else nullptr.
+    fem::AsyncRegions* regions() noexcept { return mRegions.get(); }
+    const fem::AsyncRegions* regions() const noexcept { return mRegions.get(); }
+    /// asyncRegions: asks for the region centre to move to the free surface node nearest
+    /// @p point (e.g. where the tool is about to touch, before the contact); false when none.
+    /// @par Real-time
+    bool requestRegionsCentre(const Eigen::Vector3d& point) noexcept;
+    /// asyncRegions: the centre node last requested (or the initial one), -1 otherwise.
+    int requestedCentre() const noexcept { return mCentre; }
+    /// asyncRegions: number of centre moves requested so far.
+    int recentreRequests() const noexcept { return mRecentres; }
     /// Nodes loaded by the last applyContactForce() (the first loadedCount() entries).
     const std::vector<int>& loadedNodes() const noexcept { return mLoaded; }
     std::size_t loadedCount() const noexcept { return mLoadedCount; }
@@ -199,9 +268,17 @@ class DeformableBody {
 
   private:
     bool anchorOn(int tri, const Eigen::Vector3d& point, const Eigen::Vector3d& normal) noexcept;
+    Eigen::VectorXd& loadVector() noexcept { return mRegions ? mForce : mSolver->externalForce(); }
+    int nearestLoadNode(const Eigen::Vector3d& point) const noexcept;
 
     std::shared_ptr<const DeformableModel> mModel;
-    fem::ExplicitSolver mSolver;
+    std::unique_ptr<fem::ExplicitSolver> mSolver;  // wholeMeshExplicit
+    std::unique_ptr<fem::AsyncRegions> mRegions;   // asyncRegions
+    Eigen::VectorXd mU, mForce;                    // asyncRegions: surface displacement, loads
+    std::vector<fem::NodalLoad> mLoads;            // asyncRegions: one per load node
+    std::vector<Eigen::Vector3d> mWatched;         // asyncRegions: one per load node
+    int mCentre = -1;
+    int mRecentres = 0;
     std::unique_ptr<kernels::RefitMesh> mSurface;  // declared before mScene: outlives it
     std::unique_ptr<kernels::EmbreeScene> mScene;
     unsigned mGeom = 0;             // the geometry id hits on the surface report
