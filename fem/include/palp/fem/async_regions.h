@@ -64,8 +64,11 @@
 /// CHOLMOD secondary (secondaryFullField = false) the watched values come, like Gamma, from a
 /// dense response to the border taken at set-up (3 #watched x |border| doubles per layout, as
 /// many multiply-adds per solve); a solve with loads on secondary nodes, and the other
-/// secondaries, solve the whole field (two triangular solves: ~14 ms at 33^3 lod 2 against
-/// ~1 ms, bench_async force).
+/// secondaries, solve the whole field (two triangular solves: ~14 ms CPU at 33^3 lod 2 with
+/// the top face watched, against 0.2-0.5 ms for the direct responses; bench_async force).
+/// Stability: the quasi-static secondary removes the far field's inertia, so a loop that feeds
+/// the displacement back into the loads (virtual coupling) sees about the static compliance of
+/// the body; see haptics/deformable.h.
 ///
 /// Modes. Synchronous (deterministic, for accuracy tests and tables): the secondary is solved
 /// inline at the end of every secondary period of simulated time and used from the next tick.
