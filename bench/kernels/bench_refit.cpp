@@ -8,11 +8,13 @@
 // Each line: both figures (median microseconds) and the ratio Embree / palp.
 // Usage: bench_refit [frames]   (default 2000)
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
+#include <functional>
 #include <vector>
 
 #include "palp/kernels/embree_scene.h"
@@ -138,40 +140,43 @@ void run(int n, int frames) {
                                      size * (0.5 + 0.3 * std::sin(ang)));
         generateBundle(origin, Eigen::Vector3d(0.1 * std::sin(ang), 1, 0.05),
                        Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitZ(), bp, bundle);
-        const auto doPalp = [&] {
-            tPalpBundle.push_back(timeUs([&] { traceBundle(palp, bundle, kMaskSurface, hits); }));
-            for (int r = 0; r < hits.count; ++r) hitCount += hits.hit[static_cast<std::size_t>(r)];
-        };
-        const auto doEmbree = [&] {
-            tEmbreeBundle.push_back(
-                timeUs([&] { traceBundle(embree, bundle, kMaskSurface, hits); }));
-        };
-        const auto doLoops = [&] {
-            tPalpLoop.push_back(timeUs(
-                [&] { traceBundle(palp, bundle, kMaskSurface, hits, MeshTraceMode::Loop1); }));
-            tEmbreeLoop.push_back(timeUs(
-                [&] { traceBundle(embree, bundle, kMaskSurface, hits, MeshTraceMode::Loop1); }));
-        };
-        if (f % 2 == 0) {
-            doPalp();
-            doEmbree();
-            doLoops();
-        } else {
-            doEmbree();
-            doPalp();
-            doLoops();
-        }
-        tDirect.push_back(timeUs([&] {
-            TriangleHit h;
-            for (int r = 0; r < bundle.count; ++r) {
-                const auto i = static_cast<std::size_t>(r);
-                hitCount += refit.intersect({bundle.ox[i], bundle.oy[i], bundle.oz[i]},
-                                            {bundle.dx[i], bundle.dy[i], bundle.dz[i]}, 0.0f,
-                                            bundle.length[i], h)
-                                ? 1
-                                : 0;
-            }
-        }));
+        // Five queries of the same bundle, in an order rotated frame by frame so that each
+        // follows each of the others (and their cache footprint) equally often.
+        const std::array<std::function<void()>, 5> queries = {
+            [&] {
+                tPalpBundle.push_back(
+                    timeUs([&] { traceBundle(palp, bundle, kMaskSurface, hits); }));
+                for (int r = 0; r < hits.count; ++r)
+                    hitCount += hits.hit[static_cast<std::size_t>(r)];
+            },
+            [&] {
+                tEmbreeBundle.push_back(
+                    timeUs([&] { traceBundle(embree, bundle, kMaskSurface, hits); }));
+            },
+            [&] {
+                tPalpLoop.push_back(timeUs(
+                    [&] { traceBundle(palp, bundle, kMaskSurface, hits, MeshTraceMode::Loop1); }));
+            },
+            [&] {
+                tEmbreeLoop.push_back(timeUs([&] {
+                    traceBundle(embree, bundle, kMaskSurface, hits, MeshTraceMode::Loop1);
+                }));
+            },
+            [&] {
+                tDirect.push_back(timeUs([&] {
+                    TriangleHit h;
+                    for (int r = 0; r < bundle.count; ++r) {
+                        const auto i = static_cast<std::size_t>(r);
+                        hitCount += refit.intersect({bundle.ox[i], bundle.oy[i], bundle.oz[i]},
+                                                    {bundle.dx[i], bundle.dy[i], bundle.dz[i]},
+                                                    0.0f, bundle.length[i], h)
+                                        ? 1
+                                        : 0;
+                    }
+                }));
+            }};
+        for (std::size_t q = 0; q < queries.size(); ++q)
+            queries[(q + static_cast<std::size_t>(f) * 2) % queries.size()]();
     }
     std::printf(
         "grid surface %d^3 nodes: %zu triangles, palp BVH %zu nodes, depth %d; %d frames "
