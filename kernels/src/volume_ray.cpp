@@ -725,7 +725,7 @@ PALP_HOT bool setupHitRay(const HitContext& cx, const Eigen::Vector3d& origin,
     return true;
 }
 
-/// One ray's first-hit march, resumable at the runs of float-stepped samples through a block
+/// One ray's first-hit march, resumable at the runs of float-placed samples through a block
 /// (so that a bundle can take those runs eight rays at a time).
 struct HitMarch {
     IndexRay r;
@@ -825,7 +825,7 @@ PALP_HOT unsigned occupancy(const Table& tb, const float* base, float thr) noexc
 }
 
 /// Marches from sample m.k until the ray ends (false, @p out set) or reaches a run of at least
-/// one more float-stepped sample inside a block (true, the run set in @p m).
+/// one more float-placed sample inside a block (true, the run set in @p m).
 bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
     const Table& tb = *cx.tb;
     const IndexRay& r = m.r;
@@ -858,9 +858,9 @@ bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
                     out = hitAtSample(cx, m, k, v);
                     return false;
                 }
-                // The rest of the run through this block: block-local float positions, advanced
-                // by one float step per sample, recomputed exactly at every block entry (drift
-                // over one block is below 1e-4 voxel). The run ends at the block's exit; a sample
+                // The rest of the run through this block: block-local float positions
+                // q + float(i) s (runPos()), from q recomputed exactly at every block entry
+                // (error below 1e-5 voxel). The run ends at the block's exit; a sample
                 // that rounding puts a hair past the exit still reads its cell through the clamp
                 // in the run loop (the 9^3 copy holds the +1 layer), and one the run leaves out
                 // is simply the first of the next run.

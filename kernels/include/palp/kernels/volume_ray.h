@@ -202,10 +202,12 @@ struct BundleAccumulation {
 /// Degenerate input (zero or non-finite direction or origin, non-finite or negative length, a
 /// non-positive step, an empty grid) gives {t = max(length, 0) or 0, hit = false}.
 /// Time is bounded by kMaxSamplesPerRay samples (longer rays are cut there).
-/// Inside a block the march places samples by single-precision increments from the exact
-/// (double) position at the block entry, so a sample sits within about 1e-4 voxel of o + t_k d;
-/// the first sample of every run through a block and the sample before a run's first sample
-/// are exact, so params.skipEmpty never changes the result.
+/// Inside a block the march places sample i of a run at q + float(i) s in single precision,
+/// from the exact (double) block-local position q of the run's first sample, so a sample sits
+/// within about 1e-5 voxel of o + t_k d and its value does not depend on which samples were
+/// taken before it. Runs start at the same samples with and without skipping, and skipped
+/// blocks and 4^3 sub-blocks hold only values below the threshold, so params.skipEmpty never
+/// changes the result (bit for bit).
 /// @par Threading  Any number of threads on one view.
 /// @par Real-time  noexcept, no allocation, no lock.
 RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
