@@ -1,29 +1,153 @@
-// Traces the volume bench's bundles with palp's first-hit only (no baseline, no timing), for
-// instruction counts under callgrind:
+// Traces the volume bench's bundles with palp's first-hit only (no baseline), for instruction
+// counts under callgrind:
 //   valgrind --tool=callgrind --toggle-collect='palp::kernels::traceFirstHit*'
 //       build/rays/bench/kernels/profile_rays phantom|FILE.vdb trajectory|random FRAMES [RAYS]
 //       [scalar]
 // (one command line)
 // and prints the number of rays hit (so the work cannot be optimised away).
+//
+// With `percentiles` (or `percentiles-cold`) as the fifth argument it times every bundle on the
+// thread CPU clock instead (best of 5 back-to-back calls: hot caches; or one call after writing
+// 8 MiB: cold caches) and prints mean, p50, p90, p99 and p99.9 of the per-bundle time, each
+// with the average make-up of the samples up to the hit of the ten bundles around it: in a
+// skippable block, in a 4^3 sub-block below the threshold, in a cell whose eight corners are all
+// below it, or none of these.
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <exception>
 #include <string>
+#include <vector>
 
 #include "palp/kernels/ray_bench.h"
 #include "palp/kernels/volume_ray.h"
 
+namespace {
+
+using namespace palp::kernels;
+
+double cpuUs() {
+    timespec ts{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return static_cast<double>(ts.tv_sec) * 1e6 + static_cast<double>(ts.tv_nsec) * 1e-3;
+}
+
+struct BundleProfile {
+    double us = 0;
+    double block = 0, sub = 0, cell = 0, must = 0;  // samples up to the hit, by kind
+};
+
+// Classifies the lattice samples of every ray of @p b up to its hit (from @p hits).
+void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits, double step,
+              float thr, BundleProfile& p) {
+    const auto& tb = view.table();
+    for (int r = 0; r < b.count; ++r) {
+        const auto i = static_cast<std::size_t>(r);
+        const Eigen::Vector3d o(b.ox[i], b.oy[i], b.oz[i]);
+        const Eigen::Vector3d d = Eigen::Vector3d(b.dx[i], b.dy[i], b.dz[i]).normalized();
+        const double len = b.length[i];
+        const double tEnd = hits.hit[i] ? static_cast<double>(hits.t[i]) : len;
+        const auto kEnd = static_cast<int>(std::ceil(tEnd / step - 1e-9));
+        for (int k = 0; k <= kEnd; ++k) {
+            const Eigen::Vector3d x = view.indexFromWorld(o + std::min(k * step, len) * d);
+            const auto ix = static_cast<long>(std::floor(x.x())) - tb.origin[0];
+            const auto iy = static_cast<long>(std::floor(x.y())) - tb.origin[1];
+            const auto iz = static_cast<long>(std::floor(x.z())) - tb.origin[2];
+            if (ix < 0 || iy < 0 || iz < 0 || (ix >> 3) >= tb.blocks[0] ||
+                (iy >> 3) >= tb.blocks[1] || (iz >> 3) >= tb.blocks[2])
+                continue;
+            const auto blk = static_cast<std::size_t>(
+                ((ix >> 3) * tb.blocks[1] + (iy >> 3)) * tb.blocks[2] + (iz >> 3));
+            if (tb.maxDilated[blk] < thr) {
+                p.block += 1;
+                continue;
+            }
+            const float* copy = tb.data[blk];
+            const long lx = ix & 7, ly = iy & 7, lz = iz & 7;
+            const auto c = static_cast<std::size_t>(copy - tb.padded) /
+                           static_cast<std::size_t>(VolumeView::Table::kPadded);
+            const auto s =
+                static_cast<std::size_t>(((lx >> 2) << 2) | ((ly >> 2) << 1) | (lz >> 2));
+            if (tb.subMax[c * VolumeView::Table::kSubBlocks + s] < thr) {
+                p.sub += 1;
+                continue;
+            }
+            float mx = copy[(lx * 9 + ly) * 9 + lz];
+            for (long n = 1; n < 8; ++n)
+                mx = std::max(mx,
+                              copy[((lx + (n >> 2)) * 9 + ly + ((n >> 1) & 1)) * 9 + lz + (n & 1)]);
+            (mx < thr ? p.cell : p.must) += 1;
+        }
+    }
+}
+
+void percentiles(const std::vector<RayBundle>& bundles, const VolumeView& view,
+                 const FirstHitParams& fp, bool cold) {
+    std::vector<BundleProfile> prof(bundles.size());
+    std::vector<char> junk(std::size_t{8} << 20);
+    BundleHits hits;
+    char salt = 0;
+    for (std::size_t f = 0; f < bundles.size(); ++f) {
+        double best = 1e30;
+        if (cold) {
+            ++salt;
+            for (std::size_t q = 0; q < junk.size(); q += 64)
+                junk[q] = static_cast<char>(junk[q] + salt);
+            const double c0 = cpuUs();
+            traceFirstHit(view, bundles[f], fp, hits);
+            best = cpuUs() - c0;
+        } else {
+            for (int rep = 0; rep < 5; ++rep) {
+                const double c0 = cpuUs();
+                traceFirstHit(view, bundles[f], fp, hits);
+                best = std::min(best, cpuUs() - c0);
+            }
+        }
+        prof[f].us = best;
+        classify(view, bundles[f], hits, fp.step, fp.threshold, prof[f]);
+    }
+    std::sort(prof.begin(), prof.end(),
+              [](const BundleProfile& a, const BundleProfile& b) { return a.us < b.us; });
+    auto print = [&](const char* name, std::size_t lo, std::size_t hi) {
+        BundleProfile a;
+        for (std::size_t i = lo; i < hi; ++i) {
+            a.us += prof[i].us;
+            a.block += prof[i].block;
+            a.sub += prof[i].sub;
+            a.cell += prof[i].cell;
+            a.must += prof[i].must;
+        }
+        const auto n = static_cast<double>(hi - lo);
+        std::printf(
+            "%-6s %7.2f us  samples: skippable block %5.0f, empty 4^3 sub-block %5.0f, cell below "
+            "threshold %4.0f, other %4.0f\n",
+            name, a.us / n, a.block / n, a.sub / n, a.cell / n, a.must / n);
+    };
+    print("mean", 0, prof.size());
+    const std::pair<const char*, double> qs[] = {
+        {"p50", 0.5}, {"p90", 0.9}, {"p99", 0.99}, {"p99.9", 0.999}};
+    for (const auto& [name, q] : qs) {
+        const auto c = static_cast<std::size_t>(q * static_cast<double>(prof.size()));
+        const std::size_t lo = c >= 5 ? c - 5 : 0, hi = std::min(prof.size(), c + 5);
+        print(name, lo, std::max(hi, lo + 1));
+    }
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
     try {
-        using namespace palp::kernels;
         if (argc < 4) {
-            std::fprintf(
-                stderr,
-                "usage: profile_rays phantom|FILE.vdb trajectory|random FRAMES [RAYS] [scalar]\n");
+            std::fprintf(stderr,
+                         "usage: profile_rays phantom|FILE.vdb trajectory|random FRAMES [RAYS] "
+                         "[scalar|percentiles|percentiles-cold]\n");
             return 2;
         }
         const std::string src = argv[1];
         const bool trajectory = std::string(argv[2]) == "trajectory";
+        const std::string mode = argc > 5 ? argv[5] : "";
         RayBenchOptions o;
         o.frames = std::atoi(argv[3]);
         if (argc > 4) o.rays = std::atoi(argv[4]);
@@ -41,7 +165,11 @@ int main(int argc, char** argv) {
         FirstHitParams fp;
         fp.threshold = o.threshold;
         fp.step = o.step;
-        fp.simd = !(argc > 5 && std::string(argv[5]) == "scalar");
+        fp.simd = mode != "scalar";
+        if (mode == "percentiles" || mode == "percentiles-cold") {
+            percentiles(bundles, view, fp, mode == "percentiles-cold");
+            return 0;
+        }
         BundleHits hits;
         long hitCount = 0;
         for (const auto& b : bundles) {
