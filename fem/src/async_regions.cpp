@@ -225,6 +225,8 @@ struct AsyncRegions::Impl {
     void setGamma(const Layout& layout, double* target, double t, bool product) noexcept;
     void acceptSolution(const double* gamma, const double* border, const double* watch) noexcept;
     void seedWatched(const Layout& from) noexcept;
+    Eigen::Vector3d shown(const Layout& layout, int node, double frac) const noexcept;
+    double shownFraction() const noexcept;
     void takeLoads(std::span<const NodalLoad> loads, AsyncTickResult& result) noexcept;
     void packLoads(Packet& out) noexcept;
     AsyncTickResult advance(const Eigen::Vector3d& contactDisplacement,
@@ -1445,34 +1447,42 @@ Eigen::VectorXd AsyncRegions::displacement() const {
     return out;
 }
 
-Eigen::Vector3d AsyncRegions::nodeDisplacement(int node) const noexcept {
-    const Impl& m = *mImpl;
-    const HexMesh& mesh = m.model.mesh();
-    if (node < 0 || node >= mesh.nodeCount())
-        return Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
-    const Layout& L = *m.layouts[sz(m.current)];
+Eigen::Vector3d AsyncRegions::Impl::shown(const Layout& L, int node, double frac) const noexcept {
     const std::size_t n = sz(node);
-    if (L.isPrimary[n] || L.isGamma[n]) return m.u.segment<3>(3 * node);
-    const int w = m.watchIndex[n];
+    if (L.isPrimary[n] || L.isGamma[n]) return u.segment<3>(3 * node);
+    const int w = watchIndex[n];
     Eigen::Vector3d out = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
-    double frac = 1.0;
-    if (m.options.interpolate) frac = std::clamp((m.time - m.gStart) / m.periodSeconds, 0.0, 1.0);
+    const bool active = model.mesh().nodeActive()[n];
     for (int k = 0; k < 3; ++k) {
         const int d = 3 * node + k;
-        if (m.fixed[sz(d)] || !mesh.nodeActive()[n]) {
-            out[k] = m.u[d];
+        if (fixed[sz(d)] || !active) {
+            out[k] = u[d];
         } else if (w >= 0) {
             const std::size_t i = 3 * sz(w) + sz(k);
-            out[k] = m.wPrev[i] + frac * (m.wCur[i] - m.wPrev[i]);
+            out[k] = wPrev[i] + frac * (wCur[i] - wPrev[i]);
         }
     }
     return out;
 }
 
+double AsyncRegions::Impl::shownFraction() const noexcept {
+    return options.interpolate ? std::clamp((time - gStart) / periodSeconds, 0.0, 1.0) : 1.0;
+}
+
+Eigen::Vector3d AsyncRegions::nodeDisplacement(int node) const noexcept {
+    const Impl& m = *mImpl;
+    if (node < 0 || node >= m.model.mesh().nodeCount())
+        return Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+    return m.shown(*m.layouts[sz(m.current)], node, m.shownFraction());
+}
+
 std::size_t AsyncRegions::watchedDisplacements(std::span<Eigen::Vector3d> out) const noexcept {
-    const std::vector<int>& watch = mImpl->options.watchNodes;
+    const Impl& m = *mImpl;
+    const std::vector<int>& watch = m.options.watchNodes;
     const std::size_t count = std::min(out.size(), watch.size());
-    for (std::size_t i = 0; i < count; ++i) out[i] = nodeDisplacement(watch[i]);
+    const Layout& L = *m.layouts[sz(m.current)];
+    const double frac = m.shownFraction();
+    for (std::size_t i = 0; i < count; ++i) out[i] = m.shown(L, watch[i], frac);
     return count;
 }
 
