@@ -55,10 +55,15 @@ TimingStats timeFrames(int warmUp, std::size_t frames, F&& frame) {
     return stats(us);
 }
 
-/// Times several frame functions interleaved frame by frame (the order rotates every frame), so
-/// that all of them see the same machine load; returns one TimingStats per function.
+/// Times several frame functions interleaved so that all of them see the same machine load;
+/// returns one TimingStats per function. @p block = 1: frame by frame (the order rotates every
+/// frame), so each function's frame runs right after the others' frames have used the caches;
+/// @p block > 1: each function runs @p block consecutive frames in turn (the order rotates every
+/// block), so it finds its own data in the caches, as a servo thread that owns its core does
+/// from one tick to the next.
 std::vector<TimingStats> timeInterleaved(int warmUp, std::size_t frames,
-                                         const std::vector<std::function<void(std::size_t)>>& fns) {
+                                         const std::vector<std::function<void(std::size_t)>>& fns,
+                                         std::size_t block = 1) {
     const std::size_t n = fns.size();
     for (int i = 0; i < warmUp; ++i)
         for (const auto& f : fns) f(static_cast<std::size_t>(i) % frames);
@@ -76,15 +81,18 @@ std::vector<TimingStats> timeInterleaved(int warmUp, std::size_t frames,
     }
     std::vector<std::vector<double>> us(n, std::vector<double>(frames));
     std::vector<std::vector<double>> cpu(n, std::vector<double>(frames));
-    for (std::size_t f = 0; f < frames; ++f)
+    block = std::max<std::size_t>(1, block);
+    for (std::size_t start = 0; start < frames; start += block)
         for (std::size_t j = 0; j < n; ++j) {
-            const std::size_t k = (j + f) % n;
-            const double c0 = cpuNow();
-            const auto t0 = Clock::now();
-            fns[k](f);
-            const auto t1 = Clock::now();
-            cpu[k][f] = cpuNow() - c0 - overhead;
-            us[k][f] = std::chrono::duration<double, std::micro>(t1 - t0).count();
+            const std::size_t k = (j + start / block) % n;
+            for (std::size_t f = start; f < std::min(frames, start + block); ++f) {
+                const double c0 = cpuNow();
+                const auto t0 = Clock::now();
+                fns[k](f);
+                const auto t1 = Clock::now();
+                cpu[k][f] = cpuNow() - c0 - overhead;
+                us[k][f] = std::chrono::duration<double, std::micro>(t1 - t0).count();
+            }
         }
     std::vector<TimingStats> out;
     for (std::size_t k = 0; k < n; ++k) {
@@ -393,6 +401,31 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
         BenchComparison c2 = compare(name + ", no empty-space skipping", "palp", "OpenVDB baseline",
                                      palpNoSkip, baseline);
         report.lines.push_back(c2);
+        // The same two kernels in blocks of frames: each finds its own data in the caches, as
+        // on a servo thread that owns its core (the frame-by-frame figures above are the
+        // pessimistic case, where each frame follows the other kernel's frame).
+        if (o.warmBlockFrames > 1) {
+            const auto w = timeInterleaved(o.warmUp, frames,
+                                           {[&](std::size_t f) {
+                                                traceFirstHit(view, set.bundles[f], fp, hits);
+                                                sink += hits.t[0];
+                                            },
+                                            [&](std::size_t f) {
+                                                const RayBundle& b = set.bundles[f];
+                                                for (int r = 0; r < b.count; ++r) {
+                                                    bool hit;
+                                                    sink +=
+                                                        base.trace(b, static_cast<std::size_t>(r),
+                                                                   o.step, o.threshold, hit);
+                                                }
+                                            }},
+                                           static_cast<std::size_t>(o.warmBlockFrames));
+            BenchComparison c3 =
+                compare(name + ", warm (blocks of " + std::to_string(o.warmBlockFrames) +
+                            " frames per kernel)",
+                        "palp", "OpenVDB baseline", w[0], w[1]);
+            report.lines.push_back(c3);
+        }
     }
 }
 

@@ -21,11 +21,8 @@ namespace {
 
 json stats(const kernels::TimingStats& s, const std::string& unit) {
     if (unit == "Mrays/s") return {{"mrays_per_s", s.meanUs}};
-    return {{"mean_us", s.meanUs},
-            {"p99_us", s.p99Us},
-            {"max_us", s.maxUs},
-            {"cpu_mean_us", s.cpuMeanUs},
-            {"frames", s.samples}};
+    return {{"mean_us", s.meanUs},        {"p99_us", s.p99Us},        {"max_us", s.maxUs},
+            {"cpu_mean_us", s.cpuMeanUs}, {"cpu_p99_us", s.cpuP99Us}, {"frames", s.samples}};
 }
 
 }  // namespace
@@ -38,6 +35,7 @@ Command addBench(CLI::App& root) {
         double voxelMm = 0;
         int rays = 0;
         int frames = 10000;
+        int warmBlock = 250;
         float threshold = 300;
         bool json = false;
         bool noPin = false;
@@ -62,6 +60,10 @@ Command addBench(CLI::App& root) {
     app->add_option("--frames", args->frames, "Measured frames per figure")
         ->check(CLI::Range(10, 10000000));
     app->add_option("--threshold", args->threshold, "First-hit threshold (HU for CT), default 300");
+    app->add_option("--warm-block", args->warmBlock,
+                    "Volume: also time palp and the baseline in blocks of this many frames each "
+                    "(warm caches, as a servo thread owning its core); 0: skip (default 250)")
+        ->check(CLI::Range(0, 100000));
     app->add_flag("--json", args->json, "Print the figures as JSON");
     app->add_flag("--no-pin", args->noPin, "Do not pin the measuring thread to one core");
     app->add_flag("--no-batch", args->noBatch, "Skip the batch-throughput figures");
@@ -75,6 +77,7 @@ Command addBench(CLI::App& root) {
                 o.frames = args->frames;
                 o.warmUp = std::min(500, args->frames);
                 o.threshold = args->threshold;
+                o.warmBlockFrames = args->warmBlock;
                 o.batchBundles = std::max(200, std::min(20000, 2 * args->frames));
                 kernels::RayBenchReport report;
                 report.machine = kernels::machineDescription();

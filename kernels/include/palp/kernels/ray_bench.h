@@ -25,6 +25,9 @@ struct RayBenchOptions {
     float threshold = 300;     ///< first-hit threshold (HU for CT)
     int batchBundles = 20000;  ///< bundles per batch-throughput run
     bool pin = true;           ///< pin the measuring thread to one core
+    /// Volume lines: also time palp and the baseline in blocks of this many frames each (warm
+    /// caches, as a servo thread owning its core); <= 1 skips that line.
+    int warmBlockFrames = 250;
     std::uint64_t seed = 1;
 };
 
