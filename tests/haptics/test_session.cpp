@@ -576,7 +576,7 @@ class HeldPositionDevice final : public Device {
 // or above zero at every tick, the added damping stays within the device's maxDampingNspm, and
 // the force stays finite and bounded by the spring plus that damping.
 TEST_F(SessionTest, PassivityControllerKeepsAnActiveWallPassive) {
-    constexpr double k = 1000;  // N/m; the omega.3 renders up to 14500
+    constexpr double k = 1000;    // N/m; the omega.3 renders up to 14500
     constexpr int kTicks = 3000;  // six press cycles
     struct Run {
         double minW = 0, finalW = 0, generated = 0, maxAlpha = 0, maxForce = 0, maxBound = 0;
