@@ -13,6 +13,7 @@ TEST(RayBench, SmokePass) {
     o.warmUp = 2;
     o.batchBundles = 50;
     o.pin = false;
+    o.warmBlockFrames = 5;
     RayBenchReport report;
     auto phantom = makeRayBenchPhantom(1e-3);
     o.rays = 25;
@@ -20,7 +21,8 @@ TEST(RayBench, SmokePass) {
     o.rays = 17;
     benchMeshRays(o, nullptr, report);
     benchBatchRays(phantom, "phantom", o, report);
-    ASSERT_EQ(report.lines.size(), 4u + 6u + 2u + 1u);
+    // Volume: per set (trajectory, random) the line, the no-skip line and the warm-block line.
+    ASSERT_EQ(report.lines.size(), 6u + 6u + 2u + 1u);
     for (const auto& l : report.lines) {
         EXPECT_GT(l.a.meanUs, 0) << l.name;
         EXPECT_GT(l.b.meanUs, 0) << l.name;
