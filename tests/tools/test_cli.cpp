@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <nlohmann/json.hpp>
 
 #include "test_support.h"
 
@@ -37,6 +38,32 @@ TEST(Cli, UnwritableOutputDirectoryIsRefusedBeforeWork) {
     EXPECT_NE(r.exitCode, 0);
     EXPECT_NE(r.output.find("palp: error: "), std::string::npos) << r.output;
     EXPECT_NE(r.output.find("dir.vdb"), std::string::npos) << r.output;
+}
+
+// `palp palpate --deformable` presses the bone phantom with the same coupling on the whole-mesh
+// explicit solver and on the asynchronous regions (synchronous, as --fast runs them): the press
+// does not move the contact, so both solve the same tissue and must feel the same.
+TEST(Cli, PalpateDeformableRegionsAgreeWithTheWholeMesh) {
+    auto run = [](const std::string& solver) {
+        const auto r = runCommand(palp::test::palpTool().string() +
+                                  " palpate --phantom bone --deformable --fem-solver " + solver +
+                                  " --fast --trajectory press --seconds 2 --k-base 50 --json");
+        EXPECT_EQ(r.exitCode, 0) << r.output;
+        const auto brace = r.output.find('{');
+        EXPECT_NE(brace, std::string::npos) << r.output;
+        return nlohmann::json::parse(r.output.substr(brace == std::string::npos ? 0 : brace));
+    };
+    const auto whole = run("explicit");
+    const auto regions = run("regions");
+    EXPECT_EQ(regions["deformable"]["solver"], "regions");
+    const double f0 = whole["max_force_n"], f1 = regions["max_force_n"];
+    const double d0 = whole["deformable"]["max_displacement_mm"];
+    const double d1 = regions["deformable"]["max_displacement_mm"];
+    EXPECT_GT(f0, 0.05);  // the press reaches the tissue
+    EXPECT_GT(d0, 1.0);
+    EXPECT_NEAR(f1, f0, 0.05 * f0);
+    EXPECT_NEAR(d1, d0, 0.05 * d0);
+    EXPECT_EQ(regions["faulted_ticks"], 0);
 }
 
 }  // namespace

@@ -135,6 +135,10 @@ Command addPalpate(CLI::App& root) {
         double filterMm = 3;
         double boneHu = 500;
         double tissueHu = -200;
+        std::string femSolver = "explicit";
+        int primaryNodes = 60;
+        double secondaryHz = 100;
+        int lod = 1;
     };
     auto args = std::make_shared<Args>();
     CLI::App* app = root.add_subcommand(
@@ -178,7 +182,21 @@ Command addPalpate(CLI::App& root) {
         app->add_option("--bone-hu", args->boneHu,
                         "deformable: cells above this are bone, their nodes fixed (500 HU)"),
         app->add_option("--tissue-hu", args->tissueHu,
-                        "deformable: cells above this are tissue (-200 HU)")};
+                        "deformable: cells above this are tissue (-200 HU)"),
+        app->add_option("--fem-solver", args->femSolver,
+                        "deformable: 'explicit' (whole mesh every tick, default) or 'regions' "
+                        "(asynchronous regions: explicit primary around the contact, implicit "
+                        "secondary; threaded with --realtime; with --fast synchronous and slow, "
+                        "since every contact move rebuilds the layout inline)")
+            ->check(CLI::IsMember({"explicit", "regions"})),
+        app->add_option("--primary-nodes", args->primaryNodes,
+                        "regions: seed nodes of the primary region (60)")
+            ->check(CLI::Range(1, 100000)),
+        app->add_option("--secondary-hz", args->secondaryHz,
+                        "regions: secondary solve rate, Hz (100)")
+            ->check(CLI::Range(1.0, 1000.0)),
+        app->add_option("--lod", args->lod, "regions: secondary level of detail, 1, 2 or 4 (1)")
+            ->check(CLI::IsMember({1, 2, 4}))};
     app->add_option("--mode", args->mode, "Coupling: vc, avc or avcec (default per scene)");
     app->add_option("--source", args->source,
                     "Ray source: mesh, first-hit or accumulate (default per scene)");
@@ -346,7 +364,10 @@ Command addPalpate(CLI::App& root) {
                 cp.mode = haptics::CouplingMode::VC;
                 // Explicit tissue coupling is stable for k below the tissue's local stiffness
                 // (deformable.h): a softer default than the rigid scenes' 300 N/m.
-                if (!std::isfinite(a.kBase)) cp.baseStiffness = 100;
+                // On the asynchronous regions the loop also sees the quasi-static secondary's
+                // compliance one period late while a new layout is prepared: 100 N/m oscillates
+                // on the bone phantom there, 50 N/m does not (bench/README.md).
+                if (!std::isfinite(a.kBase)) cp.baseStiffness = a.femSolver == "regions" ? 50 : 100;
             }
             if (!a.source.empty()) cp.source = parseSource(a.source);
             if (std::isfinite(a.kBase)) cp.baseStiffness = a.kBase;
@@ -402,6 +423,16 @@ Command addPalpate(CLI::App& root) {
                 mat.dampingBeta = a.femBeta;
                 haptics::DeformableOptions dopt;
                 dopt.filterWidth = a.filterMm * 1e-3;
+                if (a.femSolver == "regions") {
+                    dopt.solverKind = haptics::DeformableSolver::asyncRegions;
+                    dopt.regions.tickSeconds = period;
+                    dopt.regions.primaryNodes = a.primaryNodes;
+                    dopt.regions.secondaryRate = a.secondaryHz;
+                    dopt.regions.lod = a.lod;
+                    // Offline runs are deterministic (secondary inline every period); a live
+                    // session solves it on its own thread.
+                    dopt.regions.threaded = a.realtime;
+                }
                 // Supported on the face opposite the pressed one.
                 const auto support = static_cast<fem::BoxFace>(2 * pa + (press[pa] > 0 ? 1 : 0));
                 body = haptics::DeformableModel::fromVolume(vol, vo, mat, support, dopt);
@@ -629,6 +660,7 @@ Command addPalpate(CLI::App& root) {
                                        {"filter_mm", a.filterMm},
                                        {"cell_mm", a.femCellMm},
                                        {"young_kpa", a.youngKpa},
+                                       {"solver", a.femSolver},
                                        {"max_displacement_mm", maxDisp * 1e3}};
                 }
                 if (!a.trace.empty()) j["trace"] = a.trace;
@@ -675,11 +707,11 @@ Command addPalpate(CLI::App& root) {
                     for (const auto& s : snaps) maxDisp = std::max(maxDisp, s.maxDisplacement);
                     std::printf(
                         "deformable: %d nodes, %d elements, %zu surface triangles, %zu fixed "
-                        "nodes (support + bone), filter %.1f mm, E %.1f kPa; largest surface "
-                        "displacement %.2f mm\n",
+                        "nodes (support + bone), filter %.1f mm, E %.1f kPa, %s solver; largest "
+                        "surface displacement %.2f mm\n",
                         body->model().mesh().nodeCount(), body->model().mesh().elementCount(),
                         body->surface().triangles.size(), body->fixedNodes().size(), a.filterMm,
-                        a.youngKpa, maxDisp * 1e3);
+                        a.youngKpa, a.femSolver.c_str(), maxDisp * 1e3);
                 }
                 if (!a.trace.empty()) std::printf("wrote %s\n", a.trace.c_str());
                 if (!a.map.empty())
