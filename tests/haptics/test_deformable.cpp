@@ -21,55 +21,14 @@
 #include "palp/haptics/deformable.h"
 #include "palp/haptics/session.h"
 #include "palp/volume/phantom.h"
+#include "session_fixtures.h"
 
 namespace palp::haptics {
 namespace {
 
-constexpr double kT = 1e-3;
-
-const DeviceSpec& touchX() {
-    const DeviceSpec* s = findDeviceSpec("3D Systems Touch X");
-    EXPECT_NE(s, nullptr);
-    return *s;
-}
-
-// A kinematic hand: the probe follows a piecewise-linear path through keyframes exactly.
-class PathDevice final : public Device {
-  public:
-    struct Key {
-        double t;
-        Eigen::Vector3d p;
-    };
-    explicit PathDevice(std::vector<Key> keys) : mKeys(std::move(keys)) {}
-    DeviceState read() noexcept override {
-        const double t = static_cast<double>(mTick++) * kT;
-        DeviceState s;
-        s.velocity.setZero();
-        s.position = mKeys.back().p;
-        if (t <= mKeys.front().t) s.position = mKeys.front().p;
-        for (std::size_t i = 1; i < mKeys.size(); ++i) {
-            if (t > mKeys[i - 1].t && t <= mKeys[i].t) {
-                const double a = (t - mKeys[i - 1].t) / (mKeys[i].t - mKeys[i - 1].t);
-                s.position = mKeys[i - 1].p + a * (mKeys[i].p - mKeys[i - 1].p);
-                s.velocity = (mKeys[i].p - mKeys[i - 1].p) / (mKeys[i].t - mKeys[i - 1].t);
-                break;
-            }
-        }
-        s.timestampSeconds = t;
-        mLast = s;
-        return s;
-    }
-    void write(const Eigen::Vector3d& f) noexcept override { mForce = f; }
-    const DeviceSpec& spec() const noexcept override { return touchX(); }
-    const DeviceState& last() const { return mLast; }
-    double endTime() const { return mKeys.back().t; }
-
-  private:
-    std::vector<Key> mKeys;
-    std::uint64_t mTick = 0;
-    DeviceState mLast;
-    Eigen::Vector3d mForce{Eigen::Vector3d::Zero()};
-};
+using fixtures::kT;
+using fixtures::PathDevice;
+using fixtures::touchX;
 
 Eigen::Vector3d mm(double x, double y, double z) { return 1e-3 * Eigen::Vector3d(x, y, z); }
 

@@ -132,7 +132,8 @@ struct Snapshot {
     Eigen::Vector3d tissueForce{Eigen::Vector3d::Zero()};
     int contactNode = -1;        ///< FEM node with the largest share of the load, -1: none
     double maxDisplacement = 0;  ///< largest surface node displacement after the step, m
-    unsigned femFlags = 0;       ///< fem::StepFlag bits | DeformableBody::kRefitFailed
+    unsigned femFlags =
+        0;  ///< fem::StepFlag bits, DeformableBody::kRefitFailed / kSurfaceOutsideBounds
 };
 
 /// A parameter change sent to a running session; applied at a tick boundary (coupling changes
