@@ -23,6 +23,7 @@
 #include <thread>
 
 #include "palp/error.h"
+#include "palp/parallel.h"
 
 namespace palp::fem {
 
@@ -851,11 +852,11 @@ bool AsyncRegions::Impl::solveSecondary(Layout& L, const double* borderValues, c
                 // Warm-started Jacobi PCG, SpMV and dots on the arena's TBB threads.
                 auto spmv = [&](const Eigen::VectorXd& in, Eigen::VectorXd& out) {
                     const RowMatrix& A = L.rowA;
-                    tbb::parallel_for(tbb::blocked_range<int>(0, unknowns, 512),
-                                      [&](const tbb::blocked_range<int>& rg) {
-                                          for (int i = rg.begin(); i != rg.end(); ++i)
-                                              out[i] = A.row(i).dot(in);
-                                      });
+                    parallelFor(tbb::blocked_range<int>(0, unknowns, 512),
+                                [&](const tbb::blocked_range<int>& rg) {
+                                    for (int i = rg.begin(); i != rg.end(); ++i)
+                                        out[i] = A.row(i).dot(in);
+                                });
                 };
                 auto dot = [&](const Eigen::VectorXd& x1, const Eigen::VectorXd& x2) {
                     return tbb::parallel_reduce(

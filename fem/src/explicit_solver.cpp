@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "palp/error.h"
+#include "palp/parallel.h"
 
 namespace palp::fem {
 
@@ -172,7 +173,7 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
                               mTwoMass.data(), mPrevCoef.data(), mInvDen.data(), mUPrev.data());
         };
         if constexpr (kParallel) {
-            tbb::parallel_for(
+            parallelFor(
                 tbb::blocked_range<std::size_t>(0, dofCount, 4096),
                 [&](const tbb::blocked_range<std::size_t>& r) { update(r.begin(), r.end()); });
         } else {

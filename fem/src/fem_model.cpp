@@ -10,51 +10,13 @@
 
 #include "palp/error.h"
 #include "palp/fem/hex_element.h"
-
-// ThreadSanitizer cannot see the fork and join edges of Debian's libtbb (it is not
-// instrumented), so it reports every read a task makes of data the caller wrote before the loop
-// (the lambda's captures, the row offsets) and every read the caller makes of the tasks' results
-// afterwards (rowNnz, the matrix arrays): 162 reports in one tsan run of test_async_regions,
-// each pairing a TBB worker with the calling thread, none two workers. parallelNodes() states
-// exactly those two edges, and nothing between tasks, so a race between tasks stays visible (as
-// in kernels/src/ray_batch.cpp).
-#if defined(__SANITIZE_THREAD__)
-#define PALP_TSAN 1
-#elif defined(__has_feature)
-#if __has_feature(thread_sanitizer)
-#define PALP_TSAN 1
-#endif
-#endif
-#ifdef PALP_TSAN
-#include <sanitizer/tsan_interface.h>
-#endif
+#include "palp/parallel.h"
 
 namespace palp::fem {
 
 namespace {
 
 std::size_t sz(int v) { return static_cast<std::size_t>(v); }
-
-/// tbb::parallel_for(0, n, f) with the fork and join edges annotated for ThreadSanitizer.
-template <class F>
-void parallelNodes(int n, F&& f) {
-#ifdef PALP_TSAN
-    char fork = 0, join = 0;  // addresses only: the sync objects of the two edges
-    __tsan_release(&fork);
-#endif
-    tbb::parallel_for(tbb::blocked_range<int>(0, n), [&](const tbb::blocked_range<int>& r) {
-#ifdef PALP_TSAN
-        __tsan_acquire(&fork);
-#endif
-        for (int i = r.begin(); i != r.end(); ++i) f(i);
-#ifdef PALP_TSAN
-        __tsan_release(&join);
-#endif
-    });
-#ifdef PALP_TSAN
-    __tsan_acquire(&join);
-#endif
-}
 
 /// Eight doubles (one AVX-512 register, two AVX2 ones, four SSE2 ones): GCC lowers the vector
 /// extension to whatever the clone being compiled supports.
@@ -199,7 +161,7 @@ void FemModel::stiffnessTimesParallel(const double* u, double* f) const {
     std::fill(f, f + mMesh.dofCount(), 0.0);
     for (int parity = 0; parity < 2; ++parity) {
         const int slabs = (cz - parity + 1) / 2;
-        tbb::parallel_for(tbb::blocked_range<int>(0, slabs), [&](const tbb::blocked_range<int>& r) {
+        parallelFor(tbb::blocked_range<int>(0, slabs), [&](const tbb::blocked_range<int>& r) {
             for (int s = r.begin(); s != r.end(); ++s) {
                 const int k = 2 * s + parity;
                 addStiffnessTimesSlab(u, f, k, k + 1);
@@ -245,7 +207,7 @@ SparseMatrix FemModel::assembleStiffness() const {
         }
     };
     // Each task writes only its own nodes' rowNnz entries.
-    parallelNodes(nodes, [&](int n) {
+    parallelForEach(0, nodes, [&](int n) {
         // Mark which of the 27 neighbour offsets are coupled.
         bool used[27] = {};
         cellsOfNode(n, [&](int, int, int ci, int cj, int ck) {
@@ -276,7 +238,7 @@ SparseMatrix FemModel::assembleStiffness() const {
     const double* ke = mUnitKe.data();
     const std::vector<double>& youngs = mMesh.cellYoungs();
     // Each task writes only the entries of its own node's three rows (from outer[3n]).
-    parallelNodes(nodes, [&](int n) {
+    parallelForEach(0, nodes, [&](int n) {
         const auto ijk = mMesh.nodeCoords(n);
         double block[27][3][3] = {};
         bool used[27] = {};

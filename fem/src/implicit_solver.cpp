@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "palp/error.h"
+#include "palp/parallel.h"
 
 namespace palp::fem {
 
@@ -23,15 +24,14 @@ void parallelSpmv(const RowMatrix& a, const Eigen::VectorXd& x, Eigen::VectorXd&
     const int* outer = a.outerIndexPtr();
     const int* inner = a.innerIndexPtr();
     const double* val = a.valuePtr();
-    tbb::parallel_for(tbb::blocked_range<int>(0, static_cast<int>(a.rows()), 1024),
-                      [&](const tbb::blocked_range<int>& r) {
-                          for (int i = r.begin(); i != r.end(); ++i) {
-                              double s = 0.0;
-                              for (int p = outer[i]; p < outer[i + 1]; ++p)
-                                  s += val[p] * x[inner[p]];
-                              y[i] = s;
-                          }
-                      });
+    parallelFor(tbb::blocked_range<int>(0, static_cast<int>(a.rows()), 1024),
+                [&](const tbb::blocked_range<int>& r) {
+                    for (int i = r.begin(); i != r.end(); ++i) {
+                        double s = 0.0;
+                        for (int p = outer[i]; p < outer[i + 1]; ++p) s += val[p] * x[inner[p]];
+                        y[i] = s;
+                    }
+                });
 }
 
 double parallelDot(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {

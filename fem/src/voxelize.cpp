@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "palp/error.h"
+#include "palp/parallel.h"
 
 namespace palp::fem {
 
@@ -99,7 +100,7 @@ VoxelizedMesh voxelizeVolume(const volume::Volume& volume, const VoxelizeOptions
     const auto cellCount = static_cast<std::size_t>(cellTotal);
     std::vector<double> value(cellCount, 0.0);
     const openvdb::FloatGrid& grid = *volume.grid;
-    tbb::parallel_for(tbb::blocked_range<int>(0, cells[2]), [&](const tbb::blocked_range<int>& r) {
+    palp::parallelFor(tbb::blocked_range<int>(0, cells[2]), [&](const tbb::blocked_range<int>& r) {
         openvdb::FloatGrid::ConstAccessor accessor = grid.getConstAccessor();
         const openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor,
                                           openvdb::tools::BoxSampler>

@@ -1,26 +1,9 @@
 #include "palp/kernels/ray_batch.h"
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-
 #include <string>
 
 #include "palp/error.h"
-
-// ThreadSanitizer cannot see the fork and join edges of Debian's libtbb (it is not
-// instrumented), so it would report every read a task makes of data the caller wrote before the
-// loop, and every read the caller makes of the results afterwards. The annotations below state
-// exactly those two edges, and nothing between tasks, so races between tasks stay visible.
-#if defined(__SANITIZE_THREAD__)
-#define PALP_TSAN 1
-#elif defined(__has_feature)
-#if __has_feature(thread_sanitizer)
-#define PALP_TSAN 1
-#endif
-#endif
-#ifdef PALP_TSAN
-#include <sanitizer/tsan_interface.h>
-#endif
+#include "palp/parallel.h"
 
 namespace palp::kernels {
 
@@ -33,23 +16,7 @@ void checkSizes(std::size_t bundles, std::size_t out) {
 
 template <class F>
 void forEach(std::size_t n, F&& f) {
-#ifdef PALP_TSAN
-    char fork = 0, join = 0;  // addresses only: the sync objects of the two edges
-    __tsan_release(&fork);
-#endif
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-#ifdef PALP_TSAN
-                          __tsan_acquire(&fork);
-#endif
-                          for (std::size_t i = r.begin(); i != r.end(); ++i) f(i);
-#ifdef PALP_TSAN
-                          __tsan_release(&join);
-#endif
-                      });
-#ifdef PALP_TSAN
-    __tsan_acquire(&join);
-#endif
+    parallelForEach(std::size_t{0}, n, f, std::size_t{16});
 }
 }  // namespace
 

@@ -10,6 +10,7 @@
 #include <numbers>
 
 #include "palp/error.h"
+#include "palp/parallel.h"
 
 namespace palp::volume {
 
@@ -496,7 +497,7 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
     const Eigen::Vector3d rowStep = p * rowDir;
     const double subWeight = 1.0 / (n * n * n);
 
-    tbb::parallel_for(
+    palp::parallelFor(
         tbb::blocked_range<std::size_t>(0, zs.size()),
         [&](const tbb::blocked_range<std::size_t>& range) {
             std::vector<double> img;

@@ -14,6 +14,7 @@
 #include <sstream>
 
 #include "palp/error.h"
+#include "palp/parallel.h"
 
 namespace palp::volume {
 
@@ -249,7 +250,7 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     const int tilesY = (rows + kTile - 1) / kTile;
     std::vector<float> tileMax(n * static_cast<std::size_t>(tilesX * tilesY),
                                -std::numeric_limits<float>::infinity());
-    tbb::parallel_for(std::size_t{0}, n, [&](std::size_t k) {
+    palp::parallelForEach(std::size_t{0}, n, [&](std::size_t k) {
         float* tm = tileMax.data() + k * static_cast<std::size_t>(tilesX * tilesY);
         const std::vector<float>& vals = sorted[k]->values;
         for (int r = 0; r < rows; ++r) {
@@ -348,7 +349,7 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
 
     for (int zb = 0; zb < bz; ++zb) {
-        tbb::parallel_for(
+        palp::parallelFor(
             tbb::blocked_range2d<int>(0, by, 0, bx), [&](const tbb::blocked_range2d<int>& r) {
                 auto& mine = made.local();
                 for (int yb = r.rows().begin(); yb != r.rows().end(); ++yb) {
