@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# ThreadSanitizer run of the tests that exercise palp's threads: the servo loop, the session's
+# snapshot/command/trace paths, the C API, the TBB ray batch, the asynchronous FEM regions and
+# the deformable body. Any TSan report fails the run (TSan's exit code), so "tsan-clean" is
+# checked on every CI run rather than claimed. .ci/run calls it after tools/test.sh (which has
+# already installed the packages).
+#   bash tools/test_threads.sh            build/tsan, all the listed test executables
+#   bash tools/test_threads.sh test_session   only the named ones
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ "$#" -gt 0 ]; then
+  targets=("$@")
+else
+  targets=(test_servo_loop test_session test_c_api test_haptics test_async_regions test_async_force
+           test_deformable test_ray_kernels)
+fi
+cmake --preset tsan >/dev/null
+cmake --build --preset tsan --target "${targets[@]}"
+# halt_on_error: stop at the first report so its stacks are the last thing in the log.
+export TSAN_OPTIONS="suppressions=$PWD/tools/tsan.supp halt_on_error=1 second_deadlock_stack=1"
+# The ray tests' non-threaded accuracy cases take minutes under TSan; the batch cases are the
+# threaded ones.
+declare -A filter=([test_ray_kernels]='RayBatch.*')
+failed=()
+for t in "${targets[@]}"; do
+  exe=$(find build/tsan/tests -type f -name "$t" -perm -u+x | head -n 1)
+  if [ -z "$exe" ]; then
+    echo "test_threads.sh: no executable $t under build/tsan/tests"
+    failed+=("$t")
+    continue
+  fi
+  echo "== tsan: $t"
+  start=$(date +%s)
+  args=(--gtest_brief=1 --gtest_filter="${filter[$t]:-*}")
+  [ "$t" = test_c_api ] && args=()  # plain C, no GoogleTest
+  if "$exe" "${args[@]}"; then
+    echo "== tsan: $t passed, 0 reports ($(($(date +%s) - start)) s)"
+  else
+    echo "== tsan: $t FAILED (exit $?: a test failed or TSan reported)"
+    failed+=("$t")
+  fi
+done
+if [ "${#failed[@]}" -gt 0 ]; then
+  echo "test_threads.sh: failed under ThreadSanitizer: ${failed[*]}"
+  exit 1
+fi
+echo "test_threads.sh: all ${#targets[@]} executables clean under ThreadSanitizer"
