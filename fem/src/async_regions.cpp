@@ -1082,15 +1082,24 @@ void AsyncRegions::Impl::acceptSolution(const double* gamma, const double* borde
 }
 
 void AsyncRegions::Impl::seedWatched(const Layout& from) noexcept {
-    // Watched nodes the servo showed (P and Gamma of the layout being left) start from those
-    // values: the secondary's last solution has nothing (zero) for primary nodes.
+    // Called before sizeCoupling() restarts the interpolation clock. Watched nodes the servo
+    // showed (P and Gamma of the layout being left) start from those values: the secondary's
+    // last solution has nothing (zero) for primary nodes. The others restart their
+    // interpolation from the value shown now (so they do not fall back to the previous
+    // solution when the clock restarts) towards the same newest solution.
+    const double frac = shownFraction();
     const std::vector<int>& watch = options.watchNodes;
     for (std::size_t i = 0; i < watch.size(); ++i) {
         const int n = watch[i];
-        if (!from.isPrimary[sz(n)] && !from.isGamma[sz(n)]) continue;
+        const bool shownByServo = from.isPrimary[sz(n)] || from.isGamma[sz(n)];
         for (std::size_t k = 0; k < 3; ++k) {
-            wPrev[3 * i + k] = u[3 * n + static_cast<int>(k)];
-            wCur[3 * i + k] = wPrev[3 * i + k];
+            const std::size_t j = 3 * i + k;
+            if (shownByServo) {
+                wPrev[j] = u[3 * n + static_cast<int>(k)];
+                wCur[j] = wPrev[j];
+            } else {
+                wPrev[j] = wPrev[j] + frac * (wCur[j] - wPrev[j]);
+            }
         }
     }
 }
@@ -1232,10 +1241,15 @@ void AsyncRegions::Impl::takeLoads(std::span<const NodalLoad> loads,
     const HexMesh& mesh = model.mesh();
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();
     std::size_t taken = 0;
-    for (const NodalLoad& load : loads) {
+    for (std::size_t i = 0; i < loads.size(); ++i) {
+        if (taken >= sz(options.maxLoads)) {  // bounded work whatever the caller passes
+            result.loadsRefused += static_cast<int>(loads.size() - i);
+            break;
+        }
+        const NodalLoad& load = loads[i];
         const int n = load.node;
-        if (taken >= sz(options.maxLoads) || n < 0 || n >= mesh.nodeCount() ||
-            !mesh.nodeActive()[sz(n)] || !load.force.allFinite()) {
+        if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)] ||
+            !load.force.allFinite()) {
             ++result.loadsRefused;
             continue;
         }

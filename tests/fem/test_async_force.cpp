@@ -277,6 +277,76 @@ TEST(AsyncForce, WatchedValuesContinuousAcrossContactChange) {
     }
 }
 
+/// The same with a load that keeps growing through the contact change (synchronous, so the
+/// swap falls on a secondary period boundary): watched nodes that the servo does not integrate
+/// restart their interpolation from the value shown at the swap, so the surface keeps moving
+/// along the ramp: no step backwards of more than 3 steady steps (a restart from the previous
+/// solution falls back by a whole period's growth: 9 steady steps at 100 Hz, measured).
+TEST(AsyncForce, WatchedValuesFollowAGrowingLoadAcrossContactChange) {
+    const Problem p(9, 150.0);
+    std::vector<int> watch;
+    for (int i = 0; i < 9; ++i)
+        for (int j = 0; j < 9; ++j) watch.push_back(p.top(i, j));
+    AsyncRegionsOptions o = forceOptions();
+    o.watchNodes = watch;
+    AsyncRegions a(p.model, p.constraints, {p.contact}, o);
+    std::vector<Eigen::Vector3d> w(watch.size()), before(watch.size());
+    auto loadsAt = [&](int t) {
+        const double f = -0.03 * std::min(1.0, t / 1500.0);
+        return std::vector<NodalLoad>{{p.top(4, 4), {0, 0, f}}, {p.top(5, 4), {0, 0, f}}};
+    };
+    // Per watched node: its largest per-tick step on the steady ramp, and around the change.
+    std::vector<double> steady(watch.size(), 0.0), around(watch.size(), 0.0);
+    std::vector<Eigen::Vector3d> at300(watch.size()), dir(watch.size());
+    std::vector<int> shownBefore;
+    bool changed = false;
+    for (int t = 0; t < 1000; ++t) {
+        if (t == 600) {
+            shownBefore = a.primaryNodes();
+            const auto& g = a.secondaryBorderNodes();
+            shownBefore.insert(shownBefore.end(), g.begin(), g.end());
+            ASSERT_TRUE(a.requestContactNode(p.top(6, 4)));
+        }
+        const AsyncTickResult r = a.tick(loadsAt(t));
+        changed = changed || r.layoutChanged;
+        a.watchedDisplacements(w);
+        for (std::size_t i = 0; i < w.size(); ++i) {
+            if (t == 300) at300[i] = w[i];
+            if (t == 599) dir[i] = (w[i] - at300[i]).normalized();
+            const double step = (w[i] - before[i]).norm();
+            if (t >= 300 && t < 600) steady[i] = std::max(steady[i], step);
+            // Around the change: the largest step backwards along the node's steady motion.
+            if (t >= 600) around[i] = std::max(around[i], -(w[i] - before[i]).dot(dir[i]));
+        }
+        std::swap(w, before);
+    }
+    ASSERT_TRUE(changed);
+    // The nodes shown from the secondary's interpolation in both layouts (the servo integrates
+    // P and Gamma, whose entering nodes ring for a while after the swap: that is the primary's
+    // transient, tested above and in MovingLoadWithContactChangesFollowsWholeMesh).
+    std::vector<std::uint8_t> servoShown(static_cast<std::size_t>(p.model.mesh().nodeCount()), 0);
+    auto mark = [&](const std::vector<int>& nodes) {
+        for (int n : nodes) servoShown[static_cast<std::size_t>(n)] = 1;
+    };
+    mark(shownBefore);
+    mark(a.primaryNodes());
+    mark(a.secondaryBorderNodes());
+    double worst = 0.0;
+    std::size_t worstNode = 0, checked = 0;
+    for (std::size_t i = 0; i < watch.size(); ++i) {
+        if (servoShown[static_cast<std::size_t>(watch[i])]) continue;
+        ++checked;
+        ASSERT_GT(steady[i], 0.0) << "node " << watch[i];
+        if (around[i] / steady[i] > worst) {
+            worst = around[i] / steady[i];
+            worstNode = i;
+        }
+    }
+    EXPECT_GT(checked, 20u);
+    EXPECT_LT(worst, 3.0) << "node " << watch[worstNode] << ": steady " << steady[worstNode]
+                          << " m per tick, around the change " << around[worstNode];
+}
+
 /// A load pattern (normal and tangential) that steps one node along x every 150 ticks, with the
 /// region centre requested along: against the whole mesh (primary = every node) on the same
 /// loads. A layout change hands the entering nodes the secondary's static values at rest, and a

@@ -33,7 +33,7 @@
 /// Contact changes (re-allocation). requestContactNode() asks for a new contact node; a layout
 /// for it (regions, primary operator, secondary factorisation, condensed response, and the
 /// secondary's latest values on the nodes that enter the primary or its border) is prepared off
-/// the servo path: on the secondary thread in threaded mode (which pauses its solves meanwhile),
+/// the servo path: on a builder thread in threaded mode (while the secondary keeps solving),
 /// inline at the next secondary period boundary in synchronous mode. The servo tick adopts a
 /// prepared layout with one pointer exchange and an O(|P| + |Gamma|) state hand-over, so it
 /// never waits; until then the old contact stays driven. At the swap the old contact node is
@@ -50,11 +50,16 @@
 /// maxLoads; extra ones are refused with kAsyncLoadsRefused). Loads on free primary dofs enter
 /// the primary's central-difference update at once. Loads on secondary nodes (Gamma included)
 /// are averaged over the secondary period (sum over the period's ticks / its tick count: the
-/// period's impulse, so nothing is lost when a load acts between solves) and enter the
-/// secondary's right-hand side restricted with I^T: `I^T A_SS I u_c = I^T (f_S - K_SP u_P)`.
-/// They act one to two periods late (the staggered delay). The region centre stays the contact
-/// node(s): move it with requestContactNode() when the load moves. A secondary solve with
-/// loads solves the whole secondary field (two triangular solves, see secondaryFullField).
+/// period's impulse, so a load acting between solves still counts) and enter the secondary's
+/// right-hand side restricted with I^T: `I^T A_SS I u_c = I^T (f_S - K_SP u_P)`. They act one
+/// to two periods late (the staggered delay). Not conserved exactly: in threaded mode a
+/// period's secondary loads are dropped when the secondary has not read that period's snapshot
+/// before the next one replaces it (a solve longer than a period) or when a layout change
+/// discards it; and loads gathered on nodes that enter the primary at a layout change are
+/// dropped for that period. The dropped share is one period's impulse on those nodes. The region
+/// centre stays the contact node(s): move it with requestContactNode() when the load moves. A
+/// secondary solve with loads solves the whole secondary field (two triangular solves, see
+/// secondaryFullField).
 ///
 /// Watched nodes. `watchNodes` (fixed at construction) are nodes whose displacement the servo
 /// needs every tick without displacement() (a deformable body's surface). Each secondary solve
