@@ -509,6 +509,18 @@ Session::Session(std::shared_ptr<const Scene> scene, Device& device, const Sessi
         throw ValueError("session: expected the device's maxForceN to be finite and > 0, found " +
                          num(spec.maxForceN));
     }
+    if (const auto& d = scene->deformable();
+        d && d->options().solverKind == DeformableSolver::asyncRegions) {
+        // DeformableBody::step() refuses any other step (kStepBadTimeStep): frozen tissue.
+        const double tick = d->options().regions.tickSeconds;
+        const double servo = params.servo.periodSeconds;
+        if (!(std::abs(tick - servo) <= 1e-9 * servo)) {
+            throw ValueError(
+                "session: expected the deformable body's regions.tickSeconds to equal the servo "
+                "period " +
+                num(servo) + " s, found " + num(tick) + " s");
+        }
+    }
     mStiffnessLimited = limitStiffnessToDevice(mParams.coupling, spec);
     mImpl = std::make_unique<Impl>(std::move(scene), device, mParams, mStiffnessLimited);
 }

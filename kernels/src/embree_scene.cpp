@@ -205,9 +205,13 @@ unsigned EmbreeScene::addRefitMesh(RefitMesh& mesh, unsigned mask, float margin)
     const unsigned id = rtcAttachGeometry(mScene, g);
     rtcReleaseGeometry(g);
     const RTCError e = rtcGetDeviceError(mDevice);
-    if (e != RTC_ERROR_NONE)
+    if (e != RTC_ERROR_NONE) {
+        // Nothing may keep pointing at `user` (freed on the way out) or at the caller's mesh.
+        if (id != RTC_INVALID_GEOMETRY_ID) rtcDetachGeometry(mScene, id);
+        if (twinId != RTC_INVALID_GEOMETRY_ID) rtcDetachGeometry(mScene, twinId);
         throw Error("embree user geometry: expected no error, found error code " +
                     std::to_string(static_cast<int>(e)));
+    }
     mRefits.push_back(std::move(user));
     if (mGeoms.size() <= std::max(id, twinId)) mGeoms.resize(std::max(id, twinId) + 1);
     mGeoms[twinId] = Geom{twin, nullptr, mesh.vertexCount(), false};

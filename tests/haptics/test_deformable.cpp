@@ -609,6 +609,17 @@ TEST(DeformableAsync, RejectsBadOptionsAndTimeStep) {
     DeformableBody plain(cube(3e-3));
     EXPECT_EQ(plain.regions(), nullptr);
     EXPECT_FALSE(plain.requestRegionsCentre(Eigen::Vector3d::Zero()));
+    // A session whose servo period is not the regions' tick would freeze the tissue: refused.
+    auto scene = deformableScene(model);
+    PathDevice device({{0.0, mm(0, -5, 0)}});
+    SessionParams p = vcParams(kAsyncK);
+    p.servo.periodSeconds = 2 * kT;
+    try {
+        Session bad(scene, device, p);
+        ADD_FAILURE() << "a 2 ms servo period with a 1 ms regions tick was accepted";
+    } catch (const ValueError& e) {
+        EXPECT_NE(std::string(e.what()).find("regions.tickSeconds"), std::string::npos) << e.what();
+    }
 }
 
 TEST(DeformableSession, RefusesAvcAndBadOptions) {

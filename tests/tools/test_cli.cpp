@@ -51,10 +51,15 @@ TEST(Cli, PalpateDeformableRegionsAgreeWithTheWholeMesh) {
         EXPECT_EQ(r.exitCode, 0) << r.output;
         const auto brace = r.output.find('{');
         EXPECT_NE(brace, std::string::npos) << r.output;
-        return nlohmann::json::parse(r.output.substr(brace == std::string::npos ? 0 : brace));
+        if (brace == std::string::npos) return nlohmann::json::object();
+        const auto j = nlohmann::json::parse(r.output.substr(brace), nullptr, false);
+        EXPECT_FALSE(j.is_discarded()) << r.output;
+        return j.is_discarded() ? nlohmann::json::object() : j;
     };
     const auto whole = run("explicit");
     const auto regions = run("regions");
+    ASSERT_TRUE(whole.contains("deformable") && regions.contains("deformable"));
+    EXPECT_EQ(whole["deformable"]["solver"], "explicit");
     EXPECT_EQ(regions["deformable"]["solver"], "regions");
     const double f0 = whole["max_force_n"], f1 = regions["max_force_n"];
     const double d0 = whole["deformable"]["max_displacement_mm"];

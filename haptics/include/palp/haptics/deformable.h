@@ -189,7 +189,10 @@ class DeformableModel {
 ///      and allocation-free (test_deformable counts zero allocations per tick); step() is
 ///      bounded by maxSubsteps and the refit is O(#triangles). Synchronous regions solve the
 ///      secondary inline every period inside step() (which may allocate in CHOLMOD when loads
-///      fall on secondary nodes): threaded regions for live use.
+///      fall on secondary nodes) and, after a recentre, build and factorise the new layout
+///      inline too (0.1-1 s, allocating): threaded regions for live use. The recentre
+///      hysteresis is measured from the last node requested, also when its layout was
+///      rejected (the regions then stay on the old centre until another node is nearest).
 class DeformableBody {
   public:
     /// Allocates everything, builds the surface BVH and commits the Embree scene (the only
