@@ -66,7 +66,9 @@ VoxelizedMesh voxelizeVolume(const volume::Volume& volume, const VoxelizeOptions
         s << "voxelize element size: expected a finite size > 0 m, found " << h;
         throw ValueError(s.str());
     }
-    if (!volume.grid || volume.grid->activeVoxelCount() == 0) {
+    // Any active value (voxel or tile) at all: the first one of a serial iteration, not
+    // activeVoxelCount()'s TBB reduction over the whole tree.
+    if (!volume.grid || !volume.grid->cbeginValueOn()) {
         throw ValueError("voxelize volume: expected a grid with active voxels, found none");
     }
     // World box of the active voxels themselves (centres +- half a voxel).
