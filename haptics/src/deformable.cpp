@@ -277,13 +277,18 @@ int DeformableBody::applyContactForce(const Eigen::Vector3d& point,
     }
     f.segment<3>(3 * nearest) = rest;
     mContactNode = nearest;
-    // Regions: move the centre once the contact is clearly nearer another node (hysteresis).
-    if (mRegions && nearest != mCentre &&
-        (point - nodePosition(mCentre)).norm() - std::sqrt(best) >
-            mModel->options().recentreHysteresis * mModel->model().mesh().edge() &&
-        mRegions->requestContactNode(nearest)) {
-        mCentre = nearest;
-        ++mRecentres;
+    // Regions: move the centre once the contact is clearly nearer another node than the
+    // centre the regions use now (hysteresis), unless that node was the last one asked for
+    // (its layout is being built, or was rejected).
+    if (mRegions) {
+        const int adopted = mRegions->contactNodes().front();
+        if (nearest != adopted && nearest != mCentre &&
+            (point - nodePosition(adopted)).norm() - std::sqrt(best) >
+                mModel->options().recentreHysteresis * mModel->model().mesh().edge() &&
+            mRegions->requestContactNode(nearest)) {
+            mCentre = nearest;
+            ++mRecentres;
+        }
     }
     return nearest;
 }

@@ -190,9 +190,7 @@ class DeformableModel {
 ///      bounded by maxSubsteps and the refit is O(#triangles). Synchronous regions solve the
 ///      secondary inline every period inside step() (which may allocate in CHOLMOD when loads
 ///      fall on secondary nodes) and, after a recentre, build and factorise the new layout
-///      inline too (0.1-1 s, allocating): threaded regions for live use. The recentre
-///      hysteresis is measured from the last node requested, also when its layout was
-///      rejected (the regions then stay on the old centre until another node is nearest).
+///      inline too (0.1-1 s, allocating): threaded regions for live use.
 class DeformableBody {
   public:
     /// Allocates everything, builds the surface BVH and commits the Embree scene (the only
