@@ -226,6 +226,10 @@ struct AsyncRegions::Impl {
     void setGamma(const Layout& layout, double* target, double t, bool product) noexcept;
     void acceptSolution(const double* gamma, const double* border, const double* watch) noexcept;
     void seedWatched(const Layout& from) noexcept;
+    /// f(dof, value) for every free dof of the nodes of `to`'s P and Gamma that `from` showed
+    /// from its secondary (interior secondary nodes): value = the secondary's latest solution.
+    template <class F>
+    void forEachEnteringDof(const Layout& from, const Layout& to, F&& f) const;
     Eigen::Vector3d shown(const Layout& layout, int node, double frac) const noexcept;
     double shownFraction() const noexcept;
     void takeLoads(std::span<const NodalLoad> loads, AsyncTickResult& result) noexcept;
@@ -697,21 +701,10 @@ void AsyncRegions::Impl::finishForContact(Layout& from, Layout& nextL,
     refreshField(from);
     // Entry state: nodes of the new P and Gamma that were interior secondary nodes of `from`
     // take the secondary's latest solution (the servo keeps its own values for the others).
-    std::vector<std::uint8_t> known(from.isPrimary);
-    for (int n : from.gammaNodes) known[sz(n)] = 1;
-    auto enter = [&](int n) {
-        if (known[sz(n)]) return;
-        known[sz(n)] = 1;
-        for (int k = 0; k < 3; ++k) {
-            const int d = 3 * n + k;
-            if (fixed[sz(d)]) continue;
-            next->entryDofs.push_back(d);
-            next->entryValues.push_back(
-                from.unknownCoarseDof.empty() ? 0.0 : from.interp.row(d).dot(from.x));
-        }
-    };
-    for (int n : next->primaryNodes) enter(n);
-    for (int n : next->gammaNodes) enter(n);
+    forEachEnteringDof(from, *next, [&](int d, double value) {
+        next->entryDofs.push_back(d);
+        next->entryValues.push_back(value);
+    });
     // Warm state of the secondary in its own indexing.
     for (std::size_t i = 0; i < next->unknownCoarseDof.size(); ++i) {
         const Eigen::Index k = static_cast<Eigen::Index>(i);
@@ -1081,6 +1074,23 @@ void AsyncRegions::Impl::acceptSolution(const double* gamma, const double* borde
     used.fetch_add(1, std::memory_order_relaxed);
 }
 
+template <class F>
+void AsyncRegions::Impl::forEachEnteringDof(const Layout& from, const Layout& to, F&& f) const {
+    std::vector<std::uint8_t> known(from.isPrimary);
+    for (int n : from.gammaNodes) known[sz(n)] = 1;
+    auto enter = [&](int n) {
+        if (known[sz(n)]) return;
+        known[sz(n)] = 1;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            if (fixed[sz(d)]) continue;
+            f(d, from.unknownCoarseDof.empty() ? 0.0 : from.interp.row(d).dot(from.x));
+        }
+    };
+    for (int n : to.primaryNodes) enter(n);
+    for (int n : to.gammaNodes) enter(n);
+}
+
 void AsyncRegions::Impl::seedWatched(const Layout& from) noexcept {
     // Called before sizeCoupling() restarts the interpolation clock. Watched nodes the servo
     // showed (P and Gamma of the layout being left) start from those values: the secondary's
@@ -1178,22 +1188,10 @@ void AsyncRegions::Impl::switchLayout(int next) {
     setGamma(oldL, u.data(), time, true);
     setGamma(oldL, uPrev.data(), time - dtSub, true);
     seedWatched(oldL);
-    std::vector<std::uint8_t> known(oldL.isPrimary);
-    for (int n : oldL.gammaNodes) known[sz(n)] = 1;
-    auto enter = [&](int n) {
-        if (known[sz(n)]) return;
-        known[sz(n)] = 1;
-        for (int k = 0; k < 3; ++k) {
-            const int d = 3 * n + k;
-            if (fixed[sz(d)]) continue;
-            const double value =
-                oldL.unknownCoarseDof.empty() ? 0.0 : oldL.interp.row(d).dot(oldL.x);
-            u[d] = value;
-            uPrev[d] = value;
-        }
-    };
-    for (int n : newL.primaryNodes) enter(n);
-    for (int n : newL.gammaNodes) enter(n);
+    forEachEnteringDof(oldL, newL, [&](int d, double value) {
+        u[d] = value;
+        uPrev[d] = value;
+    });
     // Coarse unknowns leaving the primary take the primary's values.
     const HexMesh& mesh = model.mesh();
     for (int cd : newL.unknownCoarseDof) {
