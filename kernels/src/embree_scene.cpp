@@ -119,6 +119,14 @@ void refitBounds(const RTCBoundsFunctionArguments* args) {
     args->bounds_o->upper_z = b.hi[2];
 }
 
+std::array<float, 3> rayOrigin(RTCRayN* ray, unsigned n, unsigned i) {
+    return {RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i), RTCRayN_org_z(ray, n, i)};
+}
+
+std::array<float, 3> rayDirection(RTCRayN* ray, unsigned n, unsigned i) {
+    return {RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i), RTCRayN_dir_z(ray, n, i)};
+}
+
 void refitIntersect(const RTCIntersectFunctionNArguments* args) {
     const auto* user = static_cast<const detail::RefitUser*>(args->geometryUserPtr);
     const unsigned n = args->N;
@@ -127,10 +135,7 @@ void refitIntersect(const RTCIntersectFunctionNArguments* args) {
     for (unsigned i = 0; i < n; ++i) {
         if (args->valid[i] == 0) continue;
         if ((RTCRayN_mask(ray, n, i) & user->mask) == 0) continue;
-        const std::array<float, 3> org = {RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i),
-                                          RTCRayN_org_z(ray, n, i)};
-        const std::array<float, 3> dir = {RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i),
-                                          RTCRayN_dir_z(ray, n, i)};
+        const std::array<float, 3> org = rayOrigin(ray, n, i), dir = rayDirection(ray, n, i);
         TriangleHit h;
         if (!user->mesh->intersect(org, dir, RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i), h))
             continue;
@@ -154,10 +159,7 @@ void refitOccluded(const RTCOccludedFunctionNArguments* args) {
     for (unsigned i = 0; i < n; ++i) {
         if (args->valid[i] == 0) continue;
         if ((RTCRayN_mask(ray, n, i) & user->mask) == 0) continue;
-        const std::array<float, 3> org = {RTCRayN_org_x(ray, n, i), RTCRayN_org_y(ray, n, i),
-                                          RTCRayN_org_z(ray, n, i)};
-        const std::array<float, 3> dir = {RTCRayN_dir_x(ray, n, i), RTCRayN_dir_y(ray, n, i),
-                                          RTCRayN_dir_z(ray, n, i)};
+        const std::array<float, 3> org = rayOrigin(ray, n, i), dir = rayDirection(ray, n, i);
         if (user->mesh->occluded(org, dir, RTCRayN_tnear(ray, n, i), RTCRayN_tfar(ray, n, i)))
             RTCRayN_tfar(ray, n, i) = -std::numeric_limits<float>::infinity();
     }

@@ -83,19 +83,6 @@ std::string variantName(const Variant& v) {
     return s + ")";
 }
 
-Eigen::Vector3d parseAxis(const std::string& text) {
-    std::string s = text;
-    double sign = 1;
-    if (!s.empty() && (s[0] == '+' || s[0] == '-')) {
-        sign = s[0] == '-' ? -1 : 1;
-        s = s.substr(1);
-    }
-    if (s == "x") return sign * Eigen::Vector3d::UnitX();
-    if (s == "y") return sign * Eigen::Vector3d::UnitY();
-    if (s == "z") return sign * Eigen::Vector3d::UnitZ();
-    throw ValueError("--press-axis: expected +x, -x, +y, -y, +z or -z, found '" + text + "'");
-}
-
 int axisIndex(const Eigen::Vector3d& a) {
     int i = 0;
     a.cwiseAbs().maxCoeff(&i);
@@ -303,7 +290,7 @@ Command addBenchTick(CLI::App& bench) {
                     "'3D Systems Touch'), found '" +
                     a.device + "'");
             }
-            const Eigen::Vector3d press = parseAxis(a.pressAxis);
+            const Eigen::Vector3d press = parseAxis(a.pressAxis, "--press-axis");
             const bool quiet = globals().quiet || a.json;
 
             // Scene.

@@ -35,21 +35,6 @@ std::string fmt(double x) {
     return b;
 }
 
-// Unit axis from "+y", "-x", "y", ...
-Eigen::Vector3d parseAxis(const std::string& text, const char* option) {
-    std::string s = text;
-    double sign = 1;
-    if (!s.empty() && (s[0] == '+' || s[0] == '-')) {
-        sign = s[0] == '-' ? -1 : 1;
-        s = s.substr(1);
-    }
-    if (s == "x") return sign * Eigen::Vector3d::UnitX();
-    if (s == "y") return sign * Eigen::Vector3d::UnitY();
-    if (s == "z") return sign * Eigen::Vector3d::UnitZ();
-    throw ValueError(std::string(option) + ": expected an axis +x, -x, +y, -y, +z or -z, found '" +
-                     text + "'");
-}
-
 int axisIndex(const Eigen::Vector3d& a) {
     int i = 0;
     a.cwiseAbs().maxCoeff(&i);
@@ -83,6 +68,20 @@ haptics::RaySource parseSource(const std::string& s) {
 }
 
 }  // namespace
+
+Eigen::Vector3d parseAxis(const std::string& text, const char* option) {
+    std::string s = text;
+    double sign = 1;
+    if (!s.empty() && (s[0] == '+' || s[0] == '-')) {
+        sign = s[0] == '-' ? -1 : 1;
+        s = s.substr(1);
+    }
+    if (s == "x") return sign * Eigen::Vector3d::UnitX();
+    if (s == "y") return sign * Eigen::Vector3d::UnitY();
+    if (s == "z") return sign * Eigen::Vector3d::UnitZ();
+    throw ValueError(std::string(option) + ": expected an axis +x, -x, +y, -y, +z or -z, found '" +
+                     text + "'");
+}
 
 Command addPalpate(CLI::App& root) {
     struct Args {

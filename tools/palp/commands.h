@@ -3,6 +3,7 @@
 /// The palp command's subcommands. Each registers itself on the CLI11 app and runs when chosen.
 
 #include <CLI/CLI.hpp>
+#include <Eigen/Core>
 #include <functional>
 #include <string>
 
@@ -23,6 +24,9 @@ Command addBenchServo(CLI::App& bench);
 /// `palp bench tick`, registered by addBench() on its `bench` node.
 Command addBenchTick(CLI::App& bench);
 Command addPalpate(CLI::App& root);
+
+/// Unit axis from "+y", "-x", "y", ...; @throw palp::ValueError naming @p option and the text.
+Eigen::Vector3d parseAxis(const std::string& text, const char* option);
 
 /// Global flags shared by subcommands.
 struct Globals {
