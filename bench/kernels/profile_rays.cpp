@@ -2,7 +2,7 @@
 // counts under callgrind:
 //   valgrind --tool=callgrind --toggle-collect='palp::kernels::traceFirstHit*'
 //       build/rays/bench/kernels/profile_rays phantom|FILE.vdb trajectory|random FRAMES [RAYS]
-//       [scalar]
+//       [scalar] [field] [scalar]
 // (one command line)
 // and prints the number of rays hit (so the work cannot be optimised away).
 //
@@ -18,6 +18,7 @@
 #include <cstdlib>
 #include <ctime>
 #include <exception>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -37,6 +38,8 @@ double cpuUs() {
 struct BundleProfile {
     double us = 0;
     double block = 0, sub = 0, cell = 0, must = 0;  // samples up to the hit, by kind
+    double hits = 0, hotBlocks = 0;                 // rays that hit; visits of non-skippable blocks
+    std::size_t index = 0;
 };
 
 // Classifies the lattice samples of every ray of @p b up to its hit (from @p hits).
@@ -50,6 +53,8 @@ void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits
         const double len = b.length[i];
         const double tEnd = hits.hit[i] ? static_cast<double>(hits.t[i]) : len;
         const auto kEnd = static_cast<int>(std::ceil(tEnd / step - 1e-9));
+        p.hits += hits.hit[i];
+        std::size_t lastHot = ~std::size_t{0};
         for (int k = 0; k <= kEnd; ++k) {
             const Eigen::Vector3d x = view.indexFromWorld(o + std::min(k * step, len) * d);
             const auto ix = static_cast<long>(std::floor(x.x())) - tb.origin[0];
@@ -64,6 +69,8 @@ void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits
                 p.block += 1;
                 continue;
             }
+            if (blk != lastHot) p.hotBlocks += 1;
+            lastHot = blk;
             const float* copy = tb.data[blk];
             const long lx = ix & 7, ly = iy & 7, lz = iz & 7;
             const auto c = static_cast<std::size_t>(copy - tb.padded) /
@@ -84,7 +91,7 @@ void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits
 }
 
 void percentiles(const std::vector<RayBundle>& bundles, const VolumeView& view,
-                 const FirstHitParams& fp, bool cold) {
+                 const FirstHitParams& fp, bool cold, bool slowest) {
     std::vector<BundleProfile> prof(bundles.size());
     std::vector<char> junk(std::size_t{8} << 20);
     BundleHits hits;
@@ -106,6 +113,7 @@ void percentiles(const std::vector<RayBundle>& bundles, const VolumeView& view,
             }
         }
         prof[f].us = best;
+        prof[f].index = f;
         classify(view, bundles[f], hits, fp.step, fp.threshold, prof[f]);
     }
     std::sort(prof.begin(), prof.end(),
@@ -118,12 +126,15 @@ void percentiles(const std::vector<RayBundle>& bundles, const VolumeView& view,
             a.sub += prof[i].sub;
             a.cell += prof[i].cell;
             a.must += prof[i].must;
+            a.hits += prof[i].hits;
+            a.hotBlocks += prof[i].hotBlocks;
         }
         const auto n = static_cast<double>(hi - lo);
         std::printf(
             "%-6s %7.2f us  samples: skippable block %5.0f, empty 4^3 sub-block %5.0f, cell below "
-            "threshold %4.0f, other %4.0f\n",
-            name, a.us / n, a.block / n, a.sub / n, a.cell / n, a.must / n);
+            "threshold %4.0f, other %4.0f; hits %4.1f, block entries %4.1f\n",
+            name, a.us / n, a.block / n, a.sub / n, a.cell / n, a.must / n, a.hits / n,
+            a.hotBlocks / n);
     };
     print("mean", 0, prof.size());
     const std::pair<const char*, double> qs[] = {
@@ -132,6 +143,18 @@ void percentiles(const std::vector<RayBundle>& bundles, const VolumeView& view,
         const auto c = static_cast<std::size_t>(q * static_cast<double>(prof.size()));
         const std::size_t lo = c >= 5 ? c - 5 : 0, hi = std::min(prof.size(), c + 5);
         print(name, lo, std::max(hi, lo + 1));
+    }
+    if (slowest) {
+        // The slowest 2 % of the bundles, traced over and over (for perf record).
+        const std::size_t first = prof.size() - prof.size() / 50;
+        const double c0 = cpuUs();
+        std::size_t n = 0;
+        while (cpuUs() - c0 < 5e6) {
+            for (std::size_t i = first; i < prof.size(); ++i, ++n)
+                traceFirstHit(view, bundles[prof[i].index], fp, hits);
+        }
+        std::printf("slowest 2 %%: %.2f us per bundle over %zu traces\n",
+                    (cpuUs() - c0) / static_cast<double>(n), n);
     }
 }
 
@@ -148,6 +171,11 @@ int main(int argc, char** argv) {
         const std::string src = argv[1];
         const bool trajectory = std::string(argv[2]) == "trajectory";
         const std::string mode = argc > 5 ? argv[5] : "";
+        bool useField = false, scalar = mode == "scalar";
+        for (int a = 6; a < argc; ++a) {
+            useField = useField || std::string(argv[a]) == "field";
+            scalar = scalar || std::string(argv[a]) == "scalar";
+        }
         RayBenchOptions o;
         o.frames = std::atoi(argv[3]);
         if (argc > 4) o.rays = std::atoi(argv[4]);
@@ -165,9 +193,17 @@ int main(int argc, char** argv) {
         FirstHitParams fp;
         fp.threshold = o.threshold;
         fp.step = o.step;
-        fp.simd = mode != "scalar";
-        if (mode == "percentiles" || mode == "percentiles-cold") {
-            percentiles(bundles, view, fp, mode == "percentiles-cold");
+        fp.simd = !scalar;
+        if (std::getenv("PALP_REFINE")) fp.refineIterations = std::atoi(std::getenv("PALP_REFINE"));
+        std::unique_ptr<HitField> field;
+        if (useField) {
+            field = std::make_unique<HitField>(view, fp.threshold);
+            fp.field = field.get();
+            std::printf("hit field: %zu hot copies, %.1f MiB\n", field->hotCopies(),
+                        static_cast<double>(field->bytes()) / (1 << 20));
+        }
+        if (mode == "percentiles" || mode == "percentiles-cold" || mode == "slowest") {
+            percentiles(bundles, view, fp, mode == "percentiles-cold", mode == "slowest");
             return 0;
         }
         BundleHits hits;

@@ -225,10 +225,29 @@ void validateSessionParams(const SessionParams& params) {
     }
 }
 
+namespace {
+
+/// The first-hit acceleration for the session's starting threshold (set-up: it allocates), or
+/// null without a volume.
+std::unique_ptr<kernels::HitField> makeHitField(const Scene& scene, const CouplingParams& p) {
+    const kernels::VolumeView* view = scene.volumeView();
+    if (view == nullptr || view->empty()) return nullptr;
+    return std::make_unique<kernels::HitField>(*view, p.firstHit.threshold);
+}
+
+/// @p p with the session's hit field (the march ignores it once the threshold changes).
+CouplingParams withField(CouplingParams p, const kernels::HitField* field) noexcept {
+    p.firstHit.field = field;
+    return p;
+}
+
+}  // namespace
+
 struct Session::Impl {
     Impl(std::shared_ptr<const Scene> sceneIn, Device& deviceIn, const SessionParams& p,
          bool stiffnessLimited)
         : scene(std::move(sceneIn)),
+          hitField(makeHitField(*scene, p.coupling)),
           device(deviceIn),
           spec(deviceIn.spec()),
           workspace(p.workspace),
@@ -236,8 +255,10 @@ struct Session::Impl {
           body(scene->deformable() ? std::make_unique<DeformableBody>(scene->deformable())
                                    : nullptr),
           proxy(body ? body->surfaces() : scene->surfaces(), p.proxy),
-          couplings{Coupling(scene->volumeView(), &scene->hardMeshes(), p.coupling),
-                    Coupling(scene->volumeView(), &scene->hardMeshes(), p.coupling)},
+          couplings{Coupling(scene->volumeView(), &scene->hardMeshes(),
+                             withField(p.coupling, hitField.get())),
+                    Coupling(scene->volumeView(), &scene->hardMeshes(),
+                             withField(p.coupling, hitField.get()))},
           fadeTicks(static_cast<std::uint32_t>(std::lround(p.crossFadeSeconds / period))),
           passivity(period, p.passivityControl,
                     spec.maxDampingNspm > 0 ? spec.maxDampingNspm
@@ -256,6 +277,9 @@ struct Session::Impl {
     double nextTime() const noexcept { return ticks == 0 ? 0.0 : current.timeSeconds + period; }
 
     std::shared_ptr<const Scene> scene;
+    // Per-cell distances for the starting first-hit threshold; a later threshold without one
+    // marches without it (same results, slower; see kernels::HitField).
+    std::unique_ptr<kernels::HitField> hitField;
     Device& device;
     DeviceSpec spec;
     WorkspaceTransform workspace;
@@ -333,10 +357,10 @@ void Session::Impl::drainCommands() noexcept {
     for (std::size_t i = 0; i < commands.capacity() && commands.tryPop(command); ++i) {
         switch (command.kind) {
             case Command::Kind::SetCoupling:
-                setCoupling(command.coupling, command.stiffnessLimited);
+                setCoupling(withField(command.coupling, hitField.get()), command.stiffnessLimited);
                 break;
             case Command::Kind::SetAll:
-                setCoupling(command.coupling, command.stiffnessLimited);
+                setCoupling(withField(command.coupling, hitField.get()), command.stiffnessLimited);
                 proxy.setParams(command.proxy);
                 passivity.setEnabled(command.flag);
                 break;

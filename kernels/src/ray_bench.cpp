@@ -63,10 +63,14 @@ TimingStats timeFrames(int warmUp, std::size_t frames, F&& frame) {
 /// from one tick to the next.
 std::vector<TimingStats> timeInterleaved(int warmUp, std::size_t frames,
                                          const std::vector<std::function<void(std::size_t)>>& fns,
-                                         std::size_t block = 1) {
+                                         std::size_t block = 1,
+                                         const std::function<void(std::size_t)>& prepare = {}) {
     const std::size_t n = fns.size();
     for (int i = 0; i < warmUp; ++i)
-        for (const auto& f : fns) f(static_cast<std::size_t>(i) % frames);
+        for (const auto& f : fns) {
+            if (prepare) prepare(static_cast<std::size_t>(i) % frames);
+            f(static_cast<std::size_t>(i) % frames);
+        }
     auto cpuNow = [] {
         timespec ts{};
         clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
@@ -86,6 +90,7 @@ std::vector<TimingStats> timeInterleaved(int warmUp, std::size_t frames,
         for (std::size_t j = 0; j < n; ++j) {
             const std::size_t k = (j + start / block) % n;
             for (std::size_t f = start; f < std::min(frames, start + block); ++f) {
+                if (prepare) prepare(f);
                 const double c0 = cpuNow();
                 const auto t0 = Clock::now();
                 fns[k](f);
@@ -305,6 +310,11 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
     fp.threshold = o.threshold;
     fp.step = o.step;
     validateFirstHitParams(fp);
+    // The threshold's cell distances, built at set-up as an application would (not per frame).
+    const auto f0 = Clock::now();
+    const HitField field(view, fp.threshold);
+    const double fieldMs = std::chrono::duration<double, std::milli>(Clock::now() - f0).count();
+    fp.field = &field;
     const auto frames = static_cast<std::size_t>(o.frames);
     const bool phantom = label == "phantom";
     struct Set {
@@ -321,28 +331,40 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
         noSkip.skipEmpty = false;
         FirstHitParams scalar = fp;
         scalar.simd = false;
-        const auto t = timeInterleaved(o.warmUp, frames,
-                                       {[&](std::size_t f) {
-                                            traceFirstHit(view, set.bundles[f], fp, hits);
-                                            sink += hits.t[0];
-                                        },
-                                        [&](std::size_t f) {
-                                            traceFirstHit(view, set.bundles[f], noSkip, hits);
-                                            sink += hits.t[0];
-                                        },
-                                        [&](std::size_t f) {
-                                            traceFirstHit(view, set.bundles[f], scalar, hits);
-                                            sink += hits.t[0];
-                                        },
-                                        [&](std::size_t f) {
-                                            const RayBundle& b = set.bundles[f];
-                                            for (int r = 0; r < b.count; ++r) {
-                                                bool hit;
-                                                sink += base.trace(b, static_cast<std::size_t>(r),
-                                                                   o.step, o.threshold, hit);
-                                            }
-                                        }});
-        const TimingStats palp = t[0], palpNoSkip = t[1], palpScalar = t[2], baseline = t[3];
+        FirstHitParams noField = fp;
+        noField.field = nullptr;
+        // Each timed frame traces a bundle copied just before (untimed) from the 10,000 stored
+        // ones, as a servo tick traces the bundle it has just built: reading it from the
+        // stored array (about 2 KB per bundle, tens of MB in all) would add cache misses that
+        // no servo loop has.
+        RayBundle current;
+        auto prepare = [&](std::size_t f) { current = set.bundles[f]; };
+        auto baselineFrame = [&](std::size_t) {
+            const RayBundle& b = current;
+            for (int r = 0; r < b.count; ++r) {
+                bool hit;
+                sink += base.trace(b, static_cast<std::size_t>(r), o.step, o.threshold, hit);
+            }
+        };
+        auto palpFrame = [&](const FirstHitParams& p) {
+            return [&](std::size_t) {
+                traceFirstHit(view, current, p, hits);
+                sink += hits.t[0];
+            };
+        };
+        // The headline pair alone, frame by frame: each kernel's frame follows the other's, so
+        // neither finds this frame's data in the caches from a variant of itself (palp's
+        // variants share its block copies, so timing them in the same loop would warm palp's
+        // frames for one another).
+        const auto t =
+            timeInterleaved(o.warmUp, frames, {palpFrame(fp), baselineFrame}, 1, prepare);
+        // The variants, each paired with the baseline in the same way, in one loop.
+        const auto v = timeInterleaved(o.warmUp, frames,
+                                       {palpFrame(noSkip), baselineFrame, palpFrame(scalar),
+                                        baselineFrame, palpFrame(noField), baselineFrame},
+                                       1, prepare);
+        const TimingStats palp = t[0], baseline = t[1], palpNoSkip = v[0], palpScalar = v[2],
+                          palpNoField = v[4];
         // Agreement: palp vs baseline hits within 0.05 voxel.
         std::size_t agree = 0, total = 0, hitsN = 0;
         for (std::size_t f = 0; f < frames; f += std::max<std::size_t>(1, frames / 500)) {
@@ -382,44 +404,34 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
         const std::string name =
             "volume " + std::to_string(o.rays) + " rays, " + label + ", " + set.name;
         BenchComparison c = compare(name, "palp", "OpenVDB baseline", palp, baseline);
-        char note[512];
+        char note[768];
         std::snprintf(
             note, sizeof(note),
             "%zu/%zu rays agree with the baseline, %zu hits; bundles completed per "
-            "1 ms window: min %d, median %d over %zu windows (1 ms over the mean: %.0f); %s "
-            "%.2f / %.2f us (CPU %.2f / %.2f p99) vs scalar path %.2f / %.2f us (CPU %.2f / %.2f "
-            "p99), %.2fx / %.2fx%s",
+            "1 ms window: min %d, median %d over %zu windows (1 ms over the mean: %.0f); hit "
+            "field: %zu of %zu block copies can reach %g, %.1f MiB, built in %.0f ms at set-up; "
+            "palp (%s) CPU %.2f / %.2f us mean / p99 vs scalar path CPU %.2f / %.2f us; without "
+            "the field (4^3 sub-block bounds, %s) CPU %.2f / %.2f us, %.2fx / %.2fx the field's%s",
             agree, total, hitsN, perWindow.front(), perWindow[perWindow.size() / 2],
-            perWindow.size(), 1000.0 / std::max(1e-9, palp.meanUs),
-            bundleSimdAvailable() ? "AVX2 lockstep" : "no AVX2: scalar", palp.meanUs, palp.p99Us,
-            palp.cpuMeanUs, palp.cpuP99Us, palpScalar.meanUs, palpScalar.p99Us,
+            perWindow.size(), 1000.0 / std::max(1e-9, palp.meanUs), field.hotCopies(),
+            view.table().paddedSize / VolumeView::Table::kPadded, static_cast<double>(fp.threshold),
+            static_cast<double>(field.bytes()) / (1 << 20), fieldMs,
+            bundleSimdAvailable() ? "AVX2 runs" : "no AVX2: scalar", palp.cpuMeanUs, palp.cpuP99Us,
             palpScalar.cpuMeanUs, palpScalar.cpuP99Us,
-            palpScalar.meanUs / std::max(1e-9, palp.meanUs),
-            palpScalar.p99Us / std::max(1e-9, palp.p99Us), sink == 12345.f ? " " : "");
+            bundleSimdAvailable() ? "AVX2 lockstep" : "scalar", palpNoField.cpuMeanUs,
+            palpNoField.cpuP99Us, palpNoField.cpuMeanUs / std::max(1e-9, palp.cpuMeanUs),
+            palpNoField.cpuP99Us / std::max(1e-9, palp.cpuP99Us), sink == 12345.f ? " " : "");
         c.note = note;
         report.lines.push_back(c);
         BenchComparison c2 = compare(name + ", no empty-space skipping", "palp", "OpenVDB baseline",
                                      palpNoSkip, baseline);
         report.lines.push_back(c2);
         // The same two kernels in blocks of frames: each finds its own data in the caches, as
-        // on a servo thread that owns its core (the frame-by-frame figures above are the
-        // pessimistic case, where each frame follows the other kernel's frame).
+        // on a servo thread that owns its core (in the frame-by-frame figures above each frame
+        // follows the other kernel's frame).
         if (o.warmBlockFrames > 1) {
-            const auto w = timeInterleaved(o.warmUp, frames,
-                                           {[&](std::size_t f) {
-                                                traceFirstHit(view, set.bundles[f], fp, hits);
-                                                sink += hits.t[0];
-                                            },
-                                            [&](std::size_t f) {
-                                                const RayBundle& b = set.bundles[f];
-                                                for (int r = 0; r < b.count; ++r) {
-                                                    bool hit;
-                                                    sink +=
-                                                        base.trace(b, static_cast<std::size_t>(r),
-                                                                   o.step, o.threshold, hit);
-                                                }
-                                            }},
-                                           static_cast<std::size_t>(o.warmBlockFrames));
+            const auto w = timeInterleaved(o.warmUp, frames, {palpFrame(fp), baselineFrame},
+                                           static_cast<std::size_t>(o.warmBlockFrames), prepare);
             BenchComparison c3 =
                 compare(name + ", warm (blocks of " + std::to_string(o.warmBlockFrames) +
                             " frames per kernel)",
@@ -592,6 +604,8 @@ void benchBatchRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string&
     FirstHitParams fp;
     fp.threshold = o.threshold;
     fp.step = o.step;
+    const HitField field(view, fp.threshold);
+    fp.field = &field;
     auto run = [&](int threads) {
         tbb::task_arena arena(threads);
         std::vector<double> secs;

@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <new>
 #include <string>
+#include <type_traits>
 
 #include "palp/error.h"
 
@@ -239,14 +241,19 @@ bool setupRay(const VolumeView& view, const Eigen::Vector3d& origin,
     return true;
 }
 
-PALP_HOT float sampleAt(const VolumeView& view, const IndexRay& r, double t,
-                        CornerCache& cache) noexcept {
-    const double x = r.o[0] + t * r.d[0], y = r.o[1] + t * r.d[1], z = r.o[2] + t * r.d[2];
+/// The value at index position (x, y, z) through @p cache.
+PALP_HOT float samplePoint(const VolumeView& view, double x, double y, double z,
+                           CornerCache& cache) noexcept {
     float v;
     if (sampleInCache(cache, x, y, z, v)) return v;
     Cell c;
     locate(view.table(), x, y, z, c);
     return sampleCached(view.table(), view.background(), c, cache);
+}
+
+PALP_HOT float sampleAt(const VolumeView& view, const IndexRay& r, double t,
+                        CornerCache& cache) noexcept {
+    return samplePoint(view, r.o[0] + t * r.d[0], r.o[1] + t * r.d[1], r.o[2] + t * r.d[2], cache);
 }
 
 /// Next sample index after skipping the block of @p c and every following block (a 3D DDA over
@@ -649,7 +656,9 @@ struct HitContext {
     double limX = 0, limY = 0, limZ = 0;  // table extent, index units
     std::int64_t nby = 0, nbz = 0;
     // Per-call parts of the ray set-up.
-    bool usable = false;  // a non-empty view and a finite step > 0
+    bool usable = false;              // a non-empty view and a finite step > 0
+    const HitField* field = nullptr;  // per-cell distances at this threshold, when skipping
+    bool simd = false;                // take the AVX2 run loops (params.simd and the CPU has it)
     double invStep = 0, lengthCap = 0;
     double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};  // the table's interior, index units
 
@@ -668,6 +677,8 @@ struct HitContext {
           nby(v.table().blocks[1]),
           nbz(v.table().blocks[2]) {
         usable = !v.empty() && std::isfinite(step) && step > 0;
+        if (p.field != nullptr && p.skipEmpty && p.field->matches(v, p.threshold)) field = p.field;
+        simd = p.simd && bundleSimdAvailable();
         invStep = 1.0 / step;
         lengthCap = step * static_cast<double>(kMaxSamplesPerRay);
         for (std::size_t a = 0; a < 3; ++a) {
@@ -725,6 +736,46 @@ PALP_HOT bool setupHitRay(const HitContext& cx, const Eigen::Vector3d& origin,
     return true;
 }
 
+/// A first-hit refinement, recorded where the march finds the two samples that bracket the
+/// crossing and carried out afterwards by refineAll(): each refinement is a chain of dependent
+/// probes (position, blend, division), so a bundle refines all its hits together and the CPU
+/// overlaps the chains of different rays instead of waiting on one at a time. The arithmetic of
+/// one refinement does not depend on the others, so results are the same for a single ray.
+/// Regula falsi (Illinois) on v - threshold over [a, b], as refineCrossing().
+struct Refinement {
+    // Local: the two samples lie in one run, and x is a fractional run-sample index whose probe
+    // is blended from the run's block copy at the float position q + x s (runPos() at
+    // integers); t = (k0 + x) step. General: x is t in metres, probed on the view (double).
+    bool local;
+    bool needPrev;  // general: fa is still to be sampled at a
+    bool done;
+    int ray;
+    const float* base;
+    float qx, qy, qz, sx, sy, sz;
+    double k0, step;
+    double o[3], d[3];  // general: index-space ray
+    double a, b, fa, fb, x;
+    int side;
+    CornerCache cache;  // general
+};
+static_assert(std::is_trivially_copyable_v<Refinement> &&
+              std::is_trivially_destructible_v<Refinement>);
+
+/// Up to kMaxBundleRays refinements in uninitialised storage (a bundle trace pays only for the
+/// hits it has).
+struct Refinements {
+    alignas(Refinement) unsigned char bytes[sizeof(Refinement) * kMaxBundleRays];
+    int n = 0;
+    Refinement& operator[](int i) noexcept {
+        return *std::launder(reinterpret_cast<Refinement*>(bytes) + i);
+    }
+    void push(const Refinement& f, int ray) noexcept {
+        ::new (static_cast<void*>(bytes + static_cast<std::size_t>(n) * sizeof(Refinement)))
+            Refinement(f);
+        (*this)[n++].ray = ray;
+    }
+};
+
 /// One ray's first-hit march, resumable at the runs of float-placed samples through a block
 /// (so that a bundle can take those runs eight rays at a time).
 struct HitMarch {
@@ -739,6 +790,8 @@ struct HitMarch {
     float ivx = 0, ivy = 0, ivz = 0;
     float hix = 0, hiy = 0, hiz = 0;
     float farx = 0, fary = 0, farz = 0;
+    // For the cell-distance jumps: 1 where s > 0, else 0 (the box side the ray leaves by).
+    float posx = 0, posy = 0, posz = 0;
     // The pending run (after advanceHit() returned true): samples runK + i, i = 1 .. runN - 1,
     // at block-local positions q + float(i) s (each one rounded the same way wherever it is
     // computed) in block copy `base`; `prev` is sample runK (taken on its exact position).
@@ -746,6 +799,16 @@ struct HitMarch {
     const float* base = nullptr;
     float qx = 0, qy = 0, qz = 0, prev = 0;
     unsigned occ = 0xFFu;
+    // With a HitField: the copy's 512 cell distances (null: the sub-block bounds `occ`).
+    const std::uint8_t* dist = nullptr;
+    // False when the run's first sample lies in a cell the field marks as below the threshold
+    // and was not blended: `prev` is then unset, and runValue(0) blends it from p0 and f0.
+    bool prevKnown = true;
+    const float* p0 = nullptr;
+    float f0x = 0, f0y = 0, f0z = 0;
+    // A hit's refinement, still to run (refineAll()); false for a hit at t = 0 or no hit.
+    bool pending = false;
+    Refinement ref;
     std::int64_t runK = 0, runN = 0;
 };
 
@@ -753,6 +816,12 @@ struct HitMarch {
 /// scalar and AVX2 runs, so a sample's value does not depend on which samples were taken before.
 PALP_HOT float runPos(float q, float s, std::int64_t i) noexcept {
     return q + static_cast<float>(i) * s;
+}
+
+/// Cell index (clamped into the 9^3 copy) of a block-local float coordinate: truncation; -0.x (a
+/// hair before the entry) gives cell 0, and the unsigned min keeps every index inside the copy.
+PALP_HOT unsigned runCell(float p) noexcept {
+    return std::min(static_cast<unsigned>(static_cast<int>(p)), 7u);
 }
 
 /// Sets up @p m; false (and @p out set) when the ray is degenerate or empty.
@@ -780,30 +849,117 @@ PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
     axis(m.sx, m.ivx, m.hix, m.farx);
     axis(m.sy, m.ivy, m.hiy, m.fary);
     axis(m.sz, m.ivz, m.hiz, m.farz);
+    m.pending = false;
+    m.posx = m.sx > 0 ? 1.0f : 0.0f;
+    m.posy = m.sy > 0 ? 1.0f : 0.0f;
+    m.posz = m.sz > 0 ? 1.0f : 0.0f;
     return true;
 }
 
-/// Refines the crossing between samples j - 1 and j from their values.
-RayHit refineHit(const HitContext& cx, const HitMarch& m, std::int64_t j, float vPrev,
-                 float v) noexcept {
-    CornerCache cache;
-    const double th =
-        refineCrossing(*cx.view, m.r, cx.thr, m.r.t(j - 1), static_cast<double>(vPrev) - cx.thr,
-                       m.r.t(j), static_cast<double>(v) - cx.thr, cx.refine, cache);
-    return {static_cast<float>(th), true};
+/// Records the refinement of a crossing between run samples j - 1 and j (both in the pending
+/// run of @p m, j > runK) from their values: every probe lies in the run's block. Returns the
+/// provisional hit (t of sample j), refined by refineAll().
+RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, float vPrev, float v) noexcept {
+    Refinement& f = m.ref;
+    f.local = true;
+    f.needPrev = false;
+    f.done = false;
+    f.base = m.base;
+    f.qx = m.qx;
+    f.qy = m.qy;
+    f.qz = m.qz;
+    f.sx = m.sx;
+    f.sy = m.sy;
+    f.sz = m.sz;
+    // Run samples lie before the ray's last (cut) sample, so t_k = k step there.
+    f.k0 = static_cast<double>(m.runK);
+    f.step = m.r.step;
+    const auto i = static_cast<double>(j - m.runK);
+    f.a = i - 1;
+    f.b = i;
+    f.fa = static_cast<double>(vPrev) - static_cast<double>(cx.thr);
+    f.fb = static_cast<double>(v) - static_cast<double>(cx.thr);
+    f.side = 0;
+    m.pending = true;
+    return {static_cast<float>(m.r.t(j)), true};
 }
 
 /// A hit at sample j whose predecessor has not been sampled: the first sample of every run reads
 /// its predecessor on the exact (double) position instead of taking a march value, so a result
-/// does not depend on whether the blocks before were skipped.
-RayHit hitAtSample(const HitContext& cx, const HitMarch& m, std::int64_t j, float v) noexcept {
+/// does not depend on whether the blocks before were skipped. Records a general refinement
+/// that samples the predecessor first.
+RayHit hitAtSample(const HitContext& cx, HitMarch& m, std::int64_t j, float v) noexcept {
     if (j == 0) return {0.0f, true};
-    CornerCache cache;
-    const float vPrev = sampleAt(*cx.view, m.r, m.r.t(j - 1), cache);
-    const double th =
-        refineCrossing(*cx.view, m.r, cx.thr, m.r.t(j - 1), static_cast<double>(vPrev) - cx.thr,
-                       m.r.t(j), static_cast<double>(v) - cx.thr, cx.refine, cache);
-    return {static_cast<float>(th), true};
+    Refinement& f = m.ref;
+    f.local = false;
+    f.needPrev = true;
+    f.done = false;
+    for (int a = 0; a < 3; ++a) {
+        f.o[a] = m.r.o[a];
+        f.d[a] = m.r.d[a];
+    }
+    f.a = m.r.t(j - 1);
+    f.b = m.r.t(j);
+    f.fa = 0;
+    f.fb = static_cast<double>(v) - static_cast<double>(cx.thr);
+    f.side = 0;
+    f.cache = CornerCache{};
+    m.pending = true;
+    return {static_cast<float>(f.b), true};
+}
+
+/// The value of @p f's function at x, minus nothing (the caller subtracts the threshold).
+PALP_HOT float probe(const HitContext& cx, Refinement& f, double x) noexcept {
+    if (!f.local)
+        return samplePoint(*cx.view, f.o[0] + x * f.d[0], f.o[1] + x * f.d[1], f.o[2] + x * f.d[2],
+                           f.cache);
+    const auto u = static_cast<float>(x);
+    const float px = f.qx + u * f.sx, py = f.qy + u * f.sy, pz = f.qz + u * f.sz;
+    const unsigned cx0 = runCell(px), cy0 = runCell(py), cz0 = runCell(pz);
+    return lerp8(f.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
+                 py - static_cast<float>(cy0), pz - static_cast<float>(cz0));
+}
+
+/// Runs refinements @p fs[0 .. n), each params.refineIterations regula-falsi steps, step by step
+/// across all of them, and stores each refined t in @p t[ray].
+void refineAll(const HitContext& cx, Refinements& fs, float* t) noexcept {
+    const auto thr = static_cast<double>(cx.thr);
+    for (int i = 0; i < fs.n; ++i) {
+        Refinement& f = fs[i];
+        if (f.needPrev) f.fa = static_cast<double>(probe(cx, f, f.a)) - thr;
+        f.x = f.a + (f.b - f.a) * (f.fa / (f.fa - f.fb));
+    }
+    for (int it = 0; it < cx.refine; ++it)
+        for (int i = 0; i < fs.n; ++i) {
+            Refinement& f = fs[i];
+            if (f.done) continue;
+            const double v = static_cast<double>(probe(cx, f, f.x)) - thr;
+            if (!std::isfinite(v)) {
+                f.done = true;
+                continue;
+            }
+            if (v >= 0) {
+                f.b = f.x;
+                f.fb = v;
+                if (f.side == 1) f.fa *= 0.5;
+                f.side = 1;
+            } else {
+                f.a = f.x;
+                f.fa = v;
+                if (f.side == -1) f.fb *= 0.5;
+                f.side = -1;
+            }
+            if (!(f.fb - f.fa > 0)) {
+                f.done = true;
+                continue;
+            }
+            f.x = f.a + (f.b - f.a) * (f.fa / (f.fa - f.fb));
+        }
+    for (int i = 0; i < fs.n; ++i) {
+        const Refinement& f = fs[i];
+        const double x = std::clamp(f.x, f.a, f.b);
+        t[f.ray] = static_cast<float>(f.local ? (f.k0 + x) * f.step : x);
+    }
 }
 
 /// Bit s set where sub-block s of the padded copy at @p base may reach @p thr.
@@ -851,10 +1007,19 @@ bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
                 // The first sample of the run on its exact position (a run often ends right
                 // there: a hit at the first sample after skipped blocks).
                 const float* base = tb.data[static_cast<std::size_t>(b)];
-                const float v = lerp8(base + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7)),
-                                      static_cast<float>(xr - ix), static_cast<float>(yr - iy),
-                                      static_cast<float>(zr - iz));
-                if (v >= thr) {
+                const float* p0 = base + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7));
+                const float f0x = static_cast<float>(xr - ix), f0y = static_cast<float>(yr - iy),
+                            f0z = static_cast<float>(zr - iz);
+                const std::uint8_t* dist =
+                    cx.field != nullptr
+                        ? cx.field->distances(static_cast<std::size_t>(base - tb.padded) /
+                                              Table::kPadded)
+                        : nullptr;
+                // A cell the field marks as below the threshold needs no blend (and cannot hit).
+                const bool known =
+                    dist == nullptr || dist[((ix & 7) * 8 + (iy & 7)) * 8 + (iz & 7)] == 0;
+                const float v = known ? lerp8(p0, f0x, f0y, f0z) : 0.0f;
+                if (known && v >= thr) {
                     out = hitAtSample(cx, m, k, v);
                     return false;
                 }
@@ -883,8 +1048,14 @@ bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
                 m.qx = static_cast<float>(lx);
                 m.qy = static_cast<float>(ly);
                 m.qz = static_cast<float>(lz);
-                m.occ = cx.skip ? occupancy(tb, base, thr) : 0xFFu;
+                m.dist = dist;
+                m.occ = dist == nullptr && cx.skip ? occupancy(tb, base, thr) : 0xFFu;
                 m.prev = v;
+                m.prevKnown = known;
+                m.p0 = p0;
+                m.f0x = f0x;
+                m.f0y = f0y;
+                m.f0z = f0z;
                 m.runK = k;
                 m.runN = n;
                 m.k = k + n;
@@ -905,12 +1076,6 @@ bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
     return false;
 }
 
-/// Cell index (clamped into the 9^3 copy) of a block-local float coordinate: truncation; -0.x (a
-/// hair before the entry) gives cell 0, and the unsigned min keeps every index inside the copy.
-PALP_HOT unsigned runCell(float p) noexcept {
-    return std::min(static_cast<unsigned>(static_cast<int>(p)), 7u);
-}
-
 /// Sub-block index (0..7) of a cell of a padded copy.
 PALP_HOT unsigned subBlock(unsigned cx0, unsigned cy0, unsigned cz0) noexcept {
     return ((cx0 >> 2) << 2) | ((cy0 >> 2) << 1) | (cz0 >> 2);
@@ -918,7 +1083,7 @@ PALP_HOT unsigned subBlock(unsigned cx0, unsigned cy0, unsigned cz0) noexcept {
 
 /// The value of run sample @p i of @p m (the run's first sample for i = 0).
 PALP_HOT float runValue(const HitMarch& m, std::int64_t i) noexcept {
-    if (i == 0) return m.prev;
+    if (i == 0) return m.prevKnown ? m.prev : lerp8(m.p0, m.f0x, m.f0y, m.f0z);
     const float px = runPos(m.qx, m.sx, i), py = runPos(m.qy, m.sy, i), pz = runPos(m.qz, m.sz, i);
     const unsigned cx0 = runCell(px), cy0 = runCell(py), cz0 = runCell(pz);
     return lerp8(m.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
@@ -945,10 +1110,68 @@ PALP_HOT std::int64_t subBlockJump(const HitMarch& m, std::int64_t i, unsigned c
     return subBlock(lx, ly, lz) == subBlock(cx0, cy0, cz0) ? j : i + 1;
 }
 
+/// As subBlockJump(), for a sample in cell (cx0, cy0, cz0) at HitField distance @p d >= 1: every
+/// cell within Chebyshev distance d - 1 of it is below the threshold, so the ray may pass over
+/// the samples in that box of (2d - 1)^3 cells (clipped by the run's end).
+PALP_HOT std::int64_t cellJump(const HitMarch& m, std::int64_t i, unsigned cx0, unsigned cy0,
+                               unsigned cz0, unsigned d) noexcept {
+    const float fd = static_cast<float>(d);
+    const float lo = 1.0f - fd, span = 2.0f * fd - 1.0f;  // box [c + lo, c + lo + span]
+    const float ex = (static_cast<float>(cx0) + lo + span * m.posx - m.qx) * m.ivx + m.farx;
+    const float ey = (static_cast<float>(cy0) + lo + span * m.posy - m.qy) * m.ivy + m.fary;
+    const float ez = (static_cast<float>(cz0) + lo + span * m.posz - m.qz) * m.ivz + m.farz;
+    const float e = std::min(std::min(ex, ey), std::min(ez, static_cast<float>(m.runN)));
+    const std::int64_t j = std::max(i + 1, static_cast<std::int64_t>(std::max(e, 0.0f)) + 1);
+    if (j - 1 == i) return j;
+    const std::int64_t l = j - 1;  // the last sample passed over
+    const int lx = static_cast<int>(runCell(runPos(m.qx, m.sx, l))) - static_cast<int>(cx0);
+    const int ly = static_cast<int>(runCell(runPos(m.qy, m.sy, l))) - static_cast<int>(cy0);
+    const int lz = static_cast<int>(runCell(runPos(m.qz, m.sz, l))) - static_cast<int>(cz0);
+    const int r = static_cast<int>(d) - 1;
+    return std::abs(lx) <= r && std::abs(ly) <= r && std::abs(lz) <= r ? j : i + 1;
+}
+
+#if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
+bool runFieldAvx2(const HitContext& cx, HitMarch& m, RayHit& out) noexcept;
+#endif
+
+/// runScalar() with the cell distances of a HitField.
+bool runScalarField(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
+    float vPrev = m.prev;
+    std::int64_t iPrev = m.prevKnown ? 0 : -1;
+    for (std::int64_t i = 1; i < m.runN;) {
+        const float px = runPos(m.qx, m.sx, i), py = runPos(m.qy, m.sy, i),
+                    pz = runPos(m.qz, m.sz, i);
+        const unsigned cx0 = runCell(px), cy0 = runCell(py), cz0 = runCell(pz);
+        const unsigned d = m.dist[(cx0 * 8 + cy0) * 8 + cz0];
+        if (d != 0) {
+            // A lone cell holds one or two samples: stepping is cheaper than the jump.
+            i = d == 1 ? i + 1 : cellJump(m, i, cx0, cy0, cz0, d);
+            continue;
+        }
+        const float v = lerp8(m.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
+                              py - static_cast<float>(cy0), pz - static_cast<float>(cz0));
+        if (v >= cx.thr) {
+            out = refineHit(cx, m, m.runK + i, iPrev == i - 1 ? vPrev : runValue(m, i - 1), v);
+            return true;
+        }
+        vPrev = v;
+        iPrev = i;
+        ++i;
+    }
+    return false;
+}
+
 /// The pending run of @p m, one ray at a time: true (and @p out set) on a hit. Samples in
 /// sub-blocks that cannot reach the threshold are passed over; a hit whose predecessor was
 /// passed over reads it then (the same float position, so the same value as when taken).
-bool runScalar(const HitContext& cx, const HitMarch& m, RayHit& out) noexcept {
+bool runScalar(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
+    if (m.dist != nullptr) {
+#if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
+        if (cx.simd) return runFieldAvx2(cx, m, out);
+#endif
+        return runScalarField(cx, m, out);
+    }
     float vPrev = m.prev;
     std::int64_t iPrev = 0;
     for (std::int64_t i = 1; i < m.runN;) {
@@ -987,15 +1210,64 @@ PALP_HOT bool startBundleRay(const HitContext& cx, const RayBundle& bundle, int 
                     out);
 }
 
+/// Starts the loads of the data the bundle's first ray will read at five points along it (the
+/// block table entries, then each block's copy lines around the point and its cell distances),
+/// so that cache misses at positions no earlier frame touched overlap instead of following one
+/// another block by block. The other rays of a bundle leave from the same proxy within a few
+/// degrees and mostly read the same blocks. No effect on results.
+void prefetchPath(const HitContext& cx, const RayBundle& bundle) noexcept {
+    if (bundle.count < 1 || !cx.usable) return;
+    const Table& tb = *cx.tb;
+    const double dx = bundle.dx[0], dy = bundle.dy[0], dz = bundle.dz[0];
+    const double n = std::sqrt(dx * dx + dy * dy + dz * dz);
+    const double len = bundle.length[0];
+    if (!(n > 0) || !(len >= 0) || !(len < 1e3)) return;
+    const Eigen::Vector3d o =
+        cx.view->indexFromWorld(Eigen::Vector3d(bundle.ox[0], bundle.oy[0], bundle.oz[0]));
+    constexpr int kPoints = 9;
+    const double sc = cx.view->inverseVoxelSize() * len / ((kPoints - 1) * n);
+    std::int64_t blocks[kPoints];
+    std::int32_t cells[kPoints];
+    int count = 0;
+    for (int q = 0; q < kPoints; ++q) {
+        const double x = o.x() + q * sc * dx - tb.origin[0], y = o.y() + q * sc * dy - tb.origin[1],
+                     z = o.z() + q * sc * dz - tb.origin[2];
+        if (!(x >= 0 && x < cx.limX && y >= 0 && y < cx.limY && z >= 0 && z < cx.limZ)) continue;
+        const auto ix = static_cast<std::int32_t>(x), iy = static_cast<std::int32_t>(y),
+                   iz = static_cast<std::int32_t>(z);
+        const std::int64_t b = ((ix >> 3) * cx.nby + (iy >> 3)) * cx.nbz + (iz >> 3);
+        __builtin_prefetch(&tb.maxDilated[static_cast<std::size_t>(b)]);
+        __builtin_prefetch(&tb.data[static_cast<std::size_t>(b)]);
+        blocks[count] = b;
+        cells[count++] = (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7));
+    }
+    for (int q = 0; q < count; ++q) {
+        const auto b = static_cast<std::size_t>(blocks[q]);
+        if (tb.maxDilated[b] < cx.thr) continue;
+        const float* p = tb.data[b] + cells[q];
+        __builtin_prefetch(p);
+        __builtin_prefetch(p + 9);
+        __builtin_prefetch(p + 81);
+        __builtin_prefetch(p + 90);
+        if (cx.field != nullptr)
+            __builtin_prefetch(cx.field->distances(
+                static_cast<std::size_t>(tb.data[b] - tb.padded) / Table::kPadded));
+    }
+}
+
 void traceFirstHitScalar(const HitContext& cx, const RayBundle& bundle, BundleHits& out) noexcept {
+    prefetchPath(cx, bundle);
+    HitMarch m;  // startHit() and advanceHit() set every field a ray reads
+    Refinements refs;
     for (int i = 0; i < out.count; ++i) {
-        HitMarch m;
         RayHit h;
         if (startBundleRay(cx, bundle, i, m, h))
             while (advanceHit(cx, m, h) && !runScalar(cx, m, h)) {
             }
         storeHit(out, i, h);
+        if (h.hit && m.pending) refs.push(m.ref, i);
     }
+    refineAll(cx, refs, out.t.data());
 }
 
 #if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
@@ -1037,6 +1309,64 @@ PALP_AVX2_HOT void storeAvx(std::int32_t* p, __m256i v) noexcept {
     _mm256_store_si256(reinterpret_cast<__m256i*>(p), v);
 }
 
+/// runScalarField() eight samples at a time along the ray: the cells of samples i .. i + 7 (the
+/// same float positions as runPos()) and their HitField distances in one step, and the trilinear
+/// blend (lerp8(), scalar) only at samples in cells that can reach the threshold. Bit-identical
+/// to runScalarField() and runScalar().
+__attribute__((target("avx2"))) bool runFieldAvx2(const HitContext& cx, HitMarch& m,
+                                                  RayHit& out) noexcept {
+    const __m256 qx = _mm256_set1_ps(m.qx), qy = _mm256_set1_ps(m.qy), qz = _mm256_set1_ps(m.qz);
+    const __m256 sx = _mm256_set1_ps(m.sx), sy = _mm256_set1_ps(m.sy), sz = _mm256_set1_ps(m.sz);
+    const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m256i byte = _mm256_set1_epi32(0xFF);
+    const auto* dist = reinterpret_cast<const int*>(m.dist);
+    const auto n = static_cast<std::int32_t>(m.runN);  // at most ~28 (one block)
+    float vPrev = m.prev;
+    std::int32_t iPrev = m.prevKnown ? 0 : -1;
+    alignas(32) float px[8], py[8], pz[8];
+    alignas(32) std::int32_t cxs[8], cys[8], czs[8];
+    for (std::int32_t i0 = 1; i0 < n; i0 += 8) {
+        const __m256 fi = _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(i0), lane));
+        const __m256 vx = _mm256_add_ps(qx, _mm256_mul_ps(fi, sx));
+        const __m256 vy = _mm256_add_ps(qy, _mm256_mul_ps(fi, sy));
+        const __m256 vz = _mm256_add_ps(qz, _mm256_mul_ps(fi, sz));
+        const __m256i cx0 = cellsAvx(vx), cy0 = cellsAvx(vy), cz0 = cellsAvx(vz);
+        // Cells are clamped to 0..7, so every lane reads inside the copy's 512 distances (the
+        // buffer has 3 bytes past its last map for the 32-bit reads).
+        const __m256i at = _mm256_add_epi32(
+            _mm256_add_epi32(_mm256_slli_epi32(cx0, 6), _mm256_slli_epi32(cy0, 3)), cz0);
+        const __m256i d = _mm256_and_si256(_mm256_i32gather_epi32(dist, at, 1), byte);
+        const std::int32_t valid = std::min(n - i0, 8);
+        unsigned hot = static_cast<unsigned>(_mm256_movemask_ps(
+                           _mm256_castsi256_ps(_mm256_cmpeq_epi32(d, _mm256_setzero_si256())))) &
+                       ((1u << valid) - 1u);
+        if (hot == 0) continue;
+        _mm256_store_ps(px, vx);
+        _mm256_store_ps(py, vy);
+        _mm256_store_ps(pz, vz);
+        storeAvx(cxs, cx0);
+        storeAvx(cys, cy0);
+        storeAvx(czs, cz0);
+        for (; hot != 0; hot &= hot - 1) {
+            const int l = __builtin_ctz(hot);
+            const std::int32_t i = i0 + l;
+            const auto ux = static_cast<unsigned>(cxs[l]), uy = static_cast<unsigned>(cys[l]),
+                       uz = static_cast<unsigned>(czs[l]);
+            const float v = lerp8(m.base + ((ux * 9 + uy) * 9 + uz), px[l] - static_cast<float>(ux),
+                                  py[l] - static_cast<float>(uy), pz[l] - static_cast<float>(uz));
+            if (v >= cx.thr) {
+                _mm256_zeroupper();  // the refinement is SSE code
+                const float before = iPrev == i - 1 ? vPrev : runValue(m, i - 1);
+                out = refineHit(cx, m, m.runK + i, before, v);
+                return true;
+            }
+            vPrev = v;
+            iPrev = i;
+        }
+    }
+    return false;
+}
+
 /// The bundle's rays eight at a time: every lane holds one ray's pending run, and one AVX2 step
 /// takes the next sample of every lane (eight gathers of the cell corners from the padded block
 /// copies, the trilinear blend in the same float operations and order as lerp8(), at the same
@@ -1071,6 +1401,7 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
     alignas(32) std::int32_t iOld[kLanes], pOld[kLanes];
     unsigned active = 0;
     int next = 0;
+    Refinements refs;
     auto loadRay = [&](int l) {
         const HitMarch& h = m[l];
         sx[l] = h.sx;
@@ -1112,6 +1443,7 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
                 return;
             }
             storeHit(out, i, h);
+            if (h.hit && m[l].pending) refs.push(m[l].ref, i);
         }
         // An idle lane reads a valid cell (offset 0, position 0), never jumps and is ignored.
         active &= ~(1u << l);
@@ -1213,15 +1545,18 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
             if ((hitBits >> l) & 1u) {
                 const float before = pOld[l] == iOld[l] - 1 ? vOld[l] : runValue(m[l], iOld[l] - 1);
                 storeHit(out, ray[l], refineHit(cx, m[l], m[l].runK + iOld[l], before, vNew[l]));
+                refs.push(m[l].ref, ray[l]);
             } else if (advanceHit(cx, m[l], h)) {
                 loadRun(l);
                 continue;
             } else {
                 storeHit(out, ray[l], h);
+                if (h.hit && m[l].pending) refs.push(m[l].ref, ray[l]);
             }
             refill(l);
         }
     }
+    refineAll(cx, refs, out.t.data());
 }
 #endif
 
@@ -1254,6 +1589,11 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
     if (startHit(cx, origin, direction, length, m, h))
         while (advanceHit(cx, m, h) && !runScalar(cx, m, h)) {
         }
+    if (h.hit && m.pending) {
+        Refinements refs;
+        refs.push(m.ref, 0);
+        refineAll(cx, refs, &h.t);
+    }
     return h;
 }
 
@@ -1367,8 +1707,8 @@ void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstH
     const HitContext cx(view, params);
 #ifdef PALP_RAY_AVX2
     // 32-bit gather offsets must reach every block copy.
-    if (params.simd && kHasAvx2 && out.count > 1 && view.table().padded != nullptr &&
-        view.table().paddedSize < (std::size_t{1} << 31) - 128) {
+    if (params.simd && kHasAvx2 && cx.field == nullptr && out.count > 1 &&
+        view.table().padded != nullptr && view.table().paddedSize < (std::size_t{1} << 31) - 128) {
         traceFirstHitAvx2(cx, bundle, out);
         return;
     }

@@ -465,6 +465,38 @@ std::vector<Loop> loopsBelow(const Vec& proxy, double xShift) {
     };
 }
 
+// A hit field changes no output (it only lets the march pass over cells that cannot hit), and
+// one built for another threshold is ignored after setParams() changes the threshold (what a
+// Session does after palp_session_set_params).
+TEST(Coupling, HitFieldChangesNothingAndIsIgnoredForAnotherThreshold) {
+    const AvcPhantom& ph = avcPhantom();
+    const palp::kernels::HitField field(*ph.view, ph.params.firstHit.threshold);
+    CouplingParams with = ph.params;
+    with.mode = CouplingMode::AVCEC;
+    with.firstHit.field = &field;
+    CouplingParams without = with;
+    without.firstHit.field = nullptr;
+    Coupling a(ph.view.get(), nullptr, with), b(ph.view.get(), nullptr, without);
+    int hits = 0;
+    for (float threshold : {500.0f, 200.0f}) {
+        with.firstHit.threshold = without.firstHit.threshold = threshold;
+        a.setParams(with);
+        b.setParams(without);
+        for (int i = 0; i < 50; ++i) {
+            const Vec proxy(-6e-3 + 0.25e-3 * i, 0.2e-3 * (i % 7), 1e-3);
+            const Vec probe = proxy + 3e-3 * Vec(0.3 * std::sin(0.4 * i), 1, 0.2).normalized();
+            CouplingOutput oa, ob;
+            a.compute(proxy, probe, kZero, kZero, kT1, kT2, oa);
+            b.compute(proxy, probe, kZero, kZero, kT1, kT2, ob);
+            ASSERT_EQ(oa.rayLength, ob.rayLength) << threshold << " " << i;  // bit-equal
+            ASSERT_EQ(oa.stiffness, ob.stiffness);
+            ASSERT_EQ(oa.force, ob.force);
+            hits += std::isfinite(oa.rayLength) ? 1 : 0;
+        }
+    }
+    EXPECT_GT(hits, 20);
+}
+
 // The headline test. The proxy rests on the surface straight above the plate's +x edge: probe
 // directions tilted towards -x hit the plate (L ~ 10 mm, k ~ 900 N/m), directions towards +x
 // find nothing within L_max = 40 mm (k = 300 N/m). Plain AVC then does net work around loops

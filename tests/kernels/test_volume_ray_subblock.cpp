@@ -1,7 +1,8 @@
-// First-hit skipping of 4^3 sub-blocks inside blocks that cannot be skipped whole: the bounds
-// the view stores, and bit-identical results with and without skipping, scalar and AVX2, on
-// volumes built so that thin bone slabs and single hot voxels sit on block and sub-block faces,
-// edges and corners, with rays along the axes and nearly parallel to the faces.
+// First-hit skipping inside blocks that cannot be skipped whole, by the view's 4^3 sub-block
+// bounds and by a HitField's per-cell distances: the bounds and distances themselves, and
+// bit-identical results with and without skipping, scalar and AVX2, with and without a field,
+// on volumes built so that thin bone slabs and single hot voxels sit on block and sub-block
+// faces, edges and corners, with rays along the axes and nearly parallel to the faces.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -10,6 +11,7 @@
 #include <random>
 #include <vector>
 
+#include "palp/error.h"
 #include "palp/kernels/volume_ray.h"
 
 namespace {
@@ -76,12 +78,13 @@ std::vector<Ray> makeRays(std::uint32_t seed, int n) {
     return rays;
 }
 
-FirstHitParams params(bool skip, bool simd) {
+FirstHitParams params(bool skip, bool simd, const HitField* field = nullptr) {
     FirstHitParams p;
     p.threshold = kThreshold;
     p.step = 0.25e-3;
     p.skipEmpty = skip;
     p.simd = simd;
+    p.field = field;
     return p;
 }
 
@@ -124,25 +127,37 @@ TEST(VolumeRaySubBlocks, BoundsCoverTheirCellsValues) {
 TEST(VolumeRaySubBlocks, SkippingIsBitIdenticalForSingleRays) {
     const auto grid = makeGrid(5);
     const VolumeView view(grid);
+    const HitField field(view, kThreshold);
     int hits = 0, misses = 0;
     const auto rays = makeRays(17, 4000);
     for (std::size_t i = 0; i < rays.size(); ++i) {
         const Ray& r = rays[i];
         const RayHit a = firstHit(view, r.o, r.d, r.length, params(true, false));
         const RayHit b = firstHit(view, r.o, r.d, r.length, params(false, false));
+        const RayHit c = firstHit(view, r.o, r.d, r.length, params(true, false, &field));
+        const RayHit d = firstHit(view, r.o, r.d, r.length, params(true, true, &field));
         ASSERT_EQ(a.hit, b.hit) << "ray " << i;
         ASSERT_EQ(a.t, b.t) << "ray " << i;  // bit-equal
+        ASSERT_EQ(c.hit, b.hit) << "ray " << i;
+        ASSERT_EQ(c.t, b.t) << "ray " << i;
+        ASSERT_EQ(d.hit, b.hit) << "ray " << i;
+        ASSERT_EQ(d.t, b.t) << "ray " << i;
         (a.hit ? hits : misses) += 1;
     }
     EXPECT_GT(hits, 600);  // both outcomes, many times
     EXPECT_GT(misses, 600);
 }
 
-// Bundles: the AVX2 lockstep path and the scalar path, each with and without skipping, give the
-// same bits as single-ray firstHit() without skipping.
+// Bundles: the AVX2 lockstep path and the scalar path, each with and without skipping, and the
+// field's scalar and AVX2 run loops, give the same bits as single-ray firstHit() without
+// skipping. A field built for another threshold is ignored.
 TEST(VolumeRaySubBlocks, BundlesAreBitIdenticalWithAndWithoutSkippingAndSimd) {
     const auto grid = makeGrid(7);
     const VolumeView view(grid);
+    const HitField field(view, kThreshold);
+    const HitField other(view, kThreshold + 200);
+    ASSERT_TRUE(field.matches(view, kThreshold));
+    ASSERT_FALSE(other.matches(view, kThreshold));
     const auto rays = makeRays(29, 6000);
     std::mt19937 rng(31);
     std::uniform_int_distribution<int> count(2, kMaxBundleRays);
@@ -163,11 +178,14 @@ TEST(VolumeRaySubBlocks, BundlesAreBitIdenticalWithAndWithoutSkippingAndSimd) {
             b.dz[i] = static_cast<float>(ray.d.z());
             b.length[i] = static_cast<float>(ray.length);
         }
-        std::array<BundleHits, 4> out;
+        std::array<BundleHits, 7> out;
         traceFirstHit(view, b, params(true, true), out[0]);
         traceFirstHit(view, b, params(false, true), out[1]);
         traceFirstHit(view, b, params(true, false), out[2]);
         traceFirstHit(view, b, params(false, false), out[3]);
+        traceFirstHit(view, b, params(true, true, &field), out[4]);
+        traceFirstHit(view, b, params(true, false, &field), out[5]);
+        traceFirstHit(view, b, params(true, true, &other), out[6]);
         for (int r = 0; r < b.count; ++r) {
             const auto i = static_cast<std::size_t>(r);
             const RayHit one = firstHit(view, Eigen::Vector3d(b.ox[i], b.oy[i], b.oz[i]),
@@ -199,7 +217,9 @@ TEST(VolumeRaySubBlocks, HotVoxelOnASubBlockCornerIsHit) {
     const VolumeView view(grid);
     // Along +x through the voxel centre's row: v(x) = 1000 (1 - |x - 4|) near it, so the field
     // reaches 300 at x = 3.3.
-    for (bool simd : {false, true}) {
+    const HitField field(view, kThreshold);
+    for (int variant = 0; variant < 4; ++variant) {
+        const bool simd = (variant & 1) != 0;
         RayBundle b;
         b.count = 2;
         b.valid = true;
@@ -213,9 +233,69 @@ TEST(VolumeRaySubBlocks, HotVoxelOnASubBlockCornerIsHit) {
             b.length[i] = static_cast<float>(20 * kVox);
         }
         BundleHits h;
-        traceFirstHit(view, b, params(true, simd), h);
+        traceFirstHit(view, b, params(true, simd, variant >= 2 ? &field : nullptr), h);
         ASSERT_EQ(h.hit[0], 1);
         EXPECT_NEAR(h.t[0], 9.3 * kVox, 0.05 * kVox);
         EXPECT_EQ(h.t[1], h.t[0]);
     }
+}
+
+// The field's distances: a cell at distance d > 0 has every cell within Chebyshev distance d - 1
+// in its block below the threshold at all eight corners (what lets the march pass over them),
+// and the distance is the smallest such: a cell at d <= 7 has a cell at exactly d that can reach
+// the threshold (a corner within the bound's hair of it). Blocks that cannot reach the threshold
+// share one map of kFar.
+TEST(VolumeRayHitField, DistancesBoundTheCellsThatCanReachTheThreshold) {
+    const VolumeView view(makeGrid(3));
+    const HitField field(view, kThreshold);
+    const auto& tb = view.table();
+    const std::size_t copies = tb.paddedSize / VolumeView::Table::kPadded;
+    auto cellMax = [&](const float* copy, int x, int y, int z) {
+        float mx = -1e30f;
+        for (int i = 0; i < 8; ++i)
+            mx = std::max(mx, copy[((x + (i >> 2)) * 9 + y + ((i >> 1) & 1)) * 9 + z + (i & 1)]);
+        return mx;
+    };
+    std::size_t hot = 0;
+    int far = 0, near = 0;
+    for (std::size_t c = 0; c < copies; ++c) {
+        const float* copy = tb.padded + c * VolumeView::Table::kPadded;
+        const std::uint8_t* d = field.distances(c);
+        bool any = false;
+        for (int x = 0; x < 8; ++x)
+            for (int y = 0; y < 8; ++y)
+                for (int z = 0; z < 8; ++z) any = any || cellMax(copy, x, y, z) >= kThreshold;
+        hot += any ? 1 : 0;
+        if (!any) {
+            for (int i = 0; i < HitField::kCells; ++i) ASSERT_EQ(d[i], HitField::kFar);
+            continue;
+        }
+        for (int x = 0; x < 8; ++x)
+            for (int y = 0; y < 8; ++y)
+                for (int z = 0; z < 8; ++z) {
+                    const int dc = d[(x * 8 + y) * 8 + z];
+                    ASSERT_LE(dc, HitField::kFar);
+                    int nearest = 99;
+                    for (int a = 0; a < 8; ++a)
+                        for (int b = 0; b < 8; ++b)
+                            for (int e = 0; e < 8; ++e) {
+                                const int cheb =
+                                    std::max({std::abs(a - x), std::abs(b - y), std::abs(e - z)});
+                                const float mx = cellMax(copy, a, b, e);
+                                if (cheb < dc) {
+                                    ASSERT_LT(mx, kThreshold) << c << " " << x << y << z;
+                                }
+                                if (mx >= kThreshold - 1e-3f * 2000)
+                                    nearest = std::min(nearest, cheb);
+                            }
+                    if (dc < HitField::kFar) {
+                        ASSERT_EQ(nearest, dc) << c << " " << x << y << z;
+                    }
+                    (dc >= 3 ? far : near) += 1;
+                }
+    }
+    EXPECT_EQ(field.hotCopies(), hot);
+    EXPECT_GT(far, 1000);  // the march has long jumps to take, and short ones
+    EXPECT_GT(near, 1000);
+    EXPECT_THROW(HitField(view, std::nanf("")), palp::ValueError);
 }
