@@ -100,6 +100,10 @@ HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThr
         transformAxis(d, 1);
         std::copy(d, d + kCells, dist + (h + 1) * kCells);
     });
+    mBlockOffset.resize(tb.data.size());
+    for (std::size_t b = 0; b < tb.data.size(); ++b)
+        mBlockOffset[b] = mOffset[static_cast<std::size_t>(tb.data[b] - tb.padded) /
+                                  static_cast<std::size_t>(Table::kPadded)];
 }
 
 }  // namespace palp::kernels

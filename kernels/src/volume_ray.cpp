@@ -1011,10 +1011,8 @@ bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
                 const float f0x = static_cast<float>(xr - ix), f0y = static_cast<float>(yr - iy),
                             f0z = static_cast<float>(zr - iz);
                 const std::uint8_t* dist =
-                    cx.field != nullptr
-                        ? cx.field->distances(static_cast<std::size_t>(base - tb.padded) /
-                                              Table::kPadded)
-                        : nullptr;
+                    cx.field != nullptr ? cx.field->blockDistances(static_cast<std::size_t>(b))
+                                        : nullptr;
                 // A cell the field marks as below the threshold needs no blend (and cannot hit).
                 const bool known =
                     dist == nullptr || dist[((ix & 7) * 8 + (iy & 7)) * 8 + (iz & 7)] == 0;
@@ -1224,34 +1222,44 @@ void prefetchPath(const HitContext& cx, const RayBundle& bundle) noexcept {
     if (!(n > 0) || !(len >= 0) || !(len < 1e3)) return;
     const Eigen::Vector3d o =
         cx.view->indexFromWorld(Eigen::Vector3d(bundle.ox[0], bundle.oy[0], bundle.oz[0]));
-    constexpr int kPoints = 9;
-    const double sc = cx.view->inverseVoxelSize() * len / ((kPoints - 1) * n);
-    std::int64_t blocks[kPoints];
-    std::int32_t cells[kPoints];
+    // About one point per voxel along the ray (a 10 mm ray at 0.5 mm voxels: 21 points).
+    constexpr int kMaxPoints = 33;
+    const double voxels = len * cx.view->inverseVoxelSize();
+    const int points = std::clamp(static_cast<int>(voxels) + 1, 2, kMaxPoints);
+    const double sc = voxels / ((points - 1) * n);
+    std::int64_t blocks[kMaxPoints];
+    std::int32_t cells[kMaxPoints];
     int count = 0;
-    for (int q = 0; q < kPoints; ++q) {
+    std::int64_t last = -1;
+    for (int q = 0; q < points; ++q) {
         const double x = o.x() + q * sc * dx - tb.origin[0], y = o.y() + q * sc * dy - tb.origin[1],
                      z = o.z() + q * sc * dz - tb.origin[2];
         if (!(x >= 0 && x < cx.limX && y >= 0 && y < cx.limY && z >= 0 && z < cx.limZ)) continue;
         const auto ix = static_cast<std::int32_t>(x), iy = static_cast<std::int32_t>(y),
                    iz = static_cast<std::int32_t>(z);
         const std::int64_t b = ((ix >> 3) * cx.nby + (iy >> 3)) * cx.nbz + (iz >> 3);
-        __builtin_prefetch(&tb.maxDilated[static_cast<std::size_t>(b)]);
-        __builtin_prefetch(&tb.data[static_cast<std::size_t>(b)]);
+        if (b != last) {
+            __builtin_prefetch(&tb.maxDilated[static_cast<std::size_t>(b)]);
+            __builtin_prefetch(&tb.data[static_cast<std::size_t>(b)]);
+            if (cx.field != nullptr)
+                __builtin_prefetch(cx.field->blockOffsetAddress(static_cast<std::size_t>(b)));
+            last = b;
+        }
         blocks[count] = b;
-        cells[count++] = (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7));
+        cells[count++] = ((ix & 7) * 8 + (iy & 7)) * 8 + (iz & 7);
     }
+    // Second pass, once the table entries are on their way: the copy lines of each point's cell
+    // and its field distances.
     for (int q = 0; q < count; ++q) {
         const auto b = static_cast<std::size_t>(blocks[q]);
         if (tb.maxDilated[b] < cx.thr) continue;
-        const float* p = tb.data[b] + cells[q];
+        const int c = cells[q];
+        const float* p = tb.data[b] + ((c >> 6) * 9 + ((c >> 3) & 7)) * 9 + (c & 7);
         __builtin_prefetch(p);
-        __builtin_prefetch(p + 9);
+        __builtin_prefetch(p + 10);
         __builtin_prefetch(p + 81);
-        __builtin_prefetch(p + 90);
-        if (cx.field != nullptr)
-            __builtin_prefetch(cx.field->distances(
-                static_cast<std::size_t>(tb.data[b] - tb.padded) / Table::kPadded));
+        __builtin_prefetch(p + 91);
+        if (cx.field != nullptr) __builtin_prefetch(cx.field->blockDistances(b) + c);
     }
 }
 

@@ -143,7 +143,8 @@ class HitField {
     }
     /// Heap bytes held.
     std::size_t bytes() const noexcept {
-        return mDistance.capacity() + mOffset.capacity() * sizeof(std::uint32_t);
+        return mDistance.capacity() +
+               (mOffset.capacity() + mBlockOffset.capacity()) * sizeof(std::uint32_t);
     }
     /// Block copies that have at least one cell that can reach the threshold.
     std::size_t hotCopies() const noexcept { return mHotCopies; }
@@ -152,6 +153,15 @@ class HitField {
     /// The 512 distances of padded copy @p copy (cell (x, y, z) at (x * 8 + y) * 8 + z).
     const std::uint8_t* distances(std::size_t copy) const noexcept {
         return mDistance.data() + mOffset[copy];
+    }
+    /// The same for the copy of table block @p block (one load that does not wait for the
+    /// block's copy pointer).
+    const std::uint8_t* blockDistances(std::size_t block) const noexcept {
+        return mDistance.data() + mBlockOffset[block];
+    }
+    /// Where blockDistances() reads its offset (for prefetching).
+    const void* blockOffsetAddress(std::size_t block) const noexcept {
+        return mBlockOffset.data() + block;
     }
     /// Start of the buffer that holds every copy's distances (3 readable bytes past the end, so
     /// a 32-bit gather can read any distance).
@@ -162,7 +172,8 @@ class HitField {
   private:
     const VolumeView* mView;
     float mThreshold;
-    std::vector<std::uint32_t> mOffset;  ///< per copy: byte offset of its distances
+    std::vector<std::uint32_t> mOffset;       ///< per copy: byte offset of its distances
+    std::vector<std::uint32_t> mBlockOffset;  ///< per table block: the same, for its copy
     std::vector<std::uint8_t> mDistance;
     std::size_t mHotCopies = 0;
 };
