@@ -792,6 +792,9 @@ struct HitMarch {
     float farx = 0, fary = 0, farz = 0;
     // For the cell-distance jumps: 1 where s > 0, else 0 (the box side the ray leaves by).
     float posx = 0, posy = 0, posz = 0;
+    // A block's exit along each axis, (face - l) * invF + far: the block-local face the ray
+    // leaves by (8 or 0), 1 / d (0 where d = 0), and +inf where d = 0 (never left).
+    double face[3] = {0, 0, 0}, invF[3] = {0, 0, 0}, far[3] = {0, 0, 0};
     // The pending run (after advanceHit() returned true): samples runK + i, i = 1 .. runN - 1,
     // at block-local positions q + float(i) s (each one rounded the same way wherever it is
     // computed) in block copy `base`; `prev` is sample runK (taken on its exact position).
@@ -841,15 +844,22 @@ PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
     m.sx = static_cast<float>(m.r.d[0] * m.r.step);
     m.sy = static_cast<float>(m.r.d[1] * m.r.step);
     m.sz = static_cast<float>(m.r.d[2] * m.r.step);
-    auto axis = [](float sa, float& iv, float& hi, float& far) {
-        iv = sa == 0 ? 0.0f : static_cast<float>(std::clamp(1.0 / sa, -1e30, 1e30));
+    // 1 / s from 1 / d (no division; the jumps check where they land, so the estimate need not
+    // be exact).
+    auto axis = [&](float sa, double inv, float& iv, float& hi, float& far) {
+        iv = sa == 0 ? 0.0f : static_cast<float>(std::clamp(inv * m.r.invStep, -1e30, 1e30));
         hi = sa > 0 ? 4.0f : 0.0f;
         far = sa == 0 ? 1e30f : 0.0f;
     };
-    axis(m.sx, m.ivx, m.hix, m.farx);
-    axis(m.sy, m.ivy, m.hiy, m.fary);
-    axis(m.sz, m.ivz, m.hiz, m.farz);
+    axis(m.sx, m.r.inv[0], m.ivx, m.hix, m.farx);
+    axis(m.sy, m.r.inv[1], m.ivy, m.hiy, m.fary);
+    axis(m.sz, m.r.inv[2], m.ivz, m.hiz, m.farz);
     m.pending = false;
+    for (int a = 0; a < 3; ++a) {
+        m.face[a] = m.r.d[a] > 0 ? 8.0 : 0.0;
+        m.invF[a] = m.r.d[a] != 0 ? m.r.inv[a] : 0.0;
+        m.far[a] = m.r.d[a] != 0 ? 0.0 : kInf;
+    }
     m.posx = m.sx > 0 ? 1.0f : 0.0f;
     m.posy = m.sy > 0 ? 1.0f : 0.0f;
     m.posz = m.sz > 0 ? 1.0f : 0.0f;
@@ -859,7 +869,8 @@ PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
 /// Records the refinement of a crossing between run samples j - 1 and j (both in the pending
 /// run of @p m, j > runK) from their values: every probe lies in the run's block. Returns the
 /// provisional hit (t of sample j), refined by refineAll().
-RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, float vPrev, float v) noexcept {
+PALP_HOT RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, float vPrev,
+                          float v) noexcept {
     Refinement& f = m.ref;
     f.local = true;
     f.needPrev = false;
@@ -888,7 +899,7 @@ RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, float vPrev,
 /// its predecessor on the exact (double) position instead of taking a march value, so a result
 /// does not depend on whether the blocks before were skipped. Records a general refinement
 /// that samples the predecessor first.
-RayHit hitAtSample(const HitContext& cx, HitMarch& m, std::int64_t j, float v) noexcept {
+PALP_HOT RayHit hitAtSample(const HitContext& cx, HitMarch& m, std::int64_t j, float v) noexcept {
     if (j == 0) return {0.0f, true};
     Refinement& f = m.ref;
     f.local = false;
@@ -982,7 +993,7 @@ PALP_HOT unsigned occupancy(const Table& tb, const float* base, float thr) noexc
 
 /// Marches from sample m.k until the ray ends (false, @p out set) or reaches a run of at least
 /// one more float-placed sample inside a block (true, the run set in @p m).
-bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
+PALP_HOT bool advanceHitBody(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
     const Table& tb = *cx.tb;
     const IndexRay& r = m.r;
     const float thr = cx.thr;
@@ -1028,13 +1039,9 @@ bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
                 // in the run loop (the 9^3 copy holds the +1 layer), and one the run leaves out
                 // is simply the first of the next run.
                 const double lx = xr - (ix & ~7), ly = yr - (iy & ~7), lz = zr - (iz & ~7);
-                double tRel = kInf;
-                if (r.d[0] > 0) tRel = std::min(tRel, (8.0 - lx) * r.inv[0]);
-                if (r.d[0] < 0) tRel = std::min(tRel, -lx * r.inv[0]);
-                if (r.d[1] > 0) tRel = std::min(tRel, (8.0 - ly) * r.inv[1]);
-                if (r.d[1] < 0) tRel = std::min(tRel, -ly * r.inv[1]);
-                if (r.d[2] > 0) tRel = std::min(tRel, (8.0 - lz) * r.inv[2]);
-                if (r.d[2] < 0) tRel = std::min(tRel, -lz * r.inv[2]);
+                const double tRel = std::min(std::min((m.face[0] - lx) * m.invF[0] + m.far[0],
+                                                      (m.face[1] - ly) * m.invF[1] + m.far[1]),
+                                             (m.face[2] - lz) * m.invF[2] + m.far[2]);
                 // At most ~28 samples fit in a block (0.5-voxel steps), far below kMaxSamples.
                 const double more = std::min(tRel * r.invStep, static_cast<double>(m.kRunLast - k));
                 const std::int64_t n = 1 + static_cast<std::int64_t>(more);
@@ -1072,6 +1079,10 @@ bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
     }
     out = noHit(r.length);
     return false;
+}
+
+bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
+    return advanceHitBody(cx, m, out);
 }
 
 /// Sub-block index (0..7) of a cell of a padded copy.
@@ -1321,8 +1332,9 @@ PALP_AVX2_HOT void storeAvx(std::int32_t* p, __m256i v) noexcept {
 /// same float positions as runPos()) and their HitField distances in one step, and the trilinear
 /// blend (lerp8(), scalar) only at samples in cells that can reach the threshold. Bit-identical
 /// to runScalarField() and runScalar().
-__attribute__((target("avx2"))) bool runFieldAvx2(const HitContext& cx, HitMarch& m,
-                                                  RayHit& out) noexcept {
+__attribute__((target("avx2"), always_inline)) inline bool runFieldAvx2Body(const HitContext& cx,
+                                                                            HitMarch& m,
+                                                                            RayHit& out) noexcept {
     const __m256 qx = _mm256_set1_ps(m.qx), qy = _mm256_set1_ps(m.qy), qz = _mm256_set1_ps(m.qz);
     const __m256 sx = _mm256_set1_ps(m.sx), sy = _mm256_set1_ps(m.sy), sz = _mm256_set1_ps(m.sz);
     const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
@@ -1373,6 +1385,31 @@ __attribute__((target("avx2"))) bool runFieldAvx2(const HitContext& cx, HitMarch
         }
     }
     return false;
+}
+
+__attribute__((target("avx2"))) bool runFieldAvx2(const HitContext& cx, HitMarch& m,
+                                                  RayHit& out) noexcept {
+    return runFieldAvx2Body(cx, m, out);
+}
+
+/// traceFirstHitScalar() with a HitField on a CPU with AVX2: each ray's whole march (block DDA,
+/// block entries, the eight-sample run loop) in one AVX2 function, with no call per block.
+__attribute__((target("avx2"))) void traceFirstHitFieldAvx2(const HitContext& cx,
+                                                            const RayBundle& bundle,
+                                                            BundleHits& out) noexcept {
+    prefetchPath(cx, bundle);
+    HitMarch m;  // startHit() and advanceHitBody() set every field a ray reads
+    Refinements refs;
+    for (int i = 0; i < out.count; ++i) {
+        RayHit h;
+        if (startBundleRay(cx, bundle, i, m, h))
+            while (advanceHitBody(cx, m, h) && !runFieldAvx2Body(cx, m, h)) {
+            }
+        storeHit(out, i, h);
+        if (h.hit && m.pending) refs.push(m.ref, i);
+    }
+    _mm256_zeroupper();  // the refinement is SSE code
+    refineAll(cx, refs, out.t.data());
 }
 
 /// The bundle's rays eight at a time: every lane holds one ray's pending run, and one AVX2 step
@@ -1715,6 +1752,10 @@ void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstH
     const HitContext cx(view, params);
 #ifdef PALP_RAY_AVX2
     // 32-bit gather offsets must reach every block copy.
+    if (cx.field != nullptr && cx.simd) {
+        traceFirstHitFieldAvx2(cx, bundle, out);
+        return;
+    }
     if (params.simd && kHasAvx2 && cx.field == nullptr && out.count > 1 &&
         view.table().padded != nullptr && view.table().paddedSize < (std::size_t{1} << 31) - 128) {
         traceFirstHitAvx2(cx, bundle, out);
