@@ -384,6 +384,11 @@ TEST(RayBatch, ParallelEqualsSingleThread) {
     std::vector<BundleHits> v1(bundles.size()), vN(bundles.size()), m1(bundles.size()),
         mN(bundles.size());
     std::vector<BundleAccumulation> a1(bundles.size()), aN(bundles.size());
+    // The same first-hit through a HitField shared by the workers (immutable).
+    const HitField field(view, fp.threshold);
+    FirstHitParams withField = fp;
+    withField.field = &field;
+    std::vector<BundleHits> fN(bundles.size());
     for (std::size_t i = 0; i < bundles.size(); ++i) {
         traceFirstHit(view, bundles[i], fp, v1[i]);
         traceAccumulate(view, bundles[i], ap, a1[i]);
@@ -392,6 +397,7 @@ TEST(RayBatch, ParallelEqualsSingleThread) {
     tbb::task_arena arena(2);
     arena.execute([&] {
         traceFirstHitBatch(view, bundles, fp, vN);
+        traceFirstHitBatch(view, bundles, withField, fN);
         traceAccumulateBatch(view, bundles, ap, aN);
         traceMeshBatch(scene, bundles, kMaskAll, mN);
     });
@@ -401,6 +407,8 @@ TEST(RayBatch, ParallelEqualsSingleThread) {
         for (std::size_t r = 0; r < 25; ++r) {
             EXPECT_EQ(v1[i].t[r], vN[i].t[r]);
             EXPECT_EQ(v1[i].hit[r], vN[i].hit[r]);
+            EXPECT_EQ(v1[i].t[r], fN[i].t[r]);
+            EXPECT_EQ(v1[i].hit[r], fN[i].hit[r]);
             EXPECT_EQ(a1[i].t[r], aN[i].t[r]);
             EXPECT_EQ(a1[i].integral[r], aN[i].integral[r]);
             EXPECT_EQ(m1[i].t[r], mN[i].t[r]);
