@@ -1233,44 +1233,53 @@ void prefetchPath(const HitContext& cx, const RayBundle& bundle) noexcept {
     if (!(n > 0) || !(len >= 0) || !(len < 1e3)) return;
     const Eigen::Vector3d o =
         cx.view->indexFromWorld(Eigen::Vector3d(bundle.ox[0], bundle.oy[0], bundle.oz[0]));
-    // About one point per voxel along the ray (a 10 mm ray at 0.5 mm voxels: 21 points).
+    // One point per voxel along the ray (a 10 mm ray at 0.5 mm voxels: 21 points); each block
+    // the points enter once, with the cells of its first and last point.
     constexpr int kMaxPoints = 33;
     const double voxels = len * cx.view->inverseVoxelSize();
     const int points = std::clamp(static_cast<int>(voxels) + 1, 2, kMaxPoints);
     const double sc = voxels / ((points - 1) * n);
+    const double ex = sc * dx, ey = sc * dy, ez = sc * dz;
+    double x = o.x() - tb.origin[0], y = o.y() - tb.origin[1], z = o.z() - tb.origin[2];
     std::int64_t blocks[kMaxPoints];
-    std::int32_t cells[kMaxPoints];
+    std::int32_t first[kMaxPoints], last[kMaxPoints];
     int count = 0;
-    std::int64_t last = -1;
-    for (int q = 0; q < points; ++q) {
-        const double x = o.x() + q * sc * dx - tb.origin[0], y = o.y() + q * sc * dy - tb.origin[1],
-                     z = o.z() + q * sc * dz - tb.origin[2];
-        if (!(x >= 0 && x < cx.limX && y >= 0 && y < cx.limY && z >= 0 && z < cx.limZ)) continue;
+    for (int q = 0; q < points; ++q, x += ex, y += ey, z += ez) {
+        if (!((x >= 0) & (x < cx.limX) & (y >= 0) & (y < cx.limY) & (z >= 0) & (z < cx.limZ)))
+            continue;
         const auto ix = static_cast<std::int32_t>(x), iy = static_cast<std::int32_t>(y),
                    iz = static_cast<std::int32_t>(z);
         const std::int64_t b = ((ix >> 3) * cx.nby + (iy >> 3)) * cx.nbz + (iz >> 3);
-        if (b != last) {
-            __builtin_prefetch(&tb.maxDilated[static_cast<std::size_t>(b)]);
-            __builtin_prefetch(&tb.data[static_cast<std::size_t>(b)]);
-            if (cx.field != nullptr)
-                __builtin_prefetch(cx.field->blockOffsetAddress(static_cast<std::size_t>(b)));
-            last = b;
+        const std::int32_t cell = ((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7);
+        if (count > 0 && blocks[count - 1] == b) {
+            last[count - 1] = cell;
+            continue;
         }
+        __builtin_prefetch(&tb.maxDilated[static_cast<std::size_t>(b)]);
+        __builtin_prefetch(&tb.data[static_cast<std::size_t>(b)]);
+        if (cx.field != nullptr)
+            __builtin_prefetch(cx.field->blockOffsetAddress(static_cast<std::size_t>(b)));
         blocks[count] = b;
-        cells[count++] = ((ix & 7) * 8 + (iy & 7)) * 8 + (iz & 7);
+        first[count] = last[count] = cell;
+        ++count;
     }
-    // Second pass, once the table entries are on their way: the copy lines of each point's cell
-    // and its field distances.
+    // Second pass, once the table entries are on their way: the copy lines around the first and
+    // last cells, and the field distances, of the blocks that cannot be skipped.
     for (int q = 0; q < count; ++q) {
         const auto b = static_cast<std::size_t>(blocks[q]);
         if (tb.maxDilated[b] < cx.thr) continue;
-        const int c = cells[q];
-        const float* p = tb.data[b] + ((c >> 6) * 9 + ((c >> 3) & 7)) * 9 + (c & 7);
-        __builtin_prefetch(p);
-        __builtin_prefetch(p + 10);
-        __builtin_prefetch(p + 81);
-        __builtin_prefetch(p + 91);
-        if (cx.field != nullptr) __builtin_prefetch(cx.field->blockDistances(b) + c);
+        const float* base = tb.data[b];
+        for (const std::int32_t c : {first[q], last[q]}) {
+            __builtin_prefetch(base + c);
+            __builtin_prefetch(base + c + 10);
+            __builtin_prefetch(base + c + 81);
+            __builtin_prefetch(base + c + 91);
+        }
+        if (cx.field != nullptr) {
+            const std::uint8_t* d = cx.field->blockDistances(b);
+            __builtin_prefetch(d);
+            __builtin_prefetch(d + 256);
+        }
     }
 }
 
