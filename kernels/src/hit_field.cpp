@@ -1,10 +1,12 @@
 /// @file
 /// HitField: per-cell Chebyshev distances to the cells that can reach a first-hit threshold.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <vector>
 
 #include "palp/error.h"
 #include "palp/kernels/volume_ray.h"
@@ -104,6 +106,39 @@ HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThr
     for (std::size_t b = 0; b < tb.data.size(); ++b)
         mBlockOffset[b] = mOffset[static_cast<std::size_t>(tb.data[b] - tb.padded) /
                                   static_cast<std::size_t>(Table::kPadded)];
+    // Block distances: the same transform over the block grid, each axis in windows of
+    // kFarBlocks (farther blocks only cap the distance).
+    mBlockDistance.resize(tb.data.size());
+    for (std::size_t b = 0; b < tb.data.size(); ++b)
+        mBlockDistance[b] = mBlockOffset[b] != 0 ? 0 : kFarBlocks;
+    const std::array<std::int64_t, 3> n = {tb.blocks[0], tb.blocks[1], tb.blocks[2]};
+    const std::array<std::int64_t, 3> stride = {n[1] * n[2], n[2], 1};
+    std::vector<std::uint8_t> line;
+    for (int axis = 0; axis < 3; ++axis) {
+        const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+        const std::int64_t len = n[static_cast<std::size_t>(axis)];
+        line.resize(static_cast<std::size_t>(len));
+        for (std::int64_t i1 = 0; i1 < n[static_cast<std::size_t>(a1)]; ++i1)
+            for (std::int64_t i2 = 0; i2 < n[static_cast<std::size_t>(a2)]; ++i2) {
+                const std::int64_t base = i1 * stride[static_cast<std::size_t>(a1)] +
+                                          i2 * stride[static_cast<std::size_t>(a2)];
+                const std::int64_t st = stride[static_cast<std::size_t>(axis)];
+                for (std::int64_t i = 0; i < len; ++i)
+                    line[static_cast<std::size_t>(i)] =
+                        mBlockDistance[static_cast<std::size_t>(base + i * st)];
+                for (std::int64_t i = 0; i < len; ++i) {
+                    int best = line[static_cast<std::size_t>(i)];
+                    const std::int64_t lo = std::max<std::int64_t>(0, i - kFarBlocks + 1);
+                    const std::int64_t hi = std::min<std::int64_t>(len - 1, i + kFarBlocks - 1);
+                    for (std::int64_t j = lo; j <= hi; ++j)
+                        best = std::min(
+                            best, std::max(static_cast<int>(std::abs(i - j)),
+                                           static_cast<int>(line[static_cast<std::size_t>(j)])));
+                    mBlockDistance[static_cast<std::size_t>(base + i * st)] =
+                        static_cast<std::uint8_t>(best);
+                }
+            }
+    }
 }
 
 }  // namespace palp::kernels

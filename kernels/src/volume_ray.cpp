@@ -659,6 +659,8 @@ struct HitContext {
     bool usable = false;              // a non-empty view and a finite step > 0
     const HitField* field = nullptr;  // per-cell distances at this threshold, when skipping
     bool simd = false;                // take the AVX2 run loops (params.simd and the CPU has it)
+    unsigned cellMax[3] = {0, 0, 0};  // largest table-relative cell per axis (8 blocks - 1)
+    std::size_t strideX = 0, strideY = 0;  // table block index = bx strideX + by strideY + bz
     double invStep = 0, lengthCap = 0;
     double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};  // the table's interior, index units
 
@@ -677,8 +679,19 @@ struct HitContext {
           nby(v.table().blocks[1]),
           nbz(v.table().blocks[2]) {
         usable = !v.empty() && std::isfinite(step) && step > 0;
-        if (p.field != nullptr && p.skipEmpty && p.field->matches(v, p.threshold)) field = p.field;
+        // The field path marches in table-relative float coordinates: it needs the table's
+        // interior clipped (a background below the threshold), positions below 2^13 voxels
+        // (float steps exact to about 5e-4 voxel) and 31-bit gather offsets.
+        const auto& b = v.table().blocks;
+        if (p.field != nullptr && p.skipEmpty && p.field->matches(v, p.threshold) && clip &&
+            std::max({b[0], b[1], b[2]}) <= 1024 &&
+            p.field->bytes() < (std::size_t{1} << 31) - 1024)
+            field = p.field;
         simd = p.simd && bundleSimdAvailable();
+        for (std::size_t a = 0; a < 3; ++a)
+            cellMax[a] = static_cast<unsigned>(std::max(0, 8 * b[a] - 1));
+        strideX = static_cast<std::size_t>(b[1]) * static_cast<std::size_t>(b[2]);
+        strideY = static_cast<std::size_t>(b[2]);
         invStep = 1.0 / step;
         lengthCap = step * static_cast<double>(kMaxSamplesPerRay);
         for (std::size_t a = 0; a < 3; ++a) {
@@ -745,8 +758,11 @@ PALP_HOT bool setupHitRay(const HitContext& cx, const Eigen::Vector3d& origin,
 struct Refinement {
     // Local: the two samples lie in one run, and x is a fractional run-sample index whose probe
     // is blended from the run's block copy at the float position q + x s (runPos() at
-    // integers); t = (k0 + x) step. General: x is t in metres, probed on the view (double).
+    // integers); t = (k0 + x) step. Lattice (the HitField path): the same with q and s
+    // table-relative, each probe finding its block (latticeValue()). General: x is t in
+    // metres, probed on the view (double).
     bool local;
+    bool lattice;
     bool needPrev;  // general: fa is still to be sampled at a
     bool done;
     int ray;
@@ -790,8 +806,6 @@ struct HitMarch {
     float ivx = 0, ivy = 0, ivz = 0;
     float hix = 0, hiy = 0, hiz = 0;
     float farx = 0, fary = 0, farz = 0;
-    // For the cell-distance jumps: 1 where s > 0, else 0 (the box side the ray leaves by).
-    float posx = 0, posy = 0, posz = 0;
     // A block's exit along each axis, (face - l) * invF + far: the block-local face the ray
     // leaves by (8 or 0), 1 / d (0 where d = 0), and +inf where d = 0 (never left).
     double face[3] = {0, 0, 0}, invF[3] = {0, 0, 0}, far[3] = {0, 0, 0};
@@ -802,13 +816,6 @@ struct HitMarch {
     const float* base = nullptr;
     float qx = 0, qy = 0, qz = 0, prev = 0;
     unsigned occ = 0xFFu;
-    // With a HitField: the copy's 512 cell distances (null: the sub-block bounds `occ`).
-    const std::uint8_t* dist = nullptr;
-    // False when the run's first sample lies in a cell the field marks as below the threshold
-    // and was not blended: `prev` is then unset, and runValue(0) blends it from p0 and f0.
-    bool prevKnown = true;
-    const float* p0 = nullptr;
-    float f0x = 0, f0y = 0, f0z = 0;
     // A hit's refinement, still to run (refineAll()); false for a hit at t = 0 or no hit.
     bool pending = false;
     Refinement ref;
@@ -844,6 +851,8 @@ PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
     m.sx = static_cast<float>(m.r.d[0] * m.r.step);
     m.sy = static_cast<float>(m.r.d[1] * m.r.step);
     m.sz = static_cast<float>(m.r.d[2] * m.r.step);
+    m.pending = false;
+    if (cx.field != nullptr) return true;  // the lattice march needs no more
     // 1 / s from 1 / d (no division; the jumps check where they land, so the estimate need not
     // be exact).
     auto axis = [&](float sa, double inv, float& iv, float& hi, float& far) {
@@ -854,15 +863,11 @@ PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
     axis(m.sx, m.r.inv[0], m.ivx, m.hix, m.farx);
     axis(m.sy, m.r.inv[1], m.ivy, m.hiy, m.fary);
     axis(m.sz, m.r.inv[2], m.ivz, m.hiz, m.farz);
-    m.pending = false;
     for (int a = 0; a < 3; ++a) {
         m.face[a] = m.r.d[a] > 0 ? 8.0 : 0.0;
         m.invF[a] = m.r.d[a] != 0 ? m.r.inv[a] : 0.0;
         m.far[a] = m.r.d[a] != 0 ? 0.0 : kInf;
     }
-    m.posx = m.sx > 0 ? 1.0f : 0.0f;
-    m.posy = m.sy > 0 ? 1.0f : 0.0f;
-    m.posz = m.sz > 0 ? 1.0f : 0.0f;
     return true;
 }
 
@@ -873,6 +878,7 @@ PALP_HOT RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, flo
                           float v) noexcept {
     Refinement& f = m.ref;
     f.local = true;
+    f.lattice = false;
     f.needPrev = false;
     f.done = false;
     f.base = m.base;
@@ -903,6 +909,7 @@ PALP_HOT RayHit hitAtSample(const HitContext& cx, HitMarch& m, std::int64_t j, f
     if (j == 0) return {0.0f, true};
     Refinement& f = m.ref;
     f.local = false;
+    f.lattice = false;
     f.needPrev = true;
     f.done = false;
     for (int a = 0; a < 3; ++a) {
@@ -920,7 +927,25 @@ PALP_HOT RayHit hitAtSample(const HitContext& cx, HitMarch& m, std::int64_t j, f
 }
 
 /// The value of @p f's function at x, minus nothing (the caller subtracts the threshold).
+/// Trilinear value at the table-relative float position (px, py, pz) of a lattice sample (the
+/// HitField path; positions lie in the table's interior up to rounding): the cell by
+/// truncation, clamped to the table, its block's padded copy from the table.
+PALP_HOT float latticeValue(const HitContext& cx, float px, float py, float pz) noexcept {
+    const Table& tb = *cx.tb;
+    const unsigned ux = std::min(static_cast<unsigned>(static_cast<int>(px)), cx.cellMax[0]);
+    const unsigned uy = std::min(static_cast<unsigned>(static_cast<int>(py)), cx.cellMax[1]);
+    const unsigned uz = std::min(static_cast<unsigned>(static_cast<int>(pz)), cx.cellMax[2]);
+    const std::size_t b = (ux >> 3) * cx.strideX + (uy >> 3) * cx.strideY + (uz >> 3);
+    return lerp8(tb.data[b] + (((ux & 7) * 9 + (uy & 7)) * 9 + (uz & 7)),
+                 px - static_cast<float>(ux), py - static_cast<float>(uy),
+                 pz - static_cast<float>(uz));
+}
+
 PALP_HOT float probe(const HitContext& cx, Refinement& f, double x) noexcept {
+    if (f.lattice) {
+        const auto u = static_cast<float>(x);
+        return latticeValue(cx, f.qx + u * f.sx, f.qy + u * f.sy, f.qz + u * f.sz);
+    }
     if (!f.local)
         return samplePoint(*cx.view, f.o[0] + x * f.d[0], f.o[1] + x * f.d[1], f.o[2] + x * f.d[2],
                            f.cache);
@@ -969,7 +994,7 @@ void refineAll(const HitContext& cx, Refinements& fs, float* t) noexcept {
     for (int i = 0; i < fs.n; ++i) {
         const Refinement& f = fs[i];
         const double x = std::clamp(f.x, f.a, f.b);
-        t[f.ray] = static_cast<float>(f.local ? (f.k0 + x) * f.step : x);
+        t[f.ray] = static_cast<float>(f.local || f.lattice ? (f.k0 + x) * f.step : x);
     }
 }
 
@@ -993,7 +1018,7 @@ PALP_HOT unsigned occupancy(const Table& tb, const float* base, float thr) noexc
 
 /// Marches from sample m.k until the ray ends (false, @p out set) or reaches a run of at least
 /// one more float-placed sample inside a block (true, the run set in @p m).
-PALP_HOT bool advanceHitBody(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
+bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
     const Table& tb = *cx.tb;
     const IndexRay& r = m.r;
     const float thr = cx.thr;
@@ -1018,17 +1043,10 @@ PALP_HOT bool advanceHitBody(const HitContext& cx, HitMarch& m, RayHit& out) noe
                 // The first sample of the run on its exact position (a run often ends right
                 // there: a hit at the first sample after skipped blocks).
                 const float* base = tb.data[static_cast<std::size_t>(b)];
-                const float* p0 = base + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7));
-                const float f0x = static_cast<float>(xr - ix), f0y = static_cast<float>(yr - iy),
-                            f0z = static_cast<float>(zr - iz);
-                const std::uint8_t* dist =
-                    cx.field != nullptr ? cx.field->blockDistances(static_cast<std::size_t>(b))
-                                        : nullptr;
-                // A cell the field marks as below the threshold needs no blend (and cannot hit).
-                const bool known =
-                    dist == nullptr || dist[((ix & 7) * 8 + (iy & 7)) * 8 + (iz & 7)] == 0;
-                const float v = known ? lerp8(p0, f0x, f0y, f0z) : 0.0f;
-                if (known && v >= thr) {
+                const float v = lerp8(base + (((ix & 7) * 9 + (iy & 7)) * 9 + (iz & 7)),
+                                      static_cast<float>(xr - ix), static_cast<float>(yr - iy),
+                                      static_cast<float>(zr - iz));
+                if (v >= thr) {
                     out = hitAtSample(cx, m, k, v);
                     return false;
                 }
@@ -1053,14 +1071,8 @@ PALP_HOT bool advanceHitBody(const HitContext& cx, HitMarch& m, RayHit& out) noe
                 m.qx = static_cast<float>(lx);
                 m.qy = static_cast<float>(ly);
                 m.qz = static_cast<float>(lz);
-                m.dist = dist;
-                m.occ = dist == nullptr && cx.skip ? occupancy(tb, base, thr) : 0xFFu;
+                m.occ = cx.skip ? occupancy(tb, base, thr) : 0xFFu;
                 m.prev = v;
-                m.prevKnown = known;
-                m.p0 = p0;
-                m.f0x = f0x;
-                m.f0y = f0y;
-                m.f0z = f0z;
                 m.runK = k;
                 m.runN = n;
                 m.k = k + n;
@@ -1081,10 +1093,6 @@ PALP_HOT bool advanceHitBody(const HitContext& cx, HitMarch& m, RayHit& out) noe
     return false;
 }
 
-bool advanceHit(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
-    return advanceHitBody(cx, m, out);
-}
-
 /// Sub-block index (0..7) of a cell of a padded copy.
 PALP_HOT unsigned subBlock(unsigned cx0, unsigned cy0, unsigned cz0) noexcept {
     return ((cx0 >> 2) << 2) | ((cy0 >> 2) << 1) | (cz0 >> 2);
@@ -1092,7 +1100,7 @@ PALP_HOT unsigned subBlock(unsigned cx0, unsigned cy0, unsigned cz0) noexcept {
 
 /// The value of run sample @p i of @p m (the run's first sample for i = 0).
 PALP_HOT float runValue(const HitMarch& m, std::int64_t i) noexcept {
-    if (i == 0) return m.prevKnown ? m.prev : lerp8(m.p0, m.f0x, m.f0y, m.f0z);
+    if (i == 0) return m.prev;
     const float px = runPos(m.qx, m.sx, i), py = runPos(m.qy, m.sy, i), pz = runPos(m.qz, m.sz, i);
     const unsigned cx0 = runCell(px), cy0 = runCell(py), cz0 = runCell(pz);
     return lerp8(m.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
@@ -1119,68 +1127,10 @@ PALP_HOT std::int64_t subBlockJump(const HitMarch& m, std::int64_t i, unsigned c
     return subBlock(lx, ly, lz) == subBlock(cx0, cy0, cz0) ? j : i + 1;
 }
 
-/// As subBlockJump(), for a sample in cell (cx0, cy0, cz0) at HitField distance @p d >= 1: every
-/// cell within Chebyshev distance d - 1 of it is below the threshold, so the ray may pass over
-/// the samples in that box of (2d - 1)^3 cells (clipped by the run's end).
-PALP_HOT std::int64_t cellJump(const HitMarch& m, std::int64_t i, unsigned cx0, unsigned cy0,
-                               unsigned cz0, unsigned d) noexcept {
-    const float fd = static_cast<float>(d);
-    const float lo = 1.0f - fd, span = 2.0f * fd - 1.0f;  // box [c + lo, c + lo + span]
-    const float ex = (static_cast<float>(cx0) + lo + span * m.posx - m.qx) * m.ivx + m.farx;
-    const float ey = (static_cast<float>(cy0) + lo + span * m.posy - m.qy) * m.ivy + m.fary;
-    const float ez = (static_cast<float>(cz0) + lo + span * m.posz - m.qz) * m.ivz + m.farz;
-    const float e = std::min(std::min(ex, ey), std::min(ez, static_cast<float>(m.runN)));
-    const std::int64_t j = std::max(i + 1, static_cast<std::int64_t>(std::max(e, 0.0f)) + 1);
-    if (j - 1 == i) return j;
-    const std::int64_t l = j - 1;  // the last sample passed over
-    const int lx = static_cast<int>(runCell(runPos(m.qx, m.sx, l))) - static_cast<int>(cx0);
-    const int ly = static_cast<int>(runCell(runPos(m.qy, m.sy, l))) - static_cast<int>(cy0);
-    const int lz = static_cast<int>(runCell(runPos(m.qz, m.sz, l))) - static_cast<int>(cz0);
-    const int r = static_cast<int>(d) - 1;
-    return std::abs(lx) <= r && std::abs(ly) <= r && std::abs(lz) <= r ? j : i + 1;
-}
-
-#if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
-bool runFieldAvx2(const HitContext& cx, HitMarch& m, RayHit& out) noexcept;
-#endif
-
-/// runScalar() with the cell distances of a HitField.
-bool runScalarField(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
-    float vPrev = m.prev;
-    std::int64_t iPrev = m.prevKnown ? 0 : -1;
-    for (std::int64_t i = 1; i < m.runN;) {
-        const float px = runPos(m.qx, m.sx, i), py = runPos(m.qy, m.sy, i),
-                    pz = runPos(m.qz, m.sz, i);
-        const unsigned cx0 = runCell(px), cy0 = runCell(py), cz0 = runCell(pz);
-        const unsigned d = m.dist[(cx0 * 8 + cy0) * 8 + cz0];
-        if (d != 0) {
-            // A lone cell holds one or two samples: stepping is cheaper than the jump.
-            i = d == 1 ? i + 1 : cellJump(m, i, cx0, cy0, cz0, d);
-            continue;
-        }
-        const float v = lerp8(m.base + ((cx0 * 9 + cy0) * 9 + cz0), px - static_cast<float>(cx0),
-                              py - static_cast<float>(cy0), pz - static_cast<float>(cz0));
-        if (v >= cx.thr) {
-            out = refineHit(cx, m, m.runK + i, iPrev == i - 1 ? vPrev : runValue(m, i - 1), v);
-            return true;
-        }
-        vPrev = v;
-        iPrev = i;
-        ++i;
-    }
-    return false;
-}
-
 /// The pending run of @p m, one ray at a time: true (and @p out set) on a hit. Samples in
 /// sub-blocks that cannot reach the threshold are passed over; a hit whose predecessor was
 /// passed over reads it then (the same float position, so the same value as when taken).
 bool runScalar(const HitContext& cx, HitMarch& m, RayHit& out) noexcept {
-    if (m.dist != nullptr) {
-#if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
-        if (cx.simd) return runFieldAvx2(cx, m, out);
-#endif
-        return runScalarField(cx, m, out);
-    }
     float vPrev = m.prev;
     std::int64_t iPrev = 0;
     for (std::int64_t i = 1; i < m.runN;) {
@@ -1283,15 +1233,149 @@ void prefetchPath(const HitContext& cx, const RayBundle& bundle) noexcept {
     }
 }
 
+/// The HitField path's sample lattice of one ray: the samples k = kA .. kA + n - 1 (every
+/// sample before the ray's cut last one that lies in the table's interior) at table-relative
+/// float positions q + float(i) s, i = k - kA, from q taken exactly (double) at sample kA.
+/// Unlike the block runs there is no exact re-anchoring per block, so a sample sits within about
+/// 5e-4 voxel of o + t_k d (1e-5 in the block runs) and results agree with the other paths to
+/// that rounding, not bit for bit.
+struct Lattice {
+    float qx = 0, qy = 0, qz = 0, sx = 0, sy = 0, sz = 0;
+    float invSmax = 0;  // 1 / the largest |s| component (voxels per sample)
+    std::int64_t kA = 0;
+    std::int32_t n = 0;
+};
+
+PALP_HOT void startLattice(const HitMarch& m, Lattice& l) noexcept {
+    const IndexRay& r = m.r;
+    l.kA = r.kBegin;
+    // At most kMaxSamplesPerRay samples.
+    l.n = static_cast<std::int32_t>(
+        std::max<std::int64_t>(0, std::min(r.kEnd, r.kLast - 1) - r.kBegin + 1));
+    const double t = static_cast<double>(l.kA) * r.step;
+    l.qx = static_cast<float>(m.ox + t * r.d[0]);
+    l.qy = static_cast<float>(m.oy + t * r.d[1]);
+    l.qz = static_cast<float>(m.oz + t * r.d[2]);
+    l.sx = m.sx;
+    l.sy = m.sy;
+    l.sz = m.sz;
+    const float smax = std::max({std::fabs(l.sx), std::fabs(l.sy), std::fabs(l.sz)});
+    l.invSmax = smax > 0 ? 1.0f / smax : 0.0f;
+}
+
+/// A hit at lattice sample i (value v) whose predecessor's value is @p vPrev: records the
+/// refinement (lattice probes) and returns the provisional hit.
+PALP_HOT RayHit latticeHit(const HitContext& cx, HitMarch& m, const Lattice& l, std::int32_t i,
+                           float vPrev, float v) noexcept {
+    Refinement& f = m.ref;
+    f.local = false;
+    f.lattice = true;
+    f.needPrev = false;
+    f.done = false;
+    f.qx = l.qx;
+    f.qy = l.qy;
+    f.qz = l.qz;
+    f.sx = l.sx;
+    f.sy = l.sy;
+    f.sz = l.sz;
+    f.k0 = static_cast<double>(l.kA);
+    f.step = m.r.step;
+    f.a = i - 1;
+    f.b = i;
+    f.fa = static_cast<double>(vPrev) - static_cast<double>(cx.thr);
+    f.fb = static_cast<double>(v) - static_cast<double>(cx.thr);
+    f.side = 0;
+    m.pending = true;
+    return {static_cast<float>(m.r.t(l.kA + i)), true};
+}
+
+/// A hit at lattice sample i: at the lattice's first sample the predecessor lies outside the
+/// table's interior (or before the ray), and is read on its exact position as after skipped
+/// blocks; otherwise it is the lattice sample i - 1 (its value @p vPrev when @p known).
+PALP_HOT RayHit latticeHitAt(const HitContext& cx, HitMarch& m, const Lattice& l, std::int32_t i,
+                             bool known, float vPrev, float v) noexcept {
+    if (i == 0) return hitAtSample(cx, m, l.kA, v);
+    const auto fp = static_cast<float>(i - 1);
+    const float before =
+        known ? vPrev : latticeValue(cx, l.qx + fp * l.sx, l.qy + fp * l.sy, l.qz + fp * l.sz);
+    return latticeHit(cx, m, l, i, before, v);
+}
+
+/// After the lattice: the ray's cut last sample (t = length) when it lies in the table, on its
+/// exact position.
+PALP_HOT RayHit latticeEnd(const HitContext& cx, HitMarch& m, const Lattice& l) noexcept {
+    const IndexRay& r = m.r;
+    if (r.kEnd >= r.kLast && r.kLast >= l.kA + l.n) {
+        // Its cell's field distance first (it lies in the table's interior).
+        const double t = r.t(r.kLast);
+        const double x = m.ox + t * r.d[0], y = m.oy + t * r.d[1], z = m.oz + t * r.d[2];
+        const unsigned ux = std::min(static_cast<unsigned>(std::max(0.0, x)), cx.cellMax[0]);
+        const unsigned uy = std::min(static_cast<unsigned>(std::max(0.0, y)), cx.cellMax[1]);
+        const unsigned uz = std::min(static_cast<unsigned>(std::max(0.0, z)), cx.cellMax[2]);
+        const std::size_t b = (ux >> 3) * cx.strideX + (uy >> 3) * cx.strideY + (uz >> 3);
+        if (cx.field->blockDistances(b)[((ux & 7) * 8 + (uy & 7)) * 8 + (uz & 7)] == 0) {
+            CornerCache cache;
+            const float v = sampleAt(*cx.view, r, t, cache);
+            if (v >= cx.thr) return hitAtSample(cx, m, r.kLast, v);
+        }
+    }
+    return noHit(r.length);
+}
+
+/// How many lattice samples after sample i certainly lie in blocks with no cell that can reach
+/// the threshold, when sample i's block is at HitField::blockDistance() @p dBlocks: a point
+/// within Chebyshev distance r of sample i lies in a block at most ceil(r / 8) away, so the
+/// samples within 8 (dBlocks - 1) voxels do (less a margin far above the float error of the
+/// positions). 0 for dBlocks < 2.
+PALP_HOT std::int32_t latticeColdRun(const Lattice& l, unsigned dBlocks) noexcept {
+    if (dBlocks < 2) return 0;
+    const float m = (8.0f * static_cast<float>(dBlocks - 1) - 0.01f) * l.invSmax;
+    return m < static_cast<float>(l.n) ? static_cast<std::int32_t>(m) : l.n;
+}
+
+/// The HitField march of one ray (after startHit()), one sample at a time: each sample's cell,
+/// its block and the field's distance there; the blend only where the distance is 0.
+RayHit marchLatticeScalar(const HitContext& cx, HitMarch& m) noexcept {
+    Lattice l;
+    startLattice(m, l);
+    const HitField& field = *cx.field;
+    float vPrev = 0;
+    std::int32_t iPrev = -1;
+    for (std::int32_t i = 0; i < l.n; ++i) {
+        const auto fi = static_cast<float>(i);
+        const float px = l.qx + fi * l.sx, py = l.qy + fi * l.sy, pz = l.qz + fi * l.sz;
+        const unsigned ux = std::min(static_cast<unsigned>(static_cast<int>(px)), cx.cellMax[0]);
+        const unsigned uy = std::min(static_cast<unsigned>(static_cast<int>(py)), cx.cellMax[1]);
+        const unsigned uz = std::min(static_cast<unsigned>(static_cast<int>(pz)), cx.cellMax[2]);
+        const std::size_t b = (ux >> 3) * cx.strideX + (uy >> 3) * cx.strideY + (uz >> 3);
+        if (const unsigned dBlocks = field.blockDistance(b); dBlocks != 0) {
+            i += latticeColdRun(l, dBlocks);  // and the loop's 1
+            continue;
+        }
+        if (field.blockDistances(b)[((ux & 7) * 8 + (uy & 7)) * 8 + (uz & 7)] != 0) continue;
+        const float v = lerp8(cx.tb->data[b] + (((ux & 7) * 9 + (uy & 7)) * 9 + (uz & 7)),
+                              px - static_cast<float>(ux), py - static_cast<float>(uy),
+                              pz - static_cast<float>(uz));
+        if (v >= cx.thr) return latticeHitAt(cx, m, l, i, iPrev == i - 1, vPrev, v);
+        vPrev = v;
+        iPrev = i;
+    }
+    return latticeEnd(cx, m, l);
+}
+
 void traceFirstHitScalar(const HitContext& cx, const RayBundle& bundle, BundleHits& out) noexcept {
     prefetchPath(cx, bundle);
     HitMarch m;  // startHit() and advanceHit() set every field a ray reads
     Refinements refs;
     for (int i = 0; i < out.count; ++i) {
         RayHit h;
-        if (startBundleRay(cx, bundle, i, m, h))
-            while (advanceHit(cx, m, h) && !runScalar(cx, m, h)) {
-            }
+        if (startBundleRay(cx, bundle, i, m, h)) {
+            if (cx.field != nullptr)
+                h = marchLatticeScalar(cx, m);
+            else
+                while (advanceHit(cx, m, h) && !runScalar(cx, m, h)) {
+                }
+        }
         storeHit(out, i, h);
         if (h.hit && m.pending) refs.push(m.ref, i);
     }
@@ -1337,83 +1421,109 @@ PALP_AVX2_HOT void storeAvx(std::int32_t* p, __m256i v) noexcept {
     _mm256_store_si256(reinterpret_cast<__m256i*>(p), v);
 }
 
-/// runScalarField() eight samples at a time along the ray: the cells of samples i .. i + 7 (the
-/// same float positions as runPos()) and their HitField distances in one step, and the trilinear
-/// blend (lerp8(), scalar) only at samples in cells that can reach the threshold. Bit-identical
-/// to runScalarField() and runScalar().
-__attribute__((target("avx2"), always_inline)) inline bool runFieldAvx2Body(const HitContext& cx,
-                                                                            HitMarch& m,
-                                                                            RayHit& out) noexcept {
-    const __m256 qx = _mm256_set1_ps(m.qx), qy = _mm256_set1_ps(m.qy), qz = _mm256_set1_ps(m.qz);
-    const __m256 sx = _mm256_set1_ps(m.sx), sy = _mm256_set1_ps(m.sy), sz = _mm256_set1_ps(m.sz);
+/// marchLatticeScalar() eight samples at a time: the cells, blocks (one gather of the field's
+/// block offsets) and field distances (one byte gather) of samples i .. i + 7 in one step, at
+/// the same float positions, and the scalar blend only at samples whose distance is 0, in
+/// order. Bit-identical to marchLatticeScalar().
+__attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
+    const HitContext& cx, HitMarch& m) noexcept {
+    Lattice l;
+    startLattice(m, l);
+    const HitField& field = *cx.field;
+    const __m256 qx = _mm256_set1_ps(l.qx), qy = _mm256_set1_ps(l.qy), qz = _mm256_set1_ps(l.qz);
+    const __m256 sx = _mm256_set1_ps(l.sx), sy = _mm256_set1_ps(l.sy), sz = _mm256_set1_ps(l.sz);
     const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-    const __m256i byte = _mm256_set1_epi32(0xFF);
-    const auto* dist = reinterpret_cast<const int*>(m.dist);
-    const auto n = static_cast<std::int32_t>(m.runN);  // at most ~28 (one block)
-    float vPrev = m.prev;
-    std::int32_t iPrev = m.prevKnown ? 0 : -1;
+    const __m256i seven = _mm256_set1_epi32(7), byte = _mm256_set1_epi32(0xFF);
+    const __m256i mx = _mm256_set1_epi32(static_cast<int>(cx.cellMax[0]));
+    const __m256i my = _mm256_set1_epi32(static_cast<int>(cx.cellMax[1]));
+    const __m256i mz = _mm256_set1_epi32(static_cast<int>(cx.cellMax[2]));
+    const __m256i strideX = _mm256_set1_epi32(static_cast<int>(cx.strideX));
+    const __m256i strideY = _mm256_set1_epi32(static_cast<int>(cx.strideY));
+    const auto* offsets = static_cast<const int*>(field.blockOffsetAddress(0));
+    const auto* dist = reinterpret_cast<const int*>(field.base());
     alignas(32) float px[8], py[8], pz[8];
-    alignas(32) std::int32_t cxs[8], cys[8], czs[8];
-    for (std::int32_t i0 = 1; i0 < n; i0 += 8) {
+    alignas(32) std::int32_t cxs[8], cys[8], czs[8], bs[8];
+    float vPrev = 0;
+    std::int32_t iPrev = -1;
+    for (std::int32_t i0 = 0; i0 < l.n;) {
+        {
+            // Blocks with no cell that can reach the threshold, from the chunk's first sample.
+            const auto f0 = static_cast<float>(i0);
+            const unsigned u[3] = {
+                std::min(static_cast<unsigned>(static_cast<int>(l.qx + f0 * l.sx)), cx.cellMax[0]),
+                std::min(static_cast<unsigned>(static_cast<int>(l.qy + f0 * l.sy)), cx.cellMax[1]),
+                std::min(static_cast<unsigned>(static_cast<int>(l.qz + f0 * l.sz)), cx.cellMax[2])};
+            const unsigned dBlocks = field.blockDistance((u[0] >> 3) * cx.strideX +
+                                                         (u[1] >> 3) * cx.strideY + (u[2] >> 3));
+            if (const std::int32_t run = latticeColdRun(l, dBlocks); run >= 8) {
+                i0 += run + 1;
+                continue;
+            }
+        }
         const __m256 fi = _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(i0), lane));
         const __m256 vx = _mm256_add_ps(qx, _mm256_mul_ps(fi, sx));
         const __m256 vy = _mm256_add_ps(qy, _mm256_mul_ps(fi, sy));
         const __m256 vz = _mm256_add_ps(qz, _mm256_mul_ps(fi, sz));
-        const __m256i cx0 = cellsAvx(vx), cy0 = cellsAvx(vy), cz0 = cellsAvx(vz);
-        // Cells are clamped to 0..7, so every lane reads inside the copy's 512 distances (the
-        // buffer has 3 bytes past its last map for the 32-bit reads).
-        const __m256i at = _mm256_add_epi32(
-            _mm256_add_epi32(_mm256_slli_epi32(cx0, 6), _mm256_slli_epi32(cy0, 3)), cz0);
-        const __m256i d = _mm256_and_si256(_mm256_i32gather_epi32(dist, at, 1), byte);
-        const std::int32_t valid = std::min(n - i0, 8);
+        const __m256i ux = _mm256_min_epu32(_mm256_cvttps_epi32(vx), mx);
+        const __m256i uy = _mm256_min_epu32(_mm256_cvttps_epi32(vy), my);
+        const __m256i uz = _mm256_min_epu32(_mm256_cvttps_epi32(vz), mz);
+        const __m256i b = _mm256_add_epi32(
+            _mm256_add_epi32(_mm256_mullo_epi32(_mm256_srli_epi32(ux, 3), strideX),
+                             _mm256_mullo_epi32(_mm256_srli_epi32(uy, 3), strideY)),
+            _mm256_srli_epi32(uz, 3));
+        const __m256i off = _mm256_i32gather_epi32(offsets, b, 4);
+        const __m256i local =
+            _mm256_or_si256(_mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(ux, seven), 6),
+                                            _mm256_slli_epi32(_mm256_and_si256(uy, seven), 3)),
+                            _mm256_and_si256(uz, seven));
+        const __m256i d =
+            _mm256_and_si256(_mm256_i32gather_epi32(dist, _mm256_add_epi32(off, local), 1), byte);
+        const std::int32_t valid = std::min(l.n - i0, 8);
         unsigned hot = static_cast<unsigned>(_mm256_movemask_ps(
                            _mm256_castsi256_ps(_mm256_cmpeq_epi32(d, _mm256_setzero_si256())))) &
                        ((1u << valid) - 1u);
+        const std::int32_t chunk = i0;
+        i0 += 8;
         if (hot == 0) continue;
         _mm256_store_ps(px, vx);
         _mm256_store_ps(py, vy);
         _mm256_store_ps(pz, vz);
-        storeAvx(cxs, cx0);
-        storeAvx(cys, cy0);
-        storeAvx(czs, cz0);
+        storeAvx(cxs, ux);
+        storeAvx(cys, uy);
+        storeAvx(czs, uz);
+        storeAvx(bs, b);
         for (; hot != 0; hot &= hot - 1) {
-            const int l = __builtin_ctz(hot);
-            const std::int32_t i = i0 + l;
-            const auto ux = static_cast<unsigned>(cxs[l]), uy = static_cast<unsigned>(cys[l]),
-                       uz = static_cast<unsigned>(czs[l]);
-            const float v = lerp8(m.base + ((ux * 9 + uy) * 9 + uz), px[l] - static_cast<float>(ux),
-                                  py[l] - static_cast<float>(uy), pz[l] - static_cast<float>(uz));
-            if (v >= cx.thr) {
-                _mm256_zeroupper();  // the refinement is SSE code
-                const float before = iPrev == i - 1 ? vPrev : runValue(m, i - 1);
-                out = refineHit(cx, m, m.runK + i, before, v);
-                return true;
-            }
+            const int k = __builtin_ctz(hot);
+            const std::int32_t i = chunk + k;
+            const auto ax = static_cast<unsigned>(cxs[k]), ay = static_cast<unsigned>(cys[k]),
+                       az = static_cast<unsigned>(czs[k]);
+            const float* copy = cx.tb->data[static_cast<std::size_t>(bs[k])];
+            const float v = lerp8(copy + (((ax & 7) * 9 + (ay & 7)) * 9 + (az & 7)),
+                                  px[k] - static_cast<float>(ax), py[k] - static_cast<float>(ay),
+                                  pz[k] - static_cast<float>(az));
+            if (v >= cx.thr) return latticeHitAt(cx, m, l, i, iPrev == i - 1, vPrev, v);
             vPrev = v;
             iPrev = i;
         }
     }
-    return false;
+    return latticeEnd(cx, m, l);
 }
 
-__attribute__((target("avx2"))) bool runFieldAvx2(const HitContext& cx, HitMarch& m,
-                                                  RayHit& out) noexcept {
-    return runFieldAvx2Body(cx, m, out);
+__attribute__((target("avx2"))) RayHit marchLatticeAvx2Call(const HitContext& cx,
+                                                            HitMarch& m) noexcept {
+    return marchLatticeAvx2(cx, m);
 }
 
-/// traceFirstHitScalar() with a HitField on a CPU with AVX2: each ray's whole march (block DDA,
-/// block entries, the eight-sample run loop) in one AVX2 function, with no call per block.
+/// The bundle with a HitField on a CPU with AVX2: each ray's lattice march in one AVX2 function.
 __attribute__((target("avx2"))) void traceFirstHitFieldAvx2(const HitContext& cx,
                                                             const RayBundle& bundle,
                                                             BundleHits& out) noexcept {
     prefetchPath(cx, bundle);
-    HitMarch m;  // startHit() and advanceHitBody() set every field a ray reads
+    HitMarch m;  // startHit() sets every field a lattice march reads
     Refinements refs;
     for (int i = 0; i < out.count; ++i) {
         RayHit h;
-        if (startBundleRay(cx, bundle, i, m, h))
-            while (advanceHitBody(cx, m, h) && !runFieldAvx2Body(cx, m, h)) {
-            }
+        if (startBundleRay(cx, bundle, i, m, h)) h = marchLatticeAvx2(cx, m);
         storeHit(out, i, h);
         if (h.hit && m.pending) refs.push(m.ref, i);
     }
@@ -1640,9 +1750,18 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
     const HitContext cx(view, params);
     HitMarch m;
     RayHit h;
-    if (startHit(cx, origin, direction, length, m, h))
-        while (advanceHit(cx, m, h) && !runScalar(cx, m, h)) {
+    if (startHit(cx, origin, direction, length, m, h)) {
+        if (cx.field != nullptr) {
+#ifdef PALP_RAY_AVX2
+            h = cx.simd ? marchLatticeAvx2Call(cx, m) : marchLatticeScalar(cx, m);
+#else
+            h = marchLatticeScalar(cx, m);
+#endif
+        } else {
+            while (advanceHit(cx, m, h) && !runScalar(cx, m, h)) {
+            }
         }
+    }
     if (h.hit && m.pending) {
         Refinements refs;
         refs.push(m.ref, 0);

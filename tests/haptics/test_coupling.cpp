@@ -465,10 +465,10 @@ std::vector<Loop> loopsBelow(const Vec& proxy, double xShift) {
     };
 }
 
-// A hit field changes no output (it only lets the march pass over cells that cannot hit), and
-// one built for another threshold is ignored after setParams() changes the threshold (what a
-// Session does after palp_session_set_params).
-TEST(Coupling, HitFieldChangesNothingAndIsIgnoredForAnotherThreshold) {
+// A hit field changes the outputs only by float rounding (its march takes the same samples at
+// positions within 1e-3 voxel), and one built for another threshold is ignored after
+// setParams() changes the threshold (what a Session does after palp_session_set_params).
+TEST(Coupling, HitFieldAgreesToRoundingAndIsIgnoredForAnotherThreshold) {
     const AvcPhantom& ph = avcPhantom();
     const palp::kernels::HitField field(*ph.view, ph.params.firstHit.threshold);
     CouplingParams with = ph.params;
@@ -488,9 +488,15 @@ TEST(Coupling, HitFieldChangesNothingAndIsIgnoredForAnotherThreshold) {
             CouplingOutput oa, ob;
             a.compute(proxy, probe, kZero, kZero, kT1, kT2, oa);
             b.compute(proxy, probe, kZero, kZero, kT1, kT2, ob);
-            ASSERT_EQ(oa.rayLength, ob.rayLength) << threshold << " " << i;  // bit-equal
-            ASSERT_EQ(oa.stiffness, ob.stiffness);
-            ASSERT_EQ(oa.force, ob.force);
+            if (threshold == ph.params.firstHit.threshold) {
+                ASSERT_NEAR(oa.rayLength, ob.rayLength, 1e-3 * kVoxel) << i;
+                ASSERT_NEAR(oa.stiffness, ob.stiffness, 1e-3 * ob.stiffness) << i;
+                ASSERT_LE((oa.force - ob.force).norm(), 1e-3 * ob.force.norm() + 1e-9) << i;
+            } else {  // the field does not match: ignored, bit-equal
+                ASSERT_EQ(oa.rayLength, ob.rayLength) << threshold << " " << i;
+                ASSERT_EQ(oa.stiffness, ob.stiffness);
+                ASSERT_EQ(oa.force, ob.force);
+            }
             hits += std::isfinite(oa.rayLength) ? 1 : 0;
         }
     }

@@ -388,9 +388,10 @@ TEST(RayBatch, ParallelEqualsSingleThread) {
     const HitField field(view, fp.threshold);
     FirstHitParams withField = fp;
     withField.field = &field;
-    std::vector<BundleHits> fN(bundles.size());
+    std::vector<BundleHits> f1(bundles.size()), fN(bundles.size());
     for (std::size_t i = 0; i < bundles.size(); ++i) {
         traceFirstHit(view, bundles[i], fp, v1[i]);
+        traceFirstHit(view, bundles[i], withField, f1[i]);
         traceAccumulate(view, bundles[i], ap, a1[i]);
         traceBundle(scene, bundles[i], kMaskAll, m1[i]);
     }
@@ -407,8 +408,11 @@ TEST(RayBatch, ParallelEqualsSingleThread) {
         for (std::size_t r = 0; r < 25; ++r) {
             EXPECT_EQ(v1[i].t[r], vN[i].t[r]);
             EXPECT_EQ(v1[i].hit[r], vN[i].hit[r]);
-            EXPECT_EQ(v1[i].t[r], fN[i].t[r]);
-            EXPECT_EQ(v1[i].hit[r], fN[i].hit[r]);
+            EXPECT_EQ(f1[i].t[r], fN[i].t[r]);
+            EXPECT_EQ(f1[i].hit[r], fN[i].hit[r]);
+            // The field's own lattice: the same hits, t within float rounding.
+            EXPECT_EQ(v1[i].hit[r], f1[i].hit[r]);
+            EXPECT_NEAR(v1[i].t[r], f1[i].t[r], 1e-3 * view.voxelSize());
             EXPECT_EQ(a1[i].t[r], aN[i].t[r]);
             EXPECT_EQ(a1[i].integral[r], aN[i].integral[r]);
             EXPECT_EQ(m1[i].t[r], mN[i].t[r]);

@@ -13,6 +13,11 @@
 /// the blocks that remain, first-hit also jumps over the 4^3 sub-blocks whose bound is below
 /// the threshold.
 /// Skipping never changes a result: samples stay on the lattice t_k = k * step.
+///
+/// First-hit's fast path takes a HitField built at set-up for the threshold (per-cell and
+/// per-block distances to the cells that can reach it) and marches each ray's samples eight at
+/// a time; it agrees with the block-run path to float rounding (see HitField). Applications
+/// that trace first-hit bundles every servo tick should build one (haptics::Session does).
 
 #include <openvdb/openvdb.h>
 
@@ -112,14 +117,22 @@ class VolumeView {
     bool mEmpty = true;
 };
 
-/// First-hit acceleration for one threshold: for every cell of every padded block copy of a
-/// VolumeView, the Chebyshev distance (in cells, within the cell's own 8^3 block, at most 8) to
-/// the nearest cell whose trilinear values can reach the threshold (its corner maximum, raised
-/// by the same hair as the 4^3 sub-block bounds). A first-hit march that finds distance d > 0
-/// at a sample knows that the (2d - 1)^3 cells around it cannot hold a hit, and jumps to the
-/// first sample past them instead of blending every one, so rays that run through soft tissue
-/// next to bone cost a few jumps instead of a sample per half voxel. Results are bit-identical
-/// with and without a field (only samples that cannot reach the threshold are passed over).
+/// First-hit acceleration for one threshold (the fast path of firstHit() and traceFirstHit()).
+/// It holds, for every cell of every padded block copy of a VolumeView that can reach the
+/// threshold, the Chebyshev distance (in cells, within the block, at most 8) to the nearest cell
+/// whose trilinear values can reach it (its corner maximum, raised by the same hair as the 4^3
+/// sub-block bounds), and for every block the Chebyshev distance in blocks (at most kFarBlocks)
+/// to the nearest block that has such a cell.
+///
+/// With a field the march takes the ray's samples on one float lattice in table coordinates
+/// (not re-anchored per block), eight at a time with AVX2: the cells, blocks and distances of
+/// eight samples in one step, the blend only at samples in cells that can reach the threshold,
+/// and a jump over the samples that stay among blocks with none. Rays through soft tissue next
+/// to bone cost a few vector steps instead of a block entry per 8^3 block and a blend per half
+/// voxel. The samples are the same lattice samples as without a field at positions within
+/// about 5e-4 voxel, so hits agree with the block-run path to that rounding (tested: same hits,
+/// t within 1e-3 voxel), not bit for bit; with a field, scalar and AVX2, bundle and single ray
+/// give the same bits.
 ///
 /// Built at set-up, off the servo thread (one byte per cell of the blocks that can reach the
 /// threshold; `palp bench rays` prints the size and the build time); a threshold change needs a
@@ -143,7 +156,7 @@ class HitField {
     }
     /// Heap bytes held.
     std::size_t bytes() const noexcept {
-        return mDistance.capacity() +
+        return mDistance.capacity() + mBlockDistance.capacity() +
                (mOffset.capacity() + mBlockOffset.capacity()) * sizeof(std::uint32_t);
     }
     /// Block copies that have at least one cell that can reach the threshold.
@@ -159,6 +172,11 @@ class HitField {
     const std::uint8_t* blockDistances(std::size_t block) const noexcept {
         return mDistance.data() + mBlockOffset[block];
     }
+    /// Per table block: 0 when the block has a cell that can reach the threshold, else the
+    /// Chebyshev distance in blocks to the nearest block that has one (at most kFarBlocks): the
+    /// (2D - 1)^3 blocks around a block at distance D hold no such cell.
+    std::uint8_t blockDistance(std::size_t block) const noexcept { return mBlockDistance[block]; }
+    static constexpr std::uint8_t kFarBlocks = 16;
     /// Where blockDistances() reads its offset (for prefetching).
     const void* blockOffsetAddress(std::size_t block) const noexcept {
         return mBlockOffset.data() + block;
@@ -172,8 +190,9 @@ class HitField {
   private:
     const VolumeView* mView;
     float mThreshold;
-    std::vector<std::uint32_t> mOffset;       ///< per copy: byte offset of its distances
-    std::vector<std::uint32_t> mBlockOffset;  ///< per table block: the same, for its copy
+    std::vector<std::uint32_t> mOffset;        ///< per copy: byte offset of its distances
+    std::vector<std::uint32_t> mBlockOffset;   ///< per table block: the same, for its copy
+    std::vector<std::uint8_t> mBlockDistance;  ///< per table block: blockDistance()
     std::vector<std::uint8_t> mDistance;
     std::size_t mHotCopies = 0;
 };
@@ -217,8 +236,10 @@ struct FirstHitParams {
     /// where the CPU has it (bundleSimdAvailable()). The results are bit-identical to the scalar
     /// path (false), which stays the reference and the fallback.
     bool simd = true;
-    /// Optional per-cell distances for this threshold (see HitField), used when
-    /// field->matches(view, threshold) and skipEmpty; otherwise ignored. Never changes a result.
+    /// Optional first-hit acceleration for this threshold (see HitField), used when
+    /// field->matches(view, threshold), skipEmpty, a background below the threshold and a
+    /// table of at most 1024 blocks per axis; otherwise ignored. Changes results only by float
+    /// rounding (HitField).
     const HitField* field = nullptr;
 };
 
@@ -295,15 +316,14 @@ AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
                          const AccumulateParams& params) noexcept;
 
 /// First-hit for every ray of @p bundle (an invalid bundle gives count = 0). Each result is
-/// bit-identical to firstHit() on that ray. The bundle's hits are refined together after the
-/// march (the refinement chains of different rays overlap in the CPU), and the table entries
-/// and block copies along the first ray are prefetched before it (the other rays leave from
-/// the same proxy within a few degrees). With params.field (the fast path, see HitField) each
-/// ray is marched alone and, with params.simd on a CPU with AVX2, the cells and field
-/// distances of eight consecutive samples are taken at once, blending only the samples in cells
-/// that can reach the threshold. Without a field, params.simd marches the rays eight at a time
-/// in lockstep through their non-skippable blocks (one gather of the cell corners per lane and
-/// sample); skipping, block entries and the refinement stay scalar.
+/// bit-identical to firstHit() on that ray with the same params. The bundle's hits are refined
+/// together after the march (the refinement chains of different rays overlap in the CPU), and
+/// the table entries and block copies along the first ray are prefetched before it (the other
+/// rays leave from the same proxy within a few degrees). With params.field (the fast path, see
+/// HitField) each ray is marched on its lattice, eight samples at a time with params.simd on a
+/// CPU with AVX2. Without a field, params.simd marches the rays eight at a time in lockstep
+/// through their non-skippable blocks (one gather of the cell corners per lane and sample);
+/// skipping, block entries and the refinement stay scalar.
 /// @par Threading  Any number of threads on one view, each with its own @p out.
 /// @par Real-time  noexcept, no allocation, no lock; bounded by count * kMaxSamplesPerRay.
 void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstHitParams& params,
