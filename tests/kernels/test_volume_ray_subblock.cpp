@@ -322,6 +322,33 @@ TEST(VolumeRayHitField, DistancesBoundTheCellsThatCanReachTheThreshold) {
                 }
     }
     EXPECT_EQ(field.hotCopies(), hot);
+    // Block distances: a block at D > 0 has no cell that can reach the threshold within D - 1
+    // blocks around it, and one at exactly D unless D is the cap.
+    const auto nb = tb.blocks;
+    auto hasCell = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
+        const auto b = static_cast<std::size_t>((x * nb[1] + y) * nb[2] + z);
+        return field.blockDistances(b) != field.base();
+    };
+    int jumps = 0;
+    for (std::int64_t x = 0; x < nb[0]; ++x)
+        for (std::int64_t y = 0; y < nb[1]; ++y)
+            for (std::int64_t z = 0; z < nb[2]; ++z) {
+                const int d =
+                    field.blockDistance(static_cast<std::size_t>((x * nb[1] + y) * nb[2] + z));
+                ASSERT_EQ(d == 0, hasCell(x, y, z)) << x << " " << y << " " << z;
+                int nearest = HitField::kFarBlocks;
+                for (std::int64_t a = 0; a < nb[0]; ++a)
+                    for (std::int64_t b = 0; b < nb[1]; ++b)
+                        for (std::int64_t e = 0; e < nb[2]; ++e)
+                            if (hasCell(a, b, e))
+                                nearest = std::min<int>(
+                                    nearest,
+                                    static_cast<int>(std::max(
+                                        {std::abs(a - x), std::abs(b - y), std::abs(e - z)})));
+                ASSERT_EQ(d, nearest) << x << " " << y << " " << z;
+                jumps += d >= 2 ? 1 : 0;
+            }
+    EXPECT_GT(jumps, 0);
     EXPECT_GT(far, 1000);  // the march has long jumps to take, and short ones
     EXPECT_GT(near, 1000);
     EXPECT_THROW(HitField(view, std::nanf("")), palp::ValueError);
