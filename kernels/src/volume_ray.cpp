@@ -785,11 +785,13 @@ struct Refinements {
     Refinement& operator[](int i) noexcept {
         return *std::launder(reinterpret_cast<Refinement*>(bytes) + i);
     }
-    void push(const Refinement& f, int ray) noexcept {
-        ::new (static_cast<void*>(bytes + static_cast<std::size_t>(n) * sizeof(Refinement)))
-            Refinement(f);
-        (*this)[n++].ray = ray;
+    /// Where the next refinement is recorded (HitMarch::ref), in place.
+    Refinement* next() noexcept {
+        return ::new (static_cast<void*>(bytes + static_cast<std::size_t>(n) * sizeof(Refinement)))
+            Refinement;
     }
+    /// Keeps the refinement recorded at next() for ray @p ray.
+    void commit(int ray) noexcept { (*this)[n++].ray = ray; }
 };
 
 /// One ray's first-hit march, resumable at the runs of float-placed samples through a block
@@ -818,7 +820,7 @@ struct HitMarch {
     unsigned occ = 0xFFu;
     // A hit's refinement, still to run (refineAll()); false for a hit at t = 0 or no hit.
     bool pending = false;
-    Refinement ref;
+    Refinement* ref = nullptr;  // where a hit records its refinement (Refinements::next())
     std::int64_t runK = 0, runN = 0;
 };
 
@@ -876,7 +878,7 @@ PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
 /// provisional hit (t of sample j), refined by refineAll().
 PALP_HOT RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, float vPrev,
                           float v) noexcept {
-    Refinement& f = m.ref;
+    Refinement& f = *m.ref;
     f.local = true;
     f.lattice = false;
     f.needPrev = false;
@@ -907,7 +909,7 @@ PALP_HOT RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, flo
 /// that samples the predecessor first.
 PALP_HOT RayHit hitAtSample(const HitContext& cx, HitMarch& m, std::int64_t j, float v) noexcept {
     if (j == 0) return {0.0f, true};
-    Refinement& f = m.ref;
+    Refinement& f = *m.ref;
     f.local = false;
     f.lattice = false;
     f.needPrev = true;
@@ -1267,7 +1269,7 @@ PALP_HOT void startLattice(const HitMarch& m, Lattice& l) noexcept {
 /// refinement (lattice probes) and returns the provisional hit.
 PALP_HOT RayHit latticeHit(const HitContext& cx, HitMarch& m, const Lattice& l, std::int32_t i,
                            float vPrev, float v) noexcept {
-    Refinement& f = m.ref;
+    Refinement& f = *m.ref;
     f.local = false;
     f.lattice = true;
     f.needPrev = false;
@@ -1369,6 +1371,7 @@ void traceFirstHitScalar(const HitContext& cx, const RayBundle& bundle, BundleHi
     Refinements refs;
     for (int i = 0; i < out.count; ++i) {
         RayHit h;
+        m.ref = refs.next();
         if (startBundleRay(cx, bundle, i, m, h)) {
             if (cx.field != nullptr)
                 h = marchLatticeScalar(cx, m);
@@ -1377,7 +1380,7 @@ void traceFirstHitScalar(const HitContext& cx, const RayBundle& bundle, BundleHi
                 }
         }
         storeHit(out, i, h);
-        if (h.hit && m.pending) refs.push(m.ref, i);
+        if (h.hit && m.pending) refs.commit(i);
     }
     refineAll(cx, refs, out.t.data());
 }
@@ -1523,9 +1526,10 @@ __attribute__((target("avx2"))) void traceFirstHitFieldAvx2(const HitContext& cx
     Refinements refs;
     for (int i = 0; i < out.count; ++i) {
         RayHit h;
+        m.ref = refs.next();
         if (startBundleRay(cx, bundle, i, m, h)) h = marchLatticeAvx2(cx, m);
         storeHit(out, i, h);
-        if (h.hit && m.pending) refs.push(m.ref, i);
+        if (h.hit && m.pending) refs.commit(i);
     }
     _mm256_zeroupper();  // the refinement is SSE code
     refineAll(cx, refs, out.t.data());
@@ -1599,6 +1603,7 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
         while (next < out.count) {
             const int i = next++;
             RayHit h;
+            m[l].ref = refs.next();
             if (startBundleRay(cx, bundle, i, m[l], h) && advanceHit(cx, m[l], h)) {
                 ray[l] = i;
                 loadRay(l);
@@ -1607,7 +1612,7 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
                 return;
             }
             storeHit(out, i, h);
-            if (h.hit && m[l].pending) refs.push(m[l].ref, i);
+            if (h.hit && m[l].pending) refs.commit(i);
         }
         // An idle lane reads a valid cell (offset 0, position 0), never jumps and is ignored.
         active &= ~(1u << l);
@@ -1706,16 +1711,17 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
         for (unsigned ev = events; ev != 0; ev &= ev - 1) {
             const int l = __builtin_ctz(ev);
             RayHit h;
+            m[l].ref = refs.next();
             if ((hitBits >> l) & 1u) {
                 const float before = pOld[l] == iOld[l] - 1 ? vOld[l] : runValue(m[l], iOld[l] - 1);
                 storeHit(out, ray[l], refineHit(cx, m[l], m[l].runK + iOld[l], before, vNew[l]));
-                refs.push(m[l].ref, ray[l]);
+                refs.commit(ray[l]);
             } else if (advanceHit(cx, m[l], h)) {
                 loadRun(l);
                 continue;
             } else {
                 storeHit(out, ray[l], h);
-                if (h.hit && m[l].pending) refs.push(m[l].ref, ray[l]);
+                if (h.hit && m[l].pending) refs.commit(ray[l]);
             }
             refill(l);
         }
@@ -1749,6 +1755,8 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
                 const FirstHitParams& params) noexcept {
     const HitContext cx(view, params);
     HitMarch m;
+    Refinements refs;
+    m.ref = refs.next();
     RayHit h;
     if (startHit(cx, origin, direction, length, m, h)) {
         if (cx.field != nullptr) {
@@ -1763,8 +1771,7 @@ RayHit firstHit(const VolumeView& view, const Eigen::Vector3d& origin,
         }
     }
     if (h.hit && m.pending) {
-        Refinements refs;
-        refs.push(m.ref, 0);
+        refs.commit(0);
         refineAll(cx, refs, &h.t);
     }
     return h;
