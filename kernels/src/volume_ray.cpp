@@ -873,33 +873,42 @@ PALP_HOT bool startHit(const HitContext& cx, const Eigen::Vector3d& origin,
     return true;
 }
 
-/// Records the refinement of a crossing between run samples j - 1 and j (both in the pending
-/// run of @p m, j > runK) from their values: every probe lies in the run's block. Returns the
-/// provisional hit (t of sample j), refined by refineAll().
-PALP_HOT RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, float vPrev,
-                          float v) noexcept {
+/// Records a refinement between float-placed samples i - 1 and i (values @p vPrev, @p v) at
+/// positions q + u s with t = (k0 + u) step: of a block run (@p lattice false; probes blended
+/// from copy @p base) or of the HitField path's lattice (probes find their block).
+PALP_HOT void recordFloatRefinement(const HitContext& cx, HitMarch& m, bool lattice,
+                                    const float* base, float qx, float qy, float qz, double k0,
+                                    double i, float vPrev, float v) noexcept {
     Refinement& f = *m.ref;
-    f.local = true;
-    f.lattice = false;
+    f.local = !lattice;
+    f.lattice = lattice;
     f.needPrev = false;
     f.done = false;
-    f.base = m.base;
-    f.qx = m.qx;
-    f.qy = m.qy;
-    f.qz = m.qz;
+    f.base = base;
+    f.qx = qx;
+    f.qy = qy;
+    f.qz = qz;
     f.sx = m.sx;
     f.sy = m.sy;
     f.sz = m.sz;
-    // Run samples lie before the ray's last (cut) sample, so t_k = k step there.
-    f.k0 = static_cast<double>(m.runK);
+    f.k0 = k0;
     f.step = m.r.step;
-    const auto i = static_cast<double>(j - m.runK);
     f.a = i - 1;
     f.b = i;
     f.fa = static_cast<double>(vPrev) - static_cast<double>(cx.thr);
     f.fb = static_cast<double>(v) - static_cast<double>(cx.thr);
     f.side = 0;
     m.pending = true;
+}
+
+/// Records the refinement of a crossing between run samples j - 1 and j (both in the pending
+/// run of @p m, j > runK) from their values: every probe lies in the run's block. Returns the
+/// provisional hit (t of sample j), refined by refineAll(). Run samples lie before the ray's
+/// last (cut) sample, so t_k = k step there.
+PALP_HOT RayHit refineHit(const HitContext& cx, HitMarch& m, std::int64_t j, float vPrev,
+                          float v) noexcept {
+    recordFloatRefinement(cx, m, false, m.base, m.qx, m.qy, m.qz, static_cast<double>(m.runK),
+                          static_cast<double>(j - m.runK), vPrev, v);
     return {static_cast<float>(m.r.t(j)), true};
 }
 
@@ -1269,25 +1278,8 @@ PALP_HOT void startLattice(const HitMarch& m, Lattice& l) noexcept {
 /// refinement (lattice probes) and returns the provisional hit.
 PALP_HOT RayHit latticeHit(const HitContext& cx, HitMarch& m, const Lattice& l, std::int32_t i,
                            float vPrev, float v) noexcept {
-    Refinement& f = *m.ref;
-    f.local = false;
-    f.lattice = true;
-    f.needPrev = false;
-    f.done = false;
-    f.qx = l.qx;
-    f.qy = l.qy;
-    f.qz = l.qz;
-    f.sx = l.sx;
-    f.sy = l.sy;
-    f.sz = l.sz;
-    f.k0 = static_cast<double>(l.kA);
-    f.step = m.r.step;
-    f.a = i - 1;
-    f.b = i;
-    f.fa = static_cast<double>(vPrev) - static_cast<double>(cx.thr);
-    f.fb = static_cast<double>(v) - static_cast<double>(cx.thr);
-    f.side = 0;
-    m.pending = true;
+    recordFloatRefinement(cx, m, true, nullptr, l.qx, l.qy, l.qz, static_cast<double>(l.kA), i,
+                          vPrev, v);
     return {static_cast<float>(m.r.t(l.kA + i)), true};
 }
 
