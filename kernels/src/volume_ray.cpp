@@ -937,7 +937,6 @@ PALP_HOT RayHit hitAtSample(const HitContext& cx, HitMarch& m, std::int64_t j, f
     return {static_cast<float>(f.b), true};
 }
 
-/// The value of @p f's function at x, minus nothing (the caller subtracts the threshold).
 /// Trilinear value at the table-relative float position (px, py, pz) of a lattice sample (the
 /// HitField path; positions lie in the table's interior up to rounding): the cell by
 /// truncation, clamped to the table, its block's padded copy from the table.
@@ -952,6 +951,7 @@ PALP_HOT float latticeValue(const HitContext& cx, float px, float py, float pz) 
                  pz - static_cast<float>(uz));
 }
 
+/// The value @p f's refinement probes at x (the caller subtracts the threshold).
 PALP_HOT float probe(const HitContext& cx, Refinement& f, double x) noexcept {
     if (f.lattice) {
         const auto u = static_cast<float>(x);
@@ -1180,8 +1180,8 @@ PALP_HOT bool startBundleRay(const HitContext& cx, const RayBundle& bundle, int 
                     out);
 }
 
-/// Starts the loads of the data the bundle's first ray will read at five points along it (the
-/// block table entries, then each block's copy lines around the point and its cell distances),
+/// Starts the loads of the data the bundle's first ray will read, at about one point per voxel
+/// along it (the block table entries, then the copy lines and cell distances of its blocks),
 /// so that cache misses at positions no earlier frame touched overlap instead of following one
 /// another block by block. The other rays of a bundle leave from the same proxy within a few
 /// degrees and mostly read the same blocks. No effect on results.
@@ -1878,11 +1878,12 @@ void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstH
     out.count = bundle.valid ? std::clamp(bundle.count, 0, kMaxBundleRays) : 0;
     const HitContext cx(view, params);
 #ifdef PALP_RAY_AVX2
-    // 32-bit gather offsets must reach every block copy.
+    // HitContext admits a field only where its 32-bit gather offsets reach every distance.
     if (cx.field != nullptr && cx.simd) {
         traceFirstHitFieldAvx2(cx, bundle, out);
         return;
     }
+    // 32-bit gather offsets must reach every block copy.
     if (params.simd && kHasAvx2 && cx.field == nullptr && out.count > 1 &&
         view.table().padded != nullptr && view.table().paddedSize < (std::size_t{1} << 31) - 128) {
         traceFirstHitAvx2(cx, bundle, out);
