@@ -3,7 +3,8 @@
 //   valgrind --tool=callgrind --toggle-collect='palp::kernels::traceFirstHit*'
 //       build/rays/bench/kernels/profile_rays phantom|FILE.vdb trajectory|random FRAMES [RAYS]
 //       [scalar] [field] [scalar]
-// (one command line)
+// (one command line). With `compare` as the fifth argument it traces every bundle with and without
+// a HitField and prints how far the two paths' hits differ.
 // and prints the number of rays hit (so the work cannot be optimised away).
 //
 // With `percentiles` (or `percentiles-cold`) as the fifth argument it times every bundle on the
@@ -201,6 +202,35 @@ int main(int argc, char** argv) {
             fp.field = field.get();
             std::printf("hit field: %zu hot copies, %.1f MiB\n", field->hotCopies(),
                         static_cast<double>(field->bytes()) / (1 << 20));
+        }
+        if (mode == "compare") {
+            // The field path against the block-run path without a field, ray by ray.
+            const HitField f(view, fp.threshold);
+            FirstHitParams withField = fp;
+            withField.field = &f;
+            BundleHits a, b;
+            long rays = 0, hitMismatch = 0, hits = 0;
+            double worst = 0;
+            for (const auto& bundle : bundles) {
+                traceFirstHit(view, bundle, fp, a);
+                traceFirstHit(view, bundle, withField, b);
+                for (int r = 0; r < a.count; ++r) {
+                    const auto i = static_cast<std::size_t>(r);
+                    ++rays;
+                    hits += a.hit[i];
+                    if (a.hit[i] != b.hit[i]) {
+                        ++hitMismatch;
+                        continue;
+                    }
+                    worst = std::max(
+                        worst, std::fabs(static_cast<double>(a.t[i]) - b.t[i]) / view.voxelSize());
+                }
+            }
+            std::printf(
+                "%ld rays, %ld hits; field vs no field: %ld hit/miss differences, largest "
+                "t difference %.2e voxel\n",
+                rays, hits, hitMismatch, worst);
+            return 0;
         }
         if (mode == "percentiles" || mode == "percentiles-cold" || mode == "slowest") {
             percentiles(bundles, view, fp, mode == "percentiles-cold", mode == "slowest");
