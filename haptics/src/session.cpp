@@ -5,6 +5,7 @@
 #include <bit>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -227,15 +228,29 @@ void validateSessionParams(const SessionParams& params) {
 
 namespace {
 
-/// The first-hit acceleration for the session's starting threshold (set-up: it allocates), or
-/// null without a volume.
-std::unique_ptr<kernels::HitField> makeHitField(const Scene& scene, const CouplingParams& p) {
-    const kernels::VolumeView* view = scene.volumeView();
-    if (view == nullptr || view->empty()) return nullptr;
-    return std::make_unique<kernels::HitField>(*view, p.firstHit.threshold);
-}
+/// Most first-hit thresholds a session keeps a HitField for (a few MiB to tens of MiB each on a
+/// CT); a coupling with a further threshold marches without one.
+constexpr std::size_t kMaxHitFields = 8;
 
-/// @p p with the session's hit field (the march ignores it once the threshold changes).
+/// The session's first-hit fields, one per threshold, built off the servo thread (set-up and
+/// Session::send(), the producer thread) and kept until the session ends, so that every
+/// pointer a queued or running coupling holds stays valid; the servo thread only reads them.
+struct HitFields {
+    std::map<float, std::unique_ptr<kernels::HitField>> byThreshold;
+    /// The field for @p threshold, built on first use; null without a volume or past the cap.
+    const kernels::HitField* get(const Scene& scene, float threshold) {
+        const kernels::VolumeView* view = scene.volumeView();
+        if (view == nullptr || view->empty()) return nullptr;
+        if (auto it = byThreshold.find(threshold); it != byThreshold.end()) return it->second.get();
+        if (byThreshold.size() >= kMaxHitFields) return nullptr;
+        auto field = std::make_unique<kernels::HitField>(*view, threshold);
+        const kernels::HitField* out = field.get();
+        byThreshold.emplace(threshold, std::move(field));
+        return out;
+    }
+};
+
+/// @p p with @p field for its first-hit threshold.
 CouplingParams withField(CouplingParams p, const kernels::HitField* field) noexcept {
     p.firstHit.field = field;
     return p;
@@ -247,7 +262,7 @@ struct Session::Impl {
     Impl(std::shared_ptr<const Scene> sceneIn, Device& deviceIn, const SessionParams& p,
          bool stiffnessLimited)
         : scene(std::move(sceneIn)),
-          hitField(makeHitField(*scene, p.coupling)),
+
           device(deviceIn),
           spec(deviceIn.spec()),
           workspace(p.workspace),
@@ -255,10 +270,11 @@ struct Session::Impl {
           body(scene->deformable() ? std::make_unique<DeformableBody>(scene->deformable())
                                    : nullptr),
           proxy(body ? body->surfaces() : scene->surfaces(), p.proxy),
-          couplings{Coupling(scene->volumeView(), &scene->hardMeshes(),
-                             withField(p.coupling, hitField.get())),
-                    Coupling(scene->volumeView(), &scene->hardMeshes(),
-                             withField(p.coupling, hitField.get()))},
+          couplings{
+              Coupling(scene->volumeView(), &scene->hardMeshes(),
+                       withField(p.coupling, fields.get(*scene, p.coupling.firstHit.threshold))),
+              Coupling(scene->volumeView(), &scene->hardMeshes(),
+                       withField(p.coupling, fields.get(*scene, p.coupling.firstHit.threshold)))},
           fadeTicks(static_cast<std::uint32_t>(std::lround(p.crossFadeSeconds / period))),
           passivity(period, p.passivityControl,
                     spec.maxDampingNspm > 0 ? spec.maxDampingNspm
@@ -277,9 +293,9 @@ struct Session::Impl {
     double nextTime() const noexcept { return ticks == 0 ? 0.0 : current.timeSeconds + period; }
 
     std::shared_ptr<const Scene> scene;
-    // Per-cell distances for the starting first-hit threshold; a later threshold without one
-    // marches without it (same results, slower; see kernels::HitField).
-    std::unique_ptr<kernels::HitField> hitField;
+    // First-hit fields by threshold (set-up and send(); see HitFields). Declared before the
+    // couplings, which are built with the starting threshold's.
+    HitFields fields;
     Device& device;
     DeviceSpec spec;
     WorkspaceTransform workspace;
@@ -357,10 +373,10 @@ void Session::Impl::drainCommands() noexcept {
     for (std::size_t i = 0; i < commands.capacity() && commands.tryPop(command); ++i) {
         switch (command.kind) {
             case Command::Kind::SetCoupling:
-                setCoupling(withField(command.coupling, hitField.get()), command.stiffnessLimited);
+                setCoupling(command.coupling, command.stiffnessLimited);
                 break;
             case Command::Kind::SetAll:
-                setCoupling(withField(command.coupling, hitField.get()), command.stiffnessLimited);
+                setCoupling(command.coupling, command.stiffnessLimited);
                 proxy.setParams(command.proxy);
                 passivity.setEnabled(command.flag);
                 break;
@@ -600,6 +616,10 @@ bool Session::send(const Command& command) {
             requireSourceData(*mImpl->scene, command.coupling);
             if (command.kind == Command::Kind::SetAll) validateProxyParams(command.proxy);
             checked.stiffnessLimited = limitStiffnessToDevice(checked.coupling, mImpl->spec);
+            // The session's field for this threshold (built here, off the servo thread, the
+            // first time the threshold is used).
+            checked.coupling.firstHit.field =
+                mImpl->fields.get(*mImpl->scene, checked.coupling.firstHit.threshold);
             break;
         case Command::Kind::SetProxy:
             validateProxyParams(command.proxy);
@@ -621,6 +641,8 @@ const RealtimeStatus& Session::realtime() const noexcept { return mImpl->loop.re
 const DeviceSpec& Session::deviceSpec() const noexcept { return mImpl->spec; }
 
 const DeformableBody* Session::deformable() const noexcept { return mImpl->body.get(); }
+
+std::size_t Session::hitFieldCount() const noexcept { return mImpl->fields.byThreshold.size(); }
 
 void Session::tick(const TickInfo& info) noexcept {
     mImpl->tick(mImpl->timeBase + info.timeSeconds);

@@ -126,6 +126,43 @@ TEST_F(SessionTest, RejectsBadParamsAndSourcesWithoutData) {
     EXPECT_THROW(vc.send(c), ValueError);
 }
 
+// First-hit fields: one for the starting threshold, one more for each new threshold a coupling
+// command brings (built in send(), off the servo thread), none again for a threshold used
+// before. The same press then feels the same with the new threshold's field as a session that
+// started with that threshold (to float rounding: both march with a field).
+TEST_F(SessionTest, CouplingCommandsBringAFieldForANewThreshold) {
+    const std::vector<PathDevice::Key> path = {{0, at(0.004, -0.004, 0.003)},
+                                               {0.3, at(0.004, 0.002, 0.003)},
+                                               {1.0, at(0.004, 0.002, 0.003)}};
+    PathDevice dev(path), other(path);
+    SessionParams p = params(CouplingMode::AVC);
+    Session session(sScene, dev, p);
+    EXPECT_EQ(session.hitFieldCount(), 1u);
+    Command c;
+    c.kind = Command::Kind::SetCoupling;
+    c.coupling = p.coupling;
+    c.coupling.firstHit.threshold = 200;
+    ASSERT_TRUE(session.send(c));
+    EXPECT_EQ(session.hitFieldCount(), 2u);
+    c.coupling.firstHit.threshold = p.coupling.firstHit.threshold;
+    ASSERT_TRUE(session.send(c));
+    c.coupling.firstHit.threshold = 200;
+    ASSERT_TRUE(session.send(c));
+    EXPECT_EQ(session.hitFieldCount(), 2u);  // both thresholds seen before
+    SessionParams q = p;
+    q.coupling.firstHit.threshold = 200;
+    Session reference(sScene, other, q);
+    Snapshot a, b;
+    for (int i = 0; i < 900; ++i) {
+        a = session.step();
+        b = reference.step();
+    }
+    EXPECT_GT(a.force.norm(), 0.1);  // pressed, after the cross-fades
+    EXPECT_NEAR(a.rayLength, b.rayLength, 1e-5);
+    EXPECT_NEAR(a.stiffness, b.stiffness, 1e-3 * b.stiffness);
+    EXPECT_LE((a.force - b.force).norm(), 1e-3 * b.force.norm());
+}
+
 // VC press: the probe held 2 mm below the surface; F = k (x_py - x_pb) with the proxy on the
 // surface, pointing out of it (-y), |F| = k D.
 TEST_F(SessionTest, VcPressGivesSpringForceOutOfTheSurface) {

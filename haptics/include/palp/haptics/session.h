@@ -223,7 +223,10 @@ class Session final : public ServoTask {
     /// Viewer: the newest published snapshot.
     const Snapshot& latest() noexcept;
     /// Producer: queue a command; false when the queue is full (nothing queued). A coupling
-    /// (SetCoupling, SetAll) is first limited to the device (limitStiffnessToDevice).
+    /// (SetCoupling, SetAll) is first limited to the device (limitStiffnessToDevice), and its
+    /// first-hit march gets the session's kernels::HitField for its threshold: built here the
+    /// first time a threshold is used (tens of ms and about 10 MiB on a 0.5 mm head CT; the
+    /// session keeps up to 8, later thresholds march without one, same results to rounding).
     /// @throw palp::ValueError for invalid parameters (checked here, off the servo thread;
     /// nothing is queued).
     bool send(const Command& command);
@@ -247,6 +250,9 @@ class Session final : public ServoTask {
     /// The session's deformable body (nullptr for a rigid scene). Read it only while the
     /// session is stopped (the servo thread owns it while running).
     const DeformableBody* deformable() const noexcept;
+    /// Producer thread: first-hit fields built so far (one per threshold used; 0 without a
+    /// volume).
+    std::size_t hitFieldCount() const noexcept;
 
     void tick(const TickInfo& info) noexcept override;
 
