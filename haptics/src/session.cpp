@@ -262,7 +262,6 @@ struct Session::Impl {
     Impl(std::shared_ptr<const Scene> sceneIn, Device& deviceIn, const SessionParams& p,
          bool stiffnessLimited)
         : scene(std::move(sceneIn)),
-
           device(deviceIn),
           spec(deviceIn.spec()),
           workspace(p.workspace),
