@@ -1,5 +1,6 @@
 /// @file
-/// HitField: per-cell Chebyshev distances to the cells that can reach a first-hit threshold.
+/// HitField: a bit per cell that can reach a first-hit threshold, and per-block distances to
+/// the blocks that have one.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -23,7 +24,7 @@ constexpr int kPad = Table::kPad;
 /// the cell's corner maximum, raised by the hair of the view's 4^3 sub-block bounds (the
 /// rounding of the blend, and positions a float rounding outside the cell). NaN corners never
 /// raise the bound; an all-NaN cell never reaches a threshold.
-bool cellCanReach(const float* src, int x, int y, int z, float thr) noexcept {
+bool cornersCanReach(const float* src, int x, int y, int z, float thr) noexcept {
     float mx = -std::numeric_limits<float>::infinity();
     float mn = std::numeric_limits<float>::infinity();
     for (int i = 0; i < 8; ++i) {
@@ -37,25 +38,6 @@ bool cellCanReach(const float* src, int x, int y, int z, float thr) noexcept {
     return bound >= thr;
 }
 
-/// One axis of the Chebyshev distance transform over an 8^3 block: d(i) = min_j max(|i - j|,
-/// d(j)) along every line of axis @p stride.
-void transformAxis(std::uint8_t (&d)[HitField::kCells], int stride) noexcept {
-    const int s1 = stride == 64 ? 8 : 64, s2 = stride == 1 ? 8 : 1;
-    for (int a = 0; a < 8; ++a)
-        for (int b = 0; b < 8; ++b) {
-            const int o = a * s1 + b * s2;
-            std::uint8_t in[8], outv[8];
-            for (int i = 0; i < 8; ++i) in[i] = d[o + i * stride];
-            for (int i = 0; i < 8; ++i) {
-                int best = in[i];
-                for (int j = 0; j < 8; ++j)
-                    best = std::min(best, std::max(std::abs(i - j), static_cast<int>(in[j])));
-                outv[i] = static_cast<std::uint8_t>(best);
-            }
-            for (int i = 0; i < 8; ++i) d[o + i * stride] = outv[i];
-        }
-}
-
 }  // namespace
 
 HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThreshold(threshold) {
@@ -65,8 +47,8 @@ HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThr
     const std::size_t copies =
         tb.padded ? tb.paddedSize / static_cast<std::size_t>(Table::kPadded) : 0;
     // Copies whose 4^3 sub-block bounds are all below the threshold have no cell that can reach
-    // it (each cell's bound is at most its sub-block's): they share one map of kFar.
-    mOffset.assign(copies, 0);
+    // it (each cell's bound is at most its sub-block's): they share mask 0.
+    std::vector<std::uint32_t> maskOf(copies, 0);
     std::vector<std::size_t> hot;
     for (std::size_t c = 0; c < copies; ++c) {
         const float* b = tb.subMax + c * Table::kSubBlocks;
@@ -74,43 +56,45 @@ HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThr
             hot.push_back(c);
     }
     mHotCopies = hot.size();
-    const std::size_t bytesNeeded = (hot.size() + 1) * kCells + 4;
-    if (bytesNeeded > std::numeric_limits<std::uint32_t>::max())
+    constexpr std::size_t kMaxMasks = std::size_t{1} << (32 - kDistanceBits);
+    if (hot.size() + 1 > kMaxMasks)
         throw ValueError("hit field at threshold " + std::to_string(threshold) +
-                         ": expected at most 4 GiB of cell distances, found " +
-                         std::to_string(bytesNeeded) + " bytes needed");
-    mDistance.assign(bytesNeeded, kFar);
-    for (std::size_t h = 0; h < hot.size(); ++h)
-        mOffset[hot[h]] = static_cast<std::uint32_t>((h + 1) * kCells);
+                         ": expected at most " + std::to_string(kMaxMasks - 1) +
+                         " block copies that can reach it, found " + std::to_string(hot.size()));
+    mMask.assign(hot.size() + 1, MaskLine{});
+    mCopy.assign(hot.size() + 1, nullptr);
+    for (std::size_t h = 0; h < hot.size(); ++h) {
+        maskOf[hot[h]] = static_cast<std::uint32_t>(h + 1);
+        mCopy[h + 1] = tb.padded + hot[h] * static_cast<std::size_t>(Table::kPadded);
+    }
     const float* padded = tb.padded;
     const float* subMax = tb.subMax;
-    std::uint8_t* dist = mDistance.data();
+    MaskLine* masks = mMask.data();
     parallelForEach<std::size_t>(0, hot.size(), [&](std::size_t h) {
         const std::size_t c = hot[h];
         const float* src = padded + c * static_cast<std::size_t>(Table::kPadded);
         const float* sb = subMax + c * Table::kSubBlocks;
-        std::uint8_t d[kCells];
+        MaskLine& m = masks[h + 1];
         for (int x = 0; x < 8; ++x)
             for (int y = 0; y < 8; ++y)
                 for (int z = 0; z < 8; ++z) {
                     const int s = ((x >> 2) << 2) | ((y >> 2) << 1) | (z >> 2);
-                    d[(x * 8 + y) * 8 + z] =
-                        sb[s] >= threshold && cellCanReach(src, x, y, z, threshold) ? 0 : kFar;
+                    if (sb[s] >= threshold && cornersCanReach(src, x, y, z, threshold)) {
+                        const int l = (x * 8 + y) * 8 + z;
+                        m.w[l >> 5] |= std::uint32_t{1} << (l & 31);
+                    }
                 }
-        transformAxis(d, 64);
-        transformAxis(d, 8);
-        transformAxis(d, 1);
-        std::copy(d, d + kCells, dist + (h + 1) * kCells);
     });
-    mBlockOffset.resize(tb.data.size());
+    // Per table block: its copy's mask index, then the block distances in the low bits.
+    std::vector<std::uint32_t> blockMask(tb.data.size());
     for (std::size_t b = 0; b < tb.data.size(); ++b)
-        mBlockOffset[b] = mOffset[static_cast<std::size_t>(tb.data[b] - tb.padded) /
-                                  static_cast<std::size_t>(Table::kPadded)];
+        blockMask[b] = maskOf[static_cast<std::size_t>(tb.data[b] - tb.padded) /
+                              static_cast<std::size_t>(Table::kPadded)];
     // Block distances: the same transform over the block grid, each axis in windows of
     // kFarBlocks (farther blocks only cap the distance).
-    mBlockDistance.resize(tb.data.size());
+    std::vector<std::uint8_t> distance(tb.data.size());
     for (std::size_t b = 0; b < tb.data.size(); ++b)
-        mBlockDistance[b] = mBlockOffset[b] != 0 ? 0 : kFarBlocks;
+        distance[b] = blockMask[b] != 0 ? 0 : kFarBlocks;
     const std::array<std::int64_t, 3> n = {tb.blocks[0], tb.blocks[1], tb.blocks[2]};
     const std::array<std::int64_t, 3> stride = {n[1] * n[2], n[2], 1};
     std::vector<std::uint8_t> line;
@@ -125,7 +109,7 @@ HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThr
                 const std::int64_t st = stride[static_cast<std::size_t>(axis)];
                 for (std::int64_t i = 0; i < len; ++i)
                     line[static_cast<std::size_t>(i)] =
-                        mBlockDistance[static_cast<std::size_t>(base + i * st)];
+                        distance[static_cast<std::size_t>(base + i * st)];
                 for (std::int64_t i = 0; i < len; ++i) {
                     int best = line[static_cast<std::size_t>(i)];
                     const std::int64_t lo = std::max<std::int64_t>(0, i - kFarBlocks + 1);
@@ -134,11 +118,14 @@ HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThr
                         best = std::min(
                             best, std::max(static_cast<int>(std::abs(i - j)),
                                            static_cast<int>(line[static_cast<std::size_t>(j)])));
-                    mBlockDistance[static_cast<std::size_t>(base + i * st)] =
+                    distance[static_cast<std::size_t>(base + i * st)] =
                         static_cast<std::uint8_t>(best);
                 }
             }
     }
+    mEntry.resize(tb.data.size());
+    for (std::size_t b = 0; b < tb.data.size(); ++b)
+        mEntry[b] = (blockMask[b] << kDistanceBits) | distance[b];
 }
 
 }  // namespace palp::kernels

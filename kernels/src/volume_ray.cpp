@@ -657,7 +657,7 @@ struct HitContext {
     std::int64_t nby = 0, nbz = 0;
     // Per-call parts of the ray set-up.
     bool usable = false;              // a non-empty view and a finite step > 0
-    const HitField* field = nullptr;  // per-cell distances at this threshold, when skipping
+    const HitField* field = nullptr;  // per-cell bits at this threshold, when skipping
     bool simd = false;                // take the AVX2 run loops (params.simd and the CPU has it)
     unsigned cellMax[3] = {0, 0, 0};  // largest table-relative cell per axis (8 blocks - 1)
     std::size_t strideX = 0, strideY = 0;  // table block index = bx strideX + by strideY + bz
@@ -681,11 +681,11 @@ struct HitContext {
         usable = !v.empty() && std::isfinite(step) && step > 0;
         // The field path marches in table-relative float coordinates: it needs the table's
         // interior clipped (a background below the threshold), positions below 2^13 voxels
-        // (float steps exact to about 5e-4 voxel) and 31-bit gather offsets.
+        // (float steps exact to about 5e-4 voxel; block indices then fit the 31-bit gather
+        // indices, and a field's mask words do by construction).
         const auto& b = v.table().blocks;
         if (p.field != nullptr && p.skipEmpty && p.field->matches(v, p.threshold) && clip &&
-            std::max({b[0], b[1], b[2]}) <= 1024 &&
-            p.field->bytes() < (std::size_t{1} << 31) - 1024)
+            std::max({b[0], b[1], b[2]}) <= 1024)
             field = p.field;
         simd = p.simd && bundleSimdAvailable();
         for (std::size_t a = 0; a < 3; ++a)
@@ -1181,7 +1181,7 @@ PALP_HOT bool startBundleRay(const HitContext& cx, const RayBundle& bundle, int 
 }
 
 /// Starts the loads of the data the bundle's first ray will read, at about one point per voxel
-/// along it (the block table entries, then the copy lines and cell distances of its blocks),
+/// along it (the block table entries, then the copy lines and cell masks of its blocks),
 /// so that cache misses at positions no earlier frame touched overlap instead of following one
 /// another block by block. The other rays of a bundle leave from the same proxy within a few
 /// degrees and mostly read the same blocks. No effect on results.
@@ -1219,13 +1219,13 @@ void prefetchPath(const HitContext& cx, const RayBundle& bundle) noexcept {
         __builtin_prefetch(&tb.maxDilated[static_cast<std::size_t>(b)]);
         __builtin_prefetch(&tb.data[static_cast<std::size_t>(b)]);
         if (cx.field != nullptr)
-            __builtin_prefetch(cx.field->blockOffsetAddress(static_cast<std::size_t>(b)));
+            __builtin_prefetch(cx.field->entries() + static_cast<std::size_t>(b));
         blocks[count] = b;
         first[count] = last[count] = cell;
         ++count;
     }
     // Second pass, once the table entries are on their way: the copy lines around the first and
-    // last cells, and the field distances, of the blocks that cannot be skipped.
+    // last cells, and the field's cell masks, of the blocks that cannot be skipped.
     for (int q = 0; q < count; ++q) {
         const auto b = static_cast<std::size_t>(blocks[q]);
         if (tb.maxDilated[b] < cx.thr) continue;
@@ -1236,11 +1236,7 @@ void prefetchPath(const HitContext& cx, const RayBundle& bundle) noexcept {
             __builtin_prefetch(base + c + 81);
             __builtin_prefetch(base + c + 91);
         }
-        if (cx.field != nullptr) {
-            const std::uint8_t* d = cx.field->blockDistances(b);
-            __builtin_prefetch(d);
-            __builtin_prefetch(d + 256);
-        }
+        if (cx.field != nullptr) __builtin_prefetch(cx.field->blockMask(b));
     }
 }
 
@@ -1300,14 +1296,14 @@ PALP_HOT RayHit latticeHitAt(const HitContext& cx, HitMarch& m, const Lattice& l
 PALP_HOT RayHit latticeEnd(const HitContext& cx, HitMarch& m, const Lattice& l) noexcept {
     const IndexRay& r = m.r;
     if (r.kEnd >= r.kLast && r.kLast >= l.kA + l.n) {
-        // Its cell's field distance first (it lies in the table's interior).
+        // Its cell's field bit first (it lies in the table's interior).
         const double t = r.t(r.kLast);
         const double x = m.ox + t * r.d[0], y = m.oy + t * r.d[1], z = m.oz + t * r.d[2];
         const unsigned ux = std::min(static_cast<unsigned>(std::max(0.0, x)), cx.cellMax[0]);
         const unsigned uy = std::min(static_cast<unsigned>(std::max(0.0, y)), cx.cellMax[1]);
         const unsigned uz = std::min(static_cast<unsigned>(std::max(0.0, z)), cx.cellMax[2]);
         const std::size_t b = (ux >> 3) * cx.strideX + (uy >> 3) * cx.strideY + (uz >> 3);
-        if (cx.field->blockDistances(b)[((ux & 7) * 8 + (uy & 7)) * 8 + (uz & 7)] == 0) {
+        if (cx.field->cellCanReach(b, ((ux & 7) * 8 + (uy & 7)) * 8 + (uz & 7))) {
             CornerCache cache;
             const float v = sampleAt(*cx.view, r, t, cache);
             if (v >= cx.thr) return hitAtSample(cx, m, r.kLast, v);
@@ -1328,7 +1324,7 @@ PALP_HOT std::int32_t latticeColdRun(const Lattice& l, unsigned dBlocks) noexcep
 }
 
 /// The HitField march of one ray (after startHit()), one sample at a time: each sample's cell,
-/// its block and the field's distance there; the blend only where the distance is 0.
+/// its block and the field's bit there; the blend only where the bit is set.
 RayHit marchLatticeScalar(const HitContext& cx, HitMarch& m) noexcept {
     Lattice l;
     startLattice(m, l);
@@ -1346,10 +1342,11 @@ RayHit marchLatticeScalar(const HitContext& cx, HitMarch& m) noexcept {
             i += latticeColdRun(l, dBlocks);  // and the loop's 1
             continue;
         }
-        if (field.blockDistances(b)[((ux & 7) * 8 + (uy & 7)) * 8 + (uz & 7)] != 0) continue;
-        const float v = lerp8(cx.tb->data[b] + (((ux & 7) * 9 + (uy & 7)) * 9 + (uz & 7)),
-                              px - static_cast<float>(ux), py - static_cast<float>(uy),
-                              pz - static_cast<float>(uz));
+        if (!field.cellCanReach(b, ((ux & 7) * 8 + (uy & 7)) * 8 + (uz & 7))) continue;
+        const float* copy = field.maskCopy(field.entry(b) >> HitField::kDistanceBits);
+        const float v =
+            lerp8(copy + (((ux & 7) * 9 + (uy & 7)) * 9 + (uz & 7)), px - static_cast<float>(ux),
+                  py - static_cast<float>(uy), pz - static_cast<float>(uz));
         if (v >= cx.thr) return latticeHitAt(cx, m, l, i, iPrev == i - 1, vPrev, v);
         vPrev = v;
         iPrev = i;
@@ -1417,8 +1414,8 @@ PALP_AVX2_HOT void storeAvx(std::int32_t* p, __m256i v) noexcept {
 }
 
 /// marchLatticeScalar() eight samples at a time: the cells, blocks (one gather of the field's
-/// block offsets) and field distances (one byte gather) of samples i .. i + 7 in one step, at
-/// the same float positions, and the scalar blend only at samples whose distance is 0, in
+/// block entries, one of their mask words) of samples i .. i + 7 in one step, at the same float
+/// positions, and the scalar blend only at samples whose bit is set, in
 /// order. Bit-identical to marchLatticeScalar().
 __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
     const HitContext& cx, HitMarch& m) noexcept {
@@ -1428,14 +1425,15 @@ __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
     const __m256 qx = _mm256_set1_ps(l.qx), qy = _mm256_set1_ps(l.qy), qz = _mm256_set1_ps(l.qz);
     const __m256 sx = _mm256_set1_ps(l.sx), sy = _mm256_set1_ps(l.sy), sz = _mm256_set1_ps(l.sz);
     const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-    const __m256i seven = _mm256_set1_epi32(7), byte = _mm256_set1_epi32(0xFF);
+    const __m256i seven = _mm256_set1_epi32(7);
     const __m256i mx = _mm256_set1_epi32(static_cast<int>(cx.cellMax[0]));
     const __m256i my = _mm256_set1_epi32(static_cast<int>(cx.cellMax[1]));
     const __m256i mz = _mm256_set1_epi32(static_cast<int>(cx.cellMax[2]));
     const __m256i strideX = _mm256_set1_epi32(static_cast<int>(cx.strideX));
     const __m256i strideY = _mm256_set1_epi32(static_cast<int>(cx.strideY));
-    const auto* offsets = static_cast<const int*>(field.blockOffsetAddress(0));
-    const auto* dist = reinterpret_cast<const int*>(field.base());
+    const auto* entries = reinterpret_cast<const int*>(field.entries());
+    const auto* masks = reinterpret_cast<const int*>(field.masks());
+    const __m256i thirtyOne = _mm256_set1_epi32(31);
     alignas(32) float px[8], py[8], pz[8];
     alignas(32) std::int32_t cxs[8], cys[8], czs[8], bs[8];
     float vPrev = 0;
@@ -1466,16 +1464,21 @@ __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
             _mm256_add_epi32(_mm256_mullo_epi32(_mm256_srli_epi32(ux, 3), strideX),
                              _mm256_mullo_epi32(_mm256_srli_epi32(uy, 3), strideY)),
             _mm256_srli_epi32(uz, 3));
-        const __m256i off = _mm256_i32gather_epi32(offsets, b, 4);
+        // The samples' mask words (entry >> 5 is the mask index, 16 words each), and each
+        // sample's bit moved to the sign: cell l is bit l % 32 of word l / 32.
+        const __m256i e = _mm256_i32gather_epi32(entries, b, 4);
         const __m256i local =
             _mm256_or_si256(_mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(ux, seven), 6),
                                             _mm256_slli_epi32(_mm256_and_si256(uy, seven), 3)),
                             _mm256_and_si256(uz, seven));
-        const __m256i d =
-            _mm256_and_si256(_mm256_i32gather_epi32(dist, _mm256_add_epi32(off, local), 1), byte);
+        const __m256i word =
+            _mm256_add_epi32(_mm256_slli_epi32(_mm256_srli_epi32(e, HitField::kDistanceBits), 4),
+                             _mm256_srli_epi32(local, 5));
+        const __m256i bits =
+            _mm256_sllv_epi32(_mm256_i32gather_epi32(masks, word, 4),
+                              _mm256_sub_epi32(thirtyOne, _mm256_and_si256(local, thirtyOne)));
         const std::int32_t valid = std::min(l.n - i0, 8);
-        unsigned hot = static_cast<unsigned>(_mm256_movemask_ps(
-                           _mm256_castsi256_ps(_mm256_cmpeq_epi32(d, _mm256_setzero_si256())))) &
+        unsigned hot = static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(bits))) &
                        ((1u << valid) - 1u);
         const std::int32_t chunk = i0;
         i0 += 8;
@@ -1486,13 +1489,13 @@ __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
         storeAvx(cxs, ux);
         storeAvx(cys, uy);
         storeAvx(czs, uz);
-        storeAvx(bs, b);
+        storeAvx(bs, _mm256_srli_epi32(e, HitField::kDistanceBits));  // mask indices
         for (; hot != 0; hot &= hot - 1) {
             const int k = __builtin_ctz(hot);
             const std::int32_t i = chunk + k;
             const auto ax = static_cast<unsigned>(cxs[k]), ay = static_cast<unsigned>(cys[k]),
                        az = static_cast<unsigned>(czs[k]);
-            const float* copy = cx.tb->data[static_cast<std::size_t>(bs[k])];
+            const float* copy = field.maskCopy(static_cast<std::uint32_t>(bs[k]));
             const float v = lerp8(copy + (((ax & 7) * 9 + (ay & 7)) * 9 + (az & 7)),
                                   px[k] - static_cast<float>(ax), py[k] - static_cast<float>(ay),
                                   pz[k] - static_cast<float>(az));
@@ -1878,7 +1881,7 @@ void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstH
     out.count = bundle.valid ? std::clamp(bundle.count, 0, kMaxBundleRays) : 0;
     const HitContext cx(view, params);
 #ifdef PALP_RAY_AVX2
-    // HitContext admits a field only where its 32-bit gather offsets reach every distance.
+    // HitContext admits a field only where 32-bit gather indices reach every block.
     if (cx.field != nullptr && cx.simd) {
         traceFirstHitFieldAvx2(cx, bundle, out);
         return;

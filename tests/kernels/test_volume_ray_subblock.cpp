@@ -1,5 +1,5 @@
 // First-hit skipping inside blocks that cannot be skipped whole, by the view's 4^3 sub-block
-// bounds and by a HitField's per-cell distances: the bounds and distances themselves, and
+// bounds and by a HitField's per-cell bits: the bounds and bits themselves, and
 // bit-identical results with and without skipping, scalar and AVX2, with and without a field,
 // on volumes built so that thin bone slabs and single hot voxels sit on block and sub-block
 // faces, edges and corners, with rays along the axes and nearly parallel to the faces.
@@ -267,74 +267,61 @@ TEST(VolumeRaySubBlocks, HotVoxelOnASubBlockCornerIsHit) {
     }
 }
 
-// The field's distances: a cell at distance d > 0 has every cell within Chebyshev distance d - 1
-// in its block below the threshold at all eight corners (what lets the march pass over them),
-// and the distance is the smallest such: a cell at d <= 7 has a cell at exactly d that can reach
-// the threshold (a corner within the bound's hair of it). Blocks that cannot reach the threshold
-// share one map of kFar.
-TEST(VolumeRayHitField, DistancesBoundTheCellsThatCanReachTheThreshold) {
+// The field's cell bits: a cell's bit is set when its corner maximum reaches the threshold (what
+// lets the march pass over cells whose bit is clear), and only then, up to the bound's hair. Blocks
+// with no such cell share the all-clear mask 0, so a block "has a cell" exactly when its mask
+// differs from mask 0.
+TEST(VolumeRayHitField, CellBitsAndBlockDistancesBoundTheCellsThatCanReachTheThreshold) {
     const VolumeView view(makeGrid(3));
     const HitField field(view, kThreshold);
     const auto& tb = view.table();
-    const std::size_t copies = tb.paddedSize / VolumeView::Table::kPadded;
     auto cellMax = [&](const float* copy, int x, int y, int z) {
         float mx = -1e30f;
         for (int i = 0; i < 8; ++i)
             mx = std::max(mx, copy[((x + (i >> 2)) * 9 + y + ((i >> 1) & 1)) * 9 + z + (i & 1)]);
         return mx;
     };
-    std::size_t hot = 0;
-    int far = 0, near = 0;
-    for (std::size_t c = 0; c < copies; ++c) {
-        const float* copy = tb.padded + c * VolumeView::Table::kPadded;
-        const std::uint8_t* d = field.distances(c);
+    std::vector<const float*> hotCopies;
+    int set = 0, clear = 0;
+    for (std::size_t b = 0; b < tb.data.size(); ++b) {
+        const float* copy = tb.data[b];
         bool any = false;
         for (int x = 0; x < 8; ++x)
             for (int y = 0; y < 8; ++y)
-                for (int z = 0; z < 8; ++z) any = any || cellMax(copy, x, y, z) >= kThreshold;
-        hot += any ? 1 : 0;
-        if (!any) {
-            for (int i = 0; i < HitField::kCells; ++i) ASSERT_EQ(d[i], HitField::kFar);
-            continue;
-        }
-        for (int x = 0; x < 8; ++x)
-            for (int y = 0; y < 8; ++y)
                 for (int z = 0; z < 8; ++z) {
-                    const int dc = d[(x * 8 + y) * 8 + z];
-                    ASSERT_LE(dc, HitField::kFar);
-                    int nearest = 99;
-                    for (int a = 0; a < 8; ++a)
-                        for (int b = 0; b < 8; ++b)
-                            for (int e = 0; e < 8; ++e) {
-                                const int cheb =
-                                    std::max({std::abs(a - x), std::abs(b - y), std::abs(e - z)});
-                                const float mx = cellMax(copy, a, b, e);
-                                if (cheb < dc) {
-                                    ASSERT_LT(mx, kThreshold) << c << " " << x << y << z;
-                                }
-                                if (mx >= kThreshold - 1e-3f * 2000)
-                                    nearest = std::min(nearest, cheb);
-                            }
-                    if (dc < HitField::kFar) {
-                        ASSERT_EQ(nearest, dc) << c << " " << x << y << z;
+                    const float mx = cellMax(copy, x, y, z);
+                    const auto l = static_cast<unsigned>((x * 8 + y) * 8 + z);
+                    const bool bit = field.cellCanReach(b, l);
+                    if (mx >= kThreshold) {
+                        ASSERT_TRUE(bit) << b << " " << x << y << z;
                     }
-                    (dc >= 3 ? far : near) += 1;
+                    if (bit) {
+                        ASSERT_GE(mx, kThreshold - 1e-3f * 2000) << b << " " << x << y << z;
+                    }
+                    any = any || bit;
+                    (bit ? set : clear) += 1;
                 }
+        ASSERT_EQ(any, field.blockMask(b) != field.masks()) << b;
+        if (any) hotCopies.push_back(copy);
     }
-    EXPECT_EQ(field.hotCopies(), hot);
+    std::sort(hotCopies.begin(), hotCopies.end());
+    hotCopies.erase(std::unique(hotCopies.begin(), hotCopies.end()), hotCopies.end());
+    EXPECT_EQ(field.hotCopies(), hotCopies.size());
+    EXPECT_GT(set, 1000);  // the march has cells to blend, and cells to pass over
+    EXPECT_GT(clear, 1000);
     // Block distances: a block at D > 0 has no cell that can reach the threshold within D - 1
     // blocks around it, and one at exactly D unless D is the cap.
     const auto nb = tb.blocks;
     auto hasCell = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
         const auto b = static_cast<std::size_t>((x * nb[1] + y) * nb[2] + z);
-        return field.blockDistances(b) != field.base();
+        return field.blockMask(b) != field.masks();
     };
     int jumps = 0;
     for (std::int64_t x = 0; x < nb[0]; ++x)
         for (std::int64_t y = 0; y < nb[1]; ++y)
             for (std::int64_t z = 0; z < nb[2]; ++z) {
-                const int d =
-                    field.blockDistance(static_cast<std::size_t>((x * nb[1] + y) * nb[2] + z));
+                const auto d = static_cast<int>(
+                    field.blockDistance(static_cast<std::size_t>((x * nb[1] + y) * nb[2] + z)));
                 ASSERT_EQ(d == 0, hasCell(x, y, z)) << x << " " << y << " " << z;
                 int nearest = HitField::kFarBlocks;
                 for (std::int64_t a = 0; a < nb[0]; ++a)
@@ -349,7 +336,5 @@ TEST(VolumeRayHitField, DistancesBoundTheCellsThatCanReachTheThreshold) {
                 jumps += d >= 2 ? 1 : 0;
             }
     EXPECT_GT(jumps, 0);
-    EXPECT_GT(far, 1000);  // the march has long jumps to take, and short ones
-    EXPECT_GT(near, 1000);
     EXPECT_THROW(HitField(view, std::nanf("")), palp::ValueError);
 }

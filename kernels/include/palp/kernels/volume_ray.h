@@ -14,10 +14,11 @@
 /// the threshold.
 /// Skipping never changes a result: samples stay on the lattice t_k = k * step.
 ///
-/// First-hit's fast path takes a HitField built at set-up for the threshold (per-cell and
-/// per-block distances to the cells that can reach it) and marches each ray's samples eight at
-/// a time; it agrees with the block-run path to float rounding (see HitField). Applications
-/// that trace first-hit bundles every servo tick should build one (haptics::Session does).
+/// First-hit's fast path takes a HitField built at set-up for the threshold (a bit per cell that
+/// can reach it, and per-block distances to the blocks that have one) and marches each ray's
+/// samples eight at a time; it agrees with the block-run path to float rounding (see HitField).
+/// Applications that trace first-hit bundles every servo tick should build one (haptics::Session
+/// does).
 
 #include <openvdb/openvdb.h>
 
@@ -118,14 +119,14 @@ class VolumeView {
 };
 
 /// First-hit acceleration for one threshold (the fast path of firstHit() and traceFirstHit()).
-/// It holds, for every cell of every padded block copy of a VolumeView that can reach the
-/// threshold, the Chebyshev distance (in cells, within the block, at most 8) to the nearest cell
-/// whose trilinear values can reach it (its corner maximum, raised by the same hair as the 4^3
-/// sub-block bounds), and for every block the Chebyshev distance in blocks (at most kFarBlocks)
-/// to the nearest block that has such a cell.
+/// It holds, for every padded block copy of a VolumeView that can reach the threshold, one bit
+/// per cell: set when the cell's trilinear values can reach it (its corner maximum, raised by the
+/// same hair as the 4^3 sub-block bounds); and for every table block one 32-bit entry with the
+/// index of its copy's mask and the Chebyshev distance in blocks (at most kFarBlocks) to the
+/// nearest block that has such a cell.
 ///
 /// With a field the march takes the ray's samples on one float lattice in table coordinates
-/// (not re-anchored per block), eight at a time with AVX2: the cells, blocks and distances of
+/// (not re-anchored per block), eight at a time with AVX2: the cells, blocks and mask bits of
 /// eight samples in one step, the blend only at samples in cells that can reach the threshold,
 /// and a jump over the samples that stay among blocks with none. Rays through soft tissue next
 /// to bone cost a few vector steps instead of a block entry per 8^3 block and a blend per half
@@ -136,16 +137,18 @@ class VolumeView {
 /// amplify position rounding). With a field, scalar and AVX2, bundle and single ray give the
 /// same bits.
 ///
-/// Built at set-up, off the servo thread (one byte per cell of the blocks that can reach the
-/// threshold; `palp bench rays` prints the size and the build time); a threshold change needs a
-/// new field, and a march whose threshold differs from the field's ignores it.
+/// Built at set-up, off the servo thread: 64 bytes (one cache line) per block copy that can
+/// reach the threshold and 4 bytes per table block (`palp bench rays` prints the size and the
+/// build time). A threshold change needs a new field, and a march whose threshold differs from
+/// the field's ignores it.
 ///
 /// @par Threading  Immutable after construction; any number of threads may trace with it.
 ///      The view must outlive the field.
 /// @par Real-time  Construction allocates (set-up only); reading is noexcept.
 class HitField {
   public:
-    /// @throw palp::ValueError for a NaN threshold, or a field above 4 GiB.
+    /// @throw palp::ValueError for a NaN threshold, or more block copies than the 27-bit mask
+    ///        index holds.
     HitField(const VolumeView& view, float threshold);
     HitField(const HitField&) = delete;
     HitField& operator=(const HitField&) = delete;
@@ -158,44 +161,53 @@ class HitField {
     }
     /// Heap bytes held.
     std::size_t bytes() const noexcept {
-        return mDistance.capacity() + mBlockDistance.capacity() +
-               (mOffset.capacity() + mBlockOffset.capacity()) * sizeof(std::uint32_t);
+        return mMask.capacity() * sizeof(MaskLine) + mEntry.capacity() * sizeof(std::uint32_t) +
+               mCopy.capacity() * sizeof(const float*);
     }
     /// Block copies that have at least one cell that can reach the threshold.
     std::size_t hotCopies() const noexcept { return mHotCopies; }
 
     // Internal layout, read by the marcher.
-    /// The 512 distances of padded copy @p copy (cell (x, y, z) at (x * 8 + y) * 8 + z).
-    const std::uint8_t* distances(std::size_t copy) const noexcept {
-        return mDistance.data() + mOffset[copy];
-    }
-    /// The same for the copy of table block @p block (one load that does not wait for the
-    /// block's copy pointer).
-    const std::uint8_t* blockDistances(std::size_t block) const noexcept {
-        return mDistance.data() + mBlockOffset[block];
-    }
-    /// Per table block: 0 when the block has a cell that can reach the threshold, else the
-    /// Chebyshev distance in blocks to the nearest block that has one (at most kFarBlocks): the
-    /// (2D - 1)^3 blocks around a block at distance D hold no such cell.
-    std::uint8_t blockDistance(std::size_t block) const noexcept { return mBlockDistance[block]; }
-    static constexpr std::uint8_t kFarBlocks = 16;
-    /// Where blockDistances() reads its offset (for prefetching).
-    const void* blockOffsetAddress(std::size_t block) const noexcept {
-        return mBlockOffset.data() + block;
-    }
-    /// Start of the buffer that holds every copy's distances (3 readable bytes past the end, so
-    /// a 32-bit gather can read any distance).
-    const std::uint8_t* base() const noexcept { return mDistance.data(); }
     static constexpr int kCells = 512;
-    static constexpr std::uint8_t kFar = 8;  ///< no cell of the block can reach the threshold
+    static constexpr int kMaskWords = kCells / 32;  ///< 16 words: one 64-byte cache line
+    static constexpr std::uint8_t kFarBlocks = 16;
+    static constexpr int kDistanceBits = 5;  ///< low bits of an entry: the block distance
+    /// Table block @p block's entry: (mask index << kDistanceBits) | block distance. Mask 0 is
+    /// all clear (the blocks with no cell that can reach the threshold share it).
+    std::uint32_t entry(std::size_t block) const noexcept { return mEntry[block]; }
+    /// 0 when the block has a cell that can reach the threshold, else the Chebyshev distance in
+    /// blocks to the nearest block that has one (at most kFarBlocks): the (2D - 1)^3 blocks
+    /// around a block at distance D hold no such cell.
+    unsigned blockDistance(std::size_t block) const noexcept {
+        return mEntry[block] & ((1u << kDistanceBits) - 1u);
+    }
+    /// The 16-word mask of table block @p block's copy: cell (x, y, z), local index
+    /// l = (x * 8 + y) * 8 + z, is bit l % 32 of word l / 32.
+    const std::uint32_t* blockMask(std::size_t block) const noexcept {
+        return mMask[mEntry[block] >> kDistanceBits].w;
+    }
+    /// True when cell @p local (as in blockMask()) of table block @p block can reach the
+    /// threshold.
+    bool cellCanReach(std::size_t block, unsigned local) const noexcept {
+        return ((blockMask(block)[local >> 5] >> (local & 31u)) & 1u) != 0;
+    }
+    /// The padded block copy (as VolumeView::Table::data) of mask index @p mask > 0: a small
+    /// array (8 bytes per copy that can reach the threshold) that stays cached where the table's
+    /// pointers (8 bytes per table block) would miss.
+    const float* maskCopy(std::uint32_t mask) const noexcept { return mCopy[mask]; }
+    /// The entries (per table block) and the masks (16 words per mask index), for gathers.
+    const std::uint32_t* entries() const noexcept { return mEntry.data(); }
+    const std::uint32_t* masks() const noexcept { return mMask.front().w; }
 
   private:
+    struct alignas(64) MaskLine {
+        std::uint32_t w[kMaskWords];
+    };
     const VolumeView* mView;
     float mThreshold;
-    std::vector<std::uint32_t> mOffset;        ///< per copy: byte offset of its distances
-    std::vector<std::uint32_t> mBlockOffset;   ///< per table block: the same, for its copy
-    std::vector<std::uint8_t> mBlockDistance;  ///< per table block: blockDistance()
-    std::vector<std::uint8_t> mDistance;
+    std::vector<std::uint32_t> mEntry;  ///< per table block: entry()
+    std::vector<MaskLine> mMask;        ///< per mask index (0: all clear)
+    std::vector<const float*> mCopy;    ///< per mask index: maskCopy()
     std::size_t mHotCopies = 0;
 };
 
