@@ -7,6 +7,9 @@
 // a HitField and prints how far the two paths' hits differ.
 // and prints the number of rays hit (so the work cannot be optimised away).
 //
+// With `sequence` it times each bundle's first trace and an immediate second one, in the
+// bench's order (how much of a frame is new data and new branches).
+//
 // With `percentiles` (or `percentiles-cold`) as the fifth argument it times every bundle on the
 // thread CPU clock instead (best of 5 back-to-back calls: hot caches; or one call after writing
 // 8 MiB: cold caches) and prints mean, p50, p90, p99 and p99.9 of the per-bundle time, each
@@ -230,6 +233,30 @@ int main(int argc, char** argv) {
                 "%ld rays, %ld hits; field vs no field: %ld hit/miss differences, largest "
                 "t difference %.2e voxel\n",
                 rays, hits, hitMismatch, worst);
+            return 0;
+        }
+        if (mode == "sequence") {
+            // Each bundle traced once in the bench's order (no baseline in between), then again
+            // at once: the first trace finds the data of the frames before and branch history
+            // from other bundles; the second, this bundle's own.
+            std::vector<double> first, second;
+            BundleHits h;
+            for (const auto& bundle : bundles) {
+                double c0 = cpuUs();
+                traceFirstHit(view, bundle, fp, h);
+                first.push_back(cpuUs() - c0);
+                c0 = cpuUs();
+                traceFirstHit(view, bundle, fp, h);
+                second.push_back(cpuUs() - c0);
+            }
+            for (auto* v : {&first, &second}) {
+                double sum = 0;
+                for (const double x : *v) sum += x;
+                std::sort(v->begin(), v->end());
+                std::printf("%s trace: mean %.2f us, p50 %.2f, p99 %.2f\n",
+                            v == &first ? "first " : "second", sum / static_cast<double>(v->size()),
+                            (*v)[v->size() / 2], (*v)[v->size() * 99 / 100]);
+            }
             return 0;
         }
         if (mode == "percentiles" || mode == "percentiles-cold" || mode == "slowest") {

@@ -1413,6 +1413,18 @@ PALP_AVX2_HOT void storeAvx(std::int32_t* p, __m256i v) noexcept {
     _mm256_store_si256(reinterpret_cast<__m256i*>(p), v);
 }
 
+/// A lattice step blends its samples in cells that can reach the threshold all eight at once
+/// (gathers) from this many on, one by one below.
+#ifndef PALP_VECTOR_BLEND_LANES
+#define PALP_VECTOR_BLEND_LANES 5
+#endif
+constexpr int kVectorBlendLanes = PALP_VECTOR_BLEND_LANES;
+
+/// The floats at @p base + @p o + @p c in each lane.
+PALP_AVX2_HOT __m256 gatherCorner(const float* base, __m256i o, int c) noexcept {
+    return _mm256_i32gather_ps(base, _mm256_add_epi32(o, _mm256_set1_epi32(c)), 4);
+}
+
 /// marchLatticeScalar() eight samples at a time: the cells, blocks (one gather of the field's
 /// block entries, one of their mask words) of samples i .. i + 7 in one step, at the same float
 /// positions, and the scalar blend only at samples whose bit is set, in
@@ -1434,6 +1446,10 @@ __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
     const auto* entries = reinterpret_cast<const int*>(field.entries());
     const auto* masks = reinterpret_cast<const int*>(field.masks());
     const __m256i thirtyOne = _mm256_set1_epi32(31);
+    const __m256i nine = _mm256_set1_epi32(9);
+    const __m256 thr = _mm256_set1_ps(cx.thr);
+    const std::int32_t* copyOffsets = field.maskCopyOffsets();
+    const bool vectorBlend = cx.tb->paddedSize < (std::size_t{1} << 31) - 1024;
     alignas(32) float px[8], py[8], pz[8];
     alignas(32) std::int32_t cxs[8], cys[8], czs[8], bs[8];
     float vPrev = 0;
@@ -1483,6 +1499,49 @@ __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
         const std::int32_t chunk = i0;
         i0 += 8;
         if (hot == 0) continue;
+        if (vectorBlend && __builtin_popcount(hot) >= kVectorBlendLanes) {
+            // All eight samples blended at once (lanes in blocks with no such cell read copy 0
+            // and are masked out): no branch per sample; the same float operations as lerp8().
+            const __m256i copyOff = _mm256_i32gather_epi32(
+                copyOffsets, _mm256_srli_epi32(e, HitField::kDistanceBits), 4);
+            const __m256i o = _mm256_add_epi32(
+                copyOff,
+                _mm256_add_epi32(
+                    _mm256_mullo_epi32(
+                        _mm256_add_epi32(_mm256_mullo_epi32(_mm256_and_si256(ux, seven), nine),
+                                         _mm256_and_si256(uy, seven)),
+                        nine),
+                    _mm256_and_si256(uz, seven)));
+            const float* base = cx.tb->padded;
+            const __m256 fx = _mm256_sub_ps(vx, _mm256_cvtepi32_ps(ux));
+            const __m256 fy = _mm256_sub_ps(vy, _mm256_cvtepi32_ps(uy));
+            const __m256 fz = _mm256_sub_ps(vz, _mm256_cvtepi32_ps(uz));
+            const __m256 a00 = lerpAvx(gatherCorner(base, o, 0), gatherCorner(base, o, 81), fx);
+            const __m256 a01 = lerpAvx(gatherCorner(base, o, 1), gatherCorner(base, o, 82), fx);
+            const __m256 a10 = lerpAvx(gatherCorner(base, o, 9), gatherCorner(base, o, 90), fx);
+            const __m256 a11 = lerpAvx(gatherCorner(base, o, 10), gatherCorner(base, o, 91), fx);
+            const __m256 val = lerpAvx(lerpAvx(a00, a10, fy), lerpAvx(a01, a11, fy), fz);
+            const unsigned hits =
+                static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(val, thr, _CMP_GE_OQ))) &
+                hot;
+            alignas(32) float vals[8];
+            _mm256_store_ps(vals, val);
+            if (hits != 0) {
+                const int k = __builtin_ctz(hits);
+                const std::int32_t i = chunk + k;
+                // The sample blended before it: the last hot lane before k, else the chunks'.
+                if (const unsigned before = hot & ((1u << k) - 1u); before != 0) {
+                    const int kp = 31 - __builtin_clz(before);
+                    vPrev = vals[kp];
+                    iPrev = chunk + kp;
+                }
+                return latticeHitAt(cx, m, l, i, iPrev == i - 1, vPrev, vals[k]);
+            }
+            const int kl = 31 - __builtin_clz(hot);
+            vPrev = vals[kl];
+            iPrev = chunk + kl;
+            continue;
+        }
         _mm256_store_ps(px, vx);
         _mm256_store_ps(py, vy);
         _mm256_store_ps(pz, vz);

@@ -162,7 +162,8 @@ class HitField {
     /// Heap bytes held.
     std::size_t bytes() const noexcept {
         return mMask.capacity() * sizeof(MaskLine) + mEntry.capacity() * sizeof(std::uint32_t) +
-               mCopy.capacity() * sizeof(const float*);
+               mCopy.capacity() * sizeof(const float*) +
+               mCopyOffset.capacity() * sizeof(std::int32_t);
     }
     /// Block copies that have at least one cell that can reach the threshold.
     std::size_t hotCopies() const noexcept { return mHotCopies; }
@@ -195,6 +196,9 @@ class HitField {
     /// array (8 bytes per copy that can reach the threshold) that stays cached where the table's
     /// pointers (8 bytes per table block) would miss.
     const float* maskCopy(std::uint32_t mask) const noexcept { return mCopy[mask]; }
+    /// The same as an offset in floats from VolumeView::Table::padded (mask 0: 0), for gathers;
+    /// valid when the padded buffer has fewer than 2^31 - 1024 floats.
+    const std::int32_t* maskCopyOffsets() const noexcept { return mCopyOffset.data(); }
     /// The entries (per table block) and the masks (16 words per mask index), for gathers.
     const std::uint32_t* entries() const noexcept { return mEntry.data(); }
     const std::uint32_t* masks() const noexcept { return mMask.front().w; }
@@ -205,9 +209,10 @@ class HitField {
     };
     const VolumeView* mView;
     float mThreshold;
-    std::vector<std::uint32_t> mEntry;  ///< per table block: entry()
-    std::vector<MaskLine> mMask;        ///< per mask index (0: all clear)
-    std::vector<const float*> mCopy;    ///< per mask index: maskCopy()
+    std::vector<std::uint32_t> mEntry;      ///< per table block: entry()
+    std::vector<MaskLine> mMask;            ///< per mask index (0: all clear)
+    std::vector<const float*> mCopy;        ///< per mask index: maskCopy()
+    std::vector<std::int32_t> mCopyOffset;  ///< per mask index: maskCopyOffsets()
     std::size_t mHotCopies = 0;
 };
 
