@@ -1430,9 +1430,7 @@ PALP_AVX2_HOT __m256 gatherCorner(const float* base, __m256i o, int c) noexcept 
 /// positions, and the scalar blend only at samples whose bit is set, in
 /// order. Bit-identical to marchLatticeScalar().
 __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
-    const HitContext& cx, HitMarch& m) noexcept {
-    Lattice l;
-    startLattice(m, l);
+    const HitContext& cx, HitMarch& m, const Lattice& l) noexcept {
     const HitField& field = *cx.field;
     const __m256 qx = _mm256_set1_ps(l.qx), qy = _mm256_set1_ps(l.qy), qz = _mm256_set1_ps(l.qz);
     const __m256 sx = _mm256_set1_ps(l.sx), sy = _mm256_set1_ps(l.sy), sz = _mm256_set1_ps(l.sz);
@@ -1568,22 +1566,54 @@ __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
 
 __attribute__((target("avx2"))) RayHit marchLatticeAvx2Call(const HitContext& cx,
                                                             HitMarch& m) noexcept {
-    return marchLatticeAvx2(cx, m);
+    Lattice l;
+    startLattice(m, l);
+    return marchLatticeAvx2(cx, m, l);
 }
+
+/// One ray of a bundle, set up (startHit(), startLattice()) before any ray is marched.
+struct LatticeRay {
+    HitMarch m;
+    Lattice l;
+    RayHit h;
+    bool ok;
+};
+
+/// Up to kMaxBundleRays LatticeRays in uninitialised storage.
+struct LatticeRays {
+    alignas(LatticeRay) unsigned char bytes[sizeof(LatticeRay) * kMaxBundleRays];
+    LatticeRay& operator[](int i) noexcept {
+        return *std::launder(reinterpret_cast<LatticeRay*>(bytes) + i);
+    }
+    LatticeRay& make(int i) noexcept {
+        return *::new (static_cast<void*>(bytes + static_cast<std::size_t>(i) * sizeof(LatticeRay)))
+            LatticeRay;
+    }
+};
+// On the tracing thread's stack, with the Refinements: a servo thread's default stack holds both
+// many times over.
+static_assert(sizeof(LatticeRays) <= 32 * 1024 && sizeof(Refinements) <= 32 * 1024);
 
 /// The bundle with a HitField on a CPU with AVX2: each ray's lattice march in one AVX2 function.
 __attribute__((target("avx2"))) void traceFirstHitFieldAvx2(const HitContext& cx,
                                                             const RayBundle& bundle,
                                                             BundleHits& out) noexcept {
     prefetchPath(cx, bundle);
-    HitMarch m;  // startHit() sets every field a lattice march reads
+    // Every ray's set-up first: a chain of dependent divisions and roundings per ray that
+    // overlaps across rays here, where between marches it would wait on each ray's last branch.
+    LatticeRays rays;
+    for (int i = 0; i < out.count; ++i) {
+        LatticeRay& r = rays.make(i);
+        r.ok = startBundleRay(cx, bundle, i, r.m, r.h);
+        if (r.ok) startLattice(r.m, r.l);
+    }
     Refinements refs;
     for (int i = 0; i < out.count; ++i) {
-        RayHit h;
-        m.ref = refs.next();
-        if (startBundleRay(cx, bundle, i, m, h)) h = marchLatticeAvx2(cx, m);
+        LatticeRay& r = rays[i];
+        r.m.ref = refs.next();
+        const RayHit h = r.ok ? marchLatticeAvx2(cx, r.m, r.l) : r.h;
         storeHit(out, i, h);
-        if (h.hit && m.pending) refs.commit(i);
+        if (h.hit && r.m.pending) refs.commit(i);
     }
     _mm256_zeroupper();  // the refinement is SSE code
     refineAll(cx, refs, out.t.data());
