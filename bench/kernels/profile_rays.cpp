@@ -7,8 +7,11 @@
 // a HitField and prints how far the two paths' hits differ.
 // and prints the number of rays hit (so the work cannot be optimised away).
 //
-// With `sequence` it times each bundle's first trace and an immediate second one, in the
-// bench's order (how much of a frame is new data and new branches).
+// With `sequence` (and `field`) it times each bundle's first trace and an immediate second one,
+// in the bench's order (how much of a frame is new data and new branches); with `sequence
+// reversed` the first trace is of the bundle with its rays in reverse order (the same data,
+// other branch history), so the second trace's time less the plain second trace's is what
+// branch history costs.
 //
 // With `percentiles` (or `percentiles-cold`) as the fifth argument it times every bundle on the
 // thread CPU clock instead (best of 5 back-to-back calls: hot caches; or one call after writing
@@ -177,7 +180,8 @@ int main(int argc, char** argv) {
         const std::string mode = argc > 5 ? argv[5] : "";
         bool useField = false, scalar = mode == "scalar";
         for (int a = 6; a < argc; ++a) {
-            useField = useField || std::string(argv[a]) == "field";
+            useField =
+                useField || std::string(argv[a]) == "field" || std::string(argv[a]) == "reversed";
             scalar = scalar || std::string(argv[a]) == "scalar";
         }
         RayBenchOptions o;
@@ -239,11 +243,27 @@ int main(int argc, char** argv) {
             // Each bundle traced once in the bench's order (no baseline in between), then again
             // at once: the first trace finds the data of the frames before and branch history
             // from other bundles; the second, this bundle's own.
+            // With "reversed" the first trace is of the bundle with its rays in reverse order
+            // (the same data, other branch history), then the bundle itself is timed.
+            const bool reversed = argc > 6 && std::string(argv[6]) == "reversed";
             std::vector<double> first, second;
             BundleHits h;
+            RayBundle rev;
             for (const auto& bundle : bundles) {
+                rev = bundle;
+                for (int r = 0; r < bundle.count; ++r) {
+                    const auto a = static_cast<std::size_t>(r),
+                               b = static_cast<std::size_t>(bundle.count - 1 - r);
+                    rev.ox[a] = bundle.ox[b];
+                    rev.oy[a] = bundle.oy[b];
+                    rev.oz[a] = bundle.oz[b];
+                    rev.dx[a] = bundle.dx[b];
+                    rev.dy[a] = bundle.dy[b];
+                    rev.dz[a] = bundle.dz[b];
+                    rev.length[a] = bundle.length[b];
+                }
                 double c0 = cpuUs();
-                traceFirstHit(view, bundle, fp, h);
+                traceFirstHit(view, reversed ? rev : bundle, fp, h);
                 first.push_back(cpuUs() - c0);
                 c0 = cpuUs();
                 traceFirstHit(view, bundle, fp, h);
