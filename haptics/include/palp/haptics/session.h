@@ -225,7 +225,7 @@ class Session final : public ServoTask {
     /// Producer: queue a command; false when the queue is full (nothing queued). A coupling
     /// (SetCoupling, SetAll) is first limited to the device (limitStiffnessToDevice), and its
     /// first-hit march gets the session's kernels::HitField for its threshold: built here the
-    /// first time a threshold is used (tens of ms and about 10 MiB on a 0.5 mm head CT; the
+    /// first time a threshold is used (about 35 ms and 2 MiB on a 0.5 mm head CT; the
     /// session keeps up to 8, later thresholds march without one, same results to rounding).
     /// @throw palp::ValueError for invalid parameters (checked here, off the servo thread;
     /// nothing is queued).
