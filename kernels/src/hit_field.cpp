@@ -64,12 +64,12 @@ HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThr
     mMask.assign(hot.size() + 1, MaskLine{});
     mCopy.assign(hot.size() + 1, nullptr);
     mCopyOffset.assign(hot.size() + 1, 0);
-    const bool offsets = tb.paddedSize < (std::size_t{1} << 31) - 1024;
+    mCopyOffsetsValid = tb.paddedSize < (std::size_t{1} << 31) - 1024;
     for (std::size_t h = 0; h < hot.size(); ++h) {
         maskOf[hot[h]] = static_cast<std::uint32_t>(h + 1);
         const std::size_t at = hot[h] * static_cast<std::size_t>(Table::kPadded);
         mCopy[h + 1] = tb.padded + at;
-        mCopyOffset[h + 1] = offsets ? static_cast<std::int32_t>(at) : 0;
+        mCopyOffset[h + 1] = mCopyOffsetsValid ? static_cast<std::int32_t>(at) : 0;
     }
     const float* padded = tb.padded;
     const float* subMax = tb.subMax;

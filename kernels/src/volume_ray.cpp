@@ -1447,7 +1447,7 @@ __attribute__((target("avx2"), always_inline)) inline RayHit marchLatticeAvx2(
     const __m256i nine = _mm256_set1_epi32(9);
     const __m256 thr = _mm256_set1_ps(cx.thr);
     const std::int32_t* copyOffsets = field.maskCopyOffsets();
-    const bool vectorBlend = cx.tb->paddedSize < (std::size_t{1} << 31) - 1024;
+    const bool vectorBlend = field.copyOffsetsValid();
     alignas(32) float px[8], py[8], pz[8];
     alignas(32) std::int32_t cxs[8], cys[8], czs[8], bs[8];
     float vPrev = 0;

@@ -199,6 +199,9 @@ class HitField {
     /// The same as an offset in floats from VolumeView::Table::padded (mask 0: 0), for gathers;
     /// valid when the padded buffer has fewer than 2^31 - 1024 floats.
     const std::int32_t* maskCopyOffsets() const noexcept { return mCopyOffset.data(); }
+    /// True when maskCopyOffsets() holds the offsets (the padded buffer has fewer than
+    /// 2^31 - 1024 floats, so 32-bit gathers reach every copy); else they are all 0.
+    bool copyOffsetsValid() const noexcept { return mCopyOffsetsValid; }
     /// The entries (per table block) and the masks (16 words per mask index), for gathers.
     const std::uint32_t* entries() const noexcept { return mEntry.data(); }
     const std::uint32_t* masks() const noexcept { return mMask.front().w; }
@@ -213,6 +216,7 @@ class HitField {
     std::vector<MaskLine> mMask;            ///< per mask index (0: all clear)
     std::vector<const float*> mCopy;        ///< per mask index: maskCopy()
     std::vector<std::int32_t> mCopyOffset;  ///< per mask index: maskCopyOffsets()
+    bool mCopyOffsetsValid = false;
     std::size_t mHotCopies = 0;
 };
 
