@@ -1236,7 +1236,14 @@ void prefetchPath(const HitContext& cx, const RayBundle& bundle) noexcept {
             __builtin_prefetch(base + c + 81);
             __builtin_prefetch(base + c + 91);
         }
-        if (cx.field != nullptr) __builtin_prefetch(cx.field->blockMask(b));
+        if (cx.field != nullptr) {
+            // The mask, and the per-mask copy offset and pointer that a blend reads between
+            // the entry and the copy (otherwise one more dependent miss per block).
+            const std::uint32_t mask = cx.field->entry(b) >> HitField::kDistanceBits;
+            __builtin_prefetch(cx.field->masks() + mask * HitField::kMaskWords);
+            __builtin_prefetch(cx.field->maskCopyOffsets() + mask);
+            __builtin_prefetch(cx.field->maskCopies() + mask);
+        }
     }
 }
 

@@ -199,6 +199,8 @@ class HitField {
     /// The same as an offset in floats from VolumeView::Table::padded (mask 0: 0), for gathers;
     /// valid when the padded buffer has fewer than 2^31 - 1024 floats.
     const std::int32_t* maskCopyOffsets() const noexcept { return mCopyOffset.data(); }
+    /// maskCopy() of every mask index, as an array (for prefetching).
+    const float* const* maskCopies() const noexcept { return mCopy.data(); }
     /// True when maskCopyOffsets() holds the offsets (the padded buffer has fewer than
     /// 2^31 - 1024 floats, so 32-bit gathers reach every copy); else they are all 0.
     bool copyOffsetsValid() const noexcept { return mCopyOffsetsValid; }
