@@ -11,7 +11,13 @@
 // in the bench's order (how much of a frame is new data and new branches); with `sequence
 // reversed` the first trace is of the bundle with its rays in reverse order (the same data,
 // other branch history), so the second trace's time less the plain second trace's is what
-// branch history costs.
+// branch history costs. Both on the wall clock: reading the thread CPU clock is a system call
+// that costs more than a bundle on some virtual machines.
+//
+// With `flush WHAT field` each bundle is traced once, then the cache lines its march read from
+// the arrays named in WHAT (e: the field's entries, m: its masks, c: the blended cells' corners
+// in the block copies, t: the table's per-block arrays and the per-mask copy offsets; `none`)
+// are flushed with clflush and the bundle is traced again: what those arrays' misses alone cost.
 //
 // With `percentiles` (or `percentiles-cold`) as the fifth argument it times every bundle on the
 // thread CPU clock instead (best of 5 back-to-back calls: hot caches; or one call after writing
@@ -19,7 +25,10 @@
 // with the average make-up of the samples up to the hit of the ten bundles around it: in a
 // skippable block, in a 4^3 sub-block below the threshold, in a cell whose eight corners are all
 // below it, or none of these.
+#include <immintrin.h>
+
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -40,6 +49,22 @@ double cpuUs() {
     timespec ts{};
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
     return static_cast<double>(ts.tv_sec) * 1e6 + static_cast<double>(ts.tv_nsec) * 1e-3;
+}
+
+double wallUs() {
+    return std::chrono::duration<double, std::micro>(
+               std::chrono::steady_clock::now().time_since_epoch())
+        .count();
+}
+
+/// Prints mean, p50, p90 and p99 of @p us (sorted here).
+void printTimes(const char* label, std::vector<double>& us) {
+    double sum = 0;
+    for (const double x : us) sum += x;
+    std::sort(us.begin(), us.end());
+    std::printf("%s: mean %.2f us, p50 %.2f, p90 %.2f, p99 %.2f\n", label,
+                sum / static_cast<double>(us.size()), us[us.size() / 2], us[us.size() * 9 / 10],
+                us[us.size() * 99 / 100]);
 }
 
 struct BundleProfile {
@@ -93,6 +118,48 @@ void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits
                 mx = std::max(mx,
                               copy[((lx + (n >> 2)) * 9 + ly + ((n >> 1) & 1)) * 9 + lz + (n & 1)]);
             (mx < thr ? p.cell : p.must) += 1;
+        }
+    }
+}
+
+/// The cache lines a bundle's lattice march reads up to each ray's hit, by array: the field's
+/// entries, its masks, and the block copies' corners of the cells it blends.
+struct TouchedLines {
+    std::vector<const void*> entries, masks, copies, tables;
+};
+
+void touchedLines(const VolumeView& view, const HitField& field, const RayBundle& b,
+                  const BundleHits& hits, double step, TouchedLines& out) {
+    const auto& tb = view.table();
+    for (int r = 0; r < b.count; ++r) {
+        const auto i = static_cast<std::size_t>(r);
+        const Eigen::Vector3d o(b.ox[i], b.oy[i], b.oz[i]);
+        const Eigen::Vector3d d = Eigen::Vector3d(b.dx[i], b.dy[i], b.dz[i]).normalized();
+        const double len = b.length[i];
+        const double tEnd = hits.hit[i] ? static_cast<double>(hits.t[i]) : len;
+        const auto kEnd = static_cast<int>(std::ceil(tEnd / step - 1e-9));
+        for (int k = 0; k <= kEnd; ++k) {
+            const Eigen::Vector3d x = view.indexFromWorld(o + std::min(k * step, len) * d);
+            const auto ix = static_cast<long>(std::floor(x.x())) - tb.origin[0];
+            const auto iy = static_cast<long>(std::floor(x.y())) - tb.origin[1];
+            const auto iz = static_cast<long>(std::floor(x.z())) - tb.origin[2];
+            if (ix < 0 || iy < 0 || iz < 0 || (ix >> 3) >= tb.blocks[0] ||
+                (iy >> 3) >= tb.blocks[1] || (iz >> 3) >= tb.blocks[2])
+                continue;
+            const auto blk = static_cast<std::size_t>(
+                ((ix >> 3) * tb.blocks[1] + (iy >> 3)) * tb.blocks[2] + (iz >> 3));
+            out.entries.push_back(field.entries() + blk);
+            out.tables.push_back(tb.data.data() + blk);
+            out.tables.push_back(tb.maxDilated.data() + blk);
+            out.tables.push_back(field.maskCopyOffsets() +
+                                 (field.entry(blk) >> HitField::kDistanceBits));
+            if (field.blockDistance(blk) != 0) continue;
+            out.masks.push_back(field.blockMask(blk));
+            const long lx = ix & 7, ly = iy & 7, lz = iz & 7;
+            if (!field.cellCanReach(blk, static_cast<unsigned>((lx * 8 + ly) * 8 + lz))) continue;
+            const float* c = field.maskCopy(field.entry(blk) >> HitField::kDistanceBits) +
+                             (lx * 9 + ly) * 9 + lz;
+            for (const int off : {0, 1, 9, 10, 81, 82, 90, 91}) out.copies.push_back(c + off);
         }
     }
 }
@@ -262,21 +329,48 @@ int main(int argc, char** argv) {
                     rev.dz[a] = bundle.dz[b];
                     rev.length[a] = bundle.length[b];
                 }
-                double c0 = cpuUs();
+                double c0 = wallUs();
                 traceFirstHit(view, reversed ? rev : bundle, fp, h);
-                first.push_back(cpuUs() - c0);
-                c0 = cpuUs();
+                first.push_back(wallUs() - c0);
+                c0 = wallUs();
                 traceFirstHit(view, bundle, fp, h);
-                second.push_back(cpuUs() - c0);
+                second.push_back(wallUs() - c0);
             }
-            for (auto* v : {&first, &second}) {
-                double sum = 0;
-                for (const double x : *v) sum += x;
-                std::sort(v->begin(), v->end());
-                std::printf("%s trace: mean %.2f us, p50 %.2f, p99 %.2f\n",
-                            v == &first ? "first " : "second", sum / static_cast<double>(v->size()),
-                            (*v)[v->size() / 2], (*v)[v->size() * 99 / 100]);
+            printTimes("first  trace", first);
+            printTimes("second trace", second);
+            return 0;
+        }
+        if (mode == "flush" && field) {
+            // Each bundle traced once, then the lines of the arrays named in argv[6] that its
+            // march reads are flushed from every cache level, and the bundle is traced again.
+            // (The first trace here follows the previous bundle's walk below, not its trace.)
+            const std::string what = argc > 6 ? argv[6] : "none";
+            std::vector<double> us, firstUs;
+            BundleHits h;
+            TouchedLines lines;
+            for (const auto& bundle : bundles) {
+                double c0 = wallUs();
+                traceFirstHit(view, bundle, fp, h);
+                firstUs.push_back(wallUs() - c0);
+                lines.entries.clear();
+                lines.masks.clear();
+                lines.copies.clear();
+                lines.tables.clear();
+                touchedLines(view, *field, bundle, h, fp.step, lines);
+                auto flush = [](const std::vector<const void*>& v) {
+                    for (const void* a : v) _mm_clflush(a);
+                };
+                if (what.find('e') != std::string::npos) flush(lines.entries);
+                if (what.find('m') != std::string::npos) flush(lines.masks);
+                if (what.find('c') != std::string::npos) flush(lines.copies);
+                if (what.find('t') != std::string::npos) flush(lines.tables);
+                _mm_mfence();
+                c0 = wallUs();
+                traceFirstHit(view, bundle, fp, h);
+                us.push_back(wallUs() - c0);
             }
+            printTimes("first trace ", firstUs);
+            printTimes(("flushed " + what).c_str(), us);
             return 0;
         }
         if (mode == "percentiles" || mode == "percentiles-cold" || mode == "slowest") {
