@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <new>
 #include <string>
@@ -1601,6 +1602,153 @@ struct LatticeRays {
 // many times over.
 static_assert(sizeof(LatticeRays) <= 32 * 1024 && sizeof(Refinements) <= 32 * 1024);
 
+/// std::min(a, b) and std::max(a, b) in each lane, NaN and signed zeros included:
+/// _mm256_min_pd(x, y) is (x < y) ? x : y, so the operands go in swapped.
+PALP_AVX2_HOT __m256d minStd(__m256d a, __m256d b) noexcept { return _mm256_min_pd(b, a); }
+PALP_AVX2_HOT __m256d maxStd(__m256d a, __m256d b) noexcept { return _mm256_max_pd(b, a); }
+
+/// Bundle rays at .. at + 3 of one of its arrays, as doubles.
+PALP_AVX2_HOT __m256d loadRays4(const std::array<float, kMaxBundleRays>& a,
+                                std::size_t at) noexcept {
+    return _mm256_cvtps_pd(_mm_loadu_ps(a.data() + at));
+}
+
+/// startBundleRay() and startLattice() of the HitField path for bundle rays i0 .. i0 + 3, four
+/// lanes of doubles at once: the same IEEE operations in the same order per lane, so every value
+/// equals the scalar set-up's bit for bit (the single-ray path's, which the tests compare). A
+/// ray the scalar set-up refuses (NaN or infinite input, a negative length, a zero direction) or
+/// whose direction has a zero component (the clip's special case) is left to the scalar set-up.
+/// Returns the lanes set up (bit k: ray i0 + k), only rays below @p count. Needs a usable,
+/// clipped context (as a field does) and i0 + 4 <= kMaxBundleRays.
+__attribute__((target("avx2"))) unsigned startLatticeRays4(const HitContext& cx,
+                                                           const RayBundle& bundle, int i0,
+                                                           int count, LatticeRays& rays) noexcept {
+    const auto at = static_cast<std::size_t>(i0);
+
+    const __m256d ox = loadRays4(bundle.ox, at), oy = loadRays4(bundle.oy, at),
+                  oz = loadRays4(bundle.oz, at);
+    const __m256d dx = loadRays4(bundle.dx, at), dy = loadRays4(bundle.dy, at),
+                  dz = loadRays4(bundle.dz, at);
+    const __m256d len = loadRays4(bundle.length, at);
+    const __m256d zero = _mm256_setzero_pd();
+    const __m256d inf = _mm256_set1_pd(kInf);
+    // Finite inputs (x * 0 == 0), a length >= 0, 0 < |d| < inf, no zero component.
+    __m256d ok = _mm256_cmp_pd(len, zero, _CMP_GE_OQ);
+    for (const __m256d v : {ox, oy, oz, dx, dy, dz, len})
+        ok = _mm256_and_pd(ok, _mm256_cmp_pd(_mm256_mul_pd(v, zero), zero, _CMP_EQ_OQ));
+    for (const __m256d v : {dx, dy, dz})
+        ok = _mm256_and_pd(ok, _mm256_cmp_pd(v, zero, _CMP_NEQ_OQ));
+    const __m256d n = _mm256_sqrt_pd(_mm256_add_pd(
+        _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)), _mm256_mul_pd(dz, dz)));
+    ok = _mm256_and_pd(
+        ok, _mm256_and_pd(_mm256_cmp_pd(n, zero, _CMP_GT_OQ), _mm256_cmp_pd(n, inf, _CMP_LT_OQ)));
+    const int live = count - i0 >= 4 ? 0xF : (1 << (count - i0)) - 1;
+    const auto lanes = static_cast<unsigned>(_mm256_movemask_pd(ok) & live);
+    if (lanes == 0) return 0;
+    // setupHitRay(): index origin, direction in index units per metre, its inverse, the samples.
+    const VolumeView& view = *cx.view;
+    const __m256d iv = _mm256_set1_pd(view.inverseVoxelSize());
+    const __m256d o[3] = {
+        _mm256_mul_pd(_mm256_sub_pd(ox, _mm256_set1_pd(view.worldOrigin().x())), iv),
+        _mm256_mul_pd(_mm256_sub_pd(oy, _mm256_set1_pd(view.worldOrigin().y())), iv),
+        _mm256_mul_pd(_mm256_sub_pd(oz, _mm256_set1_pd(view.worldOrigin().z())), iv)};
+    const __m256d scale = _mm256_div_pd(iv, n);
+    const __m256d d[3] = {_mm256_mul_pd(dx, scale), _mm256_mul_pd(dy, scale),
+                          _mm256_mul_pd(dz, scale)};
+    const __m256d one = _mm256_set1_pd(1.0);
+    const __m256d inv[3] = {_mm256_div_pd(one, d[0]), _mm256_div_pd(one, d[1]),
+                            _mm256_div_pd(one, d[2])};
+    const __m256d invStep = _mm256_set1_pd(cx.invStep);
+    const __m256d length = minStd(len, _mm256_set1_pd(cx.lengthCap));
+    const __m256d kLast = maxStd(
+        zero, _mm256_round_pd(_mm256_sub_pd(_mm256_mul_pd(length, invStep), _mm256_set1_pd(1e-9)),
+                              _MM_FROUND_TO_POS_INF | _MM_FROUND_NO_EXC));
+    __m256d t0 = zero, t1 = length;
+    for (int a = 0; a < 3; ++a) {
+        const __m256d ta = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(cx.lo[a]), o[a]), inv[a]);
+        const __m256d tb = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(cx.hi[a]), o[a]), inv[a]);
+        t0 = maxStd(t0, minStd(ta, tb));
+        t1 = minStd(t1, maxStd(ta, tb));
+    }
+    const __m256d inside = _mm256_cmp_pd(t0, t1, _CMP_LE_OQ);
+    const __m256d kBegin = _mm256_and_pd(
+        inside, maxStd(zero, _mm256_round_pd(_mm256_mul_pd(t0, invStep),
+                                             _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC)));
+    const __m256d kEnd =
+        _mm256_blendv_pd(_mm256_set1_pd(-1.0),
+                         minStd(kLast, _mm256_round_pd(_mm256_mul_pd(t1, invStep),
+                                                       _MM_FROUND_TO_POS_INF | _MM_FROUND_NO_EXC)),
+                         inside);
+    // startHit(): table-relative origin, one lattice step in floats.
+    const __m256d step = _mm256_set1_pd(cx.step);
+    const __m256d rel[3] = {_mm256_sub_pd(o[0], _mm256_set1_pd(cx.tb->origin[0])),
+                            _mm256_sub_pd(o[1], _mm256_set1_pd(cx.tb->origin[1])),
+                            _mm256_sub_pd(o[2], _mm256_set1_pd(cx.tb->origin[2]))};
+    const __m128 sv[3] = {_mm256_cvtpd_ps(_mm256_mul_pd(d[0], step)),
+                          _mm256_cvtpd_ps(_mm256_mul_pd(d[1], step)),
+                          _mm256_cvtpd_ps(_mm256_mul_pd(d[2], step))};
+    // startLattice(): the first sample's exact position, rounded to float.
+    const __m256d t = _mm256_mul_pd(kBegin, step);
+    const __m128 qv[3] = {_mm256_cvtpd_ps(_mm256_add_pd(rel[0], _mm256_mul_pd(t, d[0]))),
+                          _mm256_cvtpd_ps(_mm256_add_pd(rel[1], _mm256_mul_pd(t, d[1]))),
+                          _mm256_cvtpd_ps(_mm256_add_pd(rel[2], _mm256_mul_pd(t, d[2])))};
+    alignas(32) double vo[3][4], vd[3][4], vinv[3][4], vrel[3][4], vlen[4], vkLast[4], vkBegin[4],
+        vkEnd[4];
+    alignas(16) float vs[3][4], vq[3][4];
+    for (int a = 0; a < 3; ++a) {
+        _mm256_store_pd(vo[a], o[a]);
+        _mm256_store_pd(vd[a], d[a]);
+        _mm256_store_pd(vinv[a], inv[a]);
+        _mm256_store_pd(vrel[a], rel[a]);
+        _mm_store_ps(vs[a], sv[a]);
+        _mm_store_ps(vq[a], qv[a]);
+    }
+    _mm256_store_pd(vlen, length);
+    _mm256_store_pd(vkLast, kLast);
+    _mm256_store_pd(vkBegin, kBegin);
+    _mm256_store_pd(vkEnd, kEnd);
+    for (unsigned rest = lanes; rest != 0; rest &= rest - 1) {
+        const int k = __builtin_ctz(rest);
+        LatticeRay& ray = rays.make(i0 + k);
+        HitMarch& m = ray.m;
+        IndexRay& r = m.r;
+        for (int a = 0; a < 3; ++a) {
+            r.o[a] = vo[a][k];
+            r.d[a] = vd[a][k];
+            r.inv[a] = vinv[a][k];
+        }
+        r.step = cx.step;
+        r.invStep = cx.invStep;
+        r.length = vlen[k];
+        r.kLast = static_cast<std::int64_t>(vkLast[k]);
+        r.kBegin = static_cast<std::int64_t>(vkBegin[k]);
+        r.kEnd = static_cast<std::int64_t>(vkEnd[k]);
+        m.ox = vrel[0][k];
+        m.oy = vrel[1][k];
+        m.oz = vrel[2][k];
+        m.k = r.kBegin;
+        m.kRunLast = std::min(r.kEnd, r.kLast - 1);
+        m.sx = vs[0][k];
+        m.sy = vs[1][k];
+        m.sz = vs[2][k];
+        m.pending = false;
+        Lattice& l = ray.l;
+        l.kA = r.kBegin;
+        l.n = static_cast<std::int32_t>(
+            std::max<std::int64_t>(0, std::min(r.kEnd, r.kLast - 1) - r.kBegin + 1));
+        l.qx = vq[0][k];
+        l.qy = vq[1][k];
+        l.qz = vq[2][k];
+        l.sx = m.sx;
+        l.sy = m.sy;
+        l.sz = m.sz;
+        const float smax = std::max({std::fabs(l.sx), std::fabs(l.sy), std::fabs(l.sz)});
+        l.invSmax = smax > 0 ? 1.0f / smax : 0.0f;
+        ray.ok = true;
+    }
+    return lanes;
+}
+
 /// The bundle with a HitField on a CPU with AVX2: each ray's lattice march in one AVX2 function.
 __attribute__((target("avx2"))) void traceFirstHitFieldAvx2(const HitContext& cx,
                                                             const RayBundle& bundle,
@@ -1608,11 +1756,16 @@ __attribute__((target("avx2"))) void traceFirstHitFieldAvx2(const HitContext& cx
     prefetchPath(cx, bundle);
     // Every ray's set-up first: a chain of dependent divisions and roundings per ray that
     // overlaps across rays here, where between marches it would wait on each ray's last branch.
+    // Four rays per AVX2 step (bit-identical); the rays it leaves take the scalar set-up.
     LatticeRays rays;
-    for (int i = 0; i < out.count; ++i) {
-        LatticeRay& r = rays.make(i);
-        r.ok = startBundleRay(cx, bundle, i, r.m, r.h);
-        if (r.ok) startLattice(r.m, r.l);
+    for (int i0 = 0; i0 < out.count; i0 += 4) {
+        const unsigned done = startLatticeRays4(cx, bundle, i0, out.count, rays);
+        for (int i = i0; i < std::min(i0 + 4, out.count); ++i) {
+            if ((done >> (i - i0)) & 1u) continue;
+            LatticeRay& r = rays.make(i);
+            r.ok = startBundleRay(cx, bundle, i, r.m, r.h);
+            if (r.ok) startLattice(r.m, r.l);
+        }
     }
     Refinements refs;
     for (int i = 0; i < out.count; ++i) {
@@ -1822,6 +1975,66 @@ __attribute__((target("avx2"))) void traceFirstHitAvx2(const HitContext& cx,
 #endif
 
 }  // namespace
+
+namespace detail {
+
+#ifdef PALP_RAY_AVX2
+namespace {
+/// The bits of a value, for bit-for-bit comparison of doubles and floats (NaN included).
+template <class T>
+bool sameBits(const T& a, const T& b) noexcept {
+    return std::memcmp(&a, &b, sizeof(T)) == 0;
+}
+
+/// Whether two set-ups of one ray hold the same bits in every field the field path reads.
+bool sameLatticeSetup(const LatticeRay& a, const LatticeRay& b) noexcept {
+    const IndexRay &ra = a.m.r, &rb = b.m.r;
+    bool same = a.ok == b.ok && ra.kBegin == rb.kBegin && ra.kEnd == rb.kEnd &&
+                ra.kLast == rb.kLast && sameBits(ra.invStep, rb.invStep) &&
+                sameBits(ra.length, rb.length) && sameBits(ra.step, rb.step);
+    for (int i = 0; i < 3; ++i)
+        same = same && sameBits(ra.o[i], rb.o[i]) && sameBits(ra.d[i], rb.d[i]) &&
+               sameBits(ra.inv[i], rb.inv[i]);
+    const HitMarch &ma = a.m, &mb = b.m;
+    same = same && sameBits(ma.ox, mb.ox) && sameBits(ma.oy, mb.oy) && sameBits(ma.oz, mb.oz) &&
+           ma.k == mb.k && ma.kRunLast == mb.kRunLast && sameBits(ma.sx, mb.sx) &&
+           sameBits(ma.sy, mb.sy) && sameBits(ma.sz, mb.sz) && ma.pending == mb.pending;
+    const Lattice &la = a.l, &lb = b.l;
+    return same && la.kA == lb.kA && la.n == lb.n && sameBits(la.qx, lb.qx) &&
+           sameBits(la.qy, lb.qy) && sameBits(la.qz, lb.qz) && sameBits(la.sx, lb.sx) &&
+           sameBits(la.sy, lb.sy) && sameBits(la.sz, lb.sz) && sameBits(la.invSmax, lb.invSmax);
+}
+}  // namespace
+#endif
+
+LatticeSetupCheck checkLatticeSetup(const VolumeView& view, const RayBundle& bundle,
+                                    const FirstHitParams& params) noexcept {
+    LatticeSetupCheck c;
+#ifdef PALP_RAY_AVX2
+    const HitContext cx(view, params);
+    if (!bundleSimdAvailable() || cx.field == nullptr || !cx.usable || !bundle.valid) return c;
+    c.available = true;
+    LatticeRays vector, scalar;
+    for (int i0 = 0; i0 < bundle.count; i0 += 4) {
+        const unsigned done = startLatticeRays4(cx, bundle, i0, bundle.count, vector);
+        for (int i = i0; i < std::min(i0 + 4, bundle.count); ++i) {
+            if (((done >> (i - i0)) & 1u) == 0) continue;
+            ++c.vectorRays;
+            LatticeRay& r = scalar.make(i);
+            r.ok = startBundleRay(cx, bundle, i, r.m, r.h);
+            if (r.ok) startLattice(r.m, r.l);
+            if (!sameLatticeSetup(vector[i], r)) ++c.mismatches;
+        }
+    }
+#else
+    (void)view;
+    (void)bundle;
+    (void)params;
+#endif
+    return c;
+}
+
+}  // namespace detail
 
 #ifdef PALP_RAY_AVX2
 namespace {

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -229,6 +230,82 @@ TEST(VolumeRaySubBlocks, BundlesAreBitIdenticalWithAndWithoutSkippingAndSimd) {
     }
     EXPECT_GT(hits, lanes / 10);
     EXPECT_LT(hits, lanes - lanes / 10);
+}
+
+// The field path sets up four rays at a time with AVX2 doubles: every field of every ray's
+// set-up equals the scalar set-up's (the single-ray path's) bit for bit. Rays of every kind:
+// directions of any length (the set-up normalises), tiny components, axis-aligned (taken by the
+// scalar set-up), lengths past the sample cap, origins outside the table (clipped or missing
+// it), on sub-block corners, and NaN, infinite, zero or negative inputs (refused).
+TEST(VolumeRayHitField, VectorRaySetUpIsBitIdenticalToTheScalarOne) {
+    const auto grid = makeGrid(11);
+    const VolumeView view(grid);
+    const HitField field(view, kThreshold);
+    const FirstHitParams p = params(true, true, &field);
+    const auto rays = makeRays(37, 8000);
+    std::mt19937 rng(41);
+    std::uniform_real_distribution<double> u(-1, 1);
+    std::uniform_int_distribution<int> count(1, kMaxBundleRays), kind(0, 19);
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    const float inf = std::numeric_limits<float>::infinity();
+    std::size_t next = 0;
+    int vectorRays = 0, total = 0;
+    while (next + kMaxBundleRays <= rays.size()) {
+        RayBundle b;
+        b.count = count(rng);
+        b.valid = true;
+        for (int r = 0; r < b.count; ++r, ++next) {
+            const auto i = static_cast<std::size_t>(r);
+            const Ray& ray = rays[next];
+            const double scale = std::pow(10.0, 3 * u(rng));  // |d| from 1e-3 to 1e3
+            b.ox[i] = static_cast<float>(ray.o.x());
+            b.oy[i] = static_cast<float>(ray.o.y());
+            b.oz[i] = static_cast<float>(ray.o.z());
+            b.dx[i] = static_cast<float>(ray.d.x() * scale);
+            b.dy[i] = static_cast<float>(ray.d.y() * scale);
+            b.dz[i] = static_cast<float>(ray.d.z() * scale);
+            b.length[i] = static_cast<float>(ray.length);
+            switch (kind(rng)) {
+                case 0:
+                    b.ox[i] = static_cast<float>(0.1 * u(rng));
+                    break;  // far outside
+                case 1:
+                    b.length[i] = 1e3f;
+                    break;  // past the cap
+                case 2:
+                    b.length[i] = 0;
+                    break;
+                case 3:
+                    b.length[i] = -1e-3f;
+                    break;
+                case 4:
+                    b.dy[i] = nan;
+                    break;
+                case 5:
+                    b.oz[i] = inf;
+                    break;
+                case 6:
+                    b.dx[i] = b.dy[i] = b.dz[i] = 0;
+                    break;
+                case 7:
+                    b.length[i] = nan;
+                    break;
+                case 8:
+                    b.dz[i] = 1e-30f;
+                    break;  // a component far below the others
+                default:
+                    break;
+            }
+        }
+        const detail::LatticeSetupCheck c = detail::checkLatticeSetup(view, b, p);
+        if (!c.available) GTEST_SKIP() << "no AVX2 on this CPU: the vector set-up is not used";
+        EXPECT_EQ(c.mismatches, 0);
+        vectorRays += c.vectorRays;
+        total += b.count;
+    }
+    // Most rays take the vector set-up (the axis-aligned and degenerate ones do not).
+    EXPECT_GT(vectorRays, total / 2);
+    EXPECT_LT(vectorRays, total);
 }
 
 // A ray grazing a single hot voxel on a sub-block corner: the hit is found (the sub-block next to
