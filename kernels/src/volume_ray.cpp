@@ -1613,18 +1613,35 @@ PALP_AVX2_HOT __m256d loadRays4(const std::array<float, kMaxBundleRays>& a,
     return _mm256_cvtps_pd(_mm_loadu_ps(a.data() + at));
 }
 
+/// The vector set-up's results for a whole bundle, per ray (structure of arrays), filled four
+/// rays at a time by startLatticeRays4() and copied into each LatticeRay by fillLatticeRay().
+struct LatticeSetups {
+    alignas(32) double o[3][kMaxBundleRays];
+    alignas(32) double d[3][kMaxBundleRays];
+    alignas(32) double inv[3][kMaxBundleRays];
+    alignas(32) double rel[3][kMaxBundleRays];  // table-relative origin
+    alignas(32) double length[kMaxBundleRays];
+    alignas(32) double kLast[kMaxBundleRays];
+    alignas(32) double kBegin[kMaxBundleRays];
+    alignas(32) double kEnd[kMaxBundleRays];
+    alignas(16) float s[3][kMaxBundleRays];  // one lattice step
+    alignas(16) float q[3][kMaxBundleRays];  // the lattice's first sample
+    std::uint64_t lanes = 0;                 // bit i: ray i was set up here
+};
+static_assert(sizeof(LatticeSetups) <= 16 * 1024);
+
 /// startBundleRay() and startLattice() of the HitField path for bundle rays i0 .. i0 + 3, four
 /// lanes of doubles at once: the same IEEE operations in the same order per lane, so every value
 /// equals the scalar set-up's bit for bit (the single-ray path's, which the tests compare). A
 /// ray the scalar set-up refuses (NaN or infinite input, a negative length, a zero direction) or
 /// whose direction has a zero component (the clip's special case) is left to the scalar set-up.
-/// Returns the lanes set up (bit k: ray i0 + k), only rays below @p count. Needs a usable,
-/// clipped context (as a field does) and i0 + 4 <= kMaxBundleRays.
-__attribute__((target("avx2"))) unsigned startLatticeRays4(const HitContext& cx,
-                                                           const RayBundle& bundle, int i0,
-                                                           int count, LatticeRays& rays) noexcept {
+/// Stores the results at rays i0 .. i0 + 3 of @p out and sets their bits in out.lanes (only
+/// rays below @p count). Needs a usable, clipped context (as a field does), i0 a multiple of 4.
+/// No branch on the data, so the chains of several groups of four overlap.
+__attribute__((target("avx2"))) void startLatticeRays4(const HitContext& cx,
+                                                       const RayBundle& bundle, int i0, int count,
+                                                       LatticeSetups& out) noexcept {
     const auto at = static_cast<std::size_t>(i0);
-
     const __m256d ox = loadRays4(bundle.ox, at), oy = loadRays4(bundle.oy, at),
                   oz = loadRays4(bundle.oz, at);
     const __m256d dx = loadRays4(bundle.dx, at), dy = loadRays4(bundle.dy, at),
@@ -1643,8 +1660,7 @@ __attribute__((target("avx2"))) unsigned startLatticeRays4(const HitContext& cx,
     ok = _mm256_and_pd(
         ok, _mm256_and_pd(_mm256_cmp_pd(n, zero, _CMP_GT_OQ), _mm256_cmp_pd(n, inf, _CMP_LT_OQ)));
     const int live = count - i0 >= 4 ? 0xF : (1 << (count - i0)) - 1;
-    const auto lanes = static_cast<unsigned>(_mm256_movemask_pd(ok) & live);
-    if (lanes == 0) return 0;
+    out.lanes |= static_cast<std::uint64_t>(_mm256_movemask_pd(ok) & live) << i0;
     // setupHitRay(): index origin, direction in index units per metre, its inverse, the samples.
     const VolumeView& view = *cx.view;
     const __m256d iv = _mm256_set1_pd(view.inverseVoxelSize());
@@ -1692,61 +1708,77 @@ __attribute__((target("avx2"))) unsigned startLatticeRays4(const HitContext& cx,
     const __m128 qv[3] = {_mm256_cvtpd_ps(_mm256_add_pd(rel[0], _mm256_mul_pd(t, d[0]))),
                           _mm256_cvtpd_ps(_mm256_add_pd(rel[1], _mm256_mul_pd(t, d[1]))),
                           _mm256_cvtpd_ps(_mm256_add_pd(rel[2], _mm256_mul_pd(t, d[2])))};
-    alignas(32) double vo[3][4], vd[3][4], vinv[3][4], vrel[3][4], vlen[4], vkLast[4], vkBegin[4],
-        vkEnd[4];
-    alignas(16) float vs[3][4], vq[3][4];
-    for (int a = 0; a < 3; ++a) {
-        _mm256_store_pd(vo[a], o[a]);
-        _mm256_store_pd(vd[a], d[a]);
-        _mm256_store_pd(vinv[a], inv[a]);
-        _mm256_store_pd(vrel[a], rel[a]);
-        _mm_store_ps(vs[a], sv[a]);
-        _mm_store_ps(vq[a], qv[a]);
+    for (std::size_t a = 0; a < 3; ++a) {
+        _mm256_store_pd(out.o[a] + at, o[a]);
+        _mm256_store_pd(out.d[a] + at, d[a]);
+        _mm256_store_pd(out.inv[a] + at, inv[a]);
+        _mm256_store_pd(out.rel[a] + at, rel[a]);
+        _mm_store_ps(out.s[a] + at, sv[a]);
+        _mm_store_ps(out.q[a] + at, qv[a]);
     }
-    _mm256_store_pd(vlen, length);
-    _mm256_store_pd(vkLast, kLast);
-    _mm256_store_pd(vkBegin, kBegin);
-    _mm256_store_pd(vkEnd, kEnd);
-    for (unsigned rest = lanes; rest != 0; rest &= rest - 1) {
-        const int k = __builtin_ctz(rest);
-        LatticeRay& ray = rays.make(i0 + k);
-        HitMarch& m = ray.m;
-        IndexRay& r = m.r;
-        for (int a = 0; a < 3; ++a) {
-            r.o[a] = vo[a][k];
-            r.d[a] = vd[a][k];
-            r.inv[a] = vinv[a][k];
+    _mm256_store_pd(out.length + at, length);
+    _mm256_store_pd(out.kLast + at, kLast);
+    _mm256_store_pd(out.kBegin + at, kBegin);
+    _mm256_store_pd(out.kEnd + at, kEnd);
+}
+
+/// Ray @p i of @p su (set up by startLatticeRays4()) into @p ray, as startBundleRay() and
+/// startLattice() would have left it.
+PALP_HOT void fillLatticeRay(const HitContext& cx, const LatticeSetups& su, int i,
+                             LatticeRay& ray) noexcept {
+    const auto k = static_cast<std::size_t>(i);
+    HitMarch& m = ray.m;
+    IndexRay& r = m.r;
+    for (std::size_t a = 0; a < 3; ++a) {
+        r.o[a] = su.o[a][k];
+        r.d[a] = su.d[a][k];
+        r.inv[a] = su.inv[a][k];
+    }
+    r.step = cx.step;
+    r.invStep = cx.invStep;
+    r.length = su.length[k];
+    r.kLast = static_cast<std::int64_t>(su.kLast[k]);
+    r.kBegin = static_cast<std::int64_t>(su.kBegin[k]);
+    r.kEnd = static_cast<std::int64_t>(su.kEnd[k]);
+    m.ox = su.rel[0][k];
+    m.oy = su.rel[1][k];
+    m.oz = su.rel[2][k];
+    m.k = r.kBegin;
+    m.kRunLast = std::min(r.kEnd, r.kLast - 1);
+    m.sx = su.s[0][k];
+    m.sy = su.s[1][k];
+    m.sz = su.s[2][k];
+    m.pending = false;
+    Lattice& l = ray.l;
+    l.kA = r.kBegin;
+    l.n = static_cast<std::int32_t>(
+        std::max<std::int64_t>(0, std::min(r.kEnd, r.kLast - 1) - r.kBegin + 1));
+    l.qx = su.q[0][k];
+    l.qy = su.q[1][k];
+    l.qz = su.q[2][k];
+    l.sx = m.sx;
+    l.sy = m.sy;
+    l.sz = m.sz;
+    const float smax = std::max({std::fabs(l.sx), std::fabs(l.sy), std::fabs(l.sz)});
+    l.invSmax = smax > 0 ? 1.0f / smax : 0.0f;
+    ray.ok = true;
+}
+
+/// Every ray of @p bundle set up into @p rays: the vector set-up, then the scalar one for the
+/// rays it leaves.
+__attribute__((target("avx2"))) void startLatticeRays(const HitContext& cx, const RayBundle& bundle,
+                                                      int count, LatticeRays& rays) noexcept {
+    LatticeSetups su;
+    for (int i0 = 0; i0 < count; i0 += 4) startLatticeRays4(cx, bundle, i0, count, su);
+    for (int i = 0; i < count; ++i) {
+        LatticeRay& r = rays.make(i);
+        if ((su.lanes >> i) & 1u) {
+            fillLatticeRay(cx, su, i, r);
+            continue;
         }
-        r.step = cx.step;
-        r.invStep = cx.invStep;
-        r.length = vlen[k];
-        r.kLast = static_cast<std::int64_t>(vkLast[k]);
-        r.kBegin = static_cast<std::int64_t>(vkBegin[k]);
-        r.kEnd = static_cast<std::int64_t>(vkEnd[k]);
-        m.ox = vrel[0][k];
-        m.oy = vrel[1][k];
-        m.oz = vrel[2][k];
-        m.k = r.kBegin;
-        m.kRunLast = std::min(r.kEnd, r.kLast - 1);
-        m.sx = vs[0][k];
-        m.sy = vs[1][k];
-        m.sz = vs[2][k];
-        m.pending = false;
-        Lattice& l = ray.l;
-        l.kA = r.kBegin;
-        l.n = static_cast<std::int32_t>(
-            std::max<std::int64_t>(0, std::min(r.kEnd, r.kLast - 1) - r.kBegin + 1));
-        l.qx = vq[0][k];
-        l.qy = vq[1][k];
-        l.qz = vq[2][k];
-        l.sx = m.sx;
-        l.sy = m.sy;
-        l.sz = m.sz;
-        const float smax = std::max({std::fabs(l.sx), std::fabs(l.sy), std::fabs(l.sz)});
-        l.invSmax = smax > 0 ? 1.0f / smax : 0.0f;
-        ray.ok = true;
+        r.ok = startBundleRay(cx, bundle, i, r.m, r.h);
+        if (r.ok) startLattice(r.m, r.l);
     }
-    return lanes;
 }
 
 /// The bundle with a HitField on a CPU with AVX2: each ray's lattice march in one AVX2 function.
@@ -1758,15 +1790,7 @@ __attribute__((target("avx2"))) void traceFirstHitFieldAvx2(const HitContext& cx
     // overlaps across rays here, where between marches it would wait on each ray's last branch.
     // Four rays per AVX2 step (bit-identical); the rays it leaves take the scalar set-up.
     LatticeRays rays;
-    for (int i0 = 0; i0 < out.count; i0 += 4) {
-        const unsigned done = startLatticeRays4(cx, bundle, i0, out.count, rays);
-        for (int i = i0; i < std::min(i0 + 4, out.count); ++i) {
-            if ((done >> (i - i0)) & 1u) continue;
-            LatticeRay& r = rays.make(i);
-            r.ok = startBundleRay(cx, bundle, i, r.m, r.h);
-            if (r.ok) startLattice(r.m, r.l);
-        }
-    }
+    startLatticeRays(cx, bundle, out.count, rays);
     Refinements refs;
     for (int i = 0; i < out.count; ++i) {
         LatticeRay& r = rays[i];
@@ -2014,17 +2038,18 @@ LatticeSetupCheck checkLatticeSetup(const VolumeView& view, const RayBundle& bun
     const HitContext cx(view, params);
     if (!bundleSimdAvailable() || cx.field == nullptr || !cx.usable || !bundle.valid) return c;
     c.available = true;
+    LatticeSetups su;
+    for (int i0 = 0; i0 < bundle.count; i0 += 4)
+        startLatticeRays4(cx, bundle, i0, bundle.count, su);
     LatticeRays vector, scalar;
-    for (int i0 = 0; i0 < bundle.count; i0 += 4) {
-        const unsigned done = startLatticeRays4(cx, bundle, i0, bundle.count, vector);
-        for (int i = i0; i < std::min(i0 + 4, bundle.count); ++i) {
-            if (((done >> (i - i0)) & 1u) == 0) continue;
-            ++c.vectorRays;
-            LatticeRay& r = scalar.make(i);
-            r.ok = startBundleRay(cx, bundle, i, r.m, r.h);
-            if (r.ok) startLattice(r.m, r.l);
-            if (!sameLatticeSetup(vector[i], r)) ++c.mismatches;
-        }
+    for (int i = 0; i < bundle.count; ++i) {
+        if (((su.lanes >> i) & 1u) == 0) continue;
+        ++c.vectorRays;
+        fillLatticeRay(cx, su, i, vector.make(i));
+        LatticeRay& r = scalar.make(i);
+        r.ok = startBundleRay(cx, bundle, i, r.m, r.h);
+        if (r.ok) startLattice(r.m, r.l);
+        if (!sameLatticeSetup(vector[i], r)) ++c.mismatches;
     }
 #else
     (void)view;
