@@ -74,9 +74,12 @@ struct BundleProfile {
     std::size_t index = 0;
 };
 
-// Classifies the lattice samples of every ray of @p b up to its hit (from @p hits).
-void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits, double step,
-              float thr, BundleProfile& p) {
+// Calls @p visit(ray, block, ix, iy, iz) at every sample (t = k @p step) of every
+// ray of @p b up to its hit (from @p hits) that lies in the view's table: the table block index
+// and the table-relative voxel.
+template <class Visit>
+void forEachSample(const VolumeView& view, const RayBundle& b, const BundleHits& hits, double step,
+                   Visit&& visit) {
     const auto& tb = view.table();
     for (int r = 0; r < b.count; ++r) {
         const auto i = static_cast<std::size_t>(r);
@@ -85,8 +88,6 @@ void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits
         const double len = b.length[i];
         const double tEnd = hits.hit[i] ? static_cast<double>(hits.t[i]) : len;
         const auto kEnd = static_cast<int>(std::ceil(tEnd / step - 1e-9));
-        p.hits += hits.hit[i];
-        std::size_t lastHot = ~std::size_t{0};
         for (int k = 0; k <= kEnd; ++k) {
             const Eigen::Vector3d x = view.indexFromWorld(o + std::min(k * step, len) * d);
             const auto ix = static_cast<long>(std::floor(x.x())) - tb.origin[0];
@@ -97,29 +98,41 @@ void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits
                 continue;
             const auto blk = static_cast<std::size_t>(
                 ((ix >> 3) * tb.blocks[1] + (iy >> 3)) * tb.blocks[2] + (iz >> 3));
-            if (tb.maxDilated[blk] < thr) {
-                p.block += 1;
-                continue;
-            }
-            if (blk != lastHot) p.hotBlocks += 1;
-            lastHot = blk;
-            const float* copy = tb.data[blk];
-            const long lx = ix & 7, ly = iy & 7, lz = iz & 7;
-            const auto c = static_cast<std::size_t>(copy - tb.padded) /
-                           static_cast<std::size_t>(VolumeView::Table::kPadded);
-            const auto s =
-                static_cast<std::size_t>(((lx >> 2) << 2) | ((ly >> 2) << 1) | (lz >> 2));
-            if (tb.subMax[c * VolumeView::Table::kSubBlocks + s] < thr) {
-                p.sub += 1;
-                continue;
-            }
-            float mx = copy[(lx * 9 + ly) * 9 + lz];
-            for (long n = 1; n < 8; ++n)
-                mx = std::max(mx,
-                              copy[((lx + (n >> 2)) * 9 + ly + ((n >> 1) & 1)) * 9 + lz + (n & 1)]);
-            (mx < thr ? p.cell : p.must) += 1;
+            visit(r, blk, ix, iy, iz);
         }
     }
+}
+
+// Classifies the lattice samples of every ray of @p b up to its hit (from @p hits).
+void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits, double step,
+              float thr, BundleProfile& p) {
+    const auto& tb = view.table();
+    for (int r = 0; r < b.count; ++r) p.hits += hits.hit[static_cast<std::size_t>(r)];
+    std::size_t lastHot = ~std::size_t{0};
+    int lastRay = -1;
+    forEachSample(view, b, hits, step, [&](int ray, std::size_t blk, long ix, long iy, long iz) {
+        if (ray != lastRay) lastHot = ~std::size_t{0};
+        lastRay = ray;
+        if (tb.maxDilated[blk] < thr) {
+            p.block += 1;
+            return;
+        }
+        if (blk != lastHot) p.hotBlocks += 1;
+        lastHot = blk;
+        const float* copy = tb.data[blk];
+        const long lx = ix & 7, ly = iy & 7, lz = iz & 7;
+        const auto c = static_cast<std::size_t>(copy - tb.padded) /
+                       static_cast<std::size_t>(VolumeView::Table::kPadded);
+        const auto s = static_cast<std::size_t>(((lx >> 2) << 2) | ((ly >> 2) << 1) | (lz >> 2));
+        if (tb.subMax[c * VolumeView::Table::kSubBlocks + s] < thr) {
+            p.sub += 1;
+            return;
+        }
+        float mx = copy[(lx * 9 + ly) * 9 + lz];
+        for (long n = 1; n < 8; ++n)
+            mx = std::max(mx, copy[((lx + (n >> 2)) * 9 + ly + ((n >> 1) & 1)) * 9 + lz + (n & 1)]);
+        (mx < thr ? p.cell : p.must) += 1;
+    });
 }
 
 /// The cache lines a bundle's lattice march reads up to each ray's hit, by array: the field's
@@ -131,37 +144,20 @@ struct TouchedLines {
 void touchedLines(const VolumeView& view, const HitField& field, const RayBundle& b,
                   const BundleHits& hits, double step, TouchedLines& out) {
     const auto& tb = view.table();
-    for (int r = 0; r < b.count; ++r) {
-        const auto i = static_cast<std::size_t>(r);
-        const Eigen::Vector3d o(b.ox[i], b.oy[i], b.oz[i]);
-        const Eigen::Vector3d d = Eigen::Vector3d(b.dx[i], b.dy[i], b.dz[i]).normalized();
-        const double len = b.length[i];
-        const double tEnd = hits.hit[i] ? static_cast<double>(hits.t[i]) : len;
-        const auto kEnd = static_cast<int>(std::ceil(tEnd / step - 1e-9));
-        for (int k = 0; k <= kEnd; ++k) {
-            const Eigen::Vector3d x = view.indexFromWorld(o + std::min(k * step, len) * d);
-            const auto ix = static_cast<long>(std::floor(x.x())) - tb.origin[0];
-            const auto iy = static_cast<long>(std::floor(x.y())) - tb.origin[1];
-            const auto iz = static_cast<long>(std::floor(x.z())) - tb.origin[2];
-            if (ix < 0 || iy < 0 || iz < 0 || (ix >> 3) >= tb.blocks[0] ||
-                (iy >> 3) >= tb.blocks[1] || (iz >> 3) >= tb.blocks[2])
-                continue;
-            const auto blk = static_cast<std::size_t>(
-                ((ix >> 3) * tb.blocks[1] + (iy >> 3)) * tb.blocks[2] + (iz >> 3));
-            out.entries.push_back(field.entries() + blk);
-            out.tables.push_back(tb.data.data() + blk);
-            out.tables.push_back(tb.maxDilated.data() + blk);
-            out.tables.push_back(field.maskCopyOffsets() +
-                                 (field.entry(blk) >> HitField::kDistanceBits));
-            if (field.blockDistance(blk) != 0) continue;
-            out.masks.push_back(field.blockMask(blk));
-            const long lx = ix & 7, ly = iy & 7, lz = iz & 7;
-            if (!field.cellCanReach(blk, static_cast<unsigned>((lx * 8 + ly) * 8 + lz))) continue;
-            const float* c = field.maskCopy(field.entry(blk) >> HitField::kDistanceBits) +
-                             (lx * 9 + ly) * 9 + lz;
-            for (const int off : {0, 1, 9, 10, 81, 82, 90, 91}) out.copies.push_back(c + off);
-        }
-    }
+    forEachSample(view, b, hits, step, [&](int, std::size_t blk, long ix, long iy, long iz) {
+        out.entries.push_back(field.entries() + blk);
+        out.tables.push_back(tb.data.data() + blk);
+        out.tables.push_back(tb.maxDilated.data() + blk);
+        out.tables.push_back(field.maskCopyOffsets() +
+                             (field.entry(blk) >> HitField::kDistanceBits));
+        if (field.blockDistance(blk) != 0) return;
+        out.masks.push_back(field.blockMask(blk));
+        const long lx = ix & 7, ly = iy & 7, lz = iz & 7;
+        if (!field.cellCanReach(blk, static_cast<unsigned>((lx * 8 + ly) * 8 + lz))) return;
+        const float* c =
+            field.maskCopy(field.entry(blk) >> HitField::kDistanceBits) + (lx * 9 + ly) * 9 + lz;
+        for (const int off : {0, 1, 9, 10, 81, 82, 90, 91}) out.copies.push_back(c + off);
+    });
 }
 
 void percentiles(const std::vector<RayBundle>& bundles, const VolumeView& view,

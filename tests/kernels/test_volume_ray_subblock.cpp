@@ -89,6 +89,28 @@ FirstHitParams params(bool skip, bool simd, const HitField* field = nullptr) {
     return p;
 }
 
+// Rays rays[next .. next + count) as a bundle (advances @p next); @p scale multiplies each
+// direction (the set-up normalises it).
+template <class Scale>
+RayBundle bundleOf(const std::vector<Ray>& rays, std::size_t& next, int count, Scale&& scale) {
+    RayBundle b;
+    b.count = count;
+    b.valid = true;
+    for (int r = 0; r < count; ++r, ++next) {
+        const auto i = static_cast<std::size_t>(r);
+        const Ray& ray = rays[next];
+        const double s = scale();
+        b.ox[i] = static_cast<float>(ray.o.x());
+        b.oy[i] = static_cast<float>(ray.o.y());
+        b.oz[i] = static_cast<float>(ray.o.z());
+        b.dx[i] = static_cast<float>(ray.d.x() * s);
+        b.dy[i] = static_cast<float>(ray.d.y() * s);
+        b.dz[i] = static_cast<float>(ray.d.z() * s);
+        b.length[i] = static_cast<float>(ray.length);
+    }
+    return b;
+}
+
 }  // namespace
 
 // Every sub-block bound is at least the largest of the 5^3 values its cells interpolate, and
@@ -185,20 +207,7 @@ TEST(VolumeRaySubBlocks, BundlesAreBitIdenticalWithAndWithoutSkippingAndSimd) {
     std::size_t next = 0;
     int hits = 0, lanes = 0;
     while (next + kMaxBundleRays <= rays.size()) {
-        RayBundle b;
-        b.count = count(rng);
-        b.valid = true;
-        for (int r = 0; r < b.count; ++r, ++next) {
-            const auto i = static_cast<std::size_t>(r);
-            const Ray& ray = rays[next];
-            b.ox[i] = static_cast<float>(ray.o.x());
-            b.oy[i] = static_cast<float>(ray.o.y());
-            b.oz[i] = static_cast<float>(ray.o.z());
-            b.dx[i] = static_cast<float>(ray.d.x());
-            b.dy[i] = static_cast<float>(ray.d.y());
-            b.dz[i] = static_cast<float>(ray.d.z());
-            b.length[i] = static_cast<float>(ray.length);
-        }
+        const RayBundle b = bundleOf(rays, next, count(rng), [] { return 1.0; });
         std::array<BundleHits, 7> out;
         traceFirstHit(view, b, params(true, true), out[0]);
         traceFirstHit(view, b, params(false, true), out[1]);
@@ -251,27 +260,17 @@ TEST(VolumeRayHitField, VectorRaySetUpIsBitIdenticalToTheScalarOne) {
     std::size_t next = 0;
     int vectorRays = 0, total = 0;
     while (next + kMaxBundleRays <= rays.size()) {
-        RayBundle b;
-        b.count = count(rng);
-        b.valid = true;
-        for (int r = 0; r < b.count; ++r, ++next) {
+        // |d| from 1e-3 to 1e3
+        RayBundle b = bundleOf(rays, next, count(rng), [&] { return std::pow(10.0, 3 * u(rng)); });
+        for (int r = 0; r < b.count; ++r) {
             const auto i = static_cast<std::size_t>(r);
-            const Ray& ray = rays[next];
-            const double scale = std::pow(10.0, 3 * u(rng));  // |d| from 1e-3 to 1e3
-            b.ox[i] = static_cast<float>(ray.o.x());
-            b.oy[i] = static_cast<float>(ray.o.y());
-            b.oz[i] = static_cast<float>(ray.o.z());
-            b.dx[i] = static_cast<float>(ray.d.x() * scale);
-            b.dy[i] = static_cast<float>(ray.d.y() * scale);
-            b.dz[i] = static_cast<float>(ray.d.z() * scale);
-            b.length[i] = static_cast<float>(ray.length);
             switch (kind(rng)) {
-                case 0:
+                case 0:  // far outside the table
                     b.ox[i] = static_cast<float>(0.1 * u(rng));
-                    break;  // far outside
-                case 1:
+                    break;
+                case 1:  // past the sample cap
                     b.length[i] = 1e3f;
-                    break;  // past the cap
+                    break;
                 case 2:
                     b.length[i] = 0;
                     break;
@@ -290,9 +289,9 @@ TEST(VolumeRayHitField, VectorRaySetUpIsBitIdenticalToTheScalarOne) {
                 case 7:
                     b.length[i] = nan;
                     break;
-                case 8:
+                case 8:  // a component far below the others
                     b.dz[i] = 1e-30f;
-                    break;  // a component far below the others
+                    break;
                 default:
                     break;
             }
