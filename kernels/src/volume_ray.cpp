@@ -1769,7 +1769,10 @@ PALP_HOT void fillLatticeRay(const HitContext& cx, const LatticeSetups& su, int 
 __attribute__((target("avx2"))) void startLatticeRays(const HitContext& cx, const RayBundle& bundle,
                                                       int count, LatticeRays& rays) noexcept {
     LatticeSetups su;
-    for (int i0 = 0; i0 < count; i0 += 4) startLatticeRays4(cx, bundle, i0, count, su);
+    // Without a usable context (an empty view, a step that is not finite and > 0) every ray goes
+    // to the scalar set-up, which refuses it.
+    if (cx.usable && cx.clip)
+        for (int i0 = 0; i0 < count; i0 += 4) startLatticeRays4(cx, bundle, i0, count, su);
     for (int i = 0; i < count; ++i) {
         LatticeRay& r = rays.make(i);
         if ((su.lanes >> i) & 1u) {
@@ -2036,7 +2039,8 @@ LatticeSetupCheck checkLatticeSetup(const VolumeView& view, const RayBundle& bun
     LatticeSetupCheck c;
 #ifdef PALP_RAY_AVX2
     const HitContext cx(view, params);
-    if (!bundleSimdAvailable() || cx.field == nullptr || !cx.usable || !bundle.valid) return c;
+    if (!bundleSimdAvailable() || cx.field == nullptr || !cx.usable || !cx.clip || !bundle.valid)
+        return c;
     c.available = true;
     LatticeSetups su;
     for (int i0 = 0; i0 < bundle.count; i0 += 4)

@@ -305,6 +305,27 @@ TEST(VolumeRayHitField, VectorRaySetUpIsBitIdenticalToTheScalarOne) {
     // Most rays take the vector set-up (the axis-aligned and degenerate ones do not).
     EXPECT_GT(vectorRays, total / 2);
     EXPECT_LT(vectorRays, total);
+    // A step of 0 or NaN (refused by validateFirstHitParams, but traced without validation):
+    // no ray takes the vector set-up, and each is a no-hit equal to its single ray.
+    next = 0;
+    const RayBundle b = bundleOf(rays, next, 17, [] { return 1.0; });
+    for (const double step : {0.0, std::numeric_limits<double>::quiet_NaN()}) {
+        FirstHitParams bad = p;
+        bad.step = step;
+        EXPECT_EQ(detail::checkLatticeSetup(view, b, bad).vectorRays, 0);
+        BundleHits out;
+        traceFirstHit(view, b, bad, out);
+        ASSERT_EQ(out.count, b.count);
+        for (int r = 0; r < b.count; ++r) {
+            const auto i = static_cast<std::size_t>(r);
+            const RayHit one =
+                firstHit(view, Eigen::Vector3d(b.ox[i], b.oy[i], b.oz[i]),
+                         Eigen::Vector3d(b.dx[i], b.dy[i], b.dz[i]), b.length[i], bad);
+            EXPECT_FALSE(one.hit);
+            EXPECT_EQ(out.hit[i], 0) << "step " << step << " ray " << r;
+            EXPECT_EQ(out.t[i], one.t) << "step " << step << " ray " << r;
+        }
+    }
 }
 
 // A ray grazing a single hot voxel on a sub-block corner: the hit is found (the sub-block next to
