@@ -11,7 +11,7 @@ cd "$(dirname "$0")/.."
 if [ "$#" -gt 0 ]; then
   targets=("$@")
 else
-  targets=(test_servo_loop test_session test_c_api test_haptics test_async_regions test_async_force
+  targets=(test_base test_servo_loop test_session test_c_api test_haptics test_async_regions test_async_force
            test_deformable test_ray_kernels)
 fi
 cmake --preset tsan >/dev/null

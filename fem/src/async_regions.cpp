@@ -22,8 +22,8 @@
 #include <sstream>
 #include <thread>
 
-#include "palp/error.h"
-#include "palp/parallel.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
 
 namespace palp::fem {
 

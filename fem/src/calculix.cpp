@@ -6,7 +6,7 @@
 #include <sstream>
 #include <string>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::fem {
 

@@ -7,8 +7,8 @@
 #include <cstdint>
 #include <sstream>
 
-#include "palp/error.h"
-#include "palp/parallel.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
 
 namespace palp::fem {
 

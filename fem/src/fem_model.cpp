@@ -8,9 +8,9 @@
 #include <cmath>
 #include <sstream>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
 #include "palp/fem/hex_element.h"
-#include "palp/parallel.h"
 
 namespace palp::fem {
 

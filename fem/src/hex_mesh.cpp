@@ -4,7 +4,7 @@
 #include <numeric>
 #include <sstream>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::fem {
 

@@ -3,7 +3,7 @@
 #include <cmath>
 #include <sstream>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::fem {
 

@@ -8,8 +8,8 @@
 #include <cmath>
 #include <sstream>
 
-#include "palp/error.h"
-#include "palp/parallel.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
 
 namespace palp::fem {
 

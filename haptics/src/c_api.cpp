@@ -14,7 +14,7 @@
 #include <type_traits>
 #include <utility>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/session.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/trajectory.h"

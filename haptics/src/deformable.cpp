@@ -7,7 +7,7 @@
 #include <span>
 #include <string>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::haptics {
 namespace {

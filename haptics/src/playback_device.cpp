@@ -14,7 +14,7 @@
 #include <string_view>
 #include <system_error>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/safety.h"
 
 namespace palp::haptics {

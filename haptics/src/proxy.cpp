@@ -9,7 +9,7 @@
 #include <limits>
 #include <string>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::haptics {
 

@@ -13,7 +13,7 @@
 #include <string>
 #include <system_error>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::haptics {
 

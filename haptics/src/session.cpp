@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/passivity.h"
 #include "palp/haptics/safety.h"
 

@@ -12,7 +12,7 @@
 #include <sstream>
 #include <type_traits>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 #define STB_IMAGE_WRITE_IMPLEMENTATION
 #define STBI_WRITE_NO_STDIO

@@ -9,9 +9,9 @@
 #include <string>
 #include <vector>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
 #include "palp/kernels/volume_ray.h"
-#include "palp/parallel.h"
 
 namespace palp::kernels {
 

@@ -9,7 +9,7 @@
 #include <fstream>
 #include <string>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::kernels {
 

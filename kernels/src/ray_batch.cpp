@@ -2,8 +2,8 @@
 
 #include <string>
 
-#include "palp/error.h"
-#include "palp/parallel.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
 
 namespace palp::kernels {
 

@@ -17,7 +17,7 @@
 #include <random>
 #include <thread>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/ray_batch.h"
 #include "palp/kernels/volume_ray.h"

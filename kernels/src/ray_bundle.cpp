@@ -4,7 +4,7 @@
 #include <numbers>
 #include <string>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::kernels {
 

@@ -10,7 +10,7 @@
 #include <numeric>
 #include <string>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::kernels {
 

@@ -8,7 +8,7 @@
 #include <string>
 #include <type_traits>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 #if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
 #include <immintrin.h>

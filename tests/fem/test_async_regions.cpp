@@ -9,7 +9,7 @@
 #include <thread>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/implicit_solver.h"

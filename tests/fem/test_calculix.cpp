@@ -4,7 +4,7 @@
 #include <iostream>
 
 #include "fem_test_util.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/fem/calculix.h"
 #include "palp/fem/implicit_solver.h"
 #include "test_support.h"

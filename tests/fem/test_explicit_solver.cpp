@@ -7,7 +7,7 @@
 #include <new>
 
 #include "fem_test_util.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/implicit_solver.h"
 

@@ -2,7 +2,7 @@
 
 #include <Eigen/Geometry>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/hex_mesh.h"
 #include "palp/fem/material.h"

@@ -6,7 +6,7 @@
 #include <numbers>
 
 #include "fem_test_util.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/fem/implicit_solver.h"
 
 namespace palp::fem {

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <string>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/implicit_solver.h"
 #include "palp/fem/voxelize.h"

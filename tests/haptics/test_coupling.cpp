@@ -19,7 +19,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/coupling.h"
 #include "palp/kernels/mesh.h"
 #include "palp/volume/phantom.h"

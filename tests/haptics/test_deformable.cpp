@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/fem/implicit_solver.h"
 #include "palp/haptics/deformable.h"
 #include "palp/haptics/session.h"

@@ -20,7 +20,7 @@
 #define STB_IMAGE_IMPLEMENTATION
 #include <stb/stb_image.h>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/session.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/study.h"

@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/proxy.h"
 #include "palp/haptics/trajectory.h"
 #include "palp/kernels/mesh.h"

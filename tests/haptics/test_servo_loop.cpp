@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/servo_loop.h"
 
 namespace palp::haptics {

@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/session.h"
 #include "palp/volume/phantom.h"
 #include "session_fixtures.h"

@@ -15,7 +15,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/playback_device.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/trajectory.h"

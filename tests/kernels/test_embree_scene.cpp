@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/mesh.h"
 #include "palp/kernels/ray_batch.h"

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <vector>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/ray_bundle.h"
 
 namespace {

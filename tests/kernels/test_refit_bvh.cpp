@@ -15,7 +15,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/refit_bvh.h"
 

@@ -6,7 +6,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/trilinear.h"
 #include "palp/kernels/volume_ray.h"
 #include "ray_test_shapes.h"

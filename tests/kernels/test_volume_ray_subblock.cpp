@@ -12,7 +12,7 @@
 #include <random>
 #include <vector>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/volume_ray.h"
 
 namespace {

@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/trilinear.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"

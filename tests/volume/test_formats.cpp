@@ -10,7 +10,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/formats.h"
 #include "palp/volume/header_parsers.h"
 #include "palp/volume/load.h"

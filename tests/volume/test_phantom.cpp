@@ -13,7 +13,7 @@
 #include <numbers>
 #include <set>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
 #include "palp/volume/phantom.h"

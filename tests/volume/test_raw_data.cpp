@@ -6,7 +6,7 @@
 #include <fstream>
 #include <limits>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/raw_data.h"
 #include "test_support.h"
 

@@ -3,7 +3,7 @@
 #include <Eigen/Geometry>
 #include <cmath>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/trilinear.h"
 #include "palp/volume/resample.h"
 

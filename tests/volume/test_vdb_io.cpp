@@ -4,7 +4,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/load.h"
 #include "test_support.h"
 

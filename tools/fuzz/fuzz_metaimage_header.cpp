@@ -11,7 +11,7 @@
 #include <string>
 #include <string_view>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/formats.h"
 #include "palp/volume/header_parsers.h"
 

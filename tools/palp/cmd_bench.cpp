@@ -7,7 +7,7 @@
 #include <string>
 
 #include "commands.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/kernels/mesh.h"
 #include "palp/kernels/ray_bench.h"
 #include "palp/volume/load.h"

@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "commands.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/coupling.h"
 #include "palp/haptics/session.h"
 #include "palp/haptics/simulated_device.h"

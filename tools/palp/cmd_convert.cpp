@@ -3,7 +3,7 @@
 #include <filesystem>
 
 #include "commands.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/load.h"
 #include "progress.h"
 

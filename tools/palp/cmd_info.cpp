@@ -6,7 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include "commands.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
 

@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "commands.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/haptics/session.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/study.h"

@@ -5,7 +5,7 @@
 #include <vector>
 
 #include "commands.h"
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "progress.h"
 
 namespace palp::tool {

@@ -25,7 +25,7 @@
 #include <string>
 #include <vector>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 
 namespace palp::volume {

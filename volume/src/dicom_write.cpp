@@ -20,7 +20,7 @@
 #include <system_error>
 #include <vector>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 
 namespace palp::volume {

@@ -9,7 +9,7 @@
 #include <fstream>
 #include <random>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/formats.h"
 

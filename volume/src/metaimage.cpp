@@ -5,7 +5,7 @@
 #include <cmath>
 #include <limits>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/formats.h"
 #include "palp/volume/header_parsers.h"
 #include "palp/volume/raw_data.h"

@@ -9,7 +9,7 @@
 #include <memory>
 #include <mutex>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/formats.h"
 #include "palp/volume/raw_data.h"
 #include "reader_util.h"

@@ -6,7 +6,7 @@
 #include <limits>
 #include <map>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/formats.h"
 #include "palp/volume/header_parsers.h"
 #include "palp/volume/raw_data.h"

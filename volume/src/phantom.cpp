@@ -9,8 +9,8 @@
 #include <cstdio>
 #include <numbers>
 
-#include "palp/error.h"
-#include "palp/parallel.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
 
 namespace palp::volume {
 

@@ -10,7 +10,7 @@
 #include <fstream>
 #include <limits>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 
 namespace palp::volume {
 

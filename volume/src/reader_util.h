@@ -11,7 +11,7 @@
 #include <string_view>
 #include <vector>
 
-#include "palp/error.h"
+#include "palp/base/error.h"
 #include "palp/volume/header_parsers.h"
 #include "palp/volume/load.h"
 #include "palp/volume/raw_data.h"

@@ -13,8 +13,8 @@
 #include <numeric>
 #include <sstream>
 
-#include "palp/error.h"
-#include "palp/parallel.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
 
 namespace palp::volume {
 

@@ -9,13 +9,13 @@
 #include <memory>
 #include <optional>
 
+#include "palp/base/spsc_queue.h"
+#include "palp/base/triple_buffer.h"
 #include "palp/haptics/coupling.h"
 #include "palp/haptics/deformable.h"
 #include "palp/haptics/device.h"
 #include "palp/haptics/proxy.h"
 #include "palp/haptics/servo_loop.h"
-#include "palp/haptics/spsc_queue.h"
-#include "palp/haptics/triple_buffer.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/mesh.h"
 #include "palp/kernels/volume_ray.h"

@@ -8,7 +8,7 @@
 #include <cstdint>
 #include <type_traits>
 
-namespace palp::haptics {
+namespace palp {
 
 /// Three slots: the writer fills its back slot and publishes it; the reader takes the newest
 /// published slot as its front. Neither side ever waits, and the reader always sees a complete
@@ -74,4 +74,4 @@ class TripleBuffer {
     std::uint8_t mFront = 2;               // reader-owned
 };
 
-}  // namespace palp::haptics
+}  // namespace palp

@@ -8,7 +8,7 @@
 #include <cstddef>
 #include <type_traits>
 
-namespace palp::haptics {
+namespace palp {
 
 /// A ring of @p Capacity slots (a power of two) that one producer thread fills and one consumer
 /// thread drains, in order. Storage is inline: no allocation after construction.
@@ -69,4 +69,4 @@ class SpscQueue {
     alignas(kCacheLine) std::array<T, Capacity> mSlots{};
 };
 
-}  // namespace palp::haptics
+}  // namespace palp

@@ -4,9 +4,9 @@
 #include <thread>
 
 #include "alloc_counter.h"
-#include "palp/haptics/spsc_queue.h"
+#include "palp/base/spsc_queue.h"
 
-namespace palp::haptics {
+namespace palp {
 namespace {
 
 TEST(SpscQueue, FifoAndCapacity) {
@@ -78,4 +78,4 @@ TEST(SpscQueue, TwoThreadStressKeepsOrderAndCompleteness) {
 }
 
 }  // namespace
-}  // namespace palp::haptics
+}  // namespace palp

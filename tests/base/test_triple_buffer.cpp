@@ -5,9 +5,9 @@
 #include <thread>
 
 #include "alloc_counter.h"
-#include "palp/haptics/triple_buffer.h"
+#include "palp/base/triple_buffer.h"
 
-namespace palp::haptics {
+namespace palp {
 namespace {
 
 TEST(TripleBuffer, ReaderSeesLatestPublished) {
@@ -91,4 +91,4 @@ TEST(TripleBuffer, TwoThreadStressGivesWholeMonotonicSnapshots) {
 }
 
 }  // namespace
-}  // namespace palp::haptics
+}  // namespace palp
