@@ -1,57 +1,27 @@
 #include "palp/fem/implicit_solver.h"
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/parallel_reduce.h>
-
 #include <Eigen/CholmodSupport>
 #include <Eigen/SparseCholesky>
 #include <cmath>
 #include <sstream>
 
 #include "palp/base/error.h"
-#include "palp/base/parallel.h"
+#include "pcg.h"
 
 namespace palp::fem {
 
 namespace {
 constexpr double kNewmarkBeta = 0.25;
 constexpr double kNewmarkGamma = 0.5;
-using RowMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
-
-/// y = A x over row blocks on TBB workers.
-void parallelSpmv(const RowMatrix& a, const Eigen::VectorXd& x, Eigen::VectorXd& y) {
-    const int* outer = a.outerIndexPtr();
-    const int* inner = a.innerIndexPtr();
-    const double* val = a.valuePtr();
-    parallelFor(tbb::blocked_range<int>(0, static_cast<int>(a.rows()), 1024),
-                [&](const tbb::blocked_range<int>& r) {
-                    for (int i = r.begin(); i != r.end(); ++i) {
-                        double s = 0.0;
-                        for (int p = outer[i]; p < outer[i + 1]; ++p) s += val[p] * x[inner[p]];
-                        y[i] = s;
-                    }
-                });
-}
-
-double parallelDot(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
-    return tbb::parallel_reduce(
-        tbb::blocked_range<Eigen::Index>(0, a.size(), 4096), 0.0,
-        [&](const tbb::blocked_range<Eigen::Index>& r, double s) {
-            return s + a.segment(r.begin(), r.end() - r.begin())
-                           .dot(b.segment(r.begin(), r.end() - r.begin()));
-        },
-        [](double x, double y) { return x + y; });
-}
 }  // namespace
 
 struct ImplicitSolver::Linear {
     SparseMatrix matrix;  // effective matrix on the free dofs
     Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
     Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
-    RowMatrix rowMatrix;
+    RowSparseMatrix rowMatrix;
     Eigen::VectorXd inverseDiagonal;
-    Eigen::VectorXd r, z, p, q;
+    PcgWorkspace pcg;
     bool analysed = false;
 };
 
@@ -195,34 +165,12 @@ bool ImplicitSolver::solve(const Eigen::VectorXd& b, Eigen::VectorXd& x) noexcep
             case LinearSolverKind::cholmod:
                 x = lin.cholmod.solve(b);
                 break;
-            case LinearSolverKind::pcg: {
+            case LinearSolverKind::pcg:
                 // x holds the warm start (previous solution).
-                const double bnorm = std::sqrt(parallelDot(b, b));
-                if (bnorm == 0.0) {
-                    x.setZero();
-                    break;
-                }
-                lin.q.resize(b.size());
-                parallelSpmv(lin.rowMatrix, x, lin.q);
-                lin.r = b - lin.q;
-                lin.z = lin.inverseDiagonal.cwiseProduct(lin.r);
-                lin.p = lin.z;
-                double rz = parallelDot(lin.r, lin.z);
-                const double tol = mOptions.pcgRelativeTolerance * bnorm;
-                while (std::sqrt(parallelDot(lin.r, lin.r)) > tol &&
-                       mIterations < mOptions.pcgMaxIterations) {
-                    parallelSpmv(lin.rowMatrix, lin.p, lin.q);
-                    const double alpha = rz / parallelDot(lin.p, lin.q);
-                    x += alpha * lin.p;
-                    lin.r -= alpha * lin.q;
-                    lin.z = lin.inverseDiagonal.cwiseProduct(lin.r);
-                    const double rzNew = parallelDot(lin.r, lin.z);
-                    lin.p = lin.z + (rzNew / rz) * lin.p;
-                    rz = rzNew;
-                    ++mIterations;
-                }
+                mIterations =
+                    solveJacobiPcg(lin.rowMatrix, lin.inverseDiagonal, b, x, lin.pcg,
+                                   mOptions.pcgRelativeTolerance, mOptions.pcgMaxIterations);
                 break;
-            }
         }
         return x.allFinite();
     } catch (...) {

@@ -1,0 +1,131 @@
+#pragma once
+/// @file
+/// The data of the asynchronous regions that the primary, the secondary and the layout builder
+/// share: one arrangement of the regions with its secondary system (Layout), and the border data
+/// that crosses between the servo and the secondary (BorderPacket).
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/Core>
+#include <Eigen/SparseCore>
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "palp/base/nothrow_slot.h"
+#include "palp/base/triple_buffer.h"
+#include "palp/fem/fem_model.h"
+#include "pcg.h"
+
+namespace palp::fem {
+
+/// Border data crossing threads, preallocated to the dof count (Gamma and the primary border are
+/// disjoint sets of dofs, so both fit; results also carry 3 values per watched node).
+struct BorderPacket {
+    /// Snapshots: the primary border values. Results: Gamma, then the border they answer, then
+    /// the watched nodes' values.
+    std::vector<double> values;
+    // Snapshots, force drive: period-averaged loads on secondary dofs (fine dof, newtons).
+    std::vector<int> loadDofs;
+    std::vector<double> loadValues;
+    int loadCount = 0;
+    double time = 0.0;
+    std::uint64_t sequence = 0;
+    std::uint64_t generation = 0;  // layout the values belong to
+};
+
+/// The two lock-free exchanges between the servo and the secondary thread (threaded mode):
+/// snapshots of the primary border (servo writes, secondary reads) and secondary solutions
+/// (secondary writes, servo reads). Synchronous mode uses their back slots as work buffers.
+/// @par Threading  Each buffer has one writer and one reader thread (acquire/release exchange of
+/// the slot index, palp::TripleBuffer); the slots are sized once at construction.
+struct BorderExchange {
+    using Buffer = TripleBuffer<NothrowSlot<BorderPacket>>;
+    /// Sizes every slot for @p dofs dofs and @p watchValues watched values.
+    BorderExchange(int dofs, std::size_t watchValues)
+        : snapshots(NothrowSlot<BorderPacket>(snapshotPacket(dofs))),
+          results(NothrowSlot<BorderPacket>(resultPacket(dofs, watchValues))) {}
+    Buffer snapshots;  ///< servo -> secondary
+    Buffer results;    ///< secondary -> servo
+
+  private:
+    static BorderPacket snapshotPacket(int dofs) {
+        BorderPacket p;
+        p.values.assign(static_cast<std::size_t>(dofs), 0.0);
+        p.loadDofs.assign(static_cast<std::size_t>(dofs), 0);
+        p.loadValues.assign(static_cast<std::size_t>(dofs), 0.0);
+        return p;
+    }
+    static BorderPacket resultPacket(int dofs, std::size_t watchValues) {
+        BorderPacket p;
+        p.values.assign(static_cast<std::size_t>(dofs) + watchValues, 0.0);
+        return p;
+    }
+};
+
+/// One arrangement of the regions with its secondary system.
+/// @par Threading  Built and factorised by LayoutBuilder (constructor, builder thread or the
+/// synchronous period boundary), then immutable except for the secondary's work state below
+/// (x .. border, fieldStale: the secondary's thread only) and the entry state (written by the
+/// preparing thread before the layout is published to the servo with a release store).
+struct Layout {
+    int seeds = 0;
+    std::uint64_t generation = 0;                // unique per prepared layout
+    std::vector<int> contactNodes, contactDofs;  // driven nodes (always in P)
+    // State handed to the primary at a contact change: fine dofs of P and Gamma that were
+    // secondary interior before, with the secondary's latest values there.
+    std::vector<int> entryDofs;
+    std::vector<double> entryValues;
+    std::vector<int> primaryNodes;             // P, sorted
+    std::vector<std::uint8_t> isPrimary;       // per fine node
+    std::vector<std::array<int, 8>> cellDofs;  // 3 * node of the 8 nodes of each primary cell
+    std::vector<double> cellE;                 // Young's modulus per primary cell
+    std::vector<int> touchedDofs;              // dofs of all nodes of primary cells
+    std::vector<int> freeDofs;                 // free P dofs the primary integrates
+    std::vector<int> gammaNodes, gammaDofs;    // secondary border: free S dofs of primary cells
+    std::vector<std::uint8_t> isGamma;         // per fine node
+    std::vector<int> borderDofs;               // P dofs coupled to the secondary
+    int freeNodeCount = 0;
+    // Secondary (coarse unknowns).
+    std::vector<int> unknownCoarseDof;  // unknown -> coarse dof
+    RowSparseMatrix interp;             // fine dofs x unknowns (rows of P / fixed dofs empty)
+    RowSparseMatrix interpGamma;        // gamma dofs x unknowns
+    RowSparseMatrix interpWatch;        // 3 * #watched x unknowns (rows of interp)
+    SparseMatrix kc, mc;                // unknowns x unknowns
+    RowSparseMatrix kcb;                // unknowns x border dofs
+    Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
+    RowSparseMatrix rowA;  // PCG secondary: the system matrix
+    Eigen::VectorXd inverseDiagonal;
+    // G: gamma dofs x border dofs (condensed coupling), small entries dropped.
+    RowSparseMatrix response;
+    // Quasi-static CHOLMOD secondary: the exact Gamma response to the border (dense), so that a
+    // secondary solve needs only Gamma = R u_B; the whole field x is solved when asked for.
+    Eigen::MatrixXd gammaResponse;
+    Eigen::MatrixXd watchResponse;  // the same for the watched dofs (3 * #watched x border)
+    bool fieldStale = false;        // x (and uC) lag the last border (direct Gamma solves)
+    // Secondary work vectors (secondary thread only).
+    Eigen::VectorXd x, v, a, rhs, xNew, yc, ym, border;
+    PcgWorkspace pcg;
+};
+
+/// f(dof, value) for every free dof of the nodes of @p to's P and Gamma that @p from showed from
+/// its secondary (interior secondary nodes): value = @p from's latest secondary solution there.
+/// Reads @p from's secondary state: call it on the secondary's thread. Allocates.
+template <class F>
+void forEachEnteringDof(const Layout& from, const Layout& to,
+                        const std::vector<std::uint8_t>& fixed, F&& f) {
+    std::vector<std::uint8_t> known(from.isPrimary);
+    for (int n : from.gammaNodes) known[static_cast<std::size_t>(n)] = 1;
+    auto enter = [&](int n) {
+        if (known[static_cast<std::size_t>(n)]) return;
+        known[static_cast<std::size_t>(n)] = 1;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            if (fixed[static_cast<std::size_t>(d)]) continue;
+            f(d, from.unknownCoarseDof.empty() ? 0.0 : from.interp.row(d).dot(from.x));
+        }
+    };
+    for (int n : to.primaryNodes) enter(n);
+    for (int n : to.gammaNodes) enter(n);
+}
+
+}  // namespace palp::fem

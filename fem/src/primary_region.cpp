@@ -1,0 +1,323 @@
+#include "primary_region.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace palp::fem {
+
+namespace {
+std::size_t sz(int v) { return static_cast<std::size_t>(v); }
+}  // namespace
+
+PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
+                             const std::vector<int>& contact)
+    : mSetup(setup) {
+    const FemModel& model = setup.model;
+    const AsyncRegionsOptions& o = setup.options;
+    const int dofs = model.dofCount();
+    const int nodes = model.mesh().nodeCount();
+    // Central-difference coefficients (the same for every layout).
+    const double critical = o.safetyFactor * model.criticalTimeStep();
+    mSubsteps =
+        std::min(o.maxSubsteps, std::max(1, static_cast<int>(std::ceil(o.tickSeconds / critical))));
+    mDtSub = o.tickSeconds / mSubsteps;
+    mU = Eigen::VectorXd::Zero(dofs);
+    for (int d = 0; d < dofs; ++d) {
+        if (c.isFixed(d)) mU[d] = c.values()[d];
+    }
+    for (int n : contact) {
+        for (int k = 0; k < 3; ++k) mU[3 * n + k] = 0.0;
+    }
+    mUPrev = mU;
+    mFInt = Eigen::VectorXd::Zero(dofs);
+    mWork = mU;
+    mInvDen = Eigen::VectorXd::Zero(dofs);
+    mPrevCoef = Eigen::VectorXd::Zero(dofs);
+    mTwoMass = Eigen::VectorXd::Zero(dofs);
+    const Eigen::VectorXd& mass = model.lumpedMass();
+    const double alpha = model.material().dampingAlpha;
+    for (int d = 0; d < dofs; ++d) {
+        if (setup.fixed[sz(d)] || mass[d] <= 0.0) continue;
+        mInvDen[d] = 1.0 / (mass[d] + 0.5 * mDtSub * alpha * mass[d]);
+        mPrevCoef[d] = mass[d] - 0.5 * mDtSub * alpha * mass[d];
+        mTwoMass[d] = 2.0 * mass[d];
+    }
+    mContactStart = Eigen::VectorXd::Zero(dofs);
+    mGPrev.assign(sz(dofs), 0.0);
+    mGCur = mGPrev;
+    mBPrev = Eigen::VectorXd::Zero(dofs);
+    mBCur = mBPrev;
+    mBNow = mBPrev;
+    mGFix = mBPrev;
+    mWPrev.assign(3 * o.watchNodes.size(), 0.0);
+    mWCur = mWPrev;
+    mFExt = Eigen::VectorXd::Zero(dofs);
+    mFAcc = mFExt;
+    mFExtDofs.assign(3 * sz(o.maxLoads), 0);
+    mAccNodes.assign(sz(nodes), 0);
+    mAccMark.assign(sz(nodes), 0);
+}
+
+void PrimaryRegion::restartCoupling(const Layout& L) noexcept {
+    // Gamma and the border start from the values the primary shows now.
+    for (std::size_t i = 0; i < L.gammaDofs.size(); ++i) {
+        mGPrev[i] = mU[L.gammaDofs[i]];
+        mGCur[i] = mGPrev[i];
+    }
+    for (std::size_t i = 0; i < L.borderDofs.size(); ++i) {
+        const Eigen::Index k = static_cast<Eigen::Index>(i);
+        mBPrev[k] = mU[L.borderDofs[i]];
+        mBCur[k] = mBPrev[k];
+    }
+    mGammaStart = mTime;
+}
+
+void PrimaryRegion::restartGammaFrom(const Layout& L, const Eigen::VectorXd& x) noexcept {
+    const Eigen::Index ng = static_cast<Eigen::Index>(L.gammaDofs.size());
+    Eigen::Map<Eigen::VectorXd> g(mGPrev.data(), ng);
+    if (!L.unknownCoarseDof.empty()) {
+        g.noalias() = L.interpGamma * x;
+    } else {
+        g.setZero();
+    }
+    std::copy(mGPrev.begin(), mGPrev.begin() + ng, mGCur.begin());
+}
+
+void PrimaryRegion::setGamma(const Layout& L, double* target, double t, bool product) noexcept {
+    const double frac = mSetup.periodFraction(t, mGammaStart);
+    const std::size_t n = L.gammaDofs.size();
+    if (L.response.nonZeros() > 0) {
+        const std::size_t nb = L.borderDofs.size();
+        if (product) {
+            for (std::size_t i = 0; i < nb; ++i) {
+                const Eigen::Index k = static_cast<Eigen::Index>(i);
+                mBNow[k] = target[L.borderDofs[i]] - (mBPrev[k] + frac * (mBCur[k] - mBPrev[k]));
+            }
+            mGFix.head(static_cast<Eigen::Index>(n)).noalias() =
+                L.response * mBNow.head(static_cast<Eigen::Index>(nb));
+        }
+        for (std::size_t i = 0; i < n; ++i)
+            target[L.gammaDofs[i]] =
+                mGPrev[i] + frac * (mGCur[i] - mGPrev[i]) + mGFix[static_cast<Eigen::Index>(i)];
+        return;
+    }
+    for (std::size_t i = 0; i < n; ++i)
+        target[L.gammaDofs[i]] = mGPrev[i] + frac * (mGCur[i] - mGPrev[i]);
+}
+
+void PrimaryRegion::acceptSolution(const Layout& L, const double* gamma, const double* border,
+                                   const double* watch) noexcept {
+    // Start from the value shown now, so a solution arriving mid-period does not jump.
+    const double frac = mSetup.periodFraction(mTime, mGammaStart);
+    for (std::size_t i = 0; i < L.gammaDofs.size(); ++i) {
+        mGPrev[i] = mGPrev[i] + frac * (mGCur[i] - mGPrev[i]);
+        mGCur[i] = gamma[i];
+    }
+    for (std::size_t i = 0; i < L.borderDofs.size(); ++i) {
+        const Eigen::Index k = static_cast<Eigen::Index>(i);
+        mBPrev[k] = mBPrev[k] + frac * (mBCur[k] - mBPrev[k]);
+        mBCur[k] = border[i];
+    }
+    if (watch != nullptr) {
+        for (std::size_t i = 0; i < mWPrev.size(); ++i) {
+            mWPrev[i] = mWPrev[i] + frac * (mWCur[i] - mWPrev[i]);
+            mWCur[i] = watch[i];
+        }
+    }
+    mGammaStart = mTime;
+    ++mUsed;
+}
+
+void PrimaryRegion::showBorder(const Layout& from) noexcept {
+    // The border as the primary shows it now (current and previous substep).
+    setGamma(from, mU.data(), mTime, true);
+    setGamma(from, mUPrev.data(), mTime - mDtSub, true);
+    seedWatched(from);
+}
+
+void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
+    // Nodes the servo did not integrate or show take the prepared secondary values; the
+    // coupling restarts from the shown values, so nothing jumps at the swap.
+    showBorder(from);
+    for (std::size_t i = 0; i < to.entryDofs.size(); ++i) enter(to.entryDofs[i], to.entryValues[i]);
+    restartCoupling(to);
+}
+
+void PrimaryRegion::seedWatched(const Layout& from) noexcept {
+    // Called before restartCoupling() restarts the interpolation clock. Watched nodes the servo
+    // showed (P and Gamma of the layout being left) start from those values: the secondary's
+    // last solution has nothing (zero) for primary nodes. The others restart their
+    // interpolation from the value shown now (so they do not fall back to the previous
+    // solution when the clock restarts) towards the same newest solution.
+    const double frac = shownFraction();
+    const std::vector<int>& watch = mSetup.options.watchNodes;
+    for (std::size_t i = 0; i < watch.size(); ++i) {
+        const int n = watch[i];
+        const bool shownByServo = from.isPrimary[sz(n)] || from.isGamma[sz(n)];
+        for (std::size_t k = 0; k < 3; ++k) {
+            const std::size_t j = 3 * i + k;
+            if (shownByServo) {
+                mWPrev[j] = mU[3 * n + static_cast<int>(k)];
+                mWCur[j] = mWPrev[j];
+            } else {
+                mWPrev[j] = mWPrev[j] + frac * (mWCur[j] - mWPrev[j]);
+            }
+        }
+    }
+}
+
+void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
+                            AsyncTickResult& result) noexcept {
+    const FemModel& model = mSetup.model;
+    const double* ke = model.unitStiffness();
+    const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64> K(ke);
+    const double beta = model.material().dampingBeta;
+    const double dt = mDtSub;
+    const double dt2 = dt * dt;
+    const std::vector<int>& contactDofs = L.contactDofs;
+    for (std::size_t i = 0; i < contactDofs.size(); ++i)
+        mContactStart[static_cast<Eigen::Index>(i)] = mU[contactDofs[i]];
+    for (int s = 0; s < mSubsteps; ++s) {
+        const bool product = s == 0 || !mSetup.options.condensedOncePerTick;
+        setGamma(L, mU.data(), mTime, product);
+        const double* operand = mU.data();
+        if (beta > 0.0) {
+            setGamma(L, mUPrev.data(), mTime - dt, product);
+            const double b = beta / dt;
+            for (int d : L.touchedDofs) mWork[d] = mU[d] + b * (mU[d] - mUPrev[d]);
+            operand = mWork.data();
+        }
+        for (int d : L.touchedDofs) mFInt[d] = 0.0;
+        const std::size_t cells = L.cellDofs.size();
+        for (std::size_t c = 0; c < cells; ++c) {
+            const std::array<int, 8>& nd = L.cellDofs[c];
+            Eigen::Matrix<double, 24, 1> ue;
+            for (int a = 0; a < 8; ++a) {
+                for (int k = 0; k < 3; ++k) ue[3 * a + k] = operand[nd[sz(a)] + k];
+            }
+            const Eigen::Matrix<double, 24, 1> fe = L.cellE[c] * (K * ue);
+            for (int a = 0; a < 8; ++a) {
+                for (int k = 0; k < 3; ++k) mFInt[nd[sz(a)] + k] += fe[3 * a + k];
+            }
+        }
+        for (int d : L.freeDofs)
+            mUPrev[d] =
+                (dt2 * (mFExt[d] - mFInt[d]) + mTwoMass[d] * mU[d] - mPrevCoef[d] * mUPrev[d]) *
+                mInvDen[d];
+        const double frac = static_cast<double>(s + 1) / mSubsteps;
+        for (std::size_t i = 0; i < contactDofs.size(); ++i) {
+            const double start = mContactStart[static_cast<Eigen::Index>(i)];
+            mUPrev[contactDofs[i]] =
+                start + frac * (target[static_cast<Eigen::Index>(i % 3)] - start);
+        }
+        mU.swap(mUPrev);
+        mTime += dt;
+        ++result.substeps;
+    }
+    // Gamma as of now (with the tick's last condensed correction), for nodeDisplacement(); the
+    // next substep sets it again before using it.
+    setGamma(L, mU.data(), mTime, false);
+    bool finite = true;
+    for (int d : L.freeDofs) finite = finite && std::isfinite(mU[d]);
+    if (!finite) {
+        for (int d : L.freeDofs) {
+            mU[d] = 0.0;
+            mUPrev[d] = 0.0;
+        }
+        result.flags |= kStepDiverged;
+    }
+    Eigen::Vector3d force = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < contactDofs.size(); ++i)
+        force[static_cast<Eigen::Index>(i % 3)] += mFInt[contactDofs[i]];
+    if (!mSetup.forceDrive) result.contactForce = finite ? force : Eigen::Vector3d::Zero();
+}
+
+void PrimaryRegion::takeLoads(const Layout& L, std::span<const NodalLoad> loads,
+                              AsyncTickResult& result) noexcept {
+    const HexMesh& mesh = mSetup.model.mesh();
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    std::size_t taken = 0;
+    for (std::size_t i = 0; i < loads.size(); ++i) {
+        if (taken >= sz(mSetup.options.maxLoads)) {  // bounded work whatever the caller passes
+            result.loadsRefused += static_cast<int>(loads.size() - i);
+            break;
+        }
+        const NodalLoad& load = loads[i];
+        const int n = load.node;
+        if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)] ||
+            !load.force.allFinite()) {
+            ++result.loadsRefused;
+            continue;
+        }
+        ++taken;
+        sum += load.force;
+        const bool primary = L.isPrimary[sz(n)] != 0;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            if (mSetup.fixed[sz(d)]) continue;  // taken by the support
+            if (primary) {
+                mFExtDofs[mFExtCount++] = d;  // a repeated dof is listed twice: harmless
+                mFExt[d] += load.force[k];
+            } else {
+                mFAcc[d] += load.force[k];
+                if (!mAccMark[sz(n)]) {
+                    mAccMark[sz(n)] = 1;
+                    mAccNodes[mAccCount++] = n;
+                }
+            }
+        }
+    }
+    result.contactForce = sum;
+    if (result.loadsRefused > 0) result.flags |= kAsyncLoadsRefused;
+}
+
+void PrimaryRegion::clearTickLoads() noexcept {
+    for (std::size_t i = 0; i < mFExtCount; ++i) mFExt[mFExtDofs[i]] = 0.0;
+    mFExtCount = 0;
+}
+
+void PrimaryRegion::packLoads(BorderPacket& out) noexcept {
+    // The period's mean load on each secondary dof (its impulse over the period).
+    const double inv = 1.0 / mSetup.period;
+    int count = 0;
+    for (std::size_t i = 0; i < mAccCount; ++i) {
+        const int n = mAccNodes[i];
+        mAccMark[sz(n)] = 0;
+        for (int k = 0; k < 3; ++k) {
+            const int d = 3 * n + k;
+            const double f = mFAcc[d];
+            mFAcc[d] = 0.0;
+            if (f == 0.0) continue;
+            out.loadDofs[sz(count)] = d;
+            out.loadValues[sz(count)] = f * inv;
+            ++count;
+        }
+    }
+    mAccCount = 0;
+    out.loadCount = count;
+}
+
+void PrimaryRegion::readBorder(const Layout& L, double* out) const noexcept {
+    for (std::size_t i = 0; i < L.borderDofs.size(); ++i) out[i] = mU[L.borderDofs[i]];
+}
+
+Eigen::Vector3d PrimaryRegion::shown(const Layout& L, int node, double frac) const noexcept {
+    const std::size_t n = sz(node);
+    if (L.isPrimary[n] || L.isGamma[n]) return mU.segment<3>(3 * node);
+    const int w = mSetup.watchIndex[n];
+    Eigen::Vector3d out = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+    const bool active = mSetup.model.mesh().nodeActive()[n];
+    for (int k = 0; k < 3; ++k) {
+        const int d = 3 * node + k;
+        if (mSetup.fixed[sz(d)] || !active) {
+            out[k] = mU[d];
+        } else if (w >= 0) {
+            const std::size_t i = 3 * sz(w) + sz(k);
+            out[k] = mWPrev[i] + frac * (mWCur[i] - mWPrev[i]);
+        }
+    }
+    return out;
+}
+
+}  // namespace palp::fem

@@ -1,0 +1,112 @@
+#pragma once
+/// @file
+/// PrimaryRegion: the explicit primary region of AsyncRegions (central difference over the
+/// primary cells, substepped every servo tick), its coupling to the secondary border Gamma and
+/// its force readout.
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "async_layout.h"
+#include "async_setup.h"
+
+namespace palp::fem {
+
+/// The servo thread's state of the asynchronous regions: the fine displacement field u (and the
+/// previous substep), the coupling state Gamma is interpolated with, the watched nodes'
+/// secondary values, and the force drive's loads.
+/// @par Threading  Owned by the servo thread (the thread that calls AsyncRegions::tick()); in
+/// synchronous mode the period boundary also runs on it. The layouts it is given are read only
+/// in their immutable parts. Nothing here is shared with the secondary thread: border values
+/// leave through readBorder()/packLoads() into a snapshot, solutions enter through
+/// acceptSolution() from a result packet.
+/// @par Real-time  Every member but the constructor is noexcept and allocation-free; work
+/// vectors are sized to the dof count at construction so that a layout change never allocates.
+class PrimaryRegion {
+  public:
+    /// Sets u to the constraint values (the contact nodes to zero) and the central-difference
+    /// coefficients. @p setup must outlive the region.
+    PrimaryRegion(const AsyncSetup& setup, const Constraints& constraints,
+                  const std::vector<int>& contactNodes);
+
+    /// One tick of substeps driving @p L's contact dofs to @p target at its end; fills
+    /// substeps, flags and (displacement drive) the contact reaction in @p result.
+    void advance(const Layout& L, const Eigen::Vector3d& target, AsyncTickResult& result) noexcept;
+    /// Force drive: takes this tick's loads (loads on free P dofs act at once, loads on secondary
+    /// nodes add to the period's sum); fills contactForce, loadsRefused and flags.
+    void takeLoads(const Layout& L, std::span<const NodalLoad> loads,
+                   AsyncTickResult& result) noexcept;
+    /// Clears this tick's primary loads (after advance()).
+    void clearTickLoads() noexcept;
+    /// The period's mean load on each secondary dof into @p out; restarts the period's sum.
+    void packLoads(BorderPacket& out) noexcept;
+    /// The primary border values of @p L (L.borderDofs order) into @p out.
+    void readBorder(const Layout& L, double* out) const noexcept;
+
+    /// Takes a secondary solution: Gamma values @p gamma, the border values @p border they
+    /// answer, the watched values @p watch (or nullptr); the interpolation restarts from the
+    /// values shown now.
+    void acceptSolution(const Layout& L, const double* gamma, const double* border,
+                        const double* watch) noexcept;
+    /// Gamma as @p L shows it at time @p t into @p target (u or uPrev); with @p product the
+    /// condensed correction is recomputed from @p target's border.
+    void setGamma(const Layout& L, double* target, double t, bool product) noexcept;
+    /// Freezes the border as @p from shows it now (current and previous substep) and the
+    /// watched values, before a layout change.
+    void showBorder(const Layout& from) noexcept;
+    /// Restarts the coupling (Gamma, border, clock) from the values the primary shows now.
+    void restartCoupling(const Layout& L) noexcept;
+    /// Plain coupling after an adaptive switch: Gamma restarts from the secondary solution
+    /// @p x of @p L (coarse unknowns).
+    void restartGammaFrom(const Layout& L, const Eigen::VectorXd& x) noexcept;
+    /// A layout for a new contact: the shown border, the entry state of @p to, a new coupling.
+    void adopt(const Layout& from, const Layout& to) noexcept;
+    /// Sets dof @p d to @p value in u and the previous substep (a node entering the primary).
+    void enter(int d, double value) noexcept {
+        mU[d] = value;
+        mUPrev[d] = value;
+    }
+
+    /// The displacement of @p node as shown with @p L at the period fraction @p frac (see
+    /// AsyncRegions::nodeDisplacement).
+    Eigen::Vector3d shown(const Layout& L, int node, double frac) const noexcept;
+    /// The interpolation fraction of the current secondary period.
+    double shownFraction() const noexcept { return mSetup.periodFraction(mTime, mGammaStart); }
+
+    const Eigen::VectorXd& u() const noexcept { return mU; }
+    const Eigen::VectorXd& uPrev() const noexcept { return mUPrev; }
+    double time() const noexcept { return mTime; }
+    double substepSeconds() const noexcept { return mDtSub; }
+    /// Secondary solutions taken up so far.
+    std::uint64_t used() const noexcept { return mUsed; }
+
+  private:
+    void seedWatched(const Layout& from) noexcept;
+
+    const AsyncSetup& mSetup;
+    double mDtSub = 0.0;
+    int mSubsteps = 1;
+    double mTime = 0.0;
+    std::uint64_t mUsed = 0;
+    Eigen::VectorXd mU, mUPrev, mFInt, mWork, mInvDen, mPrevCoef, mTwoMass, mContactStart;
+    // Coupling state, sized to the dof count once so that a layout change never allocates;
+    // the first |Gamma| / |border| entries are used.
+    std::vector<double> mGPrev, mGCur;  // Gamma values the interpolation runs between
+    Eigen::VectorXd mBPrev, mBCur;      // primary border values those Gamma values answer
+    Eigen::VectorXd mBNow, mGFix;       // condensed coupling work vectors
+    double mGammaStart = 0.0;           // coupling clock: time the interpolation started
+    // Watched secondary values the interpolation runs between (3 per watched node).
+    std::vector<double> mWPrev, mWCur;
+    // Force drive: loads on free primary dofs this tick, and the sum over the current period of
+    // the loads on secondary nodes.
+    Eigen::VectorXd mFExt, mFAcc;
+    std::vector<int> mFExtDofs;  // capacity 3 * maxLoads
+    std::size_t mFExtCount = 0;
+    std::vector<int> mAccNodes;  // nodes with a non-zero mFAcc entry, capacity #nodes
+    std::size_t mAccCount = 0;
+    std::vector<std::uint8_t> mAccMark;  // per node
+};
+
+}  // namespace palp::fem

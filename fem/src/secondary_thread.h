@@ -1,0 +1,92 @@
+#pragma once
+/// @file
+/// SecondaryThread: the thread that runs the secondary region in threaded mode, and
+/// LayoutChannel, the hand-over of layouts for contact changes between it and the servo.
+
+#include <tbb/task_arena.h>
+
+#include <atomic>
+#include <chrono>
+#include <memory>
+#include <thread>
+
+#include "async_layout.h"
+#include "async_setup.h"
+#include "layout_builder.h"
+#include "secondary_region.h"
+
+namespace palp::fem {
+
+/// Contact changes: the servo stores the requested node; the preparer (the secondary thread, or
+/// the synchronous period boundary) prepares a layout for it and publishes it in `pending`; the
+/// servo adopts it with one pointer exchange and hands the layout it replaced back in `retired`
+/// for deletion on the secondary thread.
+/// @par Threading  requested: servo -> preparer; pending: preparer -> servo; retired: servo ->
+/// secondary (acquire/release pointer exchanges transfer ownership of the Layout). rejected is
+/// the preparer's own.
+struct LayoutChannel {
+    LayoutChannel() = default;
+    LayoutChannel(const LayoutChannel&) = delete;
+    LayoutChannel& operator=(const LayoutChannel&) = delete;
+    /// Deletes a layout still in flight (after the secondary thread has stopped).
+    ~LayoutChannel();
+    /// Whether node @p want asks for a change from @p L's contact (and was not rejected before).
+    bool wanted(const Layout& L, int want) const noexcept;
+
+    std::atomic<int> requested{-1};
+    std::atomic<Layout*> pending{nullptr};  // prepared, not yet adopted
+    std::atomic<Layout*> retired{nullptr};  // adopted over, to delete
+    int rejected = -1;                      // a request that failed to build
+};
+
+/// Runs the secondary region on its own thread (pinned per options, named "palp-secondary"),
+/// inside the secondary's task_arena: reads border snapshots, solves, publishes results, and
+/// prepares layouts for contact changes (a builder thread, same CPU and nice 10, builds and
+/// factorises while this thread keeps solving; this thread then adds the entry state from its
+/// latest solution and offers the layout to the servo).
+/// @par Threading  Constructed and destroyed by the servo's owner (the destructor stops and joins
+/// the thread). The thread owns the SecondaryRegion and the secondary work state of the layout in
+/// use; with the servo it shares only the two triple buffers of @p exchange, the LayoutChannel and
+/// the stall / stop flags. A stalled or slow secondary never blocks the servo.
+class SecondaryThread {
+  public:
+    /// Starts the thread on @p initial (the servo's current layout). Every argument must outlive
+    /// the object.
+    SecondaryThread(const AsyncSetup& setup, const LayoutBuilder& builder,
+                    SecondaryRegion& secondary, BorderExchange& exchange, LayoutChannel& channel,
+                    Layout& initial, tbb::task_arena& arena);
+    ~SecondaryThread();
+    SecondaryThread(const SecondaryThread&) = delete;
+    SecondaryThread& operator=(const SecondaryThread&) = delete;
+
+    /// Test hook: while true the thread neither reads snapshots nor publishes. Any thread.
+    void setStalled(bool stalled) noexcept { mStalled.store(stalled, std::memory_order_release); }
+
+  private:
+    enum BuildState : int { kIdle, kBuilding, kBuilt, kFailed };
+
+    void run();
+    bool collectBuild();
+    void startBuild(int want);
+    void solveSnapshot(const BorderPacket& in);
+
+    const AsyncSetup& mSetup;
+    const LayoutBuilder& mBuilder;
+    SecondaryRegion& mSecondary;
+    BorderExchange& mExchange;
+    LayoutChannel& mChannel;
+    tbb::task_arena& mArena;
+    // Secondary-thread state: the layout the servo uses (or will, once it adopts mOffered).
+    Layout* mSec;
+    Layout* mOffered = nullptr;
+    int mBuilding = -1;
+    std::chrono::steady_clock::time_point mBuildBegin;
+    // Builder thread: writes mBuilt, then releases mBuildState (kBuilt or kFailed).
+    std::atomic<int> mBuildState{kIdle};
+    std::unique_ptr<Layout> mBuilt;
+    std::thread mBuilderThread;
+    std::atomic<bool> mStop{false}, mStalled{false};
+    std::thread mWorker;  // last: started when everything above is set
+};
+
+}  // namespace palp::fem
