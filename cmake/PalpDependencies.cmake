@@ -8,7 +8,7 @@ find_package(Eigen3 3.4 REQUIRED NO_MODULE)
 find_package(embree 3 REQUIRED)         # embree
 find_package(GDCM REQUIRED)             # gdcmMSFF and friends
 find_package(ZLIB REQUIRED)
-find_package(PNG REQUIRED)
+find_package(PNG REQUIRED)              # PNG::PNG (map images, haptics)
 find_package(CLI11 REQUIRED)
 find_package(nlohmann_json REQUIRED)
 find_package(Threads REQUIRED)

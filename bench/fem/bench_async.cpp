@@ -15,9 +15,6 @@
 //        [--once-per-tick 0|1] [--full-field 0|1] [--move MS] [--force N] [--watch 0|1]
 // --move MS (threaded): every MS milliseconds the contact moves one node along +x across the
 // top face (re-allocation prepared on the secondary thread, adopted by the tick).
-#include <pthread.h>
-#include <sched.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -29,6 +26,7 @@
 #include <thread>
 #include <vector>
 
+#include "palp/base/thread.h"
 #include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 
@@ -305,19 +303,12 @@ void lod(const Config& c) {
     }
 }
 
-void pin(int cpu) {
-    cpu_set_t set;
-    CPU_ZERO(&set);
-    CPU_SET(static_cast<unsigned>(cpu), &set);
-    pthread_setaffinity_np(pthread_self(), sizeof(set), &set);
-}
-
 /// Threaded: the servo thread pinned to CPU 0 ticks at 1 kHz wall clock (sleeping to the next
 /// deadline), the secondary pinned to CPU 1.
 void threaded(const Config& c) {
     const Problem p(c);
     const Run ref = reference(c, p, false);
-    pin(0);
+    palp::pinCurrentThread(0);  // best effort, as before: a refused pin only changes timings
     for (double f : c.rates) {
         AsyncRegionsOptions o;
         o.primaryNodes = c.nodes.front();
@@ -437,7 +428,7 @@ void forceDrive(const Config& c) {
     std::printf("%-9s %5s %6s %9s %9s %9s %8s %9s %9s %10s %9s %8s %8s %9s\n", "mode", "N", "f",
                 "tick ms", "p99 ms", "max ms", "overrun", "sec Hz", "solve ms", "solve CPU",
                 "peak mm", "error", "rms err", "surf err");
-    pin(0);
+    palp::pinCurrentThread(0);  // best effort, as before: a refused pin only changes timings
     for (double f : c.rates) {
         for (bool threadedRun : {false, true}) {
             AsyncRegionsOptions o;

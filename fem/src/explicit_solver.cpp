@@ -6,9 +6,11 @@
 #include <cmath>
 #include <cstdint>
 #include <sstream>
+#include <string>
 
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
+#include "palp/base/validate.h"
 
 namespace palp::fem {
 
@@ -54,21 +56,15 @@ ExplicitSolver::ExplicitSolver(const FemModel& model, const Constraints& constra
     : mModel(model), mOptions(options) {
     const int n = model.dofCount();
     if (constraints.dofCount() != n) {
-        std::ostringstream s;
-        s << "explicit solver constraints: expected " << n << " dofs, found "
-          << constraints.dofCount();
-        throw ValueError(s.str());
+        throwExpected("explicit solver constraints", std::to_string(n) + " dofs",
+                      std::to_string(constraints.dofCount()));
     }
     if (!(options.safetyFactor > 0.0 && options.safetyFactor <= 1.0)) {
-        std::ostringstream s;
-        s << "explicit solver safety factor: expected a value in (0, 1], found "
-          << options.safetyFactor;
-        throw ValueError(s.str());
+        throwExpected("explicit solver safety factor", "a value in (0, 1]",
+                      formatValue(options.safetyFactor));
     }
     if (options.maxSubsteps < 1) {
-        std::ostringstream s;
-        s << "explicit solver max substeps: expected >= 1, found " << options.maxSubsteps;
-        throw ValueError(s.str());
+        throwExpected("explicit solver max substeps", ">= 1", std::to_string(options.maxSubsteps));
     }
     mStableDt = options.safetyFactor * model.criticalTimeStep();
     const Eigen::VectorXd& mass = model.lumpedMass();

@@ -3,8 +3,10 @@
 #include <cmath>
 #include <numeric>
 #include <sstream>
+#include <string>
 
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 
 namespace palp::fem {
 
@@ -15,10 +17,8 @@ std::size_t sz(int v) { return static_cast<std::size_t>(v); }
 void checkCounts(const std::array<int, 3>& counts) {
     for (int a = 0; a < 3; ++a) {
         if (counts[sz(a)] < 2 || counts[sz(a)] > 4096) {
-            std::ostringstream s;
-            s << "hex mesh node count along axis " << a << ": expected 2..4096, found "
-              << counts[sz(a)];
-            throw ValueError(s.str());
+            throwExpected("hex mesh node count along axis " + std::to_string(a), "2..4096",
+                          std::to_string(counts[sz(a)]));
         }
     }
 }
@@ -29,12 +29,7 @@ HexMesh HexMesh::box(const Eigen::Vector3d& size, const std::array<int, 3>& node
                      double youngsModulus, const Eigen::Vector3d& origin) {
     checkCounts(nodeCounts);
     for (int a = 0; a < 3; ++a) {
-        if (!std::isfinite(size[a]) || size[a] <= 0.0) {
-            std::ostringstream s;
-            s << "hex mesh box size along axis " << a << ": expected a finite length > 0 m, found "
-              << size[a];
-            throw ValueError(s.str());
-        }
+        requirePositive("hex mesh box size along axis " + std::to_string(a), size[a], "m");
     }
     const double h = size[0] / (nodeCounts[0] - 1);
     for (int a = 1; a < 3; ++a) {
@@ -53,11 +48,7 @@ HexMesh HexMesh::box(const Eigen::Vector3d& size, const std::array<int, 3>& node
 HexMesh HexMesh::fromCells(const std::array<int, 3>& nodeCounts, double edge,
                            const Eigen::Vector3d& origin, std::vector<double> cellYoungs) {
     checkCounts(nodeCounts);
-    if (!std::isfinite(edge) || edge <= 0.0) {
-        std::ostringstream s;
-        s << "hex mesh element edge: expected a finite length > 0 m, found " << edge;
-        throw ValueError(s.str());
-    }
+    requirePositive("hex mesh element edge", edge, "m");
     HexMesh m;
     m.mNodeCounts = nodeCounts;
     m.mEdge = edge;

@@ -4,8 +4,10 @@
 #include <Eigen/SparseCholesky>
 #include <cmath>
 #include <sstream>
+#include <string>
 
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "pcg.h"
 
 namespace palp::fem {
@@ -30,10 +32,8 @@ ImplicitSolver::ImplicitSolver(const FemModel& model, const Constraints& constra
     : mModel(model), mOptions(options), mLinear(std::make_unique<Linear>()) {
     const int n = model.dofCount();
     if (constraints.dofCount() != n) {
-        std::ostringstream s;
-        s << "implicit solver constraints: expected " << n << " dofs, found "
-          << constraints.dofCount();
-        throw ValueError(s.str());
+        throwExpected("implicit solver constraints", std::to_string(n) + " dofs",
+                      std::to_string(constraints.dofCount()));
     }
     mK = model.assembleStiffness();
     const Eigen::VectorXd& mass = model.lumpedMass();

@@ -1,9 +1,8 @@
 #include "palp/fem/material.h"
 
 #include <cmath>
-#include <sstream>
 
-#include "palp/base/error.h"
+#include "palp/base/validate.h"
 
 namespace palp::fem {
 
@@ -18,30 +17,15 @@ double ElasticMaterial::dilatationalWaveSpeed() const {
                      (density * (1.0 + poissonRatio) * (1.0 - 2.0 * poissonRatio)));
 }
 
-namespace {
-[[noreturn]] void fail(const char* item, const char* expected, double found) {
-    std::ostringstream s;
-    s << "material " << item << ": expected " << expected << ", found " << found;
-    throw ValueError(s.str());
-}
-}  // namespace
-
 void validate(const ElasticMaterial& m) {
-    if (!std::isfinite(m.youngsModulus) || m.youngsModulus <= 0.0) {
-        fail("Young's modulus", "a finite value > 0 Pa", m.youngsModulus);
-    }
+    requirePositive("material Young's modulus", m.youngsModulus, "Pa");
     if (!std::isfinite(m.poissonRatio) || m.poissonRatio <= -1.0 || m.poissonRatio >= 0.5) {
-        fail("Poisson's ratio", "a value in (-1, 0.5)", m.poissonRatio);
+        throwExpected("material Poisson's ratio", "a value in (-1, 0.5)",
+                      formatValue(m.poissonRatio));
     }
-    if (!std::isfinite(m.density) || m.density <= 0.0) {
-        fail("density", "a finite value > 0 kg/m^3", m.density);
-    }
-    if (!std::isfinite(m.dampingAlpha) || m.dampingAlpha < 0.0) {
-        fail("damping alpha", "a finite value >= 0 1/s", m.dampingAlpha);
-    }
-    if (!std::isfinite(m.dampingBeta) || m.dampingBeta < 0.0) {
-        fail("damping beta", "a finite value >= 0 s", m.dampingBeta);
-    }
+    requirePositive("material density", m.density, "kg/m^3");
+    requireNonNegative("material damping alpha", m.dampingAlpha, "1/s");
+    requireNonNegative("material damping beta", m.dampingBeta, "s");
 }
 
 Eigen::Matrix<double, 6, 6> elasticityMatrix(double e, double nu) {

@@ -10,6 +10,7 @@
 
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
+#include "palp/base/validate.h"
 
 namespace palp::fem {
 
@@ -61,11 +62,7 @@ std::vector<int> labelComponents(const std::array<int, 3>& cells,
 
 VoxelizedMesh voxelizeVolume(const volume::Volume& volume, const VoxelizeOptions& options) {
     const double h = options.elementSize;
-    if (!(h > 0.0) || !std::isfinite(h)) {
-        std::ostringstream s;
-        s << "voxelize element size: expected a finite size > 0 m, found " << h;
-        throw ValueError(s.str());
-    }
+    requirePositive("voxelize element size", h, "m");
     // Any active value (voxel or tile) at all: the first one of a serial iteration, not
     // activeVoxelCount()'s TBB reduction over the whole tree.
     if (!volume.grid || !volume.grid->cbeginValueOn()) {

@@ -1,7 +1,5 @@
 #include "palp/haptics/playback_device.h"
 
-#include <unistd.h>
-
 #include <algorithm>
 #include <array>
 #include <cerrno>
@@ -14,6 +12,7 @@
 #include <string_view>
 #include <system_error>
 
+#include "palp/base/atomic_file.h"
 #include "palp/base/error.h"
 #include "palp/haptics/safety.h"
 
@@ -213,8 +212,10 @@ void DeviceRecorder::write(const std::filesystem::path& path) const {
         }
     }
 
-    std::filesystem::path tmp = path;
-    tmp += ".tmp." + std::to_string(::getpid());
+    // The rows go to a temporary file that replaces @p path only once complete; on any
+    // failure the AtomicFile removes it, so nothing half-written is left behind.
+    AtomicFile file(path, "device log");
+    const std::filesystem::path& tmp = file.tempPath();
     std::FILE* out = std::fopen(tmp.c_str(), "wb");
     if (out == nullptr) {
         throw IoError(path.string() + ": cannot create temporary file " + tmp.string() + ": " +
@@ -247,19 +248,10 @@ void DeviceRecorder::write(const std::filesystem::path& path) const {
     ok = (std::fflush(out) == 0) && ok;
     ok = (std::fclose(out) == 0) && ok;
     if (!ok) {
-        std::error_code ignored;
-        std::filesystem::remove(tmp, ignored);
         throw IoError(path.string() + ": cannot write device log (via " + tmp.string() +
                       "): " + std::strerror(writeErrno != 0 ? writeErrno : errno));
     }
-    std::error_code ec;
-    std::filesystem::rename(tmp, path, ec);
-    if (ec) {
-        std::error_code ignored;
-        std::filesystem::remove(tmp, ignored);
-        throw IoError(path.string() + ": cannot rename " + tmp.string() +
-                      " into place: " + ec.message());
-    }
+    file.commit();
 }
 
 PlaybackDevice::PlaybackDevice(const DeviceSpec& spec, std::vector<DeviceSample> log,

@@ -57,12 +57,12 @@ class DeviceRecorder {
     std::span<const DeviceSample> samples() const noexcept { return {mRows.data(), mSize}; }
     /// Forgets the rows (keeps the capacity). @par Real-time noexcept.
     void clear() noexcept { mSize = 0; }
-    /// Writes the header and the rows to `<path>.tmp.<pid>` beside @p path, then renames it
-    /// onto @p path, so @p path is either the old file or the complete new one.
+    /// Writes the header and the rows to a temporary file beside @p path (palp::AtomicFile),
+    /// then renames it onto @p path, so @p path is either the old file or the complete new one.
     /// @throw palp::ValueError naming the file and row, before creating anything, when the rows
     /// would not read back (a non-finite number, time not strictly increasing).
-    /// @throw palp::IoError naming the file when it cannot be written or renamed (the temporary
-    /// file is removed).
+    /// @throw palp::IoError naming the file when its directory is missing or it cannot be
+    /// written or renamed (the temporary file is removed).
     void write(const std::filesystem::path& path) const;
 
   private:
