@@ -1,8 +1,6 @@
 // palp bench servo: the servo loop's wake-up latency, period error and misses on this machine,
 // optionally with the other cores busy (for the comparison with cyclictest, see
 // bench/haptics/servo_vs_cyclictest.sh).
-#include <sched.h>
-
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -15,6 +13,7 @@
 #include <vector>
 
 #include "commands.h"
+#include "palp/base/thread.h"
 #include "palp/haptics/servo_loop.h"
 
 namespace palp::tool {
@@ -55,17 +54,11 @@ class WorkTask final : public haptics::ServoTask {
 class CpuLoad {
   public:
     explicit CpuLoad(int servoCpu) {
-        cpu_set_t allowed;
-        CPU_ZERO(&allowed);
-        if (sched_getaffinity(0, sizeof(allowed), &allowed) != 0) return;
-        for (std::size_t c = 0; c < CPU_SETSIZE; ++c) {
-            if (!CPU_ISSET(c, &allowed) || static_cast<int>(c) == servoCpu) continue;
-            mCpus.push_back(static_cast<int>(c));
+        for (const int c : allowedCpus()) {
+            if (c == servoCpu) continue;
+            mCpus.push_back(c);
             mThreads.emplace_back([this, c] {
-                cpu_set_t one;
-                CPU_ZERO(&one);
-                CPU_SET(c, &one);
-                pthread_setaffinity_np(pthread_self(), sizeof(one), &one);
+                pinCurrentThread(c);  // a refused pin only spreads the load less evenly
                 volatile double x = 1.0;
                 while (!mStop.load(std::memory_order_relaxed)) x = x * 1.0000001 + 1e-9;
             });
@@ -94,12 +87,6 @@ json summaryJson(const haptics::LatencySummary& s) {
 void printSummary(const char* name, const haptics::LatencySummary& s) {
     std::printf("%-13s p50 %7.1f us  p99 %7.1f us  p99.9 %7.1f us  max %8.1f us  mean %7.2f us\n",
                 name, s.p50 * 1e6, s.p99 * 1e6, s.p999 * 1e6, s.max * 1e6, s.mean * 1e6);
-}
-
-std::string cpuListText(const std::vector<int>& cpus) {
-    std::string s;
-    for (int c : cpus) s += (s.empty() ? "" : ",") + std::to_string(c);
-    return s.empty() ? "none" : s;
 }
 
 }  // namespace

@@ -83,12 +83,6 @@ std::string variantName(const Variant& v) {
     return s + ")";
 }
 
-int axisIndex(const Eigen::Vector3d& a) {
-    int i = 0;
-    a.cwiseAbs().maxCoeff(&i);
-    return i;
-}
-
 double percentile(std::vector<double> v, double q) {
     if (v.empty()) return 0;
     const auto n = v.size();
@@ -242,21 +236,215 @@ struct Run {
     double maxForce = 0;
 };
 
+/// The options of `palp bench tick`.
+struct TickArgs {
+    std::string volume;
+    double voxelMm = 0;
+    std::uint64_t ticks = 20000;
+    double surfaceIso = -400;
+    double threshold = 300;
+    std::string pressAxis = "+y";
+    std::string device = "3D Systems Touch";
+    bool json = false;
+    bool noPin = false;
+};
+
+/// One Run per variant, each a Session on its own simulated hand along @p path, buffers reserved
+/// for @p a.ticks ticks.
+std::vector<Run> makeRuns(const TickArgs& a, const haptics::DeviceSpec* spec,
+                          const std::shared_ptr<haptics::Scene>& scene, const PathChoice& path) {
+    haptics::CouplingParams base = haptics::scanCouplingDefaults();
+    base.firstHit.threshold = static_cast<float>(a.threshold);
+    base.accumulate.sigma =
+        kernels::TransferFunction::step(static_cast<float>(a.threshold), 1000.0f);
+    std::vector<Run> runs;
+    for (const Variant& v : kVariants) {
+        Run r;
+        r.variant = v;
+        r.params = base;
+        r.params.mode = v.mode;
+        r.params.source = v.source;
+        r.params.bundle.ringCount = v.ring;
+        haptics::validateCouplingParams(r.params);
+        r.params = haptics::clampToDevice(r.params, *spec, kPeriod);
+        haptics::SessionParams sp;
+        sp.coupling = r.params;
+        sp.servo.periodSeconds = kPeriod;
+        haptics::validateSessionParams(sp);
+        r.device = std::make_unique<haptics::SimulatedDevice>(*spec, path.raster,
+                                                              haptics::HandModel{}, kPeriod);
+        r.session = std::make_unique<haptics::Session>(scene, *r.device, sp);
+        const auto n = static_cast<std::size_t>(a.ticks);
+        r.tickUs.reserve(n);
+        r.contactTickUs.reserve(n);
+        r.couplingUs.reserve(n);
+        r.proxy.reserve(n);
+        r.probe.reserve(n);
+        runs.push_back(std::move(r));
+    }
+    return runs;
+}
+
+/// Full ticks of every run, interleaved; the starting mode rotates each tick.
+void runTicks(std::vector<Run>& runs, std::uint64_t ticks) {
+    const std::size_t nv = runs.size();
+    for (std::uint64_t i = 0; i < ticks; ++i) {
+        for (std::size_t j = 0; j < nv; ++j) {
+            Run& r = runs[(j + i) % nv];
+            const auto t0 = Clock::now();
+            const haptics::Snapshot& s = r.session->step();
+            const auto t1 = Clock::now();
+            const double us = std::chrono::duration<double, std::micro>(t1 - t0).count();
+            r.tickUs.push_back(us);
+            const bool contact = s.contactCount > 0 || s.distance > 1e-6;
+            if (contact) {
+                ++r.contactTicks;
+                r.contactTickUs.push_back(us);
+            }
+            if (s.rays > 0) {
+                ++r.rayTicks;
+                r.raysCast += static_cast<std::uint64_t>(s.rays);
+            }
+            if (s.clamped) ++r.clamped;
+            r.maxForce = std::max(r.maxForce, s.force.norm());
+            r.proxy.push_back(s.proxy);
+            r.probe.push_back(s.probe);
+        }
+    }
+}
+
+/// The coupling alone on the recorded pairs (velocities by finite difference, a tangent frame
+/// perpendicular to proxy -> probe), interleaved like the ticks; returns a sum that keeps
+/// the work alive.
+double replayCouplings(std::vector<Run>& runs, const haptics::Scene& scene, std::uint64_t ticks) {
+    const std::size_t nv = runs.size();
+    std::vector<haptics::Coupling> couplings;
+    couplings.reserve(nv);
+    for (const Run& r : runs)
+        couplings.emplace_back(scene.volumeView(), &scene.hardMeshes(), r.params);
+    haptics::CouplingOutput out;
+    double sink = 0;
+    for (std::uint64_t i = 1; i < ticks; ++i) {
+        for (std::size_t j = 0; j < nv; ++j) {
+            const std::size_t k = (j + i) % nv;
+            Run& r = runs[k];
+            const Eigen::Vector3d& py = r.proxy[i];
+            const Eigen::Vector3d& pb = r.probe[i];
+            const Eigen::Vector3d vpy = (py - r.proxy[i - 1]) / kPeriod;
+            const Eigen::Vector3d vpb = (pb - r.probe[i - 1]) / kPeriod;
+            Eigen::Vector3d t1, t2;
+            frameOf(pb - py, t1, t2);
+            const auto c0 = Clock::now();
+            couplings[k].compute(py, pb, vpy, vpb, t1, t2, out);
+            const auto c1 = Clock::now();
+            r.couplingUs.push_back(std::chrono::duration<double, std::micro>(c1 - c0).count());
+            sink += out.stiffness;
+        }
+    }
+    return sink;
+}
+
+/// The figures of every run, as text or JSON (--json), VC the baseline of the others.
+void printReport(const TickArgs& a, const std::vector<Run>& runs, const std::string& label,
+                 const volume::Volume& vol, const haptics::DeviceSpec* spec, const PathChoice& path,
+                 const Eigen::Vector3d& press, bool pinned) {
+    double load[3] = {0, 0, 0};
+    const int nLoad = getloadavg(load, 3);
+    const std::string machine = kernels::machineDescription();
+    const Stats vc = stats(runs[0].tickUs);
+    const haptics::RasterTrajectory& rr = path.raster;
+    const int pa = axisIndex(press);
+    json j;
+    if (a.json) {
+        j["machine"] = machine;
+        j["pinned"] = pinned;
+        j["load_average"] = nLoad > 0 ? json{load[0], load[1], load[2]} : json();
+        j["scene"] = label;
+        j["voxel_mm"] = vol.voxelSize() * 1e3;
+        j["device"] = std::string(spec->name);
+        j["ticks"] = a.ticks;
+        j["surface_iso"] = a.surfaceIso;
+        j["threshold"] = a.threshold;
+        j["raster"] = {
+            {"press_axis", a.pressAxis},
+            {"centre_mm", {rr.centre.x() * 1e3, rr.centre.y() * 1e3, rr.centre.z() * 1e3}},
+            {"extent_mm", {rr.extentU * 1e3, rr.extentV * 1e3}},
+            {"line_spacing_mm", rr.lineSpacingM * 1e3},
+            {"depth_mm", rr.depthM * 1e3},
+            {"speed_mmps", rr.speedMps * 1e3},
+            {"face_to_plane_mm", path.faceToPlaneM * 1e3},
+            {"surface_hit_fraction", path.hitFraction}};
+        j["lines"] = json::array();
+    } else {
+        std::printf(
+            "machine: %s; measuring thread %s; load average %.2f %.2f %.2f (shared "
+            "machine)\n",
+            machine.c_str(), pinned ? "pinned to one core" : "not pinned", load[0], load[1],
+            load[2]);
+        std::printf(
+            "scene: %s, voxel %.2f mm, surface %g, hard %g, device %s; raster pressed "
+            "%s at %.1f mm (%.1f mm in from the box face), %.0f x %.0f mm around "
+            "(%.1f, %.1f, %.1f) mm, lines %.1f mm apart, depth %.1f mm, %.0f mm/s; "
+            "%llu ticks per mode\n",
+            label.c_str(), vol.voxelSize() * 1e3, a.surfaceIso, a.threshold,
+            std::string(spec->name).c_str(), a.pressAxis.c_str(), rr.centre[pa] * 1e3,
+            path.faceToPlaneM * 1e3, rr.extentU * 1e3, rr.extentV * 1e3, rr.centre.x() * 1e3,
+            rr.centre.y() * 1e3, rr.centre.z() * 1e3, rr.lineSpacingM * 1e3, rr.depthM * 1e3,
+            rr.speedMps * 1e3, static_cast<unsigned long long>(a.ticks));
+    }
+    for (const Run& r : runs) {
+        const Stats t = stats(r.tickUs);
+        const Stats tc = stats(r.contactTickUs);
+        const Stats c = stats(r.couplingUs);
+        const double contact = static_cast<double>(r.contactTicks) / static_cast<double>(a.ticks);
+        const double meanRays =
+            r.rayTicks ? static_cast<double>(r.raysCast) / static_cast<double>(r.rayTicks) : 0.0;
+        const std::string name = variantName(r.variant);
+        if (a.json) {
+            j["lines"].push_back({{"name", name},
+                                  {"mode", modeText(r.variant.mode)},
+                                  {"source", haptics::raySourceName(r.variant.source)},
+                                  {"ring", r.variant.ring},
+                                  {"rays_nominal", nominalRays(r.variant)},
+                                  {"rays_mean", meanRays},
+                                  {"tick", statsJson(t)},
+                                  {"tick_in_contact", statsJson(tc)},
+                                  {"coupling", statsJson(c)},
+                                  {"rest_p50_us", t.p50 - c.p50},
+                                  {"ratio_p50_to_vc", t.p50 / vc.p50},
+                                  {"ratio_p99_to_vc", t.p99 / vc.p99},
+                                  {"budget_p99_percent", t.p99 / 10.0},
+                                  {"contact_fraction", contact},
+                                  {"max_force_n", r.maxForce},
+                                  {"clamped_ticks", r.clamped}});
+            continue;
+        }
+        if (r.variant.mode == haptics::CouplingMode::VC) {
+            std::printf(
+                "tick VC (baseline), %s: p50 %.1f us / p99 %.1f us / max %.0f us; 1 "
+                "ms budget used at p99: %.1f %%\n",
+                label.c_str(), t.p50, t.p99, t.max, t.p99 / 10.0);
+        } else {
+            std::printf(
+                "tick %s, %s: p50 %.1f us / p99 %.1f us / max %.0f us; VC %.1f / "
+                "%.1f / %.0f us; %.1fx / %.1fx; 1 ms budget used at p99: %.1f %%\n",
+                name.c_str(), label.c_str(), t.p50, t.p99, t.max, vc.p50, vc.p99, vc.max,
+                t.p50 / vc.p50, t.p99 / vc.p99, t.p99 / 10.0);
+        }
+        std::printf(
+            "    in contact %.0f %% of ticks (contact ticks p50 %.1f / p99 %.1f us); "
+            "coupling alone p50 %.1f / p99 %.1f / max %.0f us; tick - coupling at p50 "
+            "(proxy, device, safety, snapshot) %.1f us; rays/tick %.1f; max force %.2f N\n",
+            100 * contact, tc.p50, tc.p99, c.p50, c.p99, c.max, t.p50 - c.p50, meanRays,
+            r.maxForce);
+    }
+    if (a.json) std::printf("%s\n", j.dump(2).c_str());
+}
+
 }  // namespace
 
 Command addBenchTick(CLI::App& bench) {
-    struct Args {
-        std::string volume;
-        double voxelMm = 0;
-        std::uint64_t ticks = 20000;
-        double surfaceIso = -400;
-        double threshold = 300;
-        std::string pressAxis = "+y";
-        std::string device = "3D Systems Touch";
-        bool json = false;
-        bool noPin = false;
-    };
-    auto args = std::make_shared<Args>();
+    auto args = std::make_shared<TickArgs>();
     CLI::App* app = bench.add_subcommand(
         "tick",
         "Full haptic tick (proxy + bundle + force) of a Session for VC, AVC and AVCEC and each "
@@ -280,229 +468,60 @@ Command addBenchTick(CLI::App& bench) {
     app->add_flag("--json", args->json, "Print the figures as JSON");
     app->add_flag("--no-pin", args->noPin, "Do not pin the measuring thread to one core");
 
-    return {
-        app, [args]() -> int {
-            const Args& a = *args;
-            const haptics::DeviceSpec* spec = haptics::findDeviceSpec(a.device);
-            if (!spec) {
-                throw ValueError(
-                    "--device: expected a device class of palp's table (e.g. "
-                    "'3D Systems Touch'), found '" +
-                    a.device + "'");
-            }
-            const Eigen::Vector3d press = parseAxis(a.pressAxis, "--press-axis");
-            const bool quiet = globals().quiet || a.json;
-
-            // Scene.
-            volume::Volume vol;
-            std::string label;
-            if (!a.volume.empty()) {
-                volume::LoadOptions lo;
-                if (a.voxelMm > 0) lo.resample.voxelSize = a.voxelMm * 1e-3;
-                vol = volume::load({fs::path(a.volume)}, lo);
-                label = fs::path(a.volume).filename().string();
-            } else {
-                volume::PhantomSpec ps;
-                ps.params.scene = volume::PhantomScene::Avc;
-                ps.params.quadrant = 2;
-                ps.voxelSize = (a.voxelMm > 0 ? a.voxelMm : 0.5) * 1e-3;
-                vol = volume::makePhantomVolume(ps);
-                label = "AVC phantom";
-            }
-            if (!quiet) std::fprintf(stderr, "palp: building the scene of %s...\n", label.c_str());
-            haptics::SceneOptions so;
-            so.surfaceIso = a.surfaceIso;
-            so.hardIso = a.threshold;
-            const auto scene = haptics::Scene::fromVolume(vol, so);
-            const PathChoice path = choosePath(vol, *scene, a.surfaceIso, press, a.ticks);
-
-            // Sessions, one per variant, each on its own simulated hand.
-            haptics::CouplingParams base = haptics::scanCouplingDefaults();
-            base.firstHit.threshold = static_cast<float>(a.threshold);
-            base.accumulate.sigma =
-                kernels::TransferFunction::step(static_cast<float>(a.threshold), 1000.0f);
-            std::vector<Run> runs;
-            for (const Variant& v : kVariants) {
-                Run r;
-                r.variant = v;
-                r.params = base;
-                r.params.mode = v.mode;
-                r.params.source = v.source;
-                r.params.bundle.ringCount = v.ring;
-                haptics::validateCouplingParams(r.params);
-                r.params = haptics::clampToDevice(r.params, *spec, kPeriod);
-                haptics::SessionParams sp;
-                sp.coupling = r.params;
-                sp.servo.periodSeconds = kPeriod;
-                haptics::validateSessionParams(sp);
-                r.device = std::make_unique<haptics::SimulatedDevice>(
-                    *spec, path.raster, haptics::HandModel{}, kPeriod);
-                r.session = std::make_unique<haptics::Session>(scene, *r.device, sp);
-                const auto n = static_cast<std::size_t>(a.ticks);
-                r.tickUs.reserve(n);
-                r.contactTickUs.reserve(n);
-                r.couplingUs.reserve(n);
-                r.proxy.reserve(n);
-                r.probe.reserve(n);
-                runs.push_back(std::move(r));
-            }
-            const bool pinned = !a.noPin && kernels::pinCurrentThread();
-            if (!quiet) {
-                std::fprintf(stderr, "palp: %llu ticks x %zu modes, interleaved tick by tick...\n",
-                             static_cast<unsigned long long>(a.ticks), runs.size());
-            }
-
-            // Full ticks, interleaved; the starting mode rotates each tick.
-            const std::size_t nv = runs.size();
-            for (std::uint64_t i = 0; i < a.ticks; ++i) {
-                for (std::size_t j = 0; j < nv; ++j) {
-                    Run& r = runs[(j + i) % nv];
-                    const auto t0 = Clock::now();
-                    const haptics::Snapshot& s = r.session->step();
-                    const auto t1 = Clock::now();
-                    const double us = std::chrono::duration<double, std::micro>(t1 - t0).count();
-                    r.tickUs.push_back(us);
-                    const bool contact = s.contactCount > 0 || s.distance > 1e-6;
-                    if (contact) {
-                        ++r.contactTicks;
-                        r.contactTickUs.push_back(us);
-                    }
-                    if (s.rays > 0) {
-                        ++r.rayTicks;
-                        r.raysCast += static_cast<std::uint64_t>(s.rays);
-                    }
-                    if (s.clamped) ++r.clamped;
-                    r.maxForce = std::max(r.maxForce, s.force.norm());
-                    r.proxy.push_back(s.proxy);
-                    r.probe.push_back(s.probe);
+    return {app, [args]() -> int {
+                const TickArgs& a = *args;
+                const haptics::DeviceSpec* spec = haptics::findDeviceSpec(a.device);
+                if (!spec) {
+                    throw ValueError(
+                        "--device: expected a device class of palp's table (e.g. "
+                        "'3D Systems Touch'), found '" +
+                        a.device + "'");
                 }
-            }
+                const Eigen::Vector3d press = parseAxis(a.pressAxis, "--press-axis");
+                const bool quiet = globals().quiet || a.json;
 
-            // The coupling alone on the recorded pairs (velocities by finite difference,
-            // a tangent frame perpendicular to proxy -> probe), interleaved likewise.
-            std::vector<haptics::Coupling> couplings;
-            couplings.reserve(nv);
-            for (const Run& r : runs)
-                couplings.emplace_back(scene->volumeView(), &scene->hardMeshes(), r.params);
-            haptics::CouplingOutput out;
-            double sink = 0;
-            for (std::uint64_t i = 1; i < a.ticks; ++i) {
-                for (std::size_t j = 0; j < nv; ++j) {
-                    const std::size_t k = (j + i) % nv;
-                    Run& r = runs[k];
-                    const Eigen::Vector3d& py = r.proxy[i];
-                    const Eigen::Vector3d& pb = r.probe[i];
-                    const Eigen::Vector3d vpy = (py - r.proxy[i - 1]) / kPeriod;
-                    const Eigen::Vector3d vpb = (pb - r.probe[i - 1]) / kPeriod;
-                    Eigen::Vector3d t1, t2;
-                    frameOf(pb - py, t1, t2);
-                    const auto c0 = Clock::now();
-                    couplings[k].compute(py, pb, vpy, vpb, t1, t2, out);
-                    const auto c1 = Clock::now();
-                    r.couplingUs.push_back(
-                        std::chrono::duration<double, std::micro>(c1 - c0).count());
-                    sink += out.stiffness;
-                }
-            }
-
-            // Report.
-            double load[3] = {0, 0, 0};
-            const int nLoad = getloadavg(load, 3);
-            const std::string machine = kernels::machineDescription();
-            const Stats vc = stats(runs[0].tickUs);
-            const haptics::RasterTrajectory& rr = path.raster;
-            const int pa = axisIndex(press);
-            json j;
-            if (a.json) {
-                j["machine"] = machine;
-                j["pinned"] = pinned;
-                j["load_average"] = nLoad > 0 ? json{load[0], load[1], load[2]} : json();
-                j["scene"] = label;
-                j["voxel_mm"] = vol.voxelSize() * 1e3;
-                j["device"] = std::string(spec->name);
-                j["ticks"] = a.ticks;
-                j["surface_iso"] = a.surfaceIso;
-                j["threshold"] = a.threshold;
-                j["raster"] = {
-                    {"press_axis", a.pressAxis},
-                    {"centre_mm", {rr.centre.x() * 1e3, rr.centre.y() * 1e3, rr.centre.z() * 1e3}},
-                    {"extent_mm", {rr.extentU * 1e3, rr.extentV * 1e3}},
-                    {"line_spacing_mm", rr.lineSpacingM * 1e3},
-                    {"depth_mm", rr.depthM * 1e3},
-                    {"speed_mmps", rr.speedMps * 1e3},
-                    {"face_to_plane_mm", path.faceToPlaneM * 1e3},
-                    {"surface_hit_fraction", path.hitFraction}};
-                j["lines"] = json::array();
-            } else {
-                std::printf(
-                    "machine: %s; measuring thread %s; load average %.2f %.2f %.2f (shared "
-                    "machine)\n",
-                    machine.c_str(), pinned ? "pinned to one core" : "not pinned", load[0], load[1],
-                    load[2]);
-                std::printf(
-                    "scene: %s, voxel %.2f mm, surface %g, hard %g, device %s; raster pressed "
-                    "%s at %.1f mm (%.1f mm in from the box face), %.0f x %.0f mm around "
-                    "(%.1f, %.1f, %.1f) mm, lines %.1f mm apart, depth %.1f mm, %.0f mm/s; "
-                    "%llu ticks per mode\n",
-                    label.c_str(), vol.voxelSize() * 1e3, a.surfaceIso, a.threshold,
-                    std::string(spec->name).c_str(), a.pressAxis.c_str(), rr.centre[pa] * 1e3,
-                    path.faceToPlaneM * 1e3, rr.extentU * 1e3, rr.extentV * 1e3,
-                    rr.centre.x() * 1e3, rr.centre.y() * 1e3, rr.centre.z() * 1e3,
-                    rr.lineSpacingM * 1e3, rr.depthM * 1e3, rr.speedMps * 1e3,
-                    static_cast<unsigned long long>(a.ticks));
-            }
-            for (const Run& r : runs) {
-                const Stats t = stats(r.tickUs);
-                const Stats tc = stats(r.contactTickUs);
-                const Stats c = stats(r.couplingUs);
-                const double contact =
-                    static_cast<double>(r.contactTicks) / static_cast<double>(a.ticks);
-                const double meanRays =
-                    r.rayTicks ? static_cast<double>(r.raysCast) / static_cast<double>(r.rayTicks)
-                               : 0.0;
-                const std::string name = variantName(r.variant);
-                if (a.json) {
-                    j["lines"].push_back({{"name", name},
-                                          {"mode", modeText(r.variant.mode)},
-                                          {"source", haptics::raySourceName(r.variant.source)},
-                                          {"ring", r.variant.ring},
-                                          {"rays_nominal", nominalRays(r.variant)},
-                                          {"rays_mean", meanRays},
-                                          {"tick", statsJson(t)},
-                                          {"tick_in_contact", statsJson(tc)},
-                                          {"coupling", statsJson(c)},
-                                          {"rest_p50_us", t.p50 - c.p50},
-                                          {"ratio_p50_to_vc", t.p50 / vc.p50},
-                                          {"ratio_p99_to_vc", t.p99 / vc.p99},
-                                          {"budget_p99_percent", t.p99 / 10.0},
-                                          {"contact_fraction", contact},
-                                          {"max_force_n", r.maxForce},
-                                          {"clamped_ticks", r.clamped}});
-                    continue;
-                }
-                if (r.variant.mode == haptics::CouplingMode::VC) {
-                    std::printf(
-                        "tick VC (baseline), %s: p50 %.1f us / p99 %.1f us / max %.0f us; 1 "
-                        "ms budget used at p99: %.1f %%\n",
-                        label.c_str(), t.p50, t.p99, t.max, t.p99 / 10.0);
+                // Scene.
+                volume::Volume vol;
+                std::string label;
+                if (!a.volume.empty()) {
+                    volume::LoadOptions lo;
+                    if (a.voxelMm > 0) lo.resample.voxelSize = a.voxelMm * 1e-3;
+                    vol = volume::load({fs::path(a.volume)}, lo);
+                    label = fs::path(a.volume).filename().string();
                 } else {
-                    std::printf(
-                        "tick %s, %s: p50 %.1f us / p99 %.1f us / max %.0f us; VC %.1f / "
-                        "%.1f / %.0f us; %.1fx / %.1fx; 1 ms budget used at p99: %.1f %%\n",
-                        name.c_str(), label.c_str(), t.p50, t.p99, t.max, vc.p50, vc.p99, vc.max,
-                        t.p50 / vc.p50, t.p99 / vc.p99, t.p99 / 10.0);
+                    volume::PhantomSpec ps;
+                    ps.params.scene = volume::PhantomScene::Avc;
+                    ps.params.quadrant = 2;
+                    ps.voxelSize = (a.voxelMm > 0 ? a.voxelMm : 0.5) * 1e-3;
+                    vol = volume::makePhantomVolume(ps);
+                    label = "AVC phantom";
                 }
-                std::printf(
-                    "    in contact %.0f %% of ticks (contact ticks p50 %.1f / p99 %.1f us); "
-                    "coupling alone p50 %.1f / p99 %.1f / max %.0f us; tick - coupling at p50 "
-                    "(proxy, device, safety, snapshot) %.1f us; rays/tick %.1f; max force %.2f N\n",
-                    100 * contact, tc.p50, tc.p99, c.p50, c.p99, c.max, t.p50 - c.p50, meanRays,
-                    r.maxForce);
-            }
-            if (a.json) std::printf("%s\n", j.dump(2).c_str());
-            if (sink == 42.0) std::fprintf(stderr, " ");  // keep the replay alive
-            return 0;
-        }};
+                if (!quiet)
+                    std::fprintf(stderr, "palp: building the scene of %s...\n", label.c_str());
+                haptics::SceneOptions so;
+                so.surfaceIso = a.surfaceIso;
+                so.hardIso = a.threshold;
+                const auto scene = haptics::Scene::fromVolume(vol, so);
+                const PathChoice path = choosePath(vol, *scene, a.surfaceIso, press, a.ticks);
+
+                std::vector<Run> runs = makeRuns(a, spec, scene, path);
+                const bool pinned = !a.noPin && kernels::pinCurrentThread();
+                if (!quiet) {
+                    std::fprintf(stderr,
+                                 "palp: %llu ticks x %zu modes, interleaved tick by tick...\n",
+                                 static_cast<unsigned long long>(a.ticks), runs.size());
+                }
+
+                // Full ticks, interleaved; the starting mode rotates each tick.
+                runTicks(runs, a.ticks);
+
+                // The coupling alone on the recorded pairs, interleaved likewise.
+                const double sink = replayCouplings(runs, *scene, a.ticks);
+
+                printReport(a, runs, label, vol, spec, path, press, pinned);
+                if (sink == 42.0) std::fprintf(stderr, " ");  // keep the replay alive
+                return 0;
+            }};
 }
 
 }  // namespace palp::tool

@@ -27,6 +27,8 @@ Command addPalpate(CLI::App& root);
 
 /// Unit axis from "+y", "-x", "y", ...; @throw palp::ValueError naming @p option and the text.
 Eigen::Vector3d parseAxis(const std::string& text, const char* option);
+/// Index (0 x, 1 y, 2 z) of the largest component of @p a in magnitude.
+int axisIndex(const Eigen::Vector3d& a);
 
 /// Global flags shared by subcommands.
 struct Globals {

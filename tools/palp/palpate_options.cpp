@@ -1,0 +1,235 @@
+#include "palpate_options.h"
+
+#include <filesystem>
+#include <system_error>
+
+#include "palp/base/error.h"
+#include "palp/base/validate.h"
+
+namespace palp::tool {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+/// The input: a file or a phantom scene and its parameters.
+void addSceneOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
+    app->add_option("file", a.file, "Volume to palpate (.vdb or any scan palp reads)");
+    app->add_option("--phantom", a.phantom, "Built-in scene instead of a file")
+        ->check(CLI::IsMember({"avc", "avcec", "bone", "stiffness"}));
+    o.quadrant = app->add_option("--quadrant", a.quadrant, "avc: quadrant of the hidden box, 0-3")
+                     ->check(CLI::Range(0, 3));
+    o.shape =
+        app->add_option("--shape", a.shape, "avcec: plate outline")
+            ->check(CLI::IsMember({"circle", "triangle", "rectangle", "hexagon", "pentagon"}));
+    o.displacement = app->add_option("--displacement", a.displacement, "bone: -1, 0 or 1")
+                         ->check(CLI::Range(-1, 1));
+    o.profile = app->add_option("--profile", a.profile, "stiffness: CL transition profile")
+                    ->check(CLI::IsMember({"linear", "cosine", "tanh"}));
+    o.voxel = app->add_option("--voxel-mm", a.voxelMm, "Phantom voxel edge, mm (default 1)");
+    o.noise = app->add_option("--noise", a.noiseHu, "Phantom noise standard deviation, HU");
+    o.seed = app->add_option("--seed", a.seed, "Phantom noise seed");
+}
+
+/// Deformable tissue and its FEM.
+void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
+    app->add_flag(
+        "--deformable", a.deformable,
+        "Deformable tissue: voxelised hexahedral FEM (fixed on the face opposite the press and "
+        "inside bone), VC only, the coupling force spread by a Gaussian filter");
+    o.fem = {
+        app->add_option("--fem-cell-mm", a.femCellMm, "deformable: element edge, mm (5)"),
+        app->add_option("--young-kpa", a.youngKpa, "deformable: Young's modulus, kPa (5)"),
+        app->add_option("--poisson", a.poisson, "deformable: Poisson's ratio (0.45)"),
+        app->add_option("--fem-damping", a.femAlpha,
+                        "deformable: mass-proportional damping alpha, 1/s (60)"),
+        app->add_option("--fem-beta", a.femBeta,
+                        "deformable: stiffness-proportional damping beta, s (0)"),
+        app->add_option("--filter-mm", a.filterMm,
+                        "deformable: Gaussian filter width sigma, mm (3; 0 = nearest node)"),
+        app->add_option("--bone-hu", a.boneHu,
+                        "deformable: cells above this are bone, their nodes fixed (500 HU)"),
+        app->add_option("--tissue-hu", a.tissueHu,
+                        "deformable: cells above this are tissue (-200 HU)"),
+        app->add_option("--fem-solver", a.femSolver,
+                        "deformable: 'explicit' (whole mesh every tick, default) or 'regions' "
+                        "(asynchronous regions: explicit primary around the contact, implicit "
+                        "secondary; threaded with --realtime; with --fast synchronous and slow, "
+                        "since every contact move rebuilds the layout inline)")
+            ->check(CLI::IsMember({"explicit", "regions"})),
+        app->add_option("--primary-nodes", a.primaryNodes,
+                        "regions: seed nodes of the primary region (60)")
+            ->check(CLI::Range(1, 100000)),
+        app->add_option("--secondary-hz", a.secondaryHz, "regions: secondary solve rate, Hz (100)")
+            ->check(CLI::Range(1.0, 1000.0)),
+        app->add_option("--lod", a.lod, "regions: secondary level of detail, 1, 2 or 4 (1)")
+            ->check(CLI::IsMember({1, 2, 4}))};
+}
+
+/// Coupling: mode, ray source and its parameters, stiffness, friction, passivity.
+void addCouplingOptions(CLI::App* app, PalpateArgs& a) {
+    app->add_option("--mode", a.mode, "Coupling: vc, avc or avcec (default per scene)");
+    app->add_option("--source", a.source,
+                    "Ray source: mesh, first-hit or accumulate (default per scene)");
+    app->add_option("--k-base", a.kBase, "Surface stiffness k_s, N/m (default 300)");
+    app->add_option("--k-max", a.kMax,
+                    "Stiffness clamp k_max, N/m (default 2400, lowered to the device's limit)");
+    app->add_option("--l-max", a.lMaxMm, "Ray length L_max, mm (default 40)");
+    app->add_option("--l-ref", a.lRefMm,
+                    "L_ref of m(L) = clamp(L_ref / L, 1, m_max), mm (default per scene)");
+    app->add_option("--m-max", a.mMax, "Largest stiffness multiplier m_max (default 8)");
+    app->add_option("--threshold", a.threshold,
+                    "first-hit and mesh: hard-structure value, HU (default per scene)");
+    app->add_option("--sigma", a.sigmaPerMm,
+                    "accumulate: hardness above --sigma-threshold, 1/mm (default 1)");
+    app->add_option("--sigma-threshold", a.sigmaThreshold,
+                    "accumulate: value from which sigma applies, HU (default 500)");
+    app->add_option("--tau-stop", a.tauStop, "accumulate: tau_stop (default 3)");
+    app->add_option("--step", a.stepMm, "Ray sample spacing, mm (default 0.5)");
+    app->add_option("--ring", a.ring, "Low-pass ring rays (default 0)");
+    app->add_option("--damping", a.damping, "Coupling damping b, N s/m (default 0)");
+    app->add_option("--surface-iso", a.surfaceIso,
+                    "Value of the surface the proxy slides on (default -500 HU)");
+    app->add_option("--mu-static", a.muStatic, "Static friction (default 0.5)");
+    app->add_option("--mu-dynamic", a.muDynamic, "Dynamic friction (default 0.3)");
+    app->add_flag("--passivity-control", a.passivityControl,
+                  "Add the passivity controller (the observer always runs)");
+}
+
+/// The scripted path of the simulated hand.
+void addPathOptions(CLI::App* app, PalpateArgs& a) {
+    app->add_option("--trajectory", a.trajectory, "Path: raster, sweep, circle or press")
+        ->check(CLI::IsMember({"raster", "sweep", "circle", "press"}));
+    app->add_option("--centre", a.centreMm,
+                    "Centre x,y,z of the path on the surface, mm (default: the middle of the "
+                    "volume's lateral box, on its face against the press axis)")
+        ->delimiter(',')
+        ->expected(3);
+    app->add_option("--extent", a.extentMm,
+                    "Raster U,V size (sweep: U is the length), mm (default: the volume's lateral "
+                    "box less 5 mm each side)")
+        ->delimiter(',')
+        ->expected(1, 2);
+    app->add_option("--spacing", a.spacingMm, "Raster line spacing, mm (default 2)");
+    app->add_option("--speed", a.speedMmps,
+                    "Speed along the path, mm/s (default 100 raster, 50 sweep)");
+    app->add_option("--depth", a.depthMm, "Press depth of the target below the surface, mm");
+    app->add_option("--press-axis", a.pressAxis,
+                    "Press direction into the body (default +y: anterior to posterior)");
+    app->add_option("--sweep-axis", a.sweepAxis,
+                    "Sweep direction / raster u axis (default: the first lateral axis)");
+    app->add_option("--radius", a.radiusMm, "circle: radius, mm");
+    app->add_option("--frequency", a.frequencyHz, "circle: revolutions per second");
+    app->add_option("--passes", a.passes, "sweep: passes (direction changes + 1); circle: turns")
+        ->check(CLI::Range(1, 1000));
+    app->add_option("--hold", a.holdSeconds, "press: hold time, s");
+}
+
+/// How to run, what to write, the device.
+void addRunOptions(CLI::App* app, PalpateArgs& a) {
+    auto* rt =
+        app->add_flag("--realtime", a.realtime, "Run on the 1 kHz servo thread (wall-clock time)");
+    auto* fast = app->add_flag("--fast", a.fast, "Step offline as fast as possible (default)");
+    rt->excludes(fast);
+    app->add_option("--seconds", a.seconds, "Simulated time, s (default: until the path is done)");
+    app->add_option("--trace", a.trace, "Write a CSV trace of every tick");
+    app->add_option("--map", a.map, "Write a PNG map over the palpated plane");
+    app->add_option("--map-quantity", a.mapQuantity, "stiffness, force or energy")
+        ->check(CLI::IsMember({"stiffness", "force", "energy"}));
+    app->add_option("--map-at", a.mapAt,
+                    "Bin at the proxy (what the hand feels where it is) or at the centre ray's "
+                    "end (where the structure that set k lies)")
+        ->check(CLI::IsMember({"proxy", "ray-end"}));
+    app->add_option("--map-pixel", a.mapPixelMm, "Map pixel edge, mm (default: --spacing)");
+    app->add_flag("--grey", a.grey, "Grey map instead of black-red-yellow-white");
+    app->add_option("--device", a.device, "Device class whose limits apply");
+    app->add_flag("--json", a.json, "Print the figures as JSON");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Checks before any work
+
+/// A FILE or a phantom, scene options only with their phantom, FEM options only with
+/// --deformable. @throw palp::ValueError naming the option.
+void checkInputOptions(const PalpateArgs& a, const CheckedOptions& o) {
+    if (a.file.empty() == a.phantom.empty()) {
+        throw ValueError("palpate: expected a FILE or --phantom SCENE, found " +
+                         std::string(a.file.empty() ? "neither" : "both"));
+    }
+    // Scene options apply to one phantom each; say so instead of ignoring them.
+    const struct {
+        CLI::Option* option;
+        const char* scene;  // nullptr: any phantom
+    } sceneOpts[] = {{o.quadrant, "avc"},      {o.shape, "avcec"}, {o.displacement, "bone"},
+                     {o.profile, "stiffness"}, {o.voxel, nullptr}, {o.noise, nullptr},
+                     {o.seed, nullptr}};
+    for (const auto& so : sceneOpts) {
+        if (so.option->count() == 0) continue;
+        const std::string what = so.scene ? "--phantom " + std::string(so.scene) : "--phantom";
+        if (a.phantom.empty()) {
+            throw ValueError(so.option->get_name() + ": expected " + what +
+                             " (a phantom scene option), found a FILE '" + a.file + "'");
+        }
+        if (so.scene && a.phantom != so.scene) {
+            throw ValueError(so.option->get_name() + ": expected " + what + ", found --phantom " +
+                             a.phantom);
+        }
+    }
+    if (!a.deformable) {
+        for (CLI::Option* fo : o.fem) {
+            if (fo->count() > 0)
+                throw ValueError(fo->get_name() +
+                                 ": expected --deformable, found a rigid "
+                                 "scene");
+        }
+    }
+}
+
+/// The device class named by --device. @throw palp::ValueError listing the known ones.
+const haptics::DeviceSpec* findDevice(const std::string& name) {
+    const haptics::DeviceSpec* spec = haptics::findDeviceSpec(name);
+    if (!spec) {
+        std::string names;
+        for (const auto& s : haptics::deviceSpecs())
+            names += (names.empty() ? "'" : ", '") + std::string(s.name) + "'";
+        throw ValueError("--device: expected one of " + names + ", found '" + name + "'");
+    }
+    return spec;
+}
+
+/// Output directories exist; depth, spacing and time are usable.
+void checkRunOptions(const PalpateArgs& a) {
+    for (const std::string* out : {&a.trace, &a.map}) {
+        if (out->empty()) continue;
+        const fs::path path(*out);
+        const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+        std::error_code ec;
+        if (!fs::is_directory(dir, ec)) {
+            throw IoError(path.string() + ": expected an existing directory '" + dir.string() +
+                          "' for the output, found none");
+        }
+    }
+    requirePositive("--depth", a.depthMm, "mm");
+    requirePositive("--spacing", a.spacingMm, "mm");
+    requireNonNegative("--seconds", a.seconds, "s");
+}
+
+}  // namespace
+
+void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked) {
+    addSceneOptions(app, args, checked);
+    addDeformableOptions(app, args, checked);
+    addCouplingOptions(app, args);
+    addPathOptions(app, args);
+    addRunOptions(app, args);
+}
+
+const haptics::DeviceSpec* checkPalpateOptions(const PalpateArgs& args,
+                                               const CheckedOptions& checked) {
+    checkInputOptions(args, checked);
+    const haptics::DeviceSpec* spec = findDevice(args.device);
+    checkRunOptions(args);
+    return spec;
+}
+
+}  // namespace palp::tool

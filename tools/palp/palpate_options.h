@@ -1,0 +1,97 @@
+#pragma once
+/// @file
+/// The command line of `palp palpate`: its options and the checks made before any work.
+
+#include <CLI/CLI.hpp>
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "palp/haptics/device.h"
+
+namespace palp::tool {
+
+/// Everything `palp palpate` reads from its command line (mm, mm/s, HU, N/m as the options say).
+struct PalpateArgs {
+    std::string file;
+    std::string phantom;
+    int quadrant = 0;
+    std::string shape = "circle";
+    int displacement = 0;
+    std::string profile = "linear";
+    double voxelMm = 1;
+    double noiseHu = 0;
+    std::uint64_t seed = 0;
+    std::string mode, source;
+    double kBase = NAN, kMax = NAN, lMaxMm = NAN, lRefMm = NAN, mMax = NAN;
+    double threshold = NAN, sigmaPerMm = NAN, sigmaThreshold = NAN, tauStop = NAN;
+    double stepMm = NAN, damping = NAN;
+    int ring = -1;
+    double surfaceIso = -500;
+    double muStatic = 0.5, muDynamic = 0.3;
+    bool passivityControl = false;
+    std::string trajectory = "raster";
+    std::vector<double> centreMm;
+    std::vector<double> extentMm;
+    double spacingMm = 2;
+    double speedMmps = NAN;
+    double depthMm = 4;
+    std::string pressAxis = "+y";
+    std::string sweepAxis;
+    double radiusMm = 10;
+    double frequencyHz = 1;
+    int passes = 4;
+    double holdSeconds = 0.5;
+    bool realtime = false;
+    bool fast = false;
+    double seconds = 0;
+    std::string trace;
+    std::string map;
+    std::string mapQuantity = "stiffness";
+    std::string mapAt = "proxy";
+    double mapPixelMm = 0;
+    bool grey = false;
+    std::string device = "3D Systems Touch";
+    bool json = false;
+    bool deformable = false;
+    double femCellMm = 5;
+    double youngKpa = 5;
+    double poisson = 0.45;
+    double femAlpha = 60;
+    double femBeta = 0;
+    double filterMm = 3;
+    double boneHu = 500;
+    double tissueHu = -200;
+    std::string femSolver = "explicit";
+    int primaryNodes = 60;
+    double secondaryHz = 100;
+    int lod = 1;
+};
+
+/// The options checked against the scene: each scene option belongs to one phantom (or any), the
+/// FEM options to --deformable.
+struct CheckedOptions {
+    CLI::Option* quadrant = nullptr;
+    CLI::Option* shape = nullptr;
+    CLI::Option* displacement = nullptr;
+    CLI::Option* profile = nullptr;
+    CLI::Option* voxel = nullptr;
+    CLI::Option* noise = nullptr;
+    CLI::Option* seed = nullptr;
+    std::vector<CLI::Option*> fem;
+};
+
+/// Registers every option of `palp palpate` on @p app, bound to @p args; @p checked receives the
+/// options checkPalpateOptions() checks against the scene. @p args and @p checked must outlive
+/// the parse.
+void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked);
+
+/// Checks a FILE or a phantom, scene options only with their phantom, FEM options only with
+/// --deformable, the device class, output directories existing, usable depth, spacing and time;
+/// returns the device class named by --device (never null).
+/// @throw palp::ValueError naming the option; palp::IoError naming a missing directory.
+const haptics::DeviceSpec* checkPalpateOptions(const PalpateArgs& args,
+                                               const CheckedOptions& checked);
+
+}  // namespace palp::tool
