@@ -1,7 +1,5 @@
 #include "palp/haptics/servo_loop.h"
 
-#include <pthread.h>
-#include <sched.h>
 #include <sys/mman.h>
 #include <sys/prctl.h>
 #include <time.h>
@@ -12,8 +10,10 @@
 #include <cstring>
 #include <string>
 #include <system_error>
+#include <vector>
 
 #include "palp/base/error.h"
+#include "palp/base/thread.h"
 
 namespace palp::haptics {
 
@@ -43,27 +43,10 @@ void cpuRelax() noexcept {
 }
 
 /// "Operation not permitted (EPERM)" for an errno value.
-std::string errorText(int err) {
-    std::string s = std::strerror(err);
+std::string errorWithName(int err) {
+    std::string s = errorText(err);
     if (const char* name = strerrorname_np(err)) s += std::string(" (") + name + ")";
     return s;
-}
-
-/// "0-1,4" for the CPUs in a set of setSize bytes.
-std::string cpuList(const cpu_set_t* set, std::size_t setSize) {
-    std::string out;
-    const int n = static_cast<int>(setSize * 8);
-    for (int c = 0; c < n; ++c) {
-        if (!CPU_ISSET_S(static_cast<std::size_t>(c), setSize, set)) continue;
-        int last = c;
-        while (last + 1 < n && CPU_ISSET_S(static_cast<std::size_t>(last + 1), setSize, set))
-            ++last;
-        if (!out.empty()) out += ',';
-        out += std::to_string(c);
-        if (last > c) out += '-' + std::to_string(last);
-        c = last;
-    }
-    return out.empty() ? "none" : out;
 }
 
 std::string microseconds(double seconds) { return std::to_string(seconds * 1e6) + " us"; }
@@ -225,42 +208,24 @@ void ServoLoop::setUpThread() noexcept {
 
     // Affinity. cpu -1: the last CPU of this thread's mask (inherited from the process).
     int cpu = mConfig.cpu;
-    cpu_set_t allowed;
-    CPU_ZERO(&allowed);
-    const bool haveMask = sched_getaffinity(0, sizeof(allowed), &allowed) == 0;
-    const std::string allowedText = haveMask ? cpuList(&allowed, sizeof(allowed)) : "unknown";
-    if (cpu < 0 && haveMask) {
-        for (std::size_t c = CPU_SETSIZE; c-- > 0;) {
-            if (CPU_ISSET(c, &allowed)) {
-                cpu = static_cast<int>(c);
-                break;
-            }
-        }
-    }
+    const std::vector<int> allowed = allowedCpus();
+    const int maskErrno = errno;  // allowedCpus() leaves sched_getaffinity's errno
+    const std::string allowedText = allowed.empty() ? "unknown" : cpuListText(allowed);
+    if (cpu < 0 && !allowed.empty()) cpu = allowed.back();
     if (cpu < 0) {
         st.failed = true;
-        append("not pinned: cannot read the process's CPU affinity mask: " + errorText(errno));
+        append("not pinned: cannot read the process's CPU affinity mask: " +
+               errorWithName(maskErrno));
+    } else if (const int rc = pinCurrentThread(cpu); rc == 0) {
+        st.pinned = true;
+        st.cpu = cpu;
+        append("pinned to CPU " + std::to_string(cpu));
     } else {
-        const auto cpus = static_cast<std::size_t>(cpu) + 1;
-        const std::size_t setSize = CPU_ALLOC_SIZE(cpus);
-        cpu_set_t* set = CPU_ALLOC(cpus);
-        int rc = ENOMEM;
-        if (set) {
-            CPU_ZERO_S(setSize, set);
-            CPU_SET_S(static_cast<std::size_t>(cpu), setSize, set);
-            rc = pthread_setaffinity_np(pthread_self(), setSize, set);
-            CPU_FREE(set);
-        }
-        if (rc == 0) {
-            st.pinned = true;
-            st.cpu = cpu;
-            append("pinned to CPU " + std::to_string(cpu));
-        } else {
-            st.failed = true;
-            append("pinning to CPU " + std::to_string(cpu) + " refused: " + errorText(rc) +
-                   " (the process may use CPUs " + allowedText + ")");
-        }
+        st.failed = true;
+        append("pinning to CPU " + std::to_string(cpu) + " refused: " + errorWithName(rc) +
+               " (the process may use CPUs " + allowedText + ")");
     }
+    nameCurrentThread("palp-servo");  // best effort: only top, perf and gdb show it
 
     // Timer slack: SCHED_OTHER threads default to 50 us, which would show as wake latency when
     // SCHED_FIFO is refused (SCHED_FIFO threads get none). Best effort; nothing to report.
@@ -268,16 +233,15 @@ void ServoLoop::setUpThread() noexcept {
 
     // Scheduling policy.
     if (mConfig.priority > 0) {
-        sched_param p{};
-        p.sched_priority = mConfig.priority;
-        const int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &p);
+        const int rc = setCurrentThreadFifo(mConfig.priority);
         if (rc == 0) {
             st.fifo = true;
             st.priority = mConfig.priority;
             append("SCHED_FIFO " + std::to_string(mConfig.priority));
         } else {
             st.failed = true;
-            append("SCHED_FIFO " + std::to_string(mConfig.priority) + " refused: " + errorText(rc));
+            append("SCHED_FIFO " + std::to_string(mConfig.priority) +
+                   " refused: " + errorWithName(rc));
         }
     } else {
         append("SCHED_OTHER (priority 0: SCHED_FIFO not asked)");
@@ -293,7 +257,7 @@ void ServoLoop::setUpThread() noexcept {
             for (std::size_t i = 0; i < sizeof(stack); i += 4096) stack[i] = 0;
         } else {
             st.failed = true;
-            append("mlockall refused: " + errorText(errno));
+            append("mlockall refused: " + errorWithName(errno));
         }
     } else {
         append("memory not locked (not asked)");

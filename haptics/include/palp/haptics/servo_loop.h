@@ -99,7 +99,8 @@ class ServoLoop {
     ServoLoop(const ServoLoop&) = delete;
     ServoLoop& operator=(const ServoLoop&) = delete;
 
-    /// Starts the thread; returns after it has set its affinity and policy (see realtime()).
+    /// Starts the thread (named "palp-servo"; pinning, SCHED_FIFO and naming through
+    /// palp/base/thread.h); returns after it has set its affinity and policy (see realtime()).
     /// @throw palp::Error when already running, when the thread cannot start, or (with
     ///        requireRealtime) when pinning or SCHED_FIFO failed.
     void start(ServoTask& task);
