@@ -6,6 +6,7 @@
 #include <string>
 
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 
 namespace palp::haptics {
 
@@ -13,14 +14,6 @@ namespace {
 
 bool finite3(const Eigen::Vector3d& v) noexcept {
     return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
-}
-
-std::string str(double v) { return std::to_string(v); }
-
-void requirePositive(const char* field, double v, const char* unit) {
-    if (!(std::isfinite(v) && v > 0))
-        throw ValueError(std::string("coupling ") + field + ": expected a finite value > 0 " +
-                         unit + ", found " + str(v));
 }
 
 }  // namespace
@@ -34,18 +27,15 @@ void validateCouplingParams(const CouplingParams& p) {
         throw ValueError(
             "coupling source: expected Mesh, VolumeFirstHit or VolumeAccumulate, found value " +
             std::to_string(static_cast<int>(p.source)));
-    requirePositive("baseStiffness", p.baseStiffness, "N/m");
-    requirePositive("referenceLength", p.referenceLength, "m");
-    if (!(std::isfinite(p.maxMultiplier) && p.maxMultiplier >= 1))
-        throw ValueError("coupling maxMultiplier: expected a finite value >= 1, found " +
-                         str(p.maxMultiplier));
+    requirePositive("coupling baseStiffness", p.baseStiffness, "N/m");
+    requirePositive("coupling referenceLength", p.referenceLength, "m");
+    requireAtLeast("coupling maxMultiplier", p.maxMultiplier, 1);
     if (!(std::isfinite(p.maxStiffness) && p.maxStiffness >= p.baseStiffness))
-        throw ValueError("coupling maxStiffness: expected a finite value >= baseStiffness (" +
-                         str(p.baseStiffness) + " N/m), found " + str(p.maxStiffness));
-    if (!(std::isfinite(p.damping) && p.damping >= 0))
-        throw ValueError("coupling damping: expected a finite value >= 0 N s/m, found " +
-                         str(p.damping));
-    requirePositive("minDistance", p.minDistance, "m");
+        throwExpected("coupling maxStiffness",
+                      "a finite value >= baseStiffness (" + formatValue(p.baseStiffness) + " N/m)",
+                      formatValue(p.maxStiffness));
+    requireNonNegative("coupling damping", p.damping, "N s/m");
+    requirePositive("coupling minDistance", p.minDistance, "m");
     if (p.source == RaySource::Mesh && p.hardMask == 0)
         throw ValueError(
             "coupling hardMask: expected at least one mask bit for the Mesh source, "

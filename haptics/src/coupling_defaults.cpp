@@ -1,7 +1,5 @@
 #include "palp/haptics/coupling_defaults.h"
 
-#include <algorithm>
-
 namespace palp::haptics {
 
 namespace {
@@ -54,19 +52,6 @@ CouplingParams scanCouplingDefaults() {
     CouplingParams p = commonDefaults();
     p.firstHit.threshold = 300;
     return p;
-}
-
-CouplingParams clampToDevice(CouplingParams params, const DeviceSpec& device,
-                             double periodSeconds) {
-    double limit = params.maxStiffness;
-    if (device.maxStiffnessNpm > 0) limit = std::min(limit, device.maxStiffnessNpm);
-    if (device.maxDampingNspm > 0 && periodSeconds > 0) {
-        // Colgate's sampled-wall bound b > k T / 2: stay 10 % inside it.
-        limit = std::min(limit, 0.9 * 2.0 * device.maxDampingNspm / periodSeconds);
-    }
-    params.maxStiffness = limit;
-    params.baseStiffness = std::min(params.baseStiffness, limit);
-    return params;
 }
 
 }  // namespace palp::haptics

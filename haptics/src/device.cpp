@@ -1,6 +1,11 @@
 #include "palp/haptics/device.h"
 
+#include <algorithm>
 #include <array>
+#include <cmath>
+#include <limits>
+
+#include "palp/haptics/coupling.h"
 
 namespace palp::haptics {
 namespace {
@@ -43,6 +48,28 @@ const DeviceSpec* findDeviceSpec(std::string_view name) noexcept {
         if (s.name == name) return &s;
     }
     return nullptr;
+}
+
+bool limitStiffnessToDevice(CouplingParams& params, const DeviceSpec& spec,
+                            double periodSeconds) noexcept {
+    auto usable = [](double v) { return v > 0 && std::isfinite(v); };
+    double limit = std::numeric_limits<double>::infinity();
+    if (usable(spec.maxStiffnessNpm)) limit = spec.maxStiffnessNpm;
+    if (usable(spec.maxDampingNspm) && usable(periodSeconds)) {
+        // Colgate's sampled-wall bound b > k T / 2: stay 10 % inside it.
+        limit = std::min(limit, 0.9 * 2.0 * spec.maxDampingNspm / periodSeconds);
+    }
+    if (!(limit < std::numeric_limits<double>::infinity())) return false;
+    bool lowered = false;
+    if (!(params.maxStiffness <= limit)) {
+        params.maxStiffness = limit;
+        lowered = true;
+    }
+    if (!(params.baseStiffness <= params.maxStiffness)) {
+        params.baseStiffness = params.maxStiffness;
+        lowered = true;
+    }
+    return lowered;
 }
 
 }  // namespace palp::haptics

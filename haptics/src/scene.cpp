@@ -1,10 +1,11 @@
+#include "palp/haptics/scene.h"
+
 #include <openvdb/tools/Count.h>
 
 #include <cmath>
 #include <sstream>
 
 #include "palp/base/error.h"
-#include "palp/haptics/session.h"
 
 namespace palp::haptics {
 namespace {

@@ -2,14 +2,15 @@
 
 #include <array>
 #include <atomic>
-#include <bit>
 #include <cmath>
 #include <limits>
 #include <map>
 #include <string>
-#include <vector>
 
 #include "palp/base/error.h"
+#include "palp/base/nothrow_slot.h"
+#include "palp/base/spsc_ring.h"
+#include "palp/base/validate.h"
 #include "palp/haptics/passivity.h"
 #include "palp/haptics/safety.h"
 
@@ -17,70 +18,6 @@ namespace palp::haptics {
 namespace {
 
 constexpr std::uint32_t kMaxTraceCapacity = 1u << 24;  // 16 M snapshots (a few GB): a typo guard
-
-std::string num(double v) {
-    std::string s = std::to_string(v);
-    return s;
-}
-
-void requireFinite(const char* field, double v) {
-    if (!std::isfinite(v))
-        throw ValueError(std::string("session: expected a finite ") + field + ", found " + num(v));
-}
-
-// Eigen's fixed-size copy assignment cannot throw but is not declared noexcept; the lock-free
-// exchanges require a nothrow copy, so the values travel in this wrapper.
-template <typename T>
-struct NothrowSlot {
-    T value{};
-    NothrowSlot() = default;
-    NothrowSlot(const NothrowSlot&) = default;
-    NothrowSlot& operator=(const NothrowSlot& other) noexcept {
-        value = other.value;
-        return *this;
-    }
-};
-
-// A single-producer single-consumer ring of snapshots whose capacity is chosen at run time
-// (SpscQueue's is a template argument). Storage is allocated once, at construction.
-class TraceRing {
-  public:
-    explicit TraceRing(std::uint32_t capacity)
-        : mSlots(capacity == 0 ? 0 : std::bit_ceil(capacity)),
-          mMask(mSlots.empty() ? 0 : mSlots.size() - 1) {}
-
-    // Servo thread. Never blocks: a full ring drops the value and counts it.
-    void push(const Snapshot& s) noexcept {
-        if (mSlots.empty()) return;
-        const std::size_t tail = mTail.load(std::memory_order_relaxed);
-        // Acquire pairs with the reader's release of mHead: the slot is free.
-        if (tail - mHead.load(std::memory_order_acquire) == mSlots.size()) {
-            mDropped.fetch_add(1, std::memory_order_relaxed);
-            return;
-        }
-        mSlots[tail & mMask] = s;
-        mTail.store(tail + 1, std::memory_order_release);  // publishes the slot
-    }
-
-    // Reader thread.
-    bool pop(Snapshot& out) noexcept {
-        if (mSlots.empty()) return false;
-        const std::size_t head = mHead.load(std::memory_order_relaxed);
-        if (head == mTail.load(std::memory_order_acquire)) return false;
-        out = mSlots[head & mMask];
-        mHead.store(head + 1, std::memory_order_release);  // hands the slot back
-        return true;
-    }
-
-    std::uint64_t dropped() const noexcept { return mDropped.load(std::memory_order_relaxed); }
-
-  private:
-    std::vector<Snapshot> mSlots;
-    std::size_t mMask;
-    alignas(64) std::atomic<std::size_t> mHead{0};  // written by the reader only
-    alignas(64) std::atomic<std::size_t> mTail{0};  // written by the servo thread only
-    alignas(64) std::atomic<std::uint64_t> mDropped{0};
-};
 
 // The blend of the fading-out (a) and the new (b) coupling outputs with weight w of b.
 void blend(const CouplingOutput& a, const CouplingOutput& b, double w,
@@ -174,55 +111,26 @@ void requireSourceData(const Scene& scene, const CouplingParams& c) {
 
 }  // namespace
 
-bool limitStiffnessToDevice(CouplingParams& params, const DeviceSpec& spec) noexcept {
-    const double limit = spec.maxStiffnessNpm;
-    if (!(limit > 0) || !std::isfinite(limit)) return false;
-    bool lowered = false;
-    if (!(params.maxStiffness <= limit)) {
-        params.maxStiffness = limit;
-        lowered = true;
-    }
-    if (!(params.baseStiffness <= params.maxStiffness)) {
-        params.baseStiffness = params.maxStiffness;
-        lowered = true;
-    }
-    return lowered;
-}
-
 void validateSessionParams(const SessionParams& params) {
     validateProxyParams(params.proxy);
     validateCouplingParams(params.coupling);
     validateServoConfig(params.servo);
     const WorkspaceTransform& w = params.workspace;
-    requireFinite("workspace.scale", w.scale);
-    if (!(w.scale > 0)) {
-        throw ValueError("session: expected workspace.scale > 0, found " + num(w.scale));
-    }
-    if (!w.rotation.allFinite() || !w.offset.allFinite()) {
-        throw ValueError("session: expected a finite workspace rotation and offset, found NaN/Inf");
-    }
+    requirePositive("session workspace.scale", w.scale);
+    if (!w.rotation.allFinite() || !w.offset.allFinite())
+        throwExpected("session workspace", "a finite rotation and offset", "NaN/Inf");
     const double orth =
         (w.rotation.transpose() * w.rotation - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
     const double det = w.rotation.determinant();
     if (orth > 1e-6 || std::abs(det - 1.0) > 1e-6) {
-        throw ValueError(
-            "session: expected workspace.rotation to be a rotation (R^T R = I, det 1), found "
-            "|R^T R - I| = " +
-            num(orth) + ", det " + num(det));
+        throwExpected("session workspace.rotation", "a rotation (R^T R = I, det 1)",
+                      "|R^T R - I| = " + formatValue(orth) + ", det " + formatValue(det));
     }
-    requireFinite("startupThresholdN", params.startupThresholdN);
-    if (!(params.startupThresholdN > 0)) {
-        throw ValueError("session: expected startupThresholdN > 0, found " +
-                         num(params.startupThresholdN));
-    }
-    requireFinite("crossFadeSeconds", params.crossFadeSeconds);
-    if (params.crossFadeSeconds < 0 || params.crossFadeSeconds > 60) {
-        throw ValueError("session: expected crossFadeSeconds in [0, 60], found " +
-                         num(params.crossFadeSeconds));
-    }
+    requirePositive("session startupThresholdN", params.startupThresholdN, "N");
+    requireInRange("session crossFadeSeconds", params.crossFadeSeconds, 0, 60, "s");
     if (params.traceCapacity > kMaxTraceCapacity) {
-        throw ValueError("session: expected traceCapacity <= " + std::to_string(kMaxTraceCapacity) +
-                         ", found " + std::to_string(params.traceCapacity));
+        throwExpected("session traceCapacity", "<= " + std::to_string(kMaxTraceCapacity),
+                      std::to_string(params.traceCapacity));
     }
 }
 
@@ -284,8 +192,41 @@ struct Session::Impl {
         limited.fill(stiffnessLimited);
     }
 
+    /// One tick's device sample in world terms (stage 1 of a tick).
+    struct HandSample {
+        /// The device velocity in world orientation but device scale: what the passivity
+        /// observer pairs with the force (F_world . (R v_device) = F_device . v_device, the
+        /// power that actually flows into the user's hand), m/s.
+        Eigen::Vector3d handVelocity;
+        Eigen::Vector3d probe;          ///< world, m
+        Eigen::Vector3d probeVelocity;  ///< world, m/s
+        bool ok = false;                ///< the device's position and velocity are finite
+    };
+    /// What the force chain sends (stage 3 of a tick).
+    struct SentForce {
+        Eigen::Vector3d force;  ///< world frame, N; always finite
+        bool faulted = false;   ///< the coupling's force (or the sample) was not finite
+        bool clamped = false;   ///< maxForceN cut the force (before or after the damping)
+    };
+
+    // The tick's stages, in order; all run on the servo thread (or step()'s), noexcept,
+    // allocation-free and lock-free, in bounded time.
     void tick(double timeSeconds) noexcept;
+    HandSample deviceToWorld(const DeviceState& state) const noexcept;
     void drainCommands() noexcept;
+    const ProxyState& moveProxy(const Eigen::Vector3d& probe) noexcept;
+    void coupleWithFade(const ProxyState& ps, const HandSample& hand) noexcept;
+    SentForce forceChain(const Eigen::Vector3d& couplingForce,
+                         const Eigen::Vector3d& handVelocity) noexcept;
+    Eigen::Vector3d worldToDevice(const Eigen::Vector3d& force) const noexcept {
+        return workspace.rotation.transpose() * force;  // rotated back, not scaled
+    }
+    bool contactTissue(const ProxyState& ps, const Eigen::Vector3d& sent,
+                       Eigen::Vector3d& tissueForce) noexcept;
+    void publish(double timeSeconds, const ProxyState& ps, const SentForce& sent,
+                 const Eigen::Vector3d& tissueForce) noexcept;
+    void followSurface(bool anchored) noexcept;
+
     void setCoupling(const CouplingParams& params, bool stiffnessLimited) noexcept;
     void startFade(const CouplingParams& params, bool stiffnessLimited) noexcept;
     // The time of the tick after the newest one (0 before any), s.
@@ -330,7 +271,9 @@ struct Session::Impl {
     SpscQueue<Command, 64> commands;                     // producer -> servo
     TripleBuffer<NothrowSlot<Snapshot>> snapshots;       // servo -> viewer
     TripleBuffer<NothrowSlot<kernels::RayBundle>> rays;  // servo -> viewer
-    TraceRing trace;                                     // servo -> trace reader
+    SpscRing<NothrowSlot<Snapshot>> trace;               // servo -> trace reader
+    NothrowSlot<Snapshot> traceScratch;                  // the servo thread's, for trace
+    std::atomic<std::uint64_t> traceDropped{0};          // written by the servo thread only
 
     // Controlling thread.
     ServoLoop loop;
@@ -393,105 +336,136 @@ void Session::Impl::drainCommands() noexcept {
 }
 
 void Session::Impl::tick(double timeSeconds) noexcept {
-    const DeviceState state = device.read();
-    const bool sampleOk = state.position.allFinite() && state.velocity.allFinite();
-    // Device -> world. The velocity in world orientation but device scale is what the
-    // passivity observer pairs with the force: F_world . (R v_device) = F_device . v_device,
-    // the power that actually flows into the user's hand.
-    const Eigen::Vector3d handVelocity = workspace.rotation * state.velocity;
-    const Eigen::Vector3d probe =
-        workspace.offset + workspace.scale * (workspace.rotation * state.position);
-    const Eigen::Vector3d probeVelocity = workspace.scale * handVelocity;
-
+    const HandSample hand = deviceToWorld(device.read());
     drainCommands();
-
-    Eigen::Vector3d force;
     const ProxyState* ps = &proxy.state();
-    if (sampleOk) {
-        lastProbe = probe;
-        if (!started) {
-            // A hand that starts inside an object must not be trapped there by its surface:
-            // the proxy follows the probe freely until the probe is outside.
-            freeProxy = true;
-            started = true;
-        }
-        if (freeProxy) {
-            freeProxy = insideSurfaces(body ? body->surfaces() : scene->surfaces(),
-                                       proxy.params().surfaceMask, probe);
-            proxy.reset(probe);
-        } else {
-            const CouplingParams& now = couplings[static_cast<std::size_t>(active)].params();
-            const double k = lastStiffness > 0 ? lastStiffness : now.baseStiffness;
-            ps = &proxy.update(probe, lastProxyForce, k, period);
-        }
-
-        const auto a = static_cast<std::size_t>(active);
-        couplings[a].compute(ps->position, probe, ps->velocity, probeVelocity, ps->tangent1,
-                             ps->tangent2, outputs[a]);
-        if (fading) {
-            const double w = fade.step();
-            const std::size_t old = 1 - a;
-            couplings[old].compute(ps->position, probe, ps->velocity, probeVelocity, ps->tangent1,
-                                   ps->tangent2, outputs[old]);
-            blend(outputs[old], outputs[a], w, blended);
-            current.fadeWeight = w;
-            if (!fade.fading()) {
-                fading = false;
-                if (hasPending) {
-                    hasPending = false;
-                    startFade(pending, pendingLimited);
-                }
-            }
-        } else {
-            blended = outputs[a];
-            current.fadeWeight = 1;
-        }
-        lastProxyForce =
-            blended.proxyForce.allFinite() ? blended.proxyForce : Eigen::Vector3d::Zero().eval();
-        lastStiffness = std::isfinite(blended.stiffness) ? blended.stiffness : 0.0;
+    Eigen::Vector3d force;
+    if (hand.ok) {
+        ps = &moveProxy(hand.probe);
+        coupleWithFade(*ps, hand);
         force = blended.force;
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
     }
+    const SentForce sent = forceChain(force, hand.handVelocity);
+    device.write(worldToDevice(sent.force));
+    Eigen::Vector3d tissueForce = Eigen::Vector3d::Zero();
+    const bool anchored = contactTissue(*ps, sent.force, tissueForce);
+    publish(timeSeconds, *ps, sent, tissueForce);
+    followSurface(anchored);
+}
 
-    const bool faultedNow = !force.allFinite();
-    force = guard.filter(force);
-    bool clamped = force.norm() > spec.maxForceN;
+// Stage 1, device -> world: world = offset + scale * R * device.
+Session::Impl::HandSample Session::Impl::deviceToWorld(const DeviceState& state) const noexcept {
+    HandSample h;
+    h.ok = state.position.allFinite() && state.velocity.allFinite();
+    h.handVelocity = workspace.rotation * state.velocity;
+    h.probe = workspace.offset + workspace.scale * (workspace.rotation * state.position);
+    h.probeVelocity = workspace.scale * h.handVelocity;
+    return h;
+}
+
+// Stage 2a (a good sample only): the proxy follows the probe, freely while the probe started
+// inside an object (until it is outside), constrained by the surfaces otherwise.
+const ProxyState& Session::Impl::moveProxy(const Eigen::Vector3d& probe) noexcept {
+    lastProbe = probe;
+    if (!started) {
+        // A hand that starts inside an object must not be trapped there by its surface:
+        // the proxy follows the probe freely until the probe is outside.
+        freeProxy = true;
+        started = true;
+    }
+    if (freeProxy) {
+        freeProxy = insideSurfaces(body ? body->surfaces() : scene->surfaces(),
+                                   proxy.params().surfaceMask, probe);
+        proxy.reset(probe);
+        return proxy.state();
+    }
+    const CouplingParams& now = couplings[static_cast<std::size_t>(active)].params();
+    const double k = lastStiffness > 0 ? lastStiffness : now.baseStiffness;
+    return proxy.update(probe, lastProxyForce, k, period);
+}
+
+// Stage 2b (a good sample only): the active coupling, blended with the fading-out one during a
+// cross-fade (a fade that ends starts the pending one); into blended, and the proxy force and
+// stiffness the next tick's proxy update uses.
+void Session::Impl::coupleWithFade(const ProxyState& ps, const HandSample& hand) noexcept {
+    const auto a = static_cast<std::size_t>(active);
+    couplings[a].compute(ps.position, hand.probe, ps.velocity, hand.probeVelocity, ps.tangent1,
+                         ps.tangent2, outputs[a]);
+    if (fading) {
+        const double w = fade.step();
+        const std::size_t old = 1 - a;
+        couplings[old].compute(ps.position, hand.probe, ps.velocity, hand.probeVelocity,
+                               ps.tangent1, ps.tangent2, outputs[old]);
+        blend(outputs[old], outputs[a], w, blended);
+        current.fadeWeight = w;
+        if (!fade.fading()) {
+            fading = false;
+            if (hasPending) {
+                hasPending = false;
+                startFade(pending, pendingLimited);
+            }
+        }
+    } else {
+        blended = outputs[a];
+        current.fadeWeight = 1;
+    }
+    lastProxyForce =
+        blended.proxyForce.allFinite() ? blended.proxyForce : Eigen::Vector3d::Zero().eval();
+    lastStiffness = std::isfinite(blended.stiffness) ? blended.stiffness : 0.0;
+}
+
+// Stage 3, the force chain: guard, clamp, gate, passivity (and clamp again).
+Session::Impl::SentForce Session::Impl::forceChain(const Eigen::Vector3d& couplingForce,
+                                                   const Eigen::Vector3d& handVelocity) noexcept {
+    SentForce out;
+    out.faulted = !couplingForce.allFinite();
+    const Eigen::Vector3d force = guard.filter(couplingForce);
+    out.clamped = force.norm() > spec.maxForceN;
     Eigen::Vector3d sent = gate.filter(clampForce(force, spec.maxForceN));
     // The observer books the force that is actually sent (after guard, clamp and gate: always
     // finite), so W is the energy exchanged with the hand; the controller's damping is added to
     // it and clamped again (when that second clamp binds, W books the damping before the cut).
     sent = passivity.update(sent, handVelocity);
     if (sent.norm() > spec.maxForceN) {
-        clamped = true;
+        out.clamped = true;
         sent = clampForce(sent, spec.maxForceN);
     }
-    device.write(workspace.rotation.transpose() * sent);
+    out.force = sent;
+    return out;
+}
 
-    // Deformable tissue: the reaction of the force on the hand acts on the tissue at the
-    // contact, the FEM steps, and a proxy in contact is carried with the deformed surface.
-    Eigen::Vector3d tissueForce = Eigen::Vector3d::Zero();
+// Stage 5, deformable tissue (nothing on a rigid scene): the reaction of the force on the hand
+// acts on the tissue at the contact and the FEM steps. Returns whether the proxy is anchored to
+// the surface (it is then carried with it after publishing).
+bool Session::Impl::contactTissue(const ProxyState& ps, const Eigen::Vector3d& sent,
+                                  Eigen::Vector3d& tissueForce) noexcept {
+    if (!body) return false;
     bool anchored = false;
-    if (body) {
-        if (ps->contactCount > 0 && sent.allFinite()) {
-            body->applyContactForce(ps->position, -sent);
-            anchored = body->anchor(ps->position, ps->normals[0]);
-        } else {
-            body->clearForce();
-        }
-        tissueForce = body->loadSum();
-        const int cn = body->contactNode();
-        current.femFlags = body->step(period);
-        current.contactNode = cn;
-        current.maxDisplacement = body->maxSurfaceDisplacement();
+    if (ps.contactCount > 0 && sent.allFinite()) {
+        body->applyContactForce(ps.position, -sent);
+        anchored = body->anchor(ps.position, ps.normals[0]);
+    } else {
+        body->clearForce();
     }
+    tissueForce = body->loadSum();
+    const int cn = body->contactNode();
+    current.femFlags = body->step(period);
+    current.contactNode = cn;
+    current.maxDisplacement = body->maxSurfaceDisplacement();
+    return anchored;
+}
 
+// Stage 6: the tick's Snapshot to latest() and the trace, its ray bundle to latestRays().
+void Session::Impl::publish(double timeSeconds, const ProxyState& ps, const SentForce& sent,
+                            const Eigen::Vector3d& tissueForce) noexcept {
     Snapshot& s = current;
     s.tick = ticks++;
     s.timeSeconds = timeSeconds;
     s.probe = lastProbe;
-    s.proxy = ps->position;
-    s.force = sent;
+    s.proxy = ps.position;
+    s.force = sent.force;
     s.energyForce = blended.energyForce;
     s.proxyForce = blended.proxyForce;
     s.stiffness = blended.stiffness;
@@ -500,12 +474,12 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     s.couplingEnergy = blended.energy;
     s.observerEnergy = passivity.energy();
     s.addedDamping = passivity.addedDamping();
-    s.contactCount = ps->contactCount;
+    s.contactCount = ps.contactCount;
     s.rays = blended.rays;
-    s.sticking = ps->sticking;
+    s.sticking = ps.sticking;
     s.gateOpen = gate.open();
-    s.faulted = faultedNow;
-    s.clamped = clamped;
+    s.faulted = sent.faulted;
+    s.clamped = sent.clamped;
     s.mode = couplings[static_cast<std::size_t>(active)].params().mode;
     s.stiffnessLimited = limited[static_cast<std::size_t>(active)];
     s.fading = fading;
@@ -516,15 +490,22 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     snapshots.publish();
     rays.back().value = couplings[static_cast<std::size_t>(active)].bundle();
     rays.publish();
-    trace.push(s);
+    // A full ring drops the snapshot and counts it (a ring of no slots keeps no trace).
+    if (trace.capacity() > 0) {
+        traceScratch.value = s;
+        if (!trace.tryPush(traceScratch)) traceDropped.fetch_add(1, std::memory_order_relaxed);
+    }
+}
 
-    // After publishing (the snapshot shows the proxy the force was computed with).
+// Stage 7 (deformable scenes, after publishing: the snapshot shows the proxy the force was
+// computed with): a proxy in contact is carried with the deformed surface; a free proxy that
+// the moving surface overtook (a fast spring-back) is put back out along the shortest
+// axis-aligned way out, 2 epsilon clear.
+void Session::Impl::followSurface(bool anchored) noexcept {
     if (anchored) {
         const Eigen::Vector3d carried = body->anchoredPosition();
         if (carried.allFinite()) proxy.reset(carried);
     } else if (body && !freeProxy && started) {
-        // A free proxy that the moving surface overtook (a fast spring-back) is put back out
-        // along the shortest axis-aligned way out, 2 epsilon clear.
         const unsigned mask = proxy.params().surfaceMask;
         const Eigen::Vector3d p = proxy.state().position;
         if (insideSurfaces(body->surfaces(), mask, p))
@@ -544,23 +525,19 @@ Session::Session(std::shared_ptr<const Scene> scene, Device& device, const Sessi
     }
     requireSourceData(*scene, params.coupling);
     const DeviceSpec& spec = device.spec();
-    if (!(spec.maxForceN > 0) || !std::isfinite(spec.maxForceN)) {
-        throw ValueError("session: expected the device's maxForceN to be finite and > 0, found " +
-                         num(spec.maxForceN));
-    }
+    requirePositive("session device maxForceN", spec.maxForceN, "N");
     if (const auto& d = scene->deformable();
         d && d->options().solverKind == DeformableSolver::asyncRegions) {
         // DeformableBody::step() refuses any other step (kStepBadTimeStep): frozen tissue.
         const double tick = d->options().regions.tickSeconds;
         const double servo = params.servo.periodSeconds;
         if (!(std::abs(tick - servo) <= 1e-9 * servo)) {
-            throw ValueError(
-                "session: expected the deformable body's regions.tickSeconds to equal the servo "
-                "period " +
-                num(servo) + " s, found " + num(tick) + " s");
+            throwExpected("session deformable regions.tickSeconds",
+                          "the servo period " + formatValue(servo) + " s",
+                          formatValue(tick) + " s");
         }
     }
-    mStiffnessLimited = limitStiffnessToDevice(mParams.coupling, spec);
+    mStiffnessLimited = limitStiffnessToDevice(mParams.coupling, spec, mParams.servo.periodSeconds);
     mImpl = std::make_unique<Impl>(std::move(scene), device, mParams, mStiffnessLimited);
 }
 
@@ -601,9 +578,16 @@ const Snapshot& Session::latest() noexcept { return mImpl->snapshots.read().valu
 
 const kernels::RayBundle& Session::latestRays() noexcept { return mImpl->rays.read().value; }
 
-bool Session::popTrace(Snapshot& out) noexcept { return mImpl->trace.pop(out); }
+bool Session::popTrace(Snapshot& out) noexcept {
+    NothrowSlot<Snapshot> slot;
+    if (!mImpl->trace.tryPop(slot)) return false;
+    out = slot.value;
+    return true;
+}
 
-std::uint64_t Session::traceDropped() const noexcept { return mImpl->trace.dropped(); }
+std::uint64_t Session::traceDropped() const noexcept {
+    return mImpl->traceDropped.load(std::memory_order_relaxed);
+}
 
 bool Session::send(const Command& command) {
     Command checked = command;
@@ -614,7 +598,8 @@ bool Session::send(const Command& command) {
             validateCouplingParams(command.coupling);
             requireSourceData(*mImpl->scene, command.coupling);
             if (command.kind == Command::Kind::SetAll) validateProxyParams(command.proxy);
-            checked.stiffnessLimited = limitStiffnessToDevice(checked.coupling, mImpl->spec);
+            checked.stiffnessLimited =
+                limitStiffnessToDevice(checked.coupling, mImpl->spec, mImpl->period);
             // The session's field for this threshold (built here, off the servo thread, the
             // first time the threshold is used).
             checked.coupling.firstHit.field =
@@ -627,8 +612,8 @@ bool Session::send(const Command& command) {
         case Command::Kind::ResetObserver:
             break;
         default:
-            throw ValueError("session: expected a known command kind, found " +
-                             std::to_string(static_cast<int>(command.kind)));
+            throwExpected("session command kind", "a known Command::Kind",
+                          std::to_string(static_cast<int>(command.kind)));
     }
     return mImpl->commands.tryPush(checked);
 }

@@ -49,7 +49,8 @@ TEST(StudyDefaults, AvcSceneParametersSeparateBoxFromPlate) {
     // The Touch lowers k_max to its stiffness limit.
     const DeviceSpec* touch = findDeviceSpec("3D Systems Touch");
     ASSERT_NE(touch, nullptr);
-    const CouplingParams c = clampToDevice(p, *touch, 1e-3);
+    CouplingParams c = p;
+    limitStiffnessToDevice(c, *touch, 1e-3);
     EXPECT_DOUBLE_EQ(c.maxStiffness, touch->maxStiffnessNpm);
     EXPECT_GT(c.maxStiffness, p.baseStiffness * stiffnessMultiplier(p, stopDepth));
 }
@@ -86,7 +87,8 @@ std::shared_ptr<const Scene> phantomScene(const volume::PhantomParams& params, s
 
 SessionParams studyParams(volume::PhantomScene scene, CouplingMode mode) {
     SessionParams p;
-    p.coupling = clampToDevice(sceneCouplingDefaults(scene), touch(), kPeriod);
+    p.coupling = sceneCouplingDefaults(scene);
+    limitStiffnessToDevice(p.coupling, touch(), kPeriod);
     p.coupling.mode = mode;
     p.servo.periodSeconds = kPeriod;
     return p;

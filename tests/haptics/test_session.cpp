@@ -505,15 +505,27 @@ TEST_F(SessionTest, StiffnessAboveTheDeviceLimitIsClamped) {
     CouplingParams c = params(CouplingMode::VC).coupling;
     c.baseStiffness = 2 * limit;
     c.maxStiffness = 3 * limit;
-    EXPECT_TRUE(limitStiffnessToDevice(c, touchX()));
+    const double period = 1e-3;  // the sampled-wall bound 0.9 * 2 b / T = 5400 N/m: not binding
+    EXPECT_TRUE(limitStiffnessToDevice(c, touchX(), period));
     EXPECT_EQ(c.maxStiffness, limit);
     EXPECT_EQ(c.baseStiffness, limit);
-    EXPECT_FALSE(limitStiffnessToDevice(c, touchX()));  // already within: unchanged
+    EXPECT_FALSE(limitStiffnessToDevice(c, touchX(), period));  // already within: unchanged
     DeviceSpec unlimited = touchX();
     unlimited.maxStiffnessNpm = 0;  // no limit known
+    unlimited.maxDampingNspm = 0;
     c.maxStiffness = 3 * limit;
-    EXPECT_FALSE(limitStiffnessToDevice(c, unlimited));
+    EXPECT_FALSE(limitStiffnessToDevice(c, unlimited, period));
     EXPECT_EQ(c.maxStiffness, 3 * limit);
+    // A slow servo rate: Colgate's sampled-wall bound (k < 2 b / T, 10 % inside) binds first.
+    CouplingParams slow = params(CouplingMode::VC).coupling;
+    slow.maxStiffness = limit;
+    const double slowPeriod = 1e-2;
+    const double wall = 0.9 * 2.0 * touchX().maxDampingNspm / slowPeriod;
+    ASSERT_LT(wall, limit);
+    EXPECT_TRUE(limitStiffnessToDevice(slow, touchX(), slowPeriod));
+    EXPECT_EQ(slow.maxStiffness, wall);
+    EXPECT_LE(slow.baseStiffness, wall);
+    EXPECT_FALSE(limitStiffnessToDevice(slow, touchX(), 0.0));  // no period: device limit only
 
     // VC at twice the limit, pressed ~2 mm: F = limit D, not 2 limit D.
     PathDevice dev({{0, at(0.004, -0.004, 0.003)},

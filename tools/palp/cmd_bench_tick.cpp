@@ -266,7 +266,7 @@ std::vector<Run> makeRuns(const TickArgs& a, const haptics::DeviceSpec* spec,
         r.params.source = v.source;
         r.params.bundle.ringCount = v.ring;
         haptics::validateCouplingParams(r.params);
-        r.params = haptics::clampToDevice(r.params, *spec, kPeriod);
+        haptics::limitStiffnessToDevice(r.params, *spec, kPeriod);
         haptics::SessionParams sp;
         sp.coupling = r.params;
         sp.servo.periodSeconds = kPeriod;

@@ -523,7 +523,7 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     haptics::validateCouplingParams(cp);
     const double period = 1e-3;
     const double kMaxAsked = cp.maxStiffness;
-    cp = haptics::clampToDevice(cp, *spec, period);
+    haptics::limitStiffnessToDevice(cp, *spec, period);
 
     haptics::SceneOptions so;
     so.surfaceIso = a.surfaceIso;

@@ -4,7 +4,6 @@
 /// `palp palpate`, `palp bench` and the virtual experiments (test_experiments).
 
 #include "palp/haptics/coupling.h"
-#include "palp/haptics/device.h"
 #include "palp/volume/phantom.h"
 
 namespace palp::haptics {
@@ -24,7 +23,7 @@ namespace palp::haptics {
 /// * Stiffness: VolumeFirstHit at 200 HU (between soft 40 and hard 300), L_max = 40 mm,
 ///   L_ref = 40 mm.
 /// Common: k_s = 300 N/m, m_max = 8, k_max = 2400 N/m (clamp to the device with
-/// clampToDevice()), step 0.5 mm (1 mm voxels and finer), no ring (ringCount 0), Sobel
+/// limitStiffnessToDevice()), step 0.5 mm (1 mm voxels and finer), no ring (ringCount 0), Sobel
 /// angle 0.1 rad and surface offset 1 mm (the stencils must straddle structures a few mm wide).
 CouplingParams sceneCouplingDefaults(volume::PhantomScene scene);
 
@@ -32,10 +31,5 @@ CouplingParams sceneCouplingDefaults(volume::PhantomScene scene);
 /// L_ref = 40 mm (k_s when nothing hard lies within 40 mm, 4 k_s for bone 10 mm deep),
 /// otherwise as sceneCouplingDefaults().
 CouplingParams scanCouplingDefaults();
-
-/// Lowers maxStiffness to the device's maxStiffnessNpm and to the sampled-wall passivity bound
-/// k < 2 b / T (b: the device's maxDampingNspm, T: @p periodSeconds), and baseStiffness to
-/// maxStiffness when it is above. Returns the adjusted copy.
-CouplingParams clampToDevice(CouplingParams params, const DeviceSpec& device, double periodSeconds);
 
 }  // namespace palp::haptics

@@ -51,6 +51,25 @@ std::span<const DeviceSpec> deviceSpecs() noexcept;
 /// The spec named @p name (exact match), or nullptr when there is none.
 const DeviceSpec* findDeviceSpec(std::string_view name) noexcept;
 
+struct CouplingParams;  // coupling.h
+
+/// The one stiffness rule for rendering on a device: lowers @p params.maxStiffness to the
+/// smallest of
+/// * the device's maxStiffnessNpm (the highest stiffness it renders stably; ignored when <= 0
+///   or not finite), and
+/// * Colgate's sampled-wall passivity bound k < 2 b / T, kept 10 % inside: 0.9 * 2 b / T, with
+///   b the device's maxDampingNspm and T = @p periodSeconds, the servo period in s (ignored
+///   when either is <= 0 or not finite),
+/// and then baseStiffness to maxStiffness when it is above. With neither limit set nothing
+/// changes. Returns whether anything was lowered. At the usual 1 kHz no device of
+/// deviceSpecs() is bound by the sampled-wall term (it lies 2.5 to 3.6 times above its
+/// maxStiffnessNpm); it binds for slow servo rates (periods over about 2.5 ms).
+/// Session applies it to every coupling it renders (with its servo period), and so do the C
+/// API and `palp palpate` / `palp bench tick`.
+/// @par Real-time  noexcept, allocation-free.
+bool limitStiffnessToDevice(CouplingParams& params, const DeviceSpec& spec,
+                            double periodSeconds) noexcept;
+
 /// A haptic device: the servo loop calls read() then write() once per tick.
 ///
 /// @par Threading

@@ -1,7 +1,8 @@
 #pragma once
 /// @file
-/// Scene (what can be felt) and Session (device + proxy + coupling + passivity + safety + the
-/// servo loop, with lock-free snapshots and a command queue): the facade a viewer embeds.
+/// Session (device + proxy + coupling + passivity + safety + the servo loop, with lock-free
+/// snapshots and a command queue): the facade a viewer embeds. The Scene it renders is in
+/// scene.h (included here, so includers of session.h keep seeing it).
 
 #include <Eigen/Geometry>
 #include <cstdint>
@@ -15,6 +16,7 @@
 #include "palp/haptics/deformable.h"
 #include "palp/haptics/device.h"
 #include "palp/haptics/proxy.h"
+#include "palp/haptics/scene.h"
 #include "palp/haptics/servo_loop.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/mesh.h"
@@ -22,56 +24,6 @@
 #include "palp/volume/volume.h"
 
 namespace palp::haptics {
-
-/// How a Scene is made from a volume.
-struct SceneOptions {
-    /// Iso-value (volume units, HU for CT) of the surface the proxy slides on (skin: between
-    /// air and fat). NaN: no surface from the volume.
-    double surfaceIso = -500;
-    /// Iso-value of the hard structures added as hard meshes (mask kMaskBone) for the Mesh ray
-    /// source. NaN: none.
-    double hardIso = std::numeric_limits<double>::quiet_NaN();
-    double adaptivity = 0.0;  ///< volumeToMesh adaptivity for both
-};
-
-/// What can be felt: a volume (for the volume ray sources), surface meshes (the proxy's
-/// constraints, mask kMaskSurface) and hard meshes (the Mesh ray source).
-/// @par Threading  Built on one thread, then immutable and shared (const) by sessions.
-class Scene {
-  public:
-    Scene();
-    /// Volume view plus the iso-surfaces of @p options. @throw palp::ValueError.
-    static std::shared_ptr<Scene> fromVolume(const volume::Volume& volume,
-                                             const SceneOptions& options = {});
-    /// Adds a mesh the proxy cannot cross.
-    void addSurfaceMesh(const kernels::TriangleMesh& mesh);
-    /// Adds a hard structure for the Mesh ray source (mask: kMaskBone, kMaskPlate, ...).
-    void addHardMesh(const kernels::TriangleMesh& mesh, unsigned mask = kernels::kMaskBone);
-    /// Sets the volume used by the volume ray sources.
-    void setVolume(openvdb::FloatGrid::ConstPtr grid);
-    /// Commits the Embree scenes; call once after the last add, before a Session uses it.
-    void commit();
-    /// Makes the scene deformable: every Session builds its own DeformableBody from @p model
-    /// and its proxy slides on that body's deformed surface instead of surfaces() (which the
-    /// proxy then ignores); only VC coupling is accepted (AVC/AVCEC on deformable tissue are
-    /// not built yet). nullptr: rigid again. @throw nothing.
-    void setDeformable(std::shared_ptr<const DeformableModel> model) noexcept {
-        mDeformable = std::move(model);
-    }
-    /// The deformable body's template, or nullptr for a rigid scene.
-    const std::shared_ptr<const DeformableModel>& deformable() const noexcept {
-        return mDeformable;
-    }
-
-    const kernels::VolumeView* volumeView() const noexcept { return mView.get(); }
-    const kernels::EmbreeScene& surfaces() const noexcept { return *mSurfaces; }
-    const kernels::EmbreeScene& hardMeshes() const noexcept { return *mHard; }
-
-  private:
-    std::unique_ptr<kernels::VolumeView> mView;
-    std::unique_ptr<kernels::EmbreeScene> mSurfaces, mHard;
-    std::shared_ptr<const DeformableModel> mDeformable;
-};
 
 /// Device frame -> world: world = offset + scale * rotation * device.
 struct WorkspaceTransform {
@@ -97,14 +49,6 @@ struct SessionParams {
 /// @throw palp::ValueError naming the field (through the parts' validators too).
 void validateSessionParams(const SessionParams& params);
 
-/// The device's stability limit on a coupling: maxStiffness is lowered to the device's
-/// maxStiffnessNpm (the highest stiffness it renders stably) and baseStiffness to maxStiffness
-/// when above it. A spec with maxStiffnessNpm <= 0 or non-finite sets no limit. Returns whether
-/// anything was lowered. Session applies this to every coupling it renders (see Session); the
-/// sampled-wall bound for other servo periods (clampToDevice in study.h) stays the caller's.
-/// @par Real-time  noexcept, allocation-free.
-bool limitStiffnessToDevice(CouplingParams& params, const DeviceSpec& spec) noexcept;
-
 /// One tick's state, published lock-free for viewers and traces. Plain data.
 struct Snapshot {
     std::uint64_t tick = 0;
@@ -122,7 +66,8 @@ struct Snapshot {
     bool sticking = false, gateOpen = false, faulted = false, clamped = false;
     CouplingMode mode = CouplingMode::VC;
     /// The coupling in force (the newest one during a fade) asked for a maxStiffness or
-    /// baseStiffness above the device's maxStiffnessNpm and renders the lowered one.
+    /// baseStiffness above the device's limit (limitStiffnessToDevice) and renders the lowered
+    /// one.
     bool stiffnessLimited = false;
     bool fading = false;       ///< a SetCoupling cross-fade is running
     double fadeWeight = 1;     ///< weight of the newest coupling params (0..1)
@@ -188,8 +133,9 @@ struct Command {
 /// along the shortest axis-aligned exit.
 ///
 /// Device stability limit: every coupling the session renders (the one in SessionParams and
-/// each SetCoupling / SetAll) goes through limitStiffnessToDevice(), so k never exceeds the
-/// device's maxStiffnessNpm whatever the caller asked for. The session clamps rather than
+/// each SetCoupling / SetAll) goes through limitStiffnessToDevice() (device.h) with the servo
+/// period, so k never exceeds the device's maxStiffnessNpm nor the sampled-wall bound
+/// whatever the caller asked for. The session clamps rather than
 /// refuses (as `palp palpate` does), so one set of parameters works on every device class;
 /// the clamp is reported by stiffnessLimited(), params() (the lowered values) and every
 /// Snapshot's stiffnessLimited.
