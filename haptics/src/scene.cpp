@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "palp/base/error.h"
+#include "palp/volume/mesh.h"
 
 namespace palp::haptics {
 namespace {
@@ -20,7 +21,7 @@ std::string valueRange(const openvdb::FloatGrid& grid) {
 
 kernels::TriangleMesh isoMesh(const openvdb::FloatGrid& grid, double iso, double adaptivity,
                               const char* what) {
-    kernels::TriangleMesh mesh = kernels::isoSurface(grid, iso, adaptivity);
+    kernels::TriangleMesh mesh = volume::isoSurface(grid, iso, adaptivity);
     if (mesh.triangleCount() == 0) {
         std::ostringstream s;
         s << "scene: expected the " << what << " iso-value " << iso

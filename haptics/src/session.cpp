@@ -50,13 +50,13 @@ bool insideSurfaces(const kernels::EmbreeScene& scene, unsigned mask,
         int crossings = 0;
         float tnear = 0.0f;
         for (int i = 0; i < 65; ++i) {
-            alignas(16) RTCRayHit rh;
+            kernels::MeshHit hit;
             const Eigen::Vector3d dir(d[0], d[1], d[2]);
-            if (!kernels::intersectOne(scene.handle(), p, dir, tnear,
-                                       std::numeric_limits<float>::infinity(), mask, rh))
+            if (!kernels::intersectOne(scene, p, dir, tnear, std::numeric_limits<float>::infinity(),
+                                       mask, hit))
                 break;
             ++crossings;
-            tnear = rh.ray.tfar * (1.0f + 1e-6f) + 1e-7f;  // step past this hit
+            tnear = hit.t * (1.0f + 1e-6f) + 1e-7f;  // step past this hit
         }
         insideVotes += crossings % 2;
     }
@@ -72,10 +72,9 @@ Eigen::Vector3d nearestExit(const kernels::EmbreeScene& scene, unsigned mask,
     for (int k = 0; k < 6; ++k) {
         Eigen::Vector3f d = Eigen::Vector3f::Zero();
         d[k / 2] = (k % 2) ? -1.0f : 1.0f;
-        alignas(16) RTCRayHit rh;
-        if (!kernels::intersectOne(scene.handle(), p, d.cast<double>(), 0.0f, best, mask, rh))
-            continue;
-        best = rh.ray.tfar;
+        kernels::MeshHit hit;
+        if (!kernels::intersectOne(scene, p, d.cast<double>(), 0.0f, best, mask, hit)) continue;
+        best = hit.t;
         out = p + (static_cast<double>(best) + offset) * d.cast<double>();
     }
     return out;

@@ -17,12 +17,12 @@
 
 #include "commands.h"
 #include "palp/base/error.h"
+#include "palp/bench/ray_bench.h"
 #include "palp/haptics/coupling.h"
 #include "palp/haptics/coupling_defaults.h"
 #include "palp/haptics/session.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/trajectory.h"
-#include "palp/kernels/ray_bench.h"
 #include "palp/kernels/volume_ray.h"
 #include "palp/volume/load.h"
 #include "palp/volume/phantom.h"

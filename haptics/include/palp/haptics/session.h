@@ -19,7 +19,7 @@
 #include "palp/haptics/scene.h"
 #include "palp/haptics/servo_loop.h"
 #include "palp/kernels/embree_scene.h"
-#include "palp/kernels/mesh.h"
+#include "palp/kernels/triangle_mesh.h"
 #include "palp/kernels/volume_ray.h"
 #include "palp/volume/volume.h"
 
