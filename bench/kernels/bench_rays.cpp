@@ -6,7 +6,7 @@
 #include <exception>
 #include <string>
 
-#include "palp/kernels/ray_bench.h"
+#include "palp/bench/ray_bench.h"
 
 int main(int argc, char** argv) {
     try {
@@ -18,7 +18,7 @@ int main(int argc, char** argv) {
         o.batchBundles = std::max(200, std::min(20000, 2 * o.frames));
         RayBenchReport report;
         report.machine = machineDescription();
-        report.pinned = o.pin && pinCurrentThread();
+        if (o.pin) pinMeasuringThread(report);
         auto phantom = makeRayBenchPhantom();
         for (int rays : {17, 25}) {
             o.rays = rays;

@@ -7,6 +7,8 @@
 //    through RefitMesh::intersect directly (no Embree around it).
 // Each line: both figures (median microseconds) and the ratio Embree / palp.
 // Usage: bench_refit [frames]   (default 2000)
+#include <embree3/rtcore.h>
+
 #include <algorithm>
 #include <array>
 #include <chrono>

@@ -38,7 +38,7 @@
 #include <string>
 #include <vector>
 
-#include "palp/kernels/ray_bench.h"
+#include "palp/bench/ray_bench.h"
 #include "palp/kernels/volume_ray.h"
 
 namespace {

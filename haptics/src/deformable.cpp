@@ -323,10 +323,9 @@ bool DeformableBody::anchor(const Eigen::Vector3d& point, const Eigen::Vector3d&
     const double nn = normal.norm();
     if (!point.allFinite() || !(nn > 0) || !std::isfinite(nn)) return false;
     const Eigen::Vector3d d = -normal / nn;
-    alignas(16) RTCRayHit rh;
-    kernels::intersectOne(mScene->handle(), point, d, 0.0f, 1e-3f, kernels::kMaskSurface, rh);
-    if (rh.hit.geomID == mGeom && anchorOn(static_cast<int>(rh.hit.primID), point, normal))
-        return true;
+    kernels::MeshHit hit;
+    kernels::intersectOne(*mScene, point, d, 0.0f, 1e-3f, kernels::kMaskSurface, hit);
+    if (hit.geomId == mGeom && anchorOn(static_cast<int>(hit.primId), point, normal)) return true;
     // The surface's ray test is watertight, but the point may lie more than 1 mm off the
     // surface or the ray may graze it. Then take the triangle around the nearest surface node
     // whose (clamped) barycentric point is closest, among those facing the normal.

@@ -1,9 +1,8 @@
 #include "palp/haptics/proxy.h"
 
-#include <embree3/rtcore.h>
-
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -46,46 +45,37 @@ void requireFinite(double v, const char* field, const std::string& expected, boo
 }
 
 struct Hit {
-    unsigned geomId = RTC_INVALID_GEOMETRY_ID;
-    unsigned primId = RTC_INVALID_GEOMETRY_ID;
+    unsigned geomId = kernels::kNoGeometry;
+    unsigned primId = kernels::kNoGeometry;
     Eigen::Vector3d ng{Eigen::Vector3d::Zero()};
 };
 
 /// Closest hit of the ray x + t u, t in [0, length], against geometries of @p mask.
-bool trace(RTCScene scene, const Eigen::Vector3d& x, const Eigen::Vector3d& u, double length,
-           unsigned mask, Hit& hit) noexcept {
-    alignas(16) RTCRayHit rh;
-    if (!kernels::intersectOne(scene, x, u, 0.0f, static_cast<float>(length), mask, rh))
+bool trace(const kernels::EmbreeScene& scene, const Eigen::Vector3d& x, const Eigen::Vector3d& u,
+           double length, unsigned mask, Hit& hit) noexcept {
+    kernels::MeshHit mh;
+    if (!kernels::intersectOne(scene, x, u, 0.0f, static_cast<float>(length), mask, mh))
         return false;
-    hit.geomId = rh.hit.geomID;
-    hit.primId = rh.hit.primID;
-    hit.ng = Eigen::Vector3d(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+    hit.geomId = mh.geomId;
+    hit.primId = mh.primId;
+    hit.ng = Eigen::Vector3d(mh.ngX, mh.ngY, mh.ngZ);
     return true;
 }
 
 /// The offset plane of the hit triangle, in double precision from its (float) vertices so that
 /// flat faces give exact planes; Embree's Ng is the fallback. Oriented against @p u.
-bool planeOf(RTCScene scene, const Hit& hit, const Eigen::Vector3d& u, double epsilon,
-             Plane& plane) noexcept {
+bool planeOf(const kernels::EmbreeScene& scene, const Hit& hit, const Eigen::Vector3d& u,
+             double epsilon, Plane& plane) noexcept {
     Eigen::Vector3d ng = hit.ng;
     double offset = std::numeric_limits<double>::quiet_NaN();
-    if (RTCGeometry g = rtcGetGeometry(scene, hit.geomId)) {
-        const auto* v =
-            static_cast<const float*>(rtcGetGeometryBufferData(g, RTC_BUFFER_TYPE_VERTEX, 0));
-        const auto* idx = static_cast<const std::uint32_t*>(
-            rtcGetGeometryBufferData(g, RTC_BUFFER_TYPE_INDEX, 0));
-        if (v && idx) {
-            const std::size_t t = 3 * static_cast<std::size_t>(hit.primId);
-            const auto vert = [&](std::size_t k) {
-                const std::size_t i = 3 * static_cast<std::size_t>(idx[t + k]);
-                return Eigen::Vector3d(v[i], v[i + 1], v[i + 2]);
-            };
-            const Eigen::Vector3d a = vert(0), b = vert(1), c = vert(2);
-            const Eigen::Vector3d cross = (b - a).cross(c - a);
-            if (cross.norm() > 0) {
-                ng = cross;
-                offset = cross.normalized().dot(a);
-            }
+    std::array<Eigen::Vector3f, 3> corners;
+    if (scene.triangle(hit.geomId, hit.primId, corners)) {
+        const Eigen::Vector3d a = corners[0].cast<double>(), b = corners[1].cast<double>(),
+                              c = corners[2].cast<double>();
+        const Eigen::Vector3d cross = (b - a).cross(c - a);
+        if (cross.norm() > 0) {
+            ng = cross;
+            offset = cross.normalized().dot(a);
         }
     }
     const double len = ng.norm();
@@ -205,7 +195,7 @@ const ProxyState& Proxy::update(const Eigen::Vector3d& probe,
         return mState;
     }
 
-    const RTCScene scene = mScene->handle();
+    const kernels::EmbreeScene& scene = *mScene;
     const double eps = mParams.epsilon;
     const double onTol = kOnPlaneFraction * eps;
     std::array<Plane, 3> planes{};

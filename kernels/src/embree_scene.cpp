@@ -1,5 +1,7 @@
 #include "palp/kernels/embree_scene.h"
 
+#include <embree3/rtcore.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -10,6 +12,8 @@
 #include "palp/base/error.h"
 
 namespace palp::kernels {
+
+static_assert(kNoGeometry == RTC_INVALID_GEOMETRY_ID);
 
 namespace {
 
@@ -242,8 +246,27 @@ void EmbreeScene::commit() {
     mCommitted = true;
 }
 
-bool intersectOne(RTCScene scene, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-                  float tnear, float tfar, unsigned mask, RTCRayHit& rh) noexcept {
+bool EmbreeScene::triangle(unsigned geomId, unsigned primId,
+                           std::array<Eigen::Vector3f, 3>& corners) const noexcept {
+    RTCGeometry g = rtcGetGeometry(mScene, geomId);
+    if (!g) return false;
+    const auto* v =
+        static_cast<const float*>(rtcGetGeometryBufferData(g, RTC_BUFFER_TYPE_VERTEX, 0));
+    const auto* idx =
+        static_cast<const std::uint32_t*>(rtcGetGeometryBufferData(g, RTC_BUFFER_TYPE_INDEX, 0));
+    if (!v || !idx) return false;
+    const std::size_t t = 3 * static_cast<std::size_t>(primId);
+    for (std::size_t k = 0; k < 3; ++k) {
+        const std::size_t i = 3 * static_cast<std::size_t>(idx[t + k]);
+        corners[k] = Eigen::Vector3f(v[i], v[i + 1], v[i + 2]);
+    }
+    return true;
+}
+
+bool intersectOne(const EmbreeScene& scene, const Eigen::Vector3d& origin,
+                  const Eigen::Vector3d& direction, float tnear, float tfar, unsigned mask,
+                  MeshHit& hit) noexcept {
+    alignas(16) RTCRayHit rh;
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     rh.ray.org_x = static_cast<float>(origin.x());
@@ -260,8 +283,15 @@ bool intersectOne(RTCScene scene, const Eigen::Vector3d& origin, const Eigen::Ve
     rh.ray.flags = 0;
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(scene, &ctx, &rh);
-    return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene.handle(), &ctx, &rh);
+    hit.geomId = rh.hit.geomID;
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    hit.t = rh.ray.tfar;
+    hit.primId = rh.hit.primID;
+    hit.ngX = rh.hit.Ng_x;
+    hit.ngY = rh.hit.Ng_y;
+    hit.ngZ = rh.hit.Ng_z;
+    return true;
 }
 
 namespace {

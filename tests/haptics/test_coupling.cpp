@@ -21,7 +21,7 @@
 #include "alloc_counter.h"
 #include "palp/base/error.h"
 #include "palp/haptics/coupling.h"
-#include "palp/kernels/mesh.h"
+#include "palp/kernels/triangle_mesh.h"
 #include "palp/volume/phantom.h"
 #include "ray_test_shapes.h"
 

@@ -1,5 +1,4 @@
 // The god-object proxy with Coulomb friction (ALGORITHMS.md section 1).
-#include <embree3/rtcore.h>
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
@@ -20,7 +19,7 @@
 #include "palp/base/error.h"
 #include "palp/haptics/proxy.h"
 #include "palp/haptics/trajectory.h"
-#include "palp/kernels/mesh.h"
+#include "palp/volume/mesh.h"
 #include "palp/volume/phantom.h"
 #include "ray_test_shapes.h"
 
@@ -31,7 +30,9 @@ using palp::haptics::Proxy;
 using palp::haptics::ProxyParams;
 using palp::haptics::ProxyState;
 using palp::kernels::EmbreeScene;
+using palp::kernels::intersectOne;
 using palp::kernels::kMaskSurface;
+using palp::kernels::MeshHit;
 using palp::kernels::TriangleMesh;
 
 constexpr double kK = 1000.0;  // N/m
@@ -385,7 +386,7 @@ TEST(Proxy, SphereIsoSurfaceStaysOutside) {
     const palp::test::Sphere sphere{Vector3d(0.11e-3, -0.23e-3, 0.05e-3), 4e-3};
     auto grid = palp::test::shapeVolume([&](const Vector3d& x) { return sphere.sdf(x); },
                                         {-12, -12, -12}, {12, 12, 12});
-    const TriangleMesh mesh = palp::kernels::isoSurface(*grid, palp::test::kIso);
+    const TriangleMesh mesh = palp::volume::isoSurface(*grid, palp::test::kIso);
     ASSERT_GT(mesh.triangleCount(), 500u);
     // Faceting tolerance: how far inside the sphere the mesh reaches. A point outside the
     // (star-shaped) mesh is at least the mesh's distance from the centre.
@@ -517,23 +518,12 @@ bool insideMesh(const EmbreeScene& scene, const Vector3d& p) {
         int crossings = 0;
         float tnear = 0;
         for (int i = 0; i < 1000; ++i) {
-            RTCIntersectContext ctx;
-            rtcInitIntersectContext(&ctx);
-            alignas(16) RTCRayHit rh{};
-            rh.ray.org_x = static_cast<float>(p.x());
-            rh.ray.org_y = static_cast<float>(p.y());
-            rh.ray.org_z = static_cast<float>(p.z());
-            rh.ray.dir_x = static_cast<float>(d.x());
-            rh.ray.dir_y = static_cast<float>(d.y());
-            rh.ray.dir_z = static_cast<float>(d.z());
-            rh.ray.tnear = tnear;
-            rh.ray.tfar = std::numeric_limits<float>::infinity();
-            rh.ray.mask = kMaskSurface;
-            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-            rtcIntersect1(scene.handle(), &ctx, &rh);
-            if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) break;
+            MeshHit hit;
+            if (!intersectOne(scene, p, d, tnear, std::numeric_limits<float>::infinity(),
+                              kMaskSurface, hit))
+                break;
             ++crossings;
-            tnear = rh.ray.tfar * (1.0f + 1e-6f) + 1e-7f;
+            tnear = hit.t * (1.0f + 1e-6f) + 1e-7f;
         }
         votes += crossings % 2;
     }
@@ -554,7 +544,7 @@ TEST(Proxy, NoisyScanIsoSurfaceKeepsContactAndNeverPenetrates) {
     spec.noiseSigmaHu = 10;
     spec.seed = 7;
     const palp::volume::Volume volume = palp::volume::makePhantomVolume(spec);
-    const TriangleMesh mesh = palp::kernels::isoSurface(*volume.grid, -500.0);
+    const TriangleMesh mesh = palp::volume::isoSurface(*volume.grid, -500.0);
     ASSERT_GT(mesh.triangleCount(), 10000u);
     // The skin is closed (also at the volume's edge) and manifold: every edge in two triangles.
     std::vector<std::pair<std::uint32_t, std::uint32_t>> edges;

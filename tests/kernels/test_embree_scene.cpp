@@ -9,8 +9,9 @@
 #include "alloc_counter.h"
 #include "palp/base/error.h"
 #include "palp/kernels/embree_scene.h"
-#include "palp/kernels/mesh.h"
 #include "palp/kernels/ray_batch.h"
+#include "palp/kernels/triangle_mesh.h"
+#include "palp/volume/mesh.h"
 #include "ray_test_shapes.h"
 #include "test_support.h"
 
@@ -198,7 +199,7 @@ TEST(EmbreeScene, VolumeAndMeshAgreeWithinHalfAVoxel) {
     EmbreeScene analytic, iso;
     analytic.addRigidMesh(icosphere(s, 5));
     analytic.commit();
-    const TriangleMesh isoMesh = isoSurface(*grid, palp::test::kIso);
+    const TriangleMesh isoMesh = palp::volume::isoSurface(*grid, palp::test::kIso);
     ASSERT_GT(isoMesh.triangleCount(), 1000u);
     iso.addRigidMesh(isoMesh);
     iso.commit();
@@ -311,55 +312,6 @@ TEST(EmbreeScene, DegenerateInputAndNoAllocation) {
     }
     EXPECT_EQ(palp::test::allocationCount() - before, 0u);
     EXPECT_EQ(hits, 400);
-}
-
-TEST(MeshIo, ObjStlPlyRoundTrip) {
-    palp::test::TempDir dir;
-    const TriangleMesh box = boxMesh({Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(0.5, 0.25, 1)});
-    saveObj(box, dir / "box.obj");
-    {
-        std::ofstream stl(dir / "box.stl");
-        stl << "solid box\n";
-        for (std::size_t t = 0; t < box.triangleCount(); ++t) {
-            stl << "facet normal 0 0 0\nouter loop\n";
-            for (int k = 0; k < 3; ++k) {
-                const std::uint32_t v = box.indices[3 * t + static_cast<std::size_t>(k)];
-                stl << "vertex " << box.positions[3 * v] << ' ' << box.positions[3 * v + 1] << ' '
-                    << box.positions[3 * v + 2] << '\n';
-            }
-            stl << "endloop\nendfacet\n";
-        }
-        stl << "endsolid box\n";
-        std::ofstream ply(dir / "box.ply");
-        ply << "ply\nformat ascii 1.0\nelement vertex " << box.vertexCount()
-            << "\nproperty float x\nproperty float y\nproperty float z\nelement face "
-            << box.triangleCount() << "\nproperty list uchar int vertex_indices\nend_header\n";
-        for (std::size_t v = 0; v < box.vertexCount(); ++v)
-            ply << box.positions[3 * v] << ' ' << box.positions[3 * v + 1] << ' '
-                << box.positions[3 * v + 2] << '\n';
-        for (std::size_t t = 0; t < box.triangleCount(); ++t)
-            ply << "3 " << box.indices[3 * t] << ' ' << box.indices[3 * t + 1] << ' '
-                << box.indices[3 * t + 2] << '\n';
-    }
-    for (const char* name : {"box.obj", "box.stl", "box.ply"}) {
-        const TriangleMesh m = loadMesh(dir / name, 1e-3);  // millimetres
-        EXPECT_EQ(m.triangleCount(), 12u) << name;
-        // Every loaded vertex is a box corner scaled to metres.
-        for (std::size_t v = 0; v < m.vertexCount(); ++v) {
-            const Eigen::Vector3d p(m.positions[3 * v], m.positions[3 * v + 1],
-                                    m.positions[3 * v + 2]);
-            const Eigen::Vector3d q = (p * 1e3 - Eigen::Vector3d(1, 2, 3)).cwiseAbs();
-            EXPECT_NEAR(q.x(), 0.5, 1e-5) << name;
-            EXPECT_NEAR(q.y(), 0.25, 1e-5) << name;
-            EXPECT_NEAR(q.z(), 1.0, 1e-5) << name;
-        }
-    }
-    EXPECT_THROW(loadMesh(dir / "missing.stl"), palp::IoError);
-    {
-        std::ofstream junk(dir / "junk.ply");
-        junk << "not a mesh";
-    }
-    EXPECT_THROW(loadMesh(dir / "junk.ply"), palp::FormatError);
 }
 
 // The batch API equals the single-thread path, for volumes and meshes (run under tsan too).

@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
 
-#include "palp/kernels/ray_bench.h"
+#include "palp/bench/ray_bench.h"
 
 namespace {
 

@@ -2,6 +2,7 @@
 // against Embree's own robust triangle mesh on the same deforming meshes: identical hits, t,
 // primID (up to ties on edges), u, v and Ng; watertightness on shared edges and vertices; refit
 // equal to a fresh build; zero allocations per refit and per query; degenerate input.
+#include <embree3/rtcore.h>
 #include <gtest/gtest.h>
 
 #include <Eigen/Core>
@@ -137,10 +138,27 @@ struct Reference {
     }
 };
 
+/// Closest hit through raw Embree (every field of @p rh, as the reference scene reports it).
 bool trace(RTCScene s, const Vec3f& o, const Vec3f& d, float tnear, float tfar, unsigned mask,
            RTCRayHit& rh) {
-    return intersectOne(s, Eigen::Vector3d(o[0], o[1], o[2]), Eigen::Vector3d(d[0], d[1], d[2]),
-                        tnear, tfar, mask, rh);
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    rh.ray.org_x = o[0];
+    rh.ray.org_y = o[1];
+    rh.ray.org_z = o[2];
+    rh.ray.dir_x = d[0];
+    rh.ray.dir_y = d[1];
+    rh.ray.dir_z = d[2];
+    rh.ray.tnear = tnear;
+    rh.ray.tfar = tfar;
+    rh.ray.time = 0.0f;
+    rh.ray.mask = mask;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(s, &ctx, &rh);
+    return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
 }
 
 /// Random rays from a shell around @p centre toward random points in a ball of radius

@@ -8,9 +8,9 @@
 
 #include "commands.h"
 #include "palp/base/error.h"
-#include "palp/kernels/mesh.h"
-#include "palp/kernels/ray_bench.h"
+#include "palp/bench/ray_bench.h"
 #include "palp/volume/load.h"
+#include "palp/volume/mesh.h"
 
 namespace palp::tool {
 
@@ -95,8 +95,8 @@ Command addBench(CLI::App& root) {
                 std::unique_ptr<kernels::TriangleMesh> mesh;
                 if (!args->mesh.empty())
                     mesh = std::make_unique<kernels::TriangleMesh>(
-                        kernels::loadMesh(args->mesh, args->meshUnit));
-                report.pinned = !args->noPin && kernels::pinCurrentThread();
+                        volume::loadMesh(args->mesh, args->meshUnit));
+                if (!args->noPin) kernels::pinMeasuringThread(report);
                 if (!globals().quiet && !args->json)
                     std::fprintf(stderr, "palp: measuring %d frames per figure...\n", o.frames);
                 const std::vector<int> rayCounts =

@@ -9,7 +9,7 @@
 
 #include "palp/haptics/deformable.h"
 #include "palp/kernels/embree_scene.h"
-#include "palp/kernels/mesh.h"
+#include "palp/kernels/triangle_mesh.h"
 #include "palp/kernels/volume_ray.h"
 #include "palp/volume/volume.h"
 

@@ -1,19 +1,26 @@
 #pragma once
 /// @file
 /// An Embree 3 scene of rigid and deforming triangle meshes, and closest-hit tracing of ray
-/// bundles against it.
+/// bundles against it. Embree stays behind this header: its handles are opaque (forward-declared)
+/// and the queries take and return palp types.
 
-#include <embree3/rtcore.h>
-
+#include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <span>
 #include <vector>
 
-#include "palp/kernels/mesh.h"
 #include "palp/kernels/ray_bundle.h"
 #include "palp/kernels/refit_bvh.h"
+#include "palp/kernels/triangle_mesh.h"
 #include "palp/kernels/volume_ray.h"
+
+// Embree's handle types (RTCDevice, RTCScene, RTCGeometry are pointers to these), declared here
+// so that this header does not include <embree3/rtcore.h>.
+struct RTCDeviceTy;
+struct RTCSceneTy;
+struct RTCGeometryTy;
 
 namespace palp::kernels {
 
@@ -23,6 +30,17 @@ inline constexpr unsigned kMaskBone = 1u;
 inline constexpr unsigned kMaskPlate = 2u;
 inline constexpr unsigned kMaskSurface = 4u;
 inline constexpr unsigned kMaskAll = 0xffffffffu;
+
+/// The geometry (and primitive) id of no hit (Embree's RTC_INVALID_GEOMETRY_ID).
+inline constexpr unsigned kNoGeometry = 0xffffffffu;
+
+/// Closest hit of one ray (intersectOne()).
+struct MeshHit {
+    float t = 0;                      ///< hit distance, in units of the ray direction's length
+    unsigned geomId = kNoGeometry;    ///< geometry hit (kNoGeometry: none)
+    unsigned primId = kNoGeometry;    ///< triangle of that geometry
+    float ngX = 0, ngY = 0, ngZ = 0;  ///< geometric normal (not normalised), as Embree reports it
+};
 
 namespace detail {
 struct RefitUser;  // embree_scene.cpp
@@ -82,7 +100,17 @@ class EmbreeScene {
     /// Builds or refits the BVH. @throw palp::Error when Embree reports an error.
     void commit();
 
-    RTCScene handle() const noexcept { return mScene; }
+    /// The three corners (metres, as stored in Embree's vertex buffer) of triangle @p primId of
+    /// geometry @p geomId (a refit mesh's hits name its twin triangle geometry, which shares
+    /// the mesh's current arrays). @p primId must be a triangle of the geometry, as a hit
+    /// reports it. @return false when the geometry has no vertex or index buffer.
+    /// @par Threading  As tracing. @par Real-time  noexcept, no allocation.
+    bool triangle(unsigned geomId, unsigned primId,
+                  std::array<Eigen::Vector3f, 3>& corners) const noexcept;
+
+    /// The Embree scene (an RTCScene), for benchmarks and tests that compare with raw Embree
+    /// calls; palp code uses the queries here.
+    RTCSceneTy* handle() const noexcept { return mScene; }
     /// True when no geometry was added.
     bool empty() const noexcept { return mGeoms.empty(); }
     bool committed() const noexcept { return mCommitted; }
@@ -90,14 +118,14 @@ class EmbreeScene {
 
   private:
     struct Geom {
-        RTCGeometry geometry = nullptr;
+        RTCGeometryTy* geometry = nullptr;
         float* vertices = nullptr;  // Embree-owned buffer (deforming meshes)
         std::size_t vertexCount = 0;
         bool deforming = false;
     };
     unsigned add(const TriangleMesh& mesh, unsigned mask, bool deforming);
-    RTCDevice mDevice = nullptr;
-    RTCScene mScene = nullptr;
+    RTCDeviceTy* mDevice = nullptr;
+    RTCSceneTy* mScene = nullptr;
     std::vector<Geom> mGeoms;                                 // indexed by geometry id
     std::vector<std::unique_ptr<detail::RefitUser>> mRefits;  // user data of refit meshes
     std::size_t mTriangles = 0;
@@ -105,13 +133,15 @@ class EmbreeScene {
 };
 
 /// Closest hit of one ray from @p origin along @p direction (t in units of |direction|) with
-/// t in [tnear, tfar], against geometries whose mask shares a bit with @p mask: fills @p rh
-/// (rh.hit.geomID is RTC_INVALID_GEOMETRY_ID when nothing was hit; rh.ray.tfar is the hit t).
+/// t in [tnear, tfar], against geometries of @p scene whose mask shares a bit with @p mask
+/// (origin and direction rounded to float, as Embree takes them). Fills @p hit when something
+/// was hit; else sets hit.geomId to kNoGeometry and leaves the rest.
 /// @return whether something was hit
 /// @par Threading  Any number of threads on one committed scene.
 /// @par Real-time  noexcept, no allocation.
-bool intersectOne(RTCScene scene, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-                  float tnear, float tfar, unsigned mask, RTCRayHit& rh) noexcept;
+bool intersectOne(const EmbreeScene& scene, const Eigen::Vector3d& origin,
+                  const Eigen::Vector3d& direction, float tnear, float tfar, unsigned mask,
+                  MeshHit& hit) noexcept;
 
 /// How a bundle is handed to Embree.
 enum class MeshTraceMode {
@@ -125,7 +155,7 @@ inline constexpr MeshTraceMode kDefaultMeshTraceMode = MeshTraceMode::Stream1M;
 
 /// Closest hit of every ray of @p bundle against geometries whose mask shares a bit with
 /// @p mask. out.t: hit distance (metres) or the ray length; out.hit; out.geomId (or
-/// RTC_INVALID_GEOMETRY_ID). An invalid bundle, an empty or uncommitted scene give no hits.
+/// kNoGeometry). An invalid bundle, an empty or uncommitted scene give no hits.
 /// @par Threading  Any number of threads on one committed scene, each with its own @p out.
 /// @par Real-time  noexcept, no allocation (the ray buffer lives on the stack), no lock.
 void traceBundle(const EmbreeScene& scene, const RayBundle& bundle, unsigned mask, BundleHits& out,

@@ -13,7 +13,7 @@
 #include <span>
 #include <vector>
 
-#include "palp/kernels/mesh.h"
+#include "palp/kernels/triangle_mesh.h"
 
 namespace palp::kernels {
 

@@ -1,9 +1,8 @@
-#include "palp/kernels/ray_bench.h"
+#include "palp/bench/ray_bench.h"
 
+#include <embree3/rtcore.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/RayIntersector.h>
-#include <pthread.h>
-#include <sched.h>
 #include <tbb/info.h>
 #include <tbb/task_arena.h>
 
@@ -18,6 +17,7 @@
 #include <thread>
 
 #include "palp/base/error.h"
+#include "palp/base/thread.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/ray_batch.h"
 #include "palp/kernels/volume_ray.h"
@@ -228,37 +228,31 @@ std::vector<RayBundle> volumeBenchBundles(const openvdb::FloatGrid& grid, bool p
 }
 
 namespace {
-cpu_set_t gUnpinned;
-bool gHaveUnpinned = false;
-
-/// Runs @p f with the calling thread's original affinity (TBB workers inherit it).
+/// Runs @p f with the calling thread on @p cpus (TBB workers inherit it), then restores its
+/// CPUs; runs it as it is when @p cpus is empty or the CPUs cannot be read.
 template <class F>
-void unpinned(F&& f) {
-    cpu_set_t current;
-    CPU_ZERO(&current);
-    const bool restore =
-        gHaveUnpinned && pthread_getaffinity_np(pthread_self(), sizeof(current), &current) == 0;
-    if (restore) pthread_setaffinity_np(pthread_self(), sizeof(gUnpinned), &gUnpinned);
+void unpinned(const std::vector<int>& cpus, F&& f) {
+    const std::vector<int> current = cpus.empty() ? std::vector<int>{} : allowedCpus();
+    const bool restore = !current.empty();
+    if (restore) setCurrentThreadCpus(cpus);
     f();
-    if (restore) pthread_setaffinity_np(pthread_self(), sizeof(current), &current);
+    if (restore) setCurrentThreadCpus(current);
 }
 }  // namespace
 
 bool pinCurrentThread() noexcept {
     (void)tbb::info::default_concurrency();  // let TBB see every core before the pin
-    cpu_set_t allowed;
-    CPU_ZERO(&allowed);
-    if (sched_getaffinity(0, sizeof(allowed), &allowed) != 0) return false;
-    gUnpinned = allowed;
-    gHaveUnpinned = true;
-    std::size_t last = CPU_SETSIZE;
-    for (std::size_t c = 0; c < CPU_SETSIZE; ++c)
-        if (CPU_ISSET(c, &allowed)) last = c;
-    if (last == CPU_SETSIZE) return false;
-    cpu_set_t one;
-    CPU_ZERO(&one);
-    CPU_SET(last, &one);
-    return pthread_setaffinity_np(pthread_self(), sizeof(one), &one) == 0;
+    const std::vector<int> allowed = allowedCpus();
+    if (allowed.empty()) return false;
+    return palp::pinCurrentThread(allowed.back()) == 0;
+}
+
+bool pinMeasuringThread(RayBenchReport& report) {
+    (void)tbb::info::default_concurrency();  // let TBB see every core before the pin
+    report.unpinnedCpus = allowedCpus();
+    report.pinned =
+        !report.unpinnedCpus.empty() && palp::pinCurrentThread(report.unpinnedCpus.back()) == 0;
+    return report.pinned;
 }
 
 std::string machineDescription() {
@@ -623,7 +617,7 @@ void benchBatchRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string&
     };
     const int all = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
     TimingStats one, many;
-    unpinned([&] {
+    unpinned(report.unpinnedCpus, [&] {
         one = run(1);
         many = run(all);
     });

@@ -2,7 +2,8 @@
 /// @file
 /// The ray benchmark behind `palp bench rays` and bench/kernels/bench_rays: per-frame cost of
 /// AVC/AVCEC bundles through volumes and Embree meshes, each next to a baseline measured in the
-/// same run (BENCHMARKS.md).
+/// same run (BENCHMARKS.md). Part of the benchmark harness (library palp_ray_bench under
+/// bench/kernels/harness), not of palp::kernels.
 
 #include <openvdb/openvdb.h>
 
@@ -10,8 +11,8 @@
 #include <string>
 #include <vector>
 
-#include "palp/kernels/mesh.h"
 #include "palp/kernels/ray_bundle.h"
+#include "palp/kernels/triangle_mesh.h"
 
 namespace palp::kernels {
 
@@ -58,6 +59,9 @@ struct BenchComparison {
 struct RayBenchReport {
     std::string machine;  ///< CPU model and core count
     bool pinned = false;  ///< whether pinning the measuring thread succeeded
+    /// The CPUs the measuring thread had before pinMeasuringThread() (empty when it was not
+    /// called): the batch line runs on them, as a thread pool would.
+    std::vector<int> unpinnedCpus;
     std::vector<BenchComparison> lines;
 };
 
@@ -90,6 +94,11 @@ std::vector<RayBundle> volumeBenchBundles(const openvdb::FloatGrid& grid, bool p
 
 /// Pins the calling thread to the last allowed CPU; false when not possible.
 bool pinCurrentThread() noexcept;
+
+/// pinCurrentThread() for a run measured into @p report: remembers the thread's CPUs from
+/// before the pin in report.unpinnedCpus (benchBatchRays() runs on them) and sets
+/// report.pinned. @return report.pinned.
+bool pinMeasuringThread(RayBenchReport& report);
 
 /// CPU model and `nproc`.
 std::string machineDescription();

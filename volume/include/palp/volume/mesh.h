@@ -1,24 +1,15 @@
 #pragma once
 /// @file
-/// Triangle meshes for Embree: loading from OBJ/STL/PLY (and anything else Assimp reads) and
-/// iso-surfaces of a FloatGrid.
+/// Triangle meshes from files and volumes: loading from OBJ/STL/PLY (and anything else Assimp
+/// reads), iso-surfaces of a FloatGrid, and OBJ output.
 
 #include <openvdb/openvdb.h>
 
-#include <cstdint>
 #include <filesystem>
-#include <vector>
 
-namespace palp::kernels {
+#include "palp/base/triangle_mesh.h"
 
-/// An indexed triangle mesh in world metres.
-/// @par Threading  A plain value.
-struct TriangleMesh {
-    std::vector<float> positions;        ///< #V by 3 (x, y, z), metres
-    std::vector<std::uint32_t> indices;  ///< #T by 3 vertex indices
-    std::size_t vertexCount() const noexcept { return positions.size() / 3; }
-    std::size_t triangleCount() const noexcept { return indices.size() / 3; }
-};
+namespace palp::volume {
 
 /// Reads a triangle mesh (OBJ, STL ASCII/binary, PLY, and the other formats of Debian's
 /// libassimp). All meshes of the file are merged; polygons are triangulated; positions are
@@ -39,4 +30,4 @@ TriangleMesh isoSurface(const openvdb::FloatGrid& grid, double isoValue, double 
 /// @throw palp::IoError.
 void saveObj(const TriangleMesh& mesh, const std::filesystem::path& path);
 
-}  // namespace palp::kernels
+}  // namespace palp::volume

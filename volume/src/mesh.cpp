@@ -1,4 +1,4 @@
-#include "palp/kernels/mesh.h"
+#include "palp/volume/mesh.h"
 
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
@@ -11,7 +11,7 @@
 
 #include "palp/base/error.h"
 
-namespace palp::kernels {
+namespace palp::volume {
 
 TriangleMesh loadMesh(const std::filesystem::path& path, double metresPerUnit) {
     if (!(std::isfinite(metresPerUnit) && metresPerUnit > 0))
@@ -90,4 +90,4 @@ void saveObj(const TriangleMesh& mesh, const std::filesystem::path& path) {
     if (!f) throw IoError(path.string() + ": expected to write the mesh, found a write error");
 }
 
-}  // namespace palp::kernels
+}  // namespace palp::volume
