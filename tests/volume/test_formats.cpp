@@ -10,9 +10,9 @@
 #include <fstream>
 #include <sstream>
 
+#include "formats.h"
+#include "header_parsers.h"
 #include "palp/base/error.h"
-#include "palp/volume/formats.h"
-#include "palp/volume/header_parsers.h"
 #include "palp/volume/load.h"
 #include "palp/volume/resample.h"
 #include "test_support.h"
@@ -185,7 +185,8 @@ TEST(Nifti, Gzip4DNeedsAVolumeAndMatchesNibabel) {
     const fs::path file = dir / "example4d.nii.gz";
     expectThrowWith<palp::ValueError>(
         [&] { palp::volume::readNifti(file, {}); },
-        {file.string() + ": expected --volume N to choose one of the 2 volumes (0-1), found none"});
+        {file.string() +
+         ": expected a time point to choose one of the 2 time points (0-1), found none"});
     LoadOptions bad;
     bad.timePoint = 2;
     expectThrowWith<palp::ValueError>([&] { palp::volume::readNifti(file, bad); },
@@ -364,7 +365,7 @@ TEST(Nrrd, DetachedGzipAsciiAnd4D) {
               "endian: little\nencoding: gzip\ndata file: d.raw.gz\n");
     expectThrowWith<palp::ValueError>(
         [&] { palp::volume::readNrrd(tmp / "d.nhdr", {}); },
-        {"d.nhdr: expected --volume N to choose one of the 2 volumes (0-1), found none"});
+        {"d.nhdr: expected a time point to choose one of the 2 time points (0-1), found none"});
     LoadOptions o;
     o.timePoint = 1;
     const SliceStack st = palp::volume::readNrrd(tmp / "d.nhdr", o);
@@ -525,7 +526,7 @@ TEST(MetaImage, CompressedLocalDataAnd4D) {
                   z);
     expectThrowWith<palp::ValueError>(
         [&] { palp::volume::readMetaImage(tmp / "c.mha", {}); },
-        {"c.mha: expected --volume N to choose one of the 2 volumes (0-1), found none"});
+        {"c.mha: expected a time point to choose one of the 2 time points (0-1), found none"});
     LoadOptions o;
     o.timePoint = 1;
     const SliceStack st = palp::volume::readMetaImage(tmp / "c.mha", o);

@@ -7,7 +7,7 @@
 #include <limits>
 
 #include "palp/base/error.h"
-#include "palp/volume/raw_data.h"
+#include "raw_data.h"
 #include "test_support.h"
 
 namespace {

@@ -11,9 +11,9 @@
 #include <string>
 #include <string_view>
 
+#include "formats.h"
+#include "header_parsers.h"
 #include "palp/base/error.h"
-#include "palp/volume/formats.h"
-#include "palp/volume/header_parsers.h"
 
 namespace {
 

@@ -6,6 +6,7 @@
 #include "palp/base/error.h"
 #include "palp/volume/load.h"
 #include "progress.h"
+#include "volume_flags.h"
 
 namespace palp::tool {
 
@@ -66,7 +67,7 @@ Command addConvert(CLI::App& root) {
             }
             opt.resample.progress = progressLine("palp convert: resampling");
             std::vector<fs::path> inputs(args->inputs.begin(), args->inputs.end());
-            const volume::Volume vol = volume::load(inputs, opt);
+            const volume::Volume vol = withVolumeFlags([&] { return volume::load(inputs, opt); });
             endProgress();
             volume::SaveOptions so;
             so.compression = args->compression == "zip"    ? volume::Compression::Zip

@@ -9,6 +9,7 @@
 #include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
+#include "volume_flags.h"
 
 namespace palp::tool {
 
@@ -150,7 +151,8 @@ Command addInfo(CLI::App& root) {
                 } else {
                     volume::LoadOptions opt;
                     opt.timePoint = 0;  // describe the first volume of 4D files
-                    const volume::SliceStack st = volume::readStack({in}, opt);
+                    const volume::SliceStack st =
+                        withVolumeFlags([&] { return volume::readStack({in}, opt); });
                     const auto& sl = st.slices.front();
                     j["file"] = in.string();
                     j["format"] = st.info.sourceFormat;

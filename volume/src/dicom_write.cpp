@@ -20,7 +20,9 @@
 #include <system_error>
 #include <vector>
 
+#include "palp/base/atomic_file.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "palp/volume/dicom.h"
 
 namespace palp::volume {
@@ -64,26 +66,21 @@ struct Cleanup {
     }
 };
 
-}  // namespace
-
-void writeDicomSeries(const SliceStack& stack, const fs::path& dir,
-                      const DicomWriteOptions& options) {
-    const std::string where = dir.string();
-    if (stack.slices.empty())
-        throw ValueError(where + ": expected at least one slice to write, found none");
+/// Checks @p stack and @p options before the first byte is written.
+/// @throw ValueError naming the slice (or @p where) and the offending value.
+void checkWritable(const SliceStack& stack, const DicomWriteOptions& options,
+                   const std::string& where) {
+    if (stack.slices.empty()) throwExpected(where, "at least one slice to write", "none");
     if (!(options.rescaleSlope > 0) || !std::isfinite(options.rescaleSlope) ||
         !std::isfinite(options.rescaleIntercept)) {
-        throw ValueError(
-            where +
-            ": expected a positive, finite rescale slope and a finite intercept, found slope " +
-            num(options.rescaleSlope) + ", intercept " + num(options.rescaleIntercept));
+        throwExpected(
+            where, "a positive, finite rescale slope and a finite intercept",
+            "slope " + num(options.rescaleSlope) + ", intercept " + num(options.rescaleIntercept));
     }
-    if (options.modality.empty())
-        throw ValueError(where + ": expected a modality, found an empty string");
+    if (options.modality.empty()) throwExpected(where, "a modality", "an empty string");
     const Slice& first = stack.slices.front();
     const double lo = options.rescaleIntercept;
     const double hi = options.rescaleIntercept + 65535.0 * options.rescaleSlope;
-    // Check everything before the first byte is written.
     for (std::size_t k = 0; k < stack.slices.size(); ++k) {
         const Slice& s = stack.slices[k];
         const std::string name = s.source.empty() ? "slice " + std::to_string(k) : s.source;
@@ -119,9 +116,13 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir,
             }
         }
     }
+}
 
+/// Creates @p dir (noted in @p cleanup) or checks that it is an empty directory.
+/// @throw IoError naming @p dir.
+void prepareDirectory(const fs::path& dir, Cleanup& cleanup) {
+    const std::string where = dir.string();
     std::error_code ec;
-    Cleanup cleanup;
     if (fs::exists(dir, ec)) {
         if (!fs::is_directory(dir, ec))
             throw IoError(where + ": expected a directory, found a file");
@@ -137,104 +138,118 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir,
         }
         cleanup.createdDir = dir;
     }
+}
+
+/// What every file of the series shares.
+struct SeriesIds {
+    std::string studyUid, seriesUid, frameUid;
+    const char* sopClass = nullptr;
+};
+
+/// Writes slice @p k of @p stack to @p finalPath through a temporary file; @p stored is scratch.
+/// @throw IoError naming the file.
+void writeSlice(const SliceStack& stack, std::size_t k, const DicomWriteOptions& options,
+                const SeriesIds& ids, gdcm::UIDGenerator& gen, const fs::path& finalPath,
+                std::vector<std::uint16_t>& stored, Cleanup& cleanup) {
+    const Slice& s = stack.slices[k];
+    const double colSpacing = s.colStep.norm();
+    const double rowSpacing = s.rowStep.norm();
+    const Eigen::Vector3d rowCosine = s.colStep / colSpacing;  // DICOM "row" direction
+    const Eigen::Vector3d colCosine = s.rowStep / rowSpacing;
+    const Eigen::Vector3d normal = rowCosine.cross(colCosine).normalized();
+    double thickness = 0;
+    if (stack.slices.size() > 1) {
+        const Slice& other =
+            k + 1 < stack.slices.size() ? stack.slices[k + 1] : stack.slices[k - 1];
+        thickness = std::abs((other.position - s.position).dot(normal));
+    }
+    if (!(thickness > 0))
+        thickness = stack.info.originalSpacing[2] > 0 ? stack.info.originalSpacing[2] : colSpacing;
+
+    stored.resize(s.values.size());
+    for (std::size_t i = 0; i < s.values.size(); ++i) {
+        const double q = std::round((static_cast<double>(s.values[i]) - options.rescaleIntercept) /
+                                    options.rescaleSlope);
+        stored[i] = static_cast<std::uint16_t>(std::clamp(q, 0.0, 65535.0));
+    }
+
+    gdcm::ImageWriter writer;
+    gdcm::Image& image = writer.GetImage();
+    image.SetNumberOfDimensions(2);
+    image.SetDimension(0, static_cast<unsigned int>(s.cols));
+    image.SetDimension(1, static_cast<unsigned int>(s.rows));
+    image.SetPixelFormat(gdcm::PixelFormat(gdcm::PixelFormat::UINT16));
+    image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
+    image.SetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
+    image.SetSpacing(0, colSpacing * 1e3);
+    image.SetSpacing(1, rowSpacing * 1e3);
+    image.SetSpacing(2, thickness * 1e3);
+    const Eigen::Vector3d originMm = s.position * 1e3;
+    // Per component: the array overload copies only GetNumberOfDimensions() values.
+    for (unsigned int a = 0; a < 3; ++a) image.SetOrigin(a, originMm[static_cast<Eigen::Index>(a)]);
+    const double cosines[6] = {rowCosine.x(), rowCosine.y(), rowCosine.z(),
+                               colCosine.x(), colCosine.y(), colCosine.z()};
+    image.SetDirectionCosines(cosines);
+    image.SetSlope(options.rescaleSlope);
+    image.SetIntercept(options.rescaleIntercept);
+    gdcm::DataElement pixels(gdcm::Tag(0x7fe0, 0x0010));
+    pixels.SetByteValue(reinterpret_cast<const char*>(stored.data()),
+                        static_cast<std::uint32_t>(stored.size() * sizeof(std::uint16_t)));
+    image.SetDataElement(pixels);
+
+    gdcm::File& file = writer.GetFile();
+    file.GetHeader().SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
+    gdcm::DataSet& ds = file.GetDataSet();
+    setString(ds, 0x0008, 0x0016, gdcm::VR::UI, ids.sopClass);
+    setString(ds, 0x0008, 0x0018, gdcm::VR::UI, uid(gen));
+    setString(ds, 0x0008, 0x0008, gdcm::VR::CS, "DERIVED\\SECONDARY\\AXIAL");
+    setString(ds, 0x0008, 0x0060, gdcm::VR::CS, options.modality);
+    setString(ds, 0x0028, 0x0004, gdcm::VR::CS, "MONOCHROME2");
+    setString(ds, 0x0008, 0x103e, gdcm::VR::LO, options.seriesDescription.substr(0, 64));
+    setString(ds, 0x0010, 0x0010, gdcm::VR::PN, "PALP^PHANTOM");
+    setString(ds, 0x0010, 0x0020, gdcm::VR::LO, "PHANTOM");
+    setString(ds, 0x0020, 0x000d, gdcm::VR::UI, ids.studyUid);
+    setString(ds, 0x0020, 0x000e, gdcm::VR::UI, ids.seriesUid);
+    setString(ds, 0x0020, 0x0052, gdcm::VR::UI, ids.frameUid);
+    setString(ds, 0x0020, 0x0010, gdcm::VR::SH, "1");                    // StudyID
+    setString(ds, 0x0020, 0x0011, gdcm::VR::IS, "1");                    // SeriesNumber
+    setString(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(k + 1));  // InstanceNumber
+    setString(ds, 0x0018, 0x0050, gdcm::VR::DS, num(thickness * 1e3).substr(0, 16));
+    if (options.gantryTiltDeg != 0) {
+        setString(ds, 0x0018, 0x1120, gdcm::VR::DS, num(options.gantryTiltDeg).substr(0, 16));
+    }
+
+    AtomicFile out(finalPath, "DICOM file");
+    writer.SetFileName(out.tempPath().string().c_str());
+    if (!writer.Write())
+        throw IoError(out.tempPath().string() +
+                      ": expected to write a DICOM file, found a write failure");
+    cleanup.paths.push_back(finalPath);
+    out.commit();
+}
+
+}  // namespace
+
+void writeDicomSeries(const SliceStack& stack, const fs::path& dir,
+                      const DicomWriteOptions& options) {
+    checkWritable(stack, options, dir.string());
+    Cleanup cleanup;
+    prepareDirectory(dir, cleanup);
 
     gdcm::UIDGenerator gen;
-    const std::string studyUid = uid(gen);
-    const std::string seriesUid = uid(gen);
-    const std::string frameUid = uid(gen);
+    SeriesIds ids;
+    ids.studyUid = uid(gen);
+    ids.seriesUid = uid(gen);
+    ids.frameUid = uid(gen);
     const bool isCt = options.modality == "CT";
-    const char* sopClass =
-        isCt ? gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage)
-             : gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage);
+    ids.sopClass = isCt ? gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage)
+                        : gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage);
     const int digits = stack.slices.size() < 10000 ? 4 : 6;
     std::vector<std::uint16_t> stored;
-
     for (std::size_t k = 0; k < stack.slices.size(); ++k) {
-        const Slice& s = stack.slices[k];
-        const double colSpacing = s.colStep.norm();
-        const double rowSpacing = s.rowStep.norm();
-        const Eigen::Vector3d rowCosine = s.colStep / colSpacing;  // DICOM "row" direction
-        const Eigen::Vector3d colCosine = s.rowStep / rowSpacing;
-        const Eigen::Vector3d normal = rowCosine.cross(colCosine).normalized();
-        double thickness = 0;
-        if (stack.slices.size() > 1) {
-            const Slice& other =
-                k + 1 < stack.slices.size() ? stack.slices[k + 1] : stack.slices[k - 1];
-            thickness = std::abs((other.position - s.position).dot(normal));
-        }
-        if (!(thickness > 0))
-            thickness =
-                stack.info.originalSpacing[2] > 0 ? stack.info.originalSpacing[2] : colSpacing;
-
-        stored.resize(s.values.size());
-        for (std::size_t i = 0; i < s.values.size(); ++i) {
-            const double q =
-                std::round((static_cast<double>(s.values[i]) - options.rescaleIntercept) /
-                           options.rescaleSlope);
-            stored[i] = static_cast<std::uint16_t>(std::clamp(q, 0.0, 65535.0));
-        }
-
-        gdcm::ImageWriter writer;
-        gdcm::Image& image = writer.GetImage();
-        image.SetNumberOfDimensions(2);
-        image.SetDimension(0, static_cast<unsigned int>(s.cols));
-        image.SetDimension(1, static_cast<unsigned int>(s.rows));
-        image.SetPixelFormat(gdcm::PixelFormat(gdcm::PixelFormat::UINT16));
-        image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
-        image.SetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-        image.SetSpacing(0, colSpacing * 1e3);
-        image.SetSpacing(1, rowSpacing * 1e3);
-        image.SetSpacing(2, thickness * 1e3);
-        const Eigen::Vector3d originMm = s.position * 1e3;
-        // Per component: the array overload copies only GetNumberOfDimensions() values.
-        for (unsigned int a = 0; a < 3; ++a)
-            image.SetOrigin(a, originMm[static_cast<Eigen::Index>(a)]);
-        const double cosines[6] = {rowCosine.x(), rowCosine.y(), rowCosine.z(),
-                                   colCosine.x(), colCosine.y(), colCosine.z()};
-        image.SetDirectionCosines(cosines);
-        image.SetSlope(options.rescaleSlope);
-        image.SetIntercept(options.rescaleIntercept);
-        gdcm::DataElement pixels(gdcm::Tag(0x7fe0, 0x0010));
-        pixels.SetByteValue(reinterpret_cast<const char*>(stored.data()),
-                            static_cast<std::uint32_t>(stored.size() * sizeof(std::uint16_t)));
-        image.SetDataElement(pixels);
-
-        gdcm::File& file = writer.GetFile();
-        file.GetHeader().SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-        gdcm::DataSet& ds = file.GetDataSet();
-        setString(ds, 0x0008, 0x0016, gdcm::VR::UI, sopClass);
-        setString(ds, 0x0008, 0x0018, gdcm::VR::UI, uid(gen));
-        setString(ds, 0x0008, 0x0008, gdcm::VR::CS, "DERIVED\\SECONDARY\\AXIAL");
-        setString(ds, 0x0008, 0x0060, gdcm::VR::CS, options.modality);
-        setString(ds, 0x0028, 0x0004, gdcm::VR::CS, "MONOCHROME2");
-        setString(ds, 0x0008, 0x103e, gdcm::VR::LO, options.seriesDescription.substr(0, 64));
-        setString(ds, 0x0010, 0x0010, gdcm::VR::PN, "PALP^PHANTOM");
-        setString(ds, 0x0010, 0x0020, gdcm::VR::LO, "PHANTOM");
-        setString(ds, 0x0020, 0x000d, gdcm::VR::UI, studyUid);
-        setString(ds, 0x0020, 0x000e, gdcm::VR::UI, seriesUid);
-        setString(ds, 0x0020, 0x0052, gdcm::VR::UI, frameUid);
-        setString(ds, 0x0020, 0x0010, gdcm::VR::SH, "1");                    // StudyID
-        setString(ds, 0x0020, 0x0011, gdcm::VR::IS, "1");                    // SeriesNumber
-        setString(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(k + 1));  // InstanceNumber
-        setString(ds, 0x0018, 0x0050, gdcm::VR::DS, num(thickness * 1e3).substr(0, 16));
-        if (options.gantryTiltDeg != 0) {
-            setString(ds, 0x0018, 0x1120, gdcm::VR::DS, num(options.gantryTiltDeg).substr(0, 16));
-        }
-
         char name[32];
         std::snprintf(name, sizeof name, "IMG%0*zu.dcm", digits, k + 1);
-        const fs::path finalPath = dir / name;
-        const fs::path tmpPath = dir / (std::string(".") + name + ".tmp");
-        cleanup.paths.push_back(tmpPath);
-        writer.SetFileName(tmpPath.string().c_str());
-        if (!writer.Write())
-            throw IoError(tmpPath.string() +
-                          ": expected to write a DICOM file, found a write failure");
-        cleanup.paths.push_back(finalPath);
-        fs::rename(tmpPath, finalPath, ec);
-        if (ec)
-            throw IoError(finalPath.string() + ": expected to rename the written file, found " +
-                          ec.message());
+        writeSlice(stack, k, options, ids, gen, dir / name, stored, cleanup);
     }
     cleanup.armed = false;
 }

@@ -1,17 +1,17 @@
 #include "palp/volume/load.h"
 
 #include <openvdb/io/File.h>
-#include <openvdb/tools/GridTransformer.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cctype>
 #include <fstream>
-#include <random>
 
+#include "formats.h"
+#include "grid_copy.h"
+#include "palp/base/atomic_file.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "palp/volume/dicom.h"
-#include "palp/volume/formats.h"
 
 namespace palp::volume {
 
@@ -95,13 +95,13 @@ Format detectFormat(const fs::path& path) {
     return Format::Unknown;
 }
 
-SliceStack readStack(const std::vector<fs::path>& inputs, const LoadOptions& options) {
-    if (inputs.empty()) throw ValueError("load: expected at least one input, found none");
+SliceStack readStack(const std::vector<fs::path>& inputs, const ReadOptions& options) {
+    if (inputs.empty()) throwExpected("load", "at least one input", "none");
     for (const fs::path& p : inputs) requireExists(p);
     const Format f = detectFormat(inputs.front());
     if (f != Format::Dicom && inputs.size() > 1) {
-        throw ValueError(inputs[1].string() + ": expected one " + formatName(f) + " file, found " +
-                         std::to_string(inputs.size()) + " inputs");
+        throwExpected(inputs[1].string(), std::string("one ") + formatName(f) + " file",
+                      std::to_string(inputs.size()) + " inputs");
     }
     switch (f) {
         case Format::Dicom:
@@ -127,27 +127,11 @@ Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
     initialize();
     if (inputs.size() == 1) {
         requireExists(inputs.front());
-        if (detectFormat(inputs.front()) == Format::Vdb) {
-            Volume v = loadVdb(inputs.front());
-            const auto& ro = options.resample;
-            if (!ro.voxelSize && !ro.crop) return v;
-            // Re-grid a stored volume: trilinear resample onto the requested lattice.
-            const double voxel = ro.voxelSize.value_or(v.voxelSize());
-            auto target = openvdb::FloatGrid::create(v.grid->background());
-            target->setName(kScanGridName);
-            target->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
-            openvdb::tools::resampleToMatch<openvdb::tools::BoxSampler>(*v.grid, *target);
-            if (ro.crop) {
-                target->clipGrid(openvdb::BBoxd(openvdb::Vec3d(ro.crop->min.data()),
-                                                openvdb::Vec3d(ro.crop->max.data())));
-            }
-            Volume out{target, v.info};
-            writeInfo(out.info, *target);
-            return out;
-        }
+        // A stored grid has no slices: it is re-gridded as a volume, with the same options.
+        if (detectFormat(inputs.front()) == Format::Vdb)
+            return resample(loadVdb(inputs.front()), options.resample);
     }
-    SliceStack stack = readStack(inputs, options);
-    return resample(stack, options.resample);
+    return resample(readStack(inputs, options), options.resample);
 }
 
 Volume loadVdb(const fs::path& path) {
@@ -181,21 +165,15 @@ Volume loadVdb(const fs::path& path) {
 
 void save(const Volume& volume, const fs::path& path, const SaveOptions& options) {
     initialize();
-    if (!volume.grid)
-        throw ValueError(path.string() + ": expected a volume with a grid, found none");
-    const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
-    std::error_code ec;
-    if (!fs::is_directory(dir, ec)) {
-        throw IoError(path.string() + ": expected an existing directory '" + dir.string() +
-                      "' to write into, found none");
-    }
-    std::random_device rd;
-    const fs::path tmp = dir / ("." + path.filename().string() + ".tmp" +
-                                std::to_string(::getpid()) + "-" + std::to_string(rd()));
-    writeInfo(volume.info, *volume.grid);
-    volume.grid->setName(kScanGridName);
+    if (!volume.grid) throwExpected(path.string(), "a volume with a grid", "none");
+    AtomicFile out(path, "volume");
+    // A grid sharing the caller's tree and transform, with metadata and name of its own,
+    // carries the file's name and metadata, so the caller's grid is left as it was.
+    const openvdb::FloatGrid::Ptr grid = detail::gridWithTree(*volume.grid, volume.grid->treePtr());
+    writeInfo(volume.info, *grid);
+    grid->setName(kScanGridName);
     try {
-        openvdb::io::File file(tmp.string());
+        openvdb::io::File file(out.tempPath().string());
         std::uint32_t flags = openvdb::io::COMPRESS_ACTIVE_MASK;
         if (options.compression == Compression::Blosc &&
             openvdb::io::Archive::hasBloscCompression()) {
@@ -206,19 +184,13 @@ void save(const Volume& volume, const fs::path& path, const SaveOptions& options
         file.setCompression(flags);
         openvdb::MetaMap fileMeta;
         fileMeta.insertMeta("creator", openvdb::StringMetadata("palp"));
-        file.write({volume.grid}, fileMeta);
+        file.write({grid}, fileMeta);
         file.close();
     } catch (const std::exception& e) {
-        fs::remove(tmp, ec);
         throw IoError(path.string() +
                       ": expected a writable location, found an error: " + e.what());
     }
-    fs::rename(tmp, path, ec);
-    if (ec) {
-        fs::remove(tmp, ec);
-        throw IoError(path.string() +
-                      ": could not rename the finished file into place: " + ec.message());
-    }
+    out.commit();
 }
 
 }  // namespace palp::volume

@@ -5,11 +5,12 @@
 #include <cmath>
 #include <limits>
 
+#include "formats.h"
+#include "header_parsers.h"
 #include "palp/base/error.h"
-#include "palp/volume/formats.h"
-#include "palp/volume/header_parsers.h"
-#include "palp/volume/raw_data.h"
+#include "raw_data.h"
 #include "reader_util.h"
+#include "time_point.h"
 
 namespace palp::volume {
 
@@ -202,7 +203,7 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
     return h;
 }
 
-SliceStack readMetaImage(const fs::path& path, const LoadOptions& options) {
+SliceStack readMetaImage(const fs::path& path, const ReadOptions& options) {
     const std::string name = path.string();
     const std::string prefix = detail::readHeaderPrefix(path);
     const MetaImageHeader h = parseMetaImageHeader(prefix, name);

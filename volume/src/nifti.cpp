@@ -9,10 +9,11 @@
 #include <memory>
 #include <mutex>
 
+#include "formats.h"
 #include "palp/base/error.h"
-#include "palp/volume/formats.h"
-#include "palp/volume/raw_data.h"
+#include "raw_data.h"
 #include "reader_util.h"
+#include "time_point.h"
 
 namespace palp::volume {
 
@@ -65,7 +66,7 @@ std::mutex& niftiMutex() {
 
 }  // namespace
 
-SliceStack readNifti(const fs::path& path, const LoadOptions& options) {
+SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
     const std::string name = path.string();
     (void)fileSize(path);  // a clear IoError for a missing or unreadable file
 

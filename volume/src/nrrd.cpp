@@ -6,11 +6,12 @@
 #include <limits>
 #include <map>
 
+#include "formats.h"
+#include "header_parsers.h"
 #include "palp/base/error.h"
-#include "palp/volume/formats.h"
-#include "palp/volume/header_parsers.h"
-#include "palp/volume/raw_data.h"
+#include "raw_data.h"
 #include "reader_util.h"
+#include "time_point.h"
 
 namespace palp::volume {
 
@@ -497,7 +498,7 @@ NrrdHeader parseNrrdHeader(std::string_view text, const std::string& name) {
     return h;
 }
 
-SliceStack readNrrd(const fs::path& path, const LoadOptions& options) {
+SliceStack readNrrd(const fs::path& path, const ReadOptions& options) {
     const std::string name = path.string();
     const std::string prefix = detail::readHeaderPrefix(path);
     const NrrdHeader h = parseNrrdHeader(prefix, name);

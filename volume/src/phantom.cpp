@@ -11,6 +11,7 @@
 
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
+#include "palp/base/validate.h"
 
 namespace palp::volume {
 
@@ -26,25 +27,6 @@ std::string mm(double metres) {
     char buf[64];
     std::snprintf(buf, sizeof buf, "%gmm", metres * 1e3);
     return buf;
-}
-
-std::string num(double v) {
-    char buf[64];
-    std::snprintf(buf, sizeof buf, "%g", v);
-    return buf;
-}
-
-void requirePositive(double v, const char* what) {
-    if (!(v > 0) || !std::isfinite(v)) {
-        throw ValueError(std::string("phantom: expected a positive ") + what + ", found " + num(v));
-    }
-}
-
-void requireNonNegative(double v, const char* what) {
-    if (!(v >= 0) || !std::isfinite(v)) {
-        throw ValueError(std::string("phantom: expected a non-negative ") + what + ", found " +
-                         num(v));
-    }
 }
 
 // Counter-based noise: a standard normal variate that depends only on (seed, counter), so the
@@ -201,12 +183,12 @@ Phantom::Phantom(const PhantomParams& params) : mParams(params) {
     }
     if (!(std::abs(params.boneTiltDeg) < 30)) {
         throw ValueError("phantom bone tilt: expected less than 30 degrees, found " +
-                         num(params.boneTiltDeg));
+                         formatValue(params.boneTiltDeg));
     }
-    requirePositive(params.transitionWidth, "transition width (m)");
-    requirePositive(params.tanhSharpness, "tanh sharpness");
-    requireNonNegative(params.hardDepth, "hard depth (m)");
-    requireNonNegative(params.fatThickness, "fat thickness (m)");
+    palp::requirePositive("phantom transition width", params.transitionWidth, "m");
+    palp::requirePositive("phantom tanh sharpness", params.tanhSharpness);
+    palp::requireNonNegative("phantom hard depth", params.hardDepth, "m");
+    palp::requireNonNegative("phantom fat thickness", params.fatThickness, "m");
     if (params.fatThickness > 0.005) {
         throw ValueError("phantom fat thickness: expected at most 5 mm, found " +
                          mm(params.fatThickness));
@@ -218,7 +200,8 @@ Phantom::Phantom(const PhantomParams& params) : mParams(params) {
     const PhantomMaterials& m = params.materials;
     for (double v : {m.airHu, m.fatHu, m.softHu, m.hardHu, m.rigidHu}) {
         if (!std::isfinite(v))
-            throw ValueError("phantom materials: expected finite HU values, found " + num(v));
+            throw ValueError("phantom materials: expected finite HU values, found " +
+                             formatValue(v));
     }
 
     int sides = 0;
@@ -291,13 +274,13 @@ std::string Phantom::description() const {
             break;
         case PhantomScene::Bone:
             d += " displacement=" + std::to_string(mParams.displacement) +
-                 " tilt=" + num(mParams.boneTiltDeg) + "deg";
+                 " tilt=" + formatValue(mParams.boneTiltDeg) + "deg";
             break;
         case PhantomScene::Stiffness:
             d += std::string(" profile=") + profileName(mParams.profile) +
                  " width=" + mm(mParams.transitionWidth) + " hard-depth=" + mm(mParams.hardDepth);
             if (mParams.profile == TransitionProfile::Tanh)
-                d += " tanh-a=" + num(mParams.tanhSharpness);
+                d += " tanh-a=" + formatValue(mParams.tanhSharpness);
             break;
     }
     d += " fat=" + mm(mParams.fatThickness);
@@ -394,20 +377,20 @@ std::pair<std::int64_t, std::int64_t> cellRange(double a, double b, double step)
 
 SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geometry) {
     const Phantom phantom(spec.params);
-    requireNonNegative(spec.noiseSigmaHu, "noise sigma (HU)");
-    requireNonNegative(spec.blurSigma, "blur sigma (m)");
-    requireNonNegative(spec.margin, "margin (m)");
+    palp::requireNonNegative("phantom noise sigma", spec.noiseSigmaHu, "HU");
+    palp::requireNonNegative("phantom blur sigma", spec.blurSigma, "m");
+    palp::requireNonNegative("phantom margin", spec.margin, "m");
     if (spec.supersample < 1 || spec.supersample > 8) {
         throw ValueError("phantom supersample: expected 1 to 8, found " +
                          std::to_string(spec.supersample));
     }
-    requirePositive(geometry.pixelSpacing, "pixel spacing (m)");
-    requirePositive(geometry.sliceSpacing, "slice spacing (m)");
-    for (double g : geometry.sliceGaps) requirePositive(g, "slice gap (m)");
-    requireNonNegative(geometry.sliceThickness, "slice thickness (m)");
+    palp::requirePositive("phantom pixel spacing", geometry.pixelSpacing, "m");
+    palp::requirePositive("phantom slice spacing", geometry.sliceSpacing, "m");
+    for (double g : geometry.sliceGaps) palp::requirePositive("phantom slice gap", g, "m");
+    palp::requireNonNegative("phantom slice thickness", geometry.sliceThickness, "m");
     if (!(std::abs(geometry.tiltDeg) < 60)) {
         throw ValueError("phantom gantry tilt: expected less than 60 degrees, found " +
-                         num(geometry.tiltDeg));
+                         formatValue(geometry.tiltDeg));
     }
     // Guards the integer conversions below against absurd spacings.
     const double smallest =
@@ -554,8 +537,8 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
     info.valueUnits = "HU";
     info.sourceFormat = "phantom";
     info.sourceDescription = "phantom " + phantom.description() +
-                             " noise=" + num(spec.noiseSigmaHu) + "HU blur=" + mm(spec.blurSigma) +
-                             " supersample=" + std::to_string(n) +
+                             " noise=" + formatValue(spec.noiseSigmaHu) +
+                             "HU blur=" + mm(spec.blurSigma) + " supersample=" + std::to_string(n) +
                              " seed=" + std::to_string(spec.seed);
     info.originalDims = {cols, rows, static_cast<std::int64_t>(zs.size())};
     std::vector<double> sortedGaps;
@@ -571,7 +554,7 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
 }
 
 Volume makePhantomVolume(const PhantomSpec& spec) {
-    requirePositive(spec.voxelSize, "voxel size (m)");
+    palp::requirePositive("phantom voxel size", spec.voxelSize, "m");
     SliceGeometry geometry;
     geometry.pixelSpacing = spec.voxelSize;
     geometry.sliceSpacing = spec.voxelSize;

@@ -1,4 +1,4 @@
-#include "palp/volume/raw_data.h"
+#include "raw_data.h"
 
 #include <zlib.h>
 

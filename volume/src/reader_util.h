@@ -11,10 +11,8 @@
 #include <string_view>
 #include <vector>
 
-#include "palp/base/error.h"
-#include "palp/volume/header_parsers.h"
-#include "palp/volume/load.h"
-#include "palp/volume/raw_data.h"
+#include "header_parsers.h"
+#include "raw_data.h"
 
 namespace palp::volume::detail {
 
@@ -83,31 +81,6 @@ inline std::string quoteFound(std::string_view s) {
     }
     if (s.size() > kMax) out += "...";
     return out + "'";
-}
-
-/// Chooses one volume of a 4D source: the only one, or options.timePoint.
-/// @throw ValueError naming @p item when the choice is missing or out of range.
-inline int chooseTimePoint(std::int64_t count, const LoadOptions& options,
-                           const std::string& item) {
-    if (count <= 1) {
-        if (options.timePoint && *options.timePoint != 0) {
-            throw ValueError(item +
-                             ": expected --volume 0 for a source with one volume, found --volume " +
-                             std::to_string(*options.timePoint));
-        }
-        return -1;
-    }
-    const std::string range = "(0-" + std::to_string(count - 1) + ")";
-    if (!options.timePoint) {
-        throw ValueError(item + ": expected --volume N to choose one of the " +
-                         std::to_string(count) + " volumes " + range + ", found none");
-    }
-    if (*options.timePoint < 0 || *options.timePoint >= count) {
-        throw ValueError(item + ": expected --volume N to choose one of the " +
-                         std::to_string(count) + " volumes " + range + ", found " +
-                         std::to_string(*options.timePoint));
-    }
-    return *options.timePoint;
 }
 
 }  // namespace palp::volume::detail

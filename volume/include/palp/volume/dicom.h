@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "palp/volume/load.h"
+#include "palp/volume/read_options.h"
 #include "palp/volume/slice_stack.h"
 
 namespace palp::volume {
@@ -33,7 +33,7 @@ std::vector<DicomSeriesInfo> scanDicom(const std::vector<std::filesystem::path>&
 /// refused, listing each with description and image count). 4D series (repeated positions)
 /// need options.timePoint (0-based), or are refused with the number of time points.
 /// @throw IoError, FormatError, ValueError naming the file.
-SliceStack readDicom(const std::vector<std::filesystem::path>& inputs, const LoadOptions& options);
+SliceStack readDicom(const std::vector<std::filesystem::path>& inputs, const ReadOptions& options);
 
 /// How writeDicomSeries stores values.
 struct DicomWriteOptions {

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "palp/volume/read_options.h"
 #include "palp/volume/resample.h"
 #include "palp/volume/volume.h"
 
@@ -22,23 +23,18 @@ const char* formatName(Format f);
 /// DICOM. Does not throw for unreadable files (returns Unknown).
 Format detectFormat(const std::filesystem::path& path);
 
-struct LoadOptions {
-    /// DICOM: SeriesInstanceUID to read when a directory holds several series.
-    std::optional<std::string> seriesUid;
-    /// 4D sources: 0-based index of the volume (time point) to read. Required when the source
-    /// holds more than one volume.
-    std::optional<int> timePoint;
-    /// Largest decoded source size accepted, in bytes; headers claiming more are refused before
-    /// any allocation.
-    std::uint64_t maxSourceBytes = std::uint64_t{8} << 30;
-    /// How the slices become a grid (voxel size, background, crop, progress).
+/// What load() needs: the readers' choices and limits (series, time point, memory) plus how the
+/// slices become a grid.
+struct LoadOptions : ReadOptions {
+    /// How the slices become a grid (voxel size, background, crop, progress). Also applied to a
+    /// `.vdb` input when it is re-gridded.
     ResampleOptions resample;
 };
 
 /// Reads @p inputs (one file, one directory, or several DICOM files of one series) as a
 /// SliceStack without resampling. Not for `.vdb` (use load()).
 /// @throw IoError, FormatError, ValueError with the offending file named.
-SliceStack readStack(const std::vector<std::filesystem::path>& inputs, const LoadOptions& options);
+SliceStack readStack(const std::vector<std::filesystem::path>& inputs, const ReadOptions& options);
 
 /// Reads and resamples @p inputs into a Volume. A `.vdb` is read as is (resampled only when a
 /// voxel size or crop is requested).

@@ -54,4 +54,16 @@ float defaultBackgroundThreshold(const VolumeInfo& info);
 /// @par Threading  Parallel inside (TBB); callable from any thread.
 Volume resample(const SliceStack& stack, const ResampleOptions& options = {});
 
+/// Re-grids a stored volume (a `.vdb`) with the same options: trilinear resampling onto an
+/// isotropic lattice of options.voxelSize (default: the volume's own) when a voxel size or crop
+/// is given, kept inside options.crop; with options.backgroundThreshold, active values below it
+/// (or equal to the background value) become inactive. The default threshold is not applied: a
+/// stored volume had its threshold applied when it was made (info.backgroundThreshold). With
+/// none of these the volume is returned as is, sharing its grid. The result's info (threshold)
+/// is written into its grid's metadata; progress reports 1 when done.
+/// @throw ValueError for a volume without a grid or a non-positive voxel size;
+///        Error("resample: cancelled") when the progress callback returns false.
+/// @par Threading  Parallel inside (TBB); callable from any thread.
+Volume resample(const Volume& source, const ResampleOptions& options = {});
+
 }  // namespace palp::volume

@@ -11,7 +11,7 @@
 #include <string_view>
 #include <vector>
 
-#include "palp/volume/raw_data.h"
+#include "raw_data.h"
 
 namespace palp::volume {
 

@@ -2,24 +2,25 @@
 /// @file
 /// Readers for single-file formats: NIfTI-1/2 (nifticlib), NRRD and MetaImage (palp's own
 /// header parsers). Each returns one 3D volume as a SliceStack in world metres (LPS).
+/// Internal (not installed): callers go through readStack() or load() in load.h.
 
 #include <filesystem>
 #include <string>
 #include <string_view>
 
-#include "palp/volume/load.h"
+#include "palp/volume/read_options.h"
 #include "palp/volume/slice_stack.h"
 
 namespace palp::volume {
 
 /// NIfTI-1 or NIfTI-2 (.nii, .nii.gz, .hdr/.img). sform is used when its code is set, else
 /// qform, else the pixdim scaling; RAS is converted to LPS; scl_slope/scl_inter applied.
-SliceStack readNifti(const std::filesystem::path& path, const LoadOptions& options);
+SliceStack readNifti(const std::filesystem::path& path, const ReadOptions& options);
 
 /// NRRD (.nrrd attached or .nhdr detached; raw or gzip; space directions and origin).
-SliceStack readNrrd(const std::filesystem::path& path, const LoadOptions& options);
+SliceStack readNrrd(const std::filesystem::path& path, const ReadOptions& options);
 
 /// MetaImage (.mha or .mhd with raw data file; zlib-compressed or not).
-SliceStack readMetaImage(const std::filesystem::path& path, const LoadOptions& options);
+SliceStack readMetaImage(const std::filesystem::path& path, const ReadOptions& options);
 
 }  // namespace palp::volume

@@ -1,0 +1,134 @@
+#include "dicom_header.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <sstream>
+
+#include "palp/base/error.h"
+
+namespace palp::volume::dicom {
+
+namespace fs = std::filesystem;
+
+std::string trim(const std::string& s) {
+    const auto notSpace = [](char c) {
+        return c != ' ' && c != '\0' && c != '\t' && c != '\r' && c != '\n';
+    };
+    const auto b = std::find_if(s.begin(), s.end(), notSpace);
+    const auto e = std::find_if(s.rbegin(), s.rend(), notSpace).base();
+    return b < e ? std::string(b, e) : std::string();
+}
+
+std::optional<std::vector<double>> parseNumbers(const std::string& text) {
+    std::vector<double> out;
+    std::string item;
+    std::istringstream in(text);
+    while (std::getline(in, item, '\\')) {
+        const std::string t = trim(item);
+        if (t.empty()) return std::nullopt;
+        char* end = nullptr;
+        const double v = std::strtod(t.c_str(), &end);
+        if (end != t.c_str() + t.size() || !std::isfinite(v)) return std::nullopt;
+        out.push_back(v);
+    }
+    if (out.empty()) return std::nullopt;
+    return out;
+}
+
+std::optional<double> parseNumber(const std::string& text) {
+    const auto v = parseNumbers(text);
+    if (!v || v->size() != 1) return std::nullopt;
+    return v->front();
+}
+
+std::optional<double> parseTime(const std::string& text) {
+    std::string t;
+    for (char c : trim(text)) {
+        if (c != ':') t.push_back(c);
+    }
+    if (t.size() < 2) return std::nullopt;
+    const std::size_t dot = t.find('.');
+    const std::string whole = t.substr(0, dot);
+    if (whole.size() % 2 != 0 || whole.size() > 6 ||
+        !std::all_of(whole.begin(), whole.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+        return std::nullopt;
+    }
+    double seconds = 0;
+    const double scale[3] = {3600, 60, 1};
+    for (std::size_t i = 0; i * 2 < whole.size(); ++i) {
+        seconds += scale[i] * std::stod(whole.substr(i * 2, 2));
+    }
+    if (dot != std::string::npos && dot + 1 < t.size()) {
+        const auto frac = parseNumber("0." + t.substr(dot + 1));
+        if (!frac) return std::nullopt;
+        seconds += *frac;
+    }
+    return seconds;
+}
+
+std::optional<Eigen::Vector3d> normalOf(const Header& h) {
+    const std::string* iop = h.get(kImageOrientation);
+    if (!iop) return std::nullopt;
+    const auto v = parseNumbers(*iop);
+    if (!v || v->size() != 6) return std::nullopt;
+    const Eigen::Vector3d r((*v)[0], (*v)[1], (*v)[2]);
+    const Eigen::Vector3d c((*v)[3], (*v)[4], (*v)[5]);
+    const Eigen::Vector3d n = r.cross(c);
+    if (!(n.norm() > 0.5)) return std::nullopt;
+    return n.normalized();
+}
+
+std::optional<Eigen::Vector3d> positionOf(const Header& h) {
+    const std::string* ipp = h.get(kImagePosition);
+    if (!ipp) return std::nullopt;
+    const auto v = parseNumbers(*ipp);
+    if (!v || v->size() != 3) return std::nullopt;
+    return Eigen::Vector3d((*v)[0], (*v)[1], (*v)[2]);
+}
+
+FileGeometry geometryOf(const Header& h) {
+    const std::string file = h.path.string();
+    const auto need = [&](const gdcm::Tag& t, const char* name, std::size_t count) {
+        const std::string* v = h.get(t);
+        if (!v) {
+            throw FormatError(file + ": expected " + name + " with " + std::to_string(count) +
+                              " numbers, found none (tag missing)");
+        }
+        const auto nums = parseNumbers(*v);
+        if (!nums || nums->size() != count) {
+            throw FormatError(file + ": expected " + name + " with " + std::to_string(count) +
+                              " numbers, found '" + *v + "'");
+        }
+        return *nums;
+    };
+    const auto ipp = need(kImagePosition, "Image Position (Patient) (0020,0032)", 3);
+    const auto iop = need(kImageOrientation, "Image Orientation (Patient) (0020,0037)", 6);
+    const auto ps = need(kPixelSpacing, "Pixel Spacing (0028,0030)", 2);
+    FileGeometry g;
+    g.position = Eigen::Vector3d(ipp[0], ipp[1], ipp[2]);
+    g.rowCosine = Eigen::Vector3d(iop[0], iop[1], iop[2]);
+    g.columnCosine = Eigen::Vector3d(iop[3], iop[4], iop[5]);
+    const double rn = g.rowCosine.norm(), cn = g.columnCosine.norm();
+    if (std::abs(rn - 1) > 0.01 || std::abs(cn - 1) > 0.01 ||
+        std::abs(g.rowCosine.dot(g.columnCosine)) > 0.01) {
+        throw FormatError(
+            file +
+            ": expected Image Orientation (Patient) (0020,0037) with two orthogonal unit "
+            "vectors, found '" +
+            h.text(kImageOrientation) + "'");
+    }
+    g.rowCosine /= rn;
+    g.columnCosine /= cn;
+    g.rowSpacing = ps[0];
+    g.columnSpacing = ps[1];
+    if (!(ps[0] > 0) || !(ps[1] > 0)) {
+        throw FormatError(
+            file + ": expected Pixel Spacing (0028,0030) with two positive numbers, found '" +
+            h.text(kPixelSpacing) + "'");
+    }
+    return g;
+}
+
+}  // namespace palp::volume::dicom

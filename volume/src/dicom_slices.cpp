@@ -1,0 +1,113 @@
+#include "dicom_slices.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+
+#include "palp/base/error.h"
+
+namespace palp::volume::dicom {
+
+namespace fs = std::filesystem;
+
+double positionTolerance(const Header& h) {
+    double spacing = 1.0;
+    if (const std::string* ps = h.get(kPixelSpacing)) {
+        if (const auto v = parseNumbers(*ps); v && v->size() == 2 && (*v)[0] > 0 && (*v)[1] > 0) {
+            spacing = std::min((*v)[0], (*v)[1]);
+        }
+    }
+    return 0.02 * spacing;
+}
+
+/// Groups images by position along the normal @p n; groups in increasing position.
+/// Images without a position each form their own group.
+std::vector<std::vector<const Header*>> groupPositions(const std::vector<const Header*>& images,
+                                                       const Eigen::Vector3d& n, double tolMm) {
+    std::vector<std::pair<double, const Header*>> along;
+    std::vector<std::vector<const Header*>> groups;
+    for (const Header* h : images) {
+        if (const auto p = positionOf(*h)) {
+            along.emplace_back(p->dot(n), h);
+        } else {
+            groups.push_back({h});
+        }
+    }
+    std::stable_sort(along.begin(), along.end(),
+                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    double groupStart = 0;
+    for (std::size_t i = 0; i < along.size(); ++i) {
+        if (i == 0 || along[i].first - groupStart > tolMm) {
+            groups.emplace_back();
+            groupStart = along[i].first;
+        }
+        groups.back().push_back(along[i].second);
+    }
+    return groups;
+}
+
+std::vector<std::vector<const Header*>> positionGroups(const std::string& name,
+                                                       const std::vector<const Header*>& images,
+                                                       const FileGeometry& first) {
+    const Eigen::Vector3d normal = first.rowCosine.cross(first.columnCosine).normalized();
+    const double tolMm = 0.02 * std::min(first.rowSpacing, first.columnSpacing);
+    std::vector<std::vector<const Header*>> positions = groupPositions(images, normal, tolMm);
+    const std::size_t timePoints = positions.front().size();
+    for (const auto& grp : positions) {
+        if (grp.size() != timePoints) {
+            const auto& other = grp.size() < timePoints ? grp : positions.front();
+            const double at = positionOf(*other.front())->dot(normal);
+            throw ValueError(name +
+                             ": expected the same number of images at every slice position (" +
+                             std::to_string(timePoints) + " at the first), found " +
+                             std::to_string(other.size()) + " at position " + std::to_string(at) +
+                             " mm along the normal (e.g. " + other.front()->path.string() +
+                             "); the series is incomplete or mixes acquisitions");
+        }
+    }
+    return positions;
+}
+
+void checkMemory(const std::string& name, int cols, int rows, std::size_t slices,
+                 std::uint64_t limit) {
+    const long double bytes =
+        static_cast<long double>(rows) * cols * static_cast<long double>(slices) * 4.0L;
+    if (bytes > static_cast<long double>(limit)) {
+        throw ValueError(name + ": expected at most " + std::to_string(limit) +
+                         " bytes of decoded slices, found " + std::to_string(cols) + "x" +
+                         std::to_string(rows) + "x" + std::to_string(slices) + " pixels (" +
+                         std::to_string(static_cast<unsigned long long>(bytes)) +
+                         " bytes as float)");
+    }
+}
+
+void setGeometry(const FileGeometry& g, Slice& s) {
+    s.position = g.position * 1e-3;
+    s.colStep = g.rowCosine * (g.columnSpacing * 1e-3);
+    s.rowStep = g.columnCosine * (g.rowSpacing * 1e-3);
+}
+
+void fillInfo(VolumeInfo& info, const Header& first, const std::vector<fs::path>& inputs,
+              const std::string& uid, std::size_t positions, int timePoint, int timePointCount,
+              bool rescaleVaries) {
+    info.modality = first.text(kModality);
+    info.valueUnits = info.modality == "CT" ? "HU" : "";
+    info.sourceFormat = "DICOM";
+    info.sourceDescription = first.text(kSeriesDescription);
+    if (info.sourceDescription.empty()) {
+        const fs::path in = inputs.front();
+        info.sourceDescription =
+            (in.has_filename() ? in.filename() : in.parent_path().filename()).string();
+    }
+    if (rescaleVaries)
+        info.sourceDescription += " (rescale slope/intercept vary per slice; applied per slice)";
+    info.seriesUid = uid;
+    info.originalDims = {first.integer(kColumns, 0), first.integer(kRows, 0),
+                         static_cast<std::int64_t>(positions)};
+    info.rescaleSlope = first.number(kRescaleSlope).value_or(1.0);
+    info.rescaleIntercept = first.number(kRescaleIntercept).value_or(0.0);
+    info.gantryTiltDeg = first.number(kGantryTilt).value_or(0.0);
+    info.timePoint = timePointCount > 1 ? timePoint : -1;
+    info.timePointCount = timePointCount;
+}
+
+}  // namespace palp::volume::dicom
