@@ -16,7 +16,7 @@ namespace palp::volume::dicom {
 struct Scan {
     std::string inputsName;  // for messages: the input directory or file(s)
     std::size_t fileCount = 0;
-    std::vector<Header> headers;                     // DICOM files only
+    std::vector<Header> headers;                                  // DICOM files only
     std::vector<std::pair<std::filesystem::path, Walk>> damaged;  // DICOM files GDCM must not see
 };
 
