@@ -7,18 +7,15 @@
 #include <type_traits>
 
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "palp/kernels/volume_ray.h"
 #include "ray_sample.h"
 
 namespace palp::kernels {
 
 void validateAccumulateParams(const AccumulateParams& p) {
-    if (!(std::isfinite(p.step) && p.step > 0))
-        throw ValueError("accumulate step: expected a finite step > 0 m, found " +
-                         std::to_string(p.step));
-    if (!(std::isfinite(p.tauStop) && p.tauStop > 0))
-        throw ValueError("accumulate tauStop: expected a finite value > 0, found " +
-                         std::to_string(p.tauStop));
+    requirePositive("accumulate step", p.step, "m");
+    requirePositive("accumulate tauStop", p.tauStop);
     if (p.reportFirstHit && std::isnan(p.firstHitThreshold))
         throw ValueError("accumulate firstHitThreshold: expected a number, found NaN");
 }

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 
 namespace palp::kernels {
 
@@ -19,18 +20,18 @@ namespace {
 
 void checkMesh(const TriangleMesh& m) {
     if (m.triangleCount() == 0 || m.positions.size() % 3 != 0 || m.indices.size() % 3 != 0)
-        throw ValueError("mesh: expected at least one triangle and 3 floats per vertex, found " +
-                         std::to_string(m.positions.size()) + " position floats and " +
-                         std::to_string(m.indices.size()) + " indices");
+        throwExpected("mesh", "at least one triangle and 3 floats per vertex",
+                      std::to_string(m.positions.size()) + " position floats and " +
+                          std::to_string(m.indices.size()) + " indices");
     const std::size_t nv = m.vertexCount();
     for (std::size_t i = 0; i < m.indices.size(); ++i)
         if (m.indices[i] >= nv)
-            throw ValueError("mesh index " + std::to_string(i) + ": expected < " +
-                             std::to_string(nv) + ", found " + std::to_string(m.indices[i]));
+            throwExpected("mesh index " + std::to_string(i), "< " + std::to_string(nv),
+                          std::to_string(m.indices[i]));
     for (std::size_t i = 0; i < m.positions.size(); ++i)
         if (!std::isfinite(m.positions[i]))
-            throw ValueError("mesh position " + std::to_string(i / 3) +
-                             ": expected finite coordinates");
+            throwExpected("mesh position " + std::to_string(i / 3), "finite coordinates",
+                          formatValue(static_cast<double>(m.positions[i])));
 }
 
 void errorCallback(void*, RTCError, const char*) {}
@@ -172,9 +173,7 @@ void refitOccluded(const RTCOccludedFunctionNArguments* args) {
 }  // namespace
 
 unsigned EmbreeScene::addRefitMesh(RefitMesh& mesh, unsigned mask, float margin) {
-    if (!(margin >= 0) || !std::isfinite(margin))
-        throw ValueError("refit mesh margin: expected a finite value >= 0 m, found " +
-                         std::to_string(margin));
+    requireNonNegative("refit mesh margin", static_cast<double>(margin), "m");
     Box3f limit = mesh.bounds();
     for (std::size_t k = 0; k < 3; ++k) {
         limit.lo[k] -= margin;

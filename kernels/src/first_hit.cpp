@@ -7,6 +7,7 @@
 #include <type_traits>
 
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "palp/kernels/volume_ray.h"
 #if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
 #include <immintrin.h>
@@ -15,6 +16,7 @@
 #include "block_avx2.h"
 #include "lattice_avx2.h"
 #include "lattice_march.h"
+#include "lattice_setup_check.h"
 
 namespace palp::kernels {
 
@@ -22,9 +24,7 @@ namespace palp::kernels {
 // Marching
 
 void validateFirstHitParams(const FirstHitParams& p) {
-    if (!(std::isfinite(p.step) && p.step > 0))
-        throw ValueError("first-hit step: expected a finite step > 0 m, found " +
-                         std::to_string(p.step));
+    requirePositive("first-hit step", p.step, "m");
     if (std::isnan(p.threshold))
         throw ValueError("first-hit threshold: expected a number, found NaN");
     if (p.refineIterations < 0 || p.refineIterations > 64)

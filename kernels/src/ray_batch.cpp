@@ -2,16 +2,16 @@
 
 #include <string>
 
-#include "palp/base/error.h"
 #include "palp/base/parallel.h"
+#include "palp/base/validate.h"
 
 namespace palp::kernels {
 
 namespace {
 void checkSizes(std::size_t bundles, std::size_t out) {
     if (out < bundles)
-        throw ValueError("ray batch output: expected room for " + std::to_string(bundles) +
-                         " bundles, found " + std::to_string(out));
+        throwExpected("ray batch output", "room for " + std::to_string(bundles) + " bundles",
+                      std::to_string(out));
 }
 
 template <class F>

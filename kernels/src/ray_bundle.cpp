@@ -5,6 +5,7 @@
 #include <string>
 
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 
 namespace palp::kernels {
 
@@ -43,23 +44,18 @@ std::string str(double v) { return std::to_string(v); }
 
 void validateBundleParams(const BundleParams& p) {
     const double halfPi = std::numbers::pi / 2;
-    if (!(std::isfinite(p.length) && p.length > 0))
-        throw ValueError("bundle length: expected a finite length > 0 m, found " + str(p.length));
+    requirePositive("bundle length", p.length, "m");
     if (p.ringCount < 0 || p.ringCount > kMaxRingRays)
         throw ValueError("bundle ringCount: expected 0.." + std::to_string(kMaxRingRays) +
                          ", found " + std::to_string(p.ringCount));
     if (p.ringCount > 0 && !(p.ringHalfAngle > 0 && p.ringHalfAngle < halfPi))
         throw ValueError("bundle ringHalfAngle: expected an angle in (0, pi/2) rad, found " +
                          str(p.ringHalfAngle));
-    if (p.ringCount > 0 && !(std::isfinite(p.ringWeightSigma) && p.ringWeightSigma > 0))
-        throw ValueError("bundle ringWeightSigma: expected a finite width > 0 rad, found " +
-                         str(p.ringWeightSigma));
+    if (p.ringCount > 0) requirePositive("bundle ringWeightSigma", p.ringWeightSigma, "rad");
     if (!(p.sobelAngle > 0 && p.sobelAngle < halfPi))
         throw ValueError("bundle sobelAngle: expected an angle in (0, pi/2) rad, found " +
                          str(p.sobelAngle));
-    if (!(std::isfinite(p.surfaceOffset) && p.surfaceOffset > 0))
-        throw ValueError("bundle surfaceOffset: expected a finite offset > 0 m, found " +
-                         str(p.surfaceOffset));
+    requirePositive("bundle surfaceOffset", p.surfaceOffset, "m");
 }
 
 void orthonormalBasis(const Eigen::Vector3d& d, Eigen::Vector3d& e1, Eigen::Vector3d& e2) noexcept {

@@ -12,6 +12,7 @@
 #include <random>
 #include <vector>
 
+#include "lattice_setup_check.h"  // kernels/src (internal)
 #include "palp/base/error.h"
 #include "palp/kernels/volume_ray.h"
 

@@ -360,18 +360,6 @@ void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstH
 /// GCC or Clang build). @par Real-time noexcept.
 bool bundleSimdAvailable() noexcept;
 
-namespace detail {
-/// For the tests: the HitField path's vectorised ray set-up (four rays per AVX2 step) against
-/// its scalar set-up on every ray of @p bundle that the vector set-up takes.
-struct LatticeSetupCheck {
-    bool available = false;  ///< AVX2 present and @p params' field used for this view
-    int vectorRays = 0;      ///< rays the vector set-up took (the rest go to the scalar one)
-    int mismatches = 0;      ///< of those, rays whose set-up differs in any bit
-};
-LatticeSetupCheck checkLatticeSetup(const VolumeView& view, const RayBundle& bundle,
-                                    const FirstHitParams& params) noexcept;
-}  // namespace detail
-
 /// Accumulate for every ray of @p bundle.
 /// @par Threading  Any number of threads on one view, each with its own @p out.
 /// @par Real-time  noexcept, no allocation, no lock.
