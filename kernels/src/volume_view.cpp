@@ -15,9 +15,12 @@ namespace palp::kernels {
 // ---------------------------------------------------------------------------------------------
 // VolumeView
 
-VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
-    if (!mGrid) throw ValueError("volume view grid: expected a FloatGrid, found a null pointer");
-    const openvdb::math::Transform& xf = mGrid->transform();
+namespace {
+
+/// The voxel size of @p grid (metres). @throw ValueError unless its transform is an isotropic
+/// axis-aligned scale plus translation.
+double isotropicVoxelSize(const openvdb::FloatGrid& grid) {
+    const openvdb::math::Transform& xf = grid.transform();
     const openvdb::Vec3d o = xf.indexToWorld(openvdb::Vec3d(0, 0, 0));
     const openvdb::Vec3d ax = xf.indexToWorld(openvdb::Vec3d(1, 0, 0)) - o;
     const openvdb::Vec3d ay = xf.indexToWorld(openvdb::Vec3d(0, 1, 0)) - o;
@@ -31,28 +34,70 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
                     std::fabs(az.z() - s) <= tol;
     if (!ok)
         throw ValueError(
-            "volume view transform of grid '" + mGrid->getName() +
+            "volume view transform of grid '" + grid.getName() +
             "': expected an isotropic axis-aligned scale and translation, found voxel axes (" +
             std::to_string(ax.x()) + ", " + std::to_string(ay.y()) + ", " + std::to_string(az.z()) +
             ") m");
-    mWorldOrigin = Eigen::Vector3d(o.x(), o.y(), o.z());
-    mVoxelSize = s;
-    mInvVoxelSize = 1.0 / s;
-    mBackground = mGrid->background();
-    const openvdb::FloatTree& tree = mGrid->tree();
+    return s;
+}
+
+/// The bounding box of @p tree's leaves and of its tiles that are active or not @p background.
+openvdb::CoordBBox activeBounds(const openvdb::FloatTree& tree, float background) {
     openvdb::CoordBBox box;
     for (auto it = tree.cbeginLeaf(); it; ++it) box.expand(it->getNodeBoundingBox());
     {
         auto it = tree.cbeginValueAll();
         it.setMaxDepth(openvdb::FloatTree::ValueAllCIter::LEAF_DEPTH - 1);
         for (; it; ++it) {
-            if (it.isTileValue() && (it.isValueOn() || *it != mBackground)) {
+            if (it.isTileValue() && (it.isValueOn() || *it != background)) {
                 openvdb::CoordBBox tb;
                 it.getBoundingBox(tb);
                 box.expand(tb);
             }
         }
     }
+    return box;
+}
+
+/// Table::subMax of the @p copies padded block copies at @p padded, into @p subMax.
+void subBlockBounds(const float* padded, std::size_t copies, std::vector<float>& subMax) {
+    subMax.assign(copies * Table::kSubBlocks, 0.0f);
+    for (std::size_t c = 0; c < copies; ++c) {
+        const float* src = padded + c * static_cast<std::size_t>(Table::kPadded);
+        for (int sb = 0; sb < Table::kSubBlocks; ++sb) {
+            const int x0 = 4 * ((sb >> 2) & 1), y0 = 4 * ((sb >> 1) & 1), z0 = 4 * (sb & 1);
+            // NaN never reaches a threshold and never raises the bound; +-inf does.
+            float mx = -std::numeric_limits<float>::infinity();
+            float mn = std::numeric_limits<float>::infinity();
+            for (int x = x0; x <= x0 + 4; ++x)
+                for (int y = y0; y <= y0 + 4; ++y)
+                    for (int z = z0; z <= z0 + 4; ++z) {
+                        const float v = src[(x * Table::kPad + y) * Table::kPad + z];
+                        if (v > mx) mx = v;
+                        if (v < mn) mn = v;
+                    }
+            // A blend of values in [mn, mx] with weights in [0, 1] stays in [mn, mx] up to a few
+            // ulps of mx; a run sample can sit a float rounding (well below 1e-4 voxel) outside
+            // its cell, which extrapolates by that fraction of the range.
+            float bound = mx + (mx - mn) * 1e-4f + std::fabs(mx) * 1e-6f;
+            if (!(bound >= mx)) bound = mx;  // inf - inf, or an all-NaN sub-block
+            subMax[c * Table::kSubBlocks + static_cast<std::size_t>(sb)] = bound;
+        }
+    }
+}
+
+}  // namespace
+
+VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
+    if (!mGrid) throw ValueError("volume view grid: expected a FloatGrid, found a null pointer");
+    const openvdb::Vec3d o = mGrid->transform().indexToWorld(openvdb::Vec3d(0, 0, 0));
+    const double s = isotropicVoxelSize(*mGrid);
+    mWorldOrigin = Eigen::Vector3d(o.x(), o.y(), o.z());
+    mVoxelSize = s;
+    mInvVoxelSize = 1.0 / s;
+    mBackground = mGrid->background();
+    const openvdb::FloatTree& tree = mGrid->tree();
+    const openvdb::CoordBBox box = activeBounds(tree, mBackground);
     mEmpty = box.empty();
     if (mEmpty) {
         mTable.origin = {0, 0, 0};
@@ -176,29 +221,7 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
     // Sub-block bounds of every copy (the constant ones included, so that the index of a copy
     // is all a march needs).
     const std::size_t copies = unique + constants.size();
-    mSubMax.assign(copies * Table::kSubBlocks, 0.0f);
-    for (std::size_t c = 0; c < copies; ++c) {
-        const float* src = mPadded.data() + c * padded;
-        for (int sb = 0; sb < Table::kSubBlocks; ++sb) {
-            const int x0 = 4 * ((sb >> 2) & 1), y0 = 4 * ((sb >> 1) & 1), z0 = 4 * (sb & 1);
-            // NaN never reaches a threshold and never raises the bound; +-inf does.
-            float mx = -std::numeric_limits<float>::infinity();
-            float mn = std::numeric_limits<float>::infinity();
-            for (int x = x0; x <= x0 + 4; ++x)
-                for (int y = y0; y <= y0 + 4; ++y)
-                    for (int z = z0; z <= z0 + 4; ++z) {
-                        const float v = src[(x * Table::kPad + y) * Table::kPad + z];
-                        if (v > mx) mx = v;
-                        if (v < mn) mn = v;
-                    }
-            // A blend of values in [mn, mx] with weights in [0, 1] stays in [mn, mx] up to a few
-            // ulps of mx; a run sample can sit a float rounding (well below 1e-4 voxel) outside
-            // its cell, which extrapolates by that fraction of the range.
-            float bound = mx + (mx - mn) * 1e-4f + std::fabs(mx) * 1e-6f;
-            if (!(bound >= mx)) bound = mx;  // inf - inf, or an all-NaN sub-block
-            mSubMax[c * Table::kSubBlocks + static_cast<std::size_t>(sb)] = bound;
-        }
-    }
+    subBlockBounds(mPadded.data(), copies, mSubMax);
     mTable.subMax = mSubMax.data();
 }
 
