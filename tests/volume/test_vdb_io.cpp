@@ -93,6 +93,49 @@ TEST(VdbIo, UnwritablePathFailsAndLeavesNothing) {
     EXPECT_TRUE(std::filesystem::is_empty(tmp / "ro"));
 }
 
+TEST(VdbIo, SaveLeavesTheCallersGridAsItWasAndKeepsItsTransformExactly) {
+    palp::test::TempDir tmp;
+    auto v = smallVolume();
+    // A voxel size whose map, rebuilt by Grid::copy(), would lose its last bits.
+    auto xf = openvdb::math::Transform::createLinearTransform(0x1.fffffc906404cp-12);
+    xf->postTranslate(openvdb::Vec3d(-0.125, -0.12, -0.07));
+    v.grid->setTransform(xf);
+    v.grid->setName("mine");
+    const auto metaBefore = v.grid->metaCount();
+    palp::volume::save(v, tmp / "a.vdb");
+    EXPECT_EQ(v.grid->getName(), "mine");
+    EXPECT_EQ(v.grid->metaCount(), metaBefore);
+    EXPECT_FALSE((*v.grid)["palp:modality"]);
+    const auto back = palp::volume::loadVdb(tmp / "a.vdb");
+    EXPECT_EQ(back.grid->getName(), "scan");
+    EXPECT_EQ(back.info.modality, "CT");
+    EXPECT_EQ(back.voxelSize(), v.voxelSize());
+    EXPECT_TRUE(back.grid->transform() == v.grid->transform());
+}
+
+TEST(VdbIo, AStoredVolumeTakesAnExplicitBackgroundThreshold) {
+    palp::test::TempDir tmp;
+    const auto v = smallVolume();  // values 0, 10, ..., 190
+    palp::volume::save(v, tmp / "a.vdb");
+    palp::volume::LoadOptions opt;
+    opt.resample.backgroundThreshold = 100.0f;
+    int calls = 0;
+    opt.resample.progress = [&](double f) {
+        ++calls;
+        EXPECT_EQ(f, 1.0);
+        return true;
+    };
+    const auto back = palp::volume::load({tmp / "a.vdb"}, opt);
+    EXPECT_EQ(back.grid->activeVoxelCount(), 10u);  // 100 ... 190
+    EXPECT_TRUE(back.grid->transform() == v.grid->transform());
+    EXPECT_FLOAT_EQ(back.info.backgroundThreshold, 100.0f);
+    EXPECT_FLOAT_EQ(palp::volume::readInfo(*back.grid).backgroundThreshold, 100.0f);
+    EXPECT_EQ(calls, 1);
+    // Without a threshold, voxel size or crop the stored volume is returned as it is.
+    const auto same = palp::volume::load({tmp / "a.vdb"});
+    EXPECT_EQ(same.grid->activeVoxelCount(), v.grid->activeVoxelCount());
+}
+
 TEST(VdbIo, NotAVdbIsAClearError) {
     palp::test::TempDir tmp;
     { std::ofstream(tmp / "x.vdb") << "not a vdb"; }

@@ -373,10 +373,9 @@ std::pair<std::int64_t, std::int64_t> cellRange(double a, double b, double step)
     return {lo, hi};
 }
 
-}  // namespace
-
-SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geometry) {
-    const Phantom phantom(spec.params);
+/// Checks what makePhantomSlices needs beyond the phantom's own parameters.
+/// @throw ValueError naming the offending field.
+void checkSliceSpec(const PhantomSpec& spec, const SliceGeometry& geometry) {
     palp::requireNonNegative("phantom noise sigma", spec.noiseSigmaHu, "HU");
     palp::requireNonNegative("phantom blur sigma", spec.blurSigma, "m");
     palp::requireNonNegative("phantom margin", spec.margin, "m");
@@ -405,6 +404,30 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
             mm(geometry.pixelSpacing) + ", smallest gap " + mm(smallest) + ", margin " +
             mm(spec.margin));
     }
+}
+
+/// Centres along z of slices @p gaps apart (cycled; divided by cos tilt @p ct) covering
+/// [@p zLo, @p zHi).
+std::vector<double> sliceCentres(double zLo, double zHi, const std::vector<double>& gaps,
+                                 double ct) {
+    std::vector<double> zs;
+    const double dz0 = gaps[0] / ct;
+    double z = (std::floor(zLo / dz0) + 0.5) * dz0;
+    zs.push_back(z);
+    for (std::size_t k = 0;; ++k) {
+        const double dz = gaps[k % gaps.size()] / ct;
+        if (z + 0.5 * dz >= zHi) break;
+        z += dz;
+        zs.push_back(z);
+    }
+    return zs;
+}
+
+}  // namespace
+
+SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geometry) {
+    const Phantom phantom(spec.params);
+    checkSliceSpec(spec, geometry);
     const std::vector<double> gaps = geometry.sliceGaps.empty()
                                          ? std::vector<double>{geometry.sliceSpacing}
                                          : geometry.sliceGaps;
@@ -441,18 +464,7 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
                          "x" + std::to_string(rows) + "x" + std::to_string(maxSlices) +
                          "; choose a larger pixel or slice spacing");
     }
-    std::vector<double> zs;
-    {
-        const double dz0 = gaps[0] / ct;
-        double z = (std::floor(zLo / dz0) + 0.5) * dz0;
-        zs.push_back(z);
-        for (std::size_t k = 0;; ++k) {
-            const double dz = gaps[k % gaps.size()] / ct;
-            if (z + 0.5 * dz >= zHi) break;
-            z += dz;
-            zs.push_back(z);
-        }
-    }
+    const std::vector<double> zs = sliceCentres(zLo, zHi, gaps, ct);
 
     SliceStack stack;
     stack.slices.resize(zs.size());
