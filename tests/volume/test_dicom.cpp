@@ -296,6 +296,16 @@ TEST(DicomRead, FourDimensionalSeriesMatchesDcm2niix) {
     EXPECT_THROW(palp::volume::readStack({dicomDir}, opt), palp::ValueError);
     opt.timePoint = -1;
     EXPECT_THROW(palp::volume::readStack({dicomDir}, opt), palp::ValueError);
+    {
+        // The tool adds the flag that chooses the time point.
+        palp::test::TempDir tmp;
+        const auto r =
+            palp::test::runCommand("'" + palp::test::palpTool().string() + "' convert '" +
+                                   dicomDir.string() + "' -o '" + (tmp / "out.vdb").string() + "'");
+        EXPECT_NE(r.exitCode, 0);
+        EXPECT_NE(r.output.find("10 time points (0-9)"), std::string::npos) << r.output;
+        EXPECT_NE(r.output.find("--volume N"), std::string::npos) << r.output;
+    }
 
     const Nifti ref(dir / "reference-dcm2niix" / "DCM2NIIX_regression_test_4.nii");
     ASSERT_NE(ref.image, nullptr);
