@@ -1,6 +1,8 @@
 /// @file
 /// HitField: a bit per cell that can reach a first-hit threshold, and per-block distances to
 /// the blocks that have one.
+#include "palp/kernels/hit_field.h"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -11,7 +13,6 @@
 
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
-#include "palp/kernels/volume_ray.h"
 
 namespace palp::kernels {
 

@@ -1,3 +1,5 @@
+#include "palp/kernels/transfer_function.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -7,7 +9,6 @@
 #include <type_traits>
 
 #include "palp/base/error.h"
-#include "palp/kernels/volume_ray.h"
 
 namespace palp::kernels {
 

@@ -1,3 +1,5 @@
+#include "palp/kernels/volume_view.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -7,7 +9,6 @@
 #include <type_traits>
 
 #include "palp/base/error.h"
-#include "palp/kernels/volume_ray.h"
 #include "ray_sample.h"
 
 namespace palp::kernels {
