@@ -36,8 +36,9 @@ struct LoadOptions : ReadOptions {
 /// @throw IoError, FormatError, ValueError with the offending file named.
 SliceStack readStack(const std::vector<std::filesystem::path>& inputs, const ReadOptions& options);
 
-/// Reads and resamples @p inputs into a Volume. A `.vdb` is read as is (resampled only when a
-/// voxel size or crop is requested).
+/// Reads and resamples @p inputs into a Volume: slices through resample(SliceStack), a `.vdb`
+/// through resample(Volume) with the same options (as stored unless a voxel size, crop or
+/// background threshold is given).
 /// @throw IoError, FormatError, ValueError with the offending file named.
 Volume load(const std::vector<std::filesystem::path>& inputs, const LoadOptions& options = {});
 
@@ -50,8 +51,9 @@ struct SaveOptions {
     Compression compression = Compression::Blosc;
 };
 
-/// Writes @p volume to @p path as a compressed `.vdb` with its metadata. Writes to a temporary
-/// file beside @p path and renames it, so a failure leaves no partial file.
+/// Writes @p volume to @p path as a compressed `.vdb` with its metadata, the grid named "scan".
+/// @p volume is not changed (the file's name and metadata go on a grid sharing its tree and
+/// transform). Writes through palp::AtomicFile, so a failure leaves no partial file.
 /// @throw IoError naming the path when it cannot be written.
 void save(const Volume& volume, const std::filesystem::path& path, const SaveOptions& options = {});
 
