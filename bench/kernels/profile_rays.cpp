@@ -40,6 +40,7 @@
 
 #include "palp/bench/ray_bench.h"
 #include "palp/kernels/volume_ray.h"
+#include "view_table.h"  // kernels/src (internal)
 
 namespace {
 
@@ -80,7 +81,7 @@ struct BundleProfile {
 template <class Visit>
 void forEachSample(const VolumeView& view, const RayBundle& b, const BundleHits& hits, double step,
                    Visit&& visit) {
-    const auto& tb = view.table();
+    const auto& tb = detail::viewTable(view);
     for (int r = 0; r < b.count; ++r) {
         const auto i = static_cast<std::size_t>(r);
         const Eigen::Vector3d o(b.ox[i], b.oy[i], b.oz[i]);
@@ -106,7 +107,7 @@ void forEachSample(const VolumeView& view, const RayBundle& b, const BundleHits&
 // Classifies the lattice samples of every ray of @p b up to its hit (from @p hits).
 void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits, double step,
               float thr, BundleProfile& p) {
-    const auto& tb = view.table();
+    const auto& tb = detail::viewTable(view);
     for (int r = 0; r < b.count; ++r) p.hits += hits.hit[static_cast<std::size_t>(r)];
     std::size_t lastHot = ~std::size_t{0};
     int lastRay = -1;
@@ -122,9 +123,9 @@ void classify(const VolumeView& view, const RayBundle& b, const BundleHits& hits
         const float* copy = tb.data[blk];
         const long lx = ix & 7, ly = iy & 7, lz = iz & 7;
         const auto c = static_cast<std::size_t>(copy - tb.padded) /
-                       static_cast<std::size_t>(VolumeView::Table::kPadded);
+                       static_cast<std::size_t>(detail::ViewTable::kPadded);
         const auto s = static_cast<std::size_t>(((lx >> 2) << 2) | ((ly >> 2) << 1) | (lz >> 2));
-        if (tb.subMax[c * VolumeView::Table::kSubBlocks + s] < thr) {
+        if (tb.subMax[c * detail::ViewTable::kSubBlocks + s] < thr) {
             p.sub += 1;
             return;
         }
@@ -143,7 +144,7 @@ struct TouchedLines {
 
 void touchedLines(const VolumeView& view, const HitField& field, const RayBundle& b,
                   const BundleHits& hits, double step, TouchedLines& out) {
-    const auto& tb = view.table();
+    const auto& tb = detail::viewTable(view);
     forEachSample(view, b, hits, step, [&](int, std::size_t blk, long ix, long iy, long iz) {
         out.entries.push_back(field.entries() + blk);
         out.tables.push_back(tb.data.data() + blk);

@@ -34,7 +34,7 @@ AccumulateHit accumulate(const VolumeView& view, const Eigen::Vector3d& origin,
     if (!(params.tauStop > 0) || !setupRay(view, origin, direction, length, params.step, clip, r))
         return out;
     out.t = static_cast<float>(r.length);
-    const Table& tb = view.table();
+    const Table& tb = detail::viewTable(view);
     const float zeroBelow = tf.zeroBelow();
     const bool skip = params.skipEmpty;
     double tau = 0;

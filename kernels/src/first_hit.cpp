@@ -175,7 +175,8 @@ void traceFirstHit(const VolumeView& view, const RayBundle& bundle, const FirstH
     }
     // 32-bit gather offsets must reach every block copy.
     if (params.simd && kHasAvx2 && cx.field == nullptr && out.count > 1 &&
-        view.table().padded != nullptr && view.table().paddedSize < (std::size_t{1} << 31) - 128) {
+        detail::viewTable(view).padded != nullptr &&
+        detail::viewTable(view).paddedSize < (std::size_t{1} << 31) - 128) {
         traceFirstHitAvx2(cx, bundle, out);
         return;
     }

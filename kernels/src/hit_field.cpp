@@ -13,12 +13,13 @@
 
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
+#include "view_table.h"
 
 namespace palp::kernels {
 
 namespace {
 
-using Table = VolumeView::Table;
+using Table = detail::ViewTable;
 constexpr int kPad = Table::kPad;
 
 /// True when a first-hit sample in cell (x, y, z) of the padded copy @p src can reach @p thr:
@@ -44,7 +45,7 @@ bool cornersCanReach(const float* src, int x, int y, int z, float thr) noexcept 
 HitField::HitField(const VolumeView& view, float threshold) : mView(&view), mThreshold(threshold) {
     if (std::isnan(threshold))
         throw ValueError("hit field threshold: expected a number, found NaN");
-    const Table& tb = view.table();
+    const Table& tb = detail::viewTable(view);
     const std::size_t copies =
         tb.padded ? tb.paddedSize / static_cast<std::size_t>(Table::kPadded) : 0;
     // Copies whose 4^3 sub-block bounds are all below the threshold have no cell that can reach

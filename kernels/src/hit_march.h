@@ -39,24 +39,24 @@ struct HitContext {
 
     HitContext(const VolumeView& v, const FirstHitParams& p) noexcept
         : view(&v),
-          tb(&v.table()),
+          tb(&detail::viewTable(v)),
           thr(p.threshold),
           bg(v.background()),
           skip(p.skipEmpty),
           clip(!(v.background() >= p.threshold)),
           refine(p.refineIterations),
           step(p.step),
-          limX(8.0 * v.table().blocks[0]),
-          limY(8.0 * v.table().blocks[1]),
-          limZ(8.0 * v.table().blocks[2]),
-          nby(v.table().blocks[1]),
-          nbz(v.table().blocks[2]) {
+          limX(8.0 * detail::viewTable(v).blocks[0]),
+          limY(8.0 * detail::viewTable(v).blocks[1]),
+          limZ(8.0 * detail::viewTable(v).blocks[2]),
+          nby(detail::viewTable(v).blocks[1]),
+          nbz(detail::viewTable(v).blocks[2]) {
         usable = !v.empty() && std::isfinite(step) && step > 0;
         // The field path marches in table-relative float coordinates: it needs the table's
         // interior clipped (a background below the threshold), positions below 2^13 voxels
         // (float steps exact to about 5e-4 voxel; block indices then fit the 31-bit gather
         // indices, and a field's mask words do by construction).
-        const auto& b = v.table().blocks;
+        const auto& b = detail::viewTable(v).blocks;
         if (p.field != nullptr && p.skipEmpty && p.field->matches(v, p.threshold) && clip &&
             std::max({b[0], b[1], b[2]}) <= 1024)
             field = p.field;

@@ -9,6 +9,7 @@
 #include <limits>
 
 #include "palp/kernels/volume_ray.h"
+#include "view_table.h"
 
 namespace palp::kernels {
 
@@ -17,7 +18,7 @@ namespace palp::kernels {
 // compiler inlines them exactly as before.
 namespace {  // NOLINT(google-build-namespaces)
 
-using Table = VolumeView::Table;
+using Table = detail::ViewTable;
 constexpr double kCoordLimit = 1e9;  // index coordinates beyond this are treated as outside
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
@@ -214,7 +215,7 @@ struct IndexRay {
     r.kEnd = r.kLast;
     if (!clip) return true;
     // Interior of the table: base voxel and its +1 neighbours inside.
-    const Table& tb = view.table();
+    const Table& tb = detail::viewTable(view);
     double t0 = 0, t1 = r.length;
     for (int a = 0; a < 3; ++a) {
         const double lo = tb.origin[static_cast<std::size_t>(a)];
@@ -247,8 +248,8 @@ PALP_HOT float samplePoint(const VolumeView& view, double x, double y, double z,
     float v;
     if (sampleInCache(cache, x, y, z, v)) return v;
     Cell c;
-    locate(view.table(), x, y, z, c);
-    return sampleCached(view.table(), view.background(), c, cache);
+    locate(detail::viewTable(view), x, y, z, c);
+    return sampleCached(detail::viewTable(view), view.background(), c, cache);
 }
 
 PALP_HOT float sampleAt(const VolumeView& view, const IndexRay& r, double t,

@@ -90,6 +90,18 @@ void subBlockBounds(const float* padded, std::size_t copies, std::vector<float>&
 }  // namespace
 
 VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
+    detail::ViewTable& tbl = *::new (static_cast<void*>(mTable)) detail::ViewTable;
+    try {
+        build(tbl);
+    } catch (...) {
+        tbl.~ViewTable();
+        throw;
+    }
+}
+
+VolumeView::~VolumeView() { detail::ViewAccess::table(*this).~ViewTable(); }
+
+void VolumeView::build(detail::ViewTable& tbl) {
     if (!mGrid) throw ValueError("volume view grid: expected a FloatGrid, found a null pointer");
     const openvdb::Vec3d o = mGrid->transform().indexToWorld(openvdb::Vec3d(0, 0, 0));
     const double s = isotropicVoxelSize(*mGrid);
@@ -101,8 +113,8 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
     const openvdb::CoordBBox box = activeBounds(tree, mBackground);
     mEmpty = box.empty();
     if (mEmpty) {
-        mTable.origin = {0, 0, 0};
-        mTable.blocks = {0, 0, 0};
+        tbl.origin = {0, 0, 0};
+        tbl.blocks = {0, 0, 0};
         return;
     }
     std::array<std::int64_t, 3> n{};
@@ -111,7 +123,7 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
         const std::int64_t lo = (static_cast<std::int64_t>(box.min()[a]) >> 3) - 1;
         const std::int64_t hi = (static_cast<std::int64_t>(box.max()[a]) >> 3) + 1;
         n[a] = hi - lo + 1;
-        mTable.origin[a] = static_cast<std::int32_t>(lo * 8);
+        tbl.origin[a] = static_cast<std::int32_t>(lo * 8);
         total *= n[a];
         if (total > kMaxViewBlocks) break;
     }
@@ -120,7 +132,7 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
                          std::to_string(kMaxViewBlocks) +
                          " 8^3 blocks in the bounding box, found more");
     for (int a = 0; a < 3; ++a)
-        mTable.blocks[static_cast<std::size_t>(a)] =
+        tbl.blocks[static_cast<std::size_t>(a)] =
             static_cast<std::int32_t>(n[static_cast<std::size_t>(a)]);
     const auto count = static_cast<std::size_t>(total);
     auto index = [&](std::int64_t bx, std::int64_t by, std::int64_t bz) {
@@ -133,9 +145,9 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
     for (std::int64_t bx = 0; bx < n[0]; ++bx)
         for (std::int64_t by = 0; by < n[1]; ++by)
             for (std::int64_t bz = 0; bz < n[2]; ++bz) {
-                const openvdb::Coord c(static_cast<openvdb::Int32>(mTable.origin[0] + 8 * bx),
-                                       static_cast<openvdb::Int32>(mTable.origin[1] + 8 * by),
-                                       static_cast<openvdb::Int32>(mTable.origin[2] + 8 * bz));
+                const openvdb::Coord c(static_cast<openvdb::Int32>(tbl.origin[0] + 8 * bx),
+                                       static_cast<openvdb::Int32>(tbl.origin[1] + 8 * by),
+                                       static_cast<openvdb::Int32>(tbl.origin[2] + 8 * bz));
                 if (const auto* leaf = tree.probeConstLeaf(c))
                     own[index(bx, by, bz)] = leaf->buffer().data();
                 else
@@ -178,11 +190,11 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
     mPadded.assign((unique + constants.size()) * padded, 0.0f);
     for (std::size_t i = 0; i < constants.size(); ++i)
         std::fill_n(mPadded.data() + (unique + i) * padded, padded, constants[i]);
-    mTable.padded = mPadded.data();
-    mTable.paddedSize = mPadded.size();
-    mTable.data.assign(count, nullptr);
-    mTable.maxDilated.assign(count, mBackground);
-    mTable.minDilated.assign(count, mBackground);
+    tbl.padded = mPadded.data();
+    tbl.paddedSize = mPadded.size();
+    tbl.data.assign(count, nullptr);
+    tbl.maxDilated.assign(count, mBackground);
+    tbl.minDilated.assign(count, mBackground);
     auto constantBlock = [&](float v) -> const float* {
         return mPadded.data() + (unique + constantIndex(v)) * padded;
     };
@@ -194,9 +206,9 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
                 const std::size_t b = index(bx, by, bz);
                 float v;
                 if (constantNeighbourhood(bx, by, bz, v)) {
-                    mTable.data[b] = constantBlock(v);
-                    mTable.minDilated[b] = v;
-                    mTable.maxDilated[b] = v;
+                    tbl.data[b] = constantBlock(v);
+                    tbl.minDilated[b] = v;
+                    tbl.maxDilated[b] = v;
                     continue;
                 }
                 float* dst = mPadded.data() + next * static_cast<std::size_t>(Table::kPadded);
@@ -215,22 +227,23 @@ VolumeView::VolumeView(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid
                             dst[(lx * Table::kPad + ly) * Table::kPad + lz] = value;
                         }
                 const auto [mn, mx] = std::minmax_element(dst, dst + Table::kPadded);
-                mTable.data[b] = dst;
-                mTable.minDilated[b] = *mn;
-                mTable.maxDilated[b] = *mx;
+                tbl.data[b] = dst;
+                tbl.minDilated[b] = *mn;
+                tbl.maxDilated[b] = *mx;
             }
     // Sub-block bounds of every copy (the constant ones included, so that the index of a copy
     // is all a march needs).
     const std::size_t copies = unique + constants.size();
     subBlockBounds(mPadded.data(), copies, mSubMax);
-    mTable.subMax = mSubMax.data();
+    tbl.subMax = mSubMax.data();
 }
 
 float VolumeView::sampleIndex(double x, double y, double z) const noexcept {
     if (mEmpty) return mBackground;
     Cell c;
-    locate(mTable, x, y, z, c);
-    return sampleCell(mTable, mBackground, c);
+    const Table& tb = detail::viewTable(*this);
+    locate(tb, x, y, z, c);
+    return sampleCell(tb, mBackground, c);
 }
 
 }  // namespace palp::kernels

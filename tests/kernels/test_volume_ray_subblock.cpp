@@ -15,6 +15,7 @@
 #include "lattice_setup_check.h"  // kernels/src (internal)
 #include "palp/base/error.h"
 #include "palp/kernels/volume_ray.h"
+#include "view_table.h"  // kernels/src (internal)
 
 namespace {
 
@@ -120,22 +121,22 @@ RayBundle bundleOf(const std::vector<Ray>& rays, std::size_t& next, int count, S
 // to skip inside blocks it cannot skip.
 TEST(VolumeRaySubBlocks, BoundsCoverTheirCellsValues) {
     const VolumeView view(makeGrid(3));
-    const auto& tb = view.table();
+    const auto& tb = detail::viewTable(view);
     ASSERT_NE(tb.subMax, nullptr);
     const std::size_t blocks = tb.data.size();
     int mixed = 0;
     for (std::size_t b = 0; b < blocks; ++b) {
         const float* copy = tb.data[b];
-        const auto c = static_cast<std::size_t>(copy - tb.padded) / VolumeView::Table::kPadded;
+        const auto c = static_cast<std::size_t>(copy - tb.padded) / detail::ViewTable::kPadded;
         int empty = 0;
-        for (int s = 0; s < VolumeView::Table::kSubBlocks; ++s) {
+        for (int s = 0; s < detail::ViewTable::kSubBlocks; ++s) {
             const int x0 = 4 * ((s >> 2) & 1), y0 = 4 * ((s >> 1) & 1), z0 = 4 * (s & 1);
             float mx = -1e30f;
             for (int x = x0; x <= x0 + 4; ++x)
                 for (int y = y0; y <= y0 + 4; ++y)
                     for (int z = z0; z <= z0 + 4; ++z) mx = std::max(mx, copy[(x * 9 + y) * 9 + z]);
             const float bound =
-                tb.subMax[c * VolumeView::Table::kSubBlocks + static_cast<std::size_t>(s)];
+                tb.subMax[c * detail::ViewTable::kSubBlocks + static_cast<std::size_t>(s)];
             ASSERT_GE(bound, mx) << "block " << b << " sub-block " << s;
             ASSERT_LE(bound, mx + 1e-3f * (std::fabs(mx) + 2000.0f));
             EXPECT_EQ(bound < kThreshold, mx < kThreshold) << "block " << b << " sub-block " << s;
@@ -372,7 +373,7 @@ TEST(VolumeRaySubBlocks, HotVoxelOnASubBlockCornerIsHit) {
 TEST(VolumeRayHitField, CellBitsAndBlockDistancesBoundTheCellsThatCanReachTheThreshold) {
     const VolumeView view(makeGrid(3));
     const HitField field(view, kThreshold);
-    const auto& tb = view.table();
+    const auto& tb = detail::viewTable(view);
     auto cellMax = [&](const float* copy, int x, int y, int z) {
         float mx = -1e30f;
         for (int i = 0; i < 8; ++i)

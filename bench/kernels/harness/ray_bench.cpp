@@ -21,6 +21,7 @@
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/ray_batch.h"
 #include "palp/kernels/volume_ray.h"
+#include "view_table.h"  // kernels/src (internal)
 
 namespace palp::kernels {
 
@@ -408,9 +409,9 @@ void benchVolumeRays(const openvdb::FloatGrid::ConstPtr& grid, const std::string
             "the field (4^3 sub-block bounds, %s) CPU %.2f / %.2f us, %.2fx / %.2fx the field's%s",
             agree, total, hitsN, perWindow.front(), perWindow[perWindow.size() / 2],
             perWindow.size(), 1000.0 / std::max(1e-9, palp.meanUs), field.hotCopies(),
-            view.table().paddedSize / VolumeView::Table::kPadded, static_cast<double>(fp.threshold),
-            static_cast<double>(field.bytes()) / (1 << 20), fieldMs,
-            bundleSimdAvailable() ? "AVX2 lattice" : "no AVX2: scalar", palp.cpuMeanUs,
+            detail::viewTable(view).paddedSize / detail::ViewTable::kPadded,
+            static_cast<double>(fp.threshold), static_cast<double>(field.bytes()) / (1 << 20),
+            fieldMs, bundleSimdAvailable() ? "AVX2 lattice" : "no AVX2: scalar", palp.cpuMeanUs,
             palp.cpuP99Us, palpScalar.cpuMeanUs, palpScalar.cpuP99Us,
             bundleSimdAvailable() ? "AVX2 lockstep" : "scalar", palpNoField.cpuMeanUs,
             palpNoField.cpuP99Us, palpNoField.cpuMeanUs / std::max(1e-9, palp.cpuMeanUs),

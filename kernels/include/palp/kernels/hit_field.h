@@ -84,11 +84,11 @@ class HitField {
     bool cellCanReach(std::size_t block, unsigned local) const noexcept {
         return ((blockMask(block)[local >> 5] >> (local & 31u)) & 1u) != 0;
     }
-    /// The padded block copy (as VolumeView::Table::data) of mask index @p mask > 0: a small
+    /// The padded block copy (as detail::ViewTable::data) of mask index @p mask > 0: a small
     /// array (8 bytes per copy that can reach the threshold) that stays cached where the table's
     /// pointers (8 bytes per table block) would miss.
     const float* maskCopy(std::uint32_t mask) const noexcept { return mCopy[mask]; }
-    /// The same as an offset in floats from VolumeView::Table::padded (mask 0: 0), for gathers;
+    /// The same as an offset in floats from detail::ViewTable::padded (mask 0: 0), for gathers;
     /// valid when the padded buffer has fewer than 2^31 - 1024 floats.
     const std::int32_t* maskCopyOffsets() const noexcept { return mCopyOffset.data(); }
     /// maskCopy() of every mask index, as an array (for prefetching).

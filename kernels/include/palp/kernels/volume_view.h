@@ -13,6 +13,11 @@
 
 namespace palp::kernels {
 
+namespace detail {
+struct ViewTable;  // kernels/src/view_table.h
+struct ViewAccess;
+}  // namespace detail
+
 /// Largest number of 8^3 blocks a VolumeView accepts (its table costs 16 bytes per block).
 inline constexpr std::int64_t kMaxViewBlocks = std::int64_t{1} << 26;
 
@@ -57,40 +62,21 @@ class VolumeView {
     /// World position (metres) of index position (0, 0, 0).
     const Eigen::Vector3d& worldOrigin() const noexcept { return mWorldOrigin; }
 
-    // Internal layout, read by the marcher (kept public for the kernels' free functions).
-    struct Table {
-        static constexpr int kPad = 9;  ///< padded block edge (8 own voxels + 1 halo)
-        static constexpr int kPadded = kPad * kPad * kPad;
-        std::array<std::int32_t, 3> origin{};  ///< index of the first voxel (multiple of 8)
-        std::array<std::int32_t, 3> blocks{};  ///< blocks per axis
-        /// Per block: kPadded values, x-major ((lx * 9 + ly) * 9 + lz), lx, ly, lz in 0..8; the
-        /// layer 8 holds the neighbour block's layer 0 (background past the table).
-        std::vector<const float*> data;
-        std::vector<float> maxDilated;  ///< max over the block's padded copy
-        std::vector<float> minDilated;  ///< min over the same
-        /// Every padded copy (constant ones included) lies in one buffer starting here, so a
-        /// gather can address any block's values with 32-bit offsets from this base.
-        const float* padded = nullptr;
-        std::size_t paddedSize = 0;  ///< floats in that buffer
-        /// Per padded copy c (the one at padded + c * kPadded), 8 floats: for each 4^3 sub-block
-        /// s = 4 (lx >> 2) + 2 (ly >> 2) + (lz >> 2) of the cells based in the block, an upper
-        /// bound on every value a first-hit sample in those cells can take (the maximum of the
-        /// sub-block's 5^3 corner values, raised by a hair for the rounding of the trilinear
-        /// blend and for positions a rounding step outside the cell). A sample there can only
-        /// reach a threshold above the bound, so the march skips such sub-blocks in a block it
-        /// cannot skip whole.
-        const float* subMax = nullptr;
-        static constexpr int kSubBlocks = 8;
-    };
-    const Table& table() const noexcept { return mTable; }
+    /// Releases the block table.
+    ~VolumeView();
 
   private:
+    friend struct detail::ViewAccess;
+    void build(detail::ViewTable& table);  // the constructor's work, into the table
     openvdb::FloatGrid::ConstPtr mGrid;
-    Table mTable;
+    /// The block table the marcher reads (detail::ViewTable, internal to the kernels:
+    /// kernels/src/view_table.h), constructed in place here so that reading it costs what reading
+    /// a member does.
+    alignas(8) std::byte mTable[120];
     /// Padded copies of the blocks that are not constant, then one shared copy per distinct
     /// constant.
     std::vector<float> mPadded;
-    std::vector<float> mSubMax;  ///< Table::subMax
+    std::vector<float> mSubMax;  ///< ViewTable::subMax
     Eigen::Vector3d mWorldOrigin = Eigen::Vector3d::Zero();
     double mVoxelSize = 1;
     double mInvVoxelSize = 1;
