@@ -9,7 +9,7 @@
 
 #include "palp/base/error.h"
 #include "palp/base/nothrow_slot.h"
-#include "palp/base/spsc_ring.h"
+#include "palp/base/spsc_queue.h"
 #include "palp/base/validate.h"
 #include "palp/haptics/passivity.h"
 #include "palp/haptics/safety.h"

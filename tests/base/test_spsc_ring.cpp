@@ -4,7 +4,7 @@
 #include <thread>
 
 #include "alloc_counter.h"
-#include "palp/base/spsc_ring.h"
+#include "palp/base/spsc_queue.h"
 
 namespace palp {
 namespace {
