@@ -119,7 +119,7 @@ TEST(FemModel, PatchTestReproducesLinearFieldsInTheInterior) {
 TEST(FemModel, LumpedMassAndStableStep) {
     const FemModel model(test::cube13(), test::softTissue());
     EXPECT_NEAR(model.totalMass(), 1e3 * std::pow(0.06, 3), 1e-12);
-    // Element bound: dt = kappa h / c_d with kappa about 0.62 at nu = 0.45 (ALGORITHMS.md 5).
+    // Element bound: dt = kappa h / c_d with kappa about 0.62 at nu = 0.45 (docs/algorithms.md 5).
     const double kappa =
         model.criticalTimeStep() * model.material().dilatationalWaveSpeed() / model.mesh().edge();
     EXPECT_NEAR(kappa, 0.62, 0.03);

@@ -1,4 +1,4 @@
-// VC / AVC / AVCEC coupling (ALGORITHMS.md sections 1-3): exact forces, ray lengths against
+// VC / AVC / AVCEC coupling (docs/algorithms.md sections 1-3): exact forces, ray lengths against
 // analytic planes (mesh and volume sources), the AVCEC derivatives against analytic angular and
 // surface gradients, the closed-loop energy test on the AVC phantom, allocation-free ticks and
 // parameter validation.

@@ -1,4 +1,4 @@
-// Deformable palpation with plain virtual coupling (ALGORITHMS.md sections 5 and 10): the
+// Deformable palpation with plain virtual coupling (docs/algorithms.md sections 5 and 10): the
 // quasi-static consistency of the explicit body with the implicit solve, Newton's third law
 // between hand and tissue, the Gaussian filter (sum, width, single node, force steps of a moving
 // contact), the proxy never inside the deformed surface, bone nodes fixed, and safety / zero

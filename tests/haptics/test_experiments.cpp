@@ -1,5 +1,5 @@
 // The scene coupling defaults and the thesis's virtual experiments
-// (ALGORITHMS.md section 9): the AVC hidden-box experiment with an automated observer, and the
+// (docs/algorithms.md section 9): the AVC hidden-box experiment with an automated observer, and the
 // AVCEC plate-silhouette experiment.
 #include <gtest/gtest.h>
 

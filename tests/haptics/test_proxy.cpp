@@ -1,4 +1,4 @@
-// The god-object proxy with Coulomb friction (ALGORITHMS.md section 1).
+// The god-object proxy with Coulomb friction (docs/algorithms.md section 1).
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>

@@ -1,4 +1,5 @@
-// palp phantom: the thesis scenes (ALGORITHMS.md section 9) as CT-like volumes or DICOM series.
+// palp phantom: the thesis scenes (docs/algorithms.md section 9) as CT-like volumes or DICOM
+// series.
 #include <cstdio>
 #include <filesystem>
 #include <memory>

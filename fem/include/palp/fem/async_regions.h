@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// AsyncRegions: asynchronous FEM regions (ALGORITHMS.md section 6, thesis paper I). A small
+/// AsyncRegions: asynchronous FEM regions (docs/algorithms.md section 6, thesis paper I). A small
 /// primary region around the contact is integrated explicitly every servo tick; the rest of the
 /// body (the secondary region) is solved implicitly at a lower rate, optionally on a coarser
 /// grid, on its own thread.

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Virtual coupling between proxy and probe: plain (VC), anisotropic (AVC, ALGORITHMS.md
+/// Virtual coupling between proxy and probe: plain (VC), anisotropic (AVC, docs/algorithms.md
 /// section 2) and anisotropic with energy conservation (AVCEC, section 3).
 
 #include <Eigen/Core>

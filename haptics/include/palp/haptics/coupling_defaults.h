@@ -1,7 +1,7 @@
 #pragma once
 /// @file
-/// Coupling defaults of the thesis scenes and of scans (ALGORITHMS.md sections 2, 3 and 9). Used by
-/// `palp palpate`, `palp bench` and the virtual experiments (test_experiments).
+/// Coupling defaults of the thesis scenes and of scans (docs/algorithms.md sections 2, 3 and 9).
+/// Used by `palp palpate`, `palp bench` and the virtual experiments (test_experiments).
 
 #include "palp/haptics/coupling.h"
 #include "palp/volume/phantom.h"

@@ -1,7 +1,7 @@
 #pragma once
 /// @file
-/// Deformable tissue for palpation with plain virtual coupling (ALGORITHMS.md sections 5 and 10):
-/// a hexahedral FEM body with fixed nodes (a support face, nodes inside static inhomogeneities
+/// Deformable tissue for palpation with plain virtual coupling (docs/algorithms.md sections 5 and
+/// 10): a hexahedral FEM body with fixed nodes (a support face, nodes inside static inhomogeneities
 /// such as bone), stepped every servo tick under the reaction of the coupling force (by the
 /// whole-mesh explicit solver, or by asynchronous regions: an explicit primary region around the
 /// contact every tick and an implicit secondary at a lower rate, fem/async_regions.h), spread over

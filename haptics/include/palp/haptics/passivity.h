@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Time-domain passivity observer and controller (Hannaford and Ryu; ALGORITHMS.md section 4).
+/// Time-domain passivity observer and controller (Hannaford and Ryu; docs/algorithms.md section 4).
 ///
 /// Sign convention: `F` is the force the device applies to the user's hand and `v` the hand's
 /// (end-effector's) velocity, both in the same frame. `F . v` is then the power flowing from the

@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// The proxy (god-object, Zilles-Salisbury) on Embree surfaces with Coulomb friction
-/// (ALGORITHMS.md section 1): the proxy follows the probe in free space, stops on the first
+/// (docs/algorithms.md section 1): the proxy follows the probe in free space, stops on the first
 /// surface the segment proxy -> probe hits, and in contact stays on up to three constraint
 /// planes (faces, edges, corners), sticking or slipping on the friction cone.
 ///

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The thesis's experiments as CT-like phantoms (ALGORITHMS.md section 9): each scene is an
+/// The thesis's experiments as CT-like phantoms (docs/algorithms.md section 9): each scene is an
 /// analytic function world point (metres, LPS) -> HU with exact geometry, sampled into slices
 /// or a sparse grid with optional partial-volume blur and deterministic Gaussian noise.
 ///
