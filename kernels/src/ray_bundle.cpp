@@ -38,23 +38,20 @@ std::array<double, 9> gather(const RayBundle& b, std::span<const double> v, bool
     return k;
 }
 
-std::string str(double v) { return std::to_string(v); }
-
 }  // namespace
 
 void validateBundleParams(const BundleParams& p) {
     const double halfPi = std::numbers::pi / 2;
     requirePositive("bundle length", p.length, "m");
     if (p.ringCount < 0 || p.ringCount > kMaxRingRays)
-        throw ValueError("bundle ringCount: expected 0.." + std::to_string(kMaxRingRays) +
-                         ", found " + std::to_string(p.ringCount));
+        throwExpected("bundle ringCount", "0.." + std::to_string(kMaxRingRays),
+                      std::to_string(p.ringCount));
     if (p.ringCount > 0 && !(p.ringHalfAngle > 0 && p.ringHalfAngle < halfPi))
-        throw ValueError("bundle ringHalfAngle: expected an angle in (0, pi/2) rad, found " +
-                         str(p.ringHalfAngle));
+        throwExpected("bundle ringHalfAngle", "an angle in (0, pi/2) rad",
+                      formatValue(p.ringHalfAngle));
     if (p.ringCount > 0) requirePositive("bundle ringWeightSigma", p.ringWeightSigma, "rad");
     if (!(p.sobelAngle > 0 && p.sobelAngle < halfPi))
-        throw ValueError("bundle sobelAngle: expected an angle in (0, pi/2) rad, found " +
-                         str(p.sobelAngle));
+        throwExpected("bundle sobelAngle", "an angle in (0, pi/2) rad", formatValue(p.sobelAngle));
     requirePositive("bundle surfaceOffset", p.surfaceOffset, "m");
 }
 

@@ -52,15 +52,11 @@ int setCurrentThreadCpus(const std::vector<int>& cpus) noexcept {
 
 int pinCurrentThread(int cpu) noexcept {
     if (cpu < 0) return EINVAL;
-    const auto count = static_cast<std::size_t>(cpu) + 1;
-    cpu_set_t* set = CPU_ALLOC(count);
-    if (!set) return ENOMEM;
-    const std::size_t size = CPU_ALLOC_SIZE(count);
-    CPU_ZERO_S(size, set);
-    CPU_SET_S(static_cast<std::size_t>(cpu), size, set);
-    const int rc = pthread_setaffinity_np(pthread_self(), size, set);
-    CPU_FREE(set);
-    return rc;
+    try {
+        return setCurrentThreadCpus({cpu});
+    } catch (...) {  // the one-element list could not be allocated
+        return ENOMEM;
+    }
 }
 
 int setCurrentThreadFifo(int priority) noexcept {
