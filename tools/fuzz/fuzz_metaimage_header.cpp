@@ -38,7 +38,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         std::ofstream out(scratchFile(), std::ios::binary | std::ios::trunc);
         out.write(text.data(), static_cast<std::streamsize>(text.size()));
     }
-    palp::volume::LoadOptions options;
+    palp::volume::ReadOptions options;
     options.maxSourceBytes = std::uint64_t{1} << 20;
     options.timePoint = 0;
     try {
