@@ -4,7 +4,6 @@
 #include <numbers>
 #include <string>
 
-#include "palp/base/error.h"
 #include "palp/base/validate.h"
 
 namespace palp::kernels {

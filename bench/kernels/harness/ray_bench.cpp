@@ -487,6 +487,19 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
         const std::vector<RayBundle> bundles = trajectoryBundles(above, frames, bp, 0.0 + 1e-12);
         BundleHits hits;
         float sink = 0;
+        // Embree's own ray layout filled from a bundle, as a user of raw Embree would.
+        const auto rawRay = [](RTCRayHit& rh, const RayBundle& b, std::size_t i) {
+            rh.ray.org_x = b.ox[i];
+            rh.ray.org_y = b.oy[i];
+            rh.ray.org_z = b.oz[i];
+            rh.ray.dir_x = b.dx[i];
+            rh.ray.dir_y = b.dy[i];
+            rh.ray.dir_z = b.dz[i];
+            rh.ray.tnear = 0;
+            rh.ray.tfar = b.length[i];
+            rh.ray.mask = kMaskAll;
+            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        };
         auto raw1Frame = [&](std::size_t f) {
             const RayBundle& b = bundles[f];
             RTCIntersectContext ctx;
@@ -494,16 +507,7 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
             for (int r = 0; r < b.count; ++r) {
                 const auto i = static_cast<std::size_t>(r);
                 alignas(16) RTCRayHit rh{};
-                rh.ray.org_x = b.ox[i];
-                rh.ray.org_y = b.oy[i];
-                rh.ray.org_z = b.oz[i];
-                rh.ray.dir_x = b.dx[i];
-                rh.ray.dir_y = b.dy[i];
-                rh.ray.dir_z = b.dz[i];
-                rh.ray.tnear = 0;
-                rh.ray.tfar = b.length[i];
-                rh.ray.mask = kMaskAll;
-                rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+                rawRay(rh, b, i);
                 rtcIntersect1(scene.handle(), &ctx, &rh);
                 sink += rh.ray.tfar;
             }
@@ -518,16 +522,7 @@ void benchMeshRays(const RayBenchOptions& o, const TriangleMesh* userMesh, RayBe
                 const auto i = static_cast<std::size_t>(r);
                 RTCRayHit& rh = rays[r];
                 rh = RTCRayHit{};
-                rh.ray.org_x = b.ox[i];
-                rh.ray.org_y = b.oy[i];
-                rh.ray.org_z = b.oz[i];
-                rh.ray.dir_x = b.dx[i];
-                rh.ray.dir_y = b.dy[i];
-                rh.ray.dir_z = b.dz[i];
-                rh.ray.tnear = 0;
-                rh.ray.tfar = b.length[i];
-                rh.ray.mask = kMaskAll;
-                rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+                rawRay(rh, b, i);
             }
             rtcIntersect1M(scene.handle(), &ctx, rays, static_cast<unsigned>(b.count),
                            sizeof(RTCRayHit));
