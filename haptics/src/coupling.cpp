@@ -16,6 +16,27 @@ bool finite3(const Eigen::Vector3d& v) noexcept {
     return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
 }
 
+/// A bound on the tangential curvature (N/m) of E's stiffness terms as the proxy moves: the
+/// surface stencil's second differences of k times D^2 / 2, the spherical stencil's times 1/2
+/// (a proxy step dx turns d by dx / D), and the cross terms of the gradients with D.
+double tangentialCurvature(const kernels::RayBundle& b,
+                           const std::array<double, kernels::kMaxBundleRays>& k, double D,
+                           const CouplingOutput& out) noexcept {
+    auto bound = [&](bool sphere, double s) {
+        auto at = [&](int i, int j) {
+            return k[static_cast<std::size_t>(sphere ? b.sphereRay(i, j) : b.surfaceRay(i, j))];
+        };
+        const double kxx = at(1, 0) - 2 * at(0, 0) + at(-1, 0);
+        const double kyy = at(0, 1) - 2 * at(0, 0) + at(0, -1);
+        const double kxy = 0.25 * (at(1, 1) - at(1, -1) - at(-1, 1) + at(-1, -1));
+        return (std::abs(kxx) + std::abs(kyy) + 2 * std::abs(kxy)) / (s * s);
+    };
+    const double c = 0.5 * D * D * bound(false, b.surfaceOffset) + 0.5 * bound(true, b.sobelAngle) +
+                     D * std::hypot(out.surface.g1, out.surface.g2) +
+                     std::hypot(out.sphere.g1, out.sphere.g2);
+    return std::isfinite(c) ? c : 0.0;
+}
+
 }  // namespace
 
 void validateCouplingParams(const CouplingParams& p) {
@@ -103,37 +124,16 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
         out.stiffness = std::min(p.baseStiffness, p.maxStiffness);
         out.force = -out.stiffness * D * d + dampingForce;
         out.energy = 0.5 * out.stiffness * D * D;
+        out.stepStiffness = out.stiffness;
         return;
     }
     const bool ec = p.mode == CouplingMode::AVCEC;
     // AVC needs only the centre and the ring: the stencil rays are not traced at all.
     if (!ec) mBundle.count = 1 + mBundle.ringCount;
     const int n = mBundle.count;
-
-    // Per-ray lengths L_r -> per-ray stiffness k_r (kept in a fixed buffer: no allocation).
     std::array<double, kernels::kMaxBundleRays> k{};
-    auto stiffness = [&](double length) {
-        return std::min(p.baseStiffness * stiffnessMultiplier(p, length), p.maxStiffness);
-    };
     double centreLength = 0;
-    switch (p.source) {
-        case RaySource::Mesh:
-        case RaySource::VolumeFirstHit:
-            if (p.source == RaySource::Mesh)
-                kernels::traceBundle(*mMeshes, mBundle, p.hardMask, mHits);
-            else
-                kernels::traceFirstHit(*mVolume, mBundle, p.firstHit, mHits);
-            for (int r = 0; r < mHits.count; ++r)
-                k[static_cast<std::size_t>(r)] = stiffness(mHits.t[static_cast<std::size_t>(r)]);
-            centreLength = mHits.count > 0 ? mHits.t[0] : p.bundle.length;
-            break;
-        case RaySource::VolumeAccumulate:
-            kernels::traceAccumulate(*mVolume, mBundle, p.accumulate, mAccum);
-            for (int r = 0; r < mAccum.count; ++r)
-                k[static_cast<std::size_t>(r)] = stiffness(mAccum.t[static_cast<std::size_t>(r)]);
-            centreLength = mAccum.count > 0 ? mAccum.t[0] : p.bundle.length;
-            break;
-    }
+    traceStiffness(mBundle, n, k, centreLength);
     const std::span<const double> perRay(k.data(), static_cast<std::size_t>(n));
 
     out.rays = n;
@@ -141,6 +141,7 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
     out.stiffness = kernels::lowPass(mBundle, perRay);
     out.force = -out.stiffness * D * d + dampingForce;
     out.energy = 0.5 * out.stiffness * D * D;
+    out.stepStiffness = out.stiffness;
     if (!ec) return;
 
     // E = 1/2 k D^2: the probe gradient adds -1/2 D (g1 e1 + g2 e2), the proxy gradient
@@ -150,6 +151,56 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
     out.energyForce = -0.5 * D * (out.sphere.g1 * mBundle.e1 + out.sphere.g2 * mBundle.e2);
     out.proxyForce = -0.5 * D * D * (out.surface.g1 * mBundle.t1 + out.surface.g2 * mBundle.t2);
     out.force += out.energyForce;
+    out.stepStiffness = out.stiffness + tangentialCurvature(mBundle, k, D, out);
+}
+
+void Coupling::traceStiffness(kernels::RayBundle& bundle, int n,
+                              std::array<double, kernels::kMaxBundleRays>& k,
+                              double& centreLength) noexcept {
+    const CouplingParams& p = mParams;
+    bundle.count = n;
+    auto stiffness = [&](double length) {
+        return std::min(p.baseStiffness * stiffnessMultiplier(p, length), p.maxStiffness);
+    };
+    switch (p.source) {
+        case RaySource::Mesh:
+        case RaySource::VolumeFirstHit:
+            if (p.source == RaySource::Mesh)
+                kernels::traceBundle(*mMeshes, bundle, p.hardMask, mHits);
+            else
+                kernels::traceFirstHit(*mVolume, bundle, p.firstHit, mHits);
+            for (int r = 0; r < mHits.count; ++r)
+                k[static_cast<std::size_t>(r)] = stiffness(mHits.t[static_cast<std::size_t>(r)]);
+            centreLength = mHits.count > 0 ? mHits.t[0] : p.bundle.length;
+            break;
+        case RaySource::VolumeAccumulate:
+            kernels::traceAccumulate(*mVolume, bundle, p.accumulate, mAccum);
+            for (int r = 0; r < mAccum.count; ++r)
+                k[static_cast<std::size_t>(r)] = stiffness(mAccum.t[static_cast<std::size_t>(r)]);
+            centreLength = mAccum.count > 0 ? mAccum.t[0] : p.bundle.length;
+            break;
+    }
+}
+
+double Coupling::storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
+                              const Eigen::Vector3d& tangent1,
+                              const Eigen::Vector3d& tangent2) noexcept {
+    const CouplingParams& p = mParams;
+    if (!finite3(proxy) || !finite3(probe) || !finite3(tangent1) || !finite3(tangent2)) return 0;
+    const Eigen::Vector3d delta = probe - proxy;
+    const double D = delta.norm();
+    if (!std::isfinite(D) || !(D >= p.minDistance)) return 0;
+    double k = std::min(p.baseStiffness, p.maxStiffness);
+    if (p.mode != CouplingMode::VC && sourceAvailable() &&
+        kernels::generateBundle(proxy, delta / D, tangent1, tangent2, p.bundle, mProbeBundle)) {
+        std::array<double, kernels::kMaxBundleRays> perRay{};
+        double centreLength = 0;
+        const int n = 1 + mProbeBundle.ringCount;
+        traceStiffness(mProbeBundle, n, perRay, centreLength);
+        k = kernels::lowPass(mProbeBundle,
+                             std::span<const double>(perRay.data(), static_cast<std::size_t>(n)));
+    }
+    return 0.5 * k * D * D;
 }
 
 const char* couplingModeName(CouplingMode mode) noexcept {

@@ -50,6 +50,11 @@ const DeviceSpec* findDeviceSpec(std::string_view name) noexcept {
     return nullptr;
 }
 
+namespace {
+/// The widest spherical stencil limitStiffnessToDevice() asks for, rad.
+constexpr double kMaxRenderableAngle = 0.75;
+}  // namespace
+
 bool limitStiffnessToDevice(CouplingParams& params, const DeviceSpec& spec,
                             double periodSeconds) noexcept {
     auto usable = [](double v) { return v > 0 && std::isfinite(v); };
@@ -68,6 +73,16 @@ bool limitStiffnessToDevice(CouplingParams& params, const DeviceSpec& spec,
     if (!(params.baseStiffness <= params.maxStiffness)) {
         params.baseStiffness = params.maxStiffness;
         lowered = true;
+    }
+    // AVCEC's spherical term: a stiffness step dk seen across the stencil gives the hand a
+    // force field of mean stiffness dk / (4 delta^2); keep it within the device's limit.
+    const double contrast = params.maxStiffness - params.baseStiffness;
+    if (params.mode == CouplingMode::AVCEC && contrast > 0) {
+        const double angle = std::min(std::sqrt(contrast / (4.0 * limit)), kMaxRenderableAngle);
+        if (!(params.bundle.sobelAngle >= angle)) {
+            params.bundle.sobelAngle = angle;
+            lowered = true;
+        }
     }
     return lowered;
 }

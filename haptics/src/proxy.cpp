@@ -178,9 +178,16 @@ void Proxy::reset(const Eigen::Vector3d& position) noexcept {
     mState.queries = 0;
 }
 
+void Proxy::restore(const ProxyState& state) noexcept {
+    mState = state;
+    mState.velocity.setZero();
+    mState.queries = 0;
+}
+
 const ProxyState& Proxy::update(const Eigen::Vector3d& probe,
-                                const Eigen::Vector3d& tangentialForce, double stiffness,
-                                double dt) noexcept {
+                                const Eigen::Vector3d& tangentialForce, double stiffness, double dt,
+                                double stepStiffness) noexcept {
+    if (!(stepStiffness > stiffness)) stepStiffness = stiffness;
     if (!probe.allFinite() || !tangentialForce.allFinite() || !std::isfinite(stiffness) ||
         !(stiffness > 0) || !std::isfinite(dt) || !(dt > 0))
         return mState;
@@ -262,7 +269,7 @@ const ProxyState& Proxy::update(const Eigen::Vector3d& probe,
                 break;
             }
             const double slide =
-                std::max(ftNorm - mParams.dynamicFriction * normal, 0.0) / stiffness;
+                std::max(ftNorm - mParams.dynamicFriction * normal, 0.0) / stepStiffness;
             target = x + (slide / ftNorm) * ft;
             target += (plane.d - n.dot(target)) * n;  // onto the offset plane
         } else if (!closestFeasible(target, planes, m, target)) {

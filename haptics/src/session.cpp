@@ -27,6 +27,7 @@ void blend(const CouplingOutput& a, const CouplingOutput& b, double w,
     out.proxyForce = u * a.proxyForce + w * b.proxyForce;
     out.energyForce = u * a.energyForce + w * b.energyForce;
     out.stiffness = u * a.stiffness + w * b.stiffness;
+    out.stepStiffness = u * a.stepStiffness + w * b.stepStiffness;
     out.energy = u * a.energy + w * b.energy;
     out.rayLength = b.rayLength;
     out.distance = b.distance;
@@ -184,7 +185,8 @@ struct Session::Impl {
           fadeTicks(static_cast<std::uint32_t>(std::lround(p.crossFadeSeconds / period))),
           passivity(period, p.passivityControl,
                     spec.maxDampingNspm > 0 ? spec.maxDampingNspm
-                                            : std::numeric_limits<double>::infinity()),
+                                            : std::numeric_limits<double>::infinity(),
+                    spec.maxForceN > 0 ? spec.maxForceN : std::numeric_limits<double>::infinity()),
           gate(p.startupThresholdN, p.startupQuietTicks),
           trace(p.traceCapacity),
           loop(p.servo) {
@@ -215,6 +217,8 @@ struct Session::Impl {
     void drainCommands() noexcept;
     const ProxyState& moveProxy(const Eigen::Vector3d& probe) noexcept;
     void coupleWithFade(const ProxyState& ps, const HandSample& hand) noexcept;
+    bool rejectUphillMove(const ProxyState& before, const ProxyState& after,
+                          const HandSample& hand) noexcept;
     SentForce forceChain(const Eigen::Vector3d& couplingForce,
                          const Eigen::Vector3d& handVelocity) noexcept;
     Eigen::Vector3d worldToDevice(const Eigen::Vector3d& force) const noexcept {
@@ -261,6 +265,7 @@ struct Session::Impl {
     bool freeProxy = false;  // the probe started inside: the proxy follows it until outside
     Eigen::Vector3d lastProxyForce{Eigen::Vector3d::Zero()};
     double lastStiffness = 0;
+    double lastStepStiffness = 0;
     Eigen::Vector3d lastProbe{Eigen::Vector3d::Zero()};
     std::uint64_t ticks = 0;
     Snapshot current;
@@ -340,8 +345,13 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     const ProxyState* ps = &proxy.state();
     Eigen::Vector3d force;
     if (hand.ok) {
+        const ProxyState before = proxy.state();
         ps = &moveProxy(hand.probe);
         coupleWithFade(*ps, hand);
+        if (rejectUphillMove(before, *ps, hand)) {
+            ps = &proxy.state();
+            coupleWithFade(*ps, hand);
+        }
         force = blended.force;
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
@@ -382,7 +392,26 @@ const ProxyState& Session::Impl::moveProxy(const Eigen::Vector3d& probe) noexcep
     }
     const CouplingParams& now = couplings[static_cast<std::size_t>(active)].params();
     const double k = lastStiffness > 0 ? lastStiffness : now.baseStiffness;
-    return proxy.update(probe, lastProxyForce, k, period);
+    return proxy.update(probe, lastProxyForce, k, period, lastStepStiffness);
+}
+
+// Stage 2a' (AVCEC, a good sample, no cross-fade): the proxy may only move where the stored
+// energy E = 1/2 k D^2 at the new probe is lower than if it had stayed (a massless proxy in a
+// potential goes downhill; friction only slows it), so its motion never feeds energy into the
+// coupling. An uphill move is undone (Proxy::restore) and true is returned: the caller
+// computes the coupling again at the old position. Costs the centre (and ring) rays from the
+// old position, and a second bundle when a move is rejected.
+bool Session::Impl::rejectUphillMove(const ProxyState& before, const ProxyState& after,
+                                     const HandSample& hand) noexcept {
+    const auto a = static_cast<std::size_t>(active);
+    if (fading || couplings[a].params().mode != CouplingMode::AVCEC || before.contactCount == 0 ||
+        after.contactCount == 0 || (after.position - before.position).squaredNorm() == 0)
+        return false;
+    const double stay =
+        couplings[a].storedEnergy(before.position, hand.probe, before.tangent1, before.tangent2);
+    if (!(outputs[a].energy > stay)) return false;
+    proxy.restore(before);
+    return true;
 }
 
 // Stage 2b (a good sample only): the active coupling, blended with the fading-out one during a
@@ -410,9 +439,10 @@ void Session::Impl::coupleWithFade(const ProxyState& ps, const HandSample& hand)
         blended = outputs[a];
         current.fadeWeight = 1;
     }
-    lastProxyForce =
-        blended.proxyForce.allFinite() ? blended.proxyForce : Eigen::Vector3d::Zero().eval();
+    const Eigen::Vector3d extra = blended.proxyForce - blended.energyForce;
+    lastProxyForce = extra.allFinite() ? extra : Eigen::Vector3d::Zero().eval();
     lastStiffness = std::isfinite(blended.stiffness) ? blended.stiffness : 0.0;
+    lastStepStiffness = std::isfinite(blended.stepStiffness) ? blended.stepStiffness : 0.0;
 }
 
 // Stage 3, the force chain: guard, clamp, gate, passivity (and clamp again).
@@ -424,13 +454,9 @@ Session::Impl::SentForce Session::Impl::forceChain(const Eigen::Vector3d& coupli
     out.clamped = force.norm() > spec.maxForceN;
     Eigen::Vector3d sent = gate.filter(clampForce(force, spec.maxForceN));
     // The observer books the force that is actually sent (after guard, clamp and gate: always
-    // finite), so W is the energy exchanged with the hand; the controller's damping is added to
-    // it and clamped again (when that second clamp binds, W books the damping before the cut).
+    // finite); the controller's damping and force cut are applied before it clamps to the
+    // device's maxForceN again and books the result, so W is the energy exchanged with the hand.
     sent = passivity.update(sent, handVelocity);
-    if (sent.norm() > spec.maxForceN) {
-        out.clamped = true;
-        sent = clampForce(sent, spec.maxForceN);
-    }
     out.force = sent;
     return out;
 }
@@ -465,6 +491,7 @@ void Session::Impl::publish(double timeSeconds, const ProxyState& ps, const Sent
     s.probe = lastProbe;
     s.proxy = ps.position;
     s.force = sent.force;
+    s.couplingForce = blended.force;
     s.energyForce = blended.energyForce;
     s.proxyForce = blended.proxyForce;
     s.stiffness = blended.stiffness;
@@ -473,6 +500,7 @@ void Session::Impl::publish(double timeSeconds, const ProxyState& ps, const Sent
     s.couplingEnergy = blended.energy;
     s.observerEnergy = passivity.energy();
     s.addedDamping = passivity.addedDamping();
+    s.passivityCut = passivity.forceCut();
     s.contactCount = ps.contactCount;
     s.rays = blended.rays;
     s.sticking = ps.sticking;

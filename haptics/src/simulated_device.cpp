@@ -20,7 +20,9 @@ DeviceState SimulatedDevice::read() noexcept {
     const Eigen::Vector3d pull = mHand.stiffnessNpm * (target - mState.position) +
                                  mHand.dampingNspm * (targetVelocity - mState.velocity);
     mState.velocity += (mPeriod / mHand.massKg) * (pull + mForce);
-    mState.position += mPeriod * mState.velocity;
+    const Eigen::Vector3d step = mPeriod * mState.velocity;
+    mWorkOnHand += mForce.dot(step);
+    mState.position += step;
     mState.timestampSeconds = t;
     return mState;
 }

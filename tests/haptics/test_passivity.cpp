@@ -80,13 +80,41 @@ TEST(Passivity, ControllerKeepsActiveElementPassive) {
     EXPECT_NEAR(controller.energy(), work, 1e-9);
 }
 
-TEST(Passivity, DampingCapLetsEnergyGoNegative) {
+TEST(Passivity, DampingCapThenForceCutKeepsEnergyNonNegative) {
+    // Net active damping 5 N s/m against a 1 N s/m damping cap: the cap binds and the rest is
+    // cut from the force along v, so W stays at zero and the force on the hand does no work.
     PassivityController controller(kT, true, /*maxDampingNspm=*/1.0);
     const Eigen::Vector3d v(0.1, 0, 0);
-    for (int n = 0; n < 100; ++n) controller.update(5.0 * v, v);
-    EXPECT_DOUBLE_EQ(controller.addedDamping(), 1.0);
-    // Net active damping 4 N s/m: W = -T * 100 * 4 * 0.01.
-    EXPECT_NEAR(controller.energy(), -4e-3, 1e-12);
+    for (int n = 0; n < 100; ++n) {
+        const Eigen::Vector3d out = controller.update(5.0 * v + Eigen::Vector3d(0, 2, 0), v);
+        EXPECT_DOUBLE_EQ(controller.addedDamping(), 1.0);
+        EXPECT_NEAR(controller.forceCut(), 0.4, 1e-12);  // (5 - 1) N s/m * 0.1 m/s
+        EXPECT_NEAR(out.x(), 0.0, 1e-12);                // nothing left along v
+        EXPECT_EQ(out.y(), 2.0);                         // the rest of the force is kept
+        EXPECT_GE(controller.energy(), 0.0);
+    }
+    EXPECT_NEAR(controller.energy(), 0.0, 1e-15);
+    EXPECT_NEAR(controller.dissipatedEnergy(), 100 * kT * 5.0 * 0.01, 1e-12);
+    // Observer only (disabled): the same input drives W negative.
+    PassivityController observer(kT, false, 1.0);
+    for (int n = 0; n < 100; ++n) observer.update(5.0 * v, v);
+    EXPECT_NEAR(observer.energy(), -5e-3, 1e-12);
+}
+
+TEST(Passivity, OutputIsClampedToTheForceLimitAndBookedAsSent) {
+    PassivityController controller(kT, true, 2.0, /*maxForceN=*/1.5);
+    const Eigen::Vector3d v(0, 0.05, 0);
+    double booked = 0;
+    for (int n = 0; n < 200; ++n) {
+        // A stiff spring pushing against v (absorbing) then along it (returning energy).
+        const Eigen::Vector3d f = (n < 100 ? -1.0 : 1.0) * Eigen::Vector3d(0, 3.0, 0.5);
+        const Eigen::Vector3d out = controller.update(f, v);
+        EXPECT_LE(out.norm(), 1.5 + 1e-12);
+        EXPECT_TRUE(out.allFinite());
+        booked -= kT * out.dot(v);
+        EXPECT_GE(controller.energy(), -1e-15);
+    }
+    EXPECT_NEAR(controller.energy(), booked, 1e-15);
 }
 
 TEST(Passivity, ZeroVelocityAndReset) {

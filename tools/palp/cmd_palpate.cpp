@@ -17,6 +17,7 @@
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/haptics/coupling_defaults.h"
+#include "palp/haptics/energy_budget.h"
 #include "palp/haptics/map_png.h"
 #include "palp/haptics/offline_run.h"
 #include "palp/haptics/scalar_map.h"
@@ -126,6 +127,8 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
         cp.accumulate.step = a.stepMm * 1e-3;
     }
     if (a.ring >= 0) cp.bundle.ringCount = a.ring;
+    if (std::isfinite(a.sobelAngle)) cp.bundle.sobelAngle = a.sobelAngle;
+    if (std::isfinite(a.surfaceOffsetMm)) cp.bundle.surfaceOffset = a.surfaceOffsetMm * 1e-3;
     if (std::isfinite(a.damping)) cp.damping = a.damping;
     return cp;
 }
@@ -209,13 +212,14 @@ PathFrame pathFrame(const PalpateArgs& a, const openvdb::BBoxd& box, double voxe
 struct PathPlan {
     haptics::Trajectory traj;
     double duration = 0;
+    double approach = 0;  ///< when the path proper starts (the energy budget's origin), s
 };
 
 PathPlan trajectoryFromOptions(const PalpateArgs& a, const PathFrame& f,
                                const Eigen::Vector3d& press) {
     const double depth = a.depthMm * 1e-3;
     haptics::Trajectory traj;
-    double duration = 0;
+    double duration = 0, approach = 0;
     const std::string& tk = a.trajectory;
     double speed = a.speedMmps;
     if (!std::isfinite(speed)) speed = tk == "sweep" ? 50 : 100;
@@ -243,6 +247,7 @@ PathPlan trajectoryFromOptions(const PalpateArgs& a, const PathFrame& f,
         s.depthM = depth;
         traj = s;
         duration = haptics::trajectoryDuration(traj, a.passes);
+        approach = s.approachSeconds;
     } else if (tk == "circle") {
         requirePositive("--radius", a.radiusMm, "mm");
         requirePositive("--frequency", a.frequencyHz, "Hz");
@@ -256,6 +261,7 @@ PathPlan trajectoryFromOptions(const PalpateArgs& a, const PathFrame& f,
         c.depthM = depth;
         traj = c;
         duration = haptics::trajectoryDuration(traj, a.passes);
+        approach = c.approachSeconds + c.rampSeconds;
     } else {
         haptics::PressTrajectory p;
         p.direction = press;
@@ -266,7 +272,7 @@ PathPlan trajectoryFromOptions(const PalpateArgs& a, const PathFrame& f,
         traj = p;
         duration = haptics::trajectoryDuration(traj);
     }
-    return {traj, duration};
+    return {traj, duration, approach};
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -384,6 +390,7 @@ struct Report {
     std::shared_ptr<const haptics::DeformableModel> body;
     RunResult run;
     haptics::RunSummary sum;
+    haptics::EnergyBudget budget;  ///< from the end of the approach on
     double mapLo = NAN, mapHi = NAN;
 };
 
@@ -430,6 +437,12 @@ void printJson(const PalpateArgs& a, const Report& r) {
     j["max_force_n"] = sum.maxForceN;
     j["observer_energy_final_j"] = sum.finalObserverEnergy;
     j["observer_energy_min_j"] = sum.minObserverEnergy;
+    const haptics::EnergyBudget& e = r.budget;
+    j["energy_budget_mj"] = {
+        {"hand_work", e.handWork * 1e3},      {"probe_work", e.probeWork * 1e3},
+        {"proxy_work", e.proxyWork * 1e3},    {"stored_change", e.storedChange * 1e3},
+        {"created", e.created * 1e3},         {"rendering", e.rendering * 1e3},
+        {"proxy_path_mm", e.proxyPath * 1e3}, {"probe_path_mm", e.probePath * 1e3}};
     j["contact_fraction"] = sum.contactFraction;
     j["stiffness_min_npm"] = sum.minStiffness;
     j["stiffness_max_npm"] = sum.maxStiffness;
@@ -561,9 +574,10 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     haptics::SimulatedDevice device(*spec, plan.traj, haptics::HandModel{}, period);
     haptics::Session session(scene, device, sp);
 
-    Report r{in.label, spec, cp, kMaxAsked, frame, body, {}, {}, NAN, NAN};
+    Report r{in.label, spec, cp, kMaxAsked, frame, body, {}, {}, {}, NAN, NAN};
     r.run = a.realtime ? runRealtime(session, ticks) : runFast(session, ticks);
     r.sum = haptics::summarize(r.run.snaps);
+    r.budget = haptics::energyBudget(r.run.snaps, plan.approach);
     writeOutputs(a, frame, r.run.snaps, r.mapLo, r.mapHi);
     if (a.json) {
         printJson(a, r);

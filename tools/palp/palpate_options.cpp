@@ -87,6 +87,10 @@ void addCouplingOptions(CLI::App* app, PalpateArgs& a) {
     app->add_option("--tau-stop", a.tauStop, "accumulate: tau_stop (default 3)");
     app->add_option("--step", a.stepMm, "Ray sample spacing, mm (default 0.5)");
     app->add_option("--ring", a.ring, "Low-pass ring rays (default 0)");
+    app->add_option("--sobel-angle", a.sobelAngle,
+                    "AVCEC: spherical stencil spacing delta, rad (default per scene)");
+    app->add_option("--surface-offset", a.surfaceOffsetMm,
+                    "AVCEC: surface stencil spacing h, mm (default per scene)");
     app->add_option("--damping", a.damping, "Coupling damping b, N s/m (default 0)");
     app->add_option("--surface-iso", a.surfaceIso,
                     "Value of the surface the proxy slides on (default -500 HU)");

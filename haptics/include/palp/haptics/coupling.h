@@ -4,6 +4,7 @@
 /// section 2) and anisotropic with energy conservation (AVCEC, section 3).
 
 #include <Eigen/Core>
+#include <array>
 
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/ray_bundle.h"
@@ -67,7 +68,11 @@ struct CouplingOutput {
     Eigen::Vector3d proxyForce{Eigen::Vector3d::Zero()};
     /// AVCEC's spherical term -1/2 D (g1 e1 + g2 e2), N (already included in force).
     Eigen::Vector3d energyForce{Eigen::Vector3d::Zero()};
-    double stiffness = 0;              ///< k used, N/m (low-passed, clamped)
+    double stiffness = 0;  ///< k used, N/m (low-passed, clamped)
+    /// AVCEC: the stiffness that turns the proxy's tangential force into its step (k plus a
+    /// bound on the tangential curvature of E's stiffness terms, from both stencils' second
+    /// differences), N/m; k otherwise. See Proxy::update's stepStiffness.
+    double stepStiffness = 0;
     double rayLength = 0;              ///< centre ray's L, m (L_max when nothing was found)
     double distance = 0;               ///< D, m
     double energy = 0;                 ///< 1/2 k D^2, J
@@ -124,14 +129,28 @@ class Coupling {
                  const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2,
                  CouplingOutput& out) noexcept;
 
+    /// The stored energy 1/2 k D^2 the coupling would have with the proxy at @p proxy and the
+    /// probe at @p probe (k low-passed over the centre and ring rays, as compute() does; only
+    /// those rays are cast). 0 when D < minDistance or an input is not finite. Does not
+    /// change bundle(). Used by the session to accept only AVCEC proxy moves that lower E.
+    double storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
+                        const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2) noexcept;
+
     /// The last bundle cast (for viewers: the rays of this tick).
     const kernels::RayBundle& bundle() const noexcept { return mBundle; }
 
   private:
+    /// Traces the first @p n rays of @p bundle into per-ray stiffness @p k; the centre ray's
+    /// length in @p centreLength.
+    void traceStiffness(kernels::RayBundle& bundle, int n,
+                        std::array<double, kernels::kMaxBundleRays>& k,
+                        double& centreLength) noexcept;
+
     const kernels::VolumeView* mVolume;
     const kernels::EmbreeScene* mMeshes;
     CouplingParams mParams;
     kernels::RayBundle mBundle;
+    kernels::RayBundle mProbeBundle;  // storedEnergy()'s
     kernels::BundleHits mHits;
     kernels::BundleAccumulation mAccum;
 };

@@ -60,10 +60,13 @@ struct CouplingParams;  // coupling.h
 /// * Colgate's sampled-wall passivity bound k < 2 b / T, kept 10 % inside: 0.9 * 2 b / T, with
 ///   b the device's maxDampingNspm and T = @p periodSeconds, the servo period in s (ignored
 ///   when either is <= 0 or not finite),
-/// and then baseStiffness to maxStiffness when it is above. With neither limit set nothing
-/// changes. Returns whether anything was lowered. At the usual 1 kHz no device of
-/// deviceSpecs() is bound by the sampled-wall term (it lies 2.5 to 3.6 times above its
-/// maxStiffnessNpm); it binds for slow servo rates (periods over about 2.5 ms).
+/// and then baseStiffness to maxStiffness when it is above; in AVCEC mode it then widens the
+/// spherical stencil (bundle.sobelAngle) to at least sqrt((maxStiffness - baseStiffness) /
+/// (4 limit)) rad (at most 0.75), so that the energy term's force field, whose mean stiffness
+/// across a stiffness step dk is dk / (4 delta^2), stays renderable (docs/algorithms.md
+/// section 3). With neither limit set nothing changes. Returns whether anything was lowered. At the
+/// usual 1 kHz no device of deviceSpecs() is bound by the sampled-wall term (it lies 2.5 to 3.6
+/// times above its maxStiffnessNpm); it binds for slow servo rates (periods over about 2.5 ms).
 /// Session applies it to every coupling it renders (with its servo period), and so do the C
 /// API and `palp palpate` / `palp bench tick`.
 /// @par Real-time  noexcept, allocation-free.

@@ -17,7 +17,10 @@
 
 namespace palp::haptics {
 
-/// Accumulates W(n) and, when enabled, adds just enough damping to keep it non-negative.
+/// Accumulates W(n) and, when enabled, keeps it non-negative: first with damping along the
+/// hand's velocity (up to what the device renders, maxDampingNspm), then, where that is not
+/// enough, by cutting the force's component along the velocity (a time-domain passivity
+/// controller with the observed energy as its reservoir).
 ///
 /// @par Threading
 /// One instance per servo loop; all calls from the servo thread.
@@ -26,42 +29,71 @@ namespace palp::haptics {
 class PassivityController {
   public:
     /// @param periodSeconds sample period T, s (> 0)
-    /// @param enabled when false only the observer runs and forces pass through unchanged
-    /// @param maxDampingNspm cap on the added damping, N s/m (e.g. DeviceSpec::maxDampingNspm);
-    ///        when it binds, W can stay negative and the caller sees it through energy()
+    /// @param enabled when false only the observer runs and forces pass through (clamped)
+    /// @param maxDampingNspm cap on the added damping, N s/m (e.g. DeviceSpec::maxDampingNspm)
+    /// @param maxForceN the device's force limit, N: update() clamps its output here before
+    ///        booking it (infinite: no clamp)
     explicit PassivityController(
         double periodSeconds, bool enabled = true,
-        double maxDampingNspm = std::numeric_limits<double>::infinity()) noexcept
-        : mPeriod(periodSeconds), mEnabled(enabled), mMaxDamping(maxDampingNspm) {}
+        double maxDampingNspm = std::numeric_limits<double>::infinity(),
+        double maxForceN = std::numeric_limits<double>::infinity()) noexcept
+        : mPeriod(periodSeconds),
+          mEnabled(enabled),
+          mMaxDamping(maxDampingNspm),
+          mMaxForce(maxForceN) {}
 
-    /// One tick: books the environment's force @p forceN (N, on the user) against the
-    /// velocity @p velocityMps (m/s) and returns the force to send. When the controller is
-    /// enabled and W would go negative, the returned force is `F - alpha v` with
-    /// `alpha = -W / (T |v|^2)` (capped at maxDampingNspm); the energy it dissipates,
-    /// `T alpha |v|^2`, is booked back into W.
+    /// One tick: returns the force to send for the environment's force @p forceN (N, on the
+    /// user) and the hand's velocity @p velocityMps (m/s), and books it into W.
+    ///
+    /// Controller enabled and W(n-1) - T F.v < 0 (the environment would return more than it
+    /// absorbed): damping alpha = (T F.v - W(n-1)) / (T |v|^2) along v, capped at
+    /// maxDampingNspm; if the cap binds, the force's component along v is cut by what remains,
+    /// so that the booked power is exactly W(n-1) / T. The result is clamped to maxForceN
+    /// (which only lowers the power the force delivers) and booked: W(n) = W(n-1) - T F_out.v.
+    /// So while enabled, W never goes below zero (up to rounding). With v = 0 no energy flows
+    /// and the force passes unchanged. Disabled: the force is clamped and booked only.
     /// @par Real-time
     Eigen::Vector3d update(const Eigen::Vector3d& forceN,
                            const Eigen::Vector3d& velocityMps) noexcept {
-        mEnergy -= mPeriod * forceN.dot(velocityMps);
         mAlpha = 0.0;
-        if (!mEnabled || !(mEnergy < 0.0)) return forceN;
+        mCut = 0.0;
+        Eigen::Vector3d out = forceN;
         const double v2 = velocityMps.squaredNorm();
-        // With v = 0 damping cannot dissipate anything this tick (and no energy flowed either).
-        if (!(v2 > 0.0) || !(mPeriod > 0.0)) return forceN;
-        double alpha = -mEnergy / (mPeriod * v2);
-        if (alpha > mMaxDamping) alpha = mMaxDamping;
-        mAlpha = alpha;
-        mEnergy += mPeriod * alpha * v2;
-        if (mEnergy < 0.0 && alpha < mMaxDamping) mEnergy = 0.0;  // rounding only
-        mDissipated += mPeriod * alpha * v2;
-        return forceN - alpha * velocityMps;
+        const double budget = mEnergy > 0.0 ? mEnergy : 0.0;  // what may flow out this tick
+        const double outflow = mPeriod * forceN.dot(velocityMps);
+        if (mEnabled && outflow > budget && v2 > 0.0 && mPeriod > 0.0) {
+            const double excess = outflow - budget;  // J to remove along v
+            double alpha = excess / (mPeriod * v2);
+            if (alpha > mMaxDamping) alpha = mMaxDamping;
+            mAlpha = alpha;
+            out -= alpha * velocityMps;
+            const double left = excess - mPeriod * alpha * v2;
+            if (left > 0.0) {
+                // Damping alone cannot: cut the force along v by the rest.
+                const double beta = left / (mPeriod * v2);
+                out -= beta * velocityMps;
+                mCut = beta * std::sqrt(v2);
+            }
+        }
+        const double n = out.norm();
+        if (n > mMaxForce) out *= mMaxForce / n;
+        const double booked = mPeriod * out.dot(velocityMps);
+        if (mEnabled)
+            mDissipated += mPeriod * forceN.dot(velocityMps) - booked > 0.0
+                               ? mPeriod * forceN.dot(velocityMps) - booked
+                               : 0.0;
+        mEnergy -= booked;
+        if (mEnabled && mEnergy < 0.0 && mEnergy > -1e-15) mEnergy = 0.0;  // rounding only
+        return out;
     }
 
-    /// W(n): energy absorbed by the environment (including the controller's damping), J.
+    /// W(n): energy absorbed by the environment (including the controller's action), J.
     double energy() const noexcept { return mEnergy; }
     /// Damping alpha added in the last tick, N s/m (0 when none).
     double addedDamping() const noexcept { return mAlpha; }
-    /// Total energy dissipated by the controller since construction or reset(), J.
+    /// Force cut along the velocity in the last tick beyond the damping, N (0 when none).
+    double forceCut() const noexcept { return mCut; }
+    /// Energy the controller kept from the hand since construction or reset(), J.
     double dissipatedEnergy() const noexcept { return mDissipated; }
     /// Whether the controller (not only the observer) is active.
     bool enabled() const noexcept { return mEnabled; }
@@ -71,6 +103,7 @@ class PassivityController {
     void reset() noexcept {
         mEnergy = 0.0;
         mAlpha = 0.0;
+        mCut = 0.0;
         mDissipated = 0.0;
     }
 
@@ -78,8 +111,10 @@ class PassivityController {
     double mPeriod;
     bool mEnabled;
     double mMaxDamping;
+    double mMaxForce;
     double mEnergy = 0.0;
     double mAlpha = 0.0;
+    double mCut = 0.0;
     double mDissipated = 0.0;
 };
 

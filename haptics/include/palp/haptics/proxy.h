@@ -95,14 +95,21 @@ class Proxy {
     /// Puts the proxy at @p position with no contact (e.g. at start: the probe position).
     void reset(const Eigen::Vector3d& position) noexcept;
 
+    /// Puts back a state this proxy had (e.g. state() before an update() whose move the caller
+    /// rejects); the velocity becomes zero (the proxy did not move).
+    void restore(const ProxyState& state) noexcept;
+
     /// One tick. @p probe is x_pb (m). @p tangentialForce is an extra force on the proxy in the
-    /// tangent plane (AVCEC's F_py, N), added to the coupling's pull k (x_pb - x_py) in the
-    /// friction test; @p stiffness is k (N/m, > 0), used to turn forces into displacements.
+    /// tangent plane (AVCEC's terms, N), added to the coupling's pull k (x_pb - x_py) in the
+    /// friction test; @p stiffness is k (N/m, > 0), the spring of the friction test.
+    /// @p stepStiffness (N/m; ignored unless > stiffness) turns the slipping force into the
+    /// slide: (|f_t| - mu_d f_n) / stepStiffness, a damped (Levenberg-Marquardt) step where
+    /// the extra force varies quickly with position (AVCEC's stiffness gradients).
     /// @p dt is the tick period (s) for the velocity estimate.
     /// Non-finite input, or a non-positive stiffness or dt, leaves the whole state unchanged.
     /// An empty or uncommitted scene: the proxy equals the probe.
     const ProxyState& update(const Eigen::Vector3d& probe, const Eigen::Vector3d& tangentialForce,
-                             double stiffness, double dt) noexcept;
+                             double stiffness, double dt, double stepStiffness = 0) noexcept;
 
     const ProxyState& state() const noexcept { return mState; }
     /// Changes the parameters (validated by the caller); takes effect at the next update().

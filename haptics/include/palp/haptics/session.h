@@ -53,14 +53,18 @@ void validateSessionParams(const SessionParams& params);
 struct Snapshot {
     std::uint64_t tick = 0;
     double timeSeconds = 0;
-    Eigen::Vector3d probe{Eigen::Vector3d::Zero()};        ///< world, m
-    Eigen::Vector3d proxy{Eigen::Vector3d::Zero()};        ///< world, m
-    Eigen::Vector3d force{Eigen::Vector3d::Zero()};        ///< sent to the device (world frame), N
+    Eigen::Vector3d probe{Eigen::Vector3d::Zero()};  ///< world, m
+    Eigen::Vector3d proxy{Eigen::Vector3d::Zero()};  ///< world, m
+    Eigen::Vector3d force{Eigen::Vector3d::Zero()};  ///< sent to the device (world frame), N
+    /// The coupling's force on the probe (damping and AVCEC's spherical term included) before
+    /// guard, clamp, start-up gate and passivity controller, world frame, N.
+    Eigen::Vector3d couplingForce{Eigen::Vector3d::Zero()};
     Eigen::Vector3d energyForce{Eigen::Vector3d::Zero()};  ///< AVCEC spherical term, N
     Eigen::Vector3d proxyForce{Eigen::Vector3d::Zero()};   ///< AVCEC surface term, N
     double stiffness = 0, rayLength = 0, distance = 0, couplingEnergy = 0;
     double observerEnergy = 0;  ///< passivity W, J
     double addedDamping = 0;    ///< controller alpha, N s/m
+    double passivityCut = 0;    ///< controller: force cut along the velocity beyond alpha, N
     int contactCount = 0;
     int rays = 0;
     bool sticking = false, gateOpen = false, faulted = false, clamped = false;

@@ -51,6 +51,9 @@ class SimulatedDevice final : public Device {
 
     /// The force applied in the next step, N (after clamping).
     const Eigen::Vector3d& appliedForce() const noexcept { return mForce; }
+    /// Work the device's force has done on the hand since construction, J: the sum over steps
+    /// of the applied force times the step's displacement (positive: energy into the hand).
+    double workOnHand() const noexcept { return mWorkOnHand; }
     /// The scripted path the hand follows.
     const Trajectory& trajectory() const noexcept { return mTrajectory; }
 
@@ -62,6 +65,7 @@ class SimulatedDevice final : public Device {
     long long mTick = 0;
     DeviceState mState;
     Eigen::Vector3d mForce{Eigen::Vector3d::Zero()};
+    double mWorkOnHand = 0;
 };
 
 }  // namespace palp::haptics
