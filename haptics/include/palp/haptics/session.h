@@ -112,7 +112,10 @@ struct Command {
 ///
 /// One tick: read the device; probe = workspace(device position), probe velocity = scale *
 /// rotation * device velocity; drain the command queue; proxy.update(probe, last tick's AVCEC
-/// proxy force, last tick's k (baseStiffness before any), T); coupling.compute(); during a
+/// proxy force minus its spherical term, last tick's k (baseStiffness before any), T, last
+/// tick's step stiffness); coupling.compute(); in AVCEC (no fade) a proxy move that raises
+/// E = 1/2 k D^2 at the new probe is undone and the coupling computed again (docs/algorithms.md
+/// section 3); during a
 /// SetCoupling cross-fade the old and the new coupling both run and force, proxy force, k and
 /// energy are blended linearly over crossFadeSeconds (a SetCoupling that arrives during a fade
 /// waits for it to end; the newest waiting one wins); ForceGuard (a non-finite force or device
