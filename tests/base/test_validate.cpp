@@ -4,6 +4,7 @@
 #include <limits>
 #include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 
@@ -50,6 +51,27 @@ TEST(Validate, RefusesEveryNonFiniteValueAndAcceptsTheBoundaries) {
     EXPECT_NO_THROW(requireInRange("v", 0.5, 0, 0.5));
     EXPECT_EQ(formatValue(1e300), "1e+300");
     EXPECT_EQ(formatValue(-std::numeric_limits<double>::infinity()), "-inf");
+}
+
+TEST(Bounds, RefuseNonFiniteAndAbsurdValuesShowingTheCallersUnit) {
+    const double inf = std::numeric_limits<double>::infinity();
+    for (double bad : {std::nan(""), inf, -inf, 1e300, -1e300}) {
+        EXPECT_THROW(requireWithin("v", bad, bounds::kPosition), ValueError);
+        EXPECT_FALSE(bounds::kStiffness.contains(bad));
+    }
+    EXPECT_EQ(messageOf([] {
+                  requireWithin("--depth", 1e297, bounds::kSpan, {1e3, "mm"});
+              }),
+              "--depth: expected a value in [0, 10000] mm, found 1e+300");
+    EXPECT_EQ(messageOf([] { requireWithin("speed", 0, bounds::kSpeed); }),
+              "speed: expected a value in (0, 10] m/s, found 0");
+    EXPECT_EQ(messageOf([] { requireWithin("poisson", 0.5, bounds::kPoissonRatio); }),
+              "poisson: expected a value in (-1, 0.5), found 0.5");
+    // Closed ends are accepted, open ones refused.
+    EXPECT_NO_THROW(requireWithin("v", 0, bounds::kSpan));
+    EXPECT_NO_THROW(requireWithin("v", 10, bounds::kLength));
+    EXPECT_THROW(requireWithin("v", 0, bounds::kLength), ValueError);
+    EXPECT_THROW(requireWithin("v", -1, bounds::kPoissonRatio), ValueError);
 }
 
 }  // namespace
