@@ -79,5 +79,72 @@ TEST_F(AtomicFileTest, ARenameOntoADirectoryFailsCleanly) {
     EXPECT_EQ(entries(), 1u);  // the directory only; no temporary left
 }
 
+TEST_F(AtomicFileTest, ADirectoryAsTheTargetIsNamedAsSuchAndNothingIsWritten) {
+    // `palp convert x -o DIR` said "could not rename ...: Success" (or "Not a directory" for
+    // DIR/, "Device or resource busy" for .): the real reason is that the target is a directory.
+    fs::create_directories(mDir / "empty");
+    fs::create_directories(mDir / "full" / "inside");
+    const fs::path cwd = fs::current_path();
+    fs::current_path(mDir);
+    for (const fs::path& p : {mDir / "empty", mDir / "full", fs::path(mDir.string() + "/empty/"),
+                              mDir / ".", mDir / "..", fs::path("."), fs::path("empty/")}) {
+        try {
+            writeFileAtomically(p, "volume", "x", 1);
+            ADD_FAILURE() << p << ": no error";
+        } catch (const IoError& e) {
+            const std::string m = e.what();
+            EXPECT_EQ(m, p.string() + ": expected a file name for the volume, found a directory")
+                << m;
+        }
+    }
+    fs::current_path(cwd);
+    EXPECT_EQ(entries(), 2u);  // the two directories; no temporary anywhere
+    EXPECT_TRUE(fs::is_empty(mDir / "empty"));
+    EXPECT_EQ(std::distance(fs::directory_iterator(mDir / "full"), {}), 1);
+    try {
+        AtomicFile f("", "trace");
+        ADD_FAILURE() << "no error";
+    } catch (const IoError& e) {
+        EXPECT_EQ(std::string(e.what()),
+                  "'': expected a file name for the trace, found an empty path");
+    }
+}
+
+TEST_F(AtomicFileTest, ATargetThatBecomesADirectoryBeforeCommitIsNamedAndTheTemporaryGoes) {
+    const fs::path p = mDir / "late";
+    try {
+        AtomicFile f(p, "trace");
+        std::ofstream(f.tempPath()) << "content";
+        fs::create_directories(p);  // another process takes the name meanwhile
+        f.commit();
+        ADD_FAILURE() << "no error";
+    } catch (const IoError& e) {
+        EXPECT_EQ(std::string(e.what()), p.string() +
+                                             ": expected a file name for the trace, found a "
+                                             "directory (the trace was not written)");
+    }
+    EXPECT_EQ(entries(), 1u);  // the directory only
+}
+
+TEST_F(AtomicFileTest, ARenameFailureGivesRenamesOwnReason) {
+    // The temporary vanishes before commit: rename() fails with ENOENT, and its reason is what
+    // the message says (never "Success").
+    const fs::path p = mDir / "sub" / "out.txt";
+    fs::create_directories(p.parent_path());
+    try {
+        AtomicFile f(p, "map");
+        std::ofstream(f.tempPath()) << "content";
+        fs::remove(f.tempPath());
+        f.commit();
+        ADD_FAILURE() << "no error";
+    } catch (const IoError& e) {
+        EXPECT_EQ(std::string(e.what()),
+                  p.string() +
+                      ": could not rename the finished map into place: No such file or "
+                      "directory");
+    }
+    EXPECT_FALSE(fs::exists(p));
+}
+
 }  // namespace
 }  // namespace palp

@@ -19,6 +19,16 @@ AtomicFile::AtomicFile(fs::path path, std::string what)
     : mPath(std::move(path)), mWhat(std::move(what)) {
     const fs::path dir = mPath.has_parent_path() ? mPath.parent_path() : fs::path(".");
     std::error_code ec;
+    // A directory as the target (`-o DIR`, `-o DIR/`, `.`) is refused before anything is
+    // written: rename() would fail only after the whole content was written, with an errno
+    // that names the wrong thing ("Not a directory" for DIR/, "Device or resource busy" for .).
+    const fs::path leaf = mPath.filename();
+    if (mPath.empty() || leaf.empty() || leaf == "." || leaf == ".." ||
+        fs::is_directory(mPath, ec)) {
+        throw IoError((mPath.empty() ? std::string("''") : mPath.string()) +
+                      ": expected a file name for the " + mWhat + ", found " +
+                      (mPath.empty() ? std::string("an empty path") : "a directory"));
+    }
     if (!fs::is_directory(dir, ec)) {
         throw IoError(mPath.string() + ": expected an existing directory '" + dir.string() +
                       "' for the " + mWhat + ", found none");
@@ -39,10 +49,18 @@ AtomicFile::~AtomicFile() {
 
 void AtomicFile::commit() {
     std::error_code ec;
+    // The target may have become a directory since construction; say so rather than errno.
+    if (fs::is_directory(mPath, ec)) {
+        throw IoError(mPath.string() + ": expected a file name for the " + mWhat +
+                      ", found a directory (the " + mWhat + " was not written)");
+    }
+    ec.clear();
     fs::rename(mTemp, mPath, ec);
     if (ec) {
+        // ec carries rename()'s errno; an error code of 0 would print "Success".
+        const std::string reason = ec.value() != 0 ? ec.message() : "an unknown error";
         throw IoError(mPath.string() + ": could not rename the finished " + mWhat +
-                      " into place: " + ec.message());
+                      " into place: " + reason);
     }
     mCommitted = true;
 }

@@ -20,8 +20,9 @@ namespace palp {
 class AtomicFile {
   public:
     /// @p what names the content in error messages (e.g. "trace", "volume").
-    /// @throw IoError (naming @p path) when the directory @p path is to be written in does not
-    /// exist.
+    /// @throw IoError (naming @p path) when @p path is a directory (an existing one, or a path
+    /// ending in '/', '.' or '..') or empty, or when the directory it is to be written in does
+    /// not exist; nothing is created then.
     AtomicFile(std::filesystem::path path, std::string what);
     ~AtomicFile();
     AtomicFile(const AtomicFile&) = delete;
@@ -32,7 +33,9 @@ class AtomicFile {
     /// The final path.
     const std::filesystem::path& path() const noexcept { return mPath; }
 
-    /// Renames the temporary over path(). @throw IoError (temporary removed) when it fails.
+    /// Renames the temporary over path(). @throw IoError (temporary removed when this object is
+    /// destroyed) when it fails, with rename()'s reason, or "found a directory" when path() has
+    /// become one.
     void commit();
 
   private:
