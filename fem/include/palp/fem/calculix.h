@@ -5,12 +5,27 @@
 
 #include <Eigen/Core>
 #include <filesystem>
+#include <string>
 #include <vector>
 
 #include "palp/fem/constraints.h"
 #include "palp/fem/fem_model.h"
 
 namespace palp::fem {
+
+/// The widest number CalculiX reads: it takes the first 20 characters of a field and drops the
+/// rest without a word (a 21-character `4.444444444444445e-06` reads as ~4.4).
+inline constexpr std::size_t kCalculixNumberWidth = 20;
+
+/// @p v as the `.inp` file carries it: the shortest text that reads back to exactly @p v
+/// (std::to_chars' round-trip form, fixed or scientific, whichever is shorter) with a compact
+/// exponent (`6.25e-5`, `1e6`); only when that exceeds kCalculixNumberWidth characters, the
+/// most significant digits that fit (rounded to nearest). Every double fits with at least 13
+/// significant digits (the worst case, `-d.dddddddddddde-308`: 20 characters); a positive one
+/// with an exponent of one digit keeps 16, a negative one 15, so a value that needs 17 digits
+/// loses at most one part in 1e15 and every value that needs fewer comes back exactly.
+/// @throw palp::ValueError for NaN or an infinity.
+std::string calculixNumber(double v);
 
 /// The analysis step written to the `.inp` file.
 struct CalculixStep {
@@ -25,8 +40,13 @@ struct CalculixStep {
 /// element c+1), one *MATERIAL per distinct Young's modulus (*ELASTIC, *DENSITY, *DAMPING with
 /// the Rayleigh coefficients when non-zero), *BOUNDARY for every constrained dof with its value,
 /// *CLOAD for every non-zero entry of @p nodalForce (newtons, #dofs) and the step with
-/// *NODE PRINT of U for all nodes. Units are SI throughout.
-/// @throw palp::ValueError on size mismatch, palp::IoError when the file cannot be written.
+/// *NODE PRINT of U for all nodes. Units are SI throughout; every number is written by
+/// calculixNumber(). The file is written to a temporary beside @p inpPath and renamed into place
+/// when complete, so a refusal or a failed write leaves no file.
+/// @throw palp::ValueError on size mismatch, a non-finite node position, cell modulus,
+/// constrained value or force (the message names the dof), a time increment or total time
+/// outside (0, 3600] s, more than 1e7 increments, hhtAlpha outside [-1/3, 0] or printEvery < 1;
+/// palp::IoError when the file cannot be written.
 void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& model,
                         const Constraints& constraints, const Eigen::VectorXd& nodalForce,
                         const CalculixStep& step);
