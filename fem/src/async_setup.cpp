@@ -4,7 +4,9 @@
 #include <cmath>
 #include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/validate.h"
+#include "palp/fem/explicit_solver.h"
 
 namespace palp::fem {
 
@@ -48,19 +50,29 @@ AsyncSetup::AsyncSetup(const FemModel& m, const Constraints& c, const std::vecto
     const HexMesh& mesh = model.mesh();
     const int dofs = model.dofCount();
     if (c.dofCount() != dofs) fail("constraints", std::to_string(dofs) + " dofs", c.dofCount());
-    if (!(o.tickSeconds > 0.0) || !std::isfinite(o.tickSeconds))
-        fail("tick", "a finite period > 0 s", o.tickSeconds);
-    if (!(o.secondaryRate > 0.0) || !std::isfinite(o.secondaryRate))
-        fail("secondary rate", "a finite rate > 0 Hz", o.secondaryRate);
+    if (!bounds::kPeriod.contains(o.tickSeconds))
+        fail("tick", describe(bounds::kPeriod), o.tickSeconds);
+    // At least one solve an hour (the period stays an honest tick count), at most 1 kHz.
+    if (!(o.secondaryRate >= 1.0 / bounds::kDuration.max &&
+          o.secondaryRate <= bounds::kFrequency.max))
+        fail("secondary rate",
+             describe({1.0 / bounds::kDuration.max, bounds::kFrequency.max, "Hz"}),
+             o.secondaryRate);
     if (o.lod != 1 && o.lod != 2 && o.lod != 4) fail("lod", "1, 2 or 4", o.lod);
     if (!(o.safetyFactor > 0.0 && o.safetyFactor <= 1.0))
         fail("safety factor", "a value in (0, 1]", o.safetyFactor);
-    if (o.maxSubsteps < 1) fail("max substeps", ">= 1", o.maxSubsteps);
+    if (o.maxSubsteps < 1 || o.maxSubsteps > kMaxExplicitSubsteps)
+        fail("max substeps", "a count in [1, " + std::to_string(kMaxExplicitSubsteps) + "]",
+             o.maxSubsteps);
     if (o.secondaryThreads < 1) fail("secondary threads", ">= 1", o.secondaryThreads);
     if (o.secondarySolver == LinearSolverKind::simplicialLdlt)
         fail("secondary solver", "cholmod or pcg", "simplicialLdlt");
     if (contact.empty()) fail("contact nodes", "at least one node", "none");
     if (o.maxLoads < 1) fail("max loads", ">= 1", o.maxLoads);
+    // The primary's substeps: a model too stiff for maxSubsteps per tick is refused here (a
+    // capped substep above the critical one would run unstable).
+    requireExplicitSubsteps(model, o.safetyFactor, o.maxSubsteps, o.tickSeconds,
+                            "async regions maxSubsteps");
     forceDrive = o.drive == ContactDrive::force;
     watchIndex.assign(sz(mesh.nodeCount()), -1);
     for (std::size_t i = 0; i < o.watchNodes.size(); ++i) {

@@ -2,9 +2,11 @@
 
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <sstream>
 #include <string>
 
@@ -49,7 +51,74 @@ bool allFinite(const double* __restrict x, std::size_t n) noexcept {
     return bad == 0;
 }
 
+/// @p x rounded down (up) to three significant digits, so a suggested limit printed with %g is
+/// one the check accepts.
+double roundDown3(double x) {
+    const double p = std::pow(10.0, std::floor(std::log10(x)) - 2);
+    return std::floor(x / p) * p;
+}
+double roundUp3(double x) {
+    const double p = std::pow(10.0, std::floor(std::log10(x)) - 2);
+    return std::ceil(x / p) * p;
+}
+
 }  // namespace
+
+double explicitSubstepsPerTick(const FemModel& model, double safetyFactor, double tickSeconds) {
+    const double dt = safetyFactor * model.criticalTimeStep();
+    if (!(dt > 0.0)) return std::numeric_limits<double>::infinity();
+    return std::max(1.0, std::ceil(tickSeconds / dt));
+}
+
+void requireExplicitSubsteps(const FemModel& model, double safetyFactor, int maxSubsteps,
+                             double tickSeconds, std::string_view maxSubstepsName) {
+    const double need = explicitSubstepsPerTick(model, safetyFactor, tickSeconds);
+    if (need <= static_cast<double>(maxSubsteps)) return;
+    const ElasticMaterial& m = model.material();
+    const HexMesh& mesh = model.mesh();
+    double eMax = 0.0;
+    for (int c = 0; c < mesh.cellCount(); ++c) {
+        if (mesh.cellActive(c))
+            eMax = std::max(eMax, mesh.cellYoungs()[static_cast<std::size_t>(c)]);
+    }
+    const double w = model.maxFrequencyBound(), h = mesh.edge();
+    const double alpha = m.dampingAlpha, beta = m.dampingBeta;
+    // The substep dt = safety * 2 / (w (sqrt(1 + xi^2) + xi)), xi = (alpha / w + beta w) / 2,
+    // reaches tick / maxSubsteps exactly when w (sqrt(1 + xi^2) + xi) <= r with
+    // r = 2 safety maxSubsteps / tick; squaring (w xi = (alpha + beta w^2) / 2 <= r / 2):
+    // w^2 (1 + r beta) <= r (r - alpha). Solved for w (the stiffness) or for beta below.
+    const double r = 2.0 * safetyFactor * maxSubsteps / tickSeconds;
+    const std::string found = " (" + formatValue(need) + " substeps per tick)";
+    const std::string budget = "the most that " + std::to_string(maxSubsteps) +
+                               " explicit substeps of " + formatValue(safetyFactor) +
+                               " x the critical step can step stably in the " +
+                               formatValue(tickSeconds) + " s tick";
+    const std::string raise = "; or raise " + std::string(maxSubstepsName) + " (at most " +
+                              std::to_string(kMaxExplicitSubsteps) + ") or shorten the tick";
+    if (alpha >= r) {
+        throwExpected("material dampingAlpha",
+                      "less than " + formatValue(roundDown3(r)) + " 1/s (" + budget + raise + ")",
+                      formatValue(alpha) + " 1/s" + found);
+    }
+    if (!(w * w <= r * (r - alpha))) {
+        // Too stiff even without stiffness-proportional damping: the modulus (or the cells).
+        const double wFit2 = r * (r - alpha) / (1.0 + r * beta);
+        throwExpected("material youngsModulus",
+                      "at most " + formatValue(roundDown3(eMax * wFit2 / (w * w))) +
+                          " Pa for the stiffest cell (" + budget + " with " + formatValue(h * 1e3) +
+                          " mm cells, density " + formatValue(m.density) +
+                          " kg/m^3, poissonRatio " + formatValue(m.poissonRatio) +
+                          ", dampingBeta " + formatValue(beta) + " s; or cells of at least " +
+                          formatValue(roundUp3(h * w / std::sqrt(wFit2)) * 1e3) + " mm" + raise +
+                          ")",
+                      formatValue(eMax) + " Pa" + found);
+    }
+    throwExpected("material dampingBeta",
+                  "at most " + formatValue(roundDown3((r * (r - alpha) - w * w) / (r * w * w))) +
+                      " s (" + budget + " at Young's modulus " + formatValue(eMax) + " Pa with " +
+                      formatValue(h * 1e3) + " mm cells" + raise + ")",
+                  formatValue(beta) + " s" + found);
+}
 
 ExplicitSolver::ExplicitSolver(const FemModel& model, const Constraints& constraints,
                                const ExplicitOptions& options)
@@ -63,10 +132,16 @@ ExplicitSolver::ExplicitSolver(const FemModel& model, const Constraints& constra
         throwExpected("explicit solver safety factor", "a value in (0, 1]",
                       formatValue(options.safetyFactor));
     }
-    if (options.maxSubsteps < 1) {
-        throwExpected("explicit solver max substeps", ">= 1", std::to_string(options.maxSubsteps));
+    if (options.maxSubsteps < 1 || options.maxSubsteps > kMaxExplicitSubsteps) {
+        throwExpected("explicit solver maxSubsteps",
+                      "a count in [1, " + std::to_string(kMaxExplicitSubsteps) + "]",
+                      std::to_string(options.maxSubsteps));
     }
     mStableDt = options.safetyFactor * model.criticalTimeStep();
+    if (!(mStableDt > 0.0) || !std::isfinite(mStableDt)) {
+        throwExpected("explicit solver critical time step", "a finite step > 0 s",
+                      formatValue(mStableDt) + " s");
+    }
     const Eigen::VectorXd& mass = model.lumpedMass();
     for (int d = 0; d < n; ++d) {
         if (constraints.isFixed(d) || mass[d] <= 0.0) {

@@ -7,7 +7,9 @@
 #include <algorithm>
 #include <cmath>
 #include <sstream>
+#include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/fem/hex_element.h"
@@ -134,7 +136,12 @@ FemModel::FemModel(HexMesh mesh, const ElasticMaterial& material)
     double maxE = 0.0;
     for (int c = 0; c < mMesh.cellCount(); ++c) {
         if (!mMesh.cellActive(c)) continue;
-        maxE = std::max(maxE, mMesh.cellYoungs()[sz(c)]);
+        const double e = mMesh.cellYoungs()[sz(c)];
+        if (!bounds::kYoungsModulus.contains(e)) {
+            requireWithin("FEM model mesh cellYoungs[" + std::to_string(c) + "]", e,
+                          bounds::kYoungsModulus);
+        }
+        maxE = std::max(maxE, e);
         for (int n : mMesh.cellNodes(c)) {
             for (int d = 0; d < 3; ++d) mMass[3 * n + d] += nodeMass;
         }
@@ -173,7 +180,9 @@ void FemModel::stiffnessTimesParallel(const double* u, double* f) const {
 double FemModel::criticalTimeStep() const {
     const double w = mOmegaMax;
     const double xi = 0.5 * (mMaterial.dampingAlpha / w + mMaterial.dampingBeta * w);
-    return 2.0 / w * (std::sqrt(1.0 + xi * xi) - xi);
+    // (sqrt(1 + xi^2) - xi) = 1 / (sqrt(1 + xi^2) + xi): the same step without the cancellation
+    // that made it 0 for a large xi (beta 1e20 gave a zero substep).
+    return 2.0 / (w * (std::sqrt(1.0 + xi * xi) + xi));
 }
 
 double FemModel::strainEnergy(const Eigen::VectorXd& u) const {

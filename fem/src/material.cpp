@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-#include "palp/base/validate.h"
+#include "palp/base/bounds.h"
 
 namespace palp::fem {
 
@@ -18,14 +18,11 @@ double ElasticMaterial::dilatationalWaveSpeed() const {
 }
 
 void validate(const ElasticMaterial& m) {
-    requirePositive("material Young's modulus", m.youngsModulus, "Pa");
-    if (!std::isfinite(m.poissonRatio) || m.poissonRatio <= -1.0 || m.poissonRatio >= 0.5) {
-        throwExpected("material Poisson's ratio", "a value in (-1, 0.5)",
-                      formatValue(m.poissonRatio));
-    }
-    requirePositive("material density", m.density, "kg/m^3");
-    requireNonNegative("material damping alpha", m.dampingAlpha, "1/s");
-    requireNonNegative("material damping beta", m.dampingBeta, "s");
+    requireWithin("material youngsModulus", m.youngsModulus, bounds::kYoungsModulus);
+    requireWithin("material poissonRatio", m.poissonRatio, bounds::kPoissonRatio);
+    requireWithin("material density", m.density, bounds::kDensity);
+    requireWithin("material dampingAlpha", m.dampingAlpha, bounds::kMassDamping);
+    requireWithin("material dampingBeta", m.dampingBeta, bounds::kStiffnessDamping);
 }
 
 Eigen::Matrix<double, 6, 6> elasticityMatrix(double e, double nu) {

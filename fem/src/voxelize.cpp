@@ -6,8 +6,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
+#include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/base/validate.h"
@@ -60,9 +63,18 @@ std::vector<int> labelComponents(const std::array<int, 3>& cells,
 
 }  // namespace
 
+void validate(const VoxelizeOptions& o) {
+    requireWithin("voxelize elementSize", o.elementSize, bounds::kSpacing);
+    requireWithin("voxelize tissueThreshold", o.tissueThreshold, bounds::kVolumeValue);
+    if (o.boneThreshold != std::numeric_limits<double>::infinity()) {
+        requireWithin("voxelize boneThreshold", o.boneThreshold, bounds::kVolumeValue);
+    }
+    if (o.maxCells < 1) throwExpected("voxelize maxCells", ">= 1", std::to_string(o.maxCells));
+}
+
 VoxelizedMesh voxelizeVolume(const volume::Volume& volume, const VoxelizeOptions& options) {
+    validate(options);
     const double h = options.elementSize;
-    requirePositive("voxelize element size", h, "m");
     // Any active value (voxel or tile) at all: the first one of a serial iteration, not
     // activeVoxelCount()'s TBB reduction over the whole tree.
     if (!volume.grid || !volume.grid->cbeginValueOn()) {

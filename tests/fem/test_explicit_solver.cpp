@@ -3,11 +3,15 @@
 #include <atomic>
 #include <cmath>
 #include <cstdlib>
+#include <iostream>
 #include <limits>
 #include <new>
+#include <string>
 
 #include "fem_test_util.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
+#include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/implicit_solver.h"
 
@@ -171,6 +175,113 @@ TEST(ExplicitSolver, AgreesWithImplicitOnADampedStepLoad) {
     EXPECT_LT(peakIm, uStatic[probe]);  // a dynamic overshoot happened
     std::cout << "[ step load ] static " << uStatic[probe] << " m, peaks explicit " << peakEx
               << " implicit " << peakIm << "\n";
+}
+
+/// The message of the ValueError @p f throws ("" when none).
+template <typename F>
+std::string refusal(F&& f) {
+    try {
+        f();
+    } catch (const ValueError& e) {
+        return e.what();
+    }
+    return "";
+}
+
+/// The number after @p key in @p text.
+double numberAfter(const std::string& text, const std::string& key) {
+    const auto at = text.find(key);
+    EXPECT_NE(at, std::string::npos) << key << " in " << text;
+    return at == std::string::npos ? std::nan("") : std::stod(text.substr(at + key.size()));
+}
+
+TEST(ExplicitSubsteps, CriticalStepWithStiffnessDampingHasNoCancellation) {
+    // dt = 2 / w (sqrt(1 + xi^2) - xi), xi = beta w / 2: for a large xi the difference cancels
+    // (it was 0 at beta 1e20); the solver now forms 2 / (w (sqrt(1 + xi^2) + xi)).
+    for (const double beta : {0.0, 1e-4, 1e-2, 1.0}) {
+        const FemModel model(test::cube13(), test::softTissue(0.0, beta));
+        const long double w = model.maxFrequencyBound(), xi = 0.5L * beta * w;
+        const long double exact = 2.0L / w * (std::sqrt(1.0L + xi * xi) - xi);
+        EXPECT_NEAR(model.criticalTimeStep() / static_cast<double>(exact), 1.0, 1e-12) << beta;
+    }
+}
+
+TEST(ExplicitSubsteps, TooStiffForTheTickIsRefusedNamingWhatFits) {
+    // Soft tissue, 5 mm cells at 1 kHz: a couple of substeps.
+    const FemModel soft(test::cube13(), test::softTissue());
+    EXPECT_LE(explicitSubstepsPerTick(soft, 0.9, 1e-3), 3.0);
+    EXPECT_NO_THROW(requireExplicitSubsteps(soft, 0.9, 4096, 1e-3, "solver.maxSubsteps"));
+
+    // 1 TPa needs ~2.4e4 substeps per 1 ms tick: refused naming the modulus and what fits.
+    const FemModel steel(test::cube13(1e12), test::softTissue());
+    const double need = explicitSubstepsPerTick(steel, 0.9, 1e-3);
+    EXPECT_GT(need, 4096);
+    const std::string m =
+        refusal([&] { requireExplicitSubsteps(steel, 0.9, 4096, 1e-3, "solver.maxSubsteps"); });
+    std::cout << "[ substeps ] " << m << "\n";
+    EXPECT_EQ(m.rfind("material youngsModulus: expected at most ", 0), 0u) << m;
+    EXPECT_NE(m.find("found 1e+12 Pa (" + formatValue(need) + " substeps per tick)"),
+              std::string::npos)
+        << m;
+    EXPECT_NE(m.find("or raise solver.maxSubsteps"), std::string::npos) << m;
+    // The suggestions fit (and only just: 10 % above the modulus does not).
+    const double eFit = numberAfter(m, "expected at most ");
+    EXPECT_NO_THROW(requireExplicitSubsteps(FemModel(test::cube13(eFit), test::softTissue()), 0.9,
+                                            4096, 1e-3, "solver.maxSubsteps"));
+    EXPECT_GT(
+        explicitSubstepsPerTick(FemModel(test::cube13(1.1 * eFit), test::softTissue()), 0.9, 1e-3),
+        4096);
+    const double hFit = numberAfter(m, "cells of at least ") * 1e-3;
+    const FemModel coarse(HexMesh::box(Eigen::Vector3d::Constant(4 * hFit), {5, 5, 5}, 1e12),
+                          test::softTissue());
+    EXPECT_LE(explicitSubstepsPerTick(coarse, 0.9, 1e-3), 4096);
+
+    // Stiffness-proportional damping: beta 1 s on soft tissue needs ~4400 substeps.
+    const FemModel damped(test::cube13(), test::softTissue(0.0, 1.0));
+    const std::string b =
+        refusal([&] { requireExplicitSubsteps(damped, 0.9, 1024, 1e-3, "solver.maxSubsteps"); });
+    std::cout << "[ substeps ] " << b << "\n";
+    EXPECT_EQ(b.rfind("material dampingBeta: expected at most ", 0), 0u) << b;
+    EXPECT_NE(b.find("found 1 s ("), std::string::npos) << b;
+    const double betaFit = numberAfter(b, "expected at most ");
+    EXPECT_NO_THROW(requireExplicitSubsteps(FemModel(test::cube13(), test::softTissue(0, betaFit)),
+                                            0.9, 1024, 1e-3, "solver.maxSubsteps"));
+    EXPECT_GT(explicitSubstepsPerTick(FemModel(test::cube13(), test::softTissue(0, 1.1 * betaFit)),
+                                      0.9, 1e-3),
+              1024);
+}
+
+TEST(ExplicitSubsteps, SolverBoundsItsSubstepCount) {
+    const FemModel model(test::cube13(), test::softTissue());
+    const Constraints c = test::bottomFixed(model.mesh());
+    ExplicitOptions o;
+    o.maxSubsteps = kMaxExplicitSubsteps + 1;
+    EXPECT_EQ(refusal([&] { ExplicitSolver(model, c, o); }),
+              "explicit solver maxSubsteps: expected a count in [1, 65536], found 65537");
+    // A step far longer than the model's critical step runs maxSubsteps stable substeps.
+    ExplicitSolver s(model, c);
+    const StepResult r = s.step(1e300);
+    EXPECT_EQ(r.substeps, 4096);
+    EXPECT_EQ(r.flags, kStepSubstepLimit);
+}
+
+TEST(ExplicitSubsteps, AsyncRegionsRefuseATickTheirPrimaryCannotStepStably) {
+    // The primary used to cap its substeps at maxSubsteps and step above the critical step
+    // (unstable, silently); 1 GPa on 5 mm cells needs ~740 substeps per 1 ms tick (> 64).
+    const FemModel model(test::cube13(1e9), test::softTissue(60.0));
+    const Constraints c = test::bottomFixed(model.mesh());
+    AsyncRegionsOptions o;
+    const std::string m =
+        refusal([&] { AsyncRegions(model, c, {model.mesh().node(6, 6, 12)}, o); });
+    std::cout << "[ substeps ] " << m << "\n";
+    EXPECT_EQ(m.rfind("material youngsModulus: expected at most ", 0), 0u) << m;
+    EXPECT_NE(m.find("or raise async regions maxSubsteps"), std::string::npos) << m;
+    o.secondaryRate = 1e-300;
+    EXPECT_EQ(refusal([&] { AsyncRegions(model, c, {model.mesh().node(6, 6, 12)}, o); })
+                  .rfind("async regions secondary rate: expected a value in [0.000277778, 1000] "
+                         "Hz, found 1e-300",
+                         0),
+              0u);
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <cmath>
 
 #include "palp/base/error.h"
 #include "palp/fem/fem_model.h"
@@ -88,13 +89,25 @@ TEST(Material, ValidationNamesTheValue) {
     m.poissonRatio = 0.5;
     expectBad(m, "found 0.5");
     m.poissonRatio = -1.0;
-    expectBad(m, "Poisson");
+    expectBad(m, "material poissonRatio: expected a value in (-1, 0.5), found -1");
     m = ElasticMaterial{};
     m.youngsModulus = 0.0;
-    expectBad(m, "Young");
+    expectBad(m, "material youngsModulus: expected a value in [1, 1e+12] Pa, found 0");
+    m.youngsModulus = 1e300;  // finite but absurd (issue 20: --young-kpa 1e300)
+    expectBad(m, "material youngsModulus: expected a value in [1, 1e+12] Pa, found 1e+300");
     m = ElasticMaterial{};
     m.density = -2.0;
-    expectBad(m, "found -2");
+    expectBad(m, "material density: expected a value in [1, 100000] kg/m^3, found -2");
+    m = ElasticMaterial{};
+    m.dampingAlpha = 1e20;  // --fem-damping 1e20
+    expectBad(m, "material dampingAlpha: expected a value in [0, 10000] 1/s, found 1e+20");
+    m.dampingAlpha = std::nan("");
+    expectBad(m, "material dampingAlpha: expected a value in [0, 10000] 1/s, found nan");
+    m = ElasticMaterial{};
+    m.dampingBeta = 1e20;  // --fem-beta 1e20
+    expectBad(m, "material dampingBeta: expected a value in [0, 1] s, found 1e+20");
+    m.dampingBeta = -HUGE_VAL;
+    expectBad(m, "material dampingBeta: expected a value in [0, 1] s, found -inf");
     m = ElasticMaterial{};
     m.poissonRatio = 0.499;
     EXPECT_NO_THROW(validate(m));

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <string>
 
 #include "palp/base/error.h"
@@ -102,7 +103,15 @@ TEST(Voxelize, BadInputNamesTheValue) {
     };
     VoxelizeOptions o = options();
     o.elementSize = 0.0;
-    expectError(o, "element size");
+    expectError(o, "voxelize elementSize: expected a value in [1e-06, 0.1] m, found 0");
+    o.elementSize = 1e300;
+    expectError(o, "voxelize elementSize: expected a value in [1e-06, 0.1] m, found 1e+300");
+    o = options();
+    o.tissueThreshold = std::nan("");
+    expectError(o, "voxelize tissueThreshold: expected a value in [-1e+09, 1e+09], found nan");
+    o = options();
+    o.boneThreshold = -HUGE_VAL;
+    expectError(o, "voxelize boneThreshold: expected a value in [-1e+09, 1e+09], found -inf");
     o = options();
     o.tissueThreshold = 5000.0;
     expectError(o, "found none");

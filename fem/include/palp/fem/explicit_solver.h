@@ -4,6 +4,7 @@
 /// automatic substepping below the stable step, a real-time single-thread variant and a TBB one.
 
 #include <Eigen/Core>
+#include <string_view>
 #include <vector>
 
 #include "palp/fem/constraints.h"
@@ -27,11 +28,37 @@ struct StepResult {
     unsigned flags = kStepOk;      ///< StepFlag bits
 };
 
+/// The most substeps per step() any explicit integrator accepts as its bound (maxSubsteps): with
+/// it, the work of one step is bounded whatever the inputs.
+inline constexpr int kMaxExplicitSubsteps = 65536;
+
 /// Options of ExplicitSolver.
 struct ExplicitOptions {
     double safetyFactor = 0.9;  ///< substep = safetyFactor * model.criticalTimeStep(), in (0, 1]
-    int maxSubsteps = 4096;     ///< bound on substeps per step() call (keeps a tick bounded)
+    /// Bound on substeps per step() call (keeps a tick bounded), in [1, kMaxExplicitSubsteps].
+    int maxSubsteps = 4096;
 };
+
+/// Central-difference substeps that one step of @p tickSeconds takes on @p model with substeps
+/// of @p safetyFactor times model.criticalTimeStep(): ceil(tick / (safety * critical)), as a
+/// double (it may exceed any int; +inf for a model without a finite frequency bound).
+double explicitSubstepsPerTick(const FemModel& model, double safetyFactor, double tickSeconds);
+
+/// Set-up check of an explicit integrator stepped every @p tickSeconds with at most
+/// @p maxSubsteps substeps of @p safetyFactor times the critical step: a model that needs more
+/// would either run unstable (a capped substep above the critical one) or advance less time
+/// than asked, tick after tick. Throws palp::ValueError naming what makes it too stiff for the
+/// tick and what would fit:
+/// * the stiffness (the stiffest cell's Young's modulus with the cell size, density and
+///   Poisson's ratio; it alone needs more): `material youngsModulus: expected at most <E> Pa ...
+///   (or cells of at least <h> mm), found <E> Pa (<n> substeps per tick)`;
+/// * else the stiffness-proportional damping: `material dampingBeta: expected at most <b> s
+///   ...`; or the mass-proportional damping when it alone needs more (`material dampingAlpha`).
+/// @p maxSubstepsName is the caller's name of the bound ("deformable solver.maxSubsteps"), shown
+/// as the other way out.
+/// @throw palp::ValueError
+void requireExplicitSubsteps(const FemModel& model, double safetyFactor, int maxSubsteps,
+                             double tickSeconds, std::string_view maxSubstepsName);
 
 /// Central difference `u(n+1) = [dt^2 (f - K u~) + 2 M u(n) - (M - dt/2 C_M) u(n-1)] / (M + dt/2
 /// C_M)` with `C_M = alpha M` diagonal and the stiffness-proportional damping folded into the
@@ -43,14 +70,17 @@ struct ExplicitOptions {
 class ExplicitSolver {
   public:
     /// Allocates all state. @throw palp::ValueError when @p constraints does not match the model
-    /// or options are out of range.
+    /// or options are out of range. The step a caller will use is not known here: set-up code
+    /// that knows its tick checks it with requireExplicitSubsteps().
     ExplicitSolver(const FemModel& model, const Constraints& constraints,
                    const ExplicitOptions& options = {});
 
     /// Largest substep used, seconds: safetyFactor * model.criticalTimeStep().
     double stableTimeStep() const { return mStableDt; }
 
-    /// Advances by @p dtSeconds, split into ceil(dt / stableTimeStep()) equal substeps.
+    /// Advances by @p dtSeconds, split into ceil(dt / stableTimeStep()) equal substeps. When that
+    /// is more than maxSubsteps it takes maxSubsteps substeps of stableTimeStep() (stable, but
+    /// less time than asked) and flags kStepSubstepLimit.
     /// @par Real-time  noexcept, allocation-free, lock-free, at most maxSubsteps substeps.
     StepResult step(double dtSeconds) noexcept;
     /// Same as step() with the element loop and vector updates on TBB worker threads.

@@ -8,11 +8,11 @@ namespace palp::fem {
 
 /// Isotropic linear elastic material with density and Rayleigh damping `C = alpha M + beta K`.
 struct ElasticMaterial {
-    double youngsModulus = 5.0e3;  ///< E, pascals (> 0); a per-element field may scale it
+    double youngsModulus = 5.0e3;  ///< E, pascals, [1, 1e12]; a per-element field may scale it
     double poissonRatio = 0.45;    ///< nu, dimensionless, in (-1, 0.5)
-    double density = 1.0e3;        ///< rho, kg/m^3 (> 0)
-    double dampingAlpha = 0.0;     ///< mass-proportional Rayleigh coefficient, 1/s (>= 0)
-    double dampingBeta = 0.0;      ///< stiffness-proportional Rayleigh coefficient, s (>= 0)
+    double density = 1.0e3;        ///< rho, kg/m^3, [1, 1e5]
+    double dampingAlpha = 0.0;     ///< mass-proportional Rayleigh coefficient, 1/s, [0, 1e4]
+    double dampingBeta = 0.0;      ///< stiffness-proportional Rayleigh coefficient, s, [0, 1]
 
     /// Lame's first parameter lambda, pascals.
     double lambda() const;
@@ -22,8 +22,10 @@ struct ElasticMaterial {
     double dilatationalWaveSpeed() const;
 };
 
-/// Throws palp::ValueError naming the field when @p material is outside the accepted ranges:
-/// nu in (-1, 0.5), E > 0, density > 0, damping coefficients >= 0, all finite.
+/// Throws palp::ValueError naming the field (`material youngsModulus: expected a value in [1,
+/// 1e+12] Pa, found 1e+300`) when @p material is outside palp/base/bounds.h's ranges:
+/// youngsModulus kYoungsModulus, poissonRatio kPoissonRatio, density kDensity, dampingAlpha
+/// kMassDamping, dampingBeta kStiffnessDamping (all finite).
 /// @throw palp::ValueError
 void validate(const ElasticMaterial& material);
 

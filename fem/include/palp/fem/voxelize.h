@@ -33,6 +33,13 @@ struct VoxelizeOptions {
     long maxCells = 20'000'000;
 };
 
+/// Throws palp::ValueError naming the field (`voxelize elementSize: expected a value in [1e-06,
+/// 0.1] m, found 0`) unless elementSize is in bounds::kSpacing, tissueThreshold in
+/// bounds::kVolumeValue, boneThreshold in bounds::kVolumeValue or +infinity (no bone) and
+/// maxCells >= 1.
+/// @throw palp::ValueError
+void validate(const VoxelizeOptions& options);
+
 /// Result of voxelizeVolume().
 struct VoxelizedMesh {
     HexMesh mesh;                ///< lattice over the scan's active bounds, void outside tissue
@@ -43,7 +50,7 @@ struct VoxelizedMesh {
 /// Voxelises @p volume: the lattice covers the world box of the active voxels (each voxel a cube
 /// of the volume's voxel size) with cubes of edge `options.elementSize`, starting at the box's
 /// minimum corner; node positions are world metres in the volume's frame (HexMesh::origin()).
-/// @throw palp::ValueError for an empty volume, a non-positive or non-finite element size, a
+/// @throw palp::ValueError for options validate() refuses, an empty volume, a
 /// lattice above maxCells, no cell above the tissue threshold, a transfer function that returns a
 /// non-finite or non-positive modulus (the message names the value).
 VoxelizedMesh voxelizeVolume(const volume::Volume& volume, const VoxelizeOptions& options);
