@@ -10,6 +10,7 @@
 #include <type_traits>
 
 #include "c_api_internal.h"
+#include "palp/base/bounds.h"
 #include "palp/base/validate.h"
 
 namespace ph = palp::haptics;
@@ -77,10 +78,8 @@ palp_ray_source fromSource(ph::RaySource s) noexcept {
 // first, then scalars, each in table order: the first invalid field is the one reported.
 
 enum class Check : std::uint8_t {
-    Finite,       // vector: finite coordinates
-    Unit,         // vector: finite and non-zero, normalised
-    NonNegative,  // scalar: finite, >= 0
-    Positive      // scalar: finite, > 0
+    Point,  // vector: coordinates within bounds::kPosition
+    Unit    // vector: finite and non-zero, normalised
 };
 
 template <typename T>
@@ -96,7 +95,7 @@ struct ScalarField {
     double palp_trajectory::*c;
     double T::*t;
     const char* name;
-    Check check;
+    const Bounds* bounds;  // palp/base/bounds.h
 };
 
 template <typename T>
@@ -106,88 +105,87 @@ template <>
 struct Layout<ph::PressTrajectory> {
     using T = ph::PressTrajectory;
     static constexpr std::array vectors = {
-        VectorField<T>{&palp_trajectory::centre, &T::start, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::centre, &T::start, "centre", Check::Point},
         VectorField<T>{&palp_trajectory::direction, &T::direction, "direction", Check::Unit}};
     static constexpr std::array scalars = {
-        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", &bounds::kSpan},
         ScalarField<T>{&palp_trajectory::press_seconds, &T::pressSeconds, "press_seconds",
-                       Check::Positive},
+                       &bounds::kPositiveDuration},
         ScalarField<T>{&palp_trajectory::hold_seconds, &T::holdSeconds, "hold_seconds",
-                       Check::NonNegative}};
+                       &bounds::kDuration}};
 };
 
 template <>
 struct Layout<ph::SweepTrajectory> {
     using T = ph::SweepTrajectory;
     static constexpr std::array vectors = {
-        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Point},
         VectorField<T>{&palp_trajectory::direction, &T::direction, "direction", Check::Unit},
         VectorField<T>{&palp_trajectory::press_direction, &T::pressDirection, "press_direction",
                        Check::Unit}};
     static constexpr std::array scalars = {
-        ScalarField<T>{&palp_trajectory::length, &T::lengthM, "length", Check::Positive},
-        ScalarField<T>{&palp_trajectory::speed, &T::speedMps, "speed", Check::Positive},
-        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", Check::NonNegative},
-        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::length, &T::lengthM, "length", &bounds::kLength},
+        ScalarField<T>{&palp_trajectory::speed, &T::speedMps, "speed", &bounds::kPositiveSpeed},
+        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", &bounds::kSpan},
+        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", &bounds::kSpan},
         ScalarField<T>{&palp_trajectory::approach_seconds, &T::approachSeconds, "approach_seconds",
-                       Check::Positive},
+                       &bounds::kPositiveDuration},
         ScalarField<T>{&palp_trajectory::turn_seconds, &T::turnSeconds, "turn_seconds",
-                       Check::Positive}};
+                       &bounds::kPositiveDuration}};
 };
 
 template <>
 struct Layout<ph::RasterTrajectory> {
     using T = ph::RasterTrajectory;
     static constexpr std::array vectors = {
-        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Point},
         VectorField<T>{&palp_trajectory::u, &T::u, "u", Check::Unit},
         VectorField<T>{&palp_trajectory::v, &T::v, "v", Check::Unit},
         VectorField<T>{&palp_trajectory::press_direction, &T::pressDirection, "press_direction",
                        Check::Unit}};
     static constexpr std::array scalars = {
-        ScalarField<T>{&palp_trajectory::extent_u, &T::extentU, "extent_u", Check::Positive},
-        ScalarField<T>{&palp_trajectory::extent_v, &T::extentV, "extent_v", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::extent_u, &T::extentU, "extent_u", &bounds::kLength},
+        ScalarField<T>{&palp_trajectory::extent_v, &T::extentV, "extent_v", &bounds::kSpan},
         ScalarField<T>{&palp_trajectory::line_spacing, &T::lineSpacingM, "line_spacing",
-                       Check::Positive},
-        ScalarField<T>{&palp_trajectory::speed, &T::speedMps, "speed", Check::Positive},
-        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", Check::NonNegative},
-        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", Check::NonNegative},
+                       &bounds::kLength},
+        ScalarField<T>{&palp_trajectory::speed, &T::speedMps, "speed", &bounds::kPositiveSpeed},
+        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", &bounds::kSpan},
+        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", &bounds::kSpan},
         ScalarField<T>{&palp_trajectory::approach_seconds, &T::approachSeconds, "approach_seconds",
-                       Check::Positive}};
+                       &bounds::kPositiveDuration}};
 };
 
 template <>
 struct Layout<ph::CircleTrajectory> {
     using T = ph::CircleTrajectory;
     static constexpr std::array vectors = {
-        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::centre, &T::centre, "centre", Check::Point},
         VectorField<T>{&palp_trajectory::u, &T::u, "u", Check::Unit},
         VectorField<T>{&palp_trajectory::v, &T::v, "v", Check::Unit},
         VectorField<T>{&palp_trajectory::press_direction, &T::pressDirection, "press_direction",
                        Check::Unit}};
     static constexpr std::array scalars = {
-        ScalarField<T>{&palp_trajectory::radius, &T::radiusM, "radius", Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::radius, &T::radiusM, "radius", &bounds::kSpan},
         ScalarField<T>{&palp_trajectory::frequency, &T::frequencyHz, "frequency",
-                       Check::NonNegative},
-        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", Check::NonNegative},
-        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", Check::NonNegative},
+                       &bounds::kFrequency},
+        ScalarField<T>{&palp_trajectory::depth, &T::depthM, "depth", &bounds::kSpan},
+        ScalarField<T>{&palp_trajectory::approach, &T::approachM, "approach", &bounds::kSpan},
         ScalarField<T>{&palp_trajectory::approach_seconds, &T::approachSeconds, "approach_seconds",
-                       Check::Positive}};
+                       &bounds::kPositiveDuration}};
 };
 
 template <>
 struct Layout<ph::SinusoidTrajectory> {
     using T = ph::SinusoidTrajectory;
     static constexpr std::array vectors = {
-        VectorField<T>{&palp_trajectory::centre, &T::start, "centre", Check::Finite},
+        VectorField<T>{&palp_trajectory::centre, &T::start, "centre", Check::Point},
         VectorField<T>{&palp_trajectory::direction, &T::direction, "direction", Check::Unit}};
     static constexpr std::array scalars = {
-        ScalarField<T>{&palp_trajectory::amplitude, &T::amplitudeM, "amplitude",
-                       Check::NonNegative},
+        ScalarField<T>{&palp_trajectory::amplitude, &T::amplitudeM, "amplitude", &bounds::kSpan},
         ScalarField<T>{&palp_trajectory::frequency, &T::frequencyHz, "frequency",
-                       Check::NonNegative},
+                       &bounds::kFrequency},
         ScalarField<T>{&palp_trajectory::grow_seconds, &T::growSeconds, "grow_seconds",
-                       Check::NonNegative}};
+                       &bounds::kDuration}};
 };
 
 // Calls @p f with a default-constructed trajectory of @p kind; false for an unknown kind.
@@ -231,19 +229,16 @@ Eigen::Vector3d unit(const double v[3], const char* field) {
     return d / n;
 }
 
-Eigen::Vector3d finite(const double v[3], const char* field) {
-    if (!vec(v).allFinite()) {
-        throwExpected(std::string("palp_trajectory.") + field, "finite coordinates", "NaN/Inf");
+Eigen::Vector3d point(const double v[3], const char* field) {
+    for (int i = 0; i < 3; ++i) {
+        requireWithin(std::string("palp_trajectory.") + field + "[" + std::to_string(i) + "]", v[i],
+                      bounds::kPosition);
     }
     return vec(v);
 }
 
-void requireNonNegative(const char* field, double v) {
-    palp::requireNonNegative(std::string("palp_trajectory.") + field, v);
-}
-
-void requirePositive(const char* field, double v) {
-    palp::requirePositive(std::string("palp_trajectory.") + field, v);
+void requireField(const char* field, double v, const Bounds& b) {
+    requireWithin(std::string("palp_trajectory.") + field, v, b);
 }
 
 // C -> C++ for the kind of T, checking every field. @throw palp::ValueError naming the field.
@@ -251,14 +246,10 @@ template <typename T>
 T convert(const palp_trajectory& c) {
     T t;
     for (const VectorField<T>& f : Layout<T>::vectors) {
-        t.*f.t = f.check == Check::Unit ? unit(c.*f.c, f.name) : finite(c.*f.c, f.name);
+        t.*f.t = f.check == Check::Unit ? unit(c.*f.c, f.name) : point(c.*f.c, f.name);
     }
     for (const ScalarField<T>& f : Layout<T>::scalars) {
-        if (f.check == Check::Positive) {
-            requirePositive(f.name, c.*f.c);
-        } else {
-            requireNonNegative(f.name, c.*f.c);
-        }
+        requireField(f.name, c.*f.c, *f.bounds);
         t.*f.t = c.*f.c;
     }
     return t;
@@ -280,7 +271,75 @@ const ph::DeviceSpec& deviceSpec(const char* name) {
                            name + "'");
 }
 
+namespace {
+
+/// Every number of palp_session_params with its bounds (palp/base/bounds.h), checked in this
+/// order before any conversion, so a refusal names the C field.
+struct ParamField {
+    double palp_session_params::*field;
+    const char* name;
+    const Bounds* bounds;
+};
+
+constexpr std::array kParamFields = {
+    ParamField{&palp_session_params::stiffness, "stiffness", &bounds::kPositiveStiffness},
+    ParamField{&palp_session_params::reference_length, "reference_length", &bounds::kLength},
+    ParamField{&palp_session_params::max_multiplier, "max_multiplier", &bounds::kMultiplier},
+    ParamField{&palp_session_params::max_stiffness, "max_stiffness", &bounds::kPositiveStiffness},
+    ParamField{&palp_session_params::damping, "damping", &bounds::kDamping},
+    ParamField{&palp_session_params::ray_length, "ray_length", &bounds::kLength},
+    ParamField{&palp_session_params::ring_half_angle, "ring_half_angle", &bounds::kAngle},
+    ParamField{&palp_session_params::sobel_angle, "sobel_angle", &bounds::kAngle},
+    ParamField{&palp_session_params::surface_offset, "surface_offset", &bounds::kSpacing},
+    ParamField{&palp_session_params::threshold, "threshold", &bounds::kVolumeValue},
+    ParamField{&palp_session_params::ray_step, "ray_step", &bounds::kSpacing},
+    ParamField{&palp_session_params::hardness, "hardness", &bounds::kHardness},
+    ParamField{&palp_session_params::tau_stop, "tau_stop", &bounds::kTauStop},
+    ParamField{&palp_session_params::static_friction, "static_friction", &bounds::kFriction},
+    ParamField{&palp_session_params::dynamic_friction, "dynamic_friction", &bounds::kFriction},
+    ParamField{&palp_session_params::period, "period", &bounds::kPeriod},
+    ParamField{&palp_session_params::startup_threshold, "startup_threshold",
+               &bounds::kPositiveForce},
+    ParamField{&palp_session_params::cross_fade_seconds, "cross_fade_seconds", &bounds::kDuration},
+    ParamField{&palp_session_params::workspace_scale, "workspace_scale", &bounds::kScale}};
+
+/// Most quiet start-up ticks asked for (a minute at 1 kHz).
+constexpr std::uint32_t kMaxStartupQuietTicks = 60000;
+
+void checkParamFields(const palp_session_params& p) {
+    for (const ParamField& f : kParamFields) {
+        requireWithin(std::string("palp_session_params.") + f.name, p.*f.field, *f.bounds);
+    }
+    for (int i = 0; i < 3; ++i) {
+        requireWithin("palp_session_params.workspace_offset[" + std::to_string(i) + "]",
+                      p.workspace_offset[i], bounds::kPosition);
+    }
+    if (p.ring_count < 0 || p.ring_count > palp::kernels::kMaxRingRays) {
+        throwExpected("palp_session_params.ring_count",
+                      "0.." + std::to_string(palp::kernels::kMaxRingRays),
+                      std::to_string(p.ring_count));
+    }
+    if (p.startup_quiet_ticks > kMaxStartupQuietTicks) {
+        throwExpected("palp_session_params.startup_quiet_ticks",
+                      "at most " + std::to_string(kMaxStartupQuietTicks),
+                      std::to_string(p.startup_quiet_ticks));
+    }
+    if (p.dynamic_friction > p.static_friction) {
+        throwExpected("palp_session_params.dynamic_friction",
+                      "at most static_friction (" + formatValue(p.static_friction) + ")",
+                      formatValue(p.dynamic_friction));
+    }
+    if (p.max_stiffness < p.stiffness) {
+        throwExpected("palp_session_params.max_stiffness",
+                      "at least stiffness (" + formatValue(p.stiffness) + " N/m)",
+                      formatValue(p.max_stiffness));
+    }
+}
+
+}  // namespace
+
 ph::CouplingParams toCoupling(const palp_session_params& p) {
+    checkParamFields(p);
     ph::CouplingParams c;
     c.mode = toMode(p.mode);
     c.source = toSource(p.source);
@@ -298,11 +357,6 @@ ph::CouplingParams toCoupling(const palp_session_params& p) {
     c.firstHit.step = p.ray_step;
     c.accumulate.step = p.ray_step;
     c.accumulate.tauStop = p.tau_stop;
-    if (!std::isfinite(p.hardness) || p.hardness < 0 || !std::isfinite(p.threshold)) {
-        throwExpected(
-            "palp_session_params", "a finite threshold and a finite hardness >= 0",
-            "threshold " + formatValue(p.threshold) + ", hardness " + formatValue(p.hardness));
-    }
     c.accumulate.sigma = palp::kernels::TransferFunction::step(static_cast<float>(p.threshold),
                                                                static_cast<float>(p.hardness));
     c.accumulate.firstHitThreshold = static_cast<float>(p.threshold);
@@ -361,7 +415,7 @@ const char* fixedFieldChanged(const palp_session_params& a, const palp_session_p
 // --- trajectories ------------------------------------------------------------------------
 
 ph::Trajectory toTrajectory(const palp_trajectory& c) {
-    finite(c.centre, "centre");  // every kind has one; reported before an unknown kind
+    point(c.centre, "centre");  // every kind has one; reported before an unknown kind
     ph::Trajectory out;
     if (!forKind(c.kind,
                  [&](const auto& kind) { out = convert<std::decay_t<decltype(kind)>>(c); })) {
@@ -373,9 +427,9 @@ ph::Trajectory toTrajectory(const palp_trajectory& c) {
 }
 
 ph::HandModel toHand(const palp_trajectory& c) {
-    requirePositive("hand_mass", c.hand_mass);
-    requireNonNegative("hand_stiffness", c.hand_stiffness);
-    requireNonNegative("hand_damping", c.hand_damping);
+    requireField("hand_mass", c.hand_mass, bounds::kMass);
+    requireField("hand_stiffness", c.hand_stiffness, bounds::kStiffness);
+    requireField("hand_damping", c.hand_damping, bounds::kDamping);
     ph::HandModel h;
     h.massKg = c.hand_mass;
     h.stiffnessNpm = c.hand_stiffness;

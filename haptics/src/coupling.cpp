@@ -4,7 +4,9 @@
 #include <cmath>
 #include <span>
 #include <string>
+#include <utility>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 
@@ -48,15 +50,16 @@ void validateCouplingParams(const CouplingParams& p) {
         throw ValueError(
             "coupling source: expected Mesh, VolumeFirstHit or VolumeAccumulate, found value " +
             std::to_string(static_cast<int>(p.source)));
-    requirePositive("coupling baseStiffness", p.baseStiffness, "N/m");
-    requirePositive("coupling referenceLength", p.referenceLength, "m");
-    requireAtLeast("coupling maxMultiplier", p.maxMultiplier, 1);
+    requireWithin("coupling baseStiffness", p.baseStiffness, bounds::kPositiveStiffness);
+    requireWithin("coupling referenceLength", p.referenceLength, bounds::kLength);
+    requireWithin("coupling maxMultiplier", p.maxMultiplier, bounds::kMultiplier);
+    requireWithin("coupling maxStiffness", p.maxStiffness, bounds::kPositiveStiffness);
     if (!(std::isfinite(p.maxStiffness) && p.maxStiffness >= p.baseStiffness))
         throwExpected("coupling maxStiffness",
                       "a finite value >= baseStiffness (" + formatValue(p.baseStiffness) + " N/m)",
                       formatValue(p.maxStiffness));
-    requireNonNegative("coupling damping", p.damping, "N s/m");
-    requirePositive("coupling minDistance", p.minDistance, "m");
+    requireWithin("coupling damping", p.damping, bounds::kDamping);
+    requireWithin("coupling minDistance", p.minDistance, bounds::kSpacing);
     if (p.source == RaySource::Mesh && p.hardMask == 0)
         throw ValueError(
             "coupling hardMask: expected at least one mask bit for the Mesh source, "
@@ -64,6 +67,16 @@ void validateCouplingParams(const CouplingParams& p) {
     kernels::validateBundleParams(p.bundle);
     kernels::validateFirstHitParams(p.firstHit);
     kernels::validateAccumulateParams(p.accumulate);
+    // Every tick marches each volume ray length / step samples: keep a tick's work bounded.
+    for (const auto& [what, step] : {std::pair{"first-hit step", p.firstHit.step},
+                                     std::pair{"accumulate step", p.accumulate.step}}) {
+        if (p.bundle.length / step > kMaxRaySamples) {
+            throwExpected(std::string("coupling ") + what,
+                          "at least bundle length / " + std::to_string(kMaxRaySamples) + " = " +
+                              formatValue(p.bundle.length / kMaxRaySamples) + " m",
+                          formatValue(step) + " m");
+        }
+    }
 }
 
 double stiffnessMultiplier(const CouplingParams& params, double rayLength) noexcept {

@@ -8,6 +8,7 @@
 #include <limits>
 #include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 
 namespace palp::haptics {
@@ -156,12 +157,12 @@ void updateFrame(const Eigen::Vector3d& n, Eigen::Vector3d& t1, Eigen::Vector3d&
 }  // namespace
 
 void validateProxyParams(const ProxyParams& p) {
-    requireFinite(p.staticFriction, "staticFriction", "a finite value >= 0", p.staticFriction >= 0);
+    requireWithin("proxy parameter staticFriction", p.staticFriction, bounds::kFriction);
     requireFinite(
         p.dynamicFriction, "dynamicFriction",
         "a finite value in [0, staticFriction = " + std::to_string(p.staticFriction) + "]",
         p.dynamicFriction >= 0 && p.dynamicFriction <= p.staticFriction);
-    requireFinite(p.epsilon, "epsilon", "a finite value > 0 (m)", p.epsilon > 0);
+    requireWithin("proxy parameter epsilon", p.epsilon, bounds::kSpacing);
     if (p.maxIterations < 1 || p.maxIterations > 16)
         throw ValueError("proxy parameter maxIterations: expected 1..16, found " +
                          std::to_string(p.maxIterations));

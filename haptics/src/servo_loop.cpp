@@ -12,8 +12,10 @@
 #include <system_error>
 #include <vector>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/thread.h"
+#include "palp/base/validate.h"
 
 namespace palp::haptics {
 
@@ -54,9 +56,7 @@ std::string microseconds(double seconds) { return std::to_string(seconds * 1e6) 
 }  // namespace
 
 void validateServoConfig(const ServoConfig& c) {
-    if (!std::isfinite(c.periodSeconds) || c.periodSeconds < 1e-5 || c.periodSeconds > 1.0)
-        throw ValueError("servo config: periodSeconds must be in [1e-5, 1] s, found " +
-                         std::to_string(c.periodSeconds));
+    requireWithin("servo config periodSeconds", c.periodSeconds, bounds::kPeriod);
     if (c.priority < 0 || c.priority > 99)
         throw ValueError(
             "servo config: priority must be 0 (no SCHED_FIFO) or a SCHED_FIFO priority 1..99, "

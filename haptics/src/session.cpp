@@ -7,6 +7,7 @@
 #include <map>
 #include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/nothrow_slot.h"
 #include "palp/base/spsc_queue.h"
@@ -16,6 +17,12 @@
 
 namespace palp::haptics {
 namespace {
+
+/// Largest |coordinate| (m) of a probe sample taken as real: a thousand times palp's world
+/// bound (bounds::kPosition), far inside what Embree's rays accept.
+constexpr double kMaxProbeCoordinate = 1e4;
+/// Largest |velocity component| (m/s) of a probe sample taken as real.
+constexpr double kMaxProbeSpeed = 1e4;
 
 constexpr std::uint32_t kMaxTraceCapacity = 1u << 24;  // 16 M snapshots (a few GB): a typo guard
 
@@ -116,9 +123,10 @@ void validateSessionParams(const SessionParams& params) {
     validateCouplingParams(params.coupling);
     validateServoConfig(params.servo);
     const WorkspaceTransform& w = params.workspace;
-    requirePositive("session workspace.scale", w.scale);
-    if (!w.rotation.allFinite() || !w.offset.allFinite())
-        throwExpected("session workspace", "a finite rotation and offset", "NaN/Inf");
+    requireWithin("session workspace.scale", w.scale, bounds::kScale);
+    if (!w.rotation.allFinite()) throwExpected("session workspace.rotation", "finite", "NaN/Inf");
+    for (int i = 0; i < 3; ++i)
+        requireWithin("session workspace.offset", w.offset[i], bounds::kPosition);
     const double orth =
         (w.rotation.transpose() * w.rotation - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
     const double det = w.rotation.determinant();
@@ -126,8 +134,8 @@ void validateSessionParams(const SessionParams& params) {
         throwExpected("session workspace.rotation", "a rotation (R^T R = I, det 1)",
                       "|R^T R - I| = " + formatValue(orth) + ", det " + formatValue(det));
     }
-    requirePositive("session startupThresholdN", params.startupThresholdN, "N");
-    requireInRange("session crossFadeSeconds", params.crossFadeSeconds, 0, 60, "s");
+    requireWithin("session startupThresholdN", params.startupThresholdN, bounds::kPositiveForce);
+    requireWithin("session crossFadeSeconds", params.crossFadeSeconds, bounds::kDuration);
     if (params.traceCapacity > kMaxTraceCapacity) {
         throwExpected("session traceCapacity", "<= " + std::to_string(kMaxTraceCapacity),
                       std::to_string(params.traceCapacity));
@@ -367,10 +375,15 @@ void Session::Impl::tick(double timeSeconds) noexcept {
 // Stage 1, device -> world: world = offset + scale * R * device.
 Session::Impl::HandSample Session::Impl::deviceToWorld(const DeviceState& state) const noexcept {
     HandSample h;
-    h.ok = state.position.allFinite() && state.velocity.allFinite();
     h.handVelocity = workspace.rotation * state.velocity;
     h.probe = workspace.offset + workspace.scale * (workspace.rotation * state.position);
     h.probeVelocity = workspace.scale * h.handVelocity;
+    // A sample that is not finite, or that puts the probe absurdly far away (a device driver's
+    // garbage, a runaway host model), is a bad sample: no ray is cast from it (Embree asserts on
+    // such rays) and the last good force is held, as for NaN.
+    h.ok = h.probe.allFinite() && h.probeVelocity.allFinite() &&
+           h.probe.cwiseAbs().maxCoeff() <= kMaxProbeCoordinate &&
+           h.probeVelocity.cwiseAbs().maxCoeff() <= kMaxProbeSpeed;
     return h;
 }
 

@@ -1,12 +1,32 @@
 #include "palp/haptics/simulated_device.h"
 
+#include "palp/base/bounds.h"
+#include "palp/base/validate.h"
 #include "palp/haptics/safety.h"
 
 namespace palp::haptics {
 
+void validateHandModel(const HandModel& hand, double periodSeconds) {
+    requireWithin("hand model massKg", hand.massKg, bounds::kMass);
+    requireWithin("hand model stiffnessNpm", hand.stiffnessNpm, bounds::kStiffness);
+    requireWithin("hand model dampingNspm", hand.dampingNspm, bounds::kDamping);
+    requireWithin("simulated device periodSeconds", periodSeconds, bounds::kPeriod);
+    const double t = periodSeconds;
+    const double stability = (hand.stiffnessNpm * t * t + 2.0 * hand.dampingNspm * t) / hand.massKg;
+    if (!(stability < 4.0)) {
+        throwExpected(
+            "hand model",
+            "(stiffnessNpm T^2 + 2 dampingNspm T) / massKg < 4, stable at the period T = " +
+                formatValue(t) + " s (a heavier hand, or a softer or less damped arm)",
+            formatValue(stability));
+    }
+}
+
 SimulatedDevice::SimulatedDevice(const DeviceSpec& spec, const Trajectory& trajectory,
-                                 const HandModel& hand, double periodSeconds) noexcept
+                                 const HandModel& hand, double periodSeconds)
     : mSpec(spec), mTrajectory(trajectory), mHand(hand), mPeriod(periodSeconds) {
+    validateTrajectory(trajectory);
+    validateHandModel(hand, periodSeconds);
     sampleTrajectory(mTrajectory, 0.0, mState.position, mState.velocity);
 }
 

@@ -4,6 +4,10 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <string>
+
+#include "palp/base/bounds.h"
+#include "palp/base/validate.h"
 
 namespace palp::haptics {
 namespace {
@@ -354,6 +358,102 @@ void SinusoidTrajectory::sample(double t, Eigen::Vector3d& position,
 void sampleTrajectory(const Trajectory& trajectory, double t, Eigen::Vector3d& position,
                       Eigen::Vector3d& velocity) noexcept {
     std::visit([&](const auto& path) { path.sample(t, position, velocity); }, trajectory);
+}
+
+namespace {
+
+/// Checks one trajectory's members, each named `<Type> <member>`.
+class TrajectoryCheck {
+  public:
+    explicit TrajectoryCheck(const char* type) : mType(type) {}
+
+    const TrajectoryCheck& point(const char* member, const Eigen::Vector3d& p) const {
+        for (int i = 0; i < 3; ++i) requireWithin(name(member), p[i], bounds::kPosition);
+        return *this;
+    }
+    const TrajectoryCheck& direction(const char* member, const Eigen::Vector3d& d) const {
+        if (!d.allFinite()) {
+            throwExpected(name(member), "a finite vector",
+                          "(" + formatValue(d.x()) + ", " + formatValue(d.y()) + ", " +
+                              formatValue(d.z()) + ")");
+        }
+        return *this;
+    }
+    const TrajectoryCheck& scalar(const char* member, double v, const Bounds& b) const {
+        requireWithin(name(member), v, b);
+        return *this;
+    }
+
+  private:
+    std::string name(const char* member) const { return std::string(mType) + " " + member; }
+    const char* mType;
+};
+
+void check(const PressTrajectory& p) {
+    TrajectoryCheck("PressTrajectory")
+        .point("start", p.start)
+        .direction("direction", p.direction)
+        .scalar("depthM", p.depthM, bounds::kSpan)
+        .scalar("pressSeconds", p.pressSeconds, bounds::kPositiveDuration)
+        .scalar("holdSeconds", p.holdSeconds, bounds::kDuration);
+}
+
+void check(const SweepTrajectory& s) {
+    TrajectoryCheck("SweepTrajectory")
+        .point("centre", s.centre)
+        .direction("direction", s.direction)
+        .direction("pressDirection", s.pressDirection)
+        .scalar("lengthM", s.lengthM, bounds::kSpan)
+        .scalar("speedMps", s.speedMps, bounds::kSpeed)
+        .scalar("depthM", s.depthM, bounds::kSpan)
+        .scalar("approachM", s.approachM, bounds::kSpan)
+        .scalar("approachSeconds", s.approachSeconds, bounds::kDuration)
+        .scalar("turnSeconds", s.turnSeconds, bounds::kDuration);
+}
+
+void check(const RasterTrajectory& r) {
+    TrajectoryCheck("RasterTrajectory")
+        .point("centre", r.centre)
+        .direction("u", r.u)
+        .direction("v", r.v)
+        .direction("pressDirection", r.pressDirection)
+        .scalar("extentU", r.extentU, bounds::kSpan)
+        .scalar("extentV", r.extentV, bounds::kSpan)
+        .scalar("lineSpacingM", r.lineSpacingM, bounds::kSpan)
+        .scalar("speedMps", r.speedMps, bounds::kSpeed)
+        .scalar("depthM", r.depthM, bounds::kSpan)
+        .scalar("approachM", r.approachM, bounds::kSpan)
+        .scalar("approachSeconds", r.approachSeconds, bounds::kDuration)
+        .scalar("rampSeconds", r.rampSeconds, bounds::kDuration);
+}
+
+void check(const CircleTrajectory& c) {
+    TrajectoryCheck("CircleTrajectory")
+        .point("centre", c.centre)
+        .direction("u", c.u)
+        .direction("v", c.v)
+        .direction("pressDirection", c.pressDirection)
+        .scalar("radiusM", c.radiusM, bounds::kSpan)
+        .scalar("|frequencyHz|", std::abs(c.frequencyHz), bounds::kFrequency)
+        .scalar("depthM", c.depthM, bounds::kSpan)
+        .scalar("approachM", c.approachM, bounds::kSpan)
+        .scalar("approachSeconds", c.approachSeconds, bounds::kDuration)
+        .scalar("rampSeconds", c.rampSeconds, bounds::kDuration);
+}
+
+void check(const SinusoidTrajectory& s) {
+    TrajectoryCheck("SinusoidTrajectory")
+        .point("start", s.start)
+        .direction("direction", s.direction)
+        .scalar("amplitudeM", s.amplitudeM, bounds::kSpan)
+        .scalar("|frequencyHz|", std::abs(s.frequencyHz), bounds::kFrequency)
+        .scalar("growSeconds", s.growSeconds, bounds::kDuration);
+}
+
+}  // namespace
+
+void validateTrajectory(const Trajectory& trajectory) {
+    std::visit([](const auto& t) { check(t); }, trajectory);
 }
 
 }  // namespace palp::haptics

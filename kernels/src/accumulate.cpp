@@ -6,6 +6,7 @@
 #include <string>
 #include <type_traits>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/kernels/volume_ray.h"
@@ -14,8 +15,8 @@
 namespace palp::kernels {
 
 void validateAccumulateParams(const AccumulateParams& p) {
-    requirePositive("accumulate step", p.step, "m");
-    requirePositive("accumulate tauStop", p.tauStop);
+    requireWithin("accumulate step", p.step, bounds::kSpacing);
+    requireWithin("accumulate tauStop", p.tauStop, bounds::kTauStop);
     if (p.reportFirstHit && std::isnan(p.firstHitThreshold))
         throw ValueError("accumulate firstHitThreshold: expected a number, found NaN");
 }

@@ -6,6 +6,7 @@
 #include <string>
 #include <type_traits>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/kernels/volume_ray.h"
@@ -24,9 +25,8 @@ namespace palp::kernels {
 // Marching
 
 void validateFirstHitParams(const FirstHitParams& p) {
-    requirePositive("first-hit step", p.step, "m");
-    if (std::isnan(p.threshold))
-        throw ValueError("first-hit threshold: expected a number, found NaN");
+    requireWithin("first-hit step", p.step, bounds::kSpacing);
+    requireWithin("first-hit threshold", p.threshold, bounds::kVolumeValue);
     if (p.refineIterations < 0 || p.refineIterations > 64)
         throw ValueError("first-hit refineIterations: expected 0..64, found " +
                          std::to_string(p.refineIterations));

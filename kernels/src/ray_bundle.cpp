@@ -4,6 +4,7 @@
 #include <numbers>
 #include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/validate.h"
 
 namespace palp::kernels {
@@ -41,7 +42,7 @@ std::array<double, 9> gather(const RayBundle& b, std::span<const double> v, bool
 
 void validateBundleParams(const BundleParams& p) {
     const double halfPi = std::numbers::pi / 2;
-    requirePositive("bundle length", p.length, "m");
+    requireWithin("bundle length", p.length, bounds::kLength);
     if (p.ringCount < 0 || p.ringCount > kMaxRingRays)
         throwExpected("bundle ringCount", "0.." + std::to_string(kMaxRingRays),
                       std::to_string(p.ringCount));
@@ -51,7 +52,7 @@ void validateBundleParams(const BundleParams& p) {
     if (p.ringCount > 0) requirePositive("bundle ringWeightSigma", p.ringWeightSigma, "rad");
     if (!(p.sobelAngle > 0 && p.sobelAngle < halfPi))
         throwExpected("bundle sobelAngle", "an angle in (0, pi/2) rad", formatValue(p.sobelAngle));
-    requirePositive("bundle surfaceOffset", p.surfaceOffset, "m");
+    requireWithin("bundle surfaceOffset", p.surfaceOffset, bounds::kSpacing);
 }
 
 void orthonormalBasis(const Eigen::Vector3d& d, Eigen::Vector3d& e1, Eigen::Vector3d& e2) noexcept {

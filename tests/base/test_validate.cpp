@@ -63,7 +63,7 @@ TEST(Bounds, RefuseNonFiniteAndAbsurdValuesShowingTheCallersUnit) {
                   requireWithin("--depth", 1e297, bounds::kSpan, {1e3, "mm"});
               }),
               "--depth: expected a value in [0, 10000] mm, found 1e+300");
-    EXPECT_EQ(messageOf([] { requireWithin("speed", 0, bounds::kSpeed); }),
+    EXPECT_EQ(messageOf([] { requireWithin("speed", 0, bounds::kPositiveSpeed); }),
               "speed: expected a value in (0, 10] m/s, found 0");
     EXPECT_EQ(messageOf([] { requireWithin("poisson", 0.5, bounds::kPoissonRatio); }),
               "poisson: expected a value in (-1, 0.5), found 0.5");

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "commands.h"
+#include "option_checks.h"
 #include "palp/base/error.h"
 #include "palp/bench/ray_bench.h"
 #include "palp/volume/load.h"
@@ -50,20 +51,23 @@ Command addBench(CLI::App& root) {
     app->add_option("--volume", args->volume,
                     "A .vdb (or any scan palp reads); default: the built-in phantom");
     app->add_option("--voxel", args->voxelMm,
-                    "Resample --volume to this voxel size, mm (default: as stored)");
+                    "Resample --volume to this voxel size, mm (default: as stored)")
+        ->check(within(bounds::kSpacing, kMm));
     app->add_option("--mesh", args->mesh,
                     "A triangle mesh (OBJ, STL, PLY) to trace next to the built-in meshes");
     app->add_option("--mesh-unit", args->meshUnit,
-                    "Metres per mesh file unit (default 1e-3: millimetres)");
+                    "Metres per mesh file unit (default 1e-3: millimetres)")
+        ->check(within(bounds::kMeshUnit));
     app->add_option("--rays", args->rays, "Rays per bundle, 17..64 (17 + ring); default: 17 and 25")
-        ->check(CLI::Range(17, 64));
+        ->check(integerIn(17, 64));
     app->add_option("--frames", args->frames, "Measured frames per figure")
-        ->check(CLI::Range(10, 10000000));
-    app->add_option("--threshold", args->threshold, "First-hit threshold (HU for CT), default 300");
+        ->check(integerIn(10, 10000000));
+    app->add_option("--threshold", args->threshold, "First-hit threshold (HU for CT), default 300")
+        ->check(within(bounds::kVolumeValue));
     app->add_option("--warm-block", args->warmBlock,
                     "Volume: also time palp and the baseline in blocks of this many frames each "
                     "(warm caches, as a servo thread owning its core); 0: skip (default 250)")
-        ->check(CLI::Range(0, 100000));
+        ->check(integerIn(0, 100000));
     app->add_flag("--json", args->json, "Print the figures as JSON");
     app->add_flag("--no-pin", args->noPin, "Do not pin the measuring thread to one core");
     app->add_flag("--no-batch", args->noBatch, "Skip the batch-throughput figures");

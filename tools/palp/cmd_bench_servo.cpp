@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "commands.h"
+#include "option_checks.h"
 #include "palp/base/thread.h"
 #include "palp/haptics/servo_loop.h"
 
@@ -111,23 +112,23 @@ Command addBenchServo(CLI::App& bench) {
         "Servo loop timing on this machine: wake-up latency, period error, misses (compare "
         "with cyclictest: bench/haptics/servo_vs_cyclictest.sh)");
     app->add_option("--seconds", args->seconds, "Measured duration, s (default 10)")
-        ->check(CLI::Range(0.01, 86400.0));
+        ->check(within(bounds::kPositiveDuration));
     app->add_option("--period-us", args->periodUs, "Servo period, us (default 1000)")
-        ->check(CLI::Range(10.0, 1e6));
+        ->check(within(bounds::kPeriod, {1e6, "us"}));
     app->add_option("--cpu", args->cpu, "CPU to pin the servo thread to (default: the last one)")
-        ->check(CLI::Range(-1, 65535));
+        ->check(integerIn(-1, 65535));
     app->add_option("--priority", args->priority,
                     "SCHED_FIFO priority 1..99, 0 for none (default 80)")
-        ->check(CLI::Range(0, 99));
+        ->check(integerIn(0, 99));
     app->add_option("--spin-us", args->spinUs,
                     "Busy-wait this long before each deadline, us (default 0: sleep only)")
-        ->check(CLI::Range(0.0, 1e6));
+        ->check(within(bounds::kPeriodPart, {1e6, "us"}));
     app->add_option("--work-us", args->workUs,
                     "Fixed arithmetic per tick, about this many us (default 0: empty task)")
-        ->check(CLI::Range(0.0, 1e6));
+        ->check(within(bounds::kPeriodPart, {1e6, "us"}));
     app->add_option("--warm-up", args->warmUpSeconds,
                     "Seconds run before the statistics are reset (default 0.2)")
-        ->check(CLI::Range(0.0, 60.0));
+        ->check(within(bounds::kDuration));
     app->add_flag("--load", args->load,
                   "Keep every other CPU of the process busy for the duration");
     app->add_flag("--mlock", args->lockMemory, "mlockall(MCL_CURRENT | MCL_FUTURE) first");

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "commands.h"
+#include "option_checks.h"
 #include "palp/base/error.h"
 #include "palp/bench/ray_bench.h"
 #include "palp/haptics/coupling.h"
@@ -454,14 +455,16 @@ Command addBenchTick(CLI::App& bench) {
     app->add_option("--voxel", args->voxelMm,
                     "Voxel edge, mm: resample --volume (default: as stored) or the phantom's "
                     "(default 0.5)")
-        ->check(CLI::Range(0.05, 20.0));
+        ->check(within(bounds::kSpacing, kMm));
     app->add_option("--ticks", args->ticks, "Ticks per mode (default 20000: 20 s simulated)")
-        ->check(CLI::Range(std::uint64_t{100}, std::uint64_t{10000000}));
+        ->check(integerIn(100, 10000000));
     app->add_option("--surface-iso", args->surfaceIso,
-                    "Value of the surface the proxy slides on (default -400 HU: skin)");
+                    "Value of the surface the proxy slides on (default -400 HU: skin)")
+        ->check(within(bounds::kVolumeValue));
     app->add_option("--threshold", args->threshold,
                     "Hard structures: first-hit threshold, accumulate step and mesh iso (default "
-                    "300 HU: bone)");
+                    "300 HU: bone)")
+        ->check(within(bounds::kVolumeValue));
     app->add_option("--press-axis", args->pressAxis,
                     "Press direction into the body (default +y: anterior to posterior)");
     app->add_option("--device", args->device, "Device class whose limits apply");

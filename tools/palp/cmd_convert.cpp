@@ -3,7 +3,9 @@
 #include <filesystem>
 
 #include "commands.h"
+#include "option_checks.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "palp/volume/load.h"
 #include "progress.h"
 #include "volume_flags.h"
@@ -31,16 +33,18 @@ Command addConvert(CLI::App& root) {
     app->add_option("-o,--output", args->output, "Output .vdb file")->required();
     app->add_option("--voxel-size", args->voxelMm,
                     "Isotropic voxel edge in mm (default: finest input spacing)")
-        ->check(CLI::PositiveNumber);
+        ->check(within(bounds::kSpacing, kMm));
     app->add_option("--series", args->series, "DICOM SeriesInstanceUID to convert");
     app->add_option("--volume", args->volume, "0-based time point of a 4D series or file")
-        ->check(CLI::NonNegativeNumber);
+        ->check(integerIn(0, 1000000));
     app->add_option(
-        "--background", args->background,
-        "Values below this become inactive background (default -900 for CT, 0 otherwise)");
+           "--background", args->background,
+           "Values below this become inactive background (default -900 for CT, 0 otherwise)")
+        ->check(within(bounds::kVolumeValue));
     app->add_option("--crop", args->cropMm, "World box in mm (LPS): xmin,ymin,zmin,xmax,ymax,zmax")
         ->delimiter(',')
-        ->expected(6);
+        ->expected(6)
+        ->check(within(bounds::kPosition, kMm));
     app->add_option("--compression", args->compression,
                     "Leaf compression: blosc (default), zip or mask")
         ->check(CLI::IsMember({"blosc", "zip", "mask"}));
@@ -60,6 +64,13 @@ Command addConvert(CLI::App& root) {
             if (!std::isnan(args->background))
                 opt.resample.backgroundThreshold = static_cast<float>(args->background);
             if (!args->cropMm.empty()) {
+                const std::vector<double>& c = args->cropMm;
+                if (!(c[0] < c[3] && c[1] < c[4] && c[2] < c[5])) {
+                    throwExpected("--crop", "xmin < xmax, ymin < ymax and zmin < zmax (mm)",
+                                  formatValue(c[0]) + "," + formatValue(c[1]) + "," +
+                                      formatValue(c[2]) + "," + formatValue(c[3]) + "," +
+                                      formatValue(c[4]) + "," + formatValue(c[5]));
+                }
                 volume::WorldBox box;
                 box.min = Eigen::Vector3d(args->cropMm[0], args->cropMm[1], args->cropMm[2]) * 1e-3;
                 box.max = Eigen::Vector3d(args->cropMm[3], args->cropMm[4], args->cropMm[5]) * 1e-3;

@@ -9,11 +9,13 @@
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "commands.h"
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/haptics/coupling_defaults.h"
@@ -109,7 +111,19 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
     }
     if (!a.source.empty()) cp.source = parseSource(a.source);
     if (std::isfinite(a.kBase)) cp.baseStiffness = a.kBase;
-    if (std::isfinite(a.kMax)) cp.maxStiffness = a.kMax;
+    if (std::isfinite(a.kMax)) {
+        if (std::isfinite(a.kBase) && a.kMax < a.kBase) {
+            throwExpected("--k-max", "a clamp >= --k-base (" + formatValue(a.kBase) + " N/m)",
+                          formatValue(a.kMax) + " N/m");
+        }
+        cp.maxStiffness = a.kMax;
+        // The default surface stiffness follows a clamp set below it.
+        if (!std::isfinite(a.kBase)) cp.baseStiffness = std::min(cp.baseStiffness, a.kMax);
+    } else if (cp.maxStiffness < cp.baseStiffness) {
+        // The default clamp is below the surface stiffness asked for: the clamp follows it (the
+        // device's limit then lowers both, and the report says so).
+        cp.maxStiffness = cp.baseStiffness;
+    }
     if (std::isfinite(a.lMaxMm)) cp.bundle.length = a.lMaxMm * 1e-3;
     if (std::isfinite(a.lRefMm)) cp.referenceLength = a.lRefMm * 1e-3;
     if (std::isfinite(a.mMax)) cp.maxMultiplier = a.mMax;
@@ -357,26 +371,50 @@ RunResult runFast(haptics::Session& session, std::uint64_t ticks) {
 // Outputs
 
 /// The CSV trace and the PNG map the options ask for; the map's value range in @p mapLo, @p mapHi.
+/// The plane --map bins over. @throw palp::ValueError naming --map-pixel when the map would
+/// exceed 4096 pixels a side.
+haptics::MapPlane mapPlane(const PalpateArgs& a, const PathFrame& f) {
+    haptics::MapPlane plane;
+    plane.centre = f.centre;
+    plane.u = f.u;
+    plane.v = f.v;
+    plane.extentU = f.extentU;
+    plane.extentV = f.extentV;
+    plane.pixelM = (a.mapPixelMm > 0 ? a.mapPixelMm : a.spacingMm) * 1e-3;
+    const double side = std::max(plane.extentU, plane.extentV);
+    if (side / plane.pixelM > 4096) {
+        throwExpected(a.mapPixelMm > 0 ? "--map-pixel" : "--map-pixel (default --spacing)",
+                      "at least " + formatValue(side / 4096 * 1e3) + " mm for a " +
+                          formatValue(side * 1e3) + " mm map (4096 pixels a side)",
+                      formatValue(plane.pixelM * 1e3) + " mm");
+    }
+    return plane;
+}
+
+/// Writes --trace and --map. The map is made before either file is written, and a trace is
+/// removed again when the map cannot be written, so a refusal leaves no output behind.
 void writeOutputs(const PalpateArgs& a, const PathFrame& f,
                   const std::vector<haptics::Snapshot>& snaps, double& mapLo, double& mapHi) {
-    if (!a.trace.empty()) haptics::writeTraceCsv(a.trace, snaps);
+    std::optional<haptics::ScalarMap> map;
     if (!a.map.empty()) {
-        haptics::MapPlane plane;
-        plane.centre = f.centre;
-        plane.u = f.u;
-        plane.v = f.v;
-        plane.extentU = f.extentU;
-        plane.extentV = f.extentV;
-        plane.pixelM = (a.mapPixelMm > 0 ? a.mapPixelMm : a.spacingMm) * 1e-3;
-        haptics::ScalarMap m =
-            haptics::binSnapshots(snaps, plane, haptics::parseMapQuantity(a.mapQuantity), true,
-                                  haptics::parseMapAnchor(a.mapAt));
-        m.fillGaps(2);
-        m.range(mapLo, mapHi);
-        haptics::PngOptions po;
-        po.colorMap = a.grey ? haptics::ColorMap::Grey : haptics::ColorMap::Heat;
-        po.scale = std::clamp(static_cast<int>(256 / std::max(m.cols(), m.rows())), 1, 16);
-        haptics::writeMapPng(a.map, m, po);
+        map = haptics::binSnapshots(snaps, mapPlane(a, f), haptics::parseMapQuantity(a.mapQuantity),
+                                    true, haptics::parseMapAnchor(a.mapAt));
+        map->fillGaps(2);
+        map->range(mapLo, mapHi);
+    }
+    if (!a.trace.empty()) haptics::writeTraceCsv(a.trace, snaps);
+    if (!map) return;
+    haptics::PngOptions po;
+    po.colorMap = a.grey ? haptics::ColorMap::Grey : haptics::ColorMap::Heat;
+    po.scale = std::clamp(static_cast<int>(256 / std::max(map->cols(), map->rows())), 1, 16);
+    try {
+        haptics::writeMapPng(a.map, *map, po);
+    } catch (...) {
+        if (!a.trace.empty()) {
+            std::error_code ec;
+            fs::remove(a.trace, ec);
+        }
+        throw;
     }
 }
 
@@ -552,19 +590,43 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     }
     std::shared_ptr<const haptics::DeformableModel> body;
     if (a.deformable) {
-        body = makeBody(a, vol, press, period);
+        try {
+            body = makeBody(a, vol, press, period);
+        } catch (const ValueError& e) {
+            // Say which options made the tissue (the library speaks of fields, not flags).
+            throw ValueError(std::string(e.what()) + "\n(the tissue of --fem-cell-mm " +
+                             formatValue(a.femCellMm) + ", --tissue-hu " + formatValue(a.tissueHu) +
+                             ", --bone-hu " + formatValue(a.boneHu) + ", --young-kpa " +
+                             formatValue(a.youngKpa) + ", --poisson " + formatValue(a.poisson) +
+                             ", --fem-damping " + formatValue(a.femAlpha) + ", --fem-beta " +
+                             formatValue(a.femBeta) + ", --filter-mm " + formatValue(a.filterMm) +
+                             ")");
+        }
         scene->setDeformable(body);
     }
     const PathFrame frame = pathFrame(a, box, vol.voxelSize(), press);
     const PathPlan plan = trajectoryFromOptions(a, frame, press);
     double duration = plan.duration;
-    if (a.seconds > 0) duration = a.seconds;
+    if (a.seconds > 0) {
+        duration = a.seconds;
+    } else if (!bounds::kDuration.contains(duration)) {
+        // A path that would run for days (a 1 um raster spacing, a crawl of a speed).
+        throwExpected("--trajectory " + a.trajectory,
+                      "a path done within " + formatValue(bounds::kDuration.max) +
+                          " s (raise --spacing or --speed, or set --seconds)",
+                      formatValue(duration) + " s");
+    }
+    if (!a.map.empty()) haptics::validateMapPlane(mapPlane(a, frame));
     const auto ticks = static_cast<std::uint64_t>(std::ceil(duration / period));
 
     haptics::SessionParams sp;
     sp.coupling = cp;
     sp.proxy.staticFriction = a.muStatic;
-    sp.proxy.dynamicFriction = a.muDynamic;
+    sp.proxy.dynamicFriction = std::isfinite(a.muDynamic) ? a.muDynamic : std::min(0.3, a.muStatic);
+    if (sp.proxy.dynamicFriction > sp.proxy.staticFriction) {
+        throwExpected("--mu-dynamic", "at most --mu-static (" + formatValue(a.muStatic) + ")",
+                      formatValue(sp.proxy.dynamicFriction));
+    }
     sp.passivityControl = a.passivityControl;
     sp.servo.periodSeconds = period;
     // Real time: every tick's snapshot is queued in the trace ring and drained below

@@ -1,5 +1,6 @@
 // palp phantom: the thesis scenes (docs/algorithms.md section 9) as CT-like volumes or DICOM
 // series.
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -7,6 +8,7 @@
 #include <vector>
 
 #include "commands.h"
+#include "option_checks.h"
 #include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
@@ -53,37 +55,49 @@ Command addPhantom(CLI::App& root) {
     out->excludes(dicom);
     app->add_option("--quadrant", args->quadrant,
                     "avc: quadrant of the hidden box, 0-3 (bit 0: +x, bit 1: +z)")
-        ->check(CLI::Range(0, 3));
+        ->check(integerIn(0, 3));
     app->add_option("--shape", args->shape, "avcec: plate outline")
         ->check(CLI::IsMember({"circle", "triangle", "rectangle", "hexagon", "pentagon"}));
     app->add_option("--displacement", args->displacement,
                     "bone: -1 right side (x<0) closer to the surface, 0 level, 1 left side closer")
-        ->check(CLI::Range(-1, 1));
+        ->check(integerIn(-1, 1));
     app->add_option("--bone-tilt", args->boneTiltDeg,
-                    "bone: slab tilt for displacement +-1, degrees");
+                    "bone: slab tilt for displacement +-1, degrees")
+        ->check(within(bounds::kTiltAngle, kDegrees));
     app->add_option("--profile", args->profile, "stiffness: CL transition profile")
         ->check(CLI::IsMember({"linear", "cosine", "tanh"}));
-    app->add_option("--width", args->widthMm, "stiffness: CL transition width, mm");
-    app->add_option("--tanh-a", args->tanhSharpness, "stiffness: sharpness of the tanh profile");
+    app->add_option("--width", args->widthMm, "stiffness: CL transition width, mm")
+        ->check(within(bounds::kLength, kMm));
+    app->add_option("--tanh-a", args->tanhSharpness, "stiffness: sharpness of the tanh profile")
+        ->check(within(bounds::kShapeFactor));
     app->add_option("--hard-depth", args->hardDepthMm,
-                    "stiffness: CP depth below which the box is harder, mm");
-    app->add_option("--fat", args->fatMm, "Fat layer thickness under the surface, mm (0 for none)");
+                    "stiffness: CP depth below which the box is harder, mm")
+        ->check(within(bounds::kSpan, kMm));
+    app->add_option("--fat", args->fatMm, "Fat layer thickness under the surface, mm (0 for none)")
+        ->check(within(bounds::kSpan, kMm));
     app->add_option("--voxel-size", args->voxelMm, "Voxel edge (and DICOM pixel spacing), mm")
-        ->check(CLI::PositiveNumber);
-    app->add_option("--noise", args->noiseHu, "Gaussian noise standard deviation, HU");
-    app->add_option("--blur", args->blurMm, "Gaussian partial-volume blur standard deviation, mm");
+        ->check(within(bounds::kSpacing, kMm));
+    app->add_option("--noise", args->noiseHu, "Gaussian noise standard deviation, HU")
+        ->check(within(bounds::kVolumeSpread, {1, "HU"}));
+    app->add_option("--blur", args->blurMm, "Gaussian partial-volume blur standard deviation, mm")
+        ->check(within(bounds::kSpan, kMm));
     app->add_option("--supersample", args->supersample,
                     "Sub-samples per pixel edge (n^3 per pixel), 1-8")
-        ->check(CLI::Range(1, 8));
-    app->add_option("--seed", args->seed, "Noise seed (the same seed gives identical output)");
-    app->add_option("--margin", args->marginMm, "Air around the scene, mm");
+        ->check(integerIn(1, 8));
+    app->add_option("--seed", args->seed, "Noise seed (the same seed gives identical output)")
+        ->check(integerIn(0, INT64_MAX));
+    app->add_option("--margin", args->marginMm, "Air around the scene, mm")
+        ->check(within(bounds::kSpan, kMm));
     app->add_option(
-        "--slice-spacing", args->sliceSpacingMm,
-        "DICOM: gap between slices along the slice normal, mm (default: the voxel size)");
+           "--slice-spacing", args->sliceSpacingMm,
+           "DICOM: gap between slices along the slice normal, mm (default: the voxel size)")
+        ->check(within(bounds::kSpacing, kMm));
     app->add_option("--slice-gaps", args->sliceGapsMm,
                     "DICOM: uneven gaps along the normal, mm, used cyclically")
-        ->delimiter(',');
-    app->add_option("--tilt", args->tiltDeg, "DICOM: gantry tilt, degrees");
+        ->delimiter(',')
+        ->check(within(bounds::kSpacing, kMm));
+    app->add_option("--tilt", args->tiltDeg, "DICOM: gantry tilt, degrees")
+        ->check(within(bounds::kTiltAngle, kDegrees));
     return {
         app, [args, out, dicom]() -> int {
             if (out->count() == 0 && dicom->count() == 0) {

@@ -1,10 +1,14 @@
 #include "palpate_options.h"
 
+#include <cstdint>
 #include <filesystem>
 #include <system_error>
 
+#include "option_checks.h"
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
+#include "palp/kernels/ray_bundle.h"
 
 namespace palp::tool {
 
@@ -18,17 +22,20 @@ void addSceneOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
     app->add_option("--phantom", a.phantom, "Built-in scene instead of a file")
         ->check(CLI::IsMember({"avc", "avcec", "bone", "stiffness"}));
     o.quadrant = app->add_option("--quadrant", a.quadrant, "avc: quadrant of the hidden box, 0-3")
-                     ->check(CLI::Range(0, 3));
+                     ->check(integerIn(0, 3));
     o.shape =
         app->add_option("--shape", a.shape, "avcec: plate outline")
             ->check(CLI::IsMember({"circle", "triangle", "rectangle", "hexagon", "pentagon"}));
     o.displacement = app->add_option("--displacement", a.displacement, "bone: -1, 0 or 1")
-                         ->check(CLI::Range(-1, 1));
+                         ->check(integerIn(-1, 1));
     o.profile = app->add_option("--profile", a.profile, "stiffness: CL transition profile")
                     ->check(CLI::IsMember({"linear", "cosine", "tanh"}));
-    o.voxel = app->add_option("--voxel-mm", a.voxelMm, "Phantom voxel edge, mm (default 1)");
-    o.noise = app->add_option("--noise", a.noiseHu, "Phantom noise standard deviation, HU");
-    o.seed = app->add_option("--seed", a.seed, "Phantom noise seed");
+    o.voxel = app->add_option("--voxel-mm", a.voxelMm, "Phantom voxel edge, mm (default 1)")
+                  ->check(within(bounds::kSpacing, kMm));
+    o.noise = app->add_option("--noise", a.noiseHu, "Phantom noise standard deviation, HU")
+                  ->check(within(bounds::kVolumeSpread, {1, "HU"}));
+    o.seed =
+        app->add_option("--seed", a.seed, "Phantom noise seed")->check(integerIn(0, INT64_MAX));
 }
 
 /// Deformable tissue and its FEM.
@@ -38,19 +45,27 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
         "Deformable tissue: voxelised hexahedral FEM (fixed on the face opposite the press and "
         "inside bone), VC only, the coupling force spread by a Gaussian filter");
     o.fem = {
-        app->add_option("--fem-cell-mm", a.femCellMm, "deformable: element edge, mm (5)"),
-        app->add_option("--young-kpa", a.youngKpa, "deformable: Young's modulus, kPa (5)"),
-        app->add_option("--poisson", a.poisson, "deformable: Poisson's ratio (0.45)"),
+        app->add_option("--fem-cell-mm", a.femCellMm, "deformable: element edge, mm (5)")
+            ->check(within(bounds::kSpacing, kMm)),
+        app->add_option("--young-kpa", a.youngKpa, "deformable: Young's modulus, kPa (5)")
+            ->check(within(bounds::kYoungsModulus, {1e-3, "kPa"})),
+        app->add_option("--poisson", a.poisson, "deformable: Poisson's ratio (0.45)")
+            ->check(within(bounds::kPoissonRatio)),
         app->add_option("--fem-damping", a.femAlpha,
-                        "deformable: mass-proportional damping alpha, 1/s (60)"),
+                        "deformable: mass-proportional damping alpha, 1/s (60)")
+            ->check(within(bounds::kMassDamping)),
         app->add_option("--fem-beta", a.femBeta,
-                        "deformable: stiffness-proportional damping beta, s (0)"),
+                        "deformable: stiffness-proportional damping beta, s (0)")
+            ->check(within(bounds::kStiffnessDamping)),
         app->add_option("--filter-mm", a.filterMm,
-                        "deformable: Gaussian filter width sigma, mm (3; 0 = nearest node)"),
+                        "deformable: Gaussian filter width sigma, mm (3; 0 = nearest node)")
+            ->check(within(bounds::kSpan, kMm)),
         app->add_option("--bone-hu", a.boneHu,
-                        "deformable: cells above this are bone, their nodes fixed (500 HU)"),
+                        "deformable: cells above this are bone, their nodes fixed (500 HU)")
+            ->check(within(bounds::kVolumeValue, {1, "HU"})),
         app->add_option("--tissue-hu", a.tissueHu,
-                        "deformable: cells above this are tissue (-200 HU)"),
+                        "deformable: cells above this are tissue (-200 HU)")
+            ->check(within(bounds::kVolumeValue, {1, "HU"})),
         app->add_option("--fem-solver", a.femSolver,
                         "deformable: 'explicit' (whole mesh every tick, default) or 'regions' "
                         "(asynchronous regions: explicit primary around the contact, implicit "
@@ -59,9 +74,9 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
             ->check(CLI::IsMember({"explicit", "regions"})),
         app->add_option("--primary-nodes", a.primaryNodes,
                         "regions: seed nodes of the primary region (60)")
-            ->check(CLI::Range(1, 100000)),
+            ->check(integerIn(1, 100000)),
         app->add_option("--secondary-hz", a.secondaryHz, "regions: secondary solve rate, Hz (100)")
-            ->check(CLI::Range(1.0, 1000.0)),
+            ->check(within(bounds::kSolverRate)),
         app->add_option("--lod", a.lod, "regions: secondary level of detail, 1, 2 or 4 (1)")
             ->check(CLI::IsMember({1, 2, 4}))};
 }
@@ -71,31 +86,49 @@ void addCouplingOptions(CLI::App* app, PalpateArgs& a) {
     app->add_option("--mode", a.mode, "Coupling: vc, avc or avcec (default per scene)");
     app->add_option("--source", a.source,
                     "Ray source: mesh, first-hit or accumulate (default per scene)");
-    app->add_option("--k-base", a.kBase, "Surface stiffness k_s, N/m (default 300)");
+    app->add_option("--k-base", a.kBase, "Surface stiffness k_s, N/m (default 300)")
+        ->check(within(bounds::kPositiveStiffness));
     app->add_option("--k-max", a.kMax,
-                    "Stiffness clamp k_max, N/m (default 2400, lowered to the device's limit)");
-    app->add_option("--l-max", a.lMaxMm, "Ray length L_max, mm (default 40)");
+                    "Stiffness clamp k_max, N/m (default 2400, lowered to the device's limit)")
+        ->check(within(bounds::kPositiveStiffness));
+    app->add_option("--l-max", a.lMaxMm, "Ray length L_max, mm (default 40)")
+        ->check(within(bounds::kLength, kMm));
     app->add_option("--l-ref", a.lRefMm,
-                    "L_ref of m(L) = clamp(L_ref / L, 1, m_max), mm (default per scene)");
-    app->add_option("--m-max", a.mMax, "Largest stiffness multiplier m_max (default 8)");
+                    "L_ref of m(L) = clamp(L_ref / L, 1, m_max), mm (default per scene)")
+        ->check(within(bounds::kLength, kMm));
+    app->add_option("--m-max", a.mMax, "Largest stiffness multiplier m_max (default 8)")
+        ->check(within(bounds::kMultiplier));
     app->add_option("--threshold", a.threshold,
-                    "first-hit and mesh: hard-structure value, HU (default per scene)");
+                    "first-hit and mesh: hard-structure value, HU (default per scene)")
+        ->check(within(bounds::kVolumeValue, {1, "HU"}));
     app->add_option("--sigma", a.sigmaPerMm,
-                    "accumulate: hardness above --sigma-threshold, 1/mm (default 1)");
+                    "accumulate: hardness above --sigma-threshold, 1/mm (default 1)")
+        ->check(within(bounds::kPositiveHardness, {1e-3, "1/mm"}));
     app->add_option("--sigma-threshold", a.sigmaThreshold,
-                    "accumulate: value from which sigma applies, HU (default 500)");
-    app->add_option("--tau-stop", a.tauStop, "accumulate: tau_stop (default 3)");
-    app->add_option("--step", a.stepMm, "Ray sample spacing, mm (default 0.5)");
-    app->add_option("--ring", a.ring, "Low-pass ring rays (default 0)");
+                    "accumulate: value from which sigma applies, HU (default 500)")
+        ->check(within(bounds::kVolumeValue, {1, "HU"}));
+    app->add_option("--tau-stop", a.tauStop, "accumulate: tau_stop (default 3)")
+        ->check(within(bounds::kTauStop));
+    app->add_option("--step", a.stepMm, "Ray sample spacing, mm (default 0.5)")
+        ->check(within(bounds::kSpacing, kMm));
+    app->add_option("--ring", a.ring, "Low-pass ring rays (default 0)")
+        ->check(integerIn(0, kernels::kMaxRingRays));
     app->add_option("--sobel-angle", a.sobelAngle,
-                    "AVCEC: spherical stencil spacing delta, rad (default per scene)");
+                    "AVCEC: spherical stencil spacing delta, rad (default per scene)")
+        ->check(within(bounds::kAngle));
     app->add_option("--surface-offset", a.surfaceOffsetMm,
-                    "AVCEC: surface stencil spacing h, mm (default per scene)");
-    app->add_option("--damping", a.damping, "Coupling damping b, N s/m (default 0)");
+                    "AVCEC: surface stencil spacing h, mm (default per scene)")
+        ->check(within(bounds::kSpacing, kMm));
+    app->add_option("--damping", a.damping, "Coupling damping b, N s/m (default 0)")
+        ->check(within(bounds::kDamping));
     app->add_option("--surface-iso", a.surfaceIso,
-                    "Value of the surface the proxy slides on (default -500 HU)");
-    app->add_option("--mu-static", a.muStatic, "Static friction (default 0.5)");
-    app->add_option("--mu-dynamic", a.muDynamic, "Dynamic friction (default 0.3)");
+                    "Value of the surface the proxy slides on (default -500 HU)")
+        ->check(within(bounds::kVolumeValue, {1, "HU"}));
+    app->add_option("--mu-static", a.muStatic, "Static friction (default 0.5)")
+        ->check(within(bounds::kFriction));
+    app->add_option("--mu-dynamic", a.muDynamic,
+                    "Dynamic friction (default 0.3, or --mu-static when lower)")
+        ->check(within(bounds::kFriction));
     app->add_flag("--passivity-control", a.passivityControl,
                   "Add the passivity controller (the observer always runs)");
 }
@@ -108,25 +141,33 @@ void addPathOptions(CLI::App* app, PalpateArgs& a) {
                     "Centre x,y,z of the path on the surface, mm (default: the middle of the "
                     "volume's lateral box, on its face against the press axis)")
         ->delimiter(',')
-        ->expected(3);
+        ->expected(3)
+        ->check(within(bounds::kPosition, kMm));
     app->add_option("--extent", a.extentMm,
                     "Raster U,V size (sweep: U is the length), mm (default: the volume's lateral "
                     "box less 5 mm each side)")
         ->delimiter(',')
-        ->expected(1, 2);
-    app->add_option("--spacing", a.spacingMm, "Raster line spacing, mm (default 2)");
+        ->expected(1, 2)
+        ->check(within(bounds::kLength, kMm));
+    app->add_option("--spacing", a.spacingMm, "Raster line spacing, mm (default 2)")
+        ->check(within(bounds::kSpacing, kMm));
     app->add_option("--speed", a.speedMmps,
-                    "Speed along the path, mm/s (default 100 raster, 50 sweep)");
-    app->add_option("--depth", a.depthMm, "Press depth of the target below the surface, mm");
+                    "Speed along the path, mm/s (default 100 raster, 50 sweep)")
+        ->check(within(bounds::kPositiveSpeed, {1e3, "mm/s"}));
+    app->add_option("--depth", a.depthMm, "Press depth of the target below the surface, mm")
+        ->check(within(bounds::kLength, kMm));
     app->add_option("--press-axis", a.pressAxis,
                     "Press direction into the body (default +y: anterior to posterior)");
     app->add_option("--sweep-axis", a.sweepAxis,
                     "Sweep direction / raster u axis (default: the first lateral axis)");
-    app->add_option("--radius", a.radiusMm, "circle: radius, mm");
-    app->add_option("--frequency", a.frequencyHz, "circle: revolutions per second");
+    app->add_option("--radius", a.radiusMm, "circle: radius, mm")
+        ->check(within(bounds::kLength, kMm));
+    app->add_option("--frequency", a.frequencyHz, "circle: revolutions per second")
+        ->check(within(bounds::kPositiveFrequency));
     app->add_option("--passes", a.passes, "sweep: passes (direction changes + 1); circle: turns")
-        ->check(CLI::Range(1, 1000));
-    app->add_option("--hold", a.holdSeconds, "press: hold time, s");
+        ->check(integerIn(1, 1000));
+    app->add_option("--hold", a.holdSeconds, "press: hold time, s")
+        ->check(within(bounds::kDuration));
 }
 
 /// How to run, what to write, the device.
@@ -135,7 +176,10 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
         app->add_flag("--realtime", a.realtime, "Run on the 1 kHz servo thread (wall-clock time)");
     auto* fast = app->add_flag("--fast", a.fast, "Step offline as fast as possible (default)");
     rt->excludes(fast);
-    app->add_option("--seconds", a.seconds, "Simulated time, s (default: until the path is done)");
+    app->add_option("--seconds", a.seconds,
+                    "Simulated (or, with --realtime, wall-clock) time, s (default: until the "
+                    "path is done)")
+        ->check(within(bounds::kPositiveDuration));
     app->add_option("--trace", a.trace, "Write a CSV trace of every tick");
     app->add_option("--map", a.map, "Write a PNG map over the palpated plane");
     app->add_option("--map-quantity", a.mapQuantity, "stiffness, force or energy")
@@ -144,7 +188,8 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
                     "Bin at the proxy (what the hand feels where it is) or at the centre ray's "
                     "end (where the structure that set k lies)")
         ->check(CLI::IsMember({"proxy", "ray-end"}));
-    app->add_option("--map-pixel", a.mapPixelMm, "Map pixel edge, mm (default: --spacing)");
+    app->add_option("--map-pixel", a.mapPixelMm, "Map pixel edge, mm (default: --spacing)")
+        ->check(within(bounds::kSpacing, kMm));
     app->add_flag("--grey", a.grey, "Grey map instead of black-red-yellow-white");
     app->add_option("--device", a.device, "Device class whose limits apply");
     app->add_flag("--json", a.json, "Print the figures as JSON");

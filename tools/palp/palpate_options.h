@@ -30,7 +30,7 @@ struct PalpateArgs {
     double sobelAngle = NAN, surfaceOffsetMm = NAN;
     int ring = -1;
     double surfaceIso = -500;
-    double muStatic = 0.5, muDynamic = 0.3;
+    double muStatic = 0.5, muDynamic = NAN;  // NAN: 0.3, or --mu-static when lower
     bool passivityControl = false;
     std::string trajectory = "raster";
     std::vector<double> centreMm;

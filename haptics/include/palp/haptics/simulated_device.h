@@ -18,6 +18,12 @@ struct HandModel {
     double dampingNspm = 6.0;     ///< N s/m
 };
 
+/// Set-up check of @p hand against palp/base/bounds.h (massKg within kMass, stiffnessNpm within
+/// kStiffness, dampingNspm within kDamping) and of its stability at @p periodSeconds: the
+/// semi-implicit Euler step below is stable only while k T^2 / m + 2 c T / m < 4.
+/// @throw palp::ValueError naming the member (`hand model massKg`) or the stability bound.
+void validateHandModel(const HandModel& hand, double periodSeconds);
+
 /// A Device driven by a scripted Trajectory (any path in trajectory.h; a PressTrajectory
 /// converts implicitly) and a HandModel, stepped at a fixed period.
 ///
@@ -40,8 +46,10 @@ class SimulatedDevice final : public Device {
     /// @param spec limits reported by spec() (write() clamps the force to spec.maxForceN)
     /// @param periodSeconds simulation step per read(), s
     /// @param trajectory the target path (copied)
+    /// @throw palp::ValueError from validateTrajectory(), validateHandModel() or a period outside
+    /// bounds::kPeriod, naming the member.
     SimulatedDevice(const DeviceSpec& spec, const Trajectory& trajectory, const HandModel& hand,
-                    double periodSeconds) noexcept;
+                    double periodSeconds);
 
     /// Advances the hand model by one period under the last written force and returns it.
     DeviceState read() noexcept override;

@@ -165,6 +165,14 @@ struct SinusoidTrajectory {
 using Trajectory = std::variant<PressTrajectory, SweepTrajectory, RasterTrajectory,
                                 CircleTrajectory, SinusoidTrajectory>;
 
+/// Set-up check of a path against palp/base/bounds.h: points within bounds::kPosition, direction
+/// vectors finite, lengths, depths, radii and amplitudes within bounds::kSpan, speeds within
+/// bounds::kSpeed, durations within bounds::kDuration (the press within kPositiveDuration),
+/// |frequency| within bounds::kFrequency. sample() itself stays lenient as documented above;
+/// this refuses what no caller means (NaN, 1e300 m) before a session is built on it.
+/// @throw palp::ValueError naming the type and the member, e.g. `CircleTrajectory radiusM`.
+void validateTrajectory(const Trajectory& trajectory);
+
 /// Position and velocity of @p trajectory at time @p t (s).
 /// @par Real-time  noexcept, no allocation.
 void sampleTrajectory(const Trajectory& trajectory, double t, Eigen::Vector3d& position,

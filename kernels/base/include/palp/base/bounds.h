@@ -55,20 +55,32 @@ inline constexpr Bounds kDuration{0, 3600, "s"};
 inline constexpr Bounds kPositiveDuration{0, 3600, "s", true};
 /// A servo period: 10 us (100 kHz) to 0.1 s (10 Hz).
 inline constexpr Bounds kPeriod{1e-5, 0.1, "s"};
+/// A part of a servo period (a spin before the deadline, a simulated workload): up to 0.1 s.
+inline constexpr Bounds kPeriodPart{0, 0.1, "s"};
 /// A frequency of motion or of a solver: up to 1 kHz.
 inline constexpr Bounds kFrequency{0, 1000, "Hz"};
-/// A speed along a path.
-inline constexpr Bounds kSpeed{0, 10, "m/s", true};
+/// The rate of a solver or of a lower-rate loop (at least 1 Hz, at most the servo's 1 kHz).
+inline constexpr Bounds kSolverRate{1, 1000, "Hz"};
+/// A frequency that must be positive (a circle's revolutions per second).
+inline constexpr Bounds kPositiveFrequency{0, 1000, "Hz", true};
+/// A speed along a path (0: the path stands still).
+inline constexpr Bounds kSpeed{0, 10, "m/s"};
+/// A speed that must be positive.
+inline constexpr Bounds kPositiveSpeed{0, 10, "m/s", true};
 
 // Mechanics.
 /// A stiffness of a coupling, a surface or a hand (devices render ~1e3-1e4 N/m).
 inline constexpr Bounds kStiffness{0, 1e6, "N/m"};
+/// A stiffness that must be positive (a coupling's k_s, its clamp k_max).
+inline constexpr Bounds kPositiveStiffness{0, 1e6, "N/m", true};
 /// A viscous damping coefficient.
 inline constexpr Bounds kDamping{0, 1e4, "N s/m"};
 /// A force (devices render a few N to tens of N).
 inline constexpr Bounds kForce{0, 1000, "N"};
-/// A mass (a hand, a tool).
-inline constexpr Bounds kMass{0, 1000, "kg", true};
+/// A force that must be positive (a threshold, a limit).
+inline constexpr Bounds kPositiveForce{0, 1000, "N", true};
+/// A mass (a hand, a tool): from a gram.
+inline constexpr Bounds kMass{1e-3, 1000, "kg"};
 /// Young's modulus: from the softest gel (1 Pa) to steel and beyond (1 TPa).
 inline constexpr Bounds kYoungsModulus{1, 1e12, "Pa"};
 /// Poisson's ratio of an isotropic solid.
@@ -85,6 +97,8 @@ inline constexpr Bounds kFriction{0, 10, ""};
 // Rays and volumes.
 /// A stencil or cone angle (Sobel spacing, ring half-angle).
 inline constexpr Bounds kAngle{0, 1.5707963267948966, "rad", true};
+/// A tilt from an axis (a gantry tilt, a slab's slope): within 80 degrees either way.
+inline constexpr Bounds kTiltAngle{-1.3962634015954636, 1.3962634015954636, "rad"};
 /// A stiffness multiplier m_max.
 inline constexpr Bounds kMultiplier{1, 1000, ""};
 /// A value of a volume (HU, MR units, a threshold, an iso-value): inside float range with room.
@@ -93,8 +107,14 @@ inline constexpr Bounds kVolumeValue{-1e9, 1e9, ""};
 inline constexpr Bounds kVolumeSpread{0, 1e6, ""};
 /// A hardness (accumulate's sigma), 1/m.
 inline constexpr Bounds kHardness{0, 1e9, "1/m"};
+/// A hardness that must be positive.
+inline constexpr Bounds kPositiveHardness{0, 1e9, "1/m", true};
 /// The accumulated-hardness integral at which a ray stops.
 inline constexpr Bounds kTauStop{0, 1000, "", true};
+/// A dimensionless shape factor of a profile (a tanh's sharpness).
+inline constexpr Bounds kShapeFactor{0, 1000, "", true};
+/// Metres per unit of a mesh file (1e-3 for millimetres).
+inline constexpr Bounds kMeshUnit{1e-6, 1000, "m"};
 /// A workspace scale (world metres per device metre).
 inline constexpr Bounds kScale{0, 1000, "", true};
 
