@@ -10,6 +10,7 @@
 #include <sstream>
 #include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/base/validate.h"
@@ -103,14 +104,18 @@ void requireExplicitSubsteps(const FemModel& model, double safetyFactor, int max
     if (!(w * w <= r * (r - alpha))) {
         // Too stiff even without stiffness-proportional damping: the modulus (or the cells).
         const double wFit2 = r * (r - alpha) / (1.0 + r * beta);
+        // Coarser cells fit the modulus (w ~ 1 / h): worth saying while they are cells palp
+        // accepts (bounds::kSpacing).
+        const double hFit = roundUp3(h * w / std::sqrt(wFit2));
+        const std::string cells = hFit <= bounds::kSpacing.max
+                                      ? "; or cells of at least " + formatValue(hFit * 1e3) + " mm"
+                                      : "";
         throwExpected("material youngsModulus",
                       "at most " + formatValue(roundDown3(eMax * wFit2 / (w * w))) +
                           " Pa for the stiffest cell (" + budget + " with " + formatValue(h * 1e3) +
                           " mm cells, density " + formatValue(m.density) +
                           " kg/m^3, poissonRatio " + formatValue(m.poissonRatio) +
-                          ", dampingBeta " + formatValue(beta) + " s; or cells of at least " +
-                          formatValue(roundUp3(h * w / std::sqrt(wFit2)) * 1e3) + " mm" + raise +
-                          ")",
+                          ", dampingBeta " + formatValue(beta) + " s" + cells + raise + ")",
                       formatValue(eMax) + " Pa" + found);
     }
     throwExpected("material dampingBeta",

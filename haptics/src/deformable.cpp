@@ -6,13 +6,14 @@
 #include <limits>
 #include <span>
 #include <string>
+#include <string_view>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 
 namespace palp::haptics {
 namespace {
-
-std::string num(double v) { return std::to_string(v); }
 
 // Rest positions of the surface vertices as a kernels::TriangleMesh.
 kernels::TriangleMesh toTriangleMesh(const fem::SurfaceMesh& s) {
@@ -31,25 +32,34 @@ kernels::TriangleMesh toTriangleMesh(const fem::SurfaceMesh& s) {
 }  // namespace
 
 void validateDeformableOptions(const DeformableOptions& o) {
-    if (!(o.filterWidth >= 0) || !std::isfinite(o.filterWidth)) {
-        throw ValueError("deformable: expected a finite filterWidth >= 0 m, found " +
-                         num(o.filterWidth));
-    }
-    if (!(o.filterCutoff >= 1) || !std::isfinite(o.filterCutoff)) {
-        throw ValueError("deformable: expected a finite filterCutoff >= 1, found " +
-                         num(o.filterCutoff));
-    }
-    if (!(o.solver.safetyFactor > 0 && o.solver.safetyFactor <= 1)) {
-        throw ValueError("deformable: expected solver.safetyFactor in (0, 1], found " +
-                         num(o.solver.safetyFactor));
-    }
-    if (o.solver.maxSubsteps < 1) {
-        throw ValueError("deformable: expected solver.maxSubsteps >= 1, found " +
-                         std::to_string(o.solver.maxSubsteps));
-    }
+    requireWithin("deformable filterWidth", o.filterWidth, bounds::kSpan);
+    requireAtLeast("deformable filterCutoff", o.filterCutoff, 1.0);
+    requireWithin("deformable tickSeconds", o.tickSeconds, bounds::kPeriod);
+    const auto substeps = [](std::string_view what, double safety, int maxSubsteps) {
+        if (!(safety > 0 && safety <= 1)) {
+            throwExpected(std::string(what) + ".safetyFactor", "a value in (0, 1]",
+                          formatValue(safety));
+        }
+        if (maxSubsteps < 1 || maxSubsteps > fem::kMaxExplicitSubsteps) {
+            throwExpected(std::string(what) + ".maxSubsteps",
+                          "a count in [1, " + std::to_string(fem::kMaxExplicitSubsteps) + "]",
+                          std::to_string(maxSubsteps));
+        }
+    };
+    substeps("deformable solver", o.solver.safetyFactor, o.solver.maxSubsteps);
     if (!(o.recentreHysteresis >= 0 && o.recentreHysteresis < 1)) {
-        throw ValueError("deformable: expected recentreHysteresis in [0, 1), found " +
-                         num(o.recentreHysteresis));
+        throwExpected("deformable recentreHysteresis", "a value in [0, 1)",
+                      formatValue(o.recentreHysteresis));
+    }
+    if (!o.regionsCentre.array().isNaN().all()) {
+        for (int a = 0; a < 3; ++a) {
+            requireWithin("deformable regionsCentre (NaN for none)", o.regionsCentre[a],
+                          bounds::kPosition);
+        }
+    }
+    if (o.solverKind == DeformableSolver::asyncRegions) {
+        requireWithin("deformable regions.tickSeconds", o.regions.tickSeconds, bounds::kPeriod);
+        substeps("deformable regions", o.regions.safetyFactor, o.regions.maxSubsteps);
     }
 }
 
@@ -60,6 +70,17 @@ DeformableModel::DeformableModel(fem::FemModel model, std::vector<int> fixedNode
       mConstraints(mModel.dofCount()),
       mOptions(options) {
     validateDeformableOptions(options);
+    // Set-up refusal of a body too stiff for its tick (never a capped, unstable substep nor a
+    // tick of thousands of substeps that advances less time than asked).
+    if (options.solverKind == DeformableSolver::asyncRegions) {
+        fem::requireExplicitSubsteps(mModel, options.regions.safetyFactor,
+                                     options.regions.maxSubsteps, options.regions.tickSeconds,
+                                     "deformable regions.maxSubsteps");
+    } else {
+        fem::requireExplicitSubsteps(mModel, options.solver.safetyFactor,
+                                     options.solver.maxSubsteps, options.tickSeconds,
+                                     "deformable solver.maxSubsteps");
+    }
     std::sort(mFixed.begin(), mFixed.end());
     mFixed.erase(std::unique(mFixed.begin(), mFixed.end()), mFixed.end());
     if (mFixed.empty()) {

@@ -62,8 +62,23 @@ struct DeformableOptions {
     double filterWidth = 3e-3;
     /// Nodes farther than filterCutoff * filterWidth from the contact get no load (>= 1).
     double filterCutoff = 3.0;
-    /// The explicit solver (substeps of safetyFactor times the critical step, bounded).
-    fem::ExplicitOptions solver;
+    /// The whole-mesh explicit solver (substeps of safetyFactor times the critical step). Its
+    /// maxSubsteps is 64 here (as the regions' primary), not the solver's 4096: every tick
+    /// steps the whole mesh that many times, and at 4096 an in-range but stiff body (1 GPa, or
+    /// dampingBeta 0.5 s on 5 kPa) took seconds per tick on the bone phantom; such a body is
+    /// now refused at set-up (see tickSeconds).
+    fem::ExplicitOptions solver = [] {
+        fem::ExplicitOptions o;
+        o.maxSubsteps = 64;
+        return o;
+    }();
+    /// Whole-mesh explicit: the period step() will be called with, s (bounds::kPeriod; the
+    /// session's servo period). The model is refused at set-up when it needs more than
+    /// solver.maxSubsteps substeps per tick (fem::requireExplicitSubsteps names the Young's
+    /// modulus, cell size or dampingBeta that makes it too stiff, and what fits); a step() of
+    /// another length still runs, bounded by solver.maxSubsteps. asyncRegions use
+    /// regions.tickSeconds instead.
+    double tickSeconds = 1e-3;
     /// Whole-mesh explicit (default) or asynchronous regions.
     DeformableSolver solverKind = DeformableSolver::wholeMeshExplicit;
     /// asyncRegions: the regions' options. The body sets drive = force, watchNodes = the free
@@ -91,7 +106,14 @@ struct DeformableOptions {
         Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
 };
 
-/// @throw palp::ValueError naming the field.
+/// Throws palp::ValueError naming the field as `deformable <field>` (`deformable filterWidth:
+/// expected a value in [0, 10] m, found -0.001`): filterWidth in bounds::kSpan, filterCutoff
+/// finite >= 1, tickSeconds in bounds::kPeriod, solver.safetyFactor in (0, 1],
+/// solver.maxSubsteps in [1, fem::kMaxExplicitSubsteps], recentreHysteresis in [0, 1),
+/// regionsCentre all NaN or in bounds::kPosition; with asyncRegions also regions.tickSeconds
+/// in bounds::kPeriod, regions.safetyFactor in (0, 1] and regions.maxSubsteps in [1,
+/// fem::kMaxExplicitSubsteps]. The material and the voxelisation are checked by fem::validate().
+/// @throw palp::ValueError
 void validateDeformableOptions(const DeformableOptions& options);
 
 /// What can deform: the FEM model, its fixed nodes and boundary surface.
@@ -99,8 +121,11 @@ void validateDeformableOptions(const DeformableOptions& options);
 class DeformableModel {
   public:
     /// @p fixedNodes (all three components fixed) must leave no rigid-body motion free in
-    /// practice (a support face does). @throw palp::ValueError for bad options, nodes outside the
-    /// model, no fixed node, or no free surface node.
+    /// practice (a support face does). @throw palp::ValueError for bad options, a model that
+    /// needs more explicit substeps per tick than the solver's maxSubsteps (whole mesh:
+    /// solver.maxSubsteps at tickSeconds; regions: regions.maxSubsteps at regions.tickSeconds;
+    /// fem::requireExplicitSubsteps), nodes outside the model, no fixed node, or no free surface
+    /// node.
     DeformableModel(fem::FemModel model, std::vector<int> fixedNodes,
                     const DeformableOptions& options = {});
 
