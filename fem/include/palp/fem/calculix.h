@@ -20,10 +20,11 @@ inline constexpr std::size_t kCalculixNumberWidth = 20;
 /// @p v as the `.inp` file carries it: the shortest text that reads back to exactly @p v
 /// (std::to_chars' round-trip form, fixed or scientific, whichever is shorter) with a compact
 /// exponent (`6.25e-5`, `1e6`); only when that exceeds kCalculixNumberWidth characters, the
-/// most significant digits that fit (rounded to nearest). Every double fits with at least 13
-/// significant digits (the worst case, `-d.dddddddddddde-308`: 20 characters); a positive one
-/// with an exponent of one digit keeps 16, a negative one 15, so a value that needs 17 digits
-/// loses at most one part in 1e15 and every value that needs fewer comes back exactly.
+/// most significant digits that fit (rounded to nearest). 20 characters hold all 17 of
+/// `d.ddddddddddddddddeN`; each further character (the number's minus, the exponent's minus,
+/// each further exponent digit) costs one digit, down to 13 in the worst case
+/// (`-d.dddddddddddde-308`; relative error <= 5e-13). A value whose shortest round-trip form
+/// fits comes back exactly.
 /// @throw palp::ValueError for NaN or an infinity.
 std::string calculixNumber(double v);
 
