@@ -2,6 +2,7 @@
 // per kind) and snapshots between the plain C structs of palp/palp.h and palp::haptics, and
 // the C defaults.
 
+#include <Eigen/LU>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -313,6 +314,15 @@ void checkParamFields(const palp_session_params& p) {
     for (int i = 0; i < 3; ++i) {
         requireWithin("palp_session_params.workspace_offset[" + std::to_string(i) + "]",
                       p.workspace_offset[i], bounds::kPosition);
+    }
+    Eigen::Matrix3d r;
+    for (int i = 0; i < 9; ++i) r(i / 3, i % 3) = p.workspace_rotation[i];
+    const double orth = (r.transpose() * r - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+    const double det = r.determinant();
+    if (!(orth <= 1e-6 && std::abs(det - 1.0) <= 1e-6)) {
+        throwExpected("palp_session_params.workspace_rotation",
+                      "a rotation, row-major (R^T R = I, det 1)",
+                      "|R^T R - I| = " + formatValue(orth) + ", det " + formatValue(det));
     }
     if (p.ring_count < 0 || p.ring_count > palp::kernels::kMaxRingRays) {
         throwExpected("palp_session_params.ring_count",
