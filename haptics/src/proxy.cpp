@@ -10,6 +10,7 @@
 
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 
 namespace palp::haptics {
 
@@ -158,10 +159,9 @@ void updateFrame(const Eigen::Vector3d& n, Eigen::Vector3d& t1, Eigen::Vector3d&
 
 void validateProxyParams(const ProxyParams& p) {
     requireWithin("proxy parameter staticFriction", p.staticFriction, bounds::kFriction);
-    requireFinite(
-        p.dynamicFriction, "dynamicFriction",
-        "a finite value in [0, staticFriction = " + std::to_string(p.staticFriction) + "]",
-        p.dynamicFriction >= 0 && p.dynamicFriction <= p.staticFriction);
+    requireFinite(p.dynamicFriction, "dynamicFriction",
+                  "a finite value in [0, staticFriction = " + formatValue(p.staticFriction) + "]",
+                  p.dynamicFriction >= 0 && p.dynamicFriction <= p.staticFriction);
     requireWithin("proxy parameter epsilon", p.epsilon, bounds::kSpacing);
     if (p.maxIterations < 1 || p.maxIterations > 16)
         throw ValueError("proxy parameter maxIterations: expected 1..16, found " +

@@ -51,7 +51,7 @@ std::string errorWithName(int err) {
     return s;
 }
 
-std::string microseconds(double seconds) { return std::to_string(seconds * 1e6) + " us"; }
+std::string microseconds(double seconds) { return formatValue(seconds * 1e6) + " us"; }
 
 }  // namespace
 
@@ -67,8 +67,8 @@ void validateServoConfig(const ServoConfig& c) {
                          std::to_string(c.cpu));
     if (!std::isfinite(c.spinSeconds) || c.spinSeconds < 0 || c.spinSeconds >= c.periodSeconds)
         throw ValueError("servo config: spinSeconds must be in [0, periodSeconds = " +
-                         microseconds(c.periodSeconds) + "), found " +
-                         std::to_string(c.spinSeconds) + " s");
+                         microseconds(c.periodSeconds) + "), found " + formatValue(c.spinSeconds) +
+                         " s");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -112,6 +112,9 @@ void checkEveryOption(const std::string& command, const std::function<Base(const
             for (const std::string& f : base.outputs) {
                 EXPECT_FALSE(fs::exists(f)) << f << " left behind by the refusal of: " << line;
             }
+            // Numbers as the user wrote them (%g), not 1e300 spelled out in 301 digits.
+            EXPECT_FALSE(std::regex_search(r.output, std::regex("[0-9]{40}"))) << line << "\n"
+                                                                               << r.output;
         }
     }
     std::printf("%s: %d refusals, %d accepted runs\n", command.c_str(), refused, ran);
