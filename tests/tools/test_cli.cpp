@@ -71,4 +71,34 @@ TEST(Cli, PalpateDeformableRegionsAgreeWithTheWholeMesh) {
     EXPECT_EQ(regions["faulted_ticks"], 0);
 }
 
+// A refusal found after the path is known (a map finer than 4096 pixels a side) comes before the
+// run, so the trace asked for beside it is never written.
+TEST(Cli, PalpateRefusesATooFineMapBeforeWritingTheTrace) {
+    palp::test::TempDir tmp;
+    const auto r =
+        runCommand(palp::test::palpTool().string() +
+                   " palpate --phantom avc --voxel-mm 2 --fast --map-pixel 0.001 --trace " +
+                   (tmp / "t.csv").string() + " --map " + (tmp / "m.png").string());
+    EXPECT_EQ(r.exitCode, 1) << r.output;
+    EXPECT_NE(r.output.find("--map-pixel: expected at least"), std::string::npos) << r.output;
+    EXPECT_FALSE(std::filesystem::exists(tmp / "t.csv"));
+    EXPECT_FALSE(std::filesystem::exists(tmp / "m.png"));
+}
+
+// A surface stiffness above the default clamp raises the clamp (the device's limit then lowers
+// both, as reported) instead of a refusal about k_max, which the user never set; a clamp below
+// a surface stiffness the user gave is refused naming both.
+TEST(Cli, PalpateKBaseAboveTheDefaultClampIsNotRefusedForAClampNeverSet) {
+    const std::string base = palp::test::palpTool().string() +
+                             " palpate --phantom avc --voxel-mm 2 --fast --seconds 0.05 ";
+    const auto ok = runCommand(base + "--k-base 5000");
+    EXPECT_EQ(ok.exitCode, 0) << ok.output;
+    EXPECT_EQ(ok.output.find("maxStiffness"), std::string::npos) << ok.output;
+    const auto both = runCommand(base + "--k-base 800 --k-max 500");
+    EXPECT_EQ(both.exitCode, 1) << both.output;
+    EXPECT_NE(both.output.find("--k-max: expected a clamp >= --k-base (800 N/m)"),
+              std::string::npos)
+        << both.output;
+}
+
 }  // namespace
