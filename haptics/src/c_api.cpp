@@ -10,6 +10,7 @@
 #include <string>
 
 #include "c_api_internal.h"
+#include "palp/base/bounds.h"
 #include "palp/base/validate.h"
 #include "palp/volume/load.h"
 #include "palp/volume/phantom.h"
@@ -100,9 +101,10 @@ palp_status palp_volume_load(const char* path, double voxel_size, palp_volume** 
     if (!path) return nullArgument("palp_volume_load", "path");
     if (!out) return nullArgument("palp_volume_load", "out");
     return guarded([&] {
-        if (!(voxel_size >= 0) || !std::isfinite(voxel_size)) {
-            palp::throwExpected(path, "voxel_size >= 0 (0: default)",
-                                palp::formatValue(voxel_size));
+        // 0 asks for the default (the finest input spacing); anything else is a voxel edge.
+        if (voxel_size != 0) {
+            palp::requireWithin("palp_volume_load: voxel_size (0: the finest input spacing)",
+                                voxel_size, palp::bounds::kSpacing);
         }
         pv::LoadOptions options;
         if (voxel_size > 0) options.resample.voxelSize = voxel_size;
@@ -125,7 +127,8 @@ palp_status palp_volume_make_phantom(const char* scene, int variant, const char*
         if (spec.params.scene == pv::PhantomScene::Avcec && shape) {
             spec.params.shape = pv::parseShape(shape);
         }
-        palp::requirePositive("palp_volume_make_phantom: voxel_size", voxel_size);
+        palp::requireWithin("palp_volume_make_phantom: voxel_size", voxel_size,
+                            palp::bounds::kSpacing);
         spec.voxelSize = voxel_size;
         auto handle = std::make_unique<palp_volume>();
         handle->volume = pv::makePhantomVolume(spec);
@@ -158,6 +161,10 @@ palp_status palp_scene_from_volume(const palp_volume* volume, double surface_iso
     if (!volume) return nullArgument("palp_scene_from_volume", "volume");
     if (!out) return nullArgument("palp_scene_from_volume", "out");
     return guarded([&] {
+        palp::requireWithin("palp_scene_from_volume: surface_iso", surface_iso,
+                            palp::bounds::kVolumeValue);
+        palp::requireWithin("palp_scene_from_volume: hard_iso", hard_iso,
+                            palp::bounds::kVolumeValue);
         ph::SceneOptions options;
         options.surfaceIso = surface_iso;
         options.hardIso = hard_iso;
