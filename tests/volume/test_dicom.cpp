@@ -28,6 +28,7 @@ namespace {
 namespace fs = std::filesystem;
 using palp::test::TempDir;
 using palp::volume::LoadOptions;
+using palp::volume::Slice;
 using palp::volume::SliceStack;
 
 /// One DICOM file read with GDCM directly (not through palp's reader): geometry in mm from its
@@ -658,3 +659,63 @@ TEST(DicomRead, ZippedSingleVolumeReads) {
 }
 
 }  // namespace
+
+namespace {
+
+/// Writes a copy of @p from with the element @p tag set to @p value.
+void writeWith(const fs::path& from, const fs::path& to, const gdcm::Tag& tag,
+               const std::string& value) {
+    gdcm::Reader reader;
+    reader.SetFileName(from.c_str());
+    ASSERT_TRUE(reader.Read());
+    gdcm::DataElement de(tag);
+    de.SetVR(gdcm::VR::DS);
+    de.SetByteValue(value.data(), static_cast<std::uint32_t>(value.size()));
+    reader.GetFile().GetDataSet().Replace(de);
+    gdcm::Writer writer;
+    writer.SetFile(reader.GetFile());
+    writer.SetFileName(to.c_str());
+    ASSERT_TRUE(writer.Write());
+}
+
+}  // namespace
+
+TEST(DicomRead, AbsurdPixelSpacingOrPositionIsRefusedWithTheBounds) {
+    // A finite but absurd Pixel Spacing or Image Position (1e300 mm) is refused by name before
+    // it reaches the resampler.
+    TempDir tmp;
+    SliceStack stack;
+    for (int k = 0; k < 2; ++k) {
+        Slice s;
+        s.cols = s.rows = 2;
+        s.colStep = Eigen::Vector3d(1e-3, 0, 0);
+        s.rowStep = Eigen::Vector3d(0, 1e-3, 0);
+        s.position = Eigen::Vector3d(0, 0, 1e-3 * k);
+        s.values = {0, 10, 20, 30};
+        s.source = "slice";
+        stack.slices.push_back(s);
+    }
+    palp::volume::writeDicomSeries(stack, tmp / "ok");
+    const std::vector<fs::path> files = dicomFiles(tmp / "ok");
+    ASSERT_EQ(files.size(), 2u);
+    EXPECT_EQ(palp::volume::readStack({tmp / "ok"}, {}).slices.size(), 2u);
+    struct Case {
+        gdcm::Tag tag;
+        std::string value, field, found;
+    };
+    const Case cases[] = {
+        {gdcm::Tag(0x0028, 0x0030), "1\\1e300", "Pixel Spacing (0028,0030)[1]", "found 1e+300"},
+        {gdcm::Tag(0x0028, 0x0030), "1e-9\\1", "Pixel Spacing (0028,0030)[0]", "found 1e-09"},
+        {gdcm::Tag(0x0020, 0x0032), "0\\1e300\\0", "Image Position (Patient) (0020,0032)[1]",
+         "found 1e+300"},
+    };
+    for (const Case& c : cases) {
+        const fs::path dir = tmp / "bad";
+        fs::remove_all(dir);
+        fs::create_directories(dir);
+        copyFile(files[0], dir / "a.dcm");
+        writeWith(files[1], dir / "b.dcm", c.tag, c.value);
+        expectError<palp::FormatError>([&] { palp::volume::readStack({dir}, {}); },
+                                       {(dir / "b.dcm").string() + ": " + c.field, c.found});
+    }
+}

@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <sstream>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 
 namespace palp::volume::dicom {
@@ -127,6 +128,21 @@ FileGeometry geometryOf(const Header& h) {
         throw FormatError(
             file + ": expected Pixel Spacing (0028,0030) with two positive numbers, found '" +
             h.text(kPixelSpacing) + "'");
+    }
+    // A finite but absurd spacing or position (a 1e300 mm pixel) is refused here, before it
+    // reaches the resampler's lattice arithmetic.
+    try {
+        for (std::size_t i = 0; i < 2; ++i) {
+            palp::requireWithin(file + ": Pixel Spacing (0028,0030)[" + std::to_string(i) + "]",
+                                ps[i] * 1e-3, bounds::kSpacing, {1e3, "mm"});
+        }
+        for (std::size_t i = 0; i < 3; ++i) {
+            palp::requireWithin(
+                file + ": Image Position (Patient) (0020,0032)[" + std::to_string(i) + "]",
+                ipp[i] * 1e-3, bounds::kPosition, {1e3, "mm"});
+        }
+    } catch (const ValueError& e) {
+        throw FormatError(e.what());
     }
     return g;
 }

@@ -10,6 +10,7 @@
 #include <type_traits>
 
 #include "palp/base/error.h"
+#include "raw_data.h"
 
 namespace palp::volume::dicom {
 
@@ -113,7 +114,7 @@ void convertPixels(const char* raw, std::size_t count, int bitsStored, int highB
         } else {
             stored = static_cast<double>(v);
         }
-        out[i] = static_cast<float>(slope * stored + intercept);
+        out[i] = saturatingFloat(slope * stored + intercept);
     }
 }
 

@@ -40,6 +40,8 @@ struct NrrdHeader {
     std::optional<Eigen::Vector3d> spaceOrigin;  ///< mm, first 3 components
     double spaceUnitsToMetres = 1e-3;            ///< from "space units" (mm by default)
     std::vector<double> spacings;                ///< per axis, NaN when absent
+    bool spacingsGiven = false;                  ///< a "spacings" field was present
+    bool axisRangeGiven = false;                 ///< both "axis mins" and "axis maxs" present
     std::vector<double> axisMins;                ///< per axis, NaN when absent
     std::vector<double> axisMaxs;                ///< per axis, NaN when absent
     std::vector<std::string> centerings;  ///< per axis ("cell", "node", "???"), empty when absent

@@ -5,13 +5,17 @@
 #include <algorithm>
 #include <cctype>
 #include <fstream>
+#include <new>
+#include <stdexcept>
 
 #include "formats.h"
 #include "grid_copy.h"
 #include "palp/base/atomic_file.h"
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/volume/dicom.h"
+#include "vdb_errors.h"
 
 namespace palp::volume {
 
@@ -38,11 +42,41 @@ std::string readPrefix(const fs::path& path, std::size_t n) {
     return buf;
 }
 
+/// A stored grid palp can use: a uniform linear transform whose voxel is a voxel spacing
+/// (bounds::kSpacing), and finite values inside bounds::kVolumeValue (the background and every
+/// active value), so that nothing the file holds reaches the mesher or the kernels unchecked.
+/// @throw FormatError naming @p name.
+void checkStoredGrid(const std::string& name, const openvdb::FloatGrid& grid) try {
+    const openvdb::math::Transform& xform = grid.transform();
+    const openvdb::Vec3d voxel = xform.voxelSize();
+    if (!xform.isLinear() || !(voxel[0] == voxel[1] && voxel[1] == voxel[2])) {
+        throwExpected(name + ": grid transform", "a linear transform with cubic voxels",
+                      "voxel (" + formatValue(voxel[0] * 1e3) + " " + formatValue(voxel[1] * 1e3) +
+                          " " + formatValue(voxel[2] * 1e3) + ") mm" +
+                          (xform.isLinear() ? "" : " (not linear)"));
+    }
+    requireWithin(name + ": grid voxel size", voxel[0], bounds::kSpacing, {1e3, "mm"});
+    requireWithin(name + ": grid background", static_cast<double>(grid.background()),
+                  bounds::kVolumeValue);
+    for (auto it = grid.cbeginValueOn(); it; ++it) {
+        if (bounds::kVolumeValue.contains(static_cast<double>(*it))) continue;
+        const openvdb::Coord c = it.getCoord();
+        requireWithin(name + ": grid value at (" + std::to_string(c.x()) + ", " +
+                          std::to_string(c.y()) + ", " + std::to_string(c.z()) + ")",
+                      static_cast<double>(*it), bounds::kVolumeValue);
+    }
+} catch (const ValueError& e) {
+    throw FormatError(e.what());
+}
+
 void requireExists(const fs::path& p) {
     std::error_code ec;
     if (!fs::exists(p, ec))
         throw IoError(p.string() + ": expected an existing file or directory, found nothing");
 }
+
+/// readStack() without the value check: the format's reader.
+SliceStack readStackUnchecked(const std::vector<fs::path>& inputs, const ReadOptions& options);
 
 }  // namespace
 
@@ -96,6 +130,35 @@ Format detectFormat(const fs::path& path) {
 }
 
 SliceStack readStack(const std::vector<fs::path>& inputs, const ReadOptions& options) {
+    SliceStack stack = readStackUnchecked(inputs, options);
+    // NaN or infinite voxels are refused at load, with the file named (they would reach the
+    // mesher and the ray kernels); the file is at fault, so FormatError.
+    try {
+        checkStackValues(stack);
+    } catch (const ValueError& e) {
+        throw FormatError(e.what());
+    }
+    return stack;
+}
+
+Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
+    initialize();
+    checkResampleOptions(options.resample);
+    const std::string what = inputs.empty() ? std::string("load") : inputs.front().string();
+    return detail::withVdbErrors<FormatError>(what, "a scan OpenVDB can grid", [&] {
+        if (inputs.size() == 1) {
+            requireExists(inputs.front());
+            // A stored grid has no slices: it is re-gridded as a volume, with the same options.
+            if (detectFormat(inputs.front()) == Format::Vdb)
+                return resample(loadVdb(inputs.front()), options.resample);
+        }
+        return resample(readStack(inputs, options), options.resample);
+    });
+}
+
+namespace {
+
+SliceStack readStackUnchecked(const std::vector<fs::path>& inputs, const ReadOptions& options) {
     if (inputs.empty()) throwExpected("load", "at least one input", "none");
     for (const fs::path& p : inputs) requireExists(p);
     const Format f = detectFormat(inputs.front());
@@ -123,16 +186,7 @@ SliceStack readStack(const std::vector<fs::path>& inputs, const ReadOptions& opt
                       ".nhdr), MetaImage (.mha, .mhd) or OpenVDB (.vdb), found an unknown format");
 }
 
-Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
-    initialize();
-    if (inputs.size() == 1) {
-        requireExists(inputs.front());
-        // A stored grid has no slices: it is re-gridded as a volume, with the same options.
-        if (detectFormat(inputs.front()) == Format::Vdb)
-            return resample(loadVdb(inputs.front()), options.resample);
-    }
-    return resample(readStack(inputs, options), options.resample);
-}
+}  // namespace
 
 Volume loadVdb(const fs::path& path) {
     initialize();
@@ -145,6 +199,15 @@ Volume loadVdb(const fs::path& path) {
     } catch (const openvdb::Exception& e) {
         throw IoError(path.string() +
                       ": expected a readable OpenVDB file, found an error: " + e.what());
+    } catch (const std::bad_alloc&) {
+        // A (damaged) file whose sizes drive an allocation larger than memory.
+        throw FormatError(path.string() +
+                          ": expected a readable OpenVDB file, found sizes that cannot be "
+                          "allocated (out of memory)");
+    } catch (const std::length_error& e) {
+        throw FormatError(path.string() +
+                          ": expected a readable OpenVDB file, found impossible sizes (" +
+                          e.what() + ")");
     }
     openvdb::FloatGrid::Ptr chosen;
     for (const auto& g : *grids) {
@@ -160,6 +223,7 @@ Volume loadVdb(const fs::path& path) {
         throw FormatError(path.string() + ": expected a float grid named 'scan', found " +
                           std::to_string(grids->size()) + " grids and none of type float");
     }
+    checkStoredGrid(path.string(), *chosen);
     return Volume{chosen, readInfo(*chosen)};
 }
 

@@ -9,7 +9,9 @@
 #include <fstream>
 #include <string>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
+#include "vdb_errors.h"
 
 namespace palp::volume {
 
@@ -51,16 +53,20 @@ TriangleMesh loadMesh(const std::filesystem::path& path, double metresPerUnit) {
 }
 
 TriangleMesh isoSurface(const openvdb::FloatGrid& grid, double isoValue, double adaptivity) {
-    if (!std::isfinite(isoValue))
-        throw ValueError("iso-surface value: expected a finite value, found " +
-                         std::to_string(isoValue));
+    palp::requireWithin("iso-surface value", isoValue, bounds::kVolumeValue);
+    palp::requireWithin("iso-surface grid background", static_cast<double>(grid.background()),
+                        bounds::kVolumeValue);
     if (!(adaptivity >= 0 && adaptivity <= 1))
         throw ValueError("iso-surface adaptivity: expected a value in [0, 1], found " +
                          std::to_string(adaptivity));
     std::vector<openvdb::Vec3s> points;
     std::vector<openvdb::Vec3I> tris;
     std::vector<openvdb::Vec4I> quads;
-    openvdb::tools::volumeToMesh(grid, points, tris, quads, isoValue, adaptivity);
+    // OpenVDB refuses NaN voxels ("VolumeToMesh encountered NaNs") and singular transforms in
+    // its own words; the caller learns it is this grid's values or transform.
+    detail::withVdbErrors<ValueError>(
+        "iso-surface grid", "finite voxel values and an invertible transform",
+        [&] { openvdb::tools::volumeToMesh(grid, points, tris, quads, isoValue, adaptivity); });
     TriangleMesh out;
     out.positions.reserve(points.size() * 3);
     for (const auto& p : points) {

@@ -8,6 +8,7 @@
 #include "formats.h"
 #include "header_parsers.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "raw_data.h"
 #include "reader_util.h"
 #include "time_point.h"
@@ -238,6 +239,23 @@ SliceStack readMetaImage(const fs::path& path, const ReadOptions& options) {
         }
         origin[static_cast<Eigen::Index>(a)] = h.offset[a] * 1e-3;
     }
+    // A spacing or direction the header gives is used or refused, never replaced.
+    for (std::size_t a = 0; a < 3; ++a) {
+        if (!std::isfinite(h.elementSpacing[a]) || h.elementSpacing[a] == 0) {
+            throw FormatError(name + ": ElementSpacing (axis " + std::to_string(a) +
+                              "): expected a finite non-zero spacing, found " +
+                              formatValue(h.elementSpacing[a]));
+        }
+        const Eigen::Vector3d direction(h.transformMatrix[a * n], h.transformMatrix[a * n + 1],
+                                        h.transformMatrix[a * n + 2]);
+        if (!direction.allFinite() || direction.norm() == 0) {
+            throw FormatError(name + ": TransformMatrix (axis " + std::to_string(a) +
+                              "): expected a finite non-zero direction, found (" +
+                              formatValue(direction.x()) + " " + formatValue(direction.y()) + " " +
+                              formatValue(direction.z()) + ")");
+        }
+    }
+    detail::checkAffine(name, "ElementSpacing", "TransformMatrix", "Offset", axes, origin);
 
     const std::uint64_t volumeBytes = total / static_cast<std::uint64_t>(volumeCount);
     const std::uint64_t volumeStart = t > 0 ? static_cast<std::uint64_t>(t) * volumeBytes : 0;

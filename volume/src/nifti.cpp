@@ -4,6 +4,7 @@
 #include <Eigen/Core>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <memory>
@@ -11,6 +12,7 @@
 
 #include "formats.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "raw_data.h"
 #include "reader_util.h"
 #include "time_point.h"
@@ -62,6 +64,24 @@ bool isGzipName(const std::string& s) {
 std::mutex& niftiMutex() {
     static std::mutex m;
     return m;
+}
+
+/// pixdim[1..3] as the file stores them (nifti_image holds them after nifticlib's repairs);
+/// @p nim's values when the raw header cannot be read again. Called with niftiMutex held.
+std::array<double, 3> rawPixdim(const std::string& name, const nifti_image& nim) {
+    std::array<double, 3> out{nim.pixdim[1], nim.pixdim[2], nim.pixdim[3]};
+    int version = 0;
+    void* raw = nifti_read_header(name.c_str(), &version, 0);
+    if (!raw) return out;
+    if (version == 1) {
+        const auto* h = static_cast<const nifti_1_header*>(raw);
+        for (std::size_t a = 0; a < 3; ++a) out[a] = h->pixdim[a + 1];
+    } else if (version == 2) {
+        const auto* h = static_cast<const nifti_2_header*>(raw);
+        for (std::size_t a = 0; a < 3; ++a) out[a] = h->pixdim[a + 1];
+    }
+    std::free(raw);
+    return out;
 }
 
 }  // namespace
@@ -134,17 +154,38 @@ SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
         }
     }
 
-    // Index-to-world (RAS, file units): sform, else qform, else pixdim scaling.
+    // Index-to-world (RAS, file units): sform, else qform, else pixdim scaling. nifticlib
+    // replaces a zero or non-finite pixdim by 1 (and the qform a non-positive one): the raw
+    // header's values are checked so that a spacing the file gives is used or refused.
+    const bool useSform = nim->sform_code > 0;
+    const bool useQform = !useSform && nim->qform_code > 0;
+    std::array<double, 3> pixdim = rawPixdim(name, *nim);
+    for (std::size_t a = 0; a < 3; ++a) {
+        // An axis beyond dim[0] has one sample and no width in the file: 1, as nifticlib.
+        const double d = pixdim[a];
+        if (static_cast<std::int64_t>(a) >= ndim && !(std::isfinite(d) && d > 0)) pixdim[a] = 1;
+    }
+    if (!useSform) {
+        for (std::size_t a = 0; a < 3; ++a) {
+            const double d = pixdim[a];
+            const bool ok = std::isfinite(d) && (useQform ? d > 0 : d != 0);
+            if (!ok) {
+                throw FormatError(name + ": pixdim[" + std::to_string(a + 1) + "]" +
+                                  (useQform ? " (qform)" : "") + ": expected a finite " +
+                                  (useQform ? "positive" : "non-zero") + " voxel width, found " +
+                                  formatValue(d));
+            }
+        }
+    }
     Eigen::Matrix4d ras = Eigen::Matrix4d::Identity();
-    if (nim->sform_code > 0 || nim->qform_code > 0) {
+    if (useSform || useQform) {
         const nifti_dmat44& m = nim->sform_code > 0 ? nim->sto_xyz : nim->qto_xyz;
         for (int r = 0; r < 4; ++r) {
             for (int c = 0; c < 4; ++c) ras(r, c) = m.m[r][c];
         }
     } else {
         for (int a = 0; a < 3; ++a) {
-            const double d = nim->pixdim[a + 1];
-            ras(a, a) = d != 0 && std::isfinite(d) ? std::abs(d) : 1.0;
+            ras(a, a) = std::abs(pixdim[static_cast<std::size_t>(a)]);
         }
     }
     double unit = 1e-3;  // millimetres unless the header says otherwise
@@ -168,10 +209,22 @@ SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
         throw FormatError(
             name + ": expected a finite orientation (sform/qform/pixdim), found non-finite values");
     }
+    if (useSform) {
+        detail::checkAffine(name, "srow_x/srow_y/srow_z (sform)", "srow_x/srow_y/srow_z (sform)",
+                            "srow_x/srow_y/srow_z[3] (sform offset)", axes, origin);
+    } else if (useQform) {
+        detail::checkAffine(name, "pixdim[1..3] (qform)", "quatern_b/c/d (qform)",
+                            "qoffset_x/y/z (qform)", axes, origin);
+    } else {
+        detail::checkAffine(name, "pixdim[1..3]", "pixdim[1..3]", "origin", axes, origin);
+    }
 
+    // NIfTI: scl_slope 0 means the data are not scaled; nifticlib reads a non-finite slope or
+    // intercept as 0, so a NaN slope (as some writers store for "none") also leaves the data as
+    // stored, and a NaN intercept with a finite slope is 0 (nibabel reads them the same way).
     const double slope = nim->scl_slope;
-    const double inter = nim->scl_inter;
-    const bool rescale = slope != 0 && std::isfinite(slope) && std::isfinite(inter);
+    const double inter = std::isfinite(nim->scl_inter) ? nim->scl_inter : 0.0;
+    const bool rescale = slope != 0 && std::isfinite(slope);
 
     const char* descrip = nim->descrip;
     const std::string description(descrip, strnlen(descrip, sizeof(nim->descrip)));
@@ -194,7 +247,7 @@ SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
     lock.unlock();
 
     if (rescale) {
-        for (float& v : values) v = static_cast<float>(slope * static_cast<double>(v) + inter);
+        for (float& v : values) v = saturatingFloat(slope * static_cast<double>(v) + inter);
     }
 
     const std::array<std::int64_t, 3> dims3{dims[0], dims[1], dims[2]};

@@ -9,6 +9,7 @@
 #include "formats.h"
 #include "header_parsers.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "raw_data.h"
 #include "reader_util.h"
 #include "time_point.h"
@@ -18,6 +19,12 @@ namespace palp::volume {
 namespace fs = std::filesystem;
 
 namespace {
+
+/// Throws FormatError(`<what>: expected <expected>, found <found>`).
+[[noreturn]] void throwFormat(const std::string& what, std::string_view expected,
+                              const std::string& found) {
+    throw FormatError(what + ": expected " + std::string(expected) + ", found " + found);
+}
 
 bool nonSpatialKind(const std::string& kind) {
     return !(kind.empty() || kind == "domain" || kind == "space" || kind == "???" ||
@@ -94,13 +101,28 @@ void nrrdGeometry(const NrrdHeader& h, const std::vector<int>& spatial, const st
             const auto a = static_cast<std::size_t>(spatial[static_cast<std::size_t>(c)]);
             const bool cell = a < h.centerings.size() && h.centerings[a] == "cell";
             const auto samples = static_cast<double>(h.sizes[a]);
+            // A spacing the file gives is used or refused, never replaced; 1 (mm) only when
+            // the file says nothing about this axis's sample spacing.
             double step = 1.0;
-            if (std::isfinite(h.spacings[a]) && h.spacings[a] != 0) {
+            const std::string axis = " (axis " + std::to_string(a) + ")";
+            if (h.spacingsGiven) {
                 step = h.spacings[a];
-            } else if (std::isfinite(h.axisMins[a]) && std::isfinite(h.axisMaxs[a])) {
+                if (!std::isfinite(step) || step == 0) {
+                    throwFormat(name + ": spacings" + axis,
+                                "a finite non-zero spacing on a spatial axis", formatValue(step));
+                }
+            } else if (h.axisRangeGiven && std::isfinite(h.axisMins[a]) &&
+                       std::isfinite(h.axisMaxs[a])) {
                 const double intervals = cell ? samples : samples - 1;
-                if (intervals > 0 && h.axisMaxs[a] != h.axisMins[a])
+                if (intervals > 0) {
                     step = (h.axisMaxs[a] - h.axisMins[a]) / intervals;
+                    if (!std::isfinite(step) || step == 0) {
+                        throwFormat(
+                            name + ": axis mins, axis maxs" + axis,
+                            "a finite non-empty range on a spatial axis",
+                            formatValue(h.axisMins[a]) + " to " + formatValue(h.axisMaxs[a]));
+                    }
+                }
             }
             double start = 0;
             if (std::isfinite(h.axisMins[a])) start = h.axisMins[a] + (cell ? 0.5 * step : 0.0);
@@ -111,6 +133,12 @@ void nrrdGeometry(const NrrdHeader& h, const std::vector<int>& spatial, const st
     if (!axes.allFinite() || !origin.allFinite()) {
         throw FormatError(name +
                           ": expected finite space directions and origin, found non-finite values");
+    }
+    if (h.spaceDirections.empty()) {
+        detail::checkAffine(name, "spacings", "spacings", "axis mins", axes, origin);
+    } else {
+        detail::checkAffine(name, "space directions", "space directions", "space origin", axes,
+                            origin);
     }
 }
 

@@ -467,14 +467,16 @@ void parseSpaceGeometry(const Parser& p, NrrdHeader& h) {
 void parseAxesAndData(const Parser& p, NrrdHeader& h) {
     const int n = h.dimension;
     const double nan = std::numeric_limits<double>::quiet_NaN();
-    h.spacings = p.find("spacings") ? p.doubles(*p.find("spacings"), "spacings", n)
-                                    : std::vector<double>(static_cast<std::size_t>(n), nan);
+    h.spacingsGiven = p.find("spacings") != nullptr;
+    h.spacings = h.spacingsGiven ? p.doubles(*p.find("spacings"), "spacings", n)
+                                 : std::vector<double>(static_cast<std::size_t>(n), nan);
     const Field* fMin = p.find("axis mins", "axismins");
     h.axisMins = fMin ? p.doubles(*fMin, "axis mins", n)
                       : std::vector<double>(static_cast<std::size_t>(n), nan);
     const Field* fMax = p.find("axis maxs", "axismaxs");
     h.axisMaxs = fMax ? p.doubles(*fMax, "axis maxs", n)
                       : std::vector<double>(static_cast<std::size_t>(n), nan);
+    h.axisRangeGiven = fMin != nullptr && fMax != nullptr;
     if (const Field* f = p.find("thicknesses")) (void)p.doubles(*f, "thicknesses", n);
     if (const Field* f = p.find("centerings", "centers"))
         h.centerings = p.strings(*f, "centerings", n);

@@ -8,7 +8,9 @@
 #include <cmath>
 #include <cstdio>
 #include <numbers>
+#include <utility>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/base/validate.h"
@@ -198,10 +200,14 @@ Phantom::Phantom(const PhantomParams& params) : mParams(params) {
                          mm(params.transitionWidth));
     }
     const PhantomMaterials& m = params.materials;
-    for (double v : {m.airHu, m.fatHu, m.softHu, m.hardHu, m.rigidHu}) {
-        if (!std::isfinite(v))
-            throw ValueError("phantom materials: expected finite HU values, found " +
-                             formatValue(v));
+    const std::pair<const char*, double> materials[] = {{"air", m.airHu},
+                                                        {"fat", m.fatHu},
+                                                        {"soft", m.softHu},
+                                                        {"hard", m.hardHu},
+                                                        {"rigid", m.rigidHu}};
+    for (const auto& [material, hu] : materials) {
+        palp::requireWithin(std::string("phantom materials: ") + material + " HU", hu,
+                            bounds::kVolumeValue);
     }
 
     int sides = 0;
@@ -376,17 +382,30 @@ std::pair<std::int64_t, std::int64_t> cellRange(double a, double b, double step)
 /// Checks what makePhantomSlices needs beyond the phantom's own parameters.
 /// @throw ValueError naming the offending field.
 void checkSliceSpec(const PhantomSpec& spec, const SliceGeometry& geometry) {
-    palp::requireNonNegative("phantom noise sigma", spec.noiseSigmaHu, "HU");
-    palp::requireNonNegative("phantom blur sigma", spec.blurSigma, "m");
-    palp::requireNonNegative("phantom margin", spec.margin, "m");
+    // Noise and materials within palp's volume-value bounds keep every sample a finite float
+    // (a 1e300 HU noise would overflow); spacings within bounds::kSpacing.
+    palp::requireWithin("phantom noise sigma", spec.noiseSigmaHu, bounds::kVolumeSpread);
+    palp::requireWithin("phantom blur sigma", spec.blurSigma, bounds::kSpan, {1e3, "mm"});
+    palp::requireWithin("phantom margin", spec.margin, bounds::kSpan, {1e3, "mm"});
     if (spec.supersample < 1 || spec.supersample > 8) {
         throw ValueError("phantom supersample: expected 1 to 8, found " +
                          std::to_string(spec.supersample));
     }
-    palp::requirePositive("phantom pixel spacing", geometry.pixelSpacing, "m");
-    palp::requirePositive("phantom slice spacing", geometry.sliceSpacing, "m");
-    for (double g : geometry.sliceGaps) palp::requirePositive("phantom slice gap", g, "m");
-    palp::requireNonNegative("phantom slice thickness", geometry.sliceThickness, "m");
+    palp::requireWithin("phantom pixel spacing", geometry.pixelSpacing, bounds::kSpacing,
+                        {1e3, "mm"});
+    palp::requireWithin("phantom slice spacing", geometry.sliceSpacing, bounds::kSpacing,
+                        {1e3, "mm"});
+    for (double g : geometry.sliceGaps) {
+        palp::requireWithin("phantom slice gap", g, bounds::kSpacing, {1e3, "mm"});
+    }
+    palp::requireWithin("phantom slice thickness", geometry.sliceThickness, bounds::kSpan,
+                        {1e3, "mm"});
+    // The in-plane blur kernel spans 6 sigma in pixels: bounded so the work per pixel is.
+    if (spec.blurSigma > 100 * geometry.pixelSpacing) {
+        throwExpected("phantom blur sigma",
+                      "at most 100 pixel spacings (" + mm(100 * geometry.pixelSpacing) + ")",
+                      mm(spec.blurSigma));
+    }
     if (!(std::abs(geometry.tiltDeg) < 60)) {
         throw ValueError("phantom gantry tilt: expected less than 60 degrees, found " +
                          formatValue(geometry.tiltDeg));
@@ -566,7 +585,7 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
 }
 
 Volume makePhantomVolume(const PhantomSpec& spec) {
-    palp::requirePositive("phantom voxel size", spec.voxelSize, "m");
+    palp::requireWithin("phantom voxel size", spec.voxelSize, bounds::kSpacing, {1e3, "mm"});
     SliceGeometry geometry;
     geometry.pixelSpacing = spec.voxelSize;
     geometry.sliceSpacing = spec.voxelSize;

@@ -6,9 +6,12 @@
 #include <bit>
 #include <cctype>
 #include <charconv>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <string>
+#include <type_traits>
 
 #include "palp/base/error.h"
 
@@ -27,7 +30,11 @@ void decodeTyped(const std::byte* src, bool swap, std::span<float> out) {
         if (swap) std::reverse(buf, buf + kSize);
         T v;
         std::memcpy(&v, buf, kSize);
-        out[i] = static_cast<float>(v);
+        if constexpr (std::is_same_v<T, double>) {
+            out[i] = saturatingFloat(v);
+        } else {
+            out[i] = static_cast<float>(v);
+        }
     }
 }
 
@@ -365,7 +372,10 @@ std::vector<float> readAsciiValues(const fs::path& path, std::uint64_t offset,
                               std::to_string(values.size()) + ", found '" + std::string(p, tokEnd) +
                               "'");
         }
-        values.push_back(static_cast<float>(v));
+        // Out of double's range: from_chars leaves v unset; strtod gives +-inf or 0 for it.
+        if (res.ec == std::errc::result_out_of_range)
+            v = std::strtod(std::string(p, res.ptr).c_str(), nullptr);
+        values.push_back(saturatingFloat(v));
         p = res.ptr;
     }
     if (values.size() < count) {

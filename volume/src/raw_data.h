@@ -14,6 +14,15 @@
 
 namespace palp::volume {
 
+/// @p v as a float, with values beyond float's range as +-infinity (a plain cast of those is
+/// undefined behaviour); NaN stays NaN. The load check (checkStackValues) then refuses them.
+inline float saturatingFloat(double v) noexcept {
+    constexpr double kMax = 3.4028234663852886e38;  // FLT_MAX
+    if (v > kMax) return __builtin_huge_valf();
+    if (v < -kMax) return -__builtin_huge_valf();
+    return static_cast<float>(v);
+}
+
 /// Scalar element types of the supported formats.
 enum class ElementType {
     Int8,

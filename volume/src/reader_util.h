@@ -1,6 +1,8 @@
 #pragma once
 // Internal helpers shared by the NIfTI, NRRD and MetaImage readers (not installed).
 
+#include <Eigen/Core>
+#include <Eigen/LU>
 #include <algorithm>
 #include <cctype>
 #include <charconv>
@@ -12,6 +14,9 @@
 #include <vector>
 
 #include "header_parsers.h"
+#include "palp/base/bounds.h"
+#include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "raw_data.h"
 
 namespace palp::volume::detail {
@@ -81,6 +86,42 @@ inline std::string quoteFound(std::string_view s) {
     }
     if (s.size() > kMax) out += "...";
     return out + "'";
+}
+
+/// Checks a reader's index-to-world affine (metres, LPS) before it becomes slices: every axis
+/// step (its length without overflow, so 1e300 shows as 1e300) is a voxel spacing
+/// (bounds::kSpacing, shown in mm), the three steps span space (no zero, NaN or parallel column:
+/// the grid has a volume), and the origin is a position (bounds::kPosition). Messages name the file
+/// and the header fields the values came from.
+/// @throw FormatError `<file>: <field>: expected ..., found ...` (the file is at fault).
+inline void checkAffine(const std::string& name, std::string_view spacingField,
+                        std::string_view directionField, std::string_view originField,
+                        const Eigen::Matrix3d& axes, const Eigen::Vector3d& origin) try {
+    for (int c = 0; c < 3; ++c) {
+        palp::requireWithin(
+            name + ": " + std::string(spacingField) + " (axis " + std::to_string(c) + " step)",
+            axes.col(c).stableNorm(), bounds::kSpacing, {1e3, "mm"});
+    }
+    // |det| over the product of the column lengths: 1 for orthogonal axes, 0 for a flat grid.
+    const double volume = std::abs(axes.determinant());
+    const double lengths =
+        axes.col(0).stableNorm() * axes.col(1).stableNorm() * axes.col(2).stableNorm();
+    if (!(volume > 1e-6 * lengths)) {
+        std::string found;
+        for (int c = 0; c < 3; ++c) {
+            found += (c ? ", (" : "(") + formatValue(axes(0, c) * 1e3) + " " +
+                     formatValue(axes(1, c) * 1e3) + " " + formatValue(axes(2, c) * 1e3) + ")";
+        }
+        throwExpected(name + ": " + std::string(directionField),
+                      "three independent axis directions", "the steps " + found + " mm");
+    }
+    for (int r = 0; r < 3; ++r) {
+        palp::requireWithin(
+            name + ": " + std::string(originField) + " (coordinate " + std::to_string(r) + ")",
+            origin[r], bounds::kPosition, {1e3, "mm"});
+    }
+} catch (const ValueError& e) {
+    throw FormatError(e.what());
 }
 
 }  // namespace palp::volume::detail

@@ -5,9 +5,11 @@
 #include <memory>
 
 #include "grid_copy.h"
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/volume/resample.h"
+#include "vdb_errors.h"
 
 namespace palp::volume {
 
@@ -21,18 +23,14 @@ void deactivateBelow(openvdb::FloatGrid& grid, float threshold) {
     }
 }
 
-}  // namespace
-
-Volume resample(const Volume& source, const ResampleOptions& options) {
-    if (!source.grid) throwExpected("resample", "a volume with a grid", "none");
+Volume regridChecked(const Volume& source, const ResampleOptions& options) {
     const bool regrid = options.voxelSize || options.crop;
     if (!regrid && !options.backgroundThreshold) return source;
     openvdb::FloatGrid::Ptr target;
     if (regrid) {
         // Trilinear resample onto the requested lattice.
         const double voxel = options.voxelSize.value_or(source.voxelSize());
-        if (!(voxel > 0) || !std::isfinite(voxel))
-            throwExpected("resample", "a positive voxel size", formatValue(voxel) + " m");
+        palp::requireWithin("resample: voxel size", voxel, bounds::kSpacing, {1e3, "mm"});
         target = openvdb::FloatGrid::create(source.grid->background());
         target->setName(kScanGridName);
         target->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
@@ -53,6 +51,15 @@ Volume resample(const Volume& source, const ResampleOptions& options) {
     writeInfo(out.info, *target);
     if (options.progress && !options.progress(1.0)) throw Error("resample: cancelled");
     return out;
+}
+
+}  // namespace
+
+Volume resample(const Volume& source, const ResampleOptions& options) {
+    if (!source.grid) throwExpected("resample", "a volume with a grid", "none");
+    checkResampleOptions(options);
+    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can re-grid",
+                                             [&] { return regridChecked(source, options); });
 }
 
 }  // namespace palp::volume

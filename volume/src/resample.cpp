@@ -13,8 +13,11 @@
 #include <numeric>
 #include <sstream>
 
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
+#include "palp/base/validate.h"
+#include "vdb_errors.h"
 
 namespace palp::volume {
 
@@ -40,6 +43,7 @@ struct StackGeometry {
 
 StackGeometry analyse(const SliceStack& stack) {
     if (stack.slices.empty()) throw ValueError("resample: expected at least one slice, found none");
+    checkStackValues(stack);
     StackGeometry g;
     const Slice& first = stack.slices.front();
     g.u = first.colStep;
@@ -157,10 +161,7 @@ double chooseVoxelSize(const StackGeometry& g, const StackSpacing& spacing,
     double voxel = std::min(g.u.norm(), g.v.norm());
     if (spacing.minGap > 0) voxel = std::min(voxel, spacing.minGap);
     if (options.voxelSize) voxel = *options.voxelSize;
-    if (!(voxel > 0) || !std::isfinite(voxel)) {
-        throw ValueError("resample: expected a positive voxel size, found " +
-                         std::to_string(voxel) + " m");
-    }
+    palp::requireWithin("resample: voxel size", voxel, bounds::kSpacing, {1e3, "mm"});
     return voxel;
 }
 
@@ -533,6 +534,33 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
 
 }  // namespace
 
+void checkResampleOptions(const ResampleOptions& options) {
+    if (options.voxelSize) {
+        palp::requireWithin("resample: voxel size", *options.voxelSize, bounds::kSpacing,
+                            {1e3, "mm"});
+    }
+    if (options.backgroundThreshold) {
+        palp::requireWithin("resample: background threshold",
+                            static_cast<double>(*options.backgroundThreshold),
+                            bounds::kVolumeValue);
+    }
+    if (options.crop) {
+        for (int a = 0; a < 3; ++a) {
+            const std::string axis = "[" + std::to_string(a) + "]";
+            palp::requireWithin("resample: crop min" + axis, options.crop->min[a],
+                                bounds::kPosition, {1e3, "mm"});
+            palp::requireWithin("resample: crop max" + axis, options.crop->max[a],
+                                bounds::kPosition, {1e3, "mm"});
+            if (options.crop->min[a] > options.crop->max[a]) {
+                throwExpected("resample: crop" + axis, "min <= max",
+                              formatValue(options.crop->min[a] * 1e3) + " > " +
+                                  formatValue(options.crop->max[a] * 1e3) + " mm");
+            }
+        }
+    }
+    if (options.maxVoxels == 0) throwExpected("resample: maxVoxels", "at least 1", "0");
+}
+
 float defaultBackgroundThreshold(const VolumeInfo& info) {
     return info.modality == "CT" ? -900.0f : 0.0f;
 }
@@ -542,7 +570,9 @@ float backgroundValueFor(const VolumeInfo& info, float threshold) {
     return std::min(preferred, threshold);
 }
 
-Volume resample(const SliceStack& stack, const ResampleOptions& options) {
+namespace {
+
+Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options) {
     const StackGeometry g = analyse(stack);
     const std::size_t n = g.order.size();
     const StackSpacing spacing = measureSpacing(stack, g);
@@ -576,6 +606,14 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     out.info.gantryTiltDeg = spacing.tiltDeg;
     writeInfo(out.info, *grid);
     return out;
+}
+
+}  // namespace
+
+Volume resample(const SliceStack& stack, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build",
+                                             [&] { return resampleChecked(stack, options); });
 }
 
 }  // namespace palp::volume

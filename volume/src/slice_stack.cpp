@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cstddef>
+#include <string>
+
+#include "palp/base/bounds.h"
 
 namespace palp::volume {
 
@@ -27,6 +30,21 @@ SliceStack stackFromAffine(const std::vector<float>& values,
     stack.info.originalDims = dims;
     stack.info.originalSpacing = {axes.col(0).norm(), axes.col(1).norm(), axes.col(2).norm()};
     return stack;
+}
+
+void checkStackValues(const SliceStack& stack) {
+    for (std::size_t k = 0; k < stack.slices.size(); ++k) {
+        const Slice& s = stack.slices[k];
+        const auto bad = std::find_if(s.values.begin(), s.values.end(), [](float v) {
+            return !bounds::kVolumeValue.contains(static_cast<double>(v));
+        });
+        if (bad == s.values.end()) continue;
+        const auto at = static_cast<std::size_t>(bad - s.values.begin());
+        const auto cols = static_cast<std::size_t>(std::max(s.cols, 1));
+        requireWithin(s.source + ": voxel (column " + std::to_string(at % cols) + ", row " +
+                          std::to_string(at / cols) + ", slice " + std::to_string(k) + ")",
+                      static_cast<double>(*bad), bounds::kVolumeValue);
+    }
 }
 
 }  // namespace palp::volume

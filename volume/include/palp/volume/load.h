@@ -32,14 +32,18 @@ struct LoadOptions : ReadOptions {
 };
 
 /// Reads @p inputs (one file, one directory, or several DICOM files of one series) as a
-/// SliceStack without resampling. Not for `.vdb` (use load()).
-/// @throw IoError, FormatError, ValueError with the offending file named.
+/// SliceStack without resampling. Not for `.vdb` (use load()). A spacing, direction or origin
+/// the file gives is used or refused (never replaced by a default); NaN or infinite voxels, or
+/// values outside bounds::kVolumeValue, are refused.
+/// @throw IoError, FormatError, ValueError with the offending file (and field) named.
 SliceStack readStack(const std::vector<std::filesystem::path>& inputs, const ReadOptions& options);
 
 /// Reads and resamples @p inputs into a Volume: slices through resample(SliceStack), a `.vdb`
 /// through resample(Volume) with the same options (as stored unless a voxel size, crop or
 /// background threshold is given).
-/// @throw IoError, FormatError, ValueError with the offending file named.
+/// @p options.resample is checked first (checkResampleOptions()). OpenVDB's own exceptions come
+/// out as FormatError naming the file.
+/// @throw IoError, FormatError, ValueError with the offending file or option named.
 Volume load(const std::vector<std::filesystem::path>& inputs, const LoadOptions& options = {});
 
 /// How `.vdb` leaf data is compressed on disk. Every mode drops inactive values (OpenVDB's
@@ -57,8 +61,10 @@ struct SaveOptions {
 /// @throw IoError naming the path when it cannot be written.
 void save(const Volume& volume, const std::filesystem::path& path, const SaveOptions& options = {});
 
-/// Reads a palp `.vdb` (the grid named "scan", or the first float grid).
-/// @throw IoError, FormatError.
+/// Reads a palp `.vdb` (the grid named "scan", or the first float grid). The grid must have a
+/// linear transform with cubic voxels inside bounds::kSpacing and finite values (background and
+/// active) inside bounds::kVolumeValue.
+/// @throw IoError, FormatError naming the file (and what in it is refused).
 Volume loadVdb(const std::filesystem::path& path);
 
 }  // namespace palp::volume

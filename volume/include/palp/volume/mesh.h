@@ -22,7 +22,9 @@ TriangleMesh loadMesh(const std::filesystem::path& path, double metresPerUnit = 
 /// Iso-surface of @p grid at @p isoValue (value units) through openvdb::tools::volumeToMesh;
 /// quads are split into two triangles. Positions are world metres. @p adaptivity in [0, 1]
 /// merges flat regions (0 keeps every voxel-sized face).
-/// @throw palp::ValueError for a non-finite iso value or an adaptivity outside [0, 1].
+/// @throw palp::ValueError for an iso value or grid background outside bounds::kVolumeValue,
+///        an adaptivity outside [0, 1], or an error OpenVDB raises (NaN voxels, a singular
+///        transform), named as the grid's.
 /// @par Threading  Parallel inside (TBB); any thread.
 TriangleMesh isoSurface(const openvdb::FloatGrid& grid, double isoValue, double adaptivity = 0.0);
 

@@ -104,7 +104,8 @@ double transitionProfile(TransitionProfile profile, double x, double width, doub
 class Phantom {
   public:
     /// @throw ValueError for parameters outside their ranges (quadrant 0-3, displacement -1..1,
-    ///        positive widths, |boneTiltDeg| < 30, tanhSharpness > 0, ...).
+    ///        positive widths, |boneTiltDeg| < 30, tanhSharpness > 0, materials inside
+    ///        bounds::kVolumeValue, ...).
     explicit Phantom(const PhantomParams& params);
 
     /// Noise-free, unblurred value (HU) at a world point in metres (LPS).
@@ -168,15 +169,18 @@ struct SliceGeometry {
 /// Samples the phantom on the slices of @p geometry: partial volume (supersampling over each
 /// pixel's footprint and/or Gaussian blur), then noise. VolumeInfo is filled (CT, HU,
 /// "phantom", the description). Each slice's `source` is "phantom slice K".
-/// @throw ValueError for bad spec or geometry (non-positive spacing, |tilt| >= 60 degrees,
-///        more than 2^28 pixels in all, ...).
+/// @throw ValueError for bad spec or geometry: spacings and gaps outside bounds::kSpacing, noise
+///        outside bounds::kVolumeSpread (so no value overflows), blur or margin outside
+///        bounds::kSpan, blur above 100 pixel spacings, |tilt| >= 60 degrees, more than 2^28
+///        pixels in all, ...
 /// @par Threading  Parallel inside (TBB); the result does not depend on the scheduling.
 SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geometry);
 
 /// The phantom as a Volume: axial slices at spec.voxelSize in all three directions, with pixel
 /// centres at (k + 1/2) voxelSize, resampled exactly into a grid named "scan" (background
 /// -1000 HU, values below -900 inactive).
-/// @throw ValueError as makePhantomSlices and resample().
+/// @throw ValueError for a voxel size outside bounds::kSpacing, and as makePhantomSlices and
+///        resample().
 Volume makePhantomVolume(const PhantomSpec& spec);
 
 /// Names used by the palp tool and descriptions.

@@ -33,6 +33,13 @@ struct ResampleOptions {
     ProgressFn progress;
 };
 
+/// Checks @p options against palp's bounds: voxelSize a voxel spacing (bounds::kSpacing),
+/// backgroundThreshold a volume value (bounds::kVolumeValue), the crop box's corners positions
+/// (bounds::kPosition) with min <= max, maxVoxels > 0. Both resample() overloads (and so load())
+/// call it first.
+/// @throw ValueError `resample: <field>: expected ..., found ...`.
+void checkResampleOptions(const ResampleOptions& options);
+
 /// Background value written for inactive voxels: -1000 for CT (air), otherwise 0; never above
 /// the threshold.
 float backgroundValueFor(const VolumeInfo& info, float threshold);
@@ -49,8 +56,9 @@ float defaultBackgroundThreshold(const VolumeInfo& info);
 ///
 /// The output lattice is anchored at the smallest corner of the slices' world bounding box, so
 /// an axis-aligned source with the same voxel size is reproduced exactly.
-/// @throw ValueError for an empty stack, slices of differing orientation or size, repeated
-///        positions, a non-positive voxel size, or a lattice larger than maxVoxels.
+/// @throw ValueError for options checkResampleOptions() refuses, an empty stack, slices of
+///        differing orientation or size, repeated positions, values checkStackValues() refuses,
+///        or a lattice larger than maxVoxels.
 /// @par Threading  Parallel inside (TBB); callable from any thread.
 Volume resample(const SliceStack& stack, const ResampleOptions& options = {});
 
@@ -61,7 +69,8 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options = {});
 /// stored volume had its threshold applied when it was made (info.backgroundThreshold). With
 /// none of these the volume is returned as is, sharing its grid. The result's info (threshold)
 /// is written into its grid's metadata; progress reports 1 when done.
-/// @throw ValueError for a volume without a grid or a non-positive voxel size;
+/// @throw ValueError for a volume without a grid, options checkResampleOptions() refuses, or an
+///        error OpenVDB raises re-gridding it (named as such);
 ///        Error("resample: cancelled") when the progress callback returns false.
 /// @par Threading  Parallel inside (TBB); callable from any thread.
 Volume resample(const Volume& source, const ResampleOptions& options = {});

@@ -39,4 +39,10 @@ SliceStack stackFromAffine(const std::vector<float>& values,
                            const std::array<std::int64_t, 3>& dims, const Eigen::Matrix3d& axes,
                            const Eigen::Vector3d& origin, const std::string& source);
 
+/// Checks that every value of @p stack is finite and inside bounds::kVolumeValue (NaN or
+/// infinite voxels would reach the iso-surface mesher and the ray kernels; palp refuses them
+/// rather than mapping them to a value the scan does not hold).
+/// @throw ValueError `<slice source>: voxel (column c, row r, slice k): expected ..., found nan`.
+void checkStackValues(const SliceStack& stack);
+
 }  // namespace palp::volume
