@@ -1,5 +1,6 @@
 // libFuzzer target: palp's NRRD header parser, then the whole NRRD reader on the same bytes
-// written to a temporary file (small maxSourceBytes so a claimed size cannot exhaust memory).
+// written to a temporary file (small maxSourceBytes so a claimed size cannot exhaust memory),
+// then resample() of what it accepted (a small lattice limit).
 // Any palp::Error is an accepted outcome; crashes, sanitizer reports, leaks and other
 // exceptions are findings.
 #include <unistd.h>
@@ -14,6 +15,7 @@
 #include "formats.h"
 #include "header_parsers.h"
 #include "palp/base/error.h"
+#include "palp/volume/resample.h"
 
 namespace {
 
@@ -44,6 +46,13 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     try {
         const palp::volume::SliceStack st = palp::volume::readNrrd(scratchFile(), options);
         if (st.slices.empty()) __builtin_trap();
+        // What the reader accepted goes on to the grid, as load() takes it: the geometry and
+        // value checks must leave nothing that OpenVDB refuses in its own words (an
+        // openvdb::Exception escaping here is a finding), and the lattice stays small.
+        palp::volume::ResampleOptions resample;
+        resample.maxVoxels = std::uint64_t{1} << 20;
+        const palp::volume::Volume v = palp::volume::resample(st, resample);
+        if (!v.grid) __builtin_trap();
     } catch (const palp::Error&) {
     }
     return 0;
