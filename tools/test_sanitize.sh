@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# AddressSanitizer + UndefinedBehaviorSanitizer run of the tests that take outside input: the
+# volume readers and writers (NRRD, MetaImage, NIfTI, DICOM, raw data, .vdb, phantoms, meshes),
+# the base layer (validation, bounds, atomic files) and the C API. The asan preset compiles with
+# -fno-sanitize-recover=all, so a UBSan report aborts like an ASan one; any report fails the run.
+# .ci/run calls it after tools/test_threads.sh (tools/test.sh has installed the packages).
+#   bash tools/test_sanitize.sh                    build/asan, all the listed test executables
+#   bash tools/test_sanitize.sh test_volume_formats    only the named ones
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ "$#" -gt 0 ]; then
+  targets=("$@")
+else
+  targets=(test_base test_volume_formats test_volume_raw_data test_volume_reader_checks
+           test_volume_checks test_volume_dicom test_volume_phantom test_volume_io
+           test_volume_resample test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api)
+fi
+# Without the palp tool: the library and the tests are what is instrumented here (the tool's own
+# checks run in tools/test.sh); the few volume tests that run `palp convert`/`palp phantom` use
+# the release tool that tools/test.sh has built (PALP_BIN_DIR).
+cmake --preset asan -DPALP_BUILD_TOOLS=OFF >/dev/null
+# Two jobs: CI has two cores.
+cmake --build --preset asan -j 2 --target "${targets[@]}"
+export PALP_BIN_DIR="${PALP_BIN_DIR:-$PWD/build/release}"
+if [ ! -x "$PALP_BIN_DIR/tools/palp" ]; then
+  echo "test_sanitize.sh: no $PALP_BIN_DIR/tools/palp; run tools/test.sh (the release build) first"
+  exit 1
+fi
+# halt_on_error: stop at the first report so its stacks are the last thing in the log.
+# detect_leaks: a leak is a finding too.
+export ASAN_OPTIONS="halt_on_error=1:abort_on_error=0:detect_leaks=1:strict_string_checks=1:detect_stack_use_after_return=1"
+export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
+failed=()
+for t in "${targets[@]}"; do
+  exe=$(find build/asan/tests -type f -name "$t" -perm -u+x | head -n 1)
+  if [ -z "$exe" ]; then
+    echo "test_sanitize.sh: no executable $t under build/asan/tests"
+    failed+=("$t")
+    continue
+  fi
+  echo "== asan: $t"
+  start=$(date +%s)
+  args=(--gtest_brief=1)
+  [ "$t" = test_c_api ] && args=()  # plain C, no GoogleTest
+  if "$exe" "${args[@]}"; then
+    echo "== asan: $t passed, 0 reports ($(($(date +%s) - start)) s)"
+  else
+    echo "== asan: $t FAILED (exit $?: a test failed or a sanitizer reported)"
+    failed+=("$t")
+  fi
+done
+if [ "${#failed[@]}" -gt 0 ]; then
+  echo "test_sanitize.sh: failed under AddressSanitizer+UBSan: ${failed[*]}"
+  exit 1
+fi
+echo "test_sanitize.sh: all ${#targets[@]} executables clean under AddressSanitizer+UBSan"
