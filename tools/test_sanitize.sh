@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # AddressSanitizer + UndefinedBehaviorSanitizer run of the tests that take outside input: the
 # volume readers and writers (NRRD, MetaImage, NIfTI, DICOM, raw data, .vdb, phantoms, meshes),
-# the base layer (validation, bounds, atomic files) and the C API. The asan preset compiles with
-# -fno-sanitize-recover=all, so a UBSan report aborts like an ASan one; any report fails the run.
+# the base layer (validation, bounds, atomic files) and the C API (its volume entry points, its
+# sessions, and every number and enum field of its structs given nan, inf, 1e300, ...). The asan
+# preset compiles with -fno-sanitize-recover=all, so a UBSan report aborts like an ASan one; any
+# report fails the run.
 # .ci/run calls it after tools/test_threads.sh (tools/test.sh has installed the packages).
 #   bash tools/test_sanitize.sh                    build/asan, all the listed test executables
 #   bash tools/test_sanitize.sh test_volume_formats    only the named ones
@@ -13,7 +15,8 @@ if [ "$#" -gt 0 ]; then
 else
   targets=(test_base test_volume_formats test_volume_raw_data test_volume_reader_checks
            test_volume_checks test_volume_dicom test_volume_phantom test_volume_io
-           test_volume_resample test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api)
+           test_volume_resample test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api
+           test_c_api_fields)
 fi
 # Without the palp tool: the library and the tests are what is instrumented here (the tool's own
 # checks run in tools/test.sh); the few volume tests that run `palp convert`/`palp phantom` use

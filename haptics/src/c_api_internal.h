@@ -7,11 +7,13 @@
 
 #include <Eigen/Core>
 #include <atomic>
+#include <cstring>
 #include <exception>
 #include <memory>
 #include <mutex>
 #include <new>
 #include <string>
+#include <type_traits>
 
 #include "palp/base/error.h"
 #include "palp/haptics/session.h"
@@ -81,6 +83,17 @@ template <typename Handle>
 void release(Handle* h) noexcept {
     // acq_rel: the last owner sees every other owner's writes before deleting.
     if (h && h->refs.fetch_sub(1, std::memory_order_acq_rel) == 1) delete h;
+}
+
+/// The integer a C caller stored in an enum field or parameter, read from its bytes: a C enum
+/// may hold any int, but loading a value outside the enumerators as the enum type is undefined
+/// in C++ (UBSan's -fsanitize=enum), so palp never loads one before it is checked.
+template <typename E>
+int rawEnum(const E& e) noexcept {
+    static_assert(std::is_enum_v<E>);
+    std::underlying_type_t<E> v;
+    std::memcpy(&v, &e, sizeof v);
+    return static_cast<int>(v);
 }
 
 inline Eigen::Vector3d vec(const double v[3]) { return Eigen::Vector3d(v[0], v[1], v[2]); }

@@ -19,7 +19,7 @@ namespace ph = palp::haptics;
 namespace palp::capi {
 namespace {
 
-ph::CouplingMode toMode(palp_coupling_mode m) {
+ph::CouplingMode toMode(int m) {
     switch (m) {
         case PALP_MODE_VC:
             return ph::CouplingMode::VC;
@@ -30,7 +30,7 @@ ph::CouplingMode toMode(palp_coupling_mode m) {
     }
     throw palp::ValueError(
         "palp_session_params.mode: expected PALP_MODE_VC, _AVC or _AVCEC, found " +
-        std::to_string(static_cast<int>(m)));
+        std::to_string(m));
 }
 
 palp_coupling_mode fromMode(ph::CouplingMode m) noexcept {
@@ -45,7 +45,7 @@ palp_coupling_mode fromMode(ph::CouplingMode m) noexcept {
     return PALP_MODE_VC;
 }
 
-ph::RaySource toSource(palp_ray_source s) {
+ph::RaySource toSource(int s) {
     switch (s) {
         case PALP_SOURCE_MESH:
             return ph::RaySource::Mesh;
@@ -57,7 +57,7 @@ ph::RaySource toSource(palp_ray_source s) {
     throw palp::ValueError(
         "palp_session_params.source: expected PALP_SOURCE_MESH, _VOLUME_FIRST_HIT or "
         "_VOLUME_ACCUMULATE, found " +
-        std::to_string(static_cast<int>(s)));
+        std::to_string(s));
 }
 
 palp_ray_source fromSource(ph::RaySource s) noexcept {
@@ -191,7 +191,7 @@ struct Layout<ph::SinusoidTrajectory> {
 
 // Calls @p f with a default-constructed trajectory of @p kind; false for an unknown kind.
 template <typename F>
-bool forKind(palp_trajectory_kind kind, F&& f) {
+bool forKind(int kind, F&& f) {
     switch (kind) {
         case PALP_TRAJECTORY_PRESS:
             f(ph::PressTrajectory{});
@@ -351,8 +351,8 @@ void checkParamFields(const palp_session_params& p) {
 ph::CouplingParams toCoupling(const palp_session_params& p) {
     checkParamFields(p);
     ph::CouplingParams c;
-    c.mode = toMode(p.mode);
-    c.source = toSource(p.source);
+    c.mode = toMode(rawEnum(p.mode));
+    c.source = toSource(rawEnum(p.source));
     c.baseStiffness = p.stiffness;
     c.referenceLength = p.reference_length;
     c.maxMultiplier = p.max_multiplier;
@@ -427,11 +427,11 @@ const char* fixedFieldChanged(const palp_session_params& a, const palp_session_p
 ph::Trajectory toTrajectory(const palp_trajectory& c) {
     point(c.centre, "centre");  // every kind has one; reported before an unknown kind
     ph::Trajectory out;
-    if (!forKind(c.kind,
+    if (!forKind(rawEnum(c.kind),
                  [&](const auto& kind) { out = convert<std::decay_t<decltype(kind)>>(c); })) {
         throw palp::ValueError(
             "palp_trajectory.kind: expected PALP_TRAJECTORY_PRESS .. _SINUSOID, found " +
-            std::to_string(static_cast<int>(c.kind)));
+            std::to_string(rawEnum(c.kind)));
     }
     return out;
 }
@@ -542,12 +542,12 @@ palp_status palp_trajectory_default(palp_trajectory_kind kind, palp_trajectory* 
     fill(ph::RasterTrajectory{}, c);
     fill(ph::CircleTrajectory{}, c);
     fill(ph::SinusoidTrajectory{}, c);
-    if (!forKind(kind, [&](const auto& defaults) { fill(defaults, c); })) {
+    if (!forKind(rawEnum(kind), [&](const auto& defaults) { fill(defaults, c); })) {
         return fail(PALP_ERROR_INVALID_ARGUMENT,
                     "palp_trajectory_default: expected PALP_TRAJECTORY_PRESS .. _SINUSOID, "
                     "found an unknown kind");
     }
-    c.kind = kind;
+    std::memcpy(&c.kind, &kind, sizeof kind);  // checked above, but never loaded unchecked
     const ph::HandModel hand;
     c.hand_mass = hand.massKg;
     c.hand_stiffness = hand.stiffnessNpm;

@@ -145,14 +145,14 @@ palp_status palp_session_set_mode(palp_session* session, palp_coupling_mode mode
     return guarded([&] {
         const std::lock_guard<std::mutex> lock(session->paramsMutex);
         palp_session_params p = session->params;
-        p.mode = mode;
+        std::memcpy(&p.mode, &mode, sizeof mode);  // checked by toCoupling (rawEnum)
         ph::Command c;
         c.kind = ph::Command::Kind::SetCoupling;
         c.coupling = toCoupling(p);
         if (!session->session->send(c)) {
             return fail(PALP_ERROR_QUEUE_FULL, "palp_session_set_mode: command queue full");
         }
-        session->params.mode = mode;
+        session->params.mode = p.mode;
         return PALP_OK;
     });
 }

@@ -283,6 +283,24 @@ TEST_F(CApiFields, EveryTrajectoryFieldOfEveryKindRefusesBadNumbersNamingTheFiel
     EXPECT_GT(accepted, 10);
 }
 
+// A C enum field may hold any int; palp reads it as bytes and refuses it by name (loading it as
+// the enum type would be undefined behaviour, which the sanitizer run and the fuzzer catch).
+TEST_F(CApiFields, EnumFieldsHoldingAnyIntAreRefusedByName) {
+    for (int bad : {-2, 7, 99, 1 << 30}) {  // none is an enumerator of the three
+        palp_session_params p = defaultParams();
+        palp_trajectory t;
+        ASSERT_EQ(palp_trajectory_default(PALP_TRAJECTORY_PRESS, &t), PALP_OK);
+        std::memcpy(&p.mode, &bad, sizeof bad);
+        expectRefusalNaming(createAndStep(p, t, "mode"), "palp_session_params.mode", "mode");
+        p = defaultParams();
+        std::memcpy(&p.source, &bad, sizeof bad);
+        expectRefusalNaming(createAndStep(p, t, "source"), "palp_session_params.source", "source");
+        p = defaultParams();
+        std::memcpy(&t.kind, &bad, sizeof bad);
+        expectRefusalNaming(createAndStep(p, t, "kind"), "palp_trajectory.kind", "kind");
+    }
+}
+
 TEST_F(CApiFields, SetParamsOnALiveSessionRefusesBadNumbersAndKeepsTheOldOnes) {
     palp_session_params p = defaultParams();
     palp_trajectory t;
