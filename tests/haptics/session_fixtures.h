@@ -42,17 +42,19 @@ class PathDevice final : public Device {
         : mSpec(spec), mKeys(std::move(keys)) {
         EXPECT_FALSE(mKeys.empty());
     }
-    /// Ticks [from, to) read a NaN x coordinate.
-    void corrupt(std::uint64_t from, std::uint64_t to) {
+    /// Ticks [from, to) read @p x as the x coordinate (NaN by default; any absurd value).
+    void corrupt(std::uint64_t from, std::uint64_t to,
+                 double x = std::numeric_limits<double>::quiet_NaN()) {
         mNanFrom = from;
         mNanTo = to;
+        mBadX = x;
     }
     DeviceState read() noexcept override {
         const double t = static_cast<double>(mTick) * kT;
         DeviceState s;
         sample(t, s.position, s.velocity);
         if (mTick >= mNanFrom && mTick < mNanTo) {
-            s.position.x() = std::numeric_limits<double>::quiet_NaN();
+            s.position.x() = mBadX;
         }
         s.timestampSeconds = t;
         ++mTick;
@@ -91,6 +93,7 @@ class PathDevice final : public Device {
     std::vector<Key> mKeys;
     std::uint64_t mTick = 0;
     std::uint64_t mNanFrom = std::numeric_limits<std::uint64_t>::max(), mNanTo = 0;
+    double mBadX = std::numeric_limits<double>::quiet_NaN();
     DeviceState mLast;
     Eigen::Vector3d mForce{Eigen::Vector3d::Zero()};
 };

@@ -370,7 +370,6 @@ RunResult runFast(haptics::Session& session, std::uint64_t ticks) {
 // ---------------------------------------------------------------------------------------------
 // Outputs
 
-/// The CSV trace and the PNG map the options ask for; the map's value range in @p mapLo, @p mapHi.
 /// The plane --map bins over. @throw palp::ValueError naming --map-pixel when the map would
 /// exceed 4096 pixels a side.
 haptics::MapPlane mapPlane(const PalpateArgs& a, const PathFrame& f) {
@@ -391,8 +390,9 @@ haptics::MapPlane mapPlane(const PalpateArgs& a, const PathFrame& f) {
     return plane;
 }
 
-/// Writes --trace and --map. The map is made before either file is written, and a trace is
-/// removed again when the map cannot be written, so a refusal leaves no output behind.
+/// Writes --trace and --map (the map's value range in @p mapLo, @p mapHi). The map is made
+/// before either file is written, and a trace is removed again when the map cannot be written,
+/// so a refusal leaves no output behind.
 void writeOutputs(const PalpateArgs& a, const PathFrame& f,
                   const std::vector<haptics::Snapshot>& snaps, double& mapLo, double& mapHi) {
     std::optional<haptics::ScalarMap> map;
