@@ -3,7 +3,10 @@
 #include <array>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <fstream>
 #include <random>
+#include <vector>
 
 namespace palp::test {
 
@@ -56,6 +59,17 @@ fs::path palpTool() {
 
 bool haveProgram(const std::string& program) {
     return runCommand("command -v " + program + " >/dev/null").exitCode == 0;
+}
+
+void writeFile(const fs::path& path, const std::string& bytes) {
+    std::ofstream out(path, std::ios::binary);
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+std::string floatsLE(const std::vector<float>& values) {
+    std::string s(values.size() * 4, '\0');
+    std::memcpy(s.data(), values.data(), s.size());
+    return s;
 }
 
 }  // namespace palp::test

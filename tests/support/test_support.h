@@ -2,8 +2,12 @@
 /// @file
 /// Helpers shared by palp's tests: data folders, temporary directories, running the palp tool.
 
+#include <gtest/gtest.h>
+
+#include <exception>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 namespace palp::test {
 
@@ -42,6 +46,28 @@ std::filesystem::path palpTool();
 
 /// True when @p program is on PATH.
 bool haveProgram(const std::string& program);
+
+/// Writes @p bytes to @p path (binary), replacing it.
+void writeFile(const std::filesystem::path& path, const std::string& bytes);
+
+/// @p values as little-endian float32 bytes (the test machines are x86-64).
+std::string floatsLE(const std::vector<float>& values);
+
+/// Expects @p fn to throw exactly @p E (a std::exception of another type is a failure) with a
+/// message holding every string in @p parts.
+template <typename E, typename Fn>
+void expectThrowWith(Fn&& fn, const std::vector<std::string>& parts) {
+    try {
+        fn();
+        ADD_FAILURE() << "expected an exception";
+    } catch (const E& e) {
+        const std::string msg = e.what();
+        for (const auto& p : parts)
+            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
+    } catch (const std::exception& e) {
+        ADD_FAILURE() << "wrong exception type: " << e.what();
+    }
+}
 
 }  // namespace palp::test
 

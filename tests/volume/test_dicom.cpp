@@ -26,6 +26,7 @@
 namespace {
 
 namespace fs = std::filesystem;
+using palp::test::expectThrowWith;
 using palp::test::TempDir;
 using palp::volume::LoadOptions;
 using palp::volume::Slice;
@@ -210,9 +211,6 @@ TEST(DicomRead, TiltedCtMatchesEveryFilesOwnGeometry) {
 }
 
 void copyFile(const fs::path& from, const fs::path& to);
-template <typename E, typename Fn>
-void expectError(Fn&& fn, const std::vector<std::string>& parts);
-
 /// Reads the dcm2niix reference of mr-ge-epi-4d.
 struct Nifti {
     nifti_image* image = nullptr;
@@ -340,7 +338,7 @@ TEST(DicomRead, FourDimensionalSeriesMatchesDcm2niix) {
     for (std::size_t i = 0; i + 1 < files.size(); ++i)
         copyFile(files[i], tmp / files[i].filename());
     opt.timePoint = 0;
-    expectError<palp::ValueError>(
+    expectThrowWith<palp::ValueError>(
         [&] { palp::volume::readStack({tmp.path()}, opt); },
         {tmp.path().string(), "expected the same number of images at every slice position",
          "found 9"});
@@ -363,28 +361,13 @@ void writeWithout(const fs::path& from, const fs::path& to, const gdcm::Tag& tag
     ASSERT_TRUE(writer.Write());
 }
 
-/// Expects @p fn to throw exactly @p E with a message holding every string in @p parts.
-template <typename E, typename Fn>
-void expectError(Fn&& fn, const std::vector<std::string>& parts) {
-    try {
-        fn();
-        ADD_FAILURE() << "expected an exception";
-    } catch (const E& e) {
-        const std::string msg = e.what();
-        for (const auto& p : parts)
-            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "wrong exception type: " << e.what();
-    }
-}
-
 TEST(DicomRead, TruncatedFileIsNamed) {
     PALP_REQUIRE_DATA(dir, "ct-ge-head-tilt");
     TempDir tmp;
     for (const char* n : {"01.dcm", "02.dcm", "03.dcm"}) copyFile(dir / n, tmp / n);
     const fs::path bad = tmp / "02.dcm";
     fs::resize_file(bad, fs::file_size(bad) / 2);
-    expectError<palp::FormatError>(
+    expectThrowWith<palp::FormatError>(
         [&] { palp::volume::readStack({tmp.path()}, {}); },
         {bad.string(), "expected complete pixel data of 512x512x16 bits", "truncated"});
 
@@ -438,7 +421,7 @@ TEST(DicomRead, FileWithoutPixelDataOrGeometryIsNamed) {
         copyFile(dir / "01.dcm", tmp / "01.dcm");
         copyFile(dir / "03.dcm", tmp / "03.dcm");
         writeWithout(dir / "02.dcm", tmp / "02.dcm", gdcm::Tag(0x7fe0, 0x0010));
-        expectError<palp::FormatError>(
+        expectThrowWith<palp::FormatError>(
             [&] { palp::volume::readStack({tmp.path()}, {}); },
             {(tmp / "02.dcm").string(), "expected Pixel Data (7fe0,0010)", "found none"});
     }
@@ -446,7 +429,7 @@ TEST(DicomRead, FileWithoutPixelDataOrGeometryIsNamed) {
         TempDir tmp;
         copyFile(dir / "01.dcm", tmp / "01.dcm");
         writeWithout(dir / "02.dcm", tmp / "02.dcm", gdcm::Tag(0x0020, 0x0032));
-        expectError<palp::FormatError>(
+        expectThrowWith<palp::FormatError>(
             [&] { palp::volume::readStack({tmp.path()}, {}); },
             {(tmp / "02.dcm").string(), "expected Image Position (Patient) (0020,0032)",
              "found none"});
@@ -455,7 +438,7 @@ TEST(DicomRead, FileWithoutPixelDataOrGeometryIsNamed) {
         TempDir tmp;
         copyFile(dir / "01.dcm", tmp / "01.dcm");
         writeWithout(dir / "02.dcm", tmp / "02.dcm", gdcm::Tag(0x0028, 0x0030));
-        expectError<palp::FormatError>(
+        expectThrowWith<palp::FormatError>(
             [&] { palp::volume::readStack({tmp.path()}, {}); },
             {(tmp / "02.dcm").string(), "expected Pixel Spacing (0028,0030)"});
     }
@@ -488,14 +471,14 @@ TEST(DicomRead, SeriesChoiceAndNonDicomFiles) {
     EXPECT_EQ(mrSeries->imageCount, 4);
     EXPECT_EQ(mrSeries->description, "Axial EPI-FMRI (Interleaved I to S)");
 
-    expectError<palp::ValueError>(
+    expectThrowWith<palp::ValueError>(
         [&] { palp::volume::readStack({tmp.path()}, {}); },
         {tmp.path().string(), "expected one DICOM series, found 2", "series UID", ctSeries->uid,
          mrSeries->uid, "Axial EPI-FMRI (Interleaved I to S)", "3 images", "4 images"});
     LoadOptions opt;
     opt.seriesUid = "1.2.3.4";
-    expectError<palp::ValueError>([&] { palp::volume::readStack({tmp.path()}, opt); },
-                                  {"expected series 1.2.3.4", ctSeries->uid, mrSeries->uid});
+    expectThrowWith<palp::ValueError>([&] { palp::volume::readStack({tmp.path()}, opt); },
+                                      {"expected series 1.2.3.4", ctSeries->uid, mrSeries->uid});
     opt.seriesUid = ctSeries->uid;
     const SliceStack st =
         palp::volume::readStack({tmp.path()}, opt);  // junk files skipped silently
@@ -511,7 +494,7 @@ TEST(DicomRead, SeriesChoiceAndNonDicomFiles) {
     // A list of files works like a directory; a memory budget too small is refused up front.
     opt = {};
     opt.maxSourceBytes = 512 * 512 * 4 * 2;
-    expectError<palp::ValueError>(
+    expectThrowWith<palp::ValueError>(
         [&] {
             palp::volume::readStack(
                 {tmp / "ct" / "01.dcm", tmp / "ct" / "02.dcm", tmp / "ct" / "03.dcm"}, opt);
@@ -552,7 +535,7 @@ TEST(DicomRead, CompressedTransferSyntaxesDecodeIdentically) {
         // Cut short, the file must be refused by name whatever the codec would make of it.
         const fs::path bad = tmp / "11.dcm";
         fs::resize_file(bad, fs::file_size(bad) / 2);
-        expectError<palp::FormatError>(
+        expectThrowWith<palp::FormatError>(
             [&] { palp::volume::readStack({tmp.path()}, {}); },
             {bad.string(), "expected complete pixel data of 512x512x16 bits", "found"});
     }
@@ -624,16 +607,18 @@ TEST(DicomRead, EnhancedMultiFrameMatchesSingleFrames) {
 TEST(DicomRead, EmptyOrNonDicomDirectoryIsRefused) {
     TempDir tmp;
     fs::create_directories(tmp / "empty");
-    expectError<palp::FormatError>([&] { palp::volume::readStack({tmp / "empty"}, {}); },
-                                   {(tmp / "empty").string(), "expected DICOM files, found none"});
-    expectError<palp::FormatError>([&] { palp::volume::scanDicom({tmp / "empty"}); },
-                                   {(tmp / "empty").string(), "expected DICOM files, found none"});
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readStack({tmp / "empty"}, {}); },
+        {(tmp / "empty").string(), "expected DICOM files, found none"});
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::scanDicom({tmp / "empty"}); },
+        {(tmp / "empty").string(), "expected DICOM files, found none"});
     fs::create_directories(tmp / "text");
     std::ofstream(tmp / "text" / "a.txt") << "hello\n";
-    expectError<palp::FormatError>(
+    expectThrowWith<palp::FormatError>(
         [&] { palp::volume::readStack({tmp / "text"}, {}); },
         {(tmp / "text").string(), "expected DICOM files, found none among 1 files"});
-    expectError<palp::IoError>(
+    expectThrowWith<palp::IoError>(
         [&] { palp::volume::scanDicom({tmp / "missing"}); },
         {(tmp / "missing").string(), "expected an existing file or directory"});
 }
@@ -715,7 +700,7 @@ TEST(DicomRead, AbsurdPixelSpacingOrPositionIsRefusedWithTheBounds) {
         fs::create_directories(dir);
         copyFile(files[0], dir / "a.dcm");
         writeWith(files[1], dir / "b.dcm", c.tag, c.value);
-        expectError<palp::FormatError>([&] { palp::volume::readStack({dir}, {}); },
-                                       {(dir / "b.dcm").string() + ": " + c.field, c.found});
+        expectThrowWith<palp::FormatError>([&] { palp::volume::readStack({dir}, {}); },
+                                           {(dir / "b.dcm").string() + ": " + c.field, c.found});
     }
 }

@@ -20,20 +20,12 @@
 namespace {
 
 namespace fs = std::filesystem;
+using palp::test::expectThrowWith;
+using palp::test::floatsLE;
 using palp::test::TempDir;
+using palp::test::writeFile;
 using palp::volume::LoadOptions;
 using palp::volume::SliceStack;
-
-void writeFile(const fs::path& p, const std::string& bytes) {
-    std::ofstream out(p, std::ios::binary);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-}
-
-std::string floatsLE(const std::vector<float>& v) {
-    std::string s(v.size() * 4, '\0');
-    std::memcpy(s.data(), v.data(), s.size());  // the test machine is little-endian (x86-64)
-    return s;
-}
 
 std::string int16BE(const std::vector<std::int16_t>& v) {
     std::string s;
@@ -70,21 +62,6 @@ double stackSum(const SliceStack& st) {
 float voxel(const SliceStack& st, int i, int j, int k) {
     const auto& sl = st.slices.at(static_cast<std::size_t>(k));
     return sl.values.at(static_cast<std::size_t>(j * sl.cols + i));
-}
-
-/// Expects @p fn to throw E whose message contains every string of @p parts.
-template <typename E, typename Fn>
-void expectThrowWith(Fn&& fn, const std::vector<std::string>& parts) {
-    try {
-        fn();
-        ADD_FAILURE() << "expected an exception";
-    } catch (const E& e) {
-        const std::string msg = e.what();
-        for (const auto& p : parts)
-            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "wrong exception type: " << e.what();
-    }
 }
 
 // ----------------------------------------------------------------------------------------------

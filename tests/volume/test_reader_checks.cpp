@@ -21,38 +21,15 @@
 namespace {
 
 namespace fs = std::filesystem;
+using palp::test::expectThrowWith;
+using palp::test::floatsLE;
 using palp::test::TempDir;
+using palp::test::writeFile;
 using palp::volume::SliceStack;
-
-void writeFile(const fs::path& p, const std::string& bytes) {
-    std::ofstream out(p, std::ios::binary);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-}
-
-std::string floatsLE(const std::vector<float>& v) {
-    std::string s(v.size() * 4, '\0');
-    std::memcpy(s.data(), v.data(), s.size());  // the test machine is little-endian (x86-64)
-    return s;
-}
 
 /// 2x2x2 floats 0..7, or @p values.
 std::string eightFloats(std::vector<float> values = {0, 1, 2, 3, 4, 5, 6, 7}) {
     return floatsLE(values);
-}
-
-/// Expects @p fn to throw E whose message contains every string of @p parts.
-template <typename E, typename Fn>
-void expectThrowWith(Fn&& fn, const std::vector<std::string>& parts) {
-    try {
-        fn();
-        ADD_FAILURE() << "expected an exception";
-    } catch (const E& e) {
-        const std::string msg = e.what();
-        for (const auto& p : parts)
-            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "wrong exception type: " << e.what();
-    }
 }
 
 fs::path nrrd(const TempDir& tmp, const std::string& name, const std::string& geometry,

@@ -20,26 +20,12 @@
 namespace {
 
 namespace fs = std::filesystem;
+using palp::test::expectThrowWith;
 namespace pv = palp::volume;
 using palp::test::TempDir;
 
 constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
-
-/// Expects @p fn to throw E whose message contains every string of @p parts.
-template <typename E, typename Fn>
-void expectThrowWith(Fn&& fn, const std::vector<std::string>& parts) {
-    try {
-        fn();
-        ADD_FAILURE() << "expected an exception";
-    } catch (const E& e) {
-        const std::string msg = e.what();
-        for (const auto& p : parts)
-            EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "wrong exception type: " << e.what();
-    }
-}
 
 // ---------------------------------------------------------------------------------------------
 // Phantom parameters
