@@ -32,6 +32,8 @@ Command addPhantom(CLI::App& root) {
         double tanhSharpness = 3;
         double hardDepthMm = 15;
         double fatMm = 2;
+        std::vector<double> inclusionCentreMm;  // empty: the default (0, 16, 0) mm
+        double inclusionRadiusMm = 8;
         double voxelMm = 0.5;
         double noiseHu = 0;
         double blurMm = 0;
@@ -45,10 +47,11 @@ Command addPhantom(CLI::App& root) {
     auto args = std::make_shared<Args>();
     CLI::App* app = root.add_subcommand(
         "phantom",
-        "Generate a thesis scene (avc, avcec, bone, stiffness) as a CT-like .vdb or DICOM series");
-    app->add_option("scene", args->scene, "Scene: avc, avcec, bone or stiffness")
+        "Generate a thesis scene (avc, avcec, bone, stiffness, tumour) as a CT-like .vdb or DICOM "
+        "series");
+    app->add_option("scene", args->scene, "Scene: avc, avcec, bone, stiffness or tumour")
         ->required()
-        ->check(CLI::IsMember({"avc", "avcec", "bone", "stiffness"}));
+        ->check(CLI::IsMember({"avc", "avcec", "bone", "stiffness", "tumour"}));
     auto* out = app->add_option("-o,--output", args->output, "Output .vdb file");
     auto* dicom = app->add_option("--dicom-dir", args->dicomDir,
                                   "Write a DICOM CT series into this new directory");
@@ -73,6 +76,16 @@ Command addPhantom(CLI::App& root) {
     app->add_option("--hard-depth", args->hardDepthMm,
                     "stiffness: CP depth below which the box is harder, mm")
         ->check(within(bounds::kSpan, kMm));
+    auto* inclusionCentre =
+        app->add_option("--inclusion-centre", args->inclusionCentreMm,
+                        "tumour: centre x,y,z of the spherical inclusion, mm (y: depth below the "
+                        "surface; default 0,16,0)")
+            ->delimiter(',')
+            ->expected(3)
+            ->check(within(bounds::kPosition, kMm));
+    auto* inclusionRadius = app->add_option("--inclusion-radius", args->inclusionRadiusMm,
+                                            "tumour: radius of the inclusion, mm (0.5 to 20)")
+                                ->check(within(bounds::kLength, kMm));
     app->add_option("--fat", args->fatMm, "Fat layer thickness under the surface, mm (0 for none)")
         ->check(within(bounds::kSpan, kMm));
     app->add_option("--voxel-size", args->voxelMm, "Voxel edge (and DICOM pixel spacing), mm")
@@ -99,7 +112,7 @@ Command addPhantom(CLI::App& root) {
     app->add_option("--tilt", args->tiltDeg, "DICOM: gantry tilt, degrees")
         ->check(within(bounds::kTiltAngle, kDegrees));
     return {
-        app, [args, out, dicom]() -> int {
+        app, [args, out, dicom, inclusionCentre, inclusionRadius]() -> int {
             if (out->count() == 0 && dicom->count() == 0) {
                 throw ValueError("phantom: expected -o OUT.vdb or --dicom-dir DIR, found neither");
             }
@@ -123,6 +136,27 @@ Command addPhantom(CLI::App& root) {
             p.tanhSharpness = args->tanhSharpness;
             p.hardDepth = args->hardDepthMm * 1e-3;
             p.fatThickness = args->fatMm * 1e-3;
+            for (const CLI::Option* o : {inclusionCentre, inclusionRadius}) {
+                if (o->count() > 0 && p.scene != volume::PhantomScene::Tumour) {
+                    throw ValueError("phantom " + o->get_name() +
+                                     ": expected the tumour scene, found " + args->scene);
+                }
+            }
+            if (args->inclusionCentreMm.size() == 3) {
+                p.inclusionCentre =
+                    Eigen::Vector3d(args->inclusionCentreMm[0], args->inclusionCentreMm[1],
+                                    args->inclusionCentreMm[2]) *
+                    1e-3;
+            }
+            p.inclusionRadius = args->inclusionRadiusMm * 1e-3;
+            try {
+                const volume::Phantom check(p);
+            } catch (const ValueError& e) {
+                // The library speaks of its fields; name the options that set them.
+                if (std::string(e.what()).find("phantom inclusion") == std::string::npos) throw;
+                throw ValueError(std::string("--inclusion-centre, --inclusion-radius: ") +
+                                 e.what());
+            }
             spec.voxelSize = args->voxelMm * 1e-3;
             spec.noiseSigmaHu = args->noiseHu;
             spec.blurSigma = args->blurMm * 1e-3;

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <numbers>
 #include <utility>
 
@@ -86,7 +87,93 @@ void convolveLines(std::vector<double>& data, std::vector<double>& scratch,
     }
 }
 
+std::string mmPoint(const Eigen::Vector3d& p) {
+    std::string s("(");
+    s += formatValue(p.x() * 1e3);
+    s += ", ";
+    s += formatValue(p.y() * 1e3);
+    s += ", ";
+    s += formatValue(p.z() * 1e3);
+    s += ") mm";
+    return s;
+}
+
+/// The tumour's inclusion: a finite sphere of [0.5, 20] mm radius inside the block, below the
+/// fat layer (checked for every scene, so parameters stay valid when the scene changes).
+void checkInclusion(const PhantomParams& params) {
+    const Eigen::Vector3d& c = params.inclusionCentre;
+    for (int a = 0; a < 3; ++a) {
+        palp::requireWithin(std::string("phantom inclusion centre ") + "xyz" [a], c[a],
+                            bounds::kPosition, { 1e3, "mm" });
+    }
+    const double r = params.inclusionRadius;
+    if (!(r >= pg::kTumourMinRadius && r <= pg::kTumourMaxRadius)) {
+        throwExpected(
+            "phantom inclusion radius",
+            "a value in [" + mm(pg::kTumourMinRadius) + ", " + mm(pg::kTumourMaxRadius) + "]",
+            mm(r));
+    }
+    const double hw = pg::kBlockHalfWidth;
+    if (!(std::abs(c.x()) + r <= hw && std::abs(c.z()) + r <= hw &&
+          c.y() - r >= params.fatThickness && c.y() + r <= pg::kBlockDepth)) {
+        throwExpected("phantom inclusion",
+                      "a sphere inside the block below the fat layer (x, z in +-" + mm(hw) +
+                          ", y in [" + mm(params.fatThickness) + ", " + mm(pg::kBlockDepth) + "])",
+                      "centre " + mmPoint(c) + " radius " + mm(r));
+    }
+}
+
 }  // namespace
+
+TriangleMesh icosphere(const PhantomSphere& sphere, int subdivisions) {
+    for (int a = 0; a < 3; ++a) {
+        palp::requireFinite("icosphere centre", sphere.centre[a], "m");
+    }
+    palp::requireWithin("icosphere radius", sphere.radius, bounds::kLength);
+    if (subdivisions < 0 || subdivisions > 6) {
+        throwExpected("icosphere subdivisions", "0 to 6", std::to_string(subdivisions));
+    }
+    // The icosahedron: vertices (0, +-1, +-g) cycled, g the golden ratio; faces counter-
+    // clockwise seen from outside.
+    const double g = std::numbers::phi;
+    std::vector<Eigen::Vector3d> v = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0},
+                                      {0, -1, g}, {0, 1, g}, {0, -1, -g}, {0, 1, -g},
+                                      {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
+    for (Eigen::Vector3d& p : v) p.normalize();
+    std::vector<std::array<std::uint32_t, 3>> tris = {
+        {0, 11, 5},  {0, 5, 1},  {0, 1, 7},  {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+        {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
+        {3, 8, 9},   {4, 9, 5},  {2, 4, 11}, {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
+    for (int s = 0; s < subdivisions; ++s) {
+        std::map<std::pair<std::uint32_t, std::uint32_t>, std::uint32_t> midpoints;
+        const auto midpoint = [&](std::uint32_t a, std::uint32_t b) {
+            const auto key = std::minmax(a, b);
+            const auto [it, added] =
+                midpoints.try_emplace(key, static_cast<std::uint32_t>(v.size()));
+            if (added) v.push_back((v[a] + v[b]).normalized());
+            return it->second;
+        };
+        std::vector<std::array<std::uint32_t, 3>> next;
+        next.reserve(4 * tris.size());
+        for (const auto& [a, b, c] : tris) {
+            const std::uint32_t ab = midpoint(a, b), bc = midpoint(b, c), ca = midpoint(c, a);
+            next.push_back({a, ab, ca});
+            next.push_back({b, bc, ab});
+            next.push_back({c, ca, bc});
+            next.push_back({ab, bc, ca});
+        }
+        tris = std::move(next);
+    }
+    TriangleMesh mesh;
+    mesh.positions.reserve(3 * v.size());
+    for (const Eigen::Vector3d& p : v) {
+        const Eigen::Vector3d x = sphere.centre + sphere.radius * p;
+        for (int a = 0; a < 3; ++a) mesh.positions.push_back(static_cast<float>(x[a]));
+    }
+    mesh.indices.reserve(3 * tris.size());
+    for (const auto& t : tris) mesh.indices.insert(mesh.indices.end(), t.begin(), t.end());
+    return mesh;
+}
 
 double transitionProfile(TransitionProfile profile, double x, double width, double tanhSharpness) {
     if (x <= 0) return 0;
@@ -114,6 +201,8 @@ const char* sceneName(PhantomScene scene) {
             return "bone";
         case PhantomScene::Stiffness:
             return "stiffness";
+        case PhantomScene::Tumour:
+            return "tumour";
     }
     return "unknown";
 }
@@ -147,11 +236,11 @@ const char* profileName(TransitionProfile profile) {
 }
 
 PhantomScene parseScene(std::string_view name) {
-    for (PhantomScene s :
-         {PhantomScene::Avc, PhantomScene::Avcec, PhantomScene::Bone, PhantomScene::Stiffness}) {
+    for (PhantomScene s : {PhantomScene::Avc, PhantomScene::Avcec, PhantomScene::Bone,
+                           PhantomScene::Stiffness, PhantomScene::Tumour}) {
         if (name == sceneName(s)) return s;
     }
-    throw ValueError("phantom scene: expected avc, avcec, bone or stiffness, found '" +
+    throw ValueError("phantom scene: expected avc, avcec, bone, stiffness or tumour, found '" +
                      std::string(name) + "'");
 }
 
@@ -200,15 +289,14 @@ Phantom::Phantom(const PhantomParams& params) : mParams(params) {
                          mm(params.transitionWidth));
     }
     const PhantomMaterials& m = params.materials;
-    const std::pair<const char*, double> materials[] = {{"air", m.airHu},
-                                                        {"fat", m.fatHu},
-                                                        {"soft", m.softHu},
-                                                        {"hard", m.hardHu},
-                                                        {"rigid", m.rigidHu}};
+    const std::pair<const char*, double> materials[] = {
+        {"air", m.airHu},   {"fat", m.fatHu},     {"soft", m.softHu},
+        {"hard", m.hardHu}, {"rigid", m.rigidHu}, {"inclusion", m.inclusionHu}};
     for (const auto& [material, hu] : materials) {
         palp::requireWithin(std::string("phantom materials: ") + material + " HU", hu,
                             bounds::kVolumeValue);
     }
+    checkInclusion(params);
 
     int sides = 0;
     switch (params.shape) {
@@ -254,6 +342,18 @@ WorldBox Phantom::avcHiddenBox(int quadrant) {
 
 double Phantom::stiffnessBoxCentreX(int index) { return (index - 1) * pg::kStiffBoxPitch; }
 
+PhantomSphere Phantom::inclusion() const {
+    if (mParams.scene != PhantomScene::Tumour) {
+        throw ValueError(std::string("phantom inclusion: expected the tumour scene, found ") +
+                         sceneName(mParams.scene) + " (it has no inclusion)");
+    }
+    return {mParams.inclusionCentre, mParams.inclusionRadius};
+}
+
+TriangleMesh Phantom::inclusionMesh(int subdivisions) const {
+    return icosphere(inclusion(), subdivisions);
+}
+
 double Phantom::boneTopDepth(double x) const { return pg::kBoneCentreDepth + mBoneSlope * x; }
 
 WorldBox Phantom::bounds() const {
@@ -288,6 +388,12 @@ std::string Phantom::description() const {
             if (mParams.profile == TransitionProfile::Tanh)
                 d += " tanh-a=" + formatValue(mParams.tanhSharpness);
             break;
+        case PhantomScene::Tumour: {
+            const Eigen::Vector3d& c = mParams.inclusionCentre;
+            d += " centre=(" + formatValue(c.x() * 1e3) + "," + formatValue(c.y() * 1e3) + "," +
+                 formatValue(c.z() * 1e3) + ")mm radius=" + mm(mParams.inclusionRadius);
+            break;
+        }
     }
     d += " fat=" + mm(mParams.fatThickness);
     return d;
@@ -362,6 +468,11 @@ double Phantom::valueAt(const Eigen::Vector3d& p) const {
                 inRange(y, top, top + pg::kBoneThickness)) {
                 return m.rigidHu;
             }
+            break;
+        }
+        case PhantomScene::Tumour: {
+            const double r = mParams.inclusionRadius;
+            if ((p - mParams.inclusionCentre).squaredNorm() < r * r) return m.inclusionHu;
             break;
         }
         case PhantomScene::Stiffness:

@@ -9,8 +9,8 @@
 /// x = z = 0. Axial slices therefore show a cross-section with the surface at the top.
 ///
 /// Materials (HU, all configurable in PhantomMaterials): air -1000, fat -100 (a surface layer,
-/// 2 mm by default), soft tissue +40, harder tissue +300 (stiffness scenes), rigid (plates,
-/// hidden box, bone) +1000.
+/// 2 mm by default), soft tissue +40, harder tissue +300 (stiffness scenes), the tumour's
+/// inclusion +200, rigid (plates, hidden box, bone) +1000.
 
 #include <Eigen/Core>
 #include <cstdint>
@@ -18,6 +18,7 @@
 #include <string_view>
 #include <vector>
 
+#include "palp/base/triangle_mesh.h"
 #include "palp/volume/resample.h"
 #include "palp/volume/slice_stack.h"
 #include "palp/volume/volume.h"
@@ -31,6 +32,8 @@ enum class PhantomScene {
     Bone,       ///< soft block over a bone slab tilted so that one side is closer to the surface
     Stiffness,  ///< three soft boxes side by side: DP (all harder), CP (harder below a depth),
                 ///< CL (harder on one side with a transition profile)
+    Tumour,     ///< soft block with a stiffer spherical inclusion (paper VI's dynamic
+                ///< inhomogeneity: it deforms with the tissue, fem::EmbeddedMesh)
 };
 
 /// Outline of the AVCEC plate in the surface plane (x, z).
@@ -46,7 +49,37 @@ struct PhantomMaterials {
     double softHu = 40;
     double hardHu = 300;    ///< harder tissue of the stiffness boxes
     double rigidHu = 1000;  ///< plates, the hidden box, bone
+    /// Tumour inclusion: harder than soft tissue, below a 500 HU bone threshold (so an FEM
+    /// voxelisation keeps its nodes free and it deforms with the tissue).
+    double inclusionHu = 200;
 };
+
+/// Fixed dimensions of the scenes (metres, in the frame described in the file comment).
+namespace phantom_geometry {
+inline constexpr double kBlockHalfWidth = 0.050;     ///< AVC/AVCEC/bone block: x, z in +-50 mm
+inline constexpr double kBlockDepth = 0.050;         ///< block: y in [0, 50] mm
+inline constexpr double kAvcPlateHalfWidth = 0.030;  ///< AVC plate: x, z in +-30 mm
+inline constexpr double kAvcPlateTop = 0.010;        ///< AVC plate: y in [10, 12] mm
+inline constexpr double kAvcPlateBottom = 0.012;
+inline constexpr double kAvcBoxOffset = 0.015;     ///< hidden box centre at x, z = +-15 mm
+inline constexpr double kAvcBoxHalfWidth = 0.005;  ///< hidden box 10 mm wide
+inline constexpr double kAvcBoxTop = 0.020;        ///< hidden box: y in [20, 28] mm
+inline constexpr double kAvcBoxBottom = 0.028;
+inline constexpr double kAvcecPlateRadius = 0.020;  ///< circumradius of the AVCEC outlines
+inline constexpr double kAvcecRectHalfX = 0.020;    ///< AVCEC rectangle: 40 mm (x) by 24 mm (z)
+inline constexpr double kAvcecRectHalfZ = 0.012;
+inline constexpr double kAvcecPlateTop = 0.008;  ///< AVCEC plate: y in [8, 10] mm
+inline constexpr double kAvcecPlateBottom = 0.010;
+inline constexpr double kBoneHalfWidth = 0.040;     ///< bone slab: x, z in +-40 mm
+inline constexpr double kBoneCentreDepth = 0.025;   ///< depth of the slab's top at x = 0
+inline constexpr double kBoneThickness = 0.006;     ///< measured along y
+inline constexpr double kStiffBoxWidth = 0.040;     ///< stiffness boxes 40 x 40 x 40 mm
+inline constexpr double kStiffBoxPitch = 0.050;     ///< box centres at x = -50, 0, +50 mm
+inline constexpr double kTumourRadius = 0.008;      ///< default inclusion radius
+inline constexpr double kTumourDepth = 0.016;       ///< default inclusion centre depth (y)
+inline constexpr double kTumourMinRadius = 0.0005;  ///< inclusion radius bounds
+inline constexpr double kTumourMaxRadius = 0.020;
+}  // namespace phantom_geometry
 
 /// Scene parameters. Lengths in metres.
 struct PhantomParams {
@@ -67,33 +100,29 @@ struct PhantomParams {
     double tanhSharpness = 3;
     /// Stiffness CP: depth below which the box is harder.
     double hardDepth = 0.015;
+    /// Tumour: centre of the spherical inclusion (x lateral, y depth, z), metres. It must lie
+    /// with its whole sphere inside the block, below the fat layer.
+    Eigen::Vector3d inclusionCentre{0, phantom_geometry::kTumourDepth, 0};
+    /// Tumour: radius of the inclusion, metres ([0.5, 20] mm).
+    double inclusionRadius = phantom_geometry::kTumourRadius;
     /// Thickness of the fat layer under the surface (0 for none).
     double fatThickness = 0.002;
     PhantomMaterials materials;
 };
 
-/// Fixed dimensions of the scenes (metres, in the frame described in the file comment).
-namespace phantom_geometry {
-inline constexpr double kBlockHalfWidth = 0.050;     ///< AVC/AVCEC/bone block: x, z in +-50 mm
-inline constexpr double kBlockDepth = 0.050;         ///< block: y in [0, 50] mm
-inline constexpr double kAvcPlateHalfWidth = 0.030;  ///< AVC plate: x, z in +-30 mm
-inline constexpr double kAvcPlateTop = 0.010;        ///< AVC plate: y in [10, 12] mm
-inline constexpr double kAvcPlateBottom = 0.012;
-inline constexpr double kAvcBoxOffset = 0.015;     ///< hidden box centre at x, z = +-15 mm
-inline constexpr double kAvcBoxHalfWidth = 0.005;  ///< hidden box 10 mm wide
-inline constexpr double kAvcBoxTop = 0.020;        ///< hidden box: y in [20, 28] mm
-inline constexpr double kAvcBoxBottom = 0.028;
-inline constexpr double kAvcecPlateRadius = 0.020;  ///< circumradius of the AVCEC outlines
-inline constexpr double kAvcecRectHalfX = 0.020;    ///< AVCEC rectangle: 40 mm (x) by 24 mm (z)
-inline constexpr double kAvcecRectHalfZ = 0.012;
-inline constexpr double kAvcecPlateTop = 0.008;  ///< AVCEC plate: y in [8, 10] mm
-inline constexpr double kAvcecPlateBottom = 0.010;
-inline constexpr double kBoneHalfWidth = 0.040;    ///< bone slab: x, z in +-40 mm
-inline constexpr double kBoneCentreDepth = 0.025;  ///< depth of the slab's top at x = 0
-inline constexpr double kBoneThickness = 0.006;    ///< measured along y
-inline constexpr double kStiffBoxWidth = 0.040;    ///< stiffness boxes 40 x 40 x 40 mm
-inline constexpr double kStiffBoxPitch = 0.050;    ///< box centres at x = -50, 0, +50 mm
-}  // namespace phantom_geometry
+/// A sphere, world metres.
+struct PhantomSphere {
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+    double radius = 0;
+};
+
+/// A closed, outward-oriented (counter-clockwise seen from outside) triangle mesh of
+/// @p sphere: the icosahedron subdivided @p subdivisions times (each triangle into 4), its
+/// vertices on the sphere (to float rounding). 10 * 4^s + 2 vertices and 20 * 4^s triangles;
+/// it is inscribed, so its volume falls short of the sphere's by about 0.9 % at s = 3.
+/// @throw ValueError for a non-finite centre, a radius outside bounds::kLength, subdivisions
+///        outside [0, 6].
+TriangleMesh icosphere(const PhantomSphere& sphere, int subdivisions);
 
 /// Smooth step from 0 (at @p x <= 0) to 1 (at @p x >= @p width): linear x/w, cosine
 /// (1 - cos(pi x / w)) / 2, or scaled tanh (tanh(a (2x/w - 1)) / tanh(a) + 1) / 2.
@@ -105,7 +134,8 @@ class Phantom {
   public:
     /// @throw ValueError for parameters outside their ranges (quadrant 0-3, displacement -1..1,
     ///        positive widths, |boneTiltDeg| < 30, tanhSharpness > 0, materials inside
-    ///        bounds::kVolumeValue, ...).
+    ///        bounds::kVolumeValue, an inclusion radius outside [0.5, 20] mm or an inclusion
+    ///        sphere not inside the block below the fat layer, ...).
     explicit Phantom(const PhantomParams& params);
 
     /// Noise-free, unblurred value (HU) at a world point in metres (LPS).
@@ -128,6 +158,15 @@ class Phantom {
 
     /// Stiffness: x of the centre of box @p index (0 = DP, 1 = CP, 2 = CL), metres.
     static double stiffnessBoxCentreX(int index);
+
+    /// Tumour: the inclusion sphere (world metres), as in params().
+    /// @throw ValueError for another scene (it has no inclusion).
+    PhantomSphere inclusion() const;
+    /// Tumour: the inclusion's surface, icosphere(inclusion(), @p subdivisions) (the default 3:
+    /// 642 vertices, 1280 triangles), world metres, to embed in an FEM mesh
+    /// (fem::EmbeddedMesh) or trace rays against.
+    /// @throw ValueError for another scene or subdivisions outside [0, 6].
+    TriangleMesh inclusionMesh(int subdivisions = 3) const;
 
   private:
     bool insidePlateOutline(double x, double z) const;
@@ -183,7 +222,8 @@ SliceStack makePhantomSlices(const PhantomSpec& spec, const SliceGeometry& geome
 ///        resample().
 Volume makePhantomVolume(const PhantomSpec& spec);
 
-/// Names used by the palp tool and descriptions.
+/// Names used by the palp tool and descriptions ("avc", "avcec", "bone", "stiffness",
+/// "tumour").
 const char* sceneName(PhantomScene scene);
 const char* shapeName(PlateShape shape);
 const char* profileName(TransitionProfile profile);
