@@ -14,6 +14,8 @@
 #include "alloc_counter.h"
 #include "palp/base/error.h"
 #include "palp/fem/embedded_mesh.h"
+#include "palp/fem/voxelize.h"
+#include "palp/volume/phantom.h"
 #include "test_support.h"
 
 namespace palp::fem {
@@ -283,6 +285,37 @@ TEST(EmbeddedMesh, BadInputIsRefusedByName) {
     // Just within one edge (9 mm beyond the face at x = 20 mm) is accepted, clamped.
     const EmbeddedMesh edge(mesh, pointsMesh({{0.029, 0.01, 0.01}}));
     EXPECT_EQ(edge.clampedCount(), 1);
+}
+
+TEST(EmbeddedMesh, TumourInclusionEmbedsInTheVoxelisedPhantom) {
+    // The tumour phantom voxelised into 5 mm elements, stiffer where the scan shows the
+    // inclusion: its surface mesh lies inside tissue cells (nothing clamped), and the cell at
+    // its centre is one of the stiff ones.
+    volume::PhantomSpec spec;
+    spec.params.scene = volume::PhantomScene::Tumour;
+    spec.voxelSize = 1e-3;
+    const volume::Volume vol = volume::makePhantomVolume(spec);
+    VoxelizeOptions options;
+    options.elementSize = 5e-3;
+    options.youngsFromValue = [](double hu) { return hu > 120 ? 50e3 : 5e3; };
+    const VoxelizedMesh vm = voxelizeVolume(vol, options);
+    const volume::Phantom phantom(spec.params);
+    const EmbeddedMesh em(vm.mesh, phantom.inclusionMesh());
+    EXPECT_EQ(em.vertexCount(), 642u);
+    EXPECT_EQ(em.clampedCount(), 0);
+    const EmbeddedMesh centre(vm.mesh, pointsMesh({phantom.inclusion().centre}));
+    EXPECT_EQ(vm.mesh.cellYoungs()[static_cast<std::size_t>(centre.cellOf(0))], 50e3);
+    // A rigid translation of the block carries the inclusion's centroid with it.
+    const Eigen::Vector3d t(1e-3, 2e-3, -0.5e-3);
+    Eigen::VectorXd u(vm.mesh.dofCount());
+    for (int n = 0; n < vm.mesh.nodeCount(); ++n) u.segment<3>(3 * n) = t;
+    std::vector<double> x(3 * em.vertexCount());
+    ASSERT_TRUE(em.update(u, std::span<double>(x)));
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (std::size_t v = 0; v < em.vertexCount(); ++v)
+        centroid += Eigen::Vector3d(x[3 * v], x[3 * v + 1], x[3 * v + 2]);
+    centroid /= static_cast<double>(em.vertexCount());
+    EXPECT_LT((centroid - phantom.inclusion().centre - t).norm(), 1e-6);
 }
 
 }  // namespace
