@@ -13,8 +13,10 @@
 /// local coordinates clamped to [0, 1]^3: they move with the nearest point of that cell.
 /// Vertices farther than one element edge from every active cell are refused.
 ///
-/// Cost: construction O(#V * 64) cell tests; about 160 bytes per vertex; update() O(#V * 8)
-/// (24 multiply-adds per vertex, about 1 us per 1000 vertices), no allocation.
+/// Cost: construction O(#V * 64) cell tests (0.5 ms for 642 vertices, 7 ms for 10242); about
+/// 160 bytes per vertex; update() O(#V * 8), 24 multiply-adds per vertex, no allocation: 8 us
+/// for 642 vertices (a subdivision-3 icosphere's count), 130 us for 10242 (release build,
+/// random vertices in a 20 x 10 x 20 lattice, one core of a shared 2-core machine under load).
 
 #include <Eigen/Core>
 #include <array>
