@@ -18,6 +18,11 @@ namespace palp::tool {
 
 namespace fs = std::filesystem;
 
+namespace {
+constexpr Bounds kInclusionRadius{volume::phantom_geometry::kTumourMinRadius,
+                                  volume::phantom_geometry::kTumourMaxRadius, "m"};
+}  // namespace
+
 Command addPhantom(CLI::App& root) {
     struct Args {
         std::string scene;
@@ -84,8 +89,8 @@ Command addPhantom(CLI::App& root) {
             ->expected(3)
             ->check(within(bounds::kPosition, kMm));
     auto* inclusionRadius = app->add_option("--inclusion-radius", args->inclusionRadiusMm,
-                                            "tumour: radius of the inclusion, mm (0.5 to 20)")
-                                ->check(within(bounds::kLength, kMm));
+                                            "tumour: radius of the inclusion, mm")
+                                ->check(within(kInclusionRadius, kMm));
     app->add_option("--fat", args->fatMm, "Fat layer thickness under the surface, mm (0 for none)")
         ->check(within(bounds::kSpan, kMm));
     app->add_option("--voxel-size", args->voxelMm, "Voxel edge (and DICOM pixel spacing), mm")
