@@ -102,9 +102,10 @@ std::string mmPoint(const Eigen::Vector3d& p) {
 /// fat layer (checked for every scene, so parameters stay valid when the scene changes).
 void checkInclusion(const PhantomParams& params) {
     const Eigen::Vector3d& c = params.inclusionCentre;
+    const char* const axes[] = {"x", "y", "z"};
     for (int a = 0; a < 3; ++a) {
-        palp::requireWithin(std::string("phantom inclusion centre ") + "xyz" [a], c[a],
-                            bounds::kPosition, { 1e3, "mm" });
+        palp::requireWithin(std::string("phantom inclusion centre ") + axes[a], c[a],
+                            bounds::kPosition, DisplayUnit{1e3, "mm"});
     }
     const double r = params.inclusionRadius;
     if (!(r >= pg::kTumourMinRadius && r <= pg::kTumourMaxRadius)) {
