@@ -32,6 +32,14 @@ double springFrequencySquared(const FemModel& model, const CouplingSpring& sprin
     return spring.stiffness * sum;
 }
 
+double criticalDamping(const FemModel& model, const CouplingSpring& spring, double ratio) noexcept {
+    if (!spring.active() || !(ratio > 0.0)) return 0.0;
+    const double w2 = springFrequencySquared(model, spring);  // k / m_eff
+    if (!(w2 > 0.0) || !std::isfinite(w2)) return 0.0;
+    // 2 sqrt(k m_eff) = 2 k / sqrt(k / m_eff).
+    return ratio * 2.0 * spring.stiffness / std::sqrt(w2);
+}
+
 double criticalTimeStepWith(const FemModel& model, double extraOmega2) noexcept {
     const double w0 = model.maxFrequencyBound();
     const double w = std::sqrt(w0 * w0 + std::max(0.0, extraOmega2));

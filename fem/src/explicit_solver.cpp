@@ -193,20 +193,35 @@ void ExplicitSolver::setCoefficients(double dt) noexcept {
     }
 }
 
+Eigen::Vector3d ExplicitSolver::springPoint(const CouplingSpring& spring) const noexcept {
+    Eigen::Vector3d a = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < spring.nodes.size(); ++i)
+        a += spring.weights[i] * mU.segment<3>(3 * static_cast<Eigen::Index>(spring.nodes[i]));
+    return a;
+}
+
 template <bool kParallel>
-StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
+StepResult ExplicitSolver::advance(double dtSeconds, const CouplingSpring* spring,
+                                   SpringResult* out) noexcept {
     StepResult result;
     if (!(dtSeconds > 0.0) || !std::isfinite(dtSeconds)) {
         result.flags |= kStepBadTimeStep;
         return result;
     }
-    double want = std::ceil(dtSeconds / mStableDt);
+    if (spring && !spring->active()) spring = nullptr;
+    // The spring raises the highest frequency: the substep shrinks with it.
+    const double stableDt =
+        spring ? mOptions.safetyFactor *
+                     criticalTimeStepWith(mModel, springFrequencySquared(mModel, *spring))
+               : mStableDt;
+    double want = std::ceil(dtSeconds / stableDt);
+    if (!(want >= 1.0)) want = std::numeric_limits<double>::infinity();  // NaN: a massless node
     int substeps = want > static_cast<double>(mOptions.maxSubsteps) ? mOptions.maxSubsteps
                                                                     : static_cast<int>(want);
     double dt = dtSeconds / substeps;
     if (want > static_cast<double>(mOptions.maxSubsteps)) {
         result.flags |= kStepSubstepLimit;
-        dt = mStableDt;
+        dt = std::isfinite(stableDt) && stableDt > 0.0 ? std::min(stableDt, dt) : dt;
     }
     const std::size_t dofCount = static_cast<std::size_t>(mU.size());
     if (!allFinite(mForce.data(), dofCount)) {
@@ -227,6 +242,9 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
         mDt = dt;
     }
     for (int d : mConstrained) mStart[d] = mU[d];
+    Eigen::Vector3d springImpulse = Eigen::Vector3d::Zero();
+    Eigen::Vector3d springLast = Eigen::Vector3d::Zero();
+    bool springClamped = false;
     const double beta = mModel.material().dampingBeta;
     const double dt2 = dt * dt;
     const int dofs = static_cast<int>(mU.size());
@@ -243,6 +261,21 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
             mInternal.setZero();
             mModel.addStiffnessTimes(operand, mInternal.data());
         }
+        // The spring's force from the current displacement (u(n), before the update), and
+        // a(u(n-1)) for the damper (the update overwrites u(n-1)).
+        Eigen::Vector3d springF = Eigen::Vector3d::Zero();
+        Eigen::Vector3d aPrev = Eigen::Vector3d::Zero();
+        if (spring) {
+            for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+                aPrev += spring->weights[i] *
+                         mUPrev.segment<3>(3 * static_cast<Eigen::Index>(spring->nodes[i]));
+            }
+            springF = springForce(*spring, springPoint(*spring));
+            if (springF.squaredNorm() >= spring->maxForce * spring->maxForce * (1 - 1e-12))
+                springClamped = true;
+            springImpulse += dt * springF;
+            springLast = springF;
+        }
         // The new displacement overwrites u(n-1), then the two buffers swap (no allocation).
         auto update = [&](std::size_t begin, std::size_t end) {
             centralDifference(begin, end, dt2, mForce.data(), mInternal.data(), mU.data(),
@@ -254,6 +287,43 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
                 [&](const tbb::blocked_range<std::size_t>& r) { update(r.begin(), r.end()); });
         } else {
             update(0, dofCount);
+        }
+        if (spring) {
+            // The update is linear in the load: the spring's share w_i F enters the new
+            // displacement of its nodes as dt^2 w_i F / (m + dt/2 c) (0 on constrained dofs,
+            // which are overwritten below), so externalForce() is never touched.
+            for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+                const auto d = 3 * static_cast<Eigen::Index>(spring->nodes[i]);
+                for (int c = 0; c < 3; ++c)
+                    mUPrev[d + c] += dt2 * spring->weights[i] * springF[c] * mInvDen[d + c];
+            }
+            if (spring->damping > 0.0) {
+                // (D + beta w w^T) u+ = r + beta w (w^T u-) with D = M + dt/2 alpha M and
+                // beta = dt b / 2, per direction; with u^ = D^-1 r (done above) Sherman-Morrison
+                // gives u+ = u^ - beta g (w^T u^ - w^T u-) / (1 + beta gamma), g = D^-1 w,
+                // gamma = w^T g. Free dofs only (invDen is 0 on constrained ones).
+                const double bt = 0.5 * dt * spring->damping;
+                Eigen::Vector3d aHat = Eigen::Vector3d::Zero(), gamma = Eigen::Vector3d::Zero();
+                for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+                    const auto d = 3 * static_cast<Eigen::Index>(spring->nodes[i]);
+                    const double w = spring->weights[i];
+                    aHat += w * mUPrev.segment<3>(d);
+                    gamma += w * w * mInvDen.segment<3>(d);
+                }
+                Eigen::Vector3d aNext;
+                for (int c = 0; c < 3; ++c) {
+                    const double scale = bt * (aHat[c] - aPrev[c]) / (1.0 + bt * gamma[c]);
+                    for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+                        const auto d = 3 * static_cast<Eigen::Index>(spring->nodes[i]) + c;
+                        mUPrev[d] -= scale * spring->weights[i] * mInvDen[d];
+                    }
+                    aNext[c] = aHat[c] - scale * gamma[c];
+                }
+                // The damper's force on the tissue, -b (a+ - a-) / (2 dt), joins the impulse.
+                const Eigen::Vector3d damperF = -spring->damping * (aNext - aPrev) / (2.0 * dt);
+                springImpulse += dt * damperF;
+                springLast += damperF;
+            }
         }
         const double t = static_cast<double>(s + 1) / substeps;
         for (int d : mConstrained) mUPrev[d] = mStart[d] + t * (mTarget[d] - mStart[d]);
@@ -271,12 +341,28 @@ StepResult ExplicitSolver::advance(double dtSeconds) noexcept {
         mInternal.setZero();
         result.flags |= kStepDiverged;
     }
+    if (out) {
+        out->meanForce = result.advancedSeconds > 0.0 ? (springImpulse / result.advancedSeconds)
+                                                      : Eigen::Vector3d::Zero().eval();
+        out->endForce = springLast;
+        out->endPoint = spring ? springPoint(*spring) : Eigen::Vector3d::Zero().eval();
+        out->clamped = springClamped;
+    }
     return result;
 }
 
-StepResult ExplicitSolver::step(double dtSeconds) noexcept { return advance<false>(dtSeconds); }
+StepResult ExplicitSolver::step(double dtSeconds) noexcept {
+    return advance<false>(dtSeconds, nullptr, nullptr);
+}
 
-StepResult ExplicitSolver::stepParallel(double dtSeconds) { return advance<true>(dtSeconds); }
+StepResult ExplicitSolver::step(double dtSeconds, const CouplingSpring& spring,
+                                SpringResult* out) noexcept {
+    return advance<false>(dtSeconds, &spring, out);
+}
+
+StepResult ExplicitSolver::stepParallel(double dtSeconds) {
+    return advance<true>(dtSeconds, nullptr, nullptr);
+}
 
 Eigen::Vector3d ExplicitSolver::reactionSum(const std::vector<int>& nodes) const {
     Eigen::Vector3d r = Eigen::Vector3d::Zero();

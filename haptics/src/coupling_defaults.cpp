@@ -44,6 +44,11 @@ CouplingParams sceneCouplingDefaults(volume::PhantomScene scene) {
             p.mode = CouplingMode::AVC;
             p.firstHit.threshold = 200;
             break;
+        case volume::PhantomScene::Tumour:
+            // The inclusion (+200 HU) is what the rays look for, not the soft tissue (+40).
+            p.mode = CouplingMode::AVCEC;
+            p.firstHit.threshold = 120;
+            break;
     }
     return p;
 }

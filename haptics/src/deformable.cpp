@@ -35,6 +35,10 @@ void validateDeformableOptions(const DeformableOptions& o) {
     requireWithin("deformable filterWidth", o.filterWidth, bounds::kSpan);
     requireAtLeast("deformable filterCutoff", o.filterCutoff, 1.0);
     requireWithin("deformable tickSeconds", o.tickSeconds, bounds::kPeriod);
+    if (!(o.contactDampingRatio >= 0 && o.contactDampingRatio <= 10)) {
+        throwExpected("deformable contactDampingRatio", "a value in [0, 10]",
+                      formatValue(o.contactDampingRatio));
+    }
     const auto substeps = [](std::string_view what, double safety, int maxSubsteps) {
         if (!(safety > 0 && safety <= 1)) {
             throwExpected(std::string(what) + ".safetyFactor", "a value in (0, 1]",
@@ -243,75 +247,127 @@ Eigen::Vector3d DeformableBody::loadSum() const noexcept {
 
 void DeformableBody::clearForce() noexcept {
     Eigen::VectorXd& f = loadVector();
-    for (std::size_t i = 0; i < mLoadedCount; ++i) f.segment<3>(3 * mLoaded[i]).setZero();
+    if (!mSpring.active()) {
+        for (std::size_t i = 0; i < mLoadedCount; ++i) f.segment<3>(3 * mLoaded[i]).setZero();
+    }
+    mSpring = fem::CouplingSpring{};
     mLoadedCount = 0;
     mContactNode = -1;
 }
 
-int DeformableBody::applyContactForce(const Eigen::Vector3d& point,
-                                      const Eigen::Vector3d& force) noexcept {
-    clearForce();
-    if (!point.allFinite() || !force.allFinite()) return -1;
+int DeformableBody::filterWeights(const Eigen::Vector3d& point, double& nearestD2) noexcept {
+    mLoadedCount = 0;
     const std::vector<int>& nodes = mModel->loadNodes();
     const double sigma = mModel->options().filterWidth;
     const double cutoff2 = sigma > 0 ? std::pow(mModel->options().filterCutoff * sigma, 2) : 0;
     const double inv2s2 = sigma > 0 ? 1.0 / (2 * sigma * sigma) : 0;
     double best = std::numeric_limits<double>::infinity();
     int nearest = -1;
+    std::size_t nearestSlot = 0;
     double total = 0;
-    for (std::size_t i = 0; i < nodes.size(); ++i) {
-        const int n = nodes[i];
+    for (const int n : nodes) {
         const double d2 = (nodePosition(n) - point).squaredNorm();
-        if (d2 < best) {
-            best = d2;
-            nearest = n;
-        }
-        if (sigma > 0 && d2 <= cutoff2) {
+        const bool listed = sigma > 0 && d2 <= cutoff2;
+        if (listed) {
             const double w = std::exp(-d2 * inv2s2);
             mLoaded[mLoadedCount] = n;
             mWeights[mLoadedCount] = w;
-            ++mLoadedCount;
             total += w;
         }
+        if (d2 < best) {
+            best = d2;
+            nearest = n;
+            nearestSlot = listed ? mLoadedCount : nodes.size();
+        }
+        if (listed) ++mLoadedCount;
     }
+    nearestD2 = best;
+    if (nearest < 0) return -1;
+    if (nearestSlot >= mLoadedCount || !(total > 0)) {
+        // Sigma 0, or every node farther than the cutoff (then none was listed): the nearest
+        // node carries all of it.
+        mLoaded[0] = nearest;
+        mWeights[0] = 1.0;
+        mLoadedCount = 1;
+        return nearest;
+    }
+    // Normalised; the nearest node takes the remainder, so the weights sum to 1 to rounding.
+    double rest = 1.0;
+    for (std::size_t i = 0; i < mLoadedCount; ++i) {
+        if (i == nearestSlot) continue;
+        mWeights[i] /= total;
+        rest -= mWeights[i];
+    }
+    mWeights[nearestSlot] = rest;
+    return nearest;
+}
+
+int DeformableBody::applyContactForce(const Eigen::Vector3d& point,
+                                      const Eigen::Vector3d& force) noexcept {
+    clearForce();
+    if (!point.allFinite() || !force.allFinite()) return -1;
+    double best = 0;
+    const int nearest = filterWeights(point, best);
     if (nearest < 0) return -1;
     Eigen::VectorXd& f = loadVector();
     // The nearest node takes the remainder, so the shares sum to the force to rounding.
     Eigen::Vector3d rest = force;
-    bool nearestListed = false;
-    if (total > 0) {
-        for (std::size_t i = 0; i < mLoadedCount; ++i) {
-            if (mLoaded[i] == nearest) {
-                nearestListed = true;
-                continue;
-            }
-            const Eigen::Vector3d share = (mWeights[i] / total) * force;
-            f.segment<3>(3 * mLoaded[i]) = share;
-            rest -= share;
+    std::size_t nearestSlot = 0;
+    for (std::size_t i = 0; i < mLoadedCount; ++i) {
+        if (mLoaded[i] == nearest) {
+            nearestSlot = i;
+            continue;
         }
+        const Eigen::Vector3d share = mWeights[i] * force;
+        f.segment<3>(3 * mLoaded[i]) = share;
+        rest -= share;
     }
-    if (!nearestListed) {
-        // Sigma 0, or every node farther than the cutoff (then none was listed): the nearest
-        // node carries all of the force.
-        mLoaded[0] = nearest;
-        mLoadedCount = 1;
-    }
-    f.segment<3>(3 * nearest) = rest;
+    f.segment<3>(3 * mLoaded[nearestSlot]) = rest;
     mContactNode = nearest;
+    recentreRegions(point, best);
+    return nearest;
+}
+
+int DeformableBody::coupleContact(const Eigen::Vector3d& point, const Eigen::Vector3d& force,
+                                  double stiffness, double maxForce) noexcept {
+    if (!(stiffness > 0) || !std::isfinite(stiffness) || !(maxForce > 0))
+        return applyContactForce(point, force);
+    clearForce();
+    if (!point.allFinite() || !force.allFinite()) return -1;
+    double best = 0;
+    const int nearest = filterWeights(point, best);
+    if (nearest < 0) return -1;
+    mContactNode = nearest;
+    mSpring.nodes = std::span<const int>(mLoaded.data(), mLoadedCount);
+    mSpring.weights = std::span<const double>(mWeights.data(), mLoadedCount);
+    mSpring.stiffness = stiffness;
+    mSpring.maxForce = maxForce;
+    // The target: the spring pulls with @p force at the current filtered point.
+    Eigen::Vector3d a = Eigen::Vector3d::Zero();
+    const Eigen::VectorXd& u = displacement();
+    for (std::size_t i = 0; i < mLoadedCount; ++i)
+        a += mWeights[i] * u.segment<3>(3 * static_cast<Eigen::Index>(mLoaded[i]));
+    mSpring.target = a + force / stiffness;
+    mSpring.damping =
+        fem::criticalDamping(mModel->model(), mSpring, mModel->options().contactDampingRatio);
+    recentreRegions(point, best);
+    return nearest;
+}
+
+void DeformableBody::recentreRegions(const Eigen::Vector3d& point, double nearestD2) noexcept {
     // Regions: move the centre once the contact is clearly nearer another node than the
     // centre the regions use now (hysteresis), unless that node was the last one asked for
     // (its layout is being built, or was rejected).
-    if (mRegions) {
-        const int adopted = mRegions->contactNodes().front();
-        if (nearest != adopted && nearest != mCentre &&
-            (point - nodePosition(adopted)).norm() - std::sqrt(best) >
-                mModel->options().recentreHysteresis * mModel->model().mesh().edge() &&
-            mRegions->requestContactNode(nearest)) {
-            mCentre = nearest;
-            ++mRecentres;
-        }
+    if (!mRegions || mContactNode < 0) return;
+    const int adopted = mRegions->contactNodes().front();
+    const int nearest = mContactNode;
+    if (nearest != adopted && nearest != mCentre &&
+        (point - nodePosition(adopted)).norm() - std::sqrt(nearestD2) >
+            mModel->options().recentreHysteresis * mModel->model().mesh().edge() &&
+        mRegions->requestContactNode(nearest)) {
+        mCentre = nearest;
+        ++mRecentres;
     }
-    return nearest;
 }
 
 bool DeformableBody::anchorOn(int tri, const Eigen::Vector3d& point,
@@ -406,19 +462,42 @@ unsigned DeformableBody::step(double dtSeconds) noexcept {
         const double tick = mModel->options().regions.tickSeconds;
         if (!(std::abs(dtSeconds - tick) <= 1e-9 * tick)) return fem::kStepBadTimeStep;
         const Eigen::VectorXd& f = mForce;
-        for (std::size_t i = 0; i < mLoadedCount; ++i)
-            mLoads[i] = fem::NodalLoad{mLoaded[i], f.segment<3>(3 * mLoaded[i])};
+        Eigen::Vector3d springF = Eigen::Vector3d::Zero();
+        if (mSpring.active()) {
+            // Until the regions take the spring into their substeps: its force at the current
+            // displacement, held over the tick.
+            Eigen::Vector3d a = Eigen::Vector3d::Zero();
+            for (std::size_t i = 0; i < mLoadedCount; ++i)
+                a += mWeights[i] * mU.segment<3>(3 * mLoaded[i]);
+            springF = fem::springForce(mSpring, a);
+            for (std::size_t i = 0; i < mLoadedCount; ++i)
+                mLoads[i] = fem::NodalLoad{mLoaded[i], mWeights[i] * springF};
+        } else {
+            for (std::size_t i = 0; i < mLoadedCount; ++i)
+                mLoads[i] = fem::NodalLoad{mLoaded[i], f.segment<3>(3 * mLoaded[i])};
+        }
         const fem::AsyncTickResult r =
             mRegions->tick(std::span<const fem::NodalLoad>(mLoads.data(), mLoadedCount));
         mLastSubsteps = r.substeps;
         flags = r.flags;
+        mLastContactForce = mSpring.active() ? springF : loadSum();
+        mLastClamped = false;
         mRegions->watchedDisplacements(mWatched);
         const std::vector<int>& nodes = mModel->loadNodes();
         for (std::size_t i = 0; i < nodes.size(); ++i) mU.segment<3>(3 * nodes[i]) = mWatched[i];
+    } else if (mSpring.active()) {
+        fem::SpringResult sr;
+        const fem::StepResult r = mSolver->step(dtSeconds, mSpring, &sr);
+        mLastSubsteps = r.substeps;
+        flags = r.flags;
+        mLastContactForce = sr.meanForce;
+        mLastClamped = sr.clamped;
     } else {
         const fem::StepResult r = mSolver->step(dtSeconds);
         mLastSubsteps = r.substeps;
         flags = r.flags;
+        mLastContactForce = loadSum();
+        mLastClamped = false;
     }
     const Eigen::VectorXd& u = displacement();
     const std::vector<std::int32_t>& vn = mModel->surface().vertexNode;

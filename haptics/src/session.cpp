@@ -482,14 +482,18 @@ bool Session::Impl::contactTissue(const ProxyState& ps, const Eigen::Vector3d& s
     if (!body) return false;
     bool anchored = false;
     if (ps.contactCount > 0 && sent.allFinite()) {
-        body->applyContactForce(ps.position, -sent);
+        // Implicit coupling: the reaction of the force sent acts now, and the coupling
+        // stiffness follows the tissue's motion inside the FEM substeps, so a stiff coupling
+        // on soft tissue is stable (a load held over the tick rang once k exceeded the
+        // tissue's local stiffness).
+        body->coupleContact(ps.position, -sent, lastStiffness, spec.maxForceN);
         anchored = body->anchor(ps.position, ps.normals[0]);
     } else {
         body->clearForce();
     }
-    tissueForce = body->loadSum();
     const int cn = body->contactNode();
     current.femFlags = body->step(period);
+    tissueForce = body->lastContactForce();
     current.contactNode = cn;
     current.maxDisplacement = body->maxSurfaceDisplacement();
     return anchored;

@@ -20,7 +20,7 @@ namespace {
 void addSceneOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
     app->add_option("file", a.file, "Volume to palpate (.vdb or any scan palp reads)");
     app->add_option("--phantom", a.phantom, "Built-in scene instead of a file")
-        ->check(CLI::IsMember({"avc", "avcec", "bone", "stiffness"}));
+        ->check(CLI::IsMember({"avc", "avcec", "bone", "stiffness", "tumour"}));
     o.quadrant = app->add_option("--quadrant", a.quadrant, "avc: quadrant of the hidden box, 0-3")
                      ->check(integerIn(0, 3));
     o.shape =

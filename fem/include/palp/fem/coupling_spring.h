@@ -13,6 +13,13 @@
 /// `w_i F`. It is the gradient of the potential `U = H(|c - a|)` (quadratic, then linear beyond
 /// the clamp), so it is conservative: the spring adds no energy to the tissue.
 ///
+/// An optional damper of @c damping (N s/m) acts on the velocity of a(u) along with the spring:
+/// the spring alone, on the light surface under a stiff coupling, is a fast undamped mode that
+/// makes the surface overshoot the probe. The damper enters the central-difference update
+/// implicitly, like mass-proportional damping (the rank-one term `b w w^T` of the damping matrix
+/// is solved exactly by Sherman-Morrison, per direction, over the spring's nodes), so it
+/// never limits the step. criticalDamping() gives `2 sqrt(k m_eff)`, `m_eff = 1 / sum w_i^2 / m_i`.
+///
 /// Each solver evaluates F at every substep from the current displacement, adds `w_i F` to the
 /// nodal loads of that substep, and reports the mean force over the step (the impulse divided
 /// by the time) and the final one.
@@ -33,6 +40,7 @@ struct CouplingSpring {
     Eigen::Vector3d target = Eigen::Vector3d::Zero();           ///< c, metres (displacement space)
     double stiffness = 0.0;                                     ///< k, N/m; 0: no spring
     double maxForce = std::numeric_limits<double>::infinity();  ///< |F| clamp, N (> 0)
+    double damping = 0.0;  ///< b, N s/m, on the velocity of a(u) (>= 0), implicit
 
     /// True when the spring acts: k > 0, finite, and at least one node.
     bool active() const noexcept;
@@ -54,6 +62,10 @@ Eigen::Vector3d springForce(const CouplingSpring& spring, const Eigen::Vector3d&
 /// is `k w w^T` per direction, whose largest eigenvalue under M is this sum). Nodes without
 /// mass count as infinite frequency. @par Real-time  O(#nodes).
 double springFrequencySquared(const FemModel& model, const CouplingSpring& spring) noexcept;
+
+/// `ratio * 2 sqrt(k m_eff)` with `m_eff = 1 / sum_i w_i^2 / m_i`: the damping (N s/m) that
+/// damps the spring on the contact's effective mass at @p ratio of critical. @par Real-time
+double criticalDamping(const FemModel& model, const CouplingSpring& spring, double ratio) noexcept;
 
 /// The critical central-difference step of @p model (FemModel::criticalTimeStep()'s formula,
 /// Rayleigh damping included) with the highest angular frequency raised to

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "palp/fem/constraints.h"
+#include "palp/fem/coupling_spring.h"
 #include "palp/fem/fem_model.h"
 
 namespace palp::fem {
@@ -83,6 +84,15 @@ class ExplicitSolver {
     /// less time than asked) and flags kStepSubstepLimit.
     /// @par Real-time  noexcept, allocation-free, lock-free, at most maxSubsteps substeps.
     StepResult step(double dtSeconds) noexcept;
+    /// step() with a coupling @p spring (coupling_spring.h) evaluated at every substep from the
+    /// current displacement and added to the external force of that substep (externalForce() is
+    /// left unchanged). The substep is at most safetyFactor times the critical step raised by the
+    /// spring (criticalTimeStepWith(springFrequencySquared)), so any stiffness is stable while
+    /// maxSubsteps suffices (else kStepSubstepLimit, with substeps of that step). The spring's
+    /// mean and last force and its end point go to @p out when given. Spring nodes must be free.
+    /// @par Real-time  noexcept, allocation-free, O(#spring nodes) more per substep.
+    StepResult step(double dtSeconds, const CouplingSpring& spring,
+                    SpringResult* out = nullptr) noexcept;
     /// Same as step() with the element loop and vector updates on TBB worker threads.
     StepResult stepParallel(double dtSeconds);
 
@@ -117,7 +127,8 @@ class ExplicitSolver {
 
   private:
     template <bool kParallel>
-    StepResult advance(double dtSeconds) noexcept;
+    StepResult advance(double dtSeconds, const CouplingSpring* spring, SpringResult* out) noexcept;
+    Eigen::Vector3d springPoint(const CouplingSpring& spring) const noexcept;
     void setCoefficients(double dt) noexcept;
 
     const FemModel& mModel;

@@ -39,6 +39,7 @@
 
 #include "palp/fem/async_regions.h"
 #include "palp/fem/constraints.h"
+#include "palp/fem/coupling_spring.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/hex_mesh.h"
@@ -79,6 +80,13 @@ struct DeformableOptions {
     /// another length still runs, bounded by solver.maxSubsteps. asyncRegions use
     /// regions.tickSeconds instead.
     double tickSeconds = 1e-3;
+    /// Damping of a coupled contact (coupleContact) as a ratio of critical on the contact's
+    /// effective mass (fem::criticalDamping), in [0, 10]. The coupling spring on the light
+    /// surface under the probe is a fast mode the tissue's own damping barely touches: without
+    /// this the surface overshoots the probe and the contact chatters. It acts only while the
+    /// surface under the probe moves (no effect on a held press), dissipates, and is implicit
+    /// (no step limit).
+    double contactDampingRatio = 1.0;
     /// Whole-mesh explicit (default) or asynchronous regions.
     DeformableSolver solverKind = DeformableSolver::wholeMeshExplicit;
     /// asyncRegions: the regions' options. The body sets drive = force, watchNodes = the free
@@ -236,8 +244,27 @@ class DeformableBody {
     /// nearest), or -1 (and no load) for non-finite input.
     /// @par Real-time  O(#surface nodes).
     int applyContactForce(const Eigen::Vector3d& point, const Eigen::Vector3d& force) noexcept;
-    /// Removes the external load. @par Real-time
+    /// Couples a probe to the surface at @p point for the next step()s, implicitly: a spring of
+    /// @p stiffness (N/m) acts on the filtered surface point a(u) (the Gaussian filter's
+    /// normalised weights over the nodes near @p point, as applyContactForce spreads a load) and
+    /// is evaluated at every explicit substep (fem::CouplingSpring), so the tissue and the
+    /// coupling are integrated together and any stiffness is stable. @p force (N, world) is the
+    /// force on the tissue now (the reaction of what the hand feels); the spring's target is
+    /// set so that it pulls with exactly @p force at the current displacement and changes by
+    /// -stiffness times the motion of a(u) during the step; its magnitude is clamped to
+    /// @p maxForce. Stiffness <= 0 or not finite: the same as applyContactForce (a load held
+    /// over the step). Returns the nearest node, or -1 (and no load) for non-finite input.
+    /// lastContactForce() gives the force the tissue received over the step.
+    /// @par Real-time  O(#surface nodes).
+    int coupleContact(const Eigen::Vector3d& point, const Eigen::Vector3d& force, double stiffness,
+                      double maxForce) noexcept;
+    /// Removes the external load (and the coupling spring). @par Real-time
     void clearForce() noexcept;
+    /// Mean force on the tissue over the last step() (N, world): the spring's impulse over the
+    /// step for a coupled contact, the applied load otherwise (zero without one).
+    const Eigen::Vector3d& lastContactForce() const noexcept { return mLastContactForce; }
+    /// True when the last step() clamped the coupling spring's force to its maxForce.
+    bool lastContactClamped() const noexcept { return mLastClamped; }
 
     /// Finds the surface triangle under @p point along -@p normal (within 1 mm; when the ray
     /// slips through an edge or vertex, the closest triangle around the contact node) and
@@ -296,6 +323,11 @@ class DeformableBody {
     bool anchorOn(int tri, const Eigen::Vector3d& point, const Eigen::Vector3d& normal) noexcept;
     Eigen::VectorXd& loadVector() noexcept { return mRegions ? mForce : mSolver->externalForce(); }
     int nearestLoadNode(const Eigen::Vector3d& point) const noexcept;
+    /// Fills mLoaded/mWeights (weights normalised to sum 1) with the filter around @p point;
+    /// returns the nearest free surface node (-1 for none) and its squared distance.
+    int filterWeights(const Eigen::Vector3d& point, double& nearestD2) noexcept;
+    /// Regions: asks for the centre to follow the contact node (with the hysteresis).
+    void recentreRegions(const Eigen::Vector3d& point, double nearestD2) noexcept;
 
     std::shared_ptr<const DeformableModel> mModel;
     std::unique_ptr<fem::ExplicitSolver> mSolver;  // wholeMeshExplicit
@@ -314,6 +346,9 @@ class DeformableBody {
     std::vector<double> mWeights;   // scratch, one per load node
     std::size_t mLoadedCount = 0;
     int mContactNode = -1;
+    fem::CouplingSpring mSpring;  // active while a coupled contact holds (spans into mLoaded)
+    Eigen::Vector3d mLastContactForce = Eigen::Vector3d::Zero();
+    bool mLastClamped = false;
     double mMaxSurfaceDisplacement = 0;
     int mLastSubsteps = 0;
     // Anchor: triangle, barycentric weights, offset along the oriented normal.
