@@ -18,6 +18,8 @@
 
 namespace palp::fem {
 
+class GlobalSecondary;
+
 /// Border data crossing threads, preallocated to the dof count (Gamma and the primary border are
 /// disjoint sets of dofs, so both fit; results also carry 3 values per watched node).
 struct BorderPacket {
@@ -102,17 +104,24 @@ struct Layout {
     Eigen::MatrixXd gammaResponse;
     Eigen::MatrixXd watchResponse;  // the same for the watched dofs (3 * #watched x border)
     bool fieldStale = false;        // x (and uC) lag the last border (direct Gamma solves)
+    // Capacitance secondary (async_capacitance.h): the whole body's factor and this layout's
+    // update. null: the layout's own factorisation (cholmod above) or PCG.
+    const GlobalSecondary* global = nullptr;
+    std::vector<int> primaryCoarseCells;  // coarse cells of the primary (coarse cell index)
+    std::vector<int> capJ;                // J: unknowns at the primary coarse cells' corners
+    int secondaryUnknowns = 0;            // unknowns a secondary node uses (the rest decoupled)
+    Eigen::MatrixXd capHD;                // H D (|J| x |J|), M^-1 b = y - A^-1 E_J H D y_J
+    Eigen::MatrixXd capQ;                 // H (-sK K_JB): the field is A^-1 E_J capQ u_B
     // Secondary work vectors (secondary thread only).
     Eigen::VectorXd x, v, a, rhs, xNew, yc, ym, border;
     PcgWorkspace pcg;
 };
 
-/// f(dof, value) for every free dof of the nodes of @p to's P and Gamma that @p from showed from
-/// its secondary (interior secondary nodes): value = @p from's latest secondary solution there.
-/// Reads @p from's secondary state: call it on the secondary's thread. Allocates.
+/// f(dof) for every free dof of the nodes of @p to's P and Gamma that @p from showed from its
+/// secondary (interior secondary nodes). Allocates.
 template <class F>
-void forEachEnteringDof(const Layout& from, const Layout& to,
-                        const std::vector<std::uint8_t>& fixed, F&& f) {
+void forEachEnteringDofIndex(const Layout& from, const Layout& to,
+                             const std::vector<std::uint8_t>& fixed, F&& f) {
     std::vector<std::uint8_t> known(from.isPrimary);
     for (int n : from.gammaNodes) known[static_cast<std::size_t>(n)] = 1;
     auto enter = [&](int n) {
@@ -120,12 +129,22 @@ void forEachEnteringDof(const Layout& from, const Layout& to,
         known[static_cast<std::size_t>(n)] = 1;
         for (int k = 0; k < 3; ++k) {
             const int d = 3 * n + k;
-            if (fixed[static_cast<std::size_t>(d)]) continue;
-            f(d, from.unknownCoarseDof.empty() ? 0.0 : from.interp.row(d).dot(from.x));
+            if (!fixed[static_cast<std::size_t>(d)]) f(d);
         }
     };
     for (int n : to.primaryNodes) enter(n);
     for (int n : to.gammaNodes) enter(n);
+}
+
+/// f(dof, value) for every free dof of the nodes of @p to's P and Gamma that @p from showed from
+/// its secondary (interior secondary nodes): value = @p from's latest secondary solution there.
+/// Reads @p from's secondary state: call it on the secondary's thread. Allocates.
+template <class F>
+void forEachEnteringDof(const Layout& from, const Layout& to,
+                        const std::vector<std::uint8_t>& fixed, F&& f) {
+    forEachEnteringDofIndex(from, to, fixed, [&](int d) {
+        f(d, from.unknownCoarseDof.empty() ? 0.0 : from.interp.row(d).dot(from.x));
+    });
 }
 
 }  // namespace palp::fem

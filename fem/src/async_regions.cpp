@@ -42,7 +42,8 @@ struct AsyncRegions::Impl {
          const AsyncRegionsOptions& options);
 
     AsyncTickResult advance(const Eigen::Vector3d& contactDisplacement,
-                            std::span<const NodalLoad> loads) noexcept;
+                            std::span<const NodalLoad> loads,
+                            const CouplingSpring* spring = nullptr) noexcept;
     void exchangeWithSecondary(AsyncTickResult& result) noexcept;
     void publishSnapshot() noexcept;
     void periodBoundary(const Eigen::Vector3d& target, AsyncTickResult& result) noexcept;
@@ -68,7 +69,7 @@ struct AsyncRegions::Impl {
 AsyncRegions::Impl::Impl(const FemModel& model, const Constraints& constraints,
                          std::vector<int> contactNodes, const AsyncRegionsOptions& options)
     : setup(model, constraints, contactNodes, options),
-      builder(setup),
+      builder(setup, contactNodes),
       arena(options.secondaryThreads),
       primary(setup, constraints, contactNodes),
       secondary(setup),
@@ -116,8 +117,19 @@ AsyncTickResult AsyncRegions::tick(std::span<const NodalLoad> loads) noexcept {
     return mImpl->advance(Eigen::Vector3d::Zero(), loads);
 }
 
+AsyncTickResult AsyncRegions::tick(std::span<const NodalLoad> loads,
+                                   const CouplingSpring& spring) noexcept {
+    if (!mImpl->setup.forceDrive) {
+        AsyncTickResult r;
+        r.flags |= kStepBadForce;
+        return r;
+    }
+    return mImpl->advance(Eigen::Vector3d::Zero(), loads, &spring);
+}
+
 AsyncTickResult AsyncRegions::Impl::advance(const Eigen::Vector3d& contactDisplacement,
-                                            std::span<const NodalLoad> loads) noexcept {
+                                            std::span<const NodalLoad> loads,
+                                            const CouplingSpring* spring) noexcept {
     AsyncTickResult result;
     if (setup.options.threaded) exchangeWithSecondary(result);
     if (setup.forceDrive) primary.takeLoads(layout(), loads, result);
@@ -128,7 +140,7 @@ AsyncTickResult AsyncRegions::Impl::advance(const Eigen::Vector3d& contactDispla
         target = Eigen::Vector3d(u[contactDofs[0]], u[contactDofs[1]], u[contactDofs[2]]);
         result.flags |= kStepBadForce;
     }
-    primary.advance(layout(), target, result);
+    primary.advance(layout(), target, spring, result);
     primary.clearTickLoads();
     result.contactDisplacement = primary.u().segment<3>(3 * layout().contactNodes[0]);
     ++ticks;
@@ -150,6 +162,9 @@ void AsyncRegions::Impl::exchangeWithSecondary(AsyncTickResult& result) noexcept
         layouts[0].reset(next);
         channel.retired.store(old, std::memory_order_release);
         result.layoutChanged = true;
+        // The new layout's secondary solves at once (not at the next period boundary): a
+        // layout adopted just after a boundary would run a whole period on its entry state.
+        publishSnapshot();
     }
     if (exchange.results.update()) {
         const BorderPacket& in = exchange.results.front().value;
@@ -259,7 +274,9 @@ int AsyncRegions::primaryCellCount() const {
     return static_cast<int>(mImpl->layout().cellDofs.size());
 }
 int AsyncRegions::secondaryDofCount() const {
-    return static_cast<int>(mImpl->layout().unknownCoarseDof.size());
+    const Layout& L = mImpl->layout();
+    if (L.global != nullptr) return L.secondaryUnknowns;
+    return static_cast<int>(L.unknownCoarseDof.size());
 }
 int AsyncRegions::layoutIndex() const { return mImpl->current; }
 const std::vector<int>& AsyncRegions::contactNodes() const { return mImpl->layout().contactNodes; }

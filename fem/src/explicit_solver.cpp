@@ -270,7 +270,9 @@ StepResult ExplicitSolver::advance(double dtSeconds, const CouplingSpring* sprin
                 aPrev += spring->weights[i] *
                          mUPrev.segment<3>(3 * static_cast<Eigen::Index>(spring->nodes[i]));
             }
-            springF = springForce(*spring, springPoint(*spring));
+            // The target moves with the probe over the step: k (c + v t - a).
+            const double tIn = static_cast<double>(s) * dt;
+            springF = springForce(*spring, springPoint(*spring) - tIn * spring->targetVelocity);
             if (springF.squaredNorm() >= spring->maxForce * spring->maxForce * (1 - 1e-12))
                 springClamped = true;
             springImpulse += dt * springF;
@@ -310,19 +312,16 @@ StepResult ExplicitSolver::advance(double dtSeconds, const CouplingSpring* sprin
                     aHat += w * mUPrev.segment<3>(d);
                     gamma += w * w * mInvDen.segment<3>(d);
                 }
-                Eigen::Vector3d aNext;
                 for (int c = 0; c < 3; ++c) {
                     const double scale = bt * (aHat[c] - aPrev[c]) / (1.0 + bt * gamma[c]);
                     for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
                         const auto d = 3 * static_cast<Eigen::Index>(spring->nodes[i]) + c;
                         mUPrev[d] -= scale * spring->weights[i] * mInvDen[d];
                     }
-                    aNext[c] = aHat[c] - scale * gamma[c];
                 }
-                // The damper's force on the tissue, -b (a+ - a-) / (2 dt), joins the impulse.
-                const Eigen::Vector3d damperF = -spring->damping * (aNext - aPrev) / (2.0 * dt);
-                springImpulse += dt * damperF;
-                springLast += damperF;
+                // The damper is the tissue's own (to ground, like its mass damping): it is not
+                // part of the contact force the spring reports; the hand feels it through the
+                // spring, as the surface it brakes lags the probe.
             }
         }
         const double t = static_cast<double>(s + 1) / substeps;

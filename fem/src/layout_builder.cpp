@@ -20,8 +20,74 @@ using Triplet = Eigen::Triplet<double, int>;
 
 }  // namespace
 
-LayoutBuilder::LayoutBuilder(const AsyncSetup& setup)
-    : mSetup(setup), mStiffness(setup.model.assembleStiffness()) {}
+LayoutBuilder::LayoutBuilder(const AsyncSetup& setup, const std::vector<int>& contact)
+    : mSetup(setup), mStiffness(setup.model.assembleStiffness()) {
+    const AsyncRegionsOptions& o = setup.options;
+    if (!o.globalSecondary || o.secondarySolver != LinearSolverKind::cholmod ||
+        o.secondaryIntegrator != Integrator::quasiStatic)
+        return;
+    const std::vector<int> zone = zoneCoarseNodes(contact);
+    if (zone.empty() || 3 * static_cast<int>(zone.size()) > o.slideZoneMaxDofs) {
+        mSlide.clear();
+        return;
+    }
+    mGlobal = std::make_unique<GlobalSecondary>(setup, mStiffness, zone);
+}
+
+std::vector<int> LayoutBuilder::zoneCoarseNodes(const std::vector<int>& contact) {
+    // The coarse nodes a primary around any slide node can reach: seeds lie within the graph
+    // radius g of the largest seed count around the first contact (the same on a flat face),
+    // primary cells touch a seed and are widened to coarse cells; J is their corners.
+    const HexMesh& mesh = mSetup.model.mesh();
+    const AsyncRegionsOptions& o = mSetup.options;
+    const auto& nc = mesh.nodeCounts();
+    std::vector<int> slide = o.slideNodes;
+    if (slide.empty()) {
+        for (int a = 0; a < 3 && slide.empty(); ++a) {
+            for (int side : {0, nc[sz(a)] - 1}) {
+                const bool all = std::all_of(contact.begin(), contact.end(), [&](int n) {
+                    return mesh.nodeCoords(n)[sz(a)] == side;
+                });
+                if (!all) continue;
+                for (int n = 0; n < mesh.nodeCount(); ++n)
+                    if (mesh.nodeActive()[sz(n)] && mesh.nodeCoords(n)[sz(a)] == side)
+                        slide.push_back(n);
+                break;
+            }
+        }
+    }
+    if (slide.empty()) return {};
+    mSlide.assign(sz(mesh.nodeCount()), 0);
+    for (int n : slide)
+        if (n >= 0 && n < mesh.nodeCount()) mSlide[sz(n)] = 1;
+    std::vector<int> distance;
+    const std::vector<int> order = seedOrder(contact, &distance);
+    const int seeds = std::max(o.primaryNodes, o.maxPrimaryNodes);
+    if (order.empty()) return {};
+    const int g = distance[std::min(order.size(), sz(seeds)) - 1];
+    const int lod = mSetup.lod;
+    const std::array<int, 3>& cc = mSetup.coarseCounts;
+    std::vector<std::uint8_t> mark(sz(cc[0] * cc[1] * cc[2]), 0);
+    std::vector<int> out;
+    for (int n : slide) {
+        if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)]) continue;
+        const auto ijk = mesh.nodeCoords(n);
+        std::array<int, 3> lo{}, hi{};
+        for (int a = 0; a < 3; ++a) {
+            lo[sz(a)] = std::max(0, ijk[sz(a)] - g - 1) / lod;
+            hi[sz(a)] = std::min(cc[sz(a)] - 1, (ijk[sz(a)] + g) / lod + 1);
+        }
+        for (int Z = lo[2]; Z <= hi[2]; ++Z)
+            for (int Y = lo[1]; Y <= hi[1]; ++Y)
+                for (int X = lo[0]; X <= hi[0]; ++X) {
+                    const int cn = X + cc[0] * (Y + cc[1] * Z);
+                    if (mark[sz(cn)]) continue;
+                    mark[sz(cn)] = 1;
+                    out.push_back(cn);
+                }
+    }
+    return out;
+}
 
 std::unique_ptr<Layout> LayoutBuilder::build(const std::vector<int>& contact, int seedCount) const {
     auto layout = std::make_unique<Layout>();
@@ -33,6 +99,10 @@ std::unique_ptr<Layout> LayoutBuilder::build(const std::vector<int>& contact, in
     const std::vector<std::uint8_t> primaryCell = primaryCells(seedOrder(contact), seedCount);
     const std::vector<std::uint8_t> touchesPrimary = classifyNodes(primaryCell, driven, contact, L);
     collectPrimaryDofs(primaryCell, touchesPrimary, driven, L);
+    if (mGlobal && buildGlobal(primaryCell, L)) {
+        checkPrescribed(L);
+        return layout;
+    }
     const SparseMatrix interp = interpolation(primaryCell, driven, L);
     restrictInterpolation(L);
     assembleSecondary(interp, L);
@@ -56,7 +126,44 @@ std::vector<std::uint8_t> LayoutBuilder::drivenDofs(const std::vector<int>& cont
     return driven;
 }
 
-std::vector<int> LayoutBuilder::seedOrder(const std::vector<int>& contact) const {
+bool LayoutBuilder::buildGlobal(const std::vector<std::uint8_t>& primaryCell, Layout& L) const {
+    // The secondary from the whole body's factor: no assembly, no factorisation.
+    const HexMesh& mesh = mSetup.model.mesh();
+    const int lod = mSetup.lod;
+    const std::array<int, 3>& cc = mSetup.coarseCounts;
+    const auto cellCounts = mesh.cellCounts();
+    std::vector<std::uint8_t> coarseMark(sz((cc[0] - 1) * (cc[1] - 1) * (cc[2] - 1)), 0);
+    L.primaryCoarseCells.clear();
+    for (int k = 0; k < cellCounts[2]; ++k)
+        for (int j = 0; j < cellCounts[1]; ++j)
+            for (int i = 0; i < cellCounts[0]; ++i) {
+                if (!primaryCell[sz(mesh.cell(i, j, k))]) continue;
+                const int cell = i / lod + (cc[0] - 1) * (j / lod + (cc[1] - 1) * (k / lod));
+                if (coarseMark[sz(cell)]) continue;
+                coarseMark[sz(cell)] = 1;
+                L.primaryCoarseCells.push_back(cell);
+            }
+    L.global = mGlobal.get();
+    L.unknownCoarseDof = mGlobal->unknownCoarseDof();
+    L.interp = mGlobal->interpolation();
+    restrictInterpolation(L);
+    if (!mGlobal->prepareLayout(L, L.primaryCoarseCells, mStiffness)) {
+        // J leaves the zone: back to the layout's own assembly and factorisation.
+        L.global = nullptr;
+        L.unknownCoarseDof.clear();
+        L.borderDofs.clear();
+        L.capJ.clear();
+        L.gammaResponse.resize(0, 0);
+        L.watchResponse.resize(0, 0);
+        L.response.resize(0, 0);
+        return false;
+    }
+    sizeWorkVectors(L);
+    return true;
+}
+
+std::vector<int> LayoutBuilder::seedOrder(const std::vector<int>& contact,
+                                          std::vector<int>* distance) const {
     // Graph distance over lattice edges between active nodes (BFS from all contact nodes), ties
     // broken by Euclidean distance.
     const HexMesh& mesh = mSetup.model.mesh();
@@ -98,6 +205,10 @@ std::vector<int> LayoutBuilder::seedOrder(const std::vector<int>& contact) const
     std::sort(order.begin(), order.end());
     std::vector<int> sorted(order.size());
     for (std::size_t i = 0; i < order.size(); ++i) sorted[i] = order[i].second;
+    if (distance != nullptr) {
+        distance->resize(order.size());
+        for (std::size_t i = 0; i < order.size(); ++i) (*distance)[i] = dist[sz(sorted[i])];
+    }
     return sorted;
 }
 
@@ -364,7 +475,7 @@ std::unique_ptr<Layout> LayoutBuilder::buildPrepared(int node, int seeds) const 
 }
 
 void LayoutBuilder::prepare(Layout& L) const {
-    if (L.unknownCoarseDof.empty()) return;
+    if (L.unknownCoarseDof.empty() || L.global != nullptr) return;
     const SparseMatrix a = mSetup.sK * L.kc + mSetup.sM * L.mc;
     factorise(a, L);
     takeResponses(a, L);

@@ -9,6 +9,7 @@
 #include <memory>
 #include <vector>
 
+#include "async_capacitance.h"
 #include "async_layout.h"
 #include "async_setup.h"
 
@@ -21,8 +22,17 @@ namespace palp::fem {
 /// prepare() may run on any thread, also concurrently with the servo and the secondary.
 class LayoutBuilder {
   public:
-    /// Assembles the fine stiffness once. @p setup must outlive the builder.
-    explicit LayoutBuilder(const AsyncSetup& setup);
+    /// Assembles the fine stiffness once and, for the quasi-static CHOLMOD secondary with
+    /// globalSecondary, factorises the whole body's secondary (GlobalSecondary) with the zone
+    /// of the contacts around @p contactNodes' slide nodes. @p setup must outlive the builder.
+    LayoutBuilder(const AsyncSetup& setup, const std::vector<int>& contactNodes);
+    /// Whether @p node is one the contact may slide to without a factorisation.
+    bool isSlideNode(int node) const {
+        return node >= 0 && static_cast<std::size_t>(node) < mSlide.size() &&
+               mSlide[static_cast<std::size_t>(node)] != 0;
+    }
+    /// The whole body's secondary, or null when every layout is factorised.
+    const GlobalSecondary* global() const { return mGlobal.get(); }
 
     /// The regions around @p contactNodes with @p seeds seed nodes and the secondary system
     /// (assembled, not factorised), with a new generation number.
@@ -38,7 +48,10 @@ class LayoutBuilder {
   private:
     // Steps of build(), in order.
     std::vector<std::uint8_t> drivenDofs(const std::vector<int>& contact, Layout& L) const;
-    std::vector<int> seedOrder(const std::vector<int>& contact) const;
+    std::vector<int> seedOrder(const std::vector<int>& contact,
+                               std::vector<int>* distance = nullptr) const;
+    std::vector<int> zoneCoarseNodes(const std::vector<int>& contact);
+    bool buildGlobal(const std::vector<std::uint8_t>& primaryCell, Layout& L) const;
     std::vector<std::uint8_t> primaryCells(const std::vector<int>& order, int seedCount) const;
     std::vector<std::uint8_t> classifyNodes(const std::vector<std::uint8_t>& primaryCell,
                                             const std::vector<std::uint8_t>& driven,
@@ -58,6 +71,8 @@ class LayoutBuilder {
 
     const AsyncSetup& mSetup;
     SparseMatrix mStiffness;  // fine K
+    std::unique_ptr<GlobalSecondary> mGlobal;
+    std::vector<std::uint8_t> mSlide;  // per fine node: a slide node (with mGlobal)
     mutable std::atomic<std::uint64_t> mNextGeneration{1};
 };
 

@@ -22,6 +22,8 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     mSubsteps =
         std::min(o.maxSubsteps, std::max(1, static_cast<int>(std::ceil(o.tickSeconds / critical))));
     mDtSub = o.tickSeconds / mSubsteps;
+    mBaseSubsteps = mSubsteps;
+    mBaseDt = mDtSub;
     mU = Eigen::VectorXd::Zero(dofs);
     for (int d = 0; d < dofs; ++d) {
         if (c.isFixed(d)) mU[d] = c.values()[d];
@@ -167,13 +169,107 @@ void PrimaryRegion::seedWatched(const Layout& from) noexcept {
     }
 }
 
+void PrimaryRegion::setSubstep(const Layout& L, int substeps, double dtNew) noexcept {
+    // A new substep keeps the half-step velocity (u - uPrev) / dt of the free dofs, and the
+    // central-difference coefficients follow it (on the free dofs of L: a layout adopted later
+    // is brought up to date by the generation check).
+    if (substeps != mSubsteps || dtNew != mDtSub) {
+        const double ratio = dtNew / mDtSub;
+        for (int d : L.freeDofs) mUPrev[d] = mU[d] - (mU[d] - mUPrev[d]) * ratio;
+        mSubsteps = substeps;
+        mDtSub = dtNew;
+        mCoefGeneration = 0;
+    }
+    if (mCoefGeneration == L.generation) return;
+    const Eigen::VectorXd& mass = mSetup.model.lumpedMass();
+    const double alpha = mSetup.model.material().dampingAlpha;
+    for (int d : L.freeDofs) {
+        mInvDen[d] = 1.0 / (mass[d] + 0.5 * mDtSub * alpha * mass[d]);
+        mPrevCoef[d] = mass[d] - 0.5 * mDtSub * alpha * mass[d];
+    }
+    mCoefGeneration = L.generation;
+}
+
+void PrimaryRegion::addSecondaryLoad(int n, const Eigen::Vector3d& force) noexcept {
+    for (int k = 0; k < 3; ++k) {
+        const int d = 3 * n + k;
+        if (mSetup.fixed[sz(d)]) continue;
+        mFAcc[d] += force[k];
+        if (!mAccMark[sz(n)]) {
+            mAccMark[sz(n)] = 1;
+            mAccNodes[mAccCount++] = n;
+        }
+    }
+}
+
 void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
                             AsyncTickResult& result) noexcept {
+    advance(L, target, nullptr, result);
+}
+
+void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
+                            const CouplingSpring* spring, AsyncTickResult& result) noexcept {
     const FemModel& model = mSetup.model;
+    const HexMesh& mesh = model.mesh();
+    // The spring: valid nodes only; its frequency on P bounds the substep.
+    const bool springOn = spring != nullptr && spring->active();
+    Eigen::Vector3d aOutside = Eigen::Vector3d::Zero();  // a(u) share of non-P, non-Gamma nodes
+    int substeps = mBaseSubsteps;
+    double dtNew = mBaseDt;
+    if (springOn) {
+        const Eigen::VectorXd& mass = model.lumpedMass();
+        const double frac0 = shownFraction();
+        double w2m = 0.0;
+        bool bad = false;
+        for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+            const int n = spring->nodes[i];
+            const double w = spring->weights[i];
+            if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)] || !std::isfinite(w)) {
+                bad = true;
+                continue;
+            }
+            if (L.isPrimary[sz(n)]) {
+                if (mass[3 * n] > 0.0) w2m += w * w / mass[3 * n];
+            } else if (!L.isGamma[sz(n)]) {
+                const Eigen::Vector3d un = shown(L, n, frac0);
+                if (un.allFinite()) aOutside += w * un;  // unwatched secondary node: counts 0
+            }
+        }
+        if (bad) {
+            result.flags |= kAsyncLoadsRefused;
+            ++result.loadsRefused;
+        }
+        const double dtSpring =
+            mSetup.options.safetyFactor * criticalTimeStepWith(model, spring->stiffness * w2m);
+        const double need = std::ceil(mSetup.options.tickSeconds / dtSpring);
+        substeps = std::max(mBaseSubsteps, need < 1e9 ? static_cast<int>(need) : 1 << 30);
+        if (substeps > mSetup.options.maxSubsteps) {
+            // As ExplicitSolver: maxSubsteps stable substeps, less time than a tick (flagged).
+            substeps = mSetup.options.maxSubsteps;
+            dtNew = dtSpring;
+            result.flags |= kStepSubstepLimit;
+        } else {
+            dtNew = mSetup.options.tickSeconds / substeps;
+        }
+    }
+    setSubstep(L, substeps, dtNew);
+    auto springPoint = [&]() {
+        Eigen::Vector3d a = aOutside;
+        for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+            const int n = spring->nodes[i];
+            if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)]) continue;
+            if (L.isPrimary[sz(n)] || L.isGamma[sz(n)])
+                a += spring->weights[i] * mU.segment<3>(3 * n);
+        }
+        return a;
+    };
+    Eigen::Vector3d impulse = Eigen::Vector3d::Zero();
     const double* ke = model.unitStiffness();
     const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64> K(ke);
     const double beta = model.material().dampingBeta;
     const double dt = mDtSub;
+    // Without a spring the tick advances tickSeconds; with the cap biting, substeps of the
+    // spring's stable step (less time than asked, flagged) as ExplicitSolver does.
     const double dt2 = dt * dt;
     const std::vector<int>& contactDofs = L.contactDofs;
     for (std::size_t i = 0; i < contactDofs.size(); ++i)
@@ -201,6 +297,22 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
                 for (int k = 0; k < 3; ++k) mFInt[nd[sz(a)] + k] += fe[3 * a + k];
             }
         }
+        if (springOn) {
+            // The spring from this substep's displacement; on P it acts now (as a negative
+            // internal force: mFInt is rebuilt every substep).
+            const Eigen::Vector3d a = springPoint();
+            const Eigen::Vector3d F = springForce(*spring, a);
+            if ((spring->stiffness * (spring->target - a)).norm() > spring->maxForce)
+                result.spring.clamped = true;
+            impulse += dt * F;
+            result.spring.endForce = F;
+            for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+                const int n = spring->nodes[i];
+                if (n < 0 || n >= mesh.nodeCount() || !L.isPrimary[sz(n)]) continue;
+                for (int k = 0; k < 3; ++k)
+                    if (!mSetup.fixed[sz(3 * n + k)]) mFInt[3 * n + k] -= spring->weights[i] * F[k];
+            }
+        }
         for (int d : L.freeDofs)
             mUPrev[d] =
                 (dt2 * (mFExt[d] - mFInt[d]) + mTwoMass[d] * mU[d] - mPrevCoef[d] * mUPrev[d]) *
@@ -218,6 +330,18 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
     // Gamma as of now (with the tick's last condensed correction), for nodeDisplacement(); the
     // next substep sets it again before using it.
     setGamma(L, mU.data(), mTime, false);
+    if (springOn) {
+        // The tick's mean force; its share on nodes outside P enters the secondary's loads.
+        const double seconds = mSubsteps * dt;
+        result.spring.meanForce = impulse / seconds;
+        result.spring.endPoint = springPoint();
+        for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+            const int n = spring->nodes[i];
+            if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)] || L.isPrimary[sz(n)])
+                continue;
+            addSecondaryLoad(n, spring->weights[i] * result.spring.meanForce);
+        }
+    }
     bool finite = true;
     for (int d : L.freeDofs) finite = finite && std::isfinite(mU[d]);
     if (!finite) {

@@ -11,6 +11,7 @@
 
 #include "async_layout.h"
 #include "async_setup.h"
+#include "palp/fem/coupling_spring.h"
 
 namespace palp::fem {
 
@@ -34,6 +35,14 @@ class PrimaryRegion {
     /// One tick of substeps driving @p L's contact dofs to @p target at its end; fills
     /// substeps, flags and (displacement drive) the contact reaction in @p result.
     void advance(const Layout& L, const Eigen::Vector3d& target, AsyncTickResult& result) noexcept;
+    /// advance() with a coupling @p spring (force drive; may be null or inactive): the spring
+    /// force is evaluated at every substep from a(u) (P and Gamma nodes from the current
+    /// substep, other nodes as shown at the tick's start), `w_i F` acts on P nodes at that
+    /// substep and, averaged over the tick, on the other nodes through the secondary's loads.
+    /// The substep honours the spring's frequency on P (the count may change tick to tick; the
+    /// half-step velocity is kept). Fills result.spring.
+    void advance(const Layout& L, const Eigen::Vector3d& target, const CouplingSpring* spring,
+                 AsyncTickResult& result) noexcept;
     /// Force drive: takes this tick's loads (loads on free P dofs act at once, loads on secondary
     /// nodes add to the period's sum); fills contactForce, loadsRefused and flags.
     void takeLoads(const Layout& L, std::span<const NodalLoad> loads,
@@ -84,10 +93,15 @@ class PrimaryRegion {
 
   private:
     void seedWatched(const Layout& from) noexcept;
+    void setSubstep(const Layout& L, int substeps, double dt) noexcept;
+    void addSecondaryLoad(int node, const Eigen::Vector3d& force) noexcept;
 
     const AsyncSetup& mSetup;
     double mDtSub = 0.0;
     int mSubsteps = 1;
+    int mBaseSubsteps = 1;              // substeps per tick without a spring
+    double mBaseDt = 0.0;               // stable substep without a spring, s
+    std::uint64_t mCoefGeneration = 0;  // layout whose free dofs have mDtSub's coefficients
     double mTime = 0.0;
     std::uint64_t mUsed = 0;
     Eigen::VectorXd mU, mUPrev, mFInt, mWork, mInvDen, mPrevCoef, mTwoMass, mContactStart;

@@ -2,6 +2,8 @@
 
 #include <ctime>
 
+#include "async_capacitance.h"
+
 namespace palp::fem {
 
 namespace {
@@ -107,7 +109,9 @@ bool SecondaryRegion::solveField(Layout& L, const double* borderValues, const Bo
             L.rhs.noalias() += L.mc * L.ym;
             if (beta > 0.0) L.rhs.noalias() += beta * (L.kc * L.yc);
         }
-        if (o.secondarySolver == LinearSolverKind::cholmod) {
+        if (L.global != nullptr) {
+            if (!L.global->solve(L, L.rhs, L.xNew)) return false;
+        } else if (o.secondarySolver == LinearSolverKind::cholmod) {
             L.xNew = L.cholmod.solve(L.rhs);
         } else {
             // Warm-started Jacobi PCG on the arena's TBB threads.
@@ -152,7 +156,11 @@ void SecondaryRegion::refreshField(Layout& L) {
     L.fieldStale = false;
     if (L.unknownCoarseDof.empty()) return;
     L.rhs.noalias() = -mSetup.sK * (L.kcb * L.border);
-    L.x = L.cholmod.solve(L.rhs);
+    if (L.global != nullptr) {
+        L.global->solve(L, L.rhs, L.x);
+    } else {
+        L.x = L.cholmod.solve(L.rhs);
+    }
     for (std::size_t i = 0; i < L.unknownCoarseDof.size(); ++i)
         mUC[L.unknownCoarseDof[i]] = L.x[static_cast<Eigen::Index>(i)];
 }
@@ -169,13 +177,26 @@ void SecondaryRegion::warmStart(Layout& L) const noexcept {
 
 void SecondaryRegion::prepareEntry(Layout& from, Layout& next,
                                    std::chrono::steady_clock::time_point begin) {
-    refreshField(from);
     // Entry state: nodes of the new P and Gamma that were interior secondary nodes of `from`
     // take the secondary's latest solution (the servo keeps its own values for the others).
-    forEachEnteringDof(from, next, mSetup.fixed, [&](int d, double value) {
-        next.entryDofs.push_back(d);
-        next.entryValues.push_back(value);
-    });
+    // A capacitance layout whose field lags the border gives those values from its zone block
+    // (no solve); otherwise the field is brought up to date first.
+    next.entryDofs.clear();
+    next.entryValues.clear();
+    bool done = false;
+    if (from.global != nullptr && from.fieldStale) {
+        forEachEnteringDofIndex(from, next, mSetup.fixed,
+                                [&](int d) { next.entryDofs.push_back(d); });
+        done = from.global->borderFieldAt(from, next.entryDofs, next.entryValues);
+        if (!done) next.entryDofs.clear();
+    }
+    if (!done) {
+        refreshField(from);
+        forEachEnteringDof(from, next, mSetup.fixed, [&](int d, double value) {
+            next.entryDofs.push_back(d);
+            next.entryValues.push_back(value);
+        });
+    }
     // Warm state of the secondary in its own indexing.
     warmStart(next);
     mLastPrepare.store(

@@ -4,6 +4,8 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdlib>
+#include <array>
 
 #include "palp/base/thread.h"
 
@@ -45,6 +47,7 @@ void SecondaryThread::run() {
             if (Layout* old = mChannel.retired.exchange(nullptr, std::memory_order_acq_rel)) {
                 mSec = mOffered;  // the servo adopted the offered layout
                 mOffered = nullptr;
+                mLastStep = mSec->contactNodes[0] - old->contactNodes[0];
                 delete old;
             }
             if (mOffered != nullptr || mStalled.load(std::memory_order_acquire)) {
@@ -53,9 +56,13 @@ void SecondaryThread::run() {
             }
             if (collectBuild()) continue;
             const int want = mChannel.requested.load(std::memory_order_acquire);
-            if (mBuildState.load(std::memory_order_acquire) == kIdle &&
-                mChannel.wanted(*mSec, want))
-                startBuild(want);
+            const bool idle = mBuildState.load(std::memory_order_acquire) == kIdle;
+            if (mChannel.wanted(*mSec, want)) {
+                if (offerCached(want)) continue;
+                if (idle) startBuild(want);
+            } else if (idle) {
+                prefetch();
+            }
             if (!mExchange.snapshots.update()) {
                 std::this_thread::sleep_for(std::chrono::microseconds(50));
                 continue;
@@ -74,19 +81,89 @@ bool SecondaryThread::collectBuild() {
     if (state != kBuilt && state != kFailed) return false;
     mBuilderThread.join();
     mBuildState.store(kIdle, std::memory_order_relaxed);
+    const int want = mChannel.requested.load(std::memory_order_acquire);
     if (state == kBuilt) {
-        try {
-            mSecondary.prepareEntry(*mSec, *mBuilt, mBuildBegin);
-            mOffered = mBuilt.release();
-            mChannel.pending.store(mOffered, std::memory_order_release);
-        } catch (...) {
-            mChannel.rejected = mBuilding;
+        if (mBuilding == want && mChannel.wanted(*mSec, want)) {
+            offer(std::move(mBuilt));
+        } else if (mBuilt->global != nullptr) {
+            mCache.push_back(std::move(mBuilt));  // a prefetch, or a request overtaken
         }
     } else {
-        mChannel.rejected = mBuilding;  // e.g. a failed factorisation: keep the current layout
+        mFailed.push_back(mBuilding);
+        if (mBuilding == want) mChannel.rejected = mBuilding;  // keep the current layout
     }
     mBuilt.reset();
     return true;
+}
+
+void SecondaryThread::offer(std::unique_ptr<Layout> next) {
+    try {
+        mSecondary.prepareEntry(*mSec, *next, mBuildBegin);
+        mOffered = next.release();
+        mChannel.pending.store(mOffered, std::memory_order_release);
+    } catch (...) {
+        mChannel.rejected = next->contactNodes[0];
+    }
+}
+
+bool SecondaryThread::offerCached(int want) {
+    for (std::size_t i = 0; i < mCache.size(); ++i) {
+        if (mCache[i]->contactNodes[0] != want) continue;
+        std::unique_ptr<Layout> next = std::move(mCache[i]);
+        mCache.erase(mCache.begin() + static_cast<std::ptrdiff_t>(i));
+        mBuildBegin = std::chrono::steady_clock::now();
+        offer(std::move(next));
+        return true;
+    }
+    return false;
+}
+
+void SecondaryThread::prefetch() {
+    // Only where layouts are cheap (the capacitance secondary): the slide neighbours of the
+    // current contact, the direction of the last change first; layouts for other nodes go.
+    if (mSec->global == nullptr || mSec->contactNodes.size() != 1 || std::getenv("PALP_NOPF")) return;
+    const HexMesh& mesh = mSetup.model.mesh();
+    const int c = mSec->contactNodes[0];
+    const auto ijk = mesh.nodeCoords(c);
+    const auto& nc = mesh.nodeCounts();
+    std::array<int, 6> candidates{};
+    int count = 0;
+    auto add = [&](int n) {
+        if (n < 0 || n == c ||
+            std::find(candidates.begin(), candidates.begin() + count, n) !=
+                candidates.begin() + count)
+            return;
+        candidates[static_cast<std::size_t>(count++)] = n;
+    };
+    if (mLastStep != 0)
+        add(c + mLastStep >= 0 && c + mLastStep < mesh.nodeCount() ? c + mLastStep : -1);
+    for (int a = 0; a < 3; ++a) {
+        for (int s = -1; s <= 1; s += 2) {
+            std::array<int, 3> q = ijk;
+            q[static_cast<std::size_t>(a)] += s;
+            if (q[static_cast<std::size_t>(a)] < 0 ||
+                q[static_cast<std::size_t>(a)] >= nc[static_cast<std::size_t>(a)])
+                continue;
+            add(mesh.node(q[0], q[1], q[2]));
+        }
+    }
+    mCache.erase(std::remove_if(mCache.begin(), mCache.end(),
+                                [&](const std::unique_ptr<Layout>& L) {
+                                    const int n = L->contactNodes[0];
+                                    return std::find(candidates.begin(), candidates.begin() + count,
+                                                     n) == candidates.begin() + count;
+                                }),
+                 mCache.end());
+    for (int i = 0; i < count; ++i) {
+        const int n = candidates[static_cast<std::size_t>(i)];
+        if (!mBuilder.isSlideNode(n)) continue;
+        if (std::find(mFailed.begin(), mFailed.end(), n) != mFailed.end()) continue;
+        if (std::any_of(mCache.begin(), mCache.end(),
+                        [&](const std::unique_ptr<Layout>& L) { return L->contactNodes[0] == n; }))
+            continue;
+        startBuild(n);
+        return;
+    }
 }
 
 void SecondaryThread::startBuild(int want) {

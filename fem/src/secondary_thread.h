@@ -9,6 +9,7 @@
 #include <chrono>
 #include <memory>
 #include <thread>
+#include <vector>
 
 #include "async_layout.h"
 #include "async_setup.h"
@@ -68,6 +69,9 @@ class SecondaryThread {
     void run();
     bool collectBuild();
     void startBuild(int want);
+    bool offerCached(int want);
+    void offer(std::unique_ptr<Layout> next);
+    void prefetch();
     void solveSnapshot(const BorderPacket& in);
 
     const AsyncSetup& mSetup;
@@ -84,6 +88,12 @@ class SecondaryThread {
     // Builder thread: writes mBuilt, then releases mBuildState (kBuilt or kFailed).
     std::atomic<int> mBuildState{kIdle};
     std::unique_ptr<Layout> mBuilt;
+    // Prefetch (capacitance secondary, where a layout is milliseconds): layouts for the slide
+    // neighbours of the current contact, built while no change is asked for, so a request for
+    // one is offered at once with only its entry state added.
+    std::vector<std::unique_ptr<Layout>> mCache;
+    std::vector<int> mFailed;  // nodes whose build failed (not prefetched again)
+    int mLastStep = 0;         // node index step of the last contact change (prefetched first)
     std::thread mBuilderThread;
     std::atomic<bool> mStop{false}, mStalled{false};
     std::thread mWorker;  // last: started when everything above is set

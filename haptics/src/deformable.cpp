@@ -329,7 +329,8 @@ int DeformableBody::applyContactForce(const Eigen::Vector3d& point,
 }
 
 int DeformableBody::coupleContact(const Eigen::Vector3d& point, const Eigen::Vector3d& force,
-                                  double stiffness, double maxForce) noexcept {
+                                  double stiffness, double maxForce,
+                                  const Eigen::Vector3d& probeVelocity) noexcept {
     if (!(stiffness > 0) || !std::isfinite(stiffness) || !(maxForce > 0))
         return applyContactForce(point, force);
     clearForce();
@@ -348,6 +349,7 @@ int DeformableBody::coupleContact(const Eigen::Vector3d& point, const Eigen::Vec
     for (std::size_t i = 0; i < mLoadedCount; ++i)
         a += mWeights[i] * u.segment<3>(3 * static_cast<Eigen::Index>(mLoaded[i]));
     mSpring.target = a + force / stiffness;
+    mSpring.targetVelocity = probeVelocity.allFinite() ? probeVelocity : Eigen::Vector3d::Zero();
     mSpring.damping =
         fem::criticalDamping(mModel->model(), mSpring, mModel->options().contactDampingRatio);
     recentreRegions(point, best);

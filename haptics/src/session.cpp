@@ -275,6 +275,7 @@ struct Session::Impl {
     double lastStiffness = 0;
     double lastStepStiffness = 0;
     Eigen::Vector3d lastProbe{Eigen::Vector3d::Zero()};
+    Eigen::Vector3d lastProbeVelocity{Eigen::Vector3d::Zero()};  // of the last good sample
     std::uint64_t ticks = 0;
     Snapshot current;
     Command command;  // scratch for draining
@@ -354,6 +355,7 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     Eigen::Vector3d force;
     if (hand.ok) {
         const ProxyState before = proxy.state();
+        lastProbeVelocity = hand.probeVelocity;
         ps = &moveProxy(hand.probe);
         coupleWithFade(*ps, hand);
         if (rejectUphillMove(before, *ps, hand)) {
@@ -486,7 +488,7 @@ bool Session::Impl::contactTissue(const ProxyState& ps, const Eigen::Vector3d& s
         // stiffness follows the tissue's motion inside the FEM substeps, so a stiff coupling
         // on soft tissue is stable (a load held over the tick rang once k exceeded the
         // tissue's local stiffness).
-        body->coupleContact(ps.position, -sent, lastStiffness, spec.maxForceN);
+        body->coupleContact(ps.position, -sent, lastStiffness, spec.maxForceN, lastProbeVelocity);
         anchored = body->anchor(ps.position, ps.normals[0]);
     } else {
         body->clearForce();

@@ -136,26 +136,44 @@ TEST(DeformableBody, ConstantForceSettlesOnQuasiStaticSolution) {
                 ref.reshaped(3, ref.size() / 3).colwise().norm().maxCoeff(), 0.02 * uRef.norm());
 }
 
+// Static nodal load of the body's contact: the filter's weights times @p force.
+Eigen::VectorXd contactLoad(const DeformableBody& body, const Eigen::Vector3d& force) {
+    Eigen::VectorXd f = Eigen::VectorXd::Zero(body.model().model().dofCount());
+    for (std::size_t i = 0; i < body.loadedCount(); ++i)
+        f.segment<3>(3 * body.loadedNodes()[i]) += body.loadedWeights()[i] * force;
+    return f;
+}
+
 // (1) Through a session: a slow press held still reaches a steady state whose indentation is
-// the quasi-static one under the final nodal load, and at every tick the nodal forces on the
-// tissue sum to minus the force on the hand (Newton's third law).
+// the quasi-static one under the final load, and the tissue gets the reaction of the hand's
+// force (Newton's third law): exactly in the steady hold; while the probe moves, the tissue's
+// force (the coupling spring's mean over the tick, solved with the tissue) leads the hand's by
+// at most the spring's change within the tick.
 TEST(DeformableSession, SteadyPressMatchesQuasiStaticAndThirdLaw) {
     auto model = cube(3e-3);
     auto scene = deformableScene(model);
     PathDevice device({{0.0, mm(0, -5, 0)}, {0.6, mm(0, 4, 0)}, {2.0, mm(0, 4, 0)}});
-    // k below the local stiffness of the tissue at a 3 mm filter: the explicit (one tick
-    // delayed) coupling is stable there (deformable.h).
     Session session(scene, device, vcParams(100));
     int contactTicks = 0;
-    Snapshot s;
+    Snapshot s, prev;
     for (int i = 0; i < 2000; ++i) {
+        prev = s;
         s = session.step();
         ASSERT_TRUE(s.force.allFinite());
+        if (i > 0 && prev.contactCount > 0 && s.contactCount > 0) {
+            // Tick i-1's tissue force is the spring's mean over its step, during which the
+            // probe and the surface under it (the proxy) moved to where tick i sees them
+            // (the proxy is the anchored point, the spring acts on the filtered one: 2x).
+            const double lead = (prev.tissueForce + prev.force).norm();
+            const double moved = (s.probe - prev.probe).norm() + (s.proxy - prev.proxy).norm();
+            EXPECT_LE(lead, 2 * 100 * moved + 1e-5) << "tick " << i;
+            // The hold (from 1.5 s): the same force to 1e-6 of it.
+            if (i >= 1500) {
+                EXPECT_LT(lead, 1e-6 * s.force.norm()) << "tick " << i;
+            }
+        }
         if (s.contactCount > 0) {
             ++contactTicks;
-            // Exact up to the rounding of the nodal shares' sum.
-            EXPECT_LT((s.tissueForce + s.force).norm(), 1e-12 + 1e-12 * s.force.norm())
-                << "tick " << i;
         } else {
             EXPECT_EQ(s.tissueForce.norm(), 0.0) << "tick " << i;
         }
@@ -167,12 +185,8 @@ TEST(DeformableSession, SteadyPressMatchesQuasiStaticAndThirdLaw) {
     // The force the user feels is the VC spring, pressing back out of the tissue.
     EXPECT_NEAR(s.force.y(), -100 * (s.probe.y() - s.proxy.y()), 1e-9);
     EXPECT_GT(-s.force.y(), 0.05);
-    // The nodal load on the tissue sums to -F_user and gives the quasi-static indentation.
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    const Eigen::VectorXd& f = const_cast<DeformableBody*>(body)->nodalForce();
-    for (Eigen::Index d = 0; d < f.size(); d += 3) sum += f.segment<3>(d);
-    EXPECT_LT((sum + s.force).norm(), 1e-12);
-    const Eigen::VectorXd ref = quasiStatic(*model, f);
+    // The contact's load on the tissue gives the quasi-static indentation.
+    const Eigen::VectorXd ref = quasiStatic(*model, contactLoad(*body, s.tissueForce));
     const int node = s.contactNode;
     ASSERT_GE(node, 0);
     const double uy = body->displacement()[3 * node + 1], uyRef = ref[3 * node + 1];
@@ -180,6 +194,66 @@ TEST(DeformableSession, SteadyPressMatchesQuasiStaticAndThirdLaw) {
     EXPECT_NEAR(uy, uyRef, 0.03 * uyRef);
     // The proxy sits on the deformed surface: at the contact node's depth (node under it).
     EXPECT_NEAR(s.proxy.y(), uy, 0.1e-3);
+}
+
+// (1b) Stiff coupling (issue 18): the coupling spring is solved with the tissue inside the FEM
+// substeps, so a press held with k = 800 N/m and at the device's limit (the Touch: 1020 N/m)
+// on 5 and 50 kPa tissue settles: over the last quarter of the hold the force ripple (std /
+// mean of |F|) is at most 5 %, no tick is clamped, the passivity observer never goes below 0,
+// and the hold is the static equilibrium of the same body under the same load (within 5 %).
+// Before, with the tissue loaded one tick late, k = 300 rippled by 125 % and k = 800 rang to
+// the clamp.
+TEST(DeformableSession, StiffCouplingHoldsSteadyOnSoftAndFirmTissue) {
+    for (const double youngs : {5e3, 50e3}) {
+        for (const double k : {800.0, 1e5 /* limited to the device's 1020 N/m */}) {
+            SCOPED_TRACE("E " + std::to_string(youngs) + " Pa, k " + std::to_string(k));
+            fem::ElasticMaterial m = softTissue();
+            m.youngsModulus = youngs;
+            DeformableOptions o;
+            auto model = DeformableModel::box(Eigen::Vector3d::Constant(0.04), {9, 9, 9}, m,
+                                              fem::BoxFace::yMax, o, mm(-20, 0, -20));
+            auto scene = deformableScene(model);
+            const DeviceSpec* touch = findDeviceSpec("3D Systems Touch");
+            ASSERT_NE(touch, nullptr);
+            const DeviceSpec spec = *touch;
+            PathDevice device({{0.0, mm(0, -3, 0)}, {0.5, mm(0, 4, 0)}, {2.5, mm(0, 4, 0)}}, spec);
+            Session session(scene, device, vcParams(k));
+            const double kUsed = session.params().coupling.baseStiffness;
+            EXPECT_LE(kUsed, spec.maxStiffnessNpm);
+            std::vector<double> hold;
+            Snapshot s;
+            double observerMin = 0;
+            int clamped = 0;
+            for (int i = 0; i < 2500; ++i) {
+                s = session.step();
+                ASSERT_TRUE(s.force.allFinite());
+                observerMin = std::min(observerMin, s.observerEnergy);
+                clamped += s.clamped ? 1 : 0;
+                if (i >= 2000) {
+                    EXPECT_GT(s.contactCount, 0) << "tick " << i;
+                    hold.push_back(s.force.norm());
+                }
+            }
+            double mean = 0, var = 0;
+            for (const double f : hold) mean += f / static_cast<double>(hold.size());
+            for (const double f : hold)
+                var += (f - mean) * (f - mean) / static_cast<double>(hold.size());
+            EXPECT_GT(mean, 0.05);
+            EXPECT_LE(std::sqrt(var) / mean, 0.05) << "mean |F| " << mean;
+            EXPECT_EQ(clamped, 0);
+            EXPECT_GE(observerMin, 0.0);
+            // Equilibrium: the static solution under the tick's load, the same indentation.
+            const DeformableBody* body = session.deformable();
+            const Eigen::VectorXd ref = quasiStatic(*model, contactLoad(*body, s.tissueForce));
+            const int node = s.contactNode;
+            ASSERT_GE(node, 0);
+            const double uy = body->displacement()[3 * node + 1], uyRef = ref[3 * node + 1];
+            EXPECT_NEAR(uy, uyRef, 0.05 * uyRef);
+            // ... and the hand feels k times the probe's depth below that surface.
+            EXPECT_NEAR(-s.force.y(), kUsed * (s.probe.y() - s.proxy.y()), 1e-9);
+            EXPECT_NEAR(s.proxy.y(), uy, 0.1e-3);
+        }
+    }
 }
 
 // (2) The filter: the shares sum to the total; width 0 loads one node; a wider filter gives a

@@ -43,6 +43,29 @@
 /// is kept; a contact that cannot be prepared (e.g. a non-zero prescribed value would fall in
 /// the secondary) is ignored until another node is requested.
 ///
+/// Sliding contact (issue 18). A layout used to cost an assembly and a CHOLMOD factorisation of
+/// its secondary plus its responses: 2-4.5 s at 33^3 lod 2, so a contact sliding a node every
+/// 100 ms was almost never followed. With the quasi-static CHOLMOD secondary (globalSecondary,
+/// the default) the whole body's Galerkin system A is factorised ONCE; a layout's secondary
+/// differs from it only on J, the coarse dofs at the corners of its primary coarse cells, and
+/// is reached through the capacitance (Woodbury) identity from `Z = (A^-1)_JJ` and a local
+/// |J| x |J| correction (async_capacitance.h, exact to rounding). Z comes from a dense block
+/// of A^-1 over a zone of coarse dofs that holds J for every slide node (slideNodes, by default
+/// the bounding-box face of the contact), taken from the factor once at set-up by ordering the
+/// zone last. A layout then costs ~10-20 ms of one core (regions, gathers, |J|^3 dense work;
+/// |J| ~ 50-300), and the secondary thread prefetches the layouts of the contact's slide
+/// neighbours, so a request for one is adopted at the next tick (its entry state comes from
+/// the zone block too, without a solve). Other secondaries, contacts off the slide nodes and
+/// zones over slideZoneMaxDofs build and factorise per layout as before. A solve of the whole
+/// secondary field costs two solves with the global factor.
+///
+/// Why this design: the alternatives in the issue cost more per move. Factorising the layout
+/// (even reusing the symbolic analysis) is ~2 s; CHOLMOD update/downdate of the primary's rows
+/// is a rank ~2|J| modification of a supernodal factor; solving A for J's columns per layout is
+/// ~9 ms a column with the reference BLAS (|J| columns: 0.5-2 s); a fixed partition of windows
+/// needs one factorisation per window. The zone block costs memory (8 |T|^2 bytes: 24 MB for
+/// the top 2 coarse layers of 33^3 at lod 2) and seconds at set-up, once.
+///
 /// Drives. `ContactDrive::displacement` (the thesis's input): the contact nodes are driven by a
 /// prescribed displacement and tick(const Eigen::Vector3d&) returns their reaction.
 /// `ContactDrive::force` (virtual coupling on deformable tissue): every node is free and
@@ -105,6 +128,7 @@
 #include <vector>
 
 #include "palp/fem/constraints.h"
+#include "palp/fem/coupling_spring.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/implicit_solver.h"
 
@@ -160,6 +184,16 @@ struct AsyncRegionsOptions {
     /// then solved (two triangular solves) only when it is needed (displacement(), a layout
     /// change). true: the two triangular solves at every secondary solve.
     bool secondaryFullField = false;
+    /// Quasi-static CHOLMOD secondary: factorise the whole body's secondary system once and give
+    /// each contact's layout its secondary through the capacitance update over the primary
+    /// (see "Sliding contact"); false: assemble and factorise every layout (seconds each).
+    bool globalSecondary = true;
+    /// Fine nodes the contact may move to without a factorisation (globalSecondary). Empty: the
+    /// active nodes of the bounding-box face the contact node(s) lie on (none: every layout is
+    /// factorised). The zone of coarse dofs these contacts' primaries can reach is inverted
+    /// densely at set-up; a zone of more than slideZoneMaxDofs dofs turns globalSecondary off.
+    std::vector<int> slideNodes;
+    int slideZoneMaxDofs = 3000;         ///< cap of the dense zone block (8 n^2 bytes, ~n^3 flops)
     double pcgRelativeTolerance = 1e-8;  ///< PCG: on ||r|| / ||b||
     int pcgMaxIterations = 2000;         ///< PCG: bound per secondary solve
     double safetyFactor = 0.9;           ///< primary substep = safety * critical step, (0, 1]
@@ -184,6 +218,9 @@ struct AsyncTickResult {
     unsigned flags = 0;             ///< StepFlag bits
     bool secondaryUpdated = false;  ///< a new secondary solution entered at this tick
     bool layoutChanged = false;     ///< a layout for a new contact node was adopted at this tick
+    /// tick(loads, spring): the coupling spring's mean force over the tick (impulse / tick), its
+    /// last substep's force, a(u) at the end, whether it was clamped. Zero otherwise.
+    SpringResult spring;
 };
 
 /// Counters of the secondary (read from the servo thread; threaded values are approximate).
@@ -231,6 +268,20 @@ class AsyncRegions {
     /// (kAsyncLoadsRefused, loadsRefused); loads on fixed dofs vanish into the support.
     /// @par Real-time  As the other tick().
     AsyncTickResult tick(std::span<const NodalLoad> loads) noexcept;
+    /// tick(loads) with a coupling @p spring (coupling_spring.h) integrated with the tissue.
+    /// Spring nodes in the primary P: the force `F = clamp(k (c - a(u)))` is evaluated at every
+    /// primary substep from the current displacement and `w_i F` is added to their load for that
+    /// substep. Spring nodes outside P (Gamma or secondary) enter a(u) with their shown
+    /// displacement (nodeDisplacement(); an unwatched secondary node counts as zero: watch
+    /// them or keep them in P) and take their share `w_i F` of the tick's mean force as an
+    /// ordinary load (the secondary path, averaged over the period). The substep is at most
+    /// safetyFactor times criticalTimeStepWith(model, k sum_{i in P} w_i^2 / m_i), so the
+    /// substep count may change from tick to tick (the half-step velocity is kept); when that
+    /// needs more than maxSubsteps, maxSubsteps substeps of that step run (less time than a
+    /// tick) and kStepSubstepLimit is flagged. Bad spring nodes are skipped and flagged
+    /// (kAsyncLoadsRefused). result.spring holds the spring's mean and end force and end point.
+    /// @par Real-time  As the other tick(); O(#spring nodes) more per substep.
+    AsyncTickResult tick(std::span<const NodalLoad> loads, const CouplingSpring& spring) noexcept;
 
     /// Displacement of node @p node now, m: the primary's value on P and Gamma (Gamma as shown in
     /// the last substep), the constraint value on fixed dofs, the time-interpolated secondary

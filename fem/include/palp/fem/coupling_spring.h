@@ -13,12 +13,15 @@
 /// `w_i F`. It is the gradient of the potential `U = H(|c - a|)` (quadratic, then linear beyond
 /// the clamp), so it is conservative: the spring adds no energy to the tissue.
 ///
-/// An optional damper of @c damping (N s/m) acts on the velocity of a(u) along with the spring:
-/// the spring alone, on the light surface under a stiff coupling, is a fast undamped mode that
-/// makes the surface overshoot the probe. The damper enters the central-difference update
-/// implicitly, like mass-proportional damping (the rank-one term `b w w^T` of the damping matrix
-/// is solved exactly by Sherman-Morrison, per direction, over the spring's nodes), so it
-/// never limits the step. criticalDamping() gives `2 sqrt(k m_eff)`, `m_eff = 1 / sum w_i^2 / m_i`.
+/// An optional damper of @c damping (N s/m) acts on the velocity of a(u), to ground, along
+/// with the spring: the spring alone, on the light surface under a stiff coupling, is a fast
+/// undamped mode that makes the surface overshoot the probe. It is the tissue's own viscosity at
+/// the contact (like its mass-proportional damping), not part of the contact force the step
+/// reports: the hand feels it through the spring, as the surface it brakes lags the probe. It
+/// enters the central-difference update implicitly, like mass-proportional damping (the rank-one
+/// term `b w w^T` of the damping matrix is solved exactly by Sherman-Morrison, per direction,
+/// over the spring's nodes), so it never limits the step. criticalDamping() gives
+/// `2 sqrt(k m_eff)`, `m_eff = 1 / sum w_i^2 / m_i`.
 ///
 /// Each solver evaluates F at every substep from the current displacement, adds `w_i F` to the
 /// nodal loads of that substep, and reports the mean force over the step (the impulse divided
@@ -40,7 +43,10 @@ struct CouplingSpring {
     Eigen::Vector3d target = Eigen::Vector3d::Zero();           ///< c, metres (displacement space)
     double stiffness = 0.0;                                     ///< k, N/m; 0: no spring
     double maxForce = std::numeric_limits<double>::infinity();  ///< |F| clamp, N (> 0)
-    double damping = 0.0;  ///< b, N s/m, on the velocity of a(u) (>= 0), implicit
+    double damping = 0.0;  ///< b, N s/m, on the velocity of a(u), to ground (>= 0), implicit
+    /// The target's velocity v (m/s; the probe's): within a step the target moves as
+    /// `c + v t` (t from the step's start), as the probe does.
+    Eigen::Vector3d targetVelocity = Eigen::Vector3d::Zero();
 
     /// True when the spring acts: k > 0, finite, and at least one node.
     bool active() const noexcept;

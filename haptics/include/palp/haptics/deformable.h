@@ -253,11 +253,14 @@ class DeformableBody {
     /// set so that it pulls with exactly @p force at the current displacement and changes by
     /// -stiffness times the motion of a(u) during the step; its magnitude is clamped to
     /// @p maxForce. Stiffness <= 0 or not finite: the same as applyContactForce (a load held
-    /// over the step). Returns the nearest node, or -1 (and no load) for non-finite input.
-    /// lastContactForce() gives the force the tissue received over the step.
+    /// over the step). @p probeVelocity (m/s): the spring's target moves with it over the step.
+    /// The contact damper (DeformableOptions::contactDampingRatio) is the tissue's and is not
+    /// in lastContactForce(). Returns the nearest node, or -1 (and no load) for non-finite
+    /// input. lastContactForce() gives the force the tissue received over the step.
     /// @par Real-time  O(#surface nodes).
     int coupleContact(const Eigen::Vector3d& point, const Eigen::Vector3d& force, double stiffness,
-                      double maxForce) noexcept;
+                      double maxForce,
+                      const Eigen::Vector3d& probeVelocity = Eigen::Vector3d::Zero()) noexcept;
     /// Removes the external load (and the coupling spring). @par Real-time
     void clearForce() noexcept;
     /// Mean force on the tissue over the last step() (N, world): the spring's impulse over the
@@ -308,6 +311,8 @@ class DeformableBody {
     /// Nodes loaded by the last applyContactForce() (the first loadedCount() entries).
     const std::vector<int>& loadedNodes() const noexcept { return mLoaded; }
     std::size_t loadedCount() const noexcept { return mLoadedCount; }
+    /// The filter's weights of the loaded nodes (first loadedCount() entries, summing to 1).
+    const std::vector<double>& loadedWeights() const noexcept { return mWeights; }
     /// Sum of the current external nodal forces (over the loaded nodes), N. @par Real-time
     Eigen::Vector3d loadSum() const noexcept;
     /// Current deformed position of node @p n, m.
