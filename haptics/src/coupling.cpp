@@ -86,8 +86,8 @@ double stiffnessMultiplier(const CouplingParams& params, double rayLength) noexc
 }
 
 Coupling::Coupling(const kernels::VolumeView* volume, const kernels::EmbreeScene* hardMeshes,
-                   const CouplingParams& params)
-    : mVolume(volume), mMeshes(hardMeshes), mParams(params) {
+                   const CouplingParams& params, const kernels::EmbreeScene* movingMeshes)
+    : mVolume(volume), mMeshes(hardMeshes), mMoving(movingMeshes), mParams(params) {
     validateCouplingParams(params);
     if (params.mode != CouplingMode::VC && !sourceAvailable()) {
         const char* what = params.source == RaySource::Mesh
@@ -105,7 +105,8 @@ void Coupling::setParams(const CouplingParams& params) noexcept { mParams = para
 bool Coupling::sourceAvailable() const noexcept {
     switch (mParams.source) {
         case RaySource::Mesh:
-            return mMeshes != nullptr && !mMeshes->empty() && mMeshes->committed();
+            return (mMeshes != nullptr && !mMeshes->empty() && mMeshes->committed()) ||
+                   mMoving != nullptr;
         case RaySource::VolumeFirstHit:
         case RaySource::VolumeAccumulate:
             return mVolume != nullptr;
@@ -178,10 +179,26 @@ void Coupling::traceStiffness(kernels::RayBundle& bundle, int n,
     switch (p.source) {
         case RaySource::Mesh:
         case RaySource::VolumeFirstHit:
-            if (p.source == RaySource::Mesh)
-                kernels::traceBundle(*mMeshes, bundle, p.hardMask, mHits);
-            else
+            if (p.source == RaySource::Mesh) {
+                const bool fixed = mMeshes != nullptr && !mMeshes->empty() && mMeshes->committed();
+                if (fixed) kernels::traceBundle(*mMeshes, bundle, p.hardMask, mHits);
+                if (mMoving != nullptr) {
+                    kernels::traceBundle(*mMoving, bundle, p.hardMask, fixed ? mMovingHits : mHits);
+                    if (fixed) {
+                        // Per ray, the nearer of the two scenes' hits.
+                        for (int r = 0; r < mHits.count && r < mMovingHits.count; ++r) {
+                            const auto i = static_cast<std::size_t>(r);
+                            if (mMovingHits.t[i] < mHits.t[i]) {
+                                mHits.t[i] = mMovingHits.t[i];
+                                mHits.hit[i] = mMovingHits.hit[i];
+                                mHits.geomId[i] = mMovingHits.geomId[i];
+                            }
+                        }
+                    }
+                }
+            } else {
                 kernels::traceFirstHit(*mVolume, bundle, p.firstHit, mHits);
+            }
             for (int r = 0; r < mHits.count; ++r)
                 k[static_cast<std::size_t>(r)] = stiffness(mHits.t[static_cast<std::size_t>(r)]);
             centreLength = mHits.count > 0 ? mHits.t[0] : p.bundle.length;

@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <limits>
 #include <span>
 #include <string>
@@ -117,6 +118,28 @@ DeformableModel::DeformableModel(fem::FemModel model, std::vector<int> fixedNode
         throw ValueError("deformable: expected free nodes on the boundary surface, found all " +
                          std::to_string(mSurface.vertices.size()) + " surface nodes fixed");
     }
+    mWatchNodes = mLoadNodes;
+}
+
+void DeformableModel::embedMesh(const kernels::TriangleMesh& rest, unsigned mask) {
+    if (mask == 0 || (mask & kernels::kMaskSurface) != 0) {
+        throw ValueError(
+            "deformable embedded mesh mask: expected a non-zero mask without "
+            "kMaskSurface (the proxy's), found " +
+            std::to_string(mask));
+    }
+    mEmbedded.push_back(Embedded{fem::EmbeddedMesh(mModel, rest), mask});
+    // Watch its nodes too (regions): the load nodes first, then the new ones, sorted.
+    std::vector<int> extra;
+    for (const int n : mEmbedded.back().mesh.nodes()) {
+        if (!std::binary_search(mLoadNodes.begin(), mLoadNodes.end(), n)) extra.push_back(n);
+    }
+    std::vector<int> old(mWatchNodes.begin() + static_cast<std::ptrdiff_t>(mLoadNodes.size()),
+                         mWatchNodes.end());
+    std::vector<int> merged;
+    std::set_union(old.begin(), old.end(), extra.begin(), extra.end(), std::back_inserter(merged));
+    mWatchNodes.resize(mLoadNodes.size());
+    mWatchNodes.insert(mWatchNodes.end(), merged.begin(), merged.end());
 }
 
 std::shared_ptr<DeformableModel> DeformableModel::box(const Eigen::Vector3d& size,
@@ -165,7 +188,7 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
         const std::vector<int>& nodes = mModel->loadNodes();
         fem::AsyncRegionsOptions o = options.regions;
         o.drive = fem::ContactDrive::force;
-        o.watchNodes = nodes;
+        o.watchNodes = mModel->watchNodes();
         o.maxLoads = static_cast<int>(nodes.size());
         mU = Eigen::VectorXd::Zero(mModel->model().dofCount());
         mForce = mU;
@@ -184,7 +207,7 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
         mRegions = std::make_unique<fem::AsyncRegions>(mModel->model(), mModel->constraints(),
                                                        std::vector<int>{mCentre}, o);
         mLoads.resize(nodes.size());
-        mWatched.resize(nodes.size());
+        mWatched.resize(mModel->watchNodes().size());
     } else {
         mSolver = std::make_unique<fem::ExplicitSolver>(mModel->model(), mModel->constraints(),
                                                         options.solver);
@@ -201,6 +224,11 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
     float extent = 0;
     for (std::size_t k = 0; k < 3; ++k) extent = std::max(extent, rest.hi[k] - rest.lo[k]);
     mGeom = mScene->addRefitMesh(*mSurface, kernels::kMaskSurface, extent);
+    for (const DeformableModel::Embedded& e : mModel->embedded()) {
+        mInclusions.push_back(std::make_unique<kernels::RefitMesh>(e.mesh.restMesh()));
+        mInclusionPositions.push_back(e.mesh.restMesh().positions);
+        mScene->addRefitMesh(*mInclusions.back(), e.mask, extent);
+    }
     mScene->commit();  // once: later steps refit palp's BVH only
     mLoaded.resize(mModel->loadNodes().size());
     mWeights.resize(mModel->loadNodes().size());
@@ -485,7 +513,7 @@ unsigned DeformableBody::step(double dtSeconds) noexcept {
         mLastContactForce = mSpring.active() ? springF : loadSum();
         mLastClamped = false;
         mRegions->watchedDisplacements(mWatched);
-        const std::vector<int>& nodes = mModel->loadNodes();
+        const std::vector<int>& nodes = mModel->watchNodes();
         for (std::size_t i = 0; i < nodes.size(); ++i) mU.segment<3>(3 * nodes[i]) = mWatched[i];
     } else if (mSpring.active()) {
         fem::SpringResult sr;
@@ -513,15 +541,24 @@ unsigned DeformableBody::step(double dtSeconds) noexcept {
         mPositions[3 * i + 2] = static_cast<float>(mRest[3 * i + 2] + uz);
     }
     mMaxSurfaceDisplacement = std::sqrt(maxD2);
-    switch (mSurface->refit(std::span<const float>(mPositions))) {
-        case kernels::RefitStatus::Ok:
-            break;
-        case kernels::RefitStatus::OutsideLimit:
-            flags |= kSurfaceOutsideBounds;
-            break;
-        case kernels::RefitStatus::Rejected:
-            flags |= kRefitFailed;
-            break;
+    const auto refit = [&flags](kernels::RefitMesh& mesh, const std::vector<float>& x) {
+        switch (mesh.refit(std::span<const float>(x))) {
+            case kernels::RefitStatus::Ok:
+                break;
+            case kernels::RefitStatus::OutsideLimit:
+                flags |= kSurfaceOutsideBounds;
+                break;
+            case kernels::RefitStatus::Rejected:
+                flags |= kRefitFailed;
+                break;
+        }
+    };
+    refit(*mSurface, mPositions);
+    // Embedded meshes follow the trilinear interpolation of their cells' displacements.
+    for (std::size_t e = 0; e < mInclusions.size(); ++e) {
+        std::vector<float>& x = mInclusionPositions[e];
+        mModel->embedded()[e].mesh.update(u, std::span<float>(x));
+        refit(*mInclusions[e], x);
     }
     return flags;
 }

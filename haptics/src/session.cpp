@@ -99,14 +99,15 @@ bool sourceHasData(const Scene& scene, RaySource source) noexcept {
     return false;
 }
 
+// A deformable body's scene when it holds embedded (moving) hard meshes, else nullptr.
+const kernels::EmbreeScene* movingMeshes(const DeformableBody* body) noexcept {
+    return body != nullptr && !body->model().embedded().empty() ? &body->surfaces() : nullptr;
+}
+
 void requireSourceData(const Scene& scene, const CouplingParams& c) {
-    if (scene.deformable() && c.mode != CouplingMode::VC) {
-        throw ValueError(
-            std::string("session: expected VC coupling on a deformable scene, found ") +
-            (c.mode == CouplingMode::AVC ? "AVC" : "AVCEC") +
-            " (AVC/AVCEC on deformable tissue are not built yet)");
-    }
-    if (c.mode != CouplingMode::VC && !sourceHasData(scene, c.source)) {
+    const bool embedded = scene.deformable() && !scene.deformable()->embedded().empty();
+    if (c.mode != CouplingMode::VC && !sourceHasData(scene, c.source) &&
+        !(c.source == RaySource::Mesh && embedded)) {
         throw ValueError(
             c.source == RaySource::Mesh
                 ? "session: expected a scene with hard meshes for RaySource::Mesh in AVC/AVCEC, "
@@ -187,9 +188,11 @@ struct Session::Impl {
           proxy(body ? body->surfaces() : scene->surfaces(), p.proxy),
           couplings{
               Coupling(scene->volumeView(), &scene->hardMeshes(),
-                       withField(p.coupling, fields.get(*scene, p.coupling.firstHit.threshold))),
+                       withField(p.coupling, fields.get(*scene, p.coupling.firstHit.threshold)),
+                       movingMeshes(body.get())),
               Coupling(scene->volumeView(), &scene->hardMeshes(),
-                       withField(p.coupling, fields.get(*scene, p.coupling.firstHit.threshold)))},
+                       withField(p.coupling, fields.get(*scene, p.coupling.firstHit.threshold)),
+                       movingMeshes(body.get()))},
           fadeTicks(static_cast<std::uint32_t>(std::lround(p.crossFadeSeconds / period))),
           passivity(period, p.passivityControl,
                     spec.maxDampingNspm > 0 ? spec.maxDampingNspm

@@ -698,12 +698,15 @@ TEST(DeformableAsync, RejectsBadOptionsAndTimeStep) {
     }
 }
 
-TEST(DeformableSession, RefusesAvcAndBadOptions) {
+TEST(DeformableSession, RefusesAvcWithoutDataAndBadOptions) {
     auto scene = deformableScene(cube(3e-3));
     PathDevice device({{0.0, mm(0, -5, 0)}});
     SessionParams p = vcParams();
+    // AVC needs something to cast against: neither hard meshes, an embedded mesh nor a volume.
     p.coupling.mode = CouplingMode::AVC;
     p.coupling.source = RaySource::Mesh;
+    EXPECT_THROW(Session(scene, device, p), ValueError);
+    p.coupling.source = RaySource::VolumeFirstHit;
     EXPECT_THROW(Session(scene, device, p), ValueError);
     Session ok(scene, device, vcParams());
     Command c;

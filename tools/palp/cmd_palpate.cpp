@@ -65,6 +65,7 @@ struct Input {
     volume::Volume vol;
     haptics::CouplingParams cp;
     std::string label;
+    std::optional<volume::PhantomParams> phantom;  ///< the phantom's, for --phantom
 };
 
 Input loadInput(const PalpateArgs& a) {
@@ -83,6 +84,7 @@ Input loadInput(const PalpateArgs& a) {
         in.vol = volume::makePhantomVolume(ps);
         in.cp = haptics::sceneCouplingDefaults(ps.params.scene);
         in.label = volume::Phantom(ps.params).description();
+        in.phantom = ps.params;
     } else {
         in.vol = volume::load({fs::path(a.file)});
         in.cp = haptics::scanCouplingDefaults();
@@ -94,21 +96,15 @@ Input loadInput(const PalpateArgs& a) {
 /// @p cp with the coupling options applied over it (mode, source, stiffness, rays, damping).
 haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::CouplingParams cp) {
     if (!a.mode.empty()) cp.mode = parseMode(a.mode);
-    if (a.deformable) {
-        if (!a.mode.empty() && cp.mode != haptics::CouplingMode::VC) {
-            throw ValueError(
-                "--mode: expected vc with --deformable (AVC/AVCEC on "
-                "deformable tissue are not built yet), found '" +
-                a.mode + "'");
-        }
-        cp.mode = haptics::CouplingMode::VC;
-        // Explicit tissue coupling is stable for k below the tissue's local stiffness
-        // (deformable.h): a softer default than the rigid scenes' 300 N/m.
-        // On the asynchronous regions the loop also sees the quasi-static secondary's
-        // compliance one period late while a new layout is prepared: 100 N/m oscillates
-        // on the bone phantom there, 50 N/m does not (bench/README.md).
-        if (!std::isfinite(a.kBase)) cp.baseStiffness = a.femSolver == "regions" ? 50 : 100;
+    if (a.deformable && a.femSolver == "regions" && !std::isfinite(a.kBase)) {
+        // The regions' primary does not take the coupling spring into its substeps yet: the
+        // force reaches the tissue one tick late there, stable for k below the tissue's local
+        // stiffness only (deformable.h); the whole-mesh solver couples implicitly.
+        cp.baseStiffness = 50;
     }
+    // The deformable tumour: the rays look for the inclusion's embedded surface, which moves
+    // with the tissue (the scan's values stay where the undeformed inclusion was).
+    if (a.deformable && a.phantom == "tumour") cp.source = haptics::RaySource::Mesh;
     if (!a.source.empty()) cp.source = parseSource(a.source);
     if (std::isfinite(a.kBase)) cp.baseStiffness = a.kBase;
     if (std::isfinite(a.kMax)) {
@@ -148,10 +144,10 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
 }
 
 /// The deformable body of --deformable, supported on the face opposite the pressed one.
-std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a,
-                                                         const volume::Volume& vol,
+std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, const Input& in,
                                                          const Eigen::Vector3d& press,
                                                          double period) {
+    const volume::Volume& vol = in.vol;
     const int pa = axisIndex(press);
     requirePositive("--fem-cell-mm", a.femCellMm, "mm");
     requirePositive("--young-kpa", a.youngKpa, "kPa");
@@ -176,9 +172,20 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a,
         // session solves it on its own thread.
         dopt.regions.threaded = a.realtime;
     }
+    const bool tumour = in.phantom && in.phantom->scene == volume::PhantomScene::Tumour;
+    if (tumour) {
+        // The inclusion is stiffer tissue (8x, between the soft tissue's HU and its own),
+        // free to move: its surface is embedded in the elements and deforms with them.
+        const double e = mat.youngsModulus;
+        const double split =
+            0.5 * (in.phantom->materials.softHu + in.phantom->materials.inclusionHu);
+        vo.youngsFromValue = [e, split](double hu) { return hu > split ? 8 * e : e; };
+    }
     // Supported on the face opposite the pressed one.
     const auto support = static_cast<fem::BoxFace>(2 * pa + (press[pa] > 0 ? 1 : 0));
-    return haptics::DeformableModel::fromVolume(vol, vo, mat, support, dopt);
+    auto model = haptics::DeformableModel::fromVolume(vol, vo, mat, support, dopt);
+    if (tumour) model->embedMesh(volume::Phantom(*in.phantom).inclusionMesh());
+    return model;
 }
 
 /// Where the path lies: its centre on the surface (m), the lateral axes u (sweep direction,
@@ -591,7 +598,7 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     std::shared_ptr<const haptics::DeformableModel> body;
     if (a.deformable) {
         try {
-            body = makeBody(a, vol, press, period);
+            body = makeBody(a, in, press, period);
         } catch (const ValueError& e) {
             // Say which options made the tissue (the library speaks of fields, not flags).
             throw ValueError(std::string(e.what()) + "\n(the tissue of --fem-cell-mm " +

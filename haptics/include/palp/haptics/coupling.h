@@ -111,10 +111,14 @@ class Coupling {
   public:
     /// @p volume is needed for the volume sources, @p hardMeshes for the mesh source (either
     /// may be null otherwise).
+    /// @p movingMeshes (deformable scenes): a second scene of hard meshes that move (a
+    /// deformable body's embedded meshes, refitted every tick) that the Mesh source also casts
+    /// against with the same hardMask (per ray, the nearer hit of the two counts); with it the
+    /// Mesh source has data even without static hard meshes.
     /// @throw palp::ValueError for invalid parameters, or (in AVC and AVCEC mode only) a source
     ///        without its data: a null view, or a null, empty or uncommitted mesh scene.
     Coupling(const kernels::VolumeView* volume, const kernels::EmbreeScene* hardMeshes,
-             const CouplingParams& params);
+             const CouplingParams& params, const kernels::EmbreeScene* movingMeshes = nullptr);
 
     /// Replaces the parameters (validate first with validateCouplingParams(); a source without
     /// its data falls back to VC and is reported through sourceAvailable()).
@@ -152,10 +156,12 @@ class Coupling {
 
     const kernels::VolumeView* mVolume;
     const kernels::EmbreeScene* mMeshes;
+    const kernels::EmbreeScene* mMoving = nullptr;
     CouplingParams mParams;
     kernels::RayBundle mBundle;
     kernels::RayBundle mProbeBundle;  // storedEnergy()'s
     kernels::BundleHits mHits;
+    kernels::BundleHits mMovingHits;
     kernels::BundleAccumulation mAccum;
 };
 

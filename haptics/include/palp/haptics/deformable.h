@@ -40,6 +40,7 @@
 #include "palp/fem/async_regions.h"
 #include "palp/fem/constraints.h"
 #include "palp/fem/coupling_spring.h"
+#include "palp/fem/embedded_mesh.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/hex_mesh.h"
@@ -158,6 +159,24 @@ class DeformableModel {
         const DeformableOptions& options = {},
         const std::function<bool(const Eigen::Vector3d&)>& fixedMask = {});
 
+    /// Embeds @p rest (world metres; a tumour, cartilage: a dynamic inhomogeneity, docs/
+    /// algorithms.md section 10) in the hex elements with trilinear weights (fem::EmbeddedMesh):
+    /// every body made from this model deforms it with the tissue each step and refits it in
+    /// its Embree scene under @p mask (kMaskBone by default: what AVC/AVCEC's Mesh source casts
+    /// against; never kMaskSurface, which the proxy would collide with). Set-up only: call it
+    /// before the model is shared with a Scene. @throw palp::ValueError from fem::EmbeddedMesh
+    /// (empty mesh, vertices outside the tissue), or for mask 0 or one with kMaskSurface.
+    void embedMesh(const kernels::TriangleMesh& rest, unsigned mask = kernels::kMaskBone);
+    /// One embedded mesh and its mask.
+    struct Embedded {
+        fem::EmbeddedMesh mesh;
+        unsigned mask;
+    };
+    const std::vector<Embedded>& embedded() const noexcept { return mEmbedded; }
+    /// The nodes a body needs the displacement of every tick: the load nodes, then the nodes
+    /// of embedded meshes that are not load nodes (the regions watch these).
+    const std::vector<int>& watchNodes() const noexcept { return mWatchNodes; }
+
     const fem::FemModel& model() const noexcept { return mModel; }
     const fem::Constraints& constraints() const noexcept { return mConstraints; }
     /// Sorted fixed nodes (support and inhomogeneities).
@@ -181,6 +200,8 @@ class DeformableModel {
     fem::SurfaceMesh mSurface;
     std::vector<int> mLoadNodes;
     std::vector<int> mVertexOfNode, mTriStart, mVertexTris;
+    std::vector<Embedded> mEmbedded;
+    std::vector<int> mWatchNodes;
     DeformableOptions mOptions;
 };
 
@@ -343,6 +364,8 @@ class DeformableBody {
     int mCentre = -1;
     int mRecentres = 0;
     std::unique_ptr<kernels::RefitMesh> mSurface;  // declared before mScene: outlives it
+    std::vector<std::unique_ptr<kernels::RefitMesh>> mInclusions;  // one per embedded mesh
+    std::vector<std::vector<float>> mInclusionPositions;           // #V by 3 each
     std::unique_ptr<kernels::EmbreeScene> mScene;
     unsigned mGeom = 0;             // the geometry id hits on the surface report
     std::vector<float> mRest;       // #V by 3, rest surface positions

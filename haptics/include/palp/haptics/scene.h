@@ -45,8 +45,10 @@ class Scene {
     void commit();
     /// Makes the scene deformable: every Session builds its own DeformableBody from @p model
     /// and its proxy slides on that body's deformed surface instead of surfaces() (which the
-    /// proxy then ignores); only VC coupling is accepted (AVC/AVCEC on deformable tissue are
-    /// not built yet). nullptr: rigid again. @throw nothing.
+    /// proxy then ignores). AVC/AVCEC rays start from the proxy on the deformed surface and
+    /// cast against the static hard meshes or the volume (sampled where it is: right for
+    /// fixed structures such as bone) and, with the Mesh source, the model's embedded meshes
+    /// in their deformed shape. nullptr: rigid again. @throw nothing.
     void setDeformable(std::shared_ptr<const DeformableModel> model) noexcept {
         mDeformable = std::move(model);
     }
