@@ -13,8 +13,12 @@
 //        [--amplitude M] [--frequency HZ] [--lod L] [--solver cholmod|pcg] [--n LIST]
 //        [--f LIST] [--integrator newmark|static] [--coupling plain|condensed]
 //        [--once-per-tick 0|1] [--full-field 0|1] [--move MS] [--force N] [--watch 0|1]
+//        [--global 0|1] [--sync 0|1]
 // --move MS (threaded): every MS milliseconds the contact moves one node along +x across the
-// top face (re-allocation prepared on the secondary thread, adopted by the tick).
+// top face (re-allocation prepared on the secondary thread, adopted by the tick); the
+// whole-mesh reference moves its contact at the same request ticks (movingReference).
+// --global 0: factorise every layout instead of the capacitance secondary; --sync 1: run the
+// threaded mode's loop with the secondary inline (synchronous mode, same moves).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -48,6 +52,8 @@ struct Config {
     bool oncePerTick = false;
     bool fullField = false;
     int moveMs = 0;
+    bool global = true;   // --global: the capacitance secondary (one factorisation)
+    bool sync = false;    // --sync 1: the "threaded" run with the secondary inline (deterministic)
     double force = 0.05;  // newtons, force mode
     bool watch = true;    // force mode: watch the top face
     std::vector<int> nodes{5, 30, 120};
@@ -303,11 +309,58 @@ void lod(const Config& c) {
     }
 }
 
+/// The contact node of a moving-contact run at tick @p t (1-based): every moveMs ticks it moves
+/// one node along +x across the top face (wrapping to x = 1), as threaded() requests it.
+int movingContactAt(const Config& c, const Problem& p, int t) {
+    if (c.moveMs <= 0) return p.contact;
+    int x = c.size / 2;
+    for (int k = c.moveMs; k <= t; k += c.moveMs) x = x + 1 < c.size - 1 ? x + 1 : 1;
+    return p.model.mesh().node(x, c.size / 2, c.size - 1);
+}
+
+/// Whole-mesh reference that follows the moving contact with the switch semantics of
+/// AsyncRegions, at the request tick: the old contact node is released with its displacement
+/// and velocity, the new one moves from its displacement to the tick's target within the tick.
+/// The central difference of ExplicitSolver (lumped mass, mass-proportional damping; the bench
+/// material has no stiffness damping), whose constraints are fixed at construction.
+Run movingReference(const Config& c, const Problem& p) {
+    const FemModel& m = p.model;
+    const int dofs = m.dofCount();
+    const Eigen::VectorXd& mass = m.lumpedMass();
+    const double critical = 0.9 * m.criticalTimeStep();
+    const int substeps = std::max(1, static_cast<int>(std::ceil(1e-3 / critical)));
+    const double dt = 1e-3 / substeps, alpha = m.material().dampingAlpha;
+    std::vector<char> fixed(static_cast<std::size_t>(dofs), 0);
+    for (int d = 0; d < dofs; ++d) fixed[static_cast<std::size_t>(d)] = p.constraints.isFixed(d);
+    Eigen::VectorXd u = Eigen::VectorXd::Zero(dofs), up = u, f = u;
+    Run r;
+    const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
+    for (int t = 1; t <= ticks; ++t) {
+        const int contact = movingContactAt(c, p, t);
+        const Eigen::Vector3d start = u.segment<3>(3 * contact);
+        const Eigen::Vector3d target(0, 0, inputAt(c, t * 1e-3, false));
+        for (int s = 0; s < substeps; ++s) {
+            f.setZero();
+            m.addStiffnessTimes(u.data(), f.data());
+            for (int d = 0; d < dofs; ++d) {
+                if (fixed[static_cast<std::size_t>(d)] || mass[d] <= 0.0) continue;
+                up[d] = (-dt * dt * f[d] + 2.0 * mass[d] * u[d] -
+                         (1.0 - 0.5 * dt * alpha) * mass[d] * up[d]) /
+                        ((1.0 + 0.5 * dt * alpha) * mass[d]);
+            }
+            up.segment<3>(3 * contact) = start + (s + 1.0) / substeps * (target - start);
+            u.swap(up);
+        }
+        r.force.push_back(-f[3 * contact + 2]);
+    }
+    return r;
+}
+
 /// Threaded: the servo thread pinned to CPU 0 ticks at 1 kHz wall clock (sleeping to the next
 /// deadline), the secondary pinned to CPU 1.
 void threaded(const Config& c) {
     const Problem p(c);
-    const Run ref = reference(c, p, false);
+    const Run ref = c.moveMs > 0 ? movingReference(c, p) : reference(c, p, false);
     palp::pinCurrentThread(0);  // best effort, as before: a refused pin only changes timings
     for (double f : c.rates) {
         AsyncRegionsOptions o;
@@ -319,12 +372,13 @@ void threaded(const Config& c) {
         o.condensed = c.condensed;
         o.condensedOncePerTick = c.oncePerTick;
         o.secondaryFullField = c.fullField;
-        o.threaded = true;
+        o.threaded = !c.sync;
+        o.globalSecondary = c.global;
         o.secondaryCpu = 1;
         AsyncRegions a(p.model, p.constraints, {p.contact}, o);
         const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
         std::vector<double> tickTimes, force, swapTicks;
-        int overruns = 0, moves = 0, adopted = 0;
+        int overruns = 0, moves = 0, adopted = 0, requestTick = 0, maxDelay = 0;
         const int y = c.size / 2, z = c.size - 1;
         int x = c.size / 2;
         const auto start = Clock::now();
@@ -334,6 +388,7 @@ void threaded(const Config& c) {
                 x = x + 1 < c.size - 1 ? x + 1 : 1;
                 a.requestContactNode(p.model.mesh().node(x, y, z));
                 ++moves;
+                requestTick = t;
             }
             const auto b = Clock::now();
             const AsyncTickResult res = a.tick(Eigen::Vector3d(0, 0, inputAt(c, t * 1e-3, false)));
@@ -342,6 +397,7 @@ void threaded(const Config& c) {
             if (res.layoutChanged) {
                 ++adopted;
                 swapTicks.push_back(tickTimes.back());
+                maxDelay = std::max(maxDelay, t - requestTick);
             }
             force.push_back(-res.contactForce.z());
             deadline += std::chrono::microseconds(1000);
@@ -371,12 +427,13 @@ void threaded(const Config& c) {
         if (c.moveMs > 0) {
             std::printf(
                 "  moving contact: %d requests, %d layouts adopted, last preparation %.1f ms "
-                "(secondary thread), swap ticks max %.4f ms, force finite %s, max |F| %.4f N\n",
+                "(secondary thread), swap ticks max %.4f ms, force finite %s, max |F| %.4f N; "
+                "adopted %.0f%%, request to adoption max %d ticks; reference follows the moves\n",
                 moves, adopted, s.lastPrepareSeconds * 1e3, percentile(swapTicks, 1.0) * 1e3,
                 std::all_of(force.begin(), force.end(), [](double v) { return std::isfinite(v); })
                     ? "yes"
                     : "no",
-                peak(force));
+                peak(force), 100.0 * adopted / std::max(1, moves), maxDelay);
         }
     }
 }
@@ -526,6 +583,10 @@ int main(int argc, char** argv) {
             c.watch = v != "0";
         } else if (k == "--move") {
             c.moveMs = std::stoi(v);
+        } else if (k == "--global") {
+            c.global = std::stoi(v) != 0;
+        } else if (k == "--sync") {
+            c.sync = std::stoi(v) != 0;
         } else if (k == "--coupling") {
             c.condensed = v != "plain";
         } else if (k == "--n") {

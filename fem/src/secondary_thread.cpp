@@ -4,7 +4,6 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <cstdlib>
 #include <array>
 
 #include "palp/base/thread.h"
@@ -121,7 +120,10 @@ bool SecondaryThread::offerCached(int want) {
 void SecondaryThread::prefetch() {
     // Only where layouts are cheap (the capacitance secondary): the slide neighbours of the
     // current contact, the direction of the last change first; layouts for other nodes go.
-    if (mSec->global == nullptr || mSec->contactNodes.size() != 1 || std::getenv("PALP_NOPF")) return;
+    // Only once the contact has moved (a static contact keeps the machine quiet).
+    if (mSec->global == nullptr || mSec->contactNodes.size() != 1 ||
+        mChannel.requested.load(std::memory_order_acquire) < 0)
+        return;
     const HexMesh& mesh = mSetup.model.mesh();
     const int c = mSec->contactNodes[0];
     const auto ijk = mesh.nodeCoords(c);
