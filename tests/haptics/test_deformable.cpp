@@ -22,6 +22,7 @@
 #include "palp/fem/implicit_solver.h"
 #include "palp/haptics/deformable.h"
 #include "palp/haptics/session.h"
+#include "palp/kernels/embree_scene.h"
 #include "palp/volume/phantom.h"
 #include "session_fixtures.h"
 
@@ -439,6 +440,105 @@ TEST(DeformableSession, SafeAndAllocationFreeTicks) {
     EXPECT_EQ(test::allocationCount() - before, 0u);
     EXPECT_LE(largest, touchX().maxForceN * (1 + 1e-12));
     EXPECT_GT(clamped, 0);  // the press was hard enough to reach the clamp
+}
+
+// ---- Embedded (dynamic) inhomogeneities: a tumour in the tissue ----
+
+// A 60 mm cube of 5 kPa tissue (13 nodes per axis, h = 5 mm; surface y = 0, fixed at y = 60
+// mm) with an 8 mm sphere embedded 12 mm below the surface centre (its top 4 mm deep).
+std::shared_ptr<DeformableModel> tumourCube() {
+    auto model = DeformableModel::box(Eigen::Vector3d::Constant(0.06), {13, 13, 13}, softTissue(),
+                                      fem::BoxFace::yMax, {}, mm(-30, 0, -30));
+    model->embedMesh(volume::icosphere(volume::PhantomSphere{mm(0, 12, 0), 8e-3}, 3));
+    return model;
+}
+
+// The inclusion deforms with the tissue (its vertices are the trilinear interpolation of the
+// element displacements: the body's positions are EmbeddedMesh::update of its displacement,
+// and they moved), and a ray meets its deformed shape, not the rest one.
+TEST(DeformableTumour, InclusionFollowsTheTissueAndRaysHitItsDeformedShape) {
+    auto model = tumourCube();
+    ASSERT_EQ(model->embedded().size(), 1u);
+    const fem::EmbeddedMesh& em = model->embedded()[0].mesh;
+    EXPECT_EQ(em.clampedCount(), 0);
+    DeformableBody body(model);
+    body.applyContactForce(mm(0, 0, 0), Eigen::Vector3d(0, 0.3, 0));  // press down (+y)
+    for (int i = 0; i < 800; ++i) ASSERT_EQ(body.step(kT), 0u) << "tick " << i;
+    std::vector<double> expect(3 * em.vertexCount());
+    ASSERT_TRUE(em.update(body.displacement(), std::span<double>(expect)));
+    const std::span<const float> got = body.embeddedPositions(0);
+    ASSERT_EQ(got.size(), expect.size());
+    double moved = 0;
+    const std::vector<float>& rest = em.restMesh().positions;
+    for (std::size_t i = 0; i < got.size(); ++i) {
+        EXPECT_NEAR(got[i], expect[i], 1e-7) << "coordinate " << i;
+        moved = std::max(moved, static_cast<double>(std::abs(got[i] - rest[i])));
+    }
+    EXPECT_GT(moved, 0.5e-3);  // the press carried the inclusion by millimetres
+    // Where a ray down the axis (x = z = 0) meets a mesh of @p x (#V by 3), in double
+    // (Moller-Trumbore over all triangles; the nearest hit), independent of Embree.
+    const auto axisHit = [&](const auto& x) {
+        double best = std::numeric_limits<double>::infinity();
+        const Eigen::Vector3d o = mm(0, -10, 0), d(0, 1, 0);
+        const std::vector<std::uint32_t>& idx = em.restMesh().indices;
+        for (std::size_t t = 0; t < idx.size(); t += 3) {
+            Eigen::Vector3d v[3];
+            for (int k = 0; k < 3; ++k) {
+                const std::size_t j = 3 * idx[t + static_cast<std::size_t>(k)];
+                v[k] = Eigen::Vector3d(x[j], x[j + 1], x[j + 2]);
+            }
+            const Eigen::Vector3d e1 = v[1] - v[0], e2 = v[2] - v[0], q = d.cross(e2);
+            const double det = e1.dot(q);
+            if (std::abs(det) < 1e-30) continue;
+            const Eigen::Vector3d sv = o - v[0], r = sv.cross(e1);
+            const double bu = sv.dot(q) / det, bv = d.dot(r) / det, tt = e2.dot(r) / det;
+            if (bu >= 0 && bv >= 0 && bu + bv <= 1 && tt > 0) best = std::min(best, tt);
+        }
+        return -10e-3 + best;
+    };
+    const double restY = axisHit(rest), nowY = axisHit(expect);
+    EXPECT_GT(nowY - restY, 0.4e-3);  // the top of the inclusion was pushed down
+    // Embree's ray against the body's scene (the inclusion's mask) meets the deformed shape.
+    kernels::MeshHit hit;
+    kernels::intersectOne(body.surfaces(), mm(0, -10, 0), Eigen::Vector3d(0, 1, 0), 0.0f, 0.1f,
+                          kernels::kMaskBone, hit);
+    ASSERT_NE(hit.geomId, kernels::kNoGeometry);
+    EXPECT_NEAR(-10e-3 + hit.t, nowY, 1e-6);
+}
+
+// A lateral sweep with AVCEC (Mesh source: the embedded inclusion) 3 mm into the tissue finds
+// the tumour: the stiffness felt peaks over it, not where the tissue has nothing beneath; and
+// the ticks allocate nothing (the inclusion's update and refit included).
+TEST(DeformableTumour, SweepFeelsTheInclusionAndAllocatesNothing) {
+    auto model = tumourCube();
+    auto scene = deformableScene(model);
+    PathDevice device(
+        {{0.0, mm(-22, -3, 0)}, {0.2, mm(-22, 3, 0)}, {0.7, mm(22, 3, 0)}, {0.8, mm(22, -3, 0)}});
+    SessionParams p;
+    p.coupling.mode = CouplingMode::AVCEC;
+    p.coupling.source = RaySource::Mesh;
+    p.coupling.baseStiffness = 300;
+    p.coupling.maxStiffness = 1400;
+    p.coupling.referenceLength = 0.02;
+    p.coupling.bundle.length = 0.04;
+    Session session(scene, device, p);
+    double bestK = 0, bestX = 0, farK = 0;
+    for (int i = 0; i < 20; ++i) session.step();
+    const std::uint64_t before = test::allocationCount();
+    for (int i = 20; i < 800; ++i) {
+        const Snapshot& s = session.step();
+        ASSERT_TRUE(s.force.allFinite()) << "tick " << i;
+        EXPECT_EQ(s.femFlags, 0u) << "tick " << i;
+        if (i < 250 || i > 650 || s.contactCount == 0) continue;
+        if (s.stiffness > bestK) {
+            bestK = s.stiffness;
+            bestX = s.proxy.x();
+        }
+        if (std::abs(s.proxy.x()) > 16e-3) farK = std::max(farK, s.stiffness);
+    }
+    EXPECT_EQ(test::allocationCount() - before, 0u);
+    EXPECT_NEAR(bestX, 0.0, 4e-3) << "peak stiffness " << bestK << " N/m";
+    EXPECT_GT(bestK, 1.5 * farK) << "far from the inclusion: " << farK << " N/m";
 }
 
 // ---- Asynchronous regions (DeformableSolver::asyncRegions) ----

@@ -340,6 +340,11 @@ class DeformableBody {
     Eigen::Vector3d nodePosition(int n) const noexcept;
     /// The node with the largest share of the last load, -1 without load.
     int contactNode() const noexcept { return mContactNode; }
+    /// Embedded mesh @p e's deformed vertex positions after the last step (#V by 3, metres;
+    /// the rest positions before the first step).
+    std::span<const float> embeddedPositions(std::size_t e) const noexcept {
+        return std::span<const float>(mInclusionPositions[e]);
+    }
     /// Largest displacement magnitude over the surface vertices after the last step, m.
     double maxSurfaceDisplacement() const noexcept { return mMaxSurfaceDisplacement; }
     /// Substeps of the last step().
