@@ -13,7 +13,7 @@
 //        [--amplitude M] [--frequency HZ] [--lod L] [--solver cholmod|pcg] [--n LIST]
 //        [--f LIST] [--integrator newmark|static] [--coupling plain|condensed]
 //        [--once-per-tick 0|1] [--full-field 0|1] [--move MS] [--force N] [--watch 0|1]
-//        [--global 0|1] [--sync 0|1]
+//        [--global 0|1] [--sync 0|1] [--zone-max DOFS]
 // --move MS (threaded): every MS milliseconds the contact moves one node along +x across the
 // top face (re-allocation prepared on the secondary thread, adopted by the tick); the
 // whole-mesh reference moves its contact at the same request ticks (movingReference).
@@ -54,6 +54,7 @@ struct Config {
     int moveMs = 0;
     bool global = true;   // --global: the capacitance secondary (one factorisation)
     bool sync = false;    // --sync 1: the "threaded" run with the secondary inline (deterministic)
+    int zoneMax = 3000;   // --zone-max: slideZoneMaxDofs
     double force = 0.05;  // newtons, force mode
     bool watch = true;    // force mode: watch the top face
     std::vector<int> nodes{5, 30, 120};
@@ -374,6 +375,7 @@ void threaded(const Config& c) {
         o.secondaryFullField = c.fullField;
         o.threaded = !c.sync;
         o.globalSecondary = c.global;
+        o.slideZoneMaxDofs = c.zoneMax;
         o.secondaryCpu = 1;
         AsyncRegions a(p.model, p.constraints, {p.contact}, o);
         const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
@@ -587,6 +589,8 @@ int main(int argc, char** argv) {
             c.global = std::stoi(v) != 0;
         } else if (k == "--sync") {
             c.sync = std::stoi(v) != 0;
+        } else if (k == "--zone-max") {
+            c.zoneMax = std::stoi(v);
         } else if (k == "--coupling") {
             c.condensed = v != "plain";
         } else if (k == "--n") {

@@ -100,6 +100,9 @@ bool SecondaryRegion::solveField(Layout& L, const double* borderValues, const Bo
         // External loads on secondary dofs, restricted with I^T (rows of P dofs are empty).
         for (int i = 0; i < loadCount; ++i) {
             const double f = loads->loadValues[sz(i)];
+            // Loads gathered on nodes this layout makes primary are dropped (the capacitance
+            // layouts share the whole body's interpolation, whose P rows are not empty).
+            if (L.isPrimary[sz(loads->loadDofs[sz(i)] / 3)]) continue;
             for (RowSparseMatrix::InnerIterator it(L.interp, loads->loadDofs[sz(i)]); it; ++it)
                 L.rhs[it.col()] += it.value() * f;
         }

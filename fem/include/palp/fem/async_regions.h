@@ -116,8 +116,9 @@
 ///
 /// @par Threading  One thread (the servo thread) calls tick() and the accessors; the model and
 /// constraints must outlive the object. In threaded mode the object owns one extra thread, which
-/// is joined by the destructor, plus, while a contact change is being prepared, a builder thread
-/// started by it (same CPU, nice 10) that only reads the immutable model data. Threaded mode: the
+/// is joined by the destructor, plus, while a contact change is being prepared (or, once the
+/// contact has moved, a slide neighbour's layout prefetched), a builder thread started by it
+/// (nice 10) that only reads the immutable model data. Threaded mode: the
 /// servo thread owns the primary state, the secondary thread the secondary state; they share only
 /// the two triple buffers (acquire/release index exchange) and atomic counters.
 
