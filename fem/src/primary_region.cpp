@@ -297,10 +297,25 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
                 for (int k = 0; k < 3; ++k) mFInt[nd[sz(a)] + k] += fe[3 * a + k];
             }
         }
+        // The contact damper (implicit, on the spring's free P dofs): a(u(n-1)) over them,
+        // before the update overwrites u(n-1).
+        const bool damperOn = springOn && spring->damping > 0.0;
+        Eigen::Vector3d aPrevP = Eigen::Vector3d::Zero();
+        if (damperOn) {
+            for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+                const int n = spring->nodes[i];
+                if (n < 0 || n >= mesh.nodeCount() || !L.isPrimary[sz(n)]) continue;
+                for (int k = 0; k < 3; ++k)
+                    if (!mSetup.fixed[sz(3 * n + k)])
+                        aPrevP[k] += spring->weights[i] * mUPrev[3 * n + k];
+            }
+        }
         if (springOn) {
-            // The spring from this substep's displacement; on P it acts now (as a negative
-            // internal force: mFInt is rebuilt every substep).
-            const Eigen::Vector3d a = springPoint();
+            // The spring from this substep's displacement, its target moving with the probe
+            // (k (c + v t - a)); on P it acts now (as a negative internal force: mFInt is
+            // rebuilt every substep).
+            const Eigen::Vector3d a =
+                springPoint() - (static_cast<double>(s) * dt) * spring->targetVelocity;
             const Eigen::Vector3d F = springForce(*spring, a);
             if ((spring->stiffness * (spring->target - a)).norm() > spring->maxForce)
                 result.spring.clamped = true;
@@ -317,6 +332,32 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
             mUPrev[d] =
                 (dt2 * (mFExt[d] - mFInt[d]) + mTwoMass[d] * mU[d] - mPrevCoef[d] * mUPrev[d]) *
                 mInvDen[d];
+        if (damperOn) {
+            // As ExplicitSolver: the rank-one damping b w w^T solved by Sherman-Morrison,
+            // u+ = u^ - beta g (w^T u^ - w^T u-) / (1 + beta w^T g), g = D^-1 w, per direction.
+            const double bt = 0.5 * dt * spring->damping;
+            Eigen::Vector3d aHat = Eigen::Vector3d::Zero(), gamma = Eigen::Vector3d::Zero();
+            for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+                const int n = spring->nodes[i];
+                if (n < 0 || n >= mesh.nodeCount() || !L.isPrimary[sz(n)]) continue;
+                const double w = spring->weights[i];
+                for (int k = 0; k < 3; ++k) {
+                    if (mSetup.fixed[sz(3 * n + k)]) continue;
+                    aHat[k] += w * mUPrev[3 * n + k];
+                    gamma[k] += w * w * mInvDen[3 * n + k];
+                }
+            }
+            for (int k = 0; k < 3; ++k) {
+                const double scale = bt * (aHat[k] - aPrevP[k]) / (1.0 + bt * gamma[k]);
+                for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
+                    const int n = spring->nodes[i];
+                    if (n < 0 || n >= mesh.nodeCount() || !L.isPrimary[sz(n)] ||
+                        mSetup.fixed[sz(3 * n + k)])
+                        continue;
+                    mUPrev[3 * n + k] -= scale * spring->weights[i] * mInvDen[3 * n + k];
+                }
+            }
+        }
         const double frac = static_cast<double>(s + 1) / mSubsteps;
         for (std::size_t i = 0; i < contactDofs.size(); ++i) {
             const double start = mContactStart[static_cast<Eigen::Index>(i)];

@@ -492,26 +492,22 @@ unsigned DeformableBody::step(double dtSeconds) noexcept {
         const double tick = mModel->options().regions.tickSeconds;
         if (!(std::abs(dtSeconds - tick) <= 1e-9 * tick)) return fem::kStepBadTimeStep;
         const Eigen::VectorXd& f = mForce;
-        Eigen::Vector3d springF = Eigen::Vector3d::Zero();
+        fem::AsyncTickResult r;
         if (mSpring.active()) {
-            // Until the regions take the spring into their substeps: its force at the current
-            // displacement, held over the tick.
-            Eigen::Vector3d a = Eigen::Vector3d::Zero();
-            for (std::size_t i = 0; i < mLoadedCount; ++i)
-                a += mWeights[i] * mU.segment<3>(3 * mLoaded[i]);
-            springF = fem::springForce(mSpring, a);
-            for (std::size_t i = 0; i < mLoadedCount; ++i)
-                mLoads[i] = fem::NodalLoad{mLoaded[i], mWeights[i] * springF};
+            // The regions integrate the spring in the primary's substeps (its share on nodes
+            // outside the primary reaches the secondary as loads).
+            r = mRegions->tick(std::span<const fem::NodalLoad>(), mSpring);
+            mLastContactForce = r.spring.meanForce;
+            mLastClamped = r.spring.clamped;
         } else {
             for (std::size_t i = 0; i < mLoadedCount; ++i)
                 mLoads[i] = fem::NodalLoad{mLoaded[i], f.segment<3>(3 * mLoaded[i])};
+            r = mRegions->tick(std::span<const fem::NodalLoad>(mLoads.data(), mLoadedCount));
+            mLastContactForce = loadSum();
+            mLastClamped = false;
         }
-        const fem::AsyncTickResult r =
-            mRegions->tick(std::span<const fem::NodalLoad>(mLoads.data(), mLoadedCount));
         mLastSubsteps = r.substeps;
         flags = r.flags;
-        mLastContactForce = mSpring.active() ? springF : loadSum();
-        mLastClamped = false;
         mRegions->watchedDisplacements(mWatched);
         const std::vector<int>& nodes = mModel->watchNodes();
         for (std::size_t i = 0; i < nodes.size(); ++i) mU.segment<3>(3 * nodes[i]) = mWatched[i];
