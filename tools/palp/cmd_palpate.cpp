@@ -96,12 +96,6 @@ Input loadInput(const PalpateArgs& a) {
 /// @p cp with the coupling options applied over it (mode, source, stiffness, rays, damping).
 haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::CouplingParams cp) {
     if (!a.mode.empty()) cp.mode = parseMode(a.mode);
-    if (a.deformable && a.femSolver == "regions" && !std::isfinite(a.kBase)) {
-        // The regions' primary does not take the coupling spring into its substeps yet: the
-        // force reaches the tissue one tick late there, stable for k below the tissue's local
-        // stiffness only (deformable.h); the whole-mesh solver couples implicitly.
-        cp.baseStiffness = 50;
-    }
     // The deformable tumour: the rays look for the inclusion's embedded surface, which moves
     // with the tissue (the scan's values stay where the undeformed inclusion was).
     if (a.deformable && a.phantom == "tumour") cp.source = haptics::RaySource::Mesh;
@@ -146,6 +140,7 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
 /// The deformable body of --deformable, supported on the face opposite the pressed one.
 std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, const Input& in,
                                                          const Eigen::Vector3d& press,
+                                                         const Eigen::Vector3d& pathCentre,
                                                          double period) {
     const volume::Volume& vol = in.vol;
     const int pa = axisIndex(press);
@@ -171,6 +166,9 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
         // Offline runs are deterministic (secondary inline every period); a live
         // session solves it on its own thread.
         dopt.regions.threaded = a.realtime;
+        // The regions start under the path, on the pressed face: that face is the one the
+        // contact slides on without a factorisation (AsyncRegionsOptions::slideNodes).
+        dopt.regionsCentre = pathCentre;
     }
     const bool tumour = in.phantom && in.phantom->scene == volume::PhantomScene::Tumour;
     if (tumour) {
@@ -598,7 +596,7 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     std::shared_ptr<const haptics::DeformableModel> body;
     if (a.deformable) {
         try {
-            body = makeBody(a, in, press, period);
+            body = makeBody(a, in, press, pathFrame(a, box, vol.voxelSize(), press).centre, period);
         } catch (const ValueError& e) {
             // Say which options made the tissue (the library speaks of fields, not flags).
             throw ValueError(std::string(e.what()) + "\n(the tissue of --fem-cell-mm " +
