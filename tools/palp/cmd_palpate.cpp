@@ -162,7 +162,7 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
         dopt.regions.tickSeconds = period;
         dopt.regions.primaryNodes = a.primaryNodes;
         dopt.regions.secondaryRate = a.secondaryHz;
-        dopt.regions.lod = a.lod;
+        dopt.regions.lod = a.lod > 0 ? a.lod : 1;
         // Offline runs are deterministic (secondary inline every period); a live
         // session solves it on its own thread.
         dopt.regions.threaded = a.realtime;
@@ -182,6 +182,17 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
     // Supported on the face opposite the pressed one.
     const auto support = static_cast<fem::BoxFace>(2 * pa + (press[pa] > 0 ? 1 : 0));
     auto model = haptics::DeformableModel::fromVolume(vol, vo, mat, support, dopt);
+    if (a.femSolver == "regions" && a.lod == 0) {
+        // Level of detail 2 where it divides the cells: its smaller secondary keeps the zone
+        // the contact slides over without a factorisation within bounds on phantom-sized
+        // bodies (at lod 1 the bone phantom's top face is beyond it: every move of a sliding
+        // contact would factorise, seconds each, and a live contact outruns its regions).
+        const auto cells = model->model().mesh().cellCounts();
+        const bool even = cells[0] % 2 == 0 && cells[1] % 2 == 0 && cells[2] % 2 == 0;
+        haptics::DeformableOptions o = model->options();
+        o.regions.lod = even ? 2 : 1;
+        model = std::make_shared<haptics::DeformableModel>(model->model(), model->fixedNodes(), o);
+    }
     if (tumour) model->embedMesh(volume::Phantom(*in.phantom).inclusionMesh());
     return model;
 }

@@ -43,7 +43,8 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
     app->add_flag(
         "--deformable", a.deformable,
         "Deformable tissue: voxelised hexahedral FEM (fixed on the face opposite the press and "
-        "inside bone), VC only, the coupling force spread by a Gaussian filter");
+        "inside bone), coupled to the probe implicitly over the surface nodes a Gaussian "
+        "filter picks; any --mode");
     o.fem = {
         app->add_option("--fem-cell-mm", a.femCellMm, "deformable: element edge, mm (5)")
             ->check(within(bounds::kSpacing, kMm)),
@@ -69,15 +70,17 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
         app->add_option("--fem-solver", a.femSolver,
                         "deformable: 'explicit' (whole mesh every tick, default) or 'regions' "
                         "(asynchronous regions: explicit primary around the contact, implicit "
-                        "secondary; threaded with --realtime; with --fast synchronous and slow, "
-                        "since every contact move rebuilds the layout inline)")
+                        "secondary; threaded with --realtime, synchronous and deterministic "
+                        "with --fast)")
             ->check(CLI::IsMember({"explicit", "regions"})),
         app->add_option("--primary-nodes", a.primaryNodes,
                         "regions: seed nodes of the primary region (60)")
             ->check(integerIn(1, 100000)),
         app->add_option("--secondary-hz", a.secondaryHz, "regions: secondary solve rate, Hz (100)")
             ->check(within(bounds::kSolverRate)),
-        app->add_option("--lod", a.lod, "regions: secondary level of detail, 1, 2 or 4 (1)")
+        app->add_option("--lod", a.lod,
+                        "regions: secondary level of detail, 1, 2 or 4 (2 where the cell counts "
+                        "are even, else 1)")
             ->check(CLI::IsMember({1, 2, 4}))};
 }
 
