@@ -26,6 +26,11 @@
 /// (dE = 0) the energy the hand received is what the coupling created, minus what the proxy's
 /// motion (friction) dissipated, plus what rendering added. Sums are kept in double.
 ///
+/// Deformable scenes: the proxy is carried with the deformed surface, so W_py also holds the
+/// work exchanged with the tissue (which stores and dissipates it), and C is then not the
+/// coupling's creation alone (it read +1 mJ on deformable closed loops whose hand work was
+/// negative, test_deformable_study). Judge deformable runs by W_hand over closed paths.
+///
 /// @par Threading  A plain accumulator; one thread.
 /// @par Real-time  add() is noexcept, allocation-free and O(1).
 
