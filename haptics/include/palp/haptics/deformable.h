@@ -1,8 +1,9 @@
 #pragma once
 /// @file
-/// Deformable tissue for palpation with plain virtual coupling (docs/algorithms.md sections 5 and
-/// 10): a hexahedral FEM body with fixed nodes (a support face, nodes inside static inhomogeneities
-/// such as bone), stepped every servo tick under the reaction of the coupling force (by the
+/// Deformable tissue for palpation (docs/algorithms.md sections 5 and 10): a hexahedral FEM body
+/// with fixed nodes (a support face, nodes inside static inhomogeneities such as bone) and
+/// optionally embedded meshes that deform with it (a tumour), stepped every servo tick with the
+/// coupling spring solved inside its substeps (coupleContact; or under a held load, by the
 /// whole-mesh explicit solver, or by asynchronous regions: an explicit primary region around the
 /// contact every tick and an implicit secondary at a lower rate, fem/async_regions.h), spread over
 /// the surface nodes near the contact by a Gaussian low-pass filter; its boundary surface is a
@@ -217,25 +218,25 @@ class DeformableModel {
 /// real-time meshes to about a 13^3-node cube for the FEM step. Figures:
 /// `palp palpate --deformable --fast` prints ticks/s, bench_refit the refit and trace costs.
 ///
-/// Stability: the force on the tissue is the coupling force of the tick (explicit, one tick
-/// late), so when the surface under the contact responds within a tick (light, soft), the
-/// coupling stiffness k must stay below about the local stiffness of the tissue at the contact,
-/// which grows with the filter width: on a 5 kPa cube with 5 mm elements, k = 100 N/m is stable
-/// at sigma = 3 mm, k = 300 N/m needs sigma = 6 mm (or stiffness damping dampingBeta ~ 2 ms,
-/// at ~5x the substeps). An implicit coupling through the contact's compliance would lift this.
+/// Stability: with coupleContact (what a session uses) the coupling spring is integrated with
+/// the tissue inside the explicit substeps (fem::CouplingSpring), the substep shrinks with the
+/// spring's frequency, and the contact damper (contactDampingRatio) keeps the light surface
+/// under a stiff spring from overshooting the probe: any k up to the device's limit holds a
+/// press steady on 5-50 kPa tissue (test_deformable, bench/README.md). A load applied with
+/// applyContactForce is held over the step (explicit): a loop that feeds the displacement back
+/// into such loads needs k below about the local stiffness of the tissue at the contact.
 ///
 /// Asynchronous regions (DeformableSolver::asyncRegions): step() is one AsyncRegions tick under
 /// the filtered loads (the primary: explicit, substepped, O(primary cells); the secondary:
 /// implicit at regions.secondaryRate), and the free surface nodes' displacements are read from
 /// the regions' watched nodes. displacement() then holds the surface nodes only (interior nodes
 /// stay 0: use regions()->displacement() off the servo path for the whole field).
-/// Stability with regions: the quasi-static secondary has no inertia, so the tissue answers the
-/// coupling force with about its static compliance, and the one-tick-late coupling then needs k
-/// near or below the contact's static stiffness unless the primary region carries enough mass:
-/// on the 40 mm, 5 kPa test cube (h 5 mm, sigma 3 mm, static stiffness at the contact ~35 N/m)
-/// k = 100 N/m grows into a ~12 Hz oscillation with 30 seeds, is marginal with 60 and steady
-/// with 100; k = 50 N/m is steady with 30 seeds (test_deformable). A Newmark secondary did not
-/// help (plain or condensed coupling).
+/// With coupleContact the regions integrate the spring in the primary's substeps (its share on
+/// nodes outside the primary reaches the secondary as loads, one to two periods late: keep the
+/// primary centred under the contact, which the hysteresis and the regions' prefetched layouts
+/// do). Held loads on the regions (applyContactForce) see about the body's static compliance
+/// (the quasi-static secondary has no inertia), so a loop feeding them back needs k near or
+/// below the contact's static stiffness unless the primary carries enough mass.
 ///
 /// @par Threading  One thread (the servo thread) drives a body; surfaces() may be traced from
 ///      that thread between steps. With threaded regions the body owns their threads.
@@ -243,8 +244,9 @@ class DeformableModel {
 ///      and allocation-free (test_deformable counts zero allocations per tick); step() is
 ///      bounded by maxSubsteps and the refit is O(#triangles). Synchronous regions solve the
 ///      secondary inline every period inside step() (which may allocate in CHOLMOD when loads
-///      fall on secondary nodes) and, after a recentre, build and factorise the new layout
-///      inline too (0.1-1 s, allocating): threaded regions for live use.
+///      fall on secondary nodes) and, after a recentre, build the new layout inline too
+///      (allocating; milliseconds with the global secondary, seconds when a layout must be
+///      factorised): threaded regions for live use.
 class DeformableBody {
   public:
     /// Allocates everything, builds the surface BVH and commits the Embree scene (the only

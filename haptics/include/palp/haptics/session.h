@@ -77,7 +77,9 @@ struct Snapshot {
     double fadeWeight = 1;     ///< weight of the newest coupling params (0..1)
     std::uint64_t faults = 0;  ///< ticks so far whose force was non-finite (held last good)
     // Deformable scenes only (zero / -1 otherwise).
-    /// Sum of the nodal forces put on the tissue this tick, N (-force while in contact).
+    /// Mean force on the tissue over this tick's FEM step, N: the coupling spring's, solved with
+    /// the tissue (-force in a steady contact; it leads -force by the spring's change within the
+    /// tick while the probe moves).
     Eigen::Vector3d tissueForce{Eigen::Vector3d::Zero()};
     int contactNode = -1;        ///< FEM node with the largest share of the load, -1: none
     double maxDisplacement = 0;  ///< largest surface node displacement after the step, m
@@ -129,10 +131,12 @@ struct Command {
 /// follows the probe freely until the probe is outside.
 ///
 /// Deformable scene (Scene::setDeformable): the proxy updates against the body's deformed
-/// surface; the coupling is VC (AVC/AVCEC are refused at construction and by send()); after the
-/// chain above, the opposite of the force sent to the user, -F, acts on the tissue at the proxy
-/// (spread by the body's Gaussian filter) while the proxy is in contact (zero otherwise, when
-/// F is zero too up to damping); the FEM steps by T and the surface is refitted; a proxy in
+/// surface, and AVC/AVCEC rays start from the proxy there (against the scene's hard meshes or
+/// volume and, with the Mesh source, the body's embedded meshes as deformed); after the chain
+/// above, the tissue is coupled to the probe at the proxy while the proxy is in contact
+/// (DeformableBody::coupleContact: a spring of the tick's coupling stiffness pulling with -F at
+/// the step's start, solved with the tissue inside the FEM substeps; nothing otherwise); the
+/// FEM steps by T and the surface is refitted; a proxy in
 /// contact is then carried with the surface point under it (same triangle, barycentric
 /// coordinates and offset), so a surface that springs back pushes the proxy out instead of
 /// swallowing it. The carry resets the proxy's velocity estimate (only the coupling damping b
