@@ -473,7 +473,18 @@ TEST(AsyncForce, StalledSecondaryStaysFiniteAndBounded) {
         std::this_thread::sleep_for(std::chrono::microseconds(200));
     }
     a.setSecondaryStalledForTest(true);
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    // A solve already under way when the stall is set still finishes and publishes (a whole-
+    // field solve with loads is two solves: tens of milliseconds under ThreadSanitizer or a
+    // loaded machine). Wait until the count of finished solves has been still for 100 ms (at
+    // most 20 s), then let the primary take up what was published.
+    auto solves = a.secondaryStats().solves;
+    for (int quiet = 0, i = 0; quiet < 100 && i < 20000; ++i) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        const auto now = a.secondaryStats().solves;
+        quiet = now == solves ? quiet + 1 : 0;
+        solves = now;
+    }
+    a.tick(loads);
     a.tick(loads);
     const auto usedAtStall = a.secondaryStats().used;
     double worst = 0.0;
