@@ -1,6 +1,10 @@
 #pragma once
 // Shared problem set-ups for the FEM tests.
 
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
 #include "palp/fem/constraints.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/hex_mesh.h"
@@ -47,6 +51,23 @@ inline Eigen::VectorXd topPatchLoad(const HexMesh& mesh, double totalNewtons, do
     }
     for (int n : patch) f[3 * n + 2] = -totalNewtons / static_cast<double>(patch.size());
     return f;
+}
+
+/// Largest magnitude of a force history, N.
+inline double peak(const std::vector<double>& f) {
+    double m = 0.0;
+    for (double v : f) m = std::max(m, std::abs(v));
+    return m;
+}
+
+/// Relative RMS error of @p f against the reference @p ref (same length).
+inline double rmsError(const std::vector<double>& f, const std::vector<double>& ref) {
+    double num = 0.0, den = 0.0;
+    for (std::size_t k = 0; k < ref.size(); ++k) {
+        num += (f[k] - ref[k]) * (f[k] - ref[k]);
+        den += ref[k] * ref[k];
+    }
+    return std::sqrt(num / den);
 }
 
 }  // namespace palp::fem::test

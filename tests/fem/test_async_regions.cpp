@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "alloc_counter.h"
+#include "fem_test_util.h"
 #include "palp/base/error.h"
 #include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
@@ -16,6 +17,9 @@
 
 namespace palp::fem {
 namespace {
+
+using test::peak;
+using test::rmsError;
 
 constexpr double kTick = 1e-3;
 
@@ -66,21 +70,6 @@ std::vector<double> asyncForce(const Problem& p, const AsyncRegionsOptions& o, i
         f.push_back(-a.tick(Eigen::Vector3d(0, 0, z)).contactForce.z());
     }
     return f;
-}
-
-double peak(const std::vector<double>& f) {
-    double m = 0.0;
-    for (double v : f) m = std::max(m, std::abs(v));
-    return m;
-}
-
-double rmsError(const std::vector<double>& f, const std::vector<double>& ref) {
-    double num = 0.0, den = 0.0;
-    for (std::size_t k = 0; k < ref.size(); ++k) {
-        num += (f[k] - ref[k]) * (f[k] - ref[k]);
-        den += ref[k] * ref[k];
-    }
-    return std::sqrt(num / den);
 }
 
 /// Largest second difference of the force: the step a jump adds on top of the smooth input.

@@ -7,10 +7,14 @@
 #include <cmath>
 #include <numbers>
 
+#include "fem_test_util.h"
 #include "palp/fem/async_regions.h"
 
 namespace palp::fem {
 namespace {
+
+using test::peak;
+using test::rmsError;
 
 constexpr double kTick = 1e-3;
 
@@ -113,21 +117,6 @@ SlideRun slide(const Problem& p, AsyncRegionsOptions o, int moveTicks, int ticks
     }
     if (pending) --r.requests;  // asked in the last period
     return r;
-}
-
-double peak(const std::vector<double>& f) {
-    double m = 0.0;
-    for (double v : f) m = std::max(m, std::abs(v));
-    return m;
-}
-
-double rmsError(const std::vector<double>& f, const std::vector<double>& ref) {
-    double num = 0.0, den = 0.0;
-    for (std::size_t k = 0; k < ref.size(); ++k) {
-        num += (f[k] - ref[k]) * (f[k] - ref[k]);
-        den += ref[k] * ref[k];
-    }
-    return std::sqrt(num / den);
 }
 
 TEST(AsyncSliding, CapacitanceSecondaryEqualsAFactorisationPerLayout) {
