@@ -192,6 +192,7 @@ void PressTrajectory::sample(double t, Eigen::Vector3d& position,
     }
     position = start + (s * depth) * dir;
     velocity = (ds * depth) * dir;
+    if (skin) skin->apply(position, velocity);
 }
 
 double SweepTrajectory::effectiveTurnSeconds() const noexcept {
@@ -260,6 +261,7 @@ void SweepTrajectory::sample(double t, Eigen::Vector3d& position,
     }
     position = centre + d * press + x * dir;
     velocity = dd * press + dx * dir;
+    if (skin) skin->apply(position, velocity);
 }
 
 long long RasterTrajectory::lineCount() const noexcept { return RasterShape(*this).lines; }
@@ -307,6 +309,7 @@ void RasterTrajectory::sample(double t, Eigen::Vector3d& position,
     shape.at(s, p, tangent);
     position = centre + p.x() * uAxis + p.y() * vAxis + d * press;
     velocity = ds * (tangent.x() * uAxis + tangent.y() * vAxis) + dd * press;
+    if (skin) skin->apply(position, velocity);
 }
 
 void CircleTrajectory::sample(double t, Eigen::Vector3d& position,
@@ -331,6 +334,7 @@ void CircleTrajectory::sample(double t, Eigen::Vector3d& position,
     const double s = std::sin(theta);
     position = centre + radius * (c * uAxis + s * vAxis) + d * press;
     velocity = (2.0 * kPi * rate * radius) * (c * vAxis - s * uAxis) + dd * press;
+    if (skin) skin->apply(position, velocity);
 }
 
 void SinusoidTrajectory::sample(double t, Eigen::Vector3d& position,
@@ -339,6 +343,7 @@ void SinusoidTrajectory::sample(double t, Eigen::Vector3d& position,
     if (!(t >= 0.0)) {
         position = start;
         velocity.setZero();
+        if (skin) skin->apply(position, velocity);
         return;
     }
     const double amplitude = nonNegative(amplitudeM);
@@ -353,6 +358,7 @@ void SinusoidTrajectory::sample(double t, Eigen::Vector3d& position,
     const double s = std::sin(w * t);
     position = start + (a * s) * dir;
     velocity = (da * s + a * w * std::cos(w * t)) * dir;
+    if (skin) skin->apply(position, velocity);
 }
 
 void sampleTrajectory(const Trajectory& trajectory, double t, Eigen::Vector3d& position,

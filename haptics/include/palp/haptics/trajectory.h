@@ -25,11 +25,21 @@
 ///   s(u) = (1 - cos(pi u)) / 2 (zero velocity at both ends). It then starts from rest on the
 ///   pressed path, so the path after the approach speeds up smoothly (see each type).
 ///
+/// * Skin (every path): with a SkinField in @p skin, the flat path described here is laid on
+///   the skin: each point moves along the field's press axis by the skin's height under it
+///   (SkinField::apply), and the velocity gains the rate of that height along the path. The
+///   path's own points (centre, start) are then on the field's plane, usually the plane of
+///   SkinFieldSpec::centre; a flat skin on that plane (h = 0) leaves the path as it was.
+///
 /// @par Real-time
-/// Every sample() and sampleTrajectory() is noexcept, allocation-free and O(1).
+/// Every sample() and sampleTrajectory() is noexcept, allocation-free and O(1) (with a skin,
+/// one bilinear lookup in its precomputed heights).
 
 #include <Eigen/Core>
+#include <memory>
 #include <variant>
+
+#include "palp/haptics/skin_field.h"
 
 namespace palp::haptics {
 
@@ -43,6 +53,8 @@ struct PressTrajectory {
     double pressSeconds = 0.5;                       ///< s
     double holdSeconds = 0.5;                        ///< s
 
+    /// The skin the path is laid on (see the file comment); nullptr: the flat path.
+    std::shared_ptr<const SkinField> skin;
     /// Target position, m, and velocity, m/s, at time @p t (s).
     /// @par Real-time
     void sample(double t, Eigen::Vector3d& position, Eigen::Vector3d& velocity) const noexcept;
@@ -75,6 +87,8 @@ struct SweepTrajectory {
     double approachM = 0.005;
     double approachSeconds = 0.3;
     double turnSeconds = 0.1;
+    /// The skin the path is laid on (see the file comment); nullptr: the flat path.
+    std::shared_ptr<const SkinField> skin;
     /// turnSeconds after the clamp above, s.
     double effectiveTurnSeconds() const noexcept;
     /// Time of one back-and-forth cycle after the speed-up, s (0 when the sweep does not move).
@@ -112,6 +126,8 @@ struct RasterTrajectory {
     double approachM = 0.005;
     double approachSeconds = 0.3;
     double rampSeconds = 0.05;  ///< speed-up and slow-down time, s (addition to issue 4's draft)
+    /// The skin the path is laid on (see the file comment); nullptr: the flat path.
+    std::shared_ptr<const SkinField> skin;
     double durationSeconds() const noexcept;
     /// Number of lines (see above); at most 10^7.
     long long lineCount() const noexcept;
@@ -140,6 +156,8 @@ struct CircleTrajectory {
     double approachM = 0.005;
     double approachSeconds = 0.3;
     double rampSeconds = 0.25;  ///< spin-up time, s (addition to issue 4's draft)
+    /// The skin the path is laid on (see the file comment); nullptr: the flat path.
+    std::shared_ptr<const SkinField> skin;
     void sample(double t, Eigen::Vector3d& position, Eigen::Vector3d& velocity) const noexcept;
 };
 
@@ -158,6 +176,8 @@ struct SinusoidTrajectory {
     double amplitudeM = 0.002;
     double frequencyHz = 1;
     double growSeconds = 0;
+    /// The skin the path is laid on (see the file comment); nullptr: the flat path.
+    std::shared_ptr<const SkinField> skin;
     void sample(double t, Eigen::Vector3d& position, Eigen::Vector3d& velocity) const noexcept;
 };
 
