@@ -11,7 +11,7 @@ cd "$(dirname "$0")/.."
 if [ "$#" -gt 0 ]; then
   targets=("$@")
 else
-  targets=(test_base test_servo_loop test_session test_c_api test_haptics test_async_regions test_async_force
+  targets=(test_base test_servo_loop test_session test_c_api test_c_api_deformable_c test_haptics test_async_regions test_async_force
            test_async_spring test_deformable test_ray_kernels)
 fi
 cmake --preset tsan >/dev/null
@@ -38,7 +38,7 @@ for t in "${targets[@]}"; do
   echo "== tsan: $t"
   start=$(date +%s)
   args=(--gtest_brief=1 --gtest_filter="${filter[$t]:-*}")
-  [ "$t" = test_c_api ] && args=()  # plain C, no GoogleTest
+  case "$t" in test_c_api | test_c_api_deformable_c) args=() ;; esac  # plain C, no GoogleTest
   if "$exe" "${args[@]}"; then
     echo "== tsan: $t passed, 0 reports ($(($(date +%s) - start)) s)"
   else

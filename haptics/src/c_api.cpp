@@ -161,10 +161,15 @@ palp_status palp_scene_from_volume(const palp_volume* volume, double surface_iso
     if (!volume) return nullArgument("palp_scene_from_volume", "volume");
     if (!out) return nullArgument("palp_scene_from_volume", "out");
     return guarded([&] {
-        palp::requireWithin("palp_scene_from_volume: surface_iso", surface_iso,
-                            palp::bounds::kVolumeValue);
-        palp::requireWithin("palp_scene_from_volume: hard_iso", hard_iso,
-                            palp::bounds::kVolumeValue);
+        // NAN leaves the iso-surface out (as documented); anything else must be a value.
+        if (!std::isnan(surface_iso)) {
+            palp::requireWithin("palp_scene_from_volume: surface_iso (NAN: none)", surface_iso,
+                                palp::bounds::kVolumeValue);
+        }
+        if (!std::isnan(hard_iso)) {
+            palp::requireWithin("palp_scene_from_volume: hard_iso (NAN: none)", hard_iso,
+                                palp::bounds::kVolumeValue);
+        }
         ph::SceneOptions options;
         options.surfaceIso = surface_iso;
         options.hardIso = hard_iso;

@@ -3,7 +3,7 @@
 // plumbing (every exception becomes a status code plus a message) and the C <-> C++
 // conversions its files share. c_api.cpp: errors, handles, volumes and scenes;
 // c_api_params.cpp: parameter, trajectory and snapshot conversions and defaults;
-// c_api_session.cpp: sessions.
+// c_api_session.cpp: sessions; c_api_deformable.cpp: deformable scenes and their surface.
 
 #include <Eigen/Core>
 #include <atomic>
@@ -114,6 +114,8 @@ const char* fixedFieldChanged(const palp_session_params& a, const palp_session_p
 haptics::Trajectory toTrajectory(const palp_trajectory& c);
 haptics::HandModel toHand(const palp_trajectory& c);
 void toC(const haptics::Snapshot& s, palp_snapshot& c) noexcept;
+/// The servo period a deformable scene's body was made for, s (0 for a rigid scene).
+double deformablePeriod(const palp_scene& scene) noexcept;
 palp_latency toC(const haptics::LatencySummary& l) noexcept;
 
 }  // namespace palp::capi

@@ -473,6 +473,10 @@ void toC(const ph::Snapshot& s, palp_snapshot& c) noexcept {
     c.mode = fromMode(s.mode);
     c.faults = s.faults;
     c.stiffness_limited = s.stiffnessLimited ? 1 : 0;
+    put(s.tissueForce, c.tissue_force);
+    c.contact_node = s.contactNode;
+    c.max_displacement = s.maxDisplacement;
+    c.fem_flags = s.femFlags;
 }
 
 palp_latency toC(const ph::LatencySummary& l) noexcept {

@@ -1,12 +1,14 @@
 // The C API's sessions (see c_api_internal.h): create a simulated session, run it, step it,
 // read its snapshots, trace and statistics, and change its parameters while it runs.
 
+#include <cmath>
 #include <cstring>
 #include <memory>
 #include <mutex>
 #include <string>
 
 #include "c_api_internal.h"
+#include "palp/base/validate.h"
 
 namespace ph = palp::haptics;
 
@@ -25,6 +27,13 @@ palp_status palp_session_create_simulated(palp_scene* scene, const palp_session_
         const ph::SessionParams sp = toSession(*params);
         const ph::Trajectory path = toTrajectory(*trajectory);
         const ph::HandModel hand = toHand(*trajectory);
+        if (const double t = deformablePeriod(*scene);
+            t > 0 && !(std::abs(t - params->period) <= 1e-9 * t)) {
+            palp::throwExpected("palp_session_create_simulated: palp_session_params.period",
+                                "the deformable scene's palp_deformable_options.period (" +
+                                    palp::formatValue(t) + " s)",
+                                palp::formatValue(params->period) + " s");
+        }
         auto handle = std::make_unique<palp_session>();
         handle->deviceName = params->device;
         handle->params = *params;

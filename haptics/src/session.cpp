@@ -14,6 +14,7 @@
 #include "palp/base/validate.h"
 #include "palp/haptics/passivity.h"
 #include "palp/haptics/safety.h"
+#include "palp/haptics/surface_frame.h"
 
 namespace palp::haptics {
 namespace {
@@ -202,6 +203,12 @@ struct Session::Impl {
           trace(p.traceCapacity),
           loop(p.servo) {
         limited.fill(stiffnessLimited);
+        if (body) {
+            SurfaceFrame frame(body->model().surface().vertices.size());
+            frame.fill(*body, 0, 0.0);  // the rest surface until the first tick
+            surfaces = std::make_unique<TripleBuffer<NothrowSlot<SurfaceFrame>>>(
+                NothrowSlot<SurfaceFrame>(frame));
+        }
     }
 
     /// One tick's device sample in world terms (stage 1 of a tick).
@@ -287,9 +294,11 @@ struct Session::Impl {
     SpscQueue<Command, 64> commands;                     // producer -> servo
     TripleBuffer<NothrowSlot<Snapshot>> snapshots;       // servo -> viewer
     TripleBuffer<NothrowSlot<kernels::RayBundle>> rays;  // servo -> viewer
-    SpscRing<NothrowSlot<Snapshot>> trace;               // servo -> trace reader
-    NothrowSlot<Snapshot> traceScratch;                  // the servo thread's, for trace
-    std::atomic<std::uint64_t> traceDropped{0};          // written by the servo thread only
+    // servo -> viewer: the deformed surface (deformable scenes only), frames preallocated.
+    std::unique_ptr<TripleBuffer<NothrowSlot<SurfaceFrame>>> surfaces;
+    SpscRing<NothrowSlot<Snapshot>> trace;       // servo -> trace reader
+    NothrowSlot<Snapshot> traceScratch;          // the servo thread's, for trace
+    std::atomic<std::uint64_t> traceDropped{0};  // written by the servo thread only
 
     // Controlling thread.
     ServoLoop loop;
@@ -539,6 +548,10 @@ void Session::Impl::publish(double timeSeconds, const ProxyState& ps, const Sent
     snapshots.publish();
     rays.back().value = couplings[static_cast<std::size_t>(active)].bundle();
     rays.publish();
+    if (surfaces) {
+        surfaces->back().value.fill(*body, s.tick, s.timeSeconds);
+        surfaces->publish();
+    }
     // A full ring drops the snapshot and counts it (a ring of no slots keeps no trace).
     if (trace.capacity() > 0) {
         traceScratch.value = s;
@@ -626,6 +639,10 @@ const Snapshot& Session::step() noexcept {
 const Snapshot& Session::latest() noexcept { return mImpl->snapshots.read().value; }
 
 const kernels::RayBundle& Session::latestRays() noexcept { return mImpl->rays.read().value; }
+
+const SurfaceFrame* Session::latestSurface() noexcept {
+    return mImpl->surfaces ? &mImpl->surfaces->read().value : nullptr;
+}
 
 bool Session::popTrace(Snapshot& out) noexcept {
     NothrowSlot<Snapshot> slot;

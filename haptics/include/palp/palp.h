@@ -2,8 +2,9 @@
 #define PALP_PALP_H
 /**
  * @file
- * palp's C API: load or generate a volume, build a scene, run a haptic session on a simulated
- * device in real time or offline, read its state and change its parameters while it runs.
+ * palp's C API: load or generate a volume, build a scene (rigid or deformable tissue), run a
+ * haptic session on a simulated device in real time or offline, read its state (and the
+ * deformed surface) and change its parameters while it runs.
  *
  * Conventions
  * - Opaque handles (palp_volume, palp_scene, palp_session) are reference counted: a create
@@ -22,12 +23,12 @@
  * Threading
  * - Volumes and scenes are immutable after creation and may be shared between threads.
  * - A session has three roles: a controlling thread (create, start, stop, step, release), one
- *   viewer thread (palp_session_latest, palp_session_pop_trace), and one producer thread
- *   (palp_session_set_*, palp_session_reset_observer). These may be the same thread. Loop
- *   statistics may be read from any thread; the realtime status (palp_session_realtime*) is
- *   written while palp_session_start runs, so read it from the controlling thread (or after
- *   synchronising with it), never during a start. palp_session_get_params may be called from
- *   any thread.
+ *   viewer thread (palp_session_latest, palp_session_latest_surface, palp_session_pop_trace),
+ *   and one producer thread (palp_session_set_*, palp_session_reset_observer). These may be
+ *   the same thread. Loop statistics may be read from any thread; the realtime status
+ *   (palp_session_realtime*) is written while palp_session_start runs, so read it from the
+ *   controlling thread (or after synchronising with it), never during a start.
+ *   palp_session_get_params may be called from any thread.
  */
 
 #include <stddef.h>
@@ -111,6 +112,93 @@ palp_status palp_scene_create_empty(palp_scene** out);
 
 palp_scene* palp_scene_retain(palp_scene* scene);
 void palp_scene_release(palp_scene* scene);
+
+/* ---------------------------------------------------------------------------------------- */
+/* Deformable scenes                                                                        */
+
+/** A face of the tissue's hexahedral lattice (its world box), whose nodes are fixed. */
+typedef enum palp_face {
+    PALP_FACE_NONE = 0, /**< no support face: only the bone rule fixes nodes */
+    PALP_FACE_X_MIN = 1,
+    PALP_FACE_X_MAX = 2,
+    PALP_FACE_Y_MIN = 3,
+    PALP_FACE_Y_MAX = 4, /**< the phantoms' back (they are pressed along +y) */
+    PALP_FACE_Z_MIN = 5,
+    PALP_FACE_Z_MAX = 6
+} palp_face;
+
+/** The FEM solver a deformable scene's sessions run every tick. */
+typedef enum palp_fem_solver {
+    PALP_FEM_WHOLE_MESH = 0, /**< explicit, the whole mesh every tick (small bodies) */
+    PALP_FEM_REGIONS = 1     /**< asynchronous regions: an explicit primary region around the
+                                  contact every tick, an implicit secondary at secondary_rate */
+} palp_fem_solver;
+
+/** How a deformable body is made from a volume (the tissue of `palp palpate --deformable`).
+ *  Always start from palp_deformable_options_default(); every field is checked (all of them,
+ *  whatever the solver) and a refusal names it as "palp_deformable_options.<field>". */
+typedef struct palp_deformable_options {
+    double element_size;     /**< hexahedron edge, m (1e-6..0.1; default 5e-3) */
+    double tissue_threshold; /**< a cell is tissue where the volume at its centre is above this
+                                  (volume units; default -200 HU) */
+    double bone_threshold;   /**< a tissue cell above this is bone: its nodes are fixed (default
+                                  500 HU); NAN or INFINITY: no bone rule */
+    palp_face support_face;  /**< the nodes of this face are fixed too (default PALP_FACE_Y_MAX;
+                                  at least one node must be fixed by the face or the bone) */
+    double youngs_modulus;   /**< E, Pa (1..1e12; default 5e3) */
+    double poisson_ratio;    /**< nu, in (-1, 0.5) (default 0.45) */
+    double density;          /**< kg/m^3 (1..1e5; default 1000) */
+    double damping_alpha;    /**< mass-proportional Rayleigh damping, 1/s (0..1e4; default 60) */
+    double damping_beta;     /**< stiffness-proportional Rayleigh damping, s (0..1; default 0) */
+    double filter_width;     /**< sigma of the Gaussian that spreads the contact over surface
+                                  nodes, m (0..10; 0: the nearest node; default 3e-3) */
+    double contact_damping_ratio; /**< damping of the contact, ratio of critical (0..10; 1) */
+    /** Servo period of the sessions that will use the scene, s (must equal their
+     *  palp_session_params.period; default 1e-3). */
+    double period;
+    palp_fem_solver solver; /**< default PALP_FEM_WHOLE_MESH */
+    /* PALP_FEM_REGIONS only (checked always): */
+    int primary_nodes;        /**< seed nodes of the primary region (1..100000; default 60) */
+    double secondary_rate;    /**< secondary solves per second, Hz (1..1000; default 100) */
+    int lod;                  /**< secondary level of detail 1, 2 or 4; 0 (default): 2 where it
+                                   divides the lattice's cell counts, else 1 */
+    int threaded;             /**< non-zero (default): the secondary on its own threads, for
+                                   live sessions; 0: synchronous and deterministic (offline) */
+    double regions_centre[3]; /**< world point, m: the region starts at the free surface node
+                                   nearest it (put it under the path); all NAN (default): the
+                                   first free surface node */
+} palp_deformable_options;
+
+/** Fills @p options with palp's defaults (those of `palp palpate --deformable`). */
+void palp_deformable_options_default(palp_deformable_options* options);
+
+/** A deformable scene from a volume: the tissue between @p options' thresholds voxelised into
+ *  a hexahedral FEM body (fixed on the support face and in bone), whose deformed boundary is
+ *  the surface the proxy slides on; the volume for the volume ray sources (sampled where the
+ *  tissue was at rest); the iso-surface at @p hard_iso as hard meshes for PALP_SOURCE_MESH
+ *  (NAN: none). Every session on the scene gets its own body. Takes about as long as
+ *  voxelising and, for PALP_FEM_REGIONS, factorising the body (seconds on ~33^3 nodes).
+ *  Errors: PALP_ERROR_INVALID_ARGUMENT naming the field (also for a body too stiff for its
+ *  period, or one with no fixed node). */
+palp_status palp_scene_make_deformable(const palp_volume* volume, double hard_iso,
+                                       const palp_deformable_options* options, palp_scene** out);
+
+/** 1 for a deformable scene, 0 otherwise (also for NULL). */
+int palp_scene_is_deformable(const palp_scene* scene);
+
+/** The deformable surface's size: vertices and triangles (either pointer may be NULL). The
+ *  topology never changes. PALP_ERROR_STATE on a rigid scene. */
+palp_status palp_scene_surface_size(const palp_scene* scene, size_t* vertex_count,
+                                    size_t* triangle_count);
+
+/** The deformable surface's topology, for drawing: @p triangles receives triangle_count x 3
+ *  vertex indices (counter-clockwise seen from outside) and @p rest_vertices vertex_count x 3
+ *  rest positions (world, m); either may be NULL. Each capacity (in triangles, in vertices)
+ *  must hold the whole surface (PALP_ERROR_INVALID_ARGUMENT otherwise, nothing written).
+ *  PALP_ERROR_STATE on a rigid scene. */
+palp_status palp_scene_surface_topology(const palp_scene* scene, uint32_t* triangles,
+                                        size_t triangle_capacity, float* rest_vertices,
+                                        size_t vertex_capacity);
 
 /* ---------------------------------------------------------------------------------------- */
 /* Sessions                                                                                 */
@@ -233,6 +321,11 @@ typedef struct palp_snapshot {
     /** 1: the coupling in force asked for more stiffness than the device renders stably and
      *  k_max (and k_s if above it) were lowered to the device's maximum stiffness. */
     int stiffness_limited;
+    /* Deformable scenes only (zero, contact_node -1, otherwise): */
+    double tissue_force[3];  /**< mean force on the tissue over the tick's FEM step, N */
+    int contact_node;        /**< FEM node with the largest share of the contact, -1: none */
+    double max_displacement; /**< largest surface displacement after the step, m */
+    uint32_t fem_flags;      /**< solver flags of the step (0: a clean step) */
 } palp_snapshot;
 
 typedef struct palp_latency {
@@ -277,6 +370,15 @@ palp_status palp_session_step(palp_session* session, uint32_t ticks, palp_snapsh
 
 /** Viewer: the newest published tick. */
 palp_status palp_session_latest(palp_session* session, palp_snapshot* out);
+/** Viewer: the newest published tick's deformed surface: vertex_count x 3 positions (world,
+ *  m; in the order of palp_scene_surface_topology's vertices) into @p vertices, whose
+ *  @p vertex_capacity (in vertices) must hold them all; @p tick (may be NULL) receives the
+ *  palp_snapshot.tick it belongs to (the rest surface with tick 0 before the first tick).
+ *  Never blocks the servo thread (frames preallocated at creation, exchanged through a
+ *  lock-free triple buffer). Call it from the viewer thread. PALP_ERROR_STATE on a rigid
+ *  scene's session. */
+palp_status palp_session_latest_surface(palp_session* session, float* vertices,
+                                        size_t vertex_capacity, uint64_t* tick);
 /** Viewer: the oldest unread tick of the trace; *got = 0 when none is queued. */
 palp_status palp_session_pop_trace(palp_session* session, palp_snapshot* out, int* got);
 

@@ -18,6 +18,7 @@
 #include "palp/haptics/proxy.h"
 #include "palp/haptics/scene.h"
 #include "palp/haptics/servo_loop.h"
+#include "palp/haptics/surface_frame.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/triangle_mesh.h"
 #include "palp/kernels/volume_ray.h"
@@ -156,9 +157,9 @@ struct Command {
 /// (which skips the deadlines of overrun ticks); step() after a run continues from the run's
 /// last tick + T, and so on across any sequence of start/stop/step.
 ///
-/// @par Threading  start/stop/step from one controlling thread; latest() and latestRays() from
-///      one viewer thread; popTrace() from one trace reader thread (may be the viewer); send()
-///      from one producer thread. The servo thread owns everything else.
+/// @par Threading  start/stop/step from one controlling thread; latest(), latestRays() and
+///      latestSurface() from one viewer thread; popTrace() from one trace reader thread (may
+///      be the viewer); send() from one producer thread. The servo thread owns everything else.
 /// @par Real-time  A tick (step() or the servo thread's) is noexcept and allocation-free (on a
 ///      deformable scene except Embree's refit, which calls operator new a few times).
 class Session final : public ServoTask {
@@ -196,6 +197,11 @@ class Session final : public ServoTask {
     /// Viewer (the thread that calls latest()): the newest tick's ray bundle (origins,
     /// directions, L_max; count 0 in VC or without contact distance), for drawing.
     const kernels::RayBundle& latestRays() noexcept;
+    /// Viewer (the thread that calls latest()): the newest tick's deformed surface (vertex
+    /// positions in the order of DeformableModel::surface().vertices, whose triangles are
+    /// fixed; its tick is the Snapshot's it was published with); nullptr on a rigid scene.
+    /// Frames are preallocated: publishing one costs the servo thread O(#V), no allocation.
+    const SurfaceFrame* latestSurface() noexcept;
 
     ServoStats stats() const noexcept;
     const RealtimeStatus& realtime() const noexcept;
