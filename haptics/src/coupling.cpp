@@ -9,6 +9,7 @@
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
+#include "palp/haptics/deformable.h"
 
 namespace palp::haptics {
 
@@ -176,40 +177,92 @@ void Coupling::traceStiffness(kernels::RayBundle& bundle, int n,
     auto stiffness = [&](double length) {
         return std::min(p.baseStiffness * stiffnessMultiplier(p, length), p.maxStiffness);
     };
+    // Deformable scenes: the volume is sampled where the tissue was at rest.
+    const bool mapped = mDeformation != nullptr && p.source != RaySource::Mesh;
+    const kernels::RayBundle& traced = mapped ? restBundle(bundle, n) : bundle;
+    const auto length = [&](int r, double t, bool found) {
+        return mapped && found ? currentLength(bundle, r, t) : t;
+    };
     switch (p.source) {
-        case RaySource::Mesh:
-        case RaySource::VolumeFirstHit:
-            if (p.source == RaySource::Mesh) {
-                const bool fixed = mMeshes != nullptr && !mMeshes->empty() && mMeshes->committed();
-                if (fixed) kernels::traceBundle(*mMeshes, bundle, p.hardMask, mHits);
-                if (mMoving != nullptr) {
-                    kernels::traceBundle(*mMoving, bundle, p.hardMask, fixed ? mMovingHits : mHits);
-                    if (fixed) {
-                        // Per ray, the nearer of the two scenes' hits.
-                        for (int r = 0; r < mHits.count && r < mMovingHits.count; ++r) {
-                            const auto i = static_cast<std::size_t>(r);
-                            if (mMovingHits.t[i] < mHits.t[i]) {
-                                mHits.t[i] = mMovingHits.t[i];
-                                mHits.hit[i] = mMovingHits.hit[i];
-                                mHits.geomId[i] = mMovingHits.geomId[i];
-                            }
+        case RaySource::Mesh: {
+            const bool fixed = mMeshes != nullptr && !mMeshes->empty() && mMeshes->committed();
+            if (fixed) kernels::traceBundle(*mMeshes, bundle, p.hardMask, mHits);
+            if (mMoving != nullptr) {
+                kernels::traceBundle(*mMoving, bundle, p.hardMask, fixed ? mMovingHits : mHits);
+                if (fixed) {
+                    // Per ray, the nearer of the two scenes' hits.
+                    for (int r = 0; r < mHits.count && r < mMovingHits.count; ++r) {
+                        const auto i = static_cast<std::size_t>(r);
+                        if (mMovingHits.t[i] < mHits.t[i]) {
+                            mHits.t[i] = mMovingHits.t[i];
+                            mHits.hit[i] = mMovingHits.hit[i];
+                            mHits.geomId[i] = mMovingHits.geomId[i];
                         }
                     }
                 }
-            } else {
-                kernels::traceFirstHit(*mVolume, bundle, p.firstHit, mHits);
             }
             for (int r = 0; r < mHits.count; ++r)
                 k[static_cast<std::size_t>(r)] = stiffness(mHits.t[static_cast<std::size_t>(r)]);
             centreLength = mHits.count > 0 ? mHits.t[0] : p.bundle.length;
             break;
+        }
+        case RaySource::VolumeFirstHit: {
+            kernels::traceFirstHit(*mVolume, traced, p.firstHit, mHits);
+            for (int r = 0; r < mHits.count; ++r) {
+                const auto i = static_cast<std::size_t>(r);
+                const double L = length(r, mHits.t[i], mHits.hit[i] != 0);
+                k[i] = stiffness(L);
+                if (r == 0) centreLength = L;
+            }
+            if (mHits.count == 0) centreLength = p.bundle.length;
+            break;
+        }
         case RaySource::VolumeAccumulate:
-            kernels::traceAccumulate(*mVolume, bundle, p.accumulate, mAccum);
-            for (int r = 0; r < mAccum.count; ++r)
-                k[static_cast<std::size_t>(r)] = stiffness(mAccum.t[static_cast<std::size_t>(r)]);
-            centreLength = mAccum.count > 0 ? mAccum.t[0] : p.bundle.length;
+            kernels::traceAccumulate(*mVolume, traced, p.accumulate, mAccum);
+            for (int r = 0; r < mAccum.count; ++r) {
+                const auto i = static_cast<std::size_t>(r);
+                const double L = length(r, mAccum.t[i], mAccum.stopped[i] != 0);
+                k[i] = stiffness(L);
+                if (r == 0) centreLength = L;
+            }
+            if (mAccum.count == 0) centreLength = p.bundle.length;
             break;
     }
+}
+
+const kernels::RayBundle& Coupling::restBundle(const kernels::RayBundle& bundle, int n) noexcept {
+    mRestBundle = bundle;
+    for (int r = 0; r < n; ++r) {
+        const auto i = static_cast<std::size_t>(r);
+        const Eigen::Vector3d o(bundle.ox[i], bundle.oy[i], bundle.oz[i]);
+        const Eigen::Vector3d dir(bundle.dx[i], bundle.dy[i], bundle.dz[i]);
+        const Eigen::Vector3d from = mDeformation->restFromCurrent(o);
+        const Eigen::Vector3d to = mDeformation->restFromCurrent(o + bundle.length[i] * dir);
+        const Eigen::Vector3d chord = to - from;
+        const double len = chord.norm();
+        // A degenerate chord (a ray shorter than the map's tolerance) keeps the current ray.
+        if (!from.allFinite() || !(len > 1e-9) || !std::isfinite(len)) continue;
+        const Eigen::Vector3d unit = chord / len;
+        mRestBundle.ox[i] = static_cast<float>(from.x());
+        mRestBundle.oy[i] = static_cast<float>(from.y());
+        mRestBundle.oz[i] = static_cast<float>(from.z());
+        mRestBundle.dx[i] = static_cast<float>(unit.x());
+        mRestBundle.dy[i] = static_cast<float>(unit.y());
+        mRestBundle.dz[i] = static_cast<float>(unit.z());
+        mRestBundle.length[i] = static_cast<float>(len);
+    }
+    return mRestBundle;
+}
+
+double Coupling::currentLength(const kernels::RayBundle& bundle, int r,
+                               double tRest) const noexcept {
+    const auto i = static_cast<std::size_t>(r);
+    const kernels::RayBundle& b = mRestBundle;
+    const Eigen::Vector3d at = Eigen::Vector3d(b.ox[i], b.oy[i], b.oz[i]) +
+                               tRest * Eigen::Vector3d(b.dx[i], b.dy[i], b.dz[i]);
+    const Eigen::Vector3d now = mDeformation->currentFromRest(at);
+    const double L = (now - Eigen::Vector3d(bundle.ox[i], bundle.oy[i], bundle.oz[i])).norm();
+    return std::isfinite(L) ? std::min(L, static_cast<double>(bundle.length[i])) : tRest;
 }
 
 double Coupling::storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,

@@ -209,6 +209,9 @@ struct Session::Impl {
             surfaces = std::make_unique<TripleBuffer<NothrowSlot<SurfaceFrame>>>(
                 NothrowSlot<SurfaceFrame>(frame));
         }
+        // Volume rays on deformable tissue sample the scan where the tissue was at rest.
+        if (body)
+            for (Coupling& c : couplings) c.setDeformation(body.get());
     }
 
     /// One tick's device sample in world terms (stage 1 of a tick).

@@ -12,6 +12,8 @@
 
 namespace palp::haptics {
 
+class DeformableBody;
+
 enum class CouplingMode {
     VC,     ///< k = baseStiffness, no rays
     AVC,    ///< k = baseStiffness * m(L) from the centre ray (low-passed over the ring)
@@ -144,6 +146,20 @@ class Coupling {
     double storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
                         const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2) noexcept;
 
+    /// Deformable scenes: the volume sources sample the scan where the tissue was at rest
+    /// (docs/algorithms.md section 10). Each ray of the bundle (cast in the current, deformed
+    /// configuration) is mapped to the rest configuration through @p body's displacement field
+    /// (its origin and its far end by DeformableBody::restFromCurrent: the straight chord
+    /// between them, exact for a uniform deformation along the ray), traced in the volume
+    /// there, and its hit or stop point is mapped back (currentFromRest): L is the current
+    /// distance from the proxy to where the structure is now. A structure that moves with the
+    /// tissue (a tumour seen only in the scan) is then felt where it went, and a fixed one
+    /// (bone) where it is. nullptr (default, rigid scenes): rays sample the volume where they
+    /// are. Costs about 3 x 12 trilinear reads of the nodal displacements per ray (bounded).
+    /// The Mesh source ignores it (its moving meshes are already deformed). @p body must
+    /// outlive the coupling and be stepped on the same thread as compute().
+    void setDeformation(const DeformableBody* body) noexcept { mDeformation = body; }
+
     /// The last bundle cast (for viewers: the rays of this tick).
     const kernels::RayBundle& bundle() const noexcept { return mBundle; }
 
@@ -153,13 +169,20 @@ class Coupling {
     void traceStiffness(kernels::RayBundle& bundle, int n,
                         std::array<double, kernels::kMaxBundleRays>& k,
                         double& centreLength) noexcept;
+    /// Deformable scenes: @p bundle's first @p n rays mapped to the rest configuration into
+    /// mRestBundle; traceStiffness then maps the lengths back with restLength().
+    const kernels::RayBundle& restBundle(const kernels::RayBundle& bundle, int n) noexcept;
+    /// The current length of ray @p r whose rest trace stopped at rest distance @p tRest.
+    double currentLength(const kernels::RayBundle& bundle, int r, double tRest) const noexcept;
 
     const kernels::VolumeView* mVolume;
     const kernels::EmbreeScene* mMeshes;
     const kernels::EmbreeScene* mMoving = nullptr;
+    const DeformableBody* mDeformation = nullptr;
     CouplingParams mParams;
     kernels::RayBundle mBundle;
     kernels::RayBundle mProbeBundle;  // storedEnergy()'s
+    kernels::RayBundle mRestBundle;   // setDeformation: the rays in the rest configuration
     kernels::BundleHits mHits;
     kernels::BundleHits mMovingHits;
     kernels::BundleAccumulation mAccum;

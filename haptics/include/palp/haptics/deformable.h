@@ -347,6 +347,23 @@ class DeformableBody {
     std::span<const float> embeddedPositions(std::size_t e) const noexcept {
         return std::span<const float>(mInclusionPositions[e]);
     }
+    /// Displacement (m, world) of the material point at rest position @p rest (m, world): the
+    /// trilinear interpolation of the nodal displacements over the hex lattice, which inside an
+    /// element is the FEM's own displacement field. Inactive (void) nodes count as undisplaced;
+    /// a point outside the lattice takes the nearest lattice point's displacement; with
+    /// asyncRegions, nodes the regions do not track on the servo thread (secondary nodes that
+    /// are not watched: away from the primary region and the surface) count as undisplaced.
+    /// @par Real-time  noexcept, allocation-free, O(1).
+    Eigen::Vector3d displacementAtRest(const Eigen::Vector3d& rest) const noexcept;
+    /// Where the material point at rest position @p rest is now: rest + displacementAtRest().
+    /// @par Real-time
+    Eigen::Vector3d currentFromRest(const Eigen::Vector3d& rest) const noexcept;
+    /// The rest position of the material point now at @p current (the inverse of
+    /// currentFromRest): the fixed point of X = x - u(X) from X = x - u(x), at most 12
+    /// iterations to 1e-9 m. Exact where |grad u| < 1 (compression or shear below 100 %;
+    /// always true of a body that is not turned inside out). Volume rays on a deformable scene
+    /// sample the scan here (docs/algorithms.md section 10). @par Real-time  bounded.
+    Eigen::Vector3d restFromCurrent(const Eigen::Vector3d& current) const noexcept;
     /// Largest displacement magnitude over the surface vertices after the last step, m.
     double maxSurfaceDisplacement() const noexcept { return mMaxSurfaceDisplacement; }
     /// Substeps of the last step().
@@ -356,6 +373,8 @@ class DeformableBody {
     bool anchorOn(int tri, const Eigen::Vector3d& point, const Eigen::Vector3d& normal) noexcept;
     Eigen::VectorXd& loadVector() noexcept { return mRegions ? mForce : mSolver->externalForce(); }
     int nearestLoadNode(const Eigen::Vector3d& point) const noexcept;
+    /// Node @p n's displacement for the rest/current map (deformable_map.cpp).
+    Eigen::Vector3d nodeDisplacement(int n) const noexcept;
     /// Fills mLoaded/mWeights (weights normalised to sum 1) with the filter around @p point;
     /// returns the nearest free surface node (-1 for none) and its squared distance.
     int filterWeights(const Eigen::Vector3d& point, double& nearestD2) noexcept;

@@ -46,9 +46,10 @@ class Scene {
     /// Makes the scene deformable: every Session builds its own DeformableBody from @p model
     /// and its proxy slides on that body's deformed surface instead of surfaces() (which the
     /// proxy then ignores). AVC/AVCEC rays start from the proxy on the deformed surface and
-    /// cast against the static hard meshes or the volume (sampled where it is: right for
-    /// fixed structures such as bone) and, with the Mesh source, the model's embedded meshes
-    /// in their deformed shape. nullptr: rigid again. @throw nothing.
+    /// cast against the static hard meshes, the volume (sampled where the tissue was at rest:
+    /// each ray is mapped through the body's displacement, Coupling::setDeformation) and,
+    /// with the Mesh source, the model's embedded meshes in their deformed shape. nullptr:
+    /// rigid again. @throw nothing.
     void setDeformable(std::shared_ptr<const DeformableModel> model) noexcept {
         mDeformable = std::move(model);
     }
