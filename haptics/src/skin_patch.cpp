@@ -129,15 +129,17 @@ SkinPatch findSkinPatch(const kernels::EmbreeScene& surfaces, const Eigen::Align
     return patch;
 }
 
+Eigen::Vector3d axisVector(SignedAxis axis) noexcept {
+    const int i = static_cast<int>(axis) / 2;
+    return Eigen::Vector3d::Unit(i) * (static_cast<int>(axis) % 2 == 0 ? 1.0 : -1.0);
+}
+
 SkinPatch findBestSkinPatch(const kernels::EmbreeScene& surfaces, const Eigen::AlignedBox3d& box,
-                            const SkinPatchOptions& options) {
-    const Eigen::Vector3d axes[] = {Eigen::Vector3d::UnitY(), -Eigen::Vector3d::UnitY(),
-                                    Eigen::Vector3d::UnitX(), -Eigen::Vector3d::UnitX(),
-                                    Eigen::Vector3d::UnitZ(), -Eigen::Vector3d::UnitZ()};
+                            const SkinPatchOptions& options, std::span<const SignedAxis> axes) {
     SkinPatch best;
     double bestArea = -1;
-    for (const Eigen::Vector3d& a : axes) {
-        const SkinPatch p = findSkinPatch(surfaces, box, a, options);
+    for (const SignedAxis a : axes) {
+        const SkinPatch p = findSkinPatch(surfaces, box, axisVector(a), options);
         const double area = p.extentU * p.extentV;
         if (area > bestArea) {
             bestArea = area;

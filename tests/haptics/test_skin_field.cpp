@@ -382,6 +382,15 @@ TEST(SkinPatch, BestSideIsTheBroadest) {
     EXPECT_EQ(p.v, Vec::UnitZ());
     EXPECT_GT(p.extentU, 0.05);
     EXPECT_GT(p.extentV, 0.05);
+    // A plate 30 mm thick in z (as a scan's flat cut ends): its z faces (80 x 70 mm) are the
+    // broadest; among the four sides across z (kSidePressAxes) the y faces (80 x 30 mm) beat
+    // the x faces (70 x 30 mm), and +y comes before -y.
+    const auto plate = surfaceScene(cubeMesh(Vec(-0.04, -0.035, -0.015), Vec(0.04, 0.035, 0.015)));
+    EXPECT_EQ(findBestSkinPatch(*plate, box).press, Vec::UnitZ());
+    const SkinPatch side = findBestSkinPatch(*plate, box, {}, kSidePressAxes);
+    EXPECT_EQ(side.press, Vec::UnitY());
+    EXPECT_GT(side.extentU, side.extentV);
+    EXPECT_EQ(axisVector(SignedAxis::MinusZ), -Vec::UnitZ());
     // No skin anywhere: a patch of zero size.
     const auto far = surfaceScene(cubeMesh(Vec(1, 1, 1), Vec(1.01, 1.01, 1.01)));
     const SkinPatch none = findBestSkinPatch(*far, box);

@@ -10,6 +10,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -29,7 +30,9 @@
 #include "palp/haptics/trajectory.h"
 #include "palp/volume/load.h"
 #include "palp/volume/phantom.h"
+#include "palpate_felt.h"
 #include "palpate_options.h"
+#include "palpate_setup.h"
 
 namespace palp::tool {
 
@@ -37,273 +40,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-
-std::string axisName(const Eigen::Vector3d& a) {
-    const int i = axisIndex(a);
-    return std::string(a[i] < 0 ? "-" : "+") + "xyz"[i];
-}
-
-haptics::CouplingMode parseMode(const std::string& s) {
-    if (s == "vc") return haptics::CouplingMode::VC;
-    if (s == "avc") return haptics::CouplingMode::AVC;
-    if (s == "avcec") return haptics::CouplingMode::AVCEC;
-    throw ValueError("--mode: expected vc, avc or avcec, found '" + s + "'");
-}
-
-haptics::RaySource parseSource(const std::string& s) {
-    if (s == "mesh") return haptics::RaySource::Mesh;
-    if (s == "first-hit") return haptics::RaySource::VolumeFirstHit;
-    if (s == "accumulate") return haptics::RaySource::VolumeAccumulate;
-    throw ValueError("--source: expected mesh, first-hit or accumulate, found '" + s + "'");
-}
-
-// ---------------------------------------------------------------------------------------------
-// Set-up
-
-/// The volume to palpate, its default coupling and a label for it.
-struct Input {
-    volume::Volume vol;
-    haptics::CouplingParams cp;
-    std::string label;
-    std::optional<volume::PhantomParams> phantom;  ///< the phantom's, for --phantom
-};
-
-Input loadInput(const PalpateArgs& a) {
-    Input in;
-    if (!a.phantom.empty()) {
-        requirePositive("--voxel-mm", a.voxelMm, "mm");
-        volume::PhantomSpec ps;
-        ps.params.scene = volume::parseScene(a.phantom);
-        ps.params.quadrant = a.quadrant;
-        ps.params.shape = volume::parseShape(a.shape);
-        ps.params.displacement = a.displacement;
-        ps.params.profile = volume::parseProfile(a.profile);
-        ps.voxelSize = a.voxelMm * 1e-3;
-        ps.noiseSigmaHu = a.noiseHu;
-        ps.seed = a.seed;
-        in.vol = volume::makePhantomVolume(ps);
-        in.cp = haptics::sceneCouplingDefaults(ps.params.scene);
-        in.label = volume::Phantom(ps.params).description();
-        in.phantom = ps.params;
-    } else {
-        in.vol = volume::load({fs::path(a.file)});
-        in.cp = haptics::scanCouplingDefaults();
-        in.label = a.file;
-    }
-    return in;
-}
-
-/// @p cp with the coupling options applied over it (mode, source, stiffness, rays, damping).
-haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::CouplingParams cp) {
-    if (!a.mode.empty()) cp.mode = parseMode(a.mode);
-    // The deformable tumour: the rays look for the inclusion's embedded surface, which moves
-    // with the tissue (the scan's values stay where the undeformed inclusion was).
-    if (a.deformable && a.phantom == "tumour") cp.source = haptics::RaySource::Mesh;
-    if (!a.source.empty()) cp.source = parseSource(a.source);
-    if (std::isfinite(a.kBase)) cp.baseStiffness = a.kBase;
-    if (std::isfinite(a.kMax)) {
-        if (std::isfinite(a.kBase) && a.kMax < a.kBase) {
-            throwExpected("--k-max", "a clamp >= --k-base (" + formatValue(a.kBase) + " N/m)",
-                          formatValue(a.kMax) + " N/m");
-        }
-        cp.maxStiffness = a.kMax;
-        // The default surface stiffness follows a clamp set below it.
-        if (!std::isfinite(a.kBase)) cp.baseStiffness = std::min(cp.baseStiffness, a.kMax);
-    } else if (cp.maxStiffness < cp.baseStiffness) {
-        // The default clamp is below the surface stiffness asked for: the clamp follows it (the
-        // device's limit then lowers both, and the report says so).
-        cp.maxStiffness = cp.baseStiffness;
-    }
-    if (std::isfinite(a.lMaxMm)) cp.bundle.length = a.lMaxMm * 1e-3;
-    if (std::isfinite(a.lRefMm)) cp.referenceLength = a.lRefMm * 1e-3;
-    if (std::isfinite(a.mMax)) cp.maxMultiplier = a.mMax;
-    if (std::isfinite(a.threshold)) cp.firstHit.threshold = static_cast<float>(a.threshold);
-    if (std::isfinite(a.sigmaPerMm) || std::isfinite(a.sigmaThreshold)) {
-        const double s = std::isfinite(a.sigmaPerMm) ? a.sigmaPerMm : 1.0;
-        const double t = std::isfinite(a.sigmaThreshold) ? a.sigmaThreshold : 500.0;
-        requirePositive("--sigma", s, "1/mm");
-        cp.accumulate.sigma =
-            kernels::TransferFunction::step(static_cast<float>(t), static_cast<float>(s * 1e3));
-    }
-    if (std::isfinite(a.tauStop)) cp.accumulate.tauStop = a.tauStop;
-    if (std::isfinite(a.stepMm)) {
-        cp.firstHit.step = a.stepMm * 1e-3;
-        cp.accumulate.step = a.stepMm * 1e-3;
-    }
-    if (a.ring >= 0) cp.bundle.ringCount = a.ring;
-    if (std::isfinite(a.sobelAngle)) cp.bundle.sobelAngle = a.sobelAngle;
-    if (std::isfinite(a.surfaceOffsetMm)) cp.bundle.surfaceOffset = a.surfaceOffsetMm * 1e-3;
-    if (std::isfinite(a.damping)) cp.damping = a.damping;
-    return cp;
-}
-
-/// The deformable body of --deformable, supported on the face opposite the pressed one.
-std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, const Input& in,
-                                                         const Eigen::Vector3d& press,
-                                                         const Eigen::Vector3d& pathCentre,
-                                                         double period) {
-    const volume::Volume& vol = in.vol;
-    const int pa = axisIndex(press);
-    requirePositive("--fem-cell-mm", a.femCellMm, "mm");
-    requirePositive("--young-kpa", a.youngKpa, "kPa");
-    fem::VoxelizeOptions vo;
-    vo.elementSize = a.femCellMm * 1e-3;
-    vo.tissueThreshold = a.tissueHu;
-    vo.boneThreshold = a.boneHu;
-    fem::ElasticMaterial mat;
-    mat.youngsModulus = a.youngKpa * 1e3;
-    mat.poissonRatio = a.poisson;
-    mat.dampingAlpha = a.femAlpha;
-    mat.dampingBeta = a.femBeta;
-    haptics::DeformableOptions dopt;
-    dopt.filterWidth = a.filterMm * 1e-3;
-    if (a.femSolver == "regions") {
-        dopt.solverKind = haptics::DeformableSolver::asyncRegions;
-        dopt.regions.tickSeconds = period;
-        dopt.regions.primaryNodes = a.primaryNodes;
-        dopt.regions.secondaryRate = a.secondaryHz;
-        dopt.regions.lod = a.lod > 0 ? a.lod : 1;
-        // Offline runs are deterministic (secondary inline every period); a live
-        // session solves it on its own thread.
-        dopt.regions.threaded = a.realtime;
-        // The regions start under the path, on the pressed face: that face is the one the
-        // contact slides on without a factorisation (AsyncRegionsOptions::slideNodes).
-        dopt.regionsCentre = pathCentre;
-    }
-    const bool tumour = in.phantom && in.phantom->scene == volume::PhantomScene::Tumour;
-    if (tumour) {
-        // The inclusion is stiffer tissue (8x, between the soft tissue's HU and its own),
-        // free to move: its surface is embedded in the elements and deforms with them.
-        const double e = mat.youngsModulus;
-        const double split =
-            0.5 * (in.phantom->materials.softHu + in.phantom->materials.inclusionHu);
-        vo.youngsFromValue = [e, split](double hu) { return hu > split ? 8 * e : e; };
-    }
-    // Supported on the face opposite the pressed one.
-    const auto support = static_cast<fem::BoxFace>(2 * pa + (press[pa] > 0 ? 1 : 0));
-    auto model = haptics::DeformableModel::fromVolume(vol, vo, mat, support, dopt);
-    if (a.femSolver == "regions" && a.lod == 0) {
-        // Level of detail 2 where it divides the cells: its smaller secondary keeps the zone
-        // the contact slides over without a factorisation within bounds on phantom-sized
-        // bodies (at lod 1 the bone phantom's top face is beyond it: every move of a sliding
-        // contact would factorise, seconds each, and a live contact outruns its regions).
-        const auto cells = model->model().mesh().cellCounts();
-        const bool even = cells[0] % 2 == 0 && cells[1] % 2 == 0 && cells[2] % 2 == 0;
-        haptics::DeformableOptions o = model->options();
-        o.regions.lod = even ? 2 : 1;
-        model = std::make_shared<haptics::DeformableModel>(model->model(), model->fixedNodes(), o);
-    }
-    if (tumour) model->embedMesh(volume::Phantom(*in.phantom).inclusionMesh());
-    return model;
-}
-
-/// Where the path lies: its centre on the surface (m), the lateral axes u (sweep direction,
-/// image right) and v (image up), and the raster extents along them (m).
-struct PathFrame {
-    Eigen::Vector3d centre, u, v;
-    double extentU = 0, extentV = 0;
-};
-
-/// The lateral box of the volume (@p box, @p voxelSize), the surface on its face against
-/// @p press, unless --centre, --sweep-axis or --extent say otherwise.
-PathFrame pathFrame(const PalpateArgs& a, const openvdb::BBoxd& box, double voxelSize,
-                    const Eigen::Vector3d& press) {
-    const int pa = axisIndex(press);
-    const double half = 0.5 * voxelSize;
-    Eigen::Vector3d lo(box.min().x() - half, box.min().y() - half, box.min().z() - half);
-    Eigen::Vector3d hi(box.max().x() + half, box.max().y() + half, box.max().z() + half);
-    Eigen::Vector3d centre = 0.5 * (lo + hi);
-    centre[pa] = press[pa] > 0 ? lo[pa] : hi[pa];
-    if (!a.centreMm.empty()) {
-        centre = 1e-3 * Eigen::Vector3d(a.centreMm[0], a.centreMm[1], a.centreMm[2]);
-    }
-    const int ua = (pa + 1) % 3, va = (pa + 2) % 3;
-    Eigen::Vector3d u = Eigen::Vector3d::Unit(std::min(ua, va));
-    Eigen::Vector3d v = Eigen::Vector3d::Unit(std::max(ua, va));
-    if (!a.sweepAxis.empty()) {
-        u = parseAxis(a.sweepAxis, "--sweep-axis");
-        if (axisIndex(u) == pa)
-            throw ValueError("--sweep-axis: expected an axis across --press-axis " + a.pressAxis +
-                             ", found '" + a.sweepAxis + "'");
-        v = Eigen::Vector3d::Unit(3 - pa - axisIndex(u));
-    }
-    double extentU = (hi - lo).dot(u.cwiseAbs()) - 10e-3;
-    double extentV = (hi - lo).dot(v.cwiseAbs()) - 10e-3;
-    if (!a.extentMm.empty()) {
-        extentU = a.extentMm[0] * 1e-3;
-        extentV = (a.extentMm.size() > 1 ? a.extentMm[1] : a.extentMm[0]) * 1e-3;
-    }
-    requirePositive("--extent (U)", extentU * 1e3, "mm");
-    requirePositive("--extent (V)", extentV * 1e3, "mm");
-    return {centre, u, v, extentU, extentV};
-}
-
-/// The trajectory --trajectory names over @p f and the time it needs (s).
-struct PathPlan {
-    haptics::Trajectory traj;
-    double duration = 0;
-    double approach = 0;  ///< when the path proper starts (the energy budget's origin), s
-};
-
-PathPlan trajectoryFromOptions(const PalpateArgs& a, const PathFrame& f,
-                               const Eigen::Vector3d& press) {
-    const double depth = a.depthMm * 1e-3;
-    haptics::Trajectory traj;
-    double duration = 0, approach = 0;
-    const std::string& tk = a.trajectory;
-    double speed = a.speedMmps;
-    if (!std::isfinite(speed)) speed = tk == "sweep" ? 50 : 100;
-    requirePositive("--speed", speed, "mm/s");
-    if (tk == "raster") {
-        haptics::RasterTrajectory r;
-        r.centre = f.centre;
-        r.u = f.u;
-        r.v = f.v;
-        r.pressDirection = press;
-        r.extentU = f.extentU;
-        r.extentV = f.extentV;
-        r.lineSpacingM = a.spacingMm * 1e-3;
-        r.speedMps = speed * 1e-3;
-        r.depthM = depth;
-        traj = r;
-        duration = haptics::trajectoryDuration(traj) + 0.2;
-    } else if (tk == "sweep") {
-        haptics::SweepTrajectory s;
-        s.centre = f.centre;
-        s.direction = f.u;
-        s.pressDirection = press;
-        s.lengthM = f.extentU;
-        s.speedMps = speed * 1e-3;
-        s.depthM = depth;
-        traj = s;
-        duration = haptics::trajectoryDuration(traj, a.passes);
-        approach = s.approachSeconds;
-    } else if (tk == "circle") {
-        requirePositive("--radius", a.radiusMm, "mm");
-        requirePositive("--frequency", a.frequencyHz, "Hz");
-        haptics::CircleTrajectory c;
-        c.centre = f.centre;
-        c.u = f.u;
-        c.v = f.v;
-        c.pressDirection = press;
-        c.radiusM = a.radiusMm * 1e-3;
-        c.frequencyHz = a.frequencyHz;
-        c.depthM = depth;
-        traj = c;
-        duration = haptics::trajectoryDuration(traj, a.passes);
-        approach = c.approachSeconds + c.rampSeconds;
-    } else {
-        haptics::PressTrajectory p;
-        p.direction = press;
-        p.start = f.centre - 5e-3 * press;  // start 5 mm outside the surface
-        p.depthM = depth + 5e-3;
-        p.pressSeconds = (depth + 5e-3) / (speed * 1e-3);
-        p.holdSeconds = a.holdSeconds;
-        traj = p;
-        duration = haptics::trajectoryDuration(traj);
-    }
-    return {traj, duration, approach};
-}
 
 // ---------------------------------------------------------------------------------------------
 // Run
@@ -446,7 +182,39 @@ struct Report {
     haptics::RunSummary sum;
     haptics::EnergyBudget budget;  ///< from the end of the approach on
     double mapLo = NAN, mapHi = NAN;
+    SkinPlan skin;
+    double pressedFrom = 0;           ///< when the path rests pressed (after the approach), s
+    double contactAfterApproach = 0;  ///< share of ticks in contact from then on
 };
+
+/// Share of the ticks from @p from (s) on whose proxy is on a surface.
+double contactFrom(const std::vector<haptics::Snapshot>& snaps, double from) {
+    const auto first = std::find_if(snaps.begin(), snaps.end(), [from](const haptics::Snapshot& s) {
+        return s.timeSeconds >= from;
+    });
+    if (first == snaps.end()) return 0;
+    const auto n = static_cast<std::size_t>(snaps.end() - first);
+    return haptics::summarize(std::span<const haptics::Snapshot>(&*first, n)).contactFraction;
+}
+
+/// What --json says of the skin the path followed.
+json skinJson(const Report& r) {
+    const SkinPlan& sk = r.skin;
+    json j = {{"following", sk.follow}, {"press_axis", axisName(sk.press)}};
+    if (!sk.follow) return j;
+    j["press_axis_chosen"] = sk.pressChosen ? "side with the most skin facing the press" : "given";
+    if (sk.patch) {
+        const Eigen::Vector3d c = sk.patch->centre * 1e3;
+        j["patch"] = {{"centre_mm", {c.x(), c.y(), c.z()}},
+                      {"extent_mm", {sk.patch->extentU * 1e3, sk.patch->extentV * 1e3}},
+                      {"facing_fraction", sk.patch->facingFraction}};
+    }
+    if (sk.field) {
+        j["field_hit_fraction"] = sk.field->hitFraction();
+        j["field_cell_mm"] = sk.field->spec().cellM * 1e3;
+    }
+    return j;
+}
 
 double ticksPerSecond(const Report& r) {
     return r.run.wallSeconds > 0 ? static_cast<double>(r.run.snaps.size()) / r.run.wallSeconds : 0;
@@ -498,6 +266,12 @@ void printJson(const PalpateArgs& a, const Report& r) {
         {"created", e.created * 1e3},         {"rendering", e.rendering * 1e3},
         {"proxy_path_mm", e.proxyPath * 1e3}, {"probe_path_mm", e.probePath * 1e3}};
     j["contact_fraction"] = sum.contactFraction;
+    j["contact_fraction_after_approach"] = r.contactAfterApproach;
+    j["path_pressed_from_s"] = r.pressedFrom;
+    j["skin"] = skinJson(r);
+    // What the hand felt over the patch, in fingertip-sized cells (4 mm, or two raster lines).
+    j["felt"] =
+        feltSummary(r.run.snaps, r.frame, std::max(4e-3, 2e-3 * a.spacingMm), r.pressedFrom);
     j["stiffness_min_npm"] = sum.minStiffness;
     j["stiffness_max_npm"] = sum.maxStiffness;
     j["faulted_ticks"] = sum.faultedTicks;
@@ -553,10 +327,21 @@ void printText(const PalpateArgs& a, const Report& r) {
             "ticks/s\n",
             static_cast<unsigned long long>(sum.ticks), sum.seconds, wallSeconds, tps);
     }
+    if (r.skin.follow) {
+        std::printf("path on the skin: pressed along %s%s", axisName(r.skin.press).c_str(),
+                    r.skin.pressChosen ? " (the side with the most skin facing it)" : "");
+        if (r.skin.patch)
+            std::printf(", patch %.0f x %.0f mm centred at (%.1f, %.1f, %.1f) mm",
+                        r.skin.patch->extentU * 1e3, r.skin.patch->extentV * 1e3,
+                        r.skin.patch->centre.x() * 1e3, r.skin.patch->centre.y() * 1e3,
+                        r.skin.patch->centre.z() * 1e3);
+        std::printf("\n");
+    }
     std::printf(
-        "rays per frame: mean %.1f, max %d; in contact %.0f %% of ticks; "
-        "stiffness %.0f-%.0f N/m\n",
-        sum.meanRays, sum.maxRays, 100 * sum.contactFraction, sum.minStiffness, sum.maxStiffness);
+        "rays per frame: mean %.1f, max %d; in contact %.0f %% of ticks (%.0f %% after the "
+        "approach); stiffness %.0f-%.0f N/m\n",
+        sum.meanRays, sum.maxRays, 100 * sum.contactFraction, 100 * r.contactAfterApproach,
+        sum.minStiffness, sum.maxStiffness);
     std::printf(
         "max force %.3f N (%llu ticks clamped, %llu faulted); passivity "
         "observer W: final %.3g J, min %.3g J\n",
@@ -598,16 +383,15 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     if (a.deformable) so.surfaceIso = std::numeric_limits<double>::quiet_NaN();
     auto scene = haptics::Scene::fromVolume(vol, so);
 
-    // The path: lateral box of the volume, surface on the face against the press.
-    const Eigen::Vector3d press = parseAxis(a.pressAxis, "--press-axis");
-    const openvdb::BBoxd box = vol.worldBounds();
-    if (box.empty()) {
-        throw ValueError(in.label + ": expected a volume with active voxels, found none");
-    }
+    // The path: on a scan, laid on the skin of the side that faces the press the most; on a
+    // phantom, the face of the volume against the press.
+    const Eigen::AlignedBox3d box = volumeBox(vol, in.label);
+    SkinPlan skin = planSkin(a, o.pressAxis->count() > 0, in, *scene, box);
+    const Eigen::Vector3d press = skin.press;
     std::shared_ptr<const haptics::DeformableModel> body;
     if (a.deformable) {
         try {
-            body = makeBody(a, in, press, pathFrame(a, box, vol.voxelSize(), press).centre, period);
+            body = makeBody(a, in, press, pathFrame(a, box, press).centre, period);
         } catch (const ValueError& e) {
             // Say which options made the tissue (the library speaks of fields, not flags).
             throw ValueError(std::string(e.what()) + "\n(the tissue of --fem-cell-mm " +
@@ -620,8 +404,9 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
         }
         scene->setDeformable(body);
     }
-    const PathFrame frame = pathFrame(a, box, vol.voxelSize(), press);
-    const PathPlan plan = trajectoryFromOptions(a, frame, press);
+    PathFrame frame = pathFrame(a, box, press, skin.patch ? &*skin.patch : nullptr);
+    measureSkin(a, *scene, box, frame, skin);
+    const PathPlan plan = trajectoryFromOptions(a, frame, press, skin.field);
     double duration = plan.duration;
     if (a.seconds > 0) {
         duration = a.seconds;
@@ -652,9 +437,11 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     haptics::SimulatedDevice device(*spec, plan.traj, haptics::HandModel{}, period);
     haptics::Session session(scene, device, sp);
 
-    Report r{in.label, spec, cp, kMaxAsked, frame, body, {}, {}, {}, NAN, NAN};
+    Report r{in.label, spec, cp,   kMaxAsked,        frame, body, {}, {}, {},
+             NAN,      NAN,  skin, plan.pressedFrom, 0};
     r.run = a.realtime ? runRealtime(session, ticks) : runFast(session, ticks);
     r.sum = haptics::summarize(r.run.snaps);
+    r.contactAfterApproach = contactFrom(r.run.snaps, plan.pressedFrom);
     r.budget = haptics::energyBudget(r.run.snaps, plan.approach);
     writeOutputs(a, frame, r.run.snaps, r.mapLo, r.mapHi);
     if (a.json) {

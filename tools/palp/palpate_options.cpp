@@ -137,17 +137,20 @@ void addCouplingOptions(CLI::App* app, PalpateArgs& a) {
 }
 
 /// The scripted path of the simulated hand.
-void addPathOptions(CLI::App* app, PalpateArgs& a) {
+void addPathOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
     app->add_option("--trajectory", a.trajectory, "Path: raster, sweep, circle or press")
         ->check(CLI::IsMember({"raster", "sweep", "circle", "press"}));
     app->add_option("--centre", a.centreMm,
                     "Centre x,y,z of the path on the surface, mm (default: the middle of the "
-                    "volume's lateral box, on its face against the press axis)")
+                    "patch of skin facing the press on a scan, else of the volume's lateral box, "
+                    "on its face against the press axis; on the skin, the coordinate along the "
+                    "press is that face's)")
         ->delimiter(',')
         ->expected(3)
         ->check(within(bounds::kPosition, kMm));
     app->add_option("--extent", a.extentMm,
-                    "Raster U,V size (sweep: U is the length), mm (default: the volume's lateral "
+                    "Raster U,V size (sweep: U is the length), mm (default: the patch of skin "
+                    "facing the press on a scan, less 5 mm each side; else the volume's lateral "
                     "box less 5 mm each side)")
         ->delimiter(',')
         ->expected(1, 2)
@@ -159,8 +162,16 @@ void addPathOptions(CLI::App* app, PalpateArgs& a) {
         ->check(within(bounds::kPositiveSpeed, {1e3, "mm/s"}));
     app->add_option("--depth", a.depthMm, "Press depth of the target below the surface, mm")
         ->check(within(bounds::kLength, kMm));
-    app->add_option("--press-axis", a.pressAxis,
-                    "Press direction into the body (default +y: anterior to posterior)");
+    o.pressAxis = app->add_option(
+        "--press-axis", a.pressAxis,
+        "Press direction into the body (default +y: anterior to posterior; on a scan whose skin "
+        "the path follows, the side of the volume with the most skin facing the press)");
+    app->add_option("--follow-skin", a.followSkin,
+                    "Lay the path on the skin along the press axis (depth below the skin under "
+                    "each point, measured once with the surface's rays): auto (default: on a "
+                    "scan, not on a phantom or --deformable), on, or off (a flat plane at the "
+                    "volume's face)")
+        ->check(CLI::IsMember({"auto", "on", "off"}));
     app->add_option("--sweep-axis", a.sweepAxis,
                     "Sweep direction / raster u axis (default: the first lateral axis)");
     app->add_option("--radius", a.radiusMm, "circle: radius, mm")
@@ -272,7 +283,7 @@ void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked
     addSceneOptions(app, args, checked);
     addDeformableOptions(app, args, checked);
     addCouplingOptions(app, args);
-    addPathOptions(app, args);
+    addPathOptions(app, args, checked);
     addRunOptions(app, args);
 }
 

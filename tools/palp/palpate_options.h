@@ -38,7 +38,8 @@ struct PalpateArgs {
     double spacingMm = 2;
     double speedMmps = NAN;
     double depthMm = 4;
-    std::string pressAxis = "+y";
+    std::string pressAxis = "+y";  ///< used when given (CheckedOptions::pressAxis)
+    std::string followSkin = "auto";
     std::string sweepAxis;
     double radiusMm = 10;
     double frequencyHz = 1;
@@ -81,6 +82,7 @@ struct CheckedOptions {
     CLI::Option* noise = nullptr;
     CLI::Option* seed = nullptr;
     std::vector<CLI::Option*> fem;
+    CLI::Option* pressAxis = nullptr;  ///< given or left to palp (the skin's best side on a scan)
 };
 
 /// Registers every option of `palp palpate` on @p app, bound to @p args; @p checked receives the

@@ -7,12 +7,19 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
+#include <span>
 
 namespace palp::kernels {
 class EmbreeScene;
 }  // namespace palp::kernels
 
 namespace palp::haptics {
+
+/// A signed coordinate axis.
+enum class SignedAxis { PlusX, MinusX, PlusY, MinusY, PlusZ, MinusZ };
+/// The unit vector of @p axis.
+Eigen::Vector3d axisVector(SignedAxis axis) noexcept;
 
 /// A rectangle on the plane of a box face, its press axis into the box, and its skin.
 struct SkinPatch {
@@ -41,10 +48,21 @@ struct SkinPatchOptions {
 SkinPatch findSkinPatch(const kernels::EmbreeScene& surfaces, const Eigen::AlignedBox3d& box,
                         const Eigen::Vector3d& press, const SkinPatchOptions& options = {});
 
-/// findSkinPatch() on the six faces of @p box; the one with the largest rectangle (area), ties
-/// to the earlier of +y, -y, +x, -x, +z, -z (in LPS: anterior, posterior, right, left,
-/// inferior, superior).
+/// The press axes findBestSkinPatch() tries by default, in order of preference: +y, -y, +x, -x,
+/// +z, -z (in LPS, into the body from the anterior, posterior, right, left, inferior and
+/// superior faces).
+inline constexpr std::array<SignedAxis, 6> kAllPressAxes = {SignedAxis::PlusY, SignedAxis::MinusY,
+                                                            SignedAxis::PlusX, SignedAxis::MinusX,
+                                                            SignedAxis::PlusZ, SignedAxis::MinusZ};
+/// The four sides across the patient's long axis (S/I): the ends of an axial scan along S/I are
+/// where the scan cuts through the body (flat faces of tissue, not skin).
+inline constexpr std::array<SignedAxis, 4> kSidePressAxes = {SignedAxis::PlusY, SignedAxis::MinusY,
+                                                             SignedAxis::PlusX, SignedAxis::MinusX};
+
+/// findSkinPatch() on the faces of @p box against each of @p axes; the one with the largest
+/// rectangle (area), ties to the earlier in @p axes.
 SkinPatch findBestSkinPatch(const kernels::EmbreeScene& surfaces, const Eigen::AlignedBox3d& box,
-                            const SkinPatchOptions& options = {});
+                            const SkinPatchOptions& options = {},
+                            std::span<const SignedAxis> axes = kAllPressAxes);
 
 }  // namespace palp::haptics
