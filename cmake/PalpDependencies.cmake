@@ -26,6 +26,14 @@ add_library(palp_gdcm INTERFACE)
 target_include_directories(palp_gdcm SYSTEM INTERFACE ${GDCM_INCLUDE_DIRS})
 target_link_libraries(palp_gdcm INTERFACE gdcmMSFF gdcmDSED gdcmCommon)
 
+# OpenJPEG (the library GDCM decodes JPEG 2000 with): palp asks it for the damage check GDCM
+# does not (volume/src/dicom_j2k.h). No CMake config is needed; find it directly.
+find_path(PALP_OPENJPEG_INCLUDE_DIR openjpeg.h PATH_SUFFIXES openjpeg-2.5 REQUIRED)
+find_library(PALP_OPENJP2_LIB openjp2 REQUIRED)
+add_library(palp_openjpeg INTERFACE)
+target_include_directories(palp_openjpeg SYSTEM INTERFACE ${PALP_OPENJPEG_INCLUDE_DIR})
+target_link_libraries(palp_openjpeg INTERFACE ${PALP_OPENJP2_LIB})
+
 # CHOLMOD (SuiteSparse 5.12) has no CMake config.
 find_library(PALP_CHOLMOD_LIB cholmod REQUIRED)
 find_path(PALP_CHOLMOD_INCLUDE_DIR cholmod.h PATH_SUFFIXES suitesparse REQUIRED)

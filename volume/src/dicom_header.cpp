@@ -1,5 +1,8 @@
 #include "dicom_header.h"
 
+#include <gdcmTransferSyntax.h>
+#include <gdcmUIDs.h>
+
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -12,6 +15,47 @@
 namespace palp::volume::dicom {
 
 namespace fs = std::filesystem;
+
+bool gdcmKnowsTransferSyntax(const std::string& uid) {
+    return gdcm::TransferSyntax::GetTSType(uid.c_str()) != gdcm::TransferSyntax::TS_END;
+}
+
+std::string describeTransferSyntax(const std::string& uid) {
+    if (uid.empty()) return "no transfer syntax";
+    if (gdcmKnowsTransferSyntax(uid)) {
+        gdcm::UIDs known;
+        const char* name = known.SetFromUID(uid.c_str()) ? known.GetName() : nullptr;
+        return uid + " (" + (name && *name ? name : "known to GDCM") + ")";
+    }
+    // Syntaxes added to the standard after this GDCM was built (PS3.6 Table A-1).
+    static const std::pair<const char*, const char*> kNewer[] = {
+        {"1.2.840.10008.1.2.4.100", "MPEG2 Main Profile / Main Level"},
+        {"1.2.840.10008.1.2.4.100.1", "Fragmentable MPEG2 Main Profile / Main Level"},
+        {"1.2.840.10008.1.2.4.101", "MPEG2 Main Profile / High Level"},
+        {"1.2.840.10008.1.2.4.102", "MPEG-4 AVC/H.264 High Profile"},
+        {"1.2.840.10008.1.2.4.103", "MPEG-4 AVC/H.264 BD-compatible High Profile"},
+        {"1.2.840.10008.1.2.4.104", "MPEG-4 AVC/H.264 High Profile For 2D Video"},
+        {"1.2.840.10008.1.2.4.105", "MPEG-4 AVC/H.264 High Profile For 3D Video"},
+        {"1.2.840.10008.1.2.4.106", "MPEG-4 AVC/H.264 Stereo High Profile"},
+        {"1.2.840.10008.1.2.4.107", "HEVC/H.265 Main Profile"},
+        {"1.2.840.10008.1.2.4.108", "HEVC/H.265 Main 10 Profile"},
+        {"1.2.840.10008.1.2.4.110", "JPEG XL Lossless"},
+        {"1.2.840.10008.1.2.4.111", "JPEG XL JPEG Recompression"},
+        {"1.2.840.10008.1.2.4.112", "JPEG XL"},
+        {"1.2.840.10008.1.2.4.201", "High-Throughput JPEG 2000 Lossless"},
+        {"1.2.840.10008.1.2.4.202", "High-Throughput JPEG 2000 with RPCL Lossless"},
+        {"1.2.840.10008.1.2.4.203", "High-Throughput JPEG 2000"},
+        {"1.2.840.10008.1.2.4.204", "JPIP HTJ2K Referenced"},
+        {"1.2.840.10008.1.2.4.205", "JPIP HTJ2K Referenced Deflate"},
+        {"1.2.840.10008.1.2.8.1", "Deflated Image Frame Compression"},
+        {"1.2.840.10008.1.2.7.1", "SMPTE ST 2110-20 Uncompressed Progressive Active Video"},
+        {"1.2.840.10008.1.2.7.2", "SMPTE ST 2110-20 Uncompressed Interlaced Active Video"},
+        {"1.2.840.10008.1.2.7.3", "SMPTE ST 2110-30 PCM Digital Audio"}};
+    for (const auto& [known, name] : kNewer) {
+        if (uid == known) return uid + " (" + name + ", which GDCM cannot read)";
+    }
+    return uid + " (unknown transfer syntax)";
+}
 
 std::string trim(const std::string& s) {
     const auto notSpace = [](char c) {

@@ -14,6 +14,7 @@
 namespace palp::volume::dicom {
 
 // Tags read from every file. No patient-identifying tag is read.
+inline const gdcm::Tag kTransferSyntax(0x0002, 0x0010);  // from the file meta (structural walk)
 inline const gdcm::Tag kSopClassUid(0x0008, 0x0016);
 inline const gdcm::Tag kAcquisitionTime(0x0008, 0x0032);
 inline const gdcm::Tag kContentTime(0x0008, 0x0033);
@@ -36,6 +37,14 @@ inline const gdcm::Tag kBitsAllocated(0x0028, 0x0100);
 inline const gdcm::Tag kRescaleIntercept(0x0028, 0x1052);
 inline const gdcm::Tag kRescaleSlope(0x0028, 0x1053);
 inline const gdcm::Tag kPixelData(0x7fe0, 0x0010);
+
+/// "UID (name)" for a transfer syntax UID: GDCM's name where GDCM knows the syntax, else the
+/// name the DICOM standard gives newer syntaxes (HTJ2K, JPEG XL, video...), else "unknown
+/// transfer syntax". Empty @p uid: "no transfer syntax".
+std::string describeTransferSyntax(const std::string& uid);
+
+/// Whether GDCM (as built here) knows the transfer syntax @p uid.
+bool gdcmKnowsTransferSyntax(const std::string& uid);
 
 /// @p s without leading and trailing blanks and NULs.
 std::string trim(const std::string& s);

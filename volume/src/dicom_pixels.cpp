@@ -9,6 +9,7 @@
 #include <set>
 #include <type_traits>
 
+#include "dicom_j2k.h"
 #include "palp/base/error.h"
 #include "raw_data.h"
 
@@ -20,6 +21,40 @@ namespace {
 
 std::string pixelDescription(int cols, int rows, int bits) {
     return std::to_string(cols) + "x" + std::to_string(rows) + "x" + std::to_string(bits) + " bits";
+}
+
+std::string transferSyntaxOf(const gdcm::Pixmap& image) {
+    const char* uid = gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax());
+    return describeTransferSyntax(uid ? uid : "");
+}
+
+/// Refuses lossless JPEG 2000 pixel data that GDCM decoded but that is damaged (see
+/// checkLosslessJpeg2000); each frame's codestream starts a fragment with SOC and SIZ.
+void checkJpeg2000Frames(const std::string& file, const gdcm::Pixmap& image) {
+    const gdcm::SequenceOfFragments* fragments = image.GetDataElement().GetSequenceOfFragments();
+    if (!fragments) return;
+    std::vector<unsigned char> bytes;
+    std::vector<std::size_t> starts;
+    for (std::size_t i = 0; i < fragments->GetNumberOfFragments(); ++i) {
+        const gdcm::ByteValue* bv = fragments->GetFragment(i).GetByteValue();
+        if (!bv || !bv->GetPointer()) continue;
+        const auto* p = reinterpret_cast<const unsigned char*>(bv->GetPointer());
+        const std::size_t n = bv->GetLength();
+        if (n >= 4 && p[0] == 0xFF && p[1] == 0x4F && p[2] == 0xFF && p[3] == 0x51)
+            starts.push_back(bytes.size());
+        bytes.insert(bytes.end(), p, p + n);
+    }
+    if (starts.empty() || starts.front() != 0) starts.insert(starts.begin(), 0);
+    starts.push_back(bytes.size());
+    for (std::size_t k = 0; k + 1 < starts.size(); ++k) {
+        const std::string problem =
+            checkLosslessJpeg2000(bytes.data() + starts[k], starts[k + 1] - starts[k]);
+        if (problem.empty()) continue;
+        throw FormatError(
+            file + ": expected intact JPEG 2000 pixel data (transfer syntax " +
+            transferSyntaxOf(image) + "), found " + problem +
+            (starts.size() > 2 ? " in frame " + std::to_string(k + 1) : std::string()));
+    }
 }
 
 /// Explains why gdcm::ImageReader could not read @p h: no pixel data, or a damaged file.
@@ -41,8 +76,14 @@ std::string pixelDescription(int cols, int rows, int bits) {
                 (h.text(kSopClassUid).empty() ? std::string("unknown") : h.text(kSopClassUid)) +
                 ")");
         }
-        throw FormatError(file + ": expected decodable pixel data of " + expectedPixels +
-                          ", found pixel data GDCM cannot decode");
+        throw FormatError(
+            file + ": expected decodable pixel data of " + expectedPixels +
+            ", found pixel data GDCM cannot decode (transfer syntax " +
+            describeTransferSyntax(
+                reader.GetFile().GetHeader().GetDataSetTransferSyntax().GetString()
+                    ? reader.GetFile().GetHeader().GetDataSetTransferSyntax().GetString()
+                    : "") +
+            ")");
     }
     throw FormatError(file + ": expected complete pixel data of " + expectedPixels +
                       ", found a truncated or corrupt file (" + sizeText + ")");
@@ -198,14 +239,13 @@ void decodeFile(const Header& h, int frames, gdcm::ImageReader& reader, std::vec
     }
     buffer.resize(length);
     if (!image.GetBuffer(buffer.data())) {
-        const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
-        const char* tsName = gdcm::TransferSyntax::GetTSString(ts);
         throw FormatError(file + ": expected complete pixel data of " +
                           pixelDescription(cols, rows, pf.GetBitsAllocated()) +
-                          " (transfer syntax " +
-                          (tsName ? std::string(tsName) : std::string("unknown")) +
+                          " (transfer syntax " + transferSyntaxOf(image) +
                           "), found a truncated file or data that cannot be decoded");
     }
+    const char* uid = gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax());
+    if (uid && isLosslessJpeg2000(uid)) checkJpeg2000Frames(file, image);
 }
 
 double checkedSlope(const std::string& file, const std::optional<double>& slope,

@@ -158,6 +158,16 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
     for (const auto& [file, walk] : scan.damaged) {
         if (walk.seriesUid.empty() || walk.seriesUid == series.uid) throwDamaged(file, walk);
     }
+    for (const auto& [file, walk] : scan.unparsed) {
+        // A file of this series GDCM cannot parse would otherwise be left out silently.
+        if (walk.seriesUid == series.uid) {
+            throw FormatError(file.string() + ": expected an image of series " + series.uid +
+                              " GDCM can read, found one in transfer syntax " +
+                              describeTransferSyntax(walk.transferSyntax) +
+                              " whose data set GDCM cannot parse");
+        }
+    }
+    for (const Header* h : series.images) checkTransferSyntax(*h);
 
     for (const Header* h : series.files) {
         if (!h->isImage()) {

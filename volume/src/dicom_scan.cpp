@@ -4,6 +4,7 @@
 #include <gdcmTrace.h>
 
 #include <algorithm>
+#include <map>
 
 #include "dicom_slices.h"
 #include "palp/base/error.h"
@@ -85,11 +86,13 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
     // Only DICOM Part 10 files ("DICM" at byte 128) are read, and only those whose structure is
     // complete reach GDCM.
     std::vector<std::string> complete;
+    std::map<std::string, Walk> walks;
     for (const std::string& f : files) {
         Walk w = walkFile(f);
         if (!w.isPart10) continue;
         if (w.complete) {
             complete.push_back(f);
+            walks.emplace(f, std::move(w));
         } else {
             scan.damaged.emplace_back(f, std::move(w));
         }
@@ -100,12 +103,17 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
     if (!files.empty())
         scanner.Scan(files);  // false only when no file at all was DICOM; IsKey tells per file
     for (const std::string& f : files) {
-        if (!scanner.IsKey(f.c_str())) continue;
+        const Walk& walk = walks.at(f);
+        if (!scanner.IsKey(f.c_str())) {
+            scan.unparsed.emplace_back(f, walk);
+            continue;
+        }
         Header h;
         h.path = f;
         for (const auto& [tag, value] : scanner.GetMapping(f.c_str())) {
             if (value) h.values[tag] = trim(value);
         }
+        if (!walk.transferSyntax.empty()) h.values[kTransferSyntax] = walk.transferSyntax;
         // A file GDCM parsed but that carries none of the tags every DICOM object has is not
         // DICOM for our purposes (GDCM accepts some raw data sets without preamble).
         if (!h.get(kSopClassUid) && !h.get(kSeriesUid) && !h.isImage()) continue;
@@ -114,7 +122,28 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
     return scan;
 }
 
+void checkTransferSyntax(const Header& h) {
+    const std::string uid = h.text(kTransferSyntax);
+    if (uid.empty() || gdcmKnowsTransferSyntax(uid)) return;
+    throw FormatError(h.path.string() + ": expected a transfer syntax GDCM can decode, found " +
+                      describeTransferSyntax(uid));
+}
+
 [[noreturn]] void throwNoDicom(const Scan& scan) {
+    if (!scan.unparsed.empty()) {
+        const auto& [file, walk] = scan.unparsed.front();
+        const std::string more =
+            scan.unparsed.size() > 1
+                ? " (and " + std::to_string(scan.unparsed.size() - 1) + " more such files)"
+                : std::string();
+        const std::string uid = walk.transferSyntax;
+        throw FormatError(file.string() + ": expected a DICOM file GDCM can read, found " +
+                          (uid.empty() || !gdcmKnowsTransferSyntax(uid)
+                               ? "one in transfer syntax " + describeTransferSyntax(uid)
+                               : "one whose data set GDCM cannot parse (transfer syntax " +
+                                     describeTransferSyntax(uid) + ")") +
+                          more);
+    }
     if (scan.fileCount == 0) {
         throw FormatError(scan.inputsName + ": expected DICOM files, found none (no files)");
     }

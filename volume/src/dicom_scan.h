@@ -18,7 +18,14 @@ struct Scan {
     std::size_t fileCount = 0;
     std::vector<Header> headers;                                  // DICOM files only
     std::vector<std::pair<std::filesystem::path, Walk>> damaged;  // DICOM files GDCM must not see
+    // Complete DICOM Part 10 files whose data set GDCM could not parse (an unknown transfer
+    // syntax, most often).
+    std::vector<std::pair<std::filesystem::path, Walk>> unparsed;
 };
+
+/// Refuses a series that holds a file in a transfer syntax GDCM does not know, naming it.
+/// @throw FormatError naming the file and the syntax.
+void checkTransferSyntax(const Header& h);
 
 /// Scans the headers of every file in @p inputs (directories recursively); damaged files are
 /// set aside in Scan::damaged, files that are not DICOM are skipped.

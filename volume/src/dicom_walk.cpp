@@ -138,7 +138,7 @@ Walk walkFile(const fs::path& path) {
             if (readAt(pos, v, length)) {
                 const std::string text = trim(std::string(reinterpret_cast<char*>(v), length));
                 const std::uint32_t tag = group << 16 | element;
-                if (tag == 0x00020010u) transferSyntax = text;
+                if (tag == 0x00020010u) transferSyntax = w.transferSyntax = text;
                 if (tag == 0x00020002u) mediaStorage = text;
                 if (tag == 0x0020000Eu) w.seriesUid = text;
                 if (length == 2 && tag == 0x00280010u) w.rows = static_cast<int>(u16(v));

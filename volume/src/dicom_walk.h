@@ -11,12 +11,13 @@ namespace palp::volume::dicom {
 /// for some files that end inside an element header, so files are checked here, by reading
 /// element headers and skipping values, before GDCM sees them.
 struct Walk {
-    bool isPart10 = false;     // "DICM" at byte 128
-    bool complete = false;     // every header and value through the end of Pixel Data fits
-    bool inPixelData = false;  // the damage lies in the Pixel Data value
-    bool noPixelData = false;  // an image file that ends cleanly before Pixel Data
-    std::string problem;       // what is wrong, for messages
-    std::string seriesUid;     // (0020,000e) when it was reached
+    bool isPart10 = false;       // "DICM" at byte 128
+    bool complete = false;       // every header and value through the end of Pixel Data fits
+    bool inPixelData = false;    // the damage lies in the Pixel Data value
+    bool noPixelData = false;    // an image file that ends cleanly before Pixel Data
+    std::string problem;         // what is wrong, for messages
+    std::string seriesUid;       // (0020,000e) when it was reached
+    std::string transferSyntax;  // (0002,0010) as the file meta information gives it
     int rows = 0, cols = 0, bitsAllocated = 0;
     std::uint64_t size = 0;
 };

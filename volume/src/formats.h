@@ -17,6 +17,15 @@ namespace palp::volume {
 /// qform, else the pixdim scaling; RAS is converted to LPS; scl_slope/scl_inter applied.
 SliceStack readNifti(const std::filesystem::path& path, const ReadOptions& options);
 
+/// What @p path's content says it is, whatever its name: "a NIfTI-1 file", "a gzip-compressed
+/// NIfTI-2 file", "a DICOM file", "an NRRD file", "a MetaImage header", "an OpenVDB file", "a
+/// gzip stream"; empty when its first bytes match none of them (or it cannot be read).
+std::string describeContent(const std::filesystem::path& path);
+
+/// Whether @p path is named as nifticlib expects a NIfTI file (.nii, .nii.gz, .hdr, .img,
+/// .hdr.gz, .img.gz; any case).
+bool hasNiftiName(const std::filesystem::path& path);
+
 /// NRRD (.nrrd attached or .nhdr detached; raw or gzip; space directions and origin).
 SliceStack readNrrd(const std::filesystem::path& path, const ReadOptions& options);
 

@@ -1,6 +1,7 @@
 #include "palp/volume/load.h"
 
 #include <openvdb/io/File.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <cctype>
@@ -98,25 +99,88 @@ const char* formatName(Format f) {
     return "unknown";
 }
 
+namespace {
+
+/// A file's format as its content tells it, with the words for messages.
+struct Sniffed {
+    Format format = Format::Unknown;
+    std::string what;  // "a NIfTI-1 file", ...; empty when nothing matched
+};
+
+/// The first @p n bytes of the gzip stream @p path, inflated (fewer when the stream is
+/// shorter or damaged).
+std::string gunzipPrefix(const fs::path& path, std::size_t n) {
+    gzFile gz = gzopen(path.c_str(), "rb");
+    if (!gz) return {};
+    std::string buf(n, '\0');
+    const int got = gzread(gz, buf.data(), static_cast<unsigned>(n));
+    gzclose(gz);
+    buf.resize(got > 0 ? static_cast<std::size_t>(got) : 0);
+    return buf;
+}
+
+/// Whether @p head starts (after blank lines and comments) with a MetaImage key and '='.
+bool looksLikeMetaImage(const std::string& head) {
+    static const char* const kKeys[] = {
+        "ObjectType",     "NDims",          "DimSize", "ElementType", "ElementDataFile",
+        "ElementSpacing", "ObjectSubType",  "Comment", "BinaryData",  "ElementByteOrderMSB",
+        "CompressedData", "TransformMatrix"};
+    std::size_t at = head.find_first_not_of(" \t\r\n");
+    if (at == std::string::npos) return false;
+    for (const char* key : kKeys) {
+        const std::size_t len = std::char_traits<char>::length(key);
+        if (head.compare(at, len, key) != 0) continue;
+        const std::size_t eq = head.find_first_not_of(" \t", at + len);
+        return eq != std::string::npos && head[eq] == '=';
+    }
+    return false;
+}
+
+Sniffed sniff(const fs::path& path) {
+    std::string head = readPrefix(path, 540);
+    const auto byte = [&](std::size_t i) { return static_cast<unsigned char>(head[i]); };
+    const bool gzip = head.size() >= 2 && byte(0) == 0x1f && byte(1) == 0x8b;
+    if (gzip) head = gunzipPrefix(path, 540);
+    const std::string packed = gzip ? "a gzip-compressed " : "a ";
+    if (head.size() >= 132 && head.compare(128, 4, "DICM") == 0)
+        return {Format::Dicom, packed + "DICOM file"};
+    if (head.rfind("NRRD000", 0) == 0) return {Format::Nrrd, packed + "NRRD file"};
+    if (head.size() >= 4 && byte(0) == 0x20 && byte(1) == 0xBD && byte(2) == 0xB3 &&
+        byte(3) == 0x56) {
+        return {Format::Vdb, gzip ? "a gzip-compressed OpenVDB file" : "an OpenVDB file"};
+    }
+    if (head.size() >= 348 && (head.compare(344, 4, std::string("n+1\0", 4)) == 0 ||
+                               head.compare(344, 4, std::string("ni1\0", 4)) == 0)) {
+        return {Format::Nifti, packed + (head[345] == '+' ? "NIfTI-1 file" : "NIfTI-1 header")};
+    }
+    if (head.size() >= 8 && (head.compare(4, 4, std::string("n+2\0", 4)) == 0 ||
+                             head.compare(4, 4, std::string("ni2\0", 4)) == 0)) {
+        return {Format::Nifti, packed + (head[5] == '+' ? "NIfTI-2 file" : "NIfTI-2 header")};
+    }
+    if (!gzip && looksLikeMetaImage(head)) return {Format::MetaImage, "a MetaImage header"};
+    if (gzip) return {Format::Unknown, "a gzip stream"};
+    return {};
+}
+
+}  // namespace
+
+std::string describeContent(const fs::path& path) { return sniff(path).what; }
+
+bool hasNiftiName(const fs::path& path) {
+    const std::string name = lower(path.filename().string());
+    for (const char* ext : {".nii", ".nii.gz", ".hdr", ".img", ".hdr.gz", ".img.gz"}) {
+        if (endsWith(name, ext)) return true;
+    }
+    return false;
+}
+
 Format detectFormat(const fs::path& path) {
     std::error_code ec;
     if (fs::is_directory(path, ec)) return Format::Dicom;
-    const std::string head = readPrefix(path, 352);
-    if (head.size() >= 132 && head.compare(128, 4, "DICM") == 0) return Format::Dicom;
-    if (head.rfind("NRRD000", 0) == 0) return Format::Nrrd;
-    if (head.size() >= 4 && static_cast<unsigned char>(head[0]) == 0x20 &&
-        static_cast<unsigned char>(head[1]) == 0xBD &&
-        static_cast<unsigned char>(head[2]) == 0xB3 &&
-        static_cast<unsigned char>(head[3]) == 0x56) {
-        return Format::Vdb;
-    }
-    if (head.size() >= 348 &&
-        (head.compare(344, 3, "n+1") == 0 || head.compare(344, 3, "ni1") == 0)) {
-        return Format::Nifti;
-    }
-    if (head.size() >= 8 && (head.compare(4, 3, "n+2") == 0 || head.compare(4, 3, "ni2") == 0)) {
-        return Format::Nifti;
-    }
+    // The content decides; the name only where the content says nothing (Analyze .hdr, a
+    // DICOM file without its preamble, a damaged file a reader should name).
+    const Sniffed s = sniff(path);
+    if (s.format != Format::Unknown) return s.format;
     const std::string name = lower(path.filename().string());
     if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr"))
         return Format::Nifti;
@@ -124,8 +188,6 @@ Format detectFormat(const fs::path& path) {
     if (endsWith(name, ".mha") || endsWith(name, ".mhd")) return Format::MetaImage;
     if (endsWith(name, ".vdb")) return Format::Vdb;
     if (endsWith(name, ".dcm") || endsWith(name, ".ima")) return Format::Dicom;
-    // MetaImage headers are text starting with a known key.
-    if (head.rfind("ObjectType", 0) == 0 || head.rfind("NDims", 0) == 0) return Format::MetaImage;
     return Format::Unknown;
 }
 
@@ -181,9 +243,13 @@ SliceStack readStackUnchecked(const std::vector<fs::path>& inputs, const ReadOpt
         case Format::Unknown:
             break;
     }
+    const std::string what = describeContent(inputs.front());
     throw FormatError(inputs.front().string() +
                       ": expected a DICOM file or directory, NIfTI (.nii, .nii.gz), NRRD (.nrrd, "
-                      ".nhdr), MetaImage (.mha, .mhd) or OpenVDB (.vdb), found an unknown format");
+                      ".nhdr), MetaImage (.mha, .mhd) or OpenVDB (.vdb), found " +
+                      (what.empty() ? std::string("an unknown format (its first bytes match none "
+                                                  "of them and its name says nothing)")
+                                    : what + " palp cannot read"));
 }
 
 }  // namespace

@@ -67,10 +67,12 @@ std::mutex& niftiMutex() {
 }
 
 /// pixdim[1..3] as the file stores them (nifti_image holds them after nifticlib's repairs);
-/// @p nim's values when the raw header cannot be read again. Called with niftiMutex held.
-std::array<double, 3> rawPixdim(const std::string& name, const nifti_image& nim) {
+/// @p nim's values when the raw header cannot be read again; @p version is set to the header's
+/// NIfTI version (1 or 2; nifticlib's nifti_type says NIfTI-1 for a NIfTI-2 file it converted).
+/// Called with niftiMutex held.
+std::array<double, 3> rawPixdim(const std::string& name, const nifti_image& nim, int& version) {
     std::array<double, 3> out{nim.pixdim[1], nim.pixdim[2], nim.pixdim[3]};
-    int version = 0;
+    version = 0;
     void* raw = nifti_read_header(name.c_str(), &version, 0);
     if (!raw) return out;
     if (version == 1) {
@@ -90,12 +92,27 @@ SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
     const std::string name = path.string();
     (void)fileSize(path);  // a clear IoError for a missing or unreadable file
 
+    // nifticlib chooses how to read a file by its name: a NIfTI file under another name is
+    // refused saying what it is, rather than with nifticlib's failure.
+    const std::string content = describeContent(path);
+    if (!hasNiftiName(path)) {
+        throw FormatError(name +
+                          ": expected a NIfTI file named *.nii, *.nii.gz or *.hdr/*.img, found " +
+                          (content.empty() ? std::string("a file") : content) + " named '" +
+                          path.filename().string() +
+                          "' (nifticlib reads NIfTI by its name; rename it to .nii, or .nii.gz if "
+                          "it is gzip-compressed)");
+    }
+
     std::unique_lock<std::mutex> lock(niftiMutex());
     nifti_set_debug_level(0);
     NiftiPtr nim(nifti_image_read(name.c_str(), 0));
     if (!nim) {
-        throw FormatError(
-            name + ": expected a NIfTI-1 or NIfTI-2 header, found one nifticlib cannot read");
+        throw FormatError(name + ": expected a NIfTI-1 or NIfTI-2 header, found " +
+                          (content.empty() ? std::string("a file without the NIfTI magic "
+                                                         "('n+1', 'ni1', 'n+2' or 'ni2')")
+                                           : content) +
+                          " that nifticlib cannot read");
     }
 
     const auto type = niftiType(nim->datatype);
@@ -159,7 +176,8 @@ SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
     // header's values are checked so that a spacing the file gives is used or refused.
     const bool useSform = nim->sform_code > 0;
     const bool useQform = !useSform && nim->qform_code > 0;
-    std::array<double, 3> pixdim = rawPixdim(name, *nim);
+    int headerVersion = 0;
+    std::array<double, 3> pixdim = rawPixdim(name, *nim, headerVersion);
     for (std::size_t a = 0; a < 3; ++a) {
         // An axis beyond dim[0] has one sample and no width in the file: 1, as nifticlib.
         const double d = pixdim[a];
@@ -252,7 +270,7 @@ SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
 
     const std::array<std::int64_t, 3> dims3{dims[0], dims[1], dims[2]};
     SliceStack stack = stackFromAffine(values, dims3, axes, origin, name);
-    stack.info.sourceFormat = niftiKind >= NIFTI_FTYPE_NIFTI2_1  ? "NIfTI-2"
+    stack.info.sourceFormat = headerVersion == 2 || niftiKind >= NIFTI_FTYPE_NIFTI2_1 ? "NIfTI-2"
                               : niftiKind == NIFTI_FTYPE_ANALYZE ? "Analyze 7.5"
                                                                  : "NIfTI-1";
     stack.info.sourceDescription = detail::trim(description).empty()

@@ -603,7 +603,9 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options) 
         out.info.originalDims = {stack.slices.front().cols, stack.slices.front().rows,
                                  static_cast<std::int64_t>(n)};
     }
-    out.info.gantryTiltDeg = spacing.tiltDeg;
+    // The geometry gives the angle; a DICOM Gantry/Detector Tilt (0018,1120) gives its sign,
+    // which the metadata keeps as the tag says.
+    out.info.gantryTiltDeg = stack.info.gantryTiltDeg < 0 ? -spacing.tiltDeg : spacing.tiltDeg;
     writeInfo(out.info, *grid);
     return out;
 }
