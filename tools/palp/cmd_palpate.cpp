@@ -2,6 +2,7 @@
 // (simulated hand and device), offline as fast as possible or on the real-time servo loop;
 // writes a CSV trace and a PNG map over the palpated plane.
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -22,6 +23,7 @@
 #include "palp/haptics/coupling_defaults.h"
 #include "palp/haptics/energy_budget.h"
 #include "palp/haptics/map_png.h"
+#include "palp/haptics/map_svg.h"
 #include "palp/haptics/offline_run.h"
 #include "palp/haptics/scalar_map.h"
 #include "palp/haptics/session.h"
@@ -146,7 +148,8 @@ haptics::MapPlane mapPlane(const PalpateArgs& a, const PathFrame& f) {
 /// before either file is written, and a trace is removed again when the map cannot be written,
 /// so a refusal leaves no output behind.
 void writeOutputs(const PalpateArgs& a, const PathFrame& f,
-                  const std::vector<haptics::Snapshot>& snaps, double& mapLo, double& mapHi) {
+                  const std::vector<haptics::Snapshot>& snaps, const std::string& title,
+                  double& mapLo, double& mapHi) {
     std::optional<haptics::ScalarMap> map;
     if (!a.map.empty()) {
         map = haptics::binSnapshots(snaps, mapPlane(a, f), haptics::parseMapQuantity(a.mapQuantity),
@@ -160,7 +163,20 @@ void writeOutputs(const PalpateArgs& a, const PathFrame& f,
     po.colorMap = a.grey ? haptics::ColorMap::Grey : haptics::ColorMap::Heat;
     po.scale = std::clamp(static_cast<int>(256 / std::max(map->cols(), map->rows())), 1, 16);
     try {
-        haptics::writeMapPng(a.map, *map, po);
+        std::string ext = fs::path(a.map).extension().string();
+        std::transform(ext.begin(), ext.end(), ext.begin(),
+                       [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+        if (ext == ".svg") {
+            // A figure a clinician can read: axes in mm, patient directions, colour bar.
+            haptics::MapFigure fig;
+            fig.title = title;
+            fig.quantity = a.mapQuantity;
+            fig.units = a.mapQuantity == "stiffness" ? "N/m" : "N";
+            fig.colorMap = po.colorMap;
+            haptics::writeMapSvg(a.map, *map, fig);
+        } else {
+            haptics::writeMapPng(a.map, *map, po);
+        }
     } catch (...) {
         if (!a.trace.empty()) {
             std::error_code ec;
@@ -443,7 +459,12 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     r.sum = haptics::summarize(r.run.snaps);
     r.contactAfterApproach = contactFrom(r.run.snaps, plan.pressedFrom);
     r.budget = haptics::energyBudget(r.run.snaps, plan.approach);
-    writeOutputs(a, frame, r.run.snaps, r.mapLo, r.mapHi);
+    // The map's title: what was palpated, how, along which path.
+    const std::string title = in.label + ": " + haptics::couplingModeName(cp.mode) + "/" +
+                              haptics::raySourceName(cp.source) + ", " + a.trajectory +
+                              (skin.follow ? " on the skin" : "") + ", pressed " + axisName(press) +
+                              " (from " + haptics::patientDirection(-press) + ")";
+    writeOutputs(a, frame, r.run.snaps, title, r.mapLo, r.mapHi);
     if (a.json) {
         printJson(a, r);
     } else if (!globals().quiet) {

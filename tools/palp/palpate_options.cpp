@@ -195,7 +195,9 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
                     "path is done)")
         ->check(within(bounds::kPositiveDuration));
     app->add_option("--trace", a.trace, "Write a CSV trace of every tick");
-    app->add_option("--map", a.map, "Write a PNG map over the palpated plane");
+    app->add_option("--map", a.map,
+                    "Write a map over the palpated plane: .svg a figure with axes in mm, "
+                    "patient directions, colour bar and title; otherwise a bare PNG heat image");
     app->add_option("--map-quantity", a.mapQuantity, "stiffness, force or energy")
         ->check(CLI::IsMember({"stiffness", "force", "energy"}));
     app->add_option("--map-at", a.mapAt,
