@@ -374,6 +374,23 @@ void printText(const PalpateArgs& a, const Report& r) {
             body->surface().triangles.size(), body->fixedNodes().size(), a.filterMm, a.youngKpa,
             a.femSolver.c_str(), maxDisp * 1e3);
     }
+    const json felt =
+        feltSummary(r.run.snaps, r.frame, std::max(4e-3, 2e-3 * a.spacingMm), r.pressedFrom);
+    if (felt.contains("stiffest")) {
+        const json& st = felt["stiffest"];
+        std::printf(
+            "felt: stiffest %.0f N/m at (%.1f, %.1f, %.1f) mm, hard structure %.1f mm "
+            "under it by the rays",
+            st["stiffness_npm"].get<double>(), st["at_mm"][0].get<double>(),
+            st["at_mm"][1].get<double>(), st["at_mm"][2].get<double>(),
+            st["hard_depth_mm"].get<double>());
+        if (felt.contains("stiffness_vs_hard_depth_spearman") &&
+            felt["stiffness_vs_hard_depth_spearman"].is_number())
+            std::printf("; stiffness vs that depth over %d cells of %.0f mm: Spearman %.2f",
+                        felt["cells"].get<int>(), felt["cell_mm"].get<double>(),
+                        felt["stiffness_vs_hard_depth_spearman"].get<double>());
+        std::printf("\n");
+    }
     if (!a.trace.empty()) std::printf("wrote %s\n", a.trace.c_str());
     if (!a.map.empty())
         std::printf("wrote %s: %s from %.3g to %.3g; image right = %s, up = %s\n", a.map.c_str(),
