@@ -15,11 +15,14 @@ namespace palp::volume::dicom {
 
 // Tags read from every file. No patient-identifying tag is read.
 inline const gdcm::Tag kTransferSyntax(0x0002, 0x0010);  // from the file meta (structural walk)
+inline const gdcm::Tag kImageType(0x0008, 0x0008);
 inline const gdcm::Tag kSopClassUid(0x0008, 0x0016);
 inline const gdcm::Tag kAcquisitionTime(0x0008, 0x0032);
 inline const gdcm::Tag kContentTime(0x0008, 0x0033);
 inline const gdcm::Tag kModality(0x0008, 0x0060);
 inline const gdcm::Tag kSeriesDescription(0x0008, 0x103e);
+inline const gdcm::Tag kSliceThickness(0x0018, 0x0050);
+inline const gdcm::Tag kSpacingBetweenSlices(0x0018, 0x0088);
 inline const gdcm::Tag kGantryTilt(0x0018, 0x1120);
 inline const gdcm::Tag kSeriesUid(0x0020, 0x000e);
 inline const gdcm::Tag kAcquisitionNumber(0x0020, 0x0012);

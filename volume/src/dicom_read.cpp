@@ -8,6 +8,7 @@
 #include <functional>
 
 #include "dicom_header.h"
+#include "dicom_mosaic.h"
 #include "dicom_pixels.h"
 #include "dicom_scan.h"
 #include "dicom_slices.h"
@@ -134,6 +135,37 @@ SliceStack readMultiFrame(const Header& h, int frames, const std::string& name,
     return stack;
 }
 
+/// A series of Siemens mosaics: each file is one whole volume (one time point), so every file
+/// must be a mosaic and all must share one position; @p chosen holds the time point's file.
+SliceStack readMosaicSeries(const std::vector<const Header*>& images,
+                            const std::vector<const Header*>& chosen, const std::string& name,
+                            const std::string& uid, const std::vector<fs::path>& inputs,
+                            const ReadOptions& options, int timePoint, int timePointCount) {
+    for (const Header* h : images) {
+        if (!isMosaic(*h)) {
+            throw FormatError(h->path.string() + ": expected a MOSAIC image like " +
+                              images.front()->path.string() + " (Image Type (0008,0008) '" +
+                              images.front()->text(kImageType) + "'), found Image Type '" +
+                              h->text(kImageType) + "'");
+        }
+    }
+    if (chosen.size() != 1) {
+        throw FormatError(name +
+                          ": expected the mosaics of a series at one position (each holds "
+                          "a whole volume), found " +
+                          std::to_string(chosen.size()) + " positions (e.g. " +
+                          chosen.back()->path.string() + ")");
+    }
+    const Header& h = *chosen.front();
+    checkMemory(name, h.integer(kColumns, 0), h.integer(kRows, 0), 1, options.maxSourceBytes);
+    SliceStack stack;
+    std::array<std::int64_t, 3> dims{};
+    stack.slices = readMosaic(h, dims);
+    fillInfo(stack.info, h, inputs, uid, stack.slices.size(), timePoint, timePointCount, false);
+    stack.info.originalDims = dims;
+    return stack;
+}
+
 }  // namespace
 }  // namespace dicom
 
@@ -211,6 +243,10 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
         });
         chosen.push_back(grp[static_cast<std::size_t>(std::max(timePoint, 0))]);
     }
+
+    if (isMosaic(first))
+        return readMosaicSeries(images, chosen, name, series.uid, inputs, options, timePoint,
+                                timePointCount);
 
     // Refuse before decoding anything that would not fit the memory budget.
     checkMemory(name, first.integer(kColumns, 0), first.integer(kRows, 0), chosen.size(),

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <map>
 
+#include "dicom_mosaic.h"
 #include "dicom_slices.h"
 #include "palp/base/error.h"
 
@@ -82,7 +83,7 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
         kInstanceNumber,    kImagePosition,   kImageOrientation, kTemporalPosition,
         kSamplesPerPixel,   kPhotometric,     kNumberOfFrames,   kRows,
         kColumns,           kPixelSpacing,    kBitsAllocated,    kRescaleIntercept,
-        kRescaleSlope};
+        kRescaleSlope,      kImageType,       kSliceThickness,   kSpacingBetweenSlices};
     // Only DICOM Part 10 files ("DICM" at byte 128) are read, and only those whose structure is
     // complete reach GDCM.
     std::vector<std::string> complete;
@@ -189,6 +190,13 @@ DicomSeriesInfo describeSeries(const SeriesGroup& g) {
         return info;
     }
     const auto groups = groupPositions(g.images, *n, positionTolerance(*g.images.front()));
+    if (groups.size() == 1 && isMosaic(*g.images.front())) {
+        // Each mosaic is a whole volume: its slices are the positions, the files time points.
+        const int slices = mosaicSliceCount(*g.images.front());
+        info.positionCount = slices > 0 ? slices : 1;
+        info.timePointCount = info.imageCount;
+        return info;
+    }
     info.positionCount = static_cast<int>(groups.size());
     std::size_t most = 0;
     for (const auto& grp : groups) most = std::max(most, grp.size());
