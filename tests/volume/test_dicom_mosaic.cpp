@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -241,7 +242,9 @@ void compareWithDcm2niix(double sign) {
     ASSERT_EQ(r.exitCode, 0) << r.output;
     const fs::path nii = tmp / "nifti" / "mosaic.nii";
     ASSERT_TRUE(fs::exists(nii)) << r.output;
-    nifti_image* nim = nifti_image_read(nii.c_str(), 1);
+    const std::unique_ptr<nifti_image, void (*)(nifti_image*)> image(
+        nifti_image_read(nii.c_str(), 1), nifti_image_free);
+    const nifti_image* nim = image.get();
     ASSERT_NE(nim, nullptr);
     ASSERT_EQ(nim->datatype, DT_INT16);
     ASSERT_EQ(nim->nx * nim->ny * nim->nz, Known::kCols * Known::kRows * Known::kSlices);
@@ -278,7 +281,6 @@ void compareWithDcm2niix(double sign) {
         }
     }
     EXPECT_EQ(matched, Known::kCols * Known::kRows * Known::kSlices);
-    nifti_image_free(nim);
 }
 
 TEST(DicomMosaic, AgreesWithDcm2niixOnEveryVoxelCentreAndValue) {
