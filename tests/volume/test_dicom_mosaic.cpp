@@ -5,6 +5,7 @@
 #include <gdcmAttribute.h>
 #include <gdcmImageWriter.h>
 #include <gdcmMediaStorage.h>
+#include <gdcmTrace.h>
 #include <gdcmUIDGenerator.h>
 #include <gtest/gtest.h>
 #include <nifti2_io.h>
@@ -105,6 +106,7 @@ void writeMosaic(const Known& known, const fs::path& file, int t, double sign,
                 pixels[static_cast<std::size_t>((r0 + r) * cols + c0 + c)] =
                     Known::value(c, r, k, t);
     }
+    gdcm::Trace::WarningOff();  // GDCM's writer warns of the Photometric Interpretation it sets
     gdcm::ImageWriter writer;
     gdcm::Image& image = writer.GetImage();
     image.SetNumberOfDimensions(2);
