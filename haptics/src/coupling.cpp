@@ -131,8 +131,13 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
     out.distance = D;
     const Eigen::Vector3d dampingForce = p.damping * (proxyVelocity - probeVelocity);
 
-    const bool rays = p.mode != CouplingMode::VC && sourceAvailable() &&
-                      kernels::generateBundle(proxy, d, tangent1, tangent2, p.bundle, mBundle);
+    // Deformable tissue: the rays leave in the material frame at the contact.
+    const Eigen::Matrix3d Rt = mFrame.transpose();
+    const bool rays =
+        p.mode != CouplingMode::VC && sourceAvailable() &&
+        (mFramed ? kernels::generateBundle(proxy, Rt * d, Rt * tangent1, Rt * tangent2, p.bundle,
+                                           mBundle)
+                 : kernels::generateBundle(proxy, d, tangent1, tangent2, p.bundle, mBundle));
     if (!rays) {
         mBundle.count = 0;
         mBundle.valid = false;
@@ -165,6 +170,11 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
     out.surface = kernels::surfaceSobel(mBundle, perRay);
     out.energyForce = -0.5 * D * (out.sphere.g1 * mBundle.e1 + out.sphere.g2 * mBundle.e2);
     out.proxyForce = -0.5 * D * D * (out.surface.g1 * mBundle.t1 + out.surface.g2 * mBundle.t2);
+    if (mFramed) {
+        // The stencils' axes were R^T e and R^T t: back to the world.
+        out.energyForce = mFrame * out.energyForce;
+        out.proxyForce = mFrame * out.proxyForce;
+    }
     out.force += out.energyForce;
     out.stepStiffness = out.stiffness + tangentialCurvature(mBundle, k, D, out);
 }
@@ -274,8 +284,13 @@ double Coupling::storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3
     const double D = delta.norm();
     if (!std::isfinite(D) || !(D >= p.minDistance)) return 0;
     double k = std::min(p.baseStiffness, p.maxStiffness);
-    if (p.mode != CouplingMode::VC && sourceAvailable() &&
-        kernels::generateBundle(proxy, delta / D, tangent1, tangent2, p.bundle, mProbeBundle)) {
+    const Eigen::Matrix3d Rt = mFrame.transpose();
+    const bool rays = p.mode != CouplingMode::VC && sourceAvailable() &&
+                      (mFramed ? kernels::generateBundle(proxy, Rt * (delta / D), Rt * tangent1,
+                                                         Rt * tangent2, p.bundle, mProbeBundle)
+                               : kernels::generateBundle(proxy, delta / D, tangent1, tangent2,
+                                                         p.bundle, mProbeBundle));
+    if (rays) {
         std::array<double, kernels::kMaxBundleRays> perRay{};
         double centreLength = 0;
         const int n = 1 + mProbeBundle.ringCount;

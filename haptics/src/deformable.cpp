@@ -281,6 +281,7 @@ void DeformableBody::clearForce() noexcept {
     mSpring = fem::CouplingSpring{};
     mLoadedCount = 0;
     mContactNode = -1;
+    mAnchorTri = -1;
 }
 
 int DeformableBody::filterWeights(const Eigen::Vector3d& point, double& nearestD2) noexcept {

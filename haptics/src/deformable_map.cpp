@@ -1,6 +1,9 @@
 // DeformableBody's map between the rest and the current configuration (deformable.h): the
 // trilinear interpolation of the nodal displacements on the hex lattice, which inside an active
 // element is the FEM's own displacement field.
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 
@@ -63,6 +66,38 @@ Eigen::Vector3d DeformableBody::restFromCurrent(const Eigen::Vector3d& current) 
         if (!(change > kMapTolerance)) break;
     }
     return rest;
+}
+
+Eigen::Matrix3d DeformableBody::anchorRotation() const noexcept {
+    if (mAnchorTri < 0) return Eigen::Matrix3d::Identity();
+    const fem::SurfaceMesh& surface = mModel->surface();
+    const auto& t = surface.triangles[static_cast<std::size_t>(mAnchorTri)];
+    Eigen::Matrix3d rest, now;  // columns: edge 1, edge 2, unit normal
+    Eigen::Vector3d r[3], c[3];
+    for (std::size_t k = 0; k < 3; ++k) {
+        const std::size_t v = t[k];
+        r[k] = surface.vertices[v].cast<double>();
+        c[k] = Eigen::Vector3d(mPositions[3 * v], mPositions[3 * v + 1], mPositions[3 * v + 2]);
+    }
+    rest.col(0) = r[1] - r[0];
+    rest.col(1) = r[2] - r[0];
+    now.col(0) = c[1] - c[0];
+    now.col(1) = c[2] - c[0];
+    const Eigen::Vector3d nr = rest.col(0).cross(rest.col(1)), nc = now.col(0).cross(now.col(1));
+    const double lr = nr.norm(), lc = nc.norm();
+    if (!(lr > 0) || !(lc > 0) || !std::isfinite(lr) || !std::isfinite(lc))
+        return Eigen::Matrix3d::Identity();
+    rest.col(2) = nr / lr;
+    now.col(2) = nc / lc;
+    // F rest = now; its polar factor (nearest rotation) from the SVD F = U S V^T: R = U V^T,
+    // with the sign of the smallest singular direction flipped should F reflect (it cannot
+    // for a triangle that keeps its orientation, but a crushed one could).
+    const Eigen::Matrix3d F = now * rest.inverse();
+    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Eigen::Matrix3d U = svd.matrixU();
+    if ((U * svd.matrixV().transpose()).determinant() < 0) U.col(2) = -U.col(2);
+    const Eigen::Matrix3d R = U * svd.matrixV().transpose();
+    return R.allFinite() ? R : Eigen::Matrix3d::Identity().eval();
 }
 
 }  // namespace palp::haptics

@@ -366,6 +366,12 @@ void Session::Impl::drainCommands() noexcept {
 void Session::Impl::tick(double timeSeconds) noexcept {
     const HandSample hand = deviceToWorld(device.read());
     drainCommands();
+    if (body) {
+        // Deformable tissue: the rays leave in the material frame of the element the proxy
+        // was anchored on last tick (identity in free space).
+        const Eigen::Matrix3d frame = body->anchorRotation();
+        for (Coupling& c : couplings) c.setMaterialFrame(frame);
+    }
     const ProxyState* ps = &proxy.state();
     Eigen::Vector3d force;
     if (hand.ok) {

@@ -5,6 +5,9 @@
 // tissue, an independent path) is, while the unmapped ray finds where it was at rest.
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
 #include <iostream>
 #include <limits>
@@ -155,6 +158,78 @@ TEST(DeformableMap, VolumeRaysFindTheInclusionWhereTheTissueCarriedIt) {
     // the inclusion (it sees the rest scan under the moved surface).
     EXPECT_NEAR(now.mapped, now.mesh, 0.3e-3);
     EXPECT_GT(std::abs(now.unmapped - now.mesh), 0.8 * topDown);
+}
+
+// The material frame at the contact: anchorRotation() of the triangle the proxy is anchored on
+// (found here independently from the rest surface and the nodes' positions) takes its rest
+// normal exactly to its current one, is a proper rotation, and turns a coupling's rays so that
+// a probe pressed along the tilted element's normal casts them along the rest normal.
+TEST(DeformableMap, AnchorRotationIsTheContactElementsMaterialFrame) {
+    TumourPhantom ph;
+    DeformableBody body(ph.model);
+    press(body, 0.1, 600);
+    // A point on the dimple's slope, 6 mm from the press.
+    const Eigen::Vector3d rest = mm(6, 0, 2);
+    const Eigen::Vector3d x = body.currentFromRest(rest);
+    const Eigen::Vector3d out(0, -1, 0);  // the rest surface's outward normal
+    ASSERT_TRUE(body.anchor(x + 0.5e-3 * out, out));
+    const Eigen::Matrix3d R = body.anchorRotation();
+    EXPECT_LT((R.transpose() * R - Eigen::Matrix3d::Identity()).norm(), 1e-12);
+    EXPECT_NEAR(R.determinant(), 1.0, 1e-12);
+
+    // The rest triangle under the point (top face, y = 0) and its current outward normal.
+    const DeformableModel& model = *ph.model;
+    const fem::SurfaceMesh& surface = model.surface();
+    Eigen::Vector3d nNow = Eigen::Vector3d::Zero();
+    for (const auto& t : surface.triangles) {
+        std::array<Eigen::Vector3d, 3> r, c;
+        bool top = true;
+        for (std::size_t k = 0; k < 3; ++k) {
+            r[k] = surface.vertices[t[k]].cast<double>();
+            c[k] = body.nodePosition(surface.vertexNode[t[k]]);
+            top = top && std::abs(r[k].y()) < 1e-9;
+        }
+        if (!top) continue;
+        // Barycentric coordinates in the x-z plane.
+        const Eigen::Vector2d a(r[0].x(), r[0].z()), b(r[1].x(), r[1].z()), cc(r[2].x(), r[2].z());
+        const Eigen::Vector2d p(rest.x(), rest.z());
+        const double det = (b - a).x() * (cc - a).y() - (b - a).y() * (cc - a).x();
+        const double u = ((p - a).x() * (cc - a).y() - (p - a).y() * (cc - a).x()) / det;
+        const double v = ((b - a).x() * (p - a).y() - (b - a).y() * (p - a).x()) / det;
+        if (u < -1e-9 || v < -1e-9 || u + v > 1 + 1e-9) continue;
+        nNow = (c[1] - c[0]).cross(c[2] - c[0]).normalized();
+        if (nNow.dot(out) < 0) nNow = -nNow;
+        break;
+    }
+    ASSERT_GT(nNow.norm(), 0.5) << "no top triangle under the point";
+    EXPECT_LT((R * out - nNow).norm(), 1e-9);
+    const double tilt = std::acos(std::clamp(nNow.dot(out), -1.0, 1.0)) * 180 / 3.14159265358979;
+    std::cout << "element under the slope point tilted " << tilt << " degrees\n";
+    EXPECT_GT(tilt, 2.0);  // a slope for the frame to undo
+
+    // A probe pressed along the element's inward normal: rays along the rest normal.
+    CouplingParams p;
+    p.mode = CouplingMode::AVC;
+    p.source = RaySource::VolumeFirstHit;
+    p.firstHit.threshold = 120;
+    Coupling framed(ph.scene->volumeView(), nullptr, p), plain(ph.scene->volumeView(), nullptr, p);
+    framed.setMaterialFrame(R);
+    const Eigen::Vector3d probe = x - 2e-3 * nNow, zero = Eigen::Vector3d::Zero();
+    const Eigen::Vector3d t1 = nNow.cross(Eigen::Vector3d::UnitZ()).normalized();
+    const Eigen::Vector3d t2 = nNow.cross(t1);
+    CouplingOutput a, b;
+    framed.compute(x, probe, zero, zero, t1, t2, a);
+    plain.compute(x, probe, zero, zero, t1, t2, b);
+    const auto dir = [](const kernels::RayBundle& bu) {
+        return Eigen::Vector3d(bu.dx[0], bu.dy[0], bu.dz[0]);
+    };
+    EXPECT_LT((dir(framed.bundle()) + out).norm(), 1e-6);
+    EXPECT_LT((dir(plain.bundle()) + nNow).norm(), 1e-6);
+    // The force itself stays along the world's proxy->probe direction.
+    EXPECT_LT(a.force.normalized().cross(nNow).norm(), 1e-9);
+
+    body.clearForce();
+    EXPECT_TRUE(body.anchorRotation().isIdentity(0.0));
 }
 
 // A tick of a mapped coupling allocates nothing and stays bounded.

@@ -364,6 +364,14 @@ class DeformableBody {
     /// always true of a body that is not turned inside out). Volume rays on a deformable scene
     /// sample the scan here (docs/algorithms.md section 10). @par Real-time  bounded.
     Eigen::Vector3d restFromCurrent(const Eigen::Vector3d& current) const noexcept;
+    /// The rotation of the surface triangle the proxy is anchored on (anchor()), from rest to
+    /// now: the polar factor R of the map F that takes the triangle's rest edges and unit
+    /// normal to its current ones (R takes the rest normal exactly to the current one, and
+    /// ignores the stretch). Identity while the proxy is not anchored (free space, or
+    /// clearForce() since) or the triangle is degenerate. AVC/AVCEC rays on deformable tissue
+    /// are cast in this material frame (Coupling::setMaterialFrame): a dimple's slope does not
+    /// turn them (docs/algorithms.md section 10). @par Real-time  noexcept, allocation-free.
+    Eigen::Matrix3d anchorRotation() const noexcept;
     /// Largest displacement magnitude over the surface vertices after the last step, m.
     double maxSurfaceDisplacement() const noexcept { return mMaxSurfaceDisplacement; }
     /// Substeps of the last step().
