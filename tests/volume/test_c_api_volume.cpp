@@ -7,6 +7,7 @@
 #include <fstream>
 #include <limits>
 #include <string>
+#include <utility>
 
 #include "palp/palp.h"
 #include "test_support.h"
@@ -82,20 +83,31 @@ TEST(CApiVolume, AFileWithABadSpacingIsAFormatErrorNamingFileAndField) {
         << m;
 }
 
-TEST(CApiVolume, SceneFromVolumeRefusesBadIsoValuesNamingTheField) {
+TEST(CApiVolume, SceneFromVolumeRefusesBadIsoValuesNamingTheFieldAndTakesNanAsNone) {
     palp_volume* volume = nullptr;
     ASSERT_EQ(palp_volume_make_phantom("avc", 0, nullptr, 2e-3, &volume), PALP_OK)
         << palp_last_error();
-    for (const double bad : {kNan, kInf, -kInf, 1e300, -1e300}) {
+    // NAN leaves an iso-surface out (palp.h): accepted.
+    for (const auto& [surface, hard] : {std::pair{kNan, 500.0}, std::pair{-500.0, kNan}}) {
+        palp_scene* scene = nullptr;
+        EXPECT_EQ(palp_scene_from_volume(volume, surface, hard, &scene), PALP_OK)
+            << palp_last_error();
+        EXPECT_NE(scene, nullptr);
+        palp_scene_release(scene);
+    }
+    for (const double bad : {kInf, -kInf, 1e300, -1e300}) {
         palp_scene* scene = nullptr;
         EXPECT_EQ(palp_scene_from_volume(volume, bad, 500.0, &scene), PALP_ERROR_INVALID_ARGUMENT);
         EXPECT_EQ(scene, nullptr);
-        EXPECT_EQ(std::string(palp_last_error()).rfind("palp_scene_from_volume: surface_iso: ", 0),
+        EXPECT_EQ(std::string(palp_last_error())
+                      .rfind("palp_scene_from_volume: surface_iso (NAN: none): expected", 0),
                   0u)
             << palp_last_error();
         EXPECT_EQ(palp_scene_from_volume(volume, -500.0, bad, &scene), PALP_ERROR_INVALID_ARGUMENT);
         EXPECT_EQ(scene, nullptr);
-        EXPECT_EQ(std::string(palp_last_error()).rfind("palp_scene_from_volume: hard_iso: ", 0), 0u)
+        EXPECT_EQ(std::string(palp_last_error())
+                      .rfind("palp_scene_from_volume: hard_iso (NAN: none): expected", 0),
+                  0u)
             << palp_last_error();
     }
     palp_volume_release(volume);
