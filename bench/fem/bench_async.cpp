@@ -13,12 +13,20 @@
 //        [--amplitude M] [--frequency HZ] [--lod L] [--solver cholmod|pcg] [--n LIST]
 //        [--f LIST] [--integrator newmark|static] [--coupling plain|condensed]
 //        [--once-per-tick 0|1] [--full-field 0|1] [--move MS] [--force N] [--watch 0|1]
-//        [--global 0|1] [--sync 0|1] [--zone-max DOFS]
-// --move MS (threaded): every MS milliseconds the contact moves one node along +x across the
-// top face (re-allocation prepared on the secondary thread, adopted by the tick); the
-// whole-mesh reference moves its contact at the same request ticks (movingReference).
+//        [--global 0|1] [--sync 0|1] [--zone-max DOFS] [--contact slide|jump] [--filter-mm S]
+//        [--k N/m] [--damping-ratio R] [--lead MS]
+// --move MS (threaded, bench_async_slide.cpp): the contact moves one node (5 mm) every MS
+// milliseconds, for 6 s unless --seconds is given. --contact slide (default): a finger sliding
+// continuously at that speed through a coupling spring (filter sigma --filter-mm, stiffness
+// --k, contact damper --damping-ratio), the regions asked for the node nearest the point --lead
+// ms ahead, the top face watched as DeformableBody watches its surface (--watch 0: none); the
+// whole mesh under the same spring is the reference. --contact jump: the driven node jumps one node
+// along +x at each move (wrapping to x = 1), the whole-mesh reference switching at the same request
+// ticks.
 // --global 0: factorise every layout instead of the capacitance secondary; --sync 1: run the
 // threaded mode's loop with the secondary inline (synchronous mode, same moves).
+#include "bench_async.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -31,78 +39,12 @@
 #include <vector>
 
 #include "palp/base/thread.h"
-#include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 
 namespace {
 
 using namespace palp::fem;
-using Clock = std::chrono::steady_clock;
-
-struct Config {
-    std::string mode = "table";
-    int size = 13;
-    double seconds = 1.0;
-    double amplitude = 0.003;  // metres
-    double frequency = 1.0;    // Hz
-    int lod = 1;
-    LinearSolverKind solver = LinearSolverKind::cholmod;
-    Integrator integrator = Integrator::quasiStatic;
-    bool condensed = true;
-    bool oncePerTick = false;
-    bool fullField = false;
-    int moveMs = 0;
-    bool global = true;   // --global: the capacitance secondary (one factorisation)
-    bool sync = false;    // --sync 1: the "threaded" run with the secondary inline (deterministic)
-    int zoneMax = 3000;   // --zone-max: slideZoneMaxDofs
-    double force = 0.05;  // newtons, force mode
-    bool watch = true;    // force mode: watch the top face
-    std::vector<int> nodes{5, 30, 120};
-    std::vector<double> rates{50, 500, 1000};
-    double alpha = 10.0;  // mass-proportional damping, 1/s
-};
-
-std::vector<double> parseList(const std::string& s) {
-    std::vector<double> out;
-    std::stringstream in(s);
-    std::string item;
-    while (std::getline(in, item, ',')) out.push_back(std::stod(item));
-    return out;
-}
-
-ElasticMaterial tissue(double alpha) { return ElasticMaterial{5e3, 0.45, 1e3, alpha, 0.0}; }
-
-/// Contact displacement along -z: a raised-cosine sinusoid starting at rest; "growing" scales
-/// its amplitude linearly from 0 to the full amplitude over the run.
-double inputAt(const Config& c, double t, bool growing) {
-    const double a = growing ? c.amplitude * t / c.seconds : c.amplitude;
-    return -a * 0.5 * (1.0 - std::cos(2.0 * std::numbers::pi * c.frequency * t));
-}
-
-struct Run {
-    std::vector<double> force;  // z reaction per tick, N (pushing in gives +)
-    std::vector<double> tickSeconds;
-    double solveSeconds = 0.0;
-    int primaryNodes = 0;
-};
-
-double peak(const std::vector<double>& f) {
-    double p = 0.0;
-    for (double v : f) p = std::max(p, std::abs(v));
-    return p;
-}
-
-double percentile(std::vector<double> v, double q) {
-    if (v.empty()) return 0.0;
-    std::sort(v.begin(), v.end());
-    return v[std::min(v.size() - 1, static_cast<std::size_t>(q * static_cast<double>(v.size())))];
-}
-
-double mean(const std::vector<double>& v) {
-    double s = 0.0;
-    for (double x : v) s += x;
-    return v.empty() ? 0.0 : s / static_cast<double>(v.size());
-}
+using namespace palp::fem::bench;
 
 /// Largest |F(k) - 2 F(k-1) + F(k-2)|: the force step that a sudden change adds on top of the
 /// smooth sinusoid.
@@ -111,37 +53,6 @@ double maxJump(const std::vector<double>& f) {
     for (std::size_t k = 2; k < f.size(); ++k)
         j = std::max(j, std::abs(f[k] - 2 * f[k - 1] + f[k - 2]));
     return j;
-}
-
-struct Problem {
-    FemModel model;
-    Constraints constraints;
-    int contact;
-    explicit Problem(const Config& c)
-        : model(HexMesh::box(Eigen::Vector3d::Constant(0.005 * (c.size - 1)),
-                             {c.size, c.size, c.size}, 5e3),
-                tissue(c.alpha)),
-          constraints(model.dofCount()),
-          contact(model.mesh().node(c.size / 2, c.size / 2, c.size - 1)) {
-        constraints.fixNodes(model.mesh().faceNodes(BoxFace::zMin));
-    }
-};
-
-Run reference(const Config& c, const Problem& p, bool growing) {
-    Constraints k = p.constraints;
-    for (int d = 0; d < 3; ++d) k.prescribe(3 * p.contact + d, 0.0);
-    ExplicitSolver s(p.model, k);
-    Run r;
-    const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
-    for (int t = 1; t <= ticks; ++t) {
-        s.setPrescribed(3 * p.contact + 2, inputAt(c, t * 1e-3, growing));
-        const auto b = Clock::now();
-        s.step(1e-3);
-        r.tickSeconds.push_back(std::chrono::duration<double>(Clock::now() - b).count());
-        r.force.push_back(-s.reaction(3 * p.contact + 2));
-    }
-    r.primaryNodes = p.model.mesh().nodeCount();
-    return r;
 }
 
 Run asyncRun(const Config& c, const Problem& p, AsyncRegionsOptions o, bool growing) {
@@ -171,18 +82,6 @@ Run asyncRun(const Config& c, const Problem& p, AsyncRegionsOptions o, bool grow
     }
     if (o.maxPrimaryNodes > 0) r.primaryNodes = a.primaryFreeNodeCount();
     return r;
-}
-
-double relErr(double a, double b) { return std::abs(a - b) / std::abs(b); }
-
-/// RMS of the force difference over the RMS of the reference force.
-double rmsErr(const std::vector<double>& a, const std::vector<double>& ref) {
-    double num = 0.0, den = 0.0;
-    for (std::size_t k = 0; k < ref.size(); ++k) {
-        num += (a[k] - ref[k]) * (a[k] - ref[k]);
-        den += ref[k] * ref[k];
-    }
-    return std::sqrt(num / den);
 }
 
 void table(const Config& c) {
@@ -310,136 +209,6 @@ void lod(const Config& c) {
     }
 }
 
-/// The contact node of a moving-contact run at tick @p t (1-based): every moveMs ticks it moves
-/// one node along +x across the top face (wrapping to x = 1), as threaded() requests it.
-int movingContactAt(const Config& c, const Problem& p, int t) {
-    if (c.moveMs <= 0) return p.contact;
-    int x = c.size / 2;
-    for (int k = c.moveMs; k <= t; k += c.moveMs) x = x + 1 < c.size - 1 ? x + 1 : 1;
-    return p.model.mesh().node(x, c.size / 2, c.size - 1);
-}
-
-/// Whole-mesh reference that follows the moving contact with the switch semantics of
-/// AsyncRegions, at the request tick: the old contact node is released with its displacement
-/// and velocity, the new one moves from its displacement to the tick's target within the tick.
-/// The central difference of ExplicitSolver (lumped mass, mass-proportional damping; the bench
-/// material has no stiffness damping), whose constraints are fixed at construction.
-Run movingReference(const Config& c, const Problem& p) {
-    const FemModel& m = p.model;
-    const int dofs = m.dofCount();
-    const Eigen::VectorXd& mass = m.lumpedMass();
-    const double critical = 0.9 * m.criticalTimeStep();
-    const int substeps = std::max(1, static_cast<int>(std::ceil(1e-3 / critical)));
-    const double dt = 1e-3 / substeps, alpha = m.material().dampingAlpha;
-    std::vector<char> fixed(static_cast<std::size_t>(dofs), 0);
-    for (int d = 0; d < dofs; ++d) fixed[static_cast<std::size_t>(d)] = p.constraints.isFixed(d);
-    Eigen::VectorXd u = Eigen::VectorXd::Zero(dofs), up = u, f = u;
-    Run r;
-    const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
-    for (int t = 1; t <= ticks; ++t) {
-        const int contact = movingContactAt(c, p, t);
-        const Eigen::Vector3d start = u.segment<3>(3 * contact);
-        const Eigen::Vector3d target(0, 0, inputAt(c, t * 1e-3, false));
-        for (int s = 0; s < substeps; ++s) {
-            f.setZero();
-            m.addStiffnessTimes(u.data(), f.data());
-            for (int d = 0; d < dofs; ++d) {
-                if (fixed[static_cast<std::size_t>(d)] || mass[d] <= 0.0) continue;
-                up[d] = (-dt * dt * f[d] + 2.0 * mass[d] * u[d] -
-                         (1.0 - 0.5 * dt * alpha) * mass[d] * up[d]) /
-                        ((1.0 + 0.5 * dt * alpha) * mass[d]);
-            }
-            up.segment<3>(3 * contact) = start + (s + 1.0) / substeps * (target - start);
-            u.swap(up);
-        }
-        r.force.push_back(-f[3 * contact + 2]);
-    }
-    return r;
-}
-
-/// Threaded: the servo thread pinned to CPU 0 ticks at 1 kHz wall clock (sleeping to the next
-/// deadline), the secondary pinned to CPU 1.
-void threaded(const Config& c) {
-    const Problem p(c);
-    const Run ref = c.moveMs > 0 ? movingReference(c, p) : reference(c, p, false);
-    palp::pinCurrentThread(0);  // best effort, as before: a refused pin only changes timings
-    for (double f : c.rates) {
-        AsyncRegionsOptions o;
-        o.primaryNodes = c.nodes.front();
-        o.secondaryRate = f;
-        o.lod = c.lod;
-        o.secondarySolver = c.solver;
-        o.secondaryIntegrator = c.integrator;
-        o.condensed = c.condensed;
-        o.condensedOncePerTick = c.oncePerTick;
-        o.secondaryFullField = c.fullField;
-        o.threaded = !c.sync;
-        o.globalSecondary = c.global;
-        o.slideZoneMaxDofs = c.zoneMax;
-        o.secondaryCpu = 1;
-        AsyncRegions a(p.model, p.constraints, {p.contact}, o);
-        const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
-        std::vector<double> tickTimes, force, swapTicks;
-        int overruns = 0, moves = 0, adopted = 0, requestTick = 0, maxDelay = 0;
-        const int y = c.size / 2, z = c.size - 1;
-        int x = c.size / 2;
-        const auto start = Clock::now();
-        auto deadline = start;
-        for (int t = 1; t <= ticks; ++t) {
-            if (c.moveMs > 0 && t % c.moveMs == 0) {
-                x = x + 1 < c.size - 1 ? x + 1 : 1;
-                a.requestContactNode(p.model.mesh().node(x, y, z));
-                ++moves;
-                requestTick = t;
-            }
-            const auto b = Clock::now();
-            const AsyncTickResult res = a.tick(Eigen::Vector3d(0, 0, inputAt(c, t * 1e-3, false)));
-            const auto e = Clock::now();
-            tickTimes.push_back(std::chrono::duration<double>(e - b).count());
-            if (res.layoutChanged) {
-                ++adopted;
-                swapTicks.push_back(tickTimes.back());
-                maxDelay = std::max(maxDelay, t - requestTick);
-            }
-            force.push_back(-res.contactForce.z());
-            deadline += std::chrono::microseconds(1000);
-            if (e > deadline) {
-                ++overruns;
-            } else {
-                std::this_thread::sleep_until(deadline);
-            }
-        }
-        const double wall = std::chrono::duration<double>(Clock::now() - start).count();
-        const AsyncSecondaryStats s = a.secondaryStats();
-        std::printf(
-            "threaded %d^3 lod %d %s%s N %d f %.0f Hz (%d substeps): tick mean %.4f ms, p99 %.4f "
-            "ms, max "
-            "%.4f ms, overruns %d; secondary %llu solves in %.2f s (%.1f Hz, wanted %.0f), "
-            "last solve %.2f ms (CPU %.2f ms), max %.2f ms, %llu used; peak %.4f N vs reference "
-            "%.4f N "
-            "(%.2f%%), rms err %.2f%%\n",
-            c.size, c.lod, c.solver == LinearSolverKind::cholmod ? "CHOLMOD" : "PCG",
-            c.fullField ? " full field" : "", a.primaryFreeNodeCount(), f,
-            static_cast<int>(std::lround(1e-3 / a.substepSeconds())), mean(tickTimes) * 1e3,
-            percentile(tickTimes, 0.99) * 1e3, percentile(tickTimes, 1.0) * 1e3, overruns,
-            static_cast<unsigned long long>(s.solves), wall, static_cast<double>(s.solves) / wall,
-            f, s.lastSolveSeconds * 1e3, s.lastSolveCpuSeconds * 1e3, s.maxSolveSeconds * 1e3,
-            static_cast<unsigned long long>(s.used), peak(force), peak(ref.force),
-            100.0 * relErr(peak(force), peak(ref.force)), 100.0 * rmsErr(force, ref.force));
-        if (c.moveMs > 0) {
-            std::printf(
-                "  moving contact: %d requests, %d layouts adopted, last preparation %.1f ms "
-                "(secondary thread), swap ticks max %.4f ms, force finite %s, max |F| %.4f N; "
-                "adopted %.0f%%, request to adoption max %d ticks; reference follows the moves\n",
-                moves, adopted, s.lastPrepareSeconds * 1e3, percentile(swapTicks, 1.0) * 1e3,
-                std::all_of(force.begin(), force.end(), [](double v) { return std::isfinite(v); })
-                    ? "yes"
-                    : "no",
-                peak(force), 100.0 * adopted / std::max(1, moves), maxDelay);
-        }
-    }
-}
-
 /// Force drive: contact displacement and watched top-face displacement against the whole mesh
 /// stepped explicitly under the same force.
 void forceDrive(const Config& c) {
@@ -555,6 +324,7 @@ void forceDrive(const Config& c) {
 
 int main(int argc, char** argv) {
     Config c;
+    bool secondsGiven = false;
     int i = 1;
     if (argc > 1 && argv[1][0] != '-') c.mode = argv[i++];
     for (; i + 1 < argc; i += 2) {
@@ -563,6 +333,7 @@ int main(int argc, char** argv) {
             c.size = std::stoi(v);
         } else if (k == "--seconds") {
             c.seconds = std::stod(v);
+            secondsGiven = true;
         } else if (k == "--amplitude") {
             c.amplitude = std::stod(v);
         } else if (k == "--frequency") {
@@ -591,9 +362,25 @@ int main(int argc, char** argv) {
             c.sync = std::stoi(v) != 0;
         } else if (k == "--zone-max") {
             c.zoneMax = std::stoi(v);
+        } else if (k == "--contact") {
+            if (v != "slide" && v != "jump") {
+                std::fprintf(stderr, "bench_async: --contact expects slide or jump, found %s\n",
+                             v.c_str());
+                return 2;
+            }
+            c.contact = v;
+        } else if (k == "--filter-mm") {
+            c.filterMm = std::stod(v);
+        } else if (k == "--k") {
+            c.stiffness = std::stod(v);
+        } else if (k == "--damping-ratio") {
+            c.dampingRatio = std::stod(v);
+        } else if (k == "--lead") {
+            c.leadMs = std::stod(v);
         } else if (k == "--coupling") {
             c.condensed = v != "plain";
         } else if (k == "--n") {
+            c.nodesGiven = true;
             c.nodes.clear();
             for (double x : parseList(v)) c.nodes.push_back(static_cast<int>(x));
         } else if (k == "--f") {
@@ -603,6 +390,7 @@ int main(int argc, char** argv) {
             return 2;
         }
     }
+    if (c.mode == "threaded" && c.moveMs > 0 && !secondsGiven) c.seconds = 6.0;
     if (c.mode == "table") {
         table(c);
     } else if (c.mode == "interp") {

@@ -190,6 +190,10 @@ GlobalSecondary::GlobalSecondary(const AsyncSetup& setup, const SparseMatrix& st
     mZoneSeconds = secondsSince(zoneBegin);
     mY = Eigen::VectorXd::Zero(n);
     mR = mY;
+    mBz = Eigen::VectorXd::Zero(zone);
+    mVj = mBz;
+    mTouched.reserve(sz(zone));
+    mMark.assign(sz(zone), 0);
 }
 
 GlobalSecondary::~GlobalSecondary() = default;
@@ -228,6 +232,66 @@ bool GlobalSecondary::solve(const Layout& L, const Eigen::VectorXd& rhs,
     return x.allFinite();
 }
 
+bool GlobalSecondary::loadResponse(Layout& L, const BorderPacket& loads) const noexcept {
+    // b = I_S^T f on the zone (rows of P nodes dropped), then y = W b, x_T = y - W_TJ H D y_J.
+    L.loaded = false;
+    L.loadRhs.setZero();
+    for (int p : mTouched) {
+        mBz[p] = 0.0;
+        mMark[sz(p)] = 0;
+    }
+    mTouched.clear();
+    for (int i = 0; i < loads.loadCount; ++i) {
+        const int d = loads.loadDofs[sz(i)];
+        if (L.isPrimary[sz(d / 3)]) continue;
+        const double f = loads.loadValues[sz(i)];
+        for (RowSparseMatrix::InnerIterator it(mInterp, d); it; ++it) {
+            const int u = static_cast<int>(it.col());
+            const int p = mZonePos[sz(u)];
+            if (p < 0) {
+                L.loadRhs.setZero();
+                return false;
+            }
+            if (!mMark[sz(p)]) {
+                mMark[sz(p)] = 1;
+                mTouched.push_back(p);
+            }
+            mBz[p] += it.value() * f;
+            L.loadRhs[u] += it.value() * f;
+        }
+    }
+    Eigen::VectorXd& x = L.loadZone;
+    x.setZero();
+    if (mTouched.empty()) return true;
+    for (int p : mTouched) x.noalias() += mBz[p] * mW.col(p);
+    const Eigen::Index nj = static_cast<Eigen::Index>(L.capJ.size());
+    auto vj = mVj.head(nj);
+    for (Eigen::Index j = 0; j < nj; ++j) vj[j] = x[mZonePos[sz(L.capJ[sz(static_cast<int>(j))])]];
+    mR.head(nj).noalias() = L.capHD * vj;  // mR: free work here (solve() zeroes it first)
+    for (Eigen::Index j = 0; j < nj; ++j)
+        x.noalias() -= mR[j] * mW.col(mZonePos[sz(L.capJ[sz(static_cast<int>(j))])]);
+    L.loaded = x.allFinite();
+    return L.loaded;
+}
+
+void GlobalSecondary::zoneField(const Layout& L, Eigen::VectorXd& out) const noexcept {
+    // x_T = W_TJ (Q u_B) (+ the loads' part).
+    const Eigen::Index nj = static_cast<Eigen::Index>(L.capJ.size());
+    auto v = mVj.head(nj);
+    if (L.capQ.size() > 0) {
+        v.noalias() = L.capQ * L.border;
+    } else {
+        v.setZero();
+    }
+    if (L.loaded) {
+        out = L.loadZone;
+    } else {
+        out.setZero();
+    }
+    for (Eigen::Index j = 0; j < nj; ++j)
+        out.noalias() += v[j] * mW.col(mZonePos[sz(L.capJ[sz(static_cast<int>(j))])]);
+}
+
 bool GlobalSecondary::borderFieldAt(const Layout& L, const std::vector<int>& dofs,
                                     std::vector<double>& values) const {
     // x = A^-1 E_J Q u_B, so x_u = W(u, J) (Q u_B) at zone unknowns u.
@@ -245,6 +309,7 @@ bool GlobalSecondary::borderFieldAt(const Layout& L, const std::vector<int>& dof
             double xu = 0.0;
             for (Eigen::Index j = 0; j < nj; ++j)
                 xu += mW(pu, mZonePos[sz(L.capJ[sz(static_cast<int>(j))])]) * v[j];
+            if (L.loaded) xu += L.loadZone[pu];
             s += it.value() * xu;
         }
         values.push_back(s);
@@ -372,8 +437,12 @@ bool GlobalSecondary::prepareLayout(Layout& L, const std::vector<int>& primaryCo
     const bool direct = !o.secondaryFullField;
     if (direct) {
         L.gammaResponse = g;
-        if (L.interpWatch.rows() > 0 && !responseRows(L.interpWatch, L.watchResponse))
-            L.watchResponse.resize(0, 0);  // watched nodes outside the zone: whole-field solves
+        // Watched nodes in the zone: from the zone field per solve (zoneField); outside it,
+        // whole-field solves.
+        L.watchInZone = L.interpWatch.rows() > 0;
+        for (Eigen::Index r = 0; r < L.interpWatch.rows() && L.watchInZone; ++r)
+            for (RowSparseMatrix::InnerIterator it(L.interpWatch, r); it; ++it)
+                if (mZonePos[sz(static_cast<int>(it.col()))] < 0) L.watchInZone = false;
     }
     if (!o.condensed) return true;
     const double drop = o.condensedDropTolerance * g.cwiseAbs().maxCoeff();

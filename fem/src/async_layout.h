@@ -112,6 +112,17 @@ struct Layout {
     int secondaryUnknowns = 0;            // unknowns a secondary node uses (the rest decoupled)
     Eigen::MatrixXd capHD;                // H D (|J| x |J|), M^-1 b = y - A^-1 E_J H D y_J
     Eigen::MatrixXd capQ;                 // H (-sK K_JB): the field is A^-1 E_J capQ u_B
+    // Capacitance secondary under loads on zone dofs (GlobalSecondary::loadResponse): the
+    // loads' part of the field on the zone (zone positions) and their restriction I_S^T f
+    // (unknowns) from the last solve; `loaded` false: no such part (none, or x holds it).
+    Eigen::VectorXd loadZone, loadRhs;
+    bool loaded = false;
+    // Capacitance secondary whose watched nodes interpolate from the zone: their values come
+    // from the zone field per solve (GlobalSecondary::zoneField into zoneWork) instead of a
+    // dense watchResponse per layout (3 #watched x |border|: tens of ms per layout for a
+    // watched face, where the zone field is ~0.2 ms per solve).
+    bool watchInZone = false;
+    Eigen::VectorXd zoneWork;
     // Secondary work vectors (secondary thread only).
     Eigen::VectorXd x, v, a, rhs, xNew, yc, ym, border;
     PcgWorkspace pcg;

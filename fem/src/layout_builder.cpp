@@ -89,7 +89,8 @@ std::vector<int> LayoutBuilder::zoneCoarseNodes(const std::vector<int>& contact)
     return out;
 }
 
-std::unique_ptr<Layout> LayoutBuilder::build(const std::vector<int>& contact, int seedCount) const {
+std::unique_ptr<Layout> LayoutBuilder::build(const std::vector<int>& contact, int seedCount,
+                                             bool capacitanceOnly) const {
     auto layout = std::make_unique<Layout>();
     Layout& L = *layout;
     L.seeds = seedCount;
@@ -103,6 +104,7 @@ std::unique_ptr<Layout> LayoutBuilder::build(const std::vector<int>& contact, in
         checkPrescribed(L);
         return layout;
     }
+    if (capacitanceOnly) return nullptr;
     const SparseMatrix interp = interpolation(primaryCell, driven, L);
     restrictInterpolation(L);
     assembleSecondary(interp, L);
@@ -155,10 +157,14 @@ bool LayoutBuilder::buildGlobal(const std::vector<std::uint8_t>& primaryCell, La
         L.capJ.clear();
         L.gammaResponse.resize(0, 0);
         L.watchResponse.resize(0, 0);
+        L.watchInZone = false;
         L.response.resize(0, 0);
         return false;
     }
     sizeWorkVectors(L);
+    L.loadZone = Eigen::VectorXd::Zero(mGlobal->zoneSize());
+    L.zoneWork = L.loadZone;
+    L.loadRhs = L.x;
     return true;
 }
 
@@ -468,9 +474,10 @@ void LayoutBuilder::checkPrescribed(const Layout& L) const {
     }
 }
 
-std::unique_ptr<Layout> LayoutBuilder::buildPrepared(int node, int seeds) const {
-    std::unique_ptr<Layout> next = build({node}, seeds);
-    prepare(*next);
+std::unique_ptr<Layout> LayoutBuilder::buildPrepared(int node, int seeds,
+                                                     bool capacitanceOnly) const {
+    std::unique_ptr<Layout> next = build({node}, seeds, capacitanceOnly);
+    if (next) prepare(*next);
     return next;
 }
 

@@ -35,15 +35,18 @@ class LayoutBuilder {
     const GlobalSecondary* global() const { return mGlobal.get(); }
 
     /// The regions around @p contactNodes with @p seeds seed nodes and the secondary system
-    /// (assembled, not factorised), with a new generation number.
+    /// (assembled, not factorised), with a new generation number. With @p capacitanceOnly, null
+    /// instead of a layout that the capacitance secondary cannot give (one that would need its
+    /// own assembly and factorisation: seconds, not worth it for a prefetch).
     /// @throw palp::ValueError for a non-zero prescribed displacement on a secondary node.
-    std::unique_ptr<Layout> build(const std::vector<int>& contactNodes, int seeds) const;
+    std::unique_ptr<Layout> build(const std::vector<int>& contactNodes, int seeds,
+                                  bool capacitanceOnly = false) const;
     /// Factorises the secondary system of @p layout (CHOLMOD or the PCG matrices) and takes the
     /// condensed and direct responses to the border.
     /// @throw palp::ValueError for a failed factorisation (rigid-body motion left free).
     void prepare(Layout& layout) const;
-    /// build() then prepare() for the single contact node @p node.
-    std::unique_ptr<Layout> buildPrepared(int node, int seeds) const;
+    /// build() then prepare() for the single contact node @p node (null: see build()).
+    std::unique_ptr<Layout> buildPrepared(int node, int seeds, bool capacitanceOnly = false) const;
 
   private:
     // Steps of build(), in order.

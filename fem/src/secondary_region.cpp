@@ -30,11 +30,16 @@ bool SecondaryRegion::solve(Layout& L, const double* borderValues, const BorderP
     bool ok = true;
     const int loadCount = loads != nullptr ? loads->loadCount : 0;
     const bool watching = watchOut != nullptr && L.interpWatch.rows() > 0;
-    // Loads on secondary nodes need the whole field; otherwise Gamma (and the watched nodes)
-    // alone when their responses to the border are at hand.
-    const bool direct =
-        L.gammaResponse.size() > 0 && loadCount == 0 && (!watching || L.watchResponse.size() > 0);
+    // Gamma (and the watched nodes) alone when their responses to the border are at hand and
+    // the loads on secondary nodes, if any, are answered from the capacitance zone block (a
+    // sliding contact's spring share on the surface); other loads need the whole field.
+    const bool responses =
+        L.gammaResponse.size() > 0 && (!watching || L.watchResponse.size() > 0 || L.watchInZone);
+    bool direct = responses && loadCount == 0;
+    if (responses && loadCount > 0 && L.global != nullptr)
+        direct = L.global->loadResponse(L, *loads);
     if (direct) {
+        if (loadCount == 0) L.loaded = false;
         ok = solveDirect(L, borderValues, gammaOut, watching ? watchOut : nullptr);
     } else if (unknowns > 0) {
         ok = solveField(L, borderValues, loads, iterations);
@@ -72,12 +77,33 @@ bool SecondaryRegion::solveDirect(Layout& L, const double* borderValues, double*
     // Quasi-static: Gamma = R u_B exactly (R from the factorisation, at set-up).
     const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
     for (Eigen::Index i = 0; i < nb; ++i) L.border[i] = borderValues[i];
+    // With loads on zone dofs (L.loaded) their part of the field adds, at zone unknowns.
+    auto addLoads = [&](const RowSparseMatrix& rows, Eigen::Map<Eigen::VectorXd>& out) {
+        if (!L.loaded) return;
+        for (Eigen::Index r = 0; r < rows.rows(); ++r)
+            for (RowSparseMatrix::InnerIterator it(rows, r); it; ++it)
+                out[r] +=
+                    it.value() * L.loadZone[L.global->zonePosition(static_cast<int>(it.col()))];
+    };
     Eigen::Map<Eigen::VectorXd> out(gammaOut, L.gammaResponse.rows());
     out.noalias() = L.gammaResponse * L.border;
+    addLoads(L.interpGamma, out);
     bool ok = out.allFinite();
-    if (watchOut != nullptr) {
+    if (watchOut != nullptr && L.watchResponse.size() == 0) {
+        // Capacitance secondary: the watched rows of the zone field (border and loads).
+        L.global->zoneField(L, L.zoneWork);
+        Eigen::Map<Eigen::VectorXd> w(watchOut, L.interpWatch.rows());
+        for (Eigen::Index r = 0; r < L.interpWatch.rows(); ++r) {
+            double s = 0.0;
+            for (RowSparseMatrix::InnerIterator it(L.interpWatch, r); it; ++it)
+                s += it.value() * L.zoneWork[L.global->zonePosition(static_cast<int>(it.col()))];
+            w[r] = s;
+        }
+        ok = ok && w.allFinite();
+    } else if (watchOut != nullptr) {
         Eigen::Map<Eigen::VectorXd> w(watchOut, L.watchResponse.rows());
         w.noalias() = L.watchResponse * L.border;
+        addLoads(L.interpWatch, w);
         ok = ok && w.allFinite();
     }
     L.fieldStale = true;
@@ -133,6 +159,7 @@ bool SecondaryRegion::solveField(Layout& L, const double* borderValues, const Bo
         }
         L.x = L.xNew;
         L.fieldStale = false;
+        L.loaded = false;
         return true;
     } catch (...) {
         return false;
@@ -159,6 +186,7 @@ void SecondaryRegion::refreshField(Layout& L) {
     L.fieldStale = false;
     if (L.unknownCoarseDof.empty()) return;
     L.rhs.noalias() = -mSetup.sK * (L.kcb * L.border);
+    if (L.loaded) L.rhs += L.loadRhs;  // the last direct solve's loads (zone block)
     if (L.global != nullptr) {
         L.global->solve(L, L.rhs, L.x);
     } else {

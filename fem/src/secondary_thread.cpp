@@ -1,8 +1,5 @@
 #include "secondary_thread.h"
 
-#include <sys/resource.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <array>
 
@@ -58,7 +55,7 @@ void SecondaryThread::run() {
             const bool idle = mBuildState.load(std::memory_order_acquire) == kIdle;
             if (mChannel.wanted(*mSec, want)) {
                 if (offerCached(want)) continue;
-                if (idle) startBuild(want);
+                if (idle) startBuild(want, false);
             } else if (idle) {
                 prefetch();
             }
@@ -81,7 +78,12 @@ bool SecondaryThread::collectBuild() {
     mBuilderThread.join();
     mBuildState.store(kIdle, std::memory_order_relaxed);
     const int want = mChannel.requested.load(std::memory_order_acquire);
-    if (state == kBuilt) {
+    if (state == kBuilt && mBuilt == nullptr) {
+        // A prefetch the capacitance secondary cannot give (e.g. a contact at the face's
+        // edge, whose primary leaves the zone): not prefetched again; a request for it builds
+        // and factorises it then.
+        mFailed.push_back(mBuilding);
+    } else if (state == kBuilt) {
         if (mBuilding == want && mChannel.wanted(*mSec, want)) {
             offer(std::move(mBuilt));
         } else if (mBuilt->global != nullptr) {
@@ -163,21 +165,25 @@ void SecondaryThread::prefetch() {
         if (std::any_of(mCache.begin(), mCache.end(),
                         [&](const std::unique_ptr<Layout>& L) { return L->contactNodes[0] == n; }))
             continue;
-        startBuild(n);
+        startBuild(n, true);
         return;
     }
 }
 
-void SecondaryThread::startBuild(int want) {
+void SecondaryThread::startBuild(int want, bool prefetch) {
     mBuilding = want;
     mBuildBegin = std::chrono::steady_clock::now();
     mBuildState.store(kBuilding, std::memory_order_relaxed);
     const int seeds = mSec->seeds;
-    mBuilderThread = std::thread([this, want, seeds] {
+    mBuilderThread = std::thread([this, want, seeds, prefetch] {
+        // The secondary's CPU and priority: a sliding contact needs its next layout within a
+        // node's travel (~100 ms). At nice 10 a 40 ms build took over a second on a core
+        // shared with other work, and the contact left the primary.
         nameCurrentThread("palp-layout");
-        setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), 10);
         try {
-            mBuilt = mBuilder.buildPrepared(want, seeds);
+            // A prefetch never factorises: that would hold the builder for seconds while the
+            // contact moves on to a node whose layout is milliseconds.
+            mBuilt = mBuilder.buildPrepared(want, seeds, prefetch);
             mBuildState.store(kBuilt, std::memory_order_release);
         } catch (...) {
             mBuildState.store(kFailed, std::memory_order_release);

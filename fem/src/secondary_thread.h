@@ -42,7 +42,7 @@ struct LayoutChannel {
 
 /// Runs the secondary region on its own thread (pinned per options, named "palp-secondary"),
 /// inside the secondary's task_arena: reads border snapshots, solves, publishes results, and
-/// prepares layouts for contact changes (a builder thread, same CPU and nice 10, builds and
+/// prepares layouts for contact changes (a builder thread, same CPU and priority, builds and
 /// factorises while this thread keeps solving; this thread then adds the entry state from its
 /// latest solution and offers the layout to the servo).
 /// @par Threading  Constructed and destroyed by the servo's owner (the destructor stops and joins
@@ -68,7 +68,7 @@ class SecondaryThread {
 
     void run();
     bool collectBuild();
-    void startBuild(int want);
+    void startBuild(int want, bool prefetch);
     bool offerCached(int want);
     void offer(std::unique_ptr<Layout> next);
     void prefetch();

@@ -82,7 +82,11 @@
 /// dropped for that period. The dropped share is one period's impulse on those nodes. The region
 /// centre stays the contact node(s): move it with requestContactNode() when the load moves. A
 /// secondary solve with loads solves the whole secondary field (two triangular solves, see
-/// secondaryFullField).
+/// secondaryFullField), except on the capacitance secondary when every loaded node interpolates
+/// from the zone (a contact's filtered load on the slide face): the loads' part of Gamma and
+/// of the watched nodes then comes from the zone block, `W b - W_TJ H D (W b)_J` (exact, ~0.1
+/// ms at 33^3 lod 2 against ~15-60 ms for the two solves, which had starved a sliding contact's
+/// layout builds on the shared core; GlobalSecondary::loadResponse).
 ///
 /// Watched nodes. `watchNodes` (fixed at construction) are nodes whose displacement the servo
 /// needs every tick without displacement() (a deformable body's surface). Each secondary solve
@@ -91,9 +95,11 @@
 /// secondary values elsewhere, allocation- and lock-free. Cost: with the direct quasi-static
 /// CHOLMOD secondary (secondaryFullField = false) the watched values come, like Gamma, from a
 /// dense response to the border taken at set-up (3 #watched x |border| doubles per layout, as
-/// many multiply-adds per solve); a solve with loads on secondary nodes, and the other
-/// secondaries, solve the whole field (two triangular solves: ~14 ms CPU at 33^3 lod 2 with
-/// the top face watched, against 0.2-0.5 ms for the direct responses; bench_async force).
+/// many multiply-adds per solve; the capacitance secondary adds loads on zone nodes from its
+/// zone block); a solve with other loads on secondary nodes, watched nodes outside the zone,
+/// and the other secondaries, solve the whole field (two triangular solves: ~14 ms CPU at 33^3
+/// lod 2 with the top face watched, against 0.2-0.5 ms for the direct responses; bench_async
+/// force).
 /// Stability: the quasi-static secondary removes the far field's inertia, so a loop that feeds
 /// the displacement back into the loads (virtual coupling) sees about the static compliance of
 /// the body; see haptics/deformable.h.
@@ -118,7 +124,7 @@
 /// constraints must outlive the object. In threaded mode the object owns one extra thread, which
 /// is joined by the destructor, plus, while a contact change is being prepared (or, once the
 /// contact has moved, a slide neighbour's layout prefetched), a builder thread started by it
-/// (nice 10) that only reads the immutable model data. Threaded mode: the
+/// (same CPU and priority) that only reads the immutable model data. Threaded mode: the
 /// servo thread owns the primary state, the secondary thread the secondary state; they share only
 /// the two triple buffers (acquire/release index exchange) and atomic counters.
 
