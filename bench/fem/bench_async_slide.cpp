@@ -265,7 +265,10 @@ ThreadedRun slideRun(const Config& c, const Problem& p, AsyncRegions& a) {
     ThreadedRun r;
     const int ticks = static_cast<int>(std::lround(c.seconds / 1e-3));
     int asked = finger.nearestNode(c.leadMs * 1e-3), requestTick = 0;
-    if (asked != a.contactNodes().front()) a.requestContactNode(asked);
+    if (asked != a.contactNodes().front()) {
+        a.requestContactNode(asked);
+        ++r.moves;
+    }
     const auto start = Clock::now();
     auto deadline = start;
     for (int t = 1; t <= ticks; ++t) {
