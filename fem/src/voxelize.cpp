@@ -61,6 +61,95 @@ std::vector<int> labelComponents(const std::array<int, 3>& cells,
     return label;
 }
 
+/// InsideBone::drop on the cell masks: clears the soft cells (tissue, not bone) with bone on both
+/// sides along at least two of the three lattice axes, but not skin, then the bone cells that share
+/// no node with a soft cell left; returns how many cells it cleared.
+int dropInsideBone(const std::array<int, 3>& cells, std::vector<std::uint8_t>& tissue,
+                   const std::vector<std::uint8_t>& bone) {
+    const std::array<int, 3> stride{1, cells[0], cells[0] * cells[1]};
+    // Bit a: the cell lies strictly between two bone cells of its line along axis a.
+    std::vector<std::uint8_t> between(tissue.size(), 0);
+    for (int a = 0; a < 3; ++a) {
+        const int b = (a + 1) % 3, c = (a + 2) % 3;
+        const auto bit = static_cast<std::uint8_t>(1 << a);
+        for (int ic = 0; ic < cells[static_cast<std::size_t>(c)]; ++ic) {
+            for (int ib = 0; ib < cells[static_cast<std::size_t>(b)]; ++ib) {
+                const int base = ib * stride[static_cast<std::size_t>(b)] +
+                                 ic * stride[static_cast<std::size_t>(c)];
+                const int step = stride[static_cast<std::size_t>(a)];
+                int first = -1, last = -1;
+                for (int t = 0; t < cells[static_cast<std::size_t>(a)]; ++t) {
+                    if (!bone[static_cast<std::size_t>(base + t * step)]) continue;
+                    if (first < 0) first = t;
+                    last = t;
+                }
+                for (int t = first + 1; first >= 0 && t < last; ++t)
+                    between[static_cast<std::size_t>(base + t * step)] |= bit;
+            }
+        }
+    }
+    const auto axes = [&](std::size_t n) {
+        return (between[n] & 1) + ((between[n] >> 1) & 1) + ((between[n] >> 2) & 1);
+    };
+    // Two axes of three: a scan that stops above the skull base or below the vertex leaves the
+    // brain open along the scan axis, and a plate or slab (one axis) encloses nothing. Skin
+    // stays: a soft cell with a face on the air outside (a void cell itself enclosed on fewer
+    // than two axes), e.g. the nape between the skull base and the spine.
+    std::vector<std::size_t> drop;
+    for (int k = 0; k < cells[2]; ++k) {
+        for (int j = 0; j < cells[1]; ++j) {
+            for (int i = 0; i < cells[0]; ++i) {
+                const std::array<int, 3> ijk{i, j, k};
+                const auto n = static_cast<std::size_t>(i + stride[1] * j + stride[2] * k);
+                if (!tissue[n] || bone[n] || axes(n) < 2) continue;
+                bool skin = false;
+                for (int a = 0; a < 3 && !skin; ++a) {
+                    for (int d = -1; d <= 1 && !skin; d += 2) {
+                        const int t = ijk[static_cast<std::size_t>(a)] + d;
+                        if (t < 0 || t >= cells[static_cast<std::size_t>(a)]) continue;
+                        const auto m = static_cast<std::size_t>(
+                            static_cast<long>(n) + d * stride[static_cast<std::size_t>(a)]);
+                        skin = !tissue[m] && axes(m) < 2;
+                    }
+                }
+                if (!skin) drop.push_back(n);
+            }
+        }
+    }
+    for (std::size_t n : drop) tissue[n] = 0;
+    int cleared = static_cast<int>(drop.size());
+    // Bone cells stay where they share a node with soft tissue (the supports under it).
+    const std::vector<std::uint8_t> kept = tissue;
+    for (int k = 0; k < cells[2]; ++k) {
+        for (int j = 0; j < cells[1]; ++j) {
+            for (int i = 0; i < cells[0]; ++i) {
+                const auto n = static_cast<std::size_t>(i + stride[1] * j + stride[2] * k);
+                if (!kept[n] || !bone[n]) continue;
+                bool touches = false;
+                for (int dk = -1; dk <= 1 && !touches; ++dk) {
+                    for (int dj = -1; dj <= 1 && !touches; ++dj) {
+                        for (int di = -1; di <= 1 && !touches; ++di) {
+                            const int x = i + di, y = j + dj, z = k + dk;
+                            if (x < 0 || y < 0 || z < 0 || x >= cells[0] || y >= cells[1] ||
+                                z >= cells[2]) {
+                                continue;
+                            }
+                            const auto m =
+                                static_cast<std::size_t>(x + stride[1] * y + stride[2] * z);
+                            touches = kept[m] && !bone[m];
+                        }
+                    }
+                }
+                if (!touches) {
+                    tissue[n] = 0;
+                    ++cleared;
+                }
+            }
+        }
+    }
+    return cleared;
+}
+
 }  // namespace
 
 void validate(const VoxelizeOptions& o) {
@@ -132,6 +221,12 @@ VoxelizedMesh voxelizeVolume(const volume::Volume& volume, const VoxelizeOptions
     for (std::size_t c = 0; c < cellCount; ++c)
         tissue[c] = static_cast<std::uint8_t>(value[c] > options.tissueThreshold);
     VoxelizedMesh out;
+    if (options.insideBone == InsideBone::drop) {
+        std::vector<std::uint8_t> boneCell(cellCount, 0);
+        for (std::size_t c = 0; c < cellCount; ++c)
+            boneCell[c] = static_cast<std::uint8_t>(tissue[c] && value[c] > options.boneThreshold);
+        out.insideBoneCells = dropInsideBone(cells, tissue, boneCell);
+    }
     if (options.keepLargestComponent) {
         std::vector<int> sizes;
         const std::vector<int> label = labelComponents(cells, tissue, sizes);

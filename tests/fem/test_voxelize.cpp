@@ -8,6 +8,9 @@
 #include "palp/fem/fem_model.h"
 #include "palp/fem/implicit_solver.h"
 #include "palp/fem/voxelize.h"
+#include "palp/volume/load.h"
+#include "palp/volume/phantom.h"
+#include "test_support.h"
 
 namespace palp::fem {
 namespace {
@@ -89,6 +92,160 @@ TEST(Voxelize, KeepingIslandsGivesADisconnectedMeshThatTheModelRejects) {
     EXPECT_EQ(v.mesh.elementCount(), 217);
     EXPECT_EQ(v.mesh.connectedComponents(), 2);
     EXPECT_THROW(FemModel(v.mesh, ElasticMaterial{}), ValueError);
+}
+
+/// A 1 mm scan: a 60 mm cube of tissue (40) around a closed bone box (1000) two 5 mm cells thick
+/// (voxels 10..49 per axis) with tissue inside it (voxels 20..39): a brain in a skull.
+volume::Volume boneBox() {
+    volume::initialize();
+    auto grid = openvdb::FloatGrid::create(-1000.0f);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(1e-3));
+    grid->setName(volume::kScanGridName);
+    grid->fill(openvdb::CoordBBox({0, 0, 0}, {59, 59, 59}), 40.0f, true);
+    grid->fill(openvdb::CoordBBox({10, 10, 10}, {49, 49, 49}), 1000.0f, true);
+    grid->fill(openvdb::CoordBBox({20, 20, 20}, {39, 39, 39}), 40.0f, true);
+    return volume::Volume{grid, {}};
+}
+
+TEST(Voxelize, TissueInsideABoneBoxIsDroppedAndTheOutsideKept) {
+    VoxelizeOptions o = options();
+    const VoxelizedMesh keep = voxelizeVolume(boneBox(), o);
+    // 12^3 cells (centres 2, 7, .., 57 mm), all tissue or bone.
+    ASSERT_EQ(keep.mesh.cellCounts(), (std::array<int, 3>{12, 12, 12}));
+    EXPECT_EQ(keep.mesh.elementCount(), 1728);
+    EXPECT_EQ(keep.insideBoneCells, 0);
+    o.insideBone = InsideBone::drop;
+    const VoxelizedMesh drop = voxelizeVolume(boneBox(), o);
+    const HexMesh& m = drop.mesh;
+    // Bone cells 2..9 per axis, the core 4..7: the 4^3 core goes (bone on both sides along x,
+    // y and z) and so does the bone box's inner layer (6^3 - 4^3 cells touching only the core);
+    // the outer layer (8^3 - 6^3) stays under the tissue outside.
+    EXPECT_EQ(drop.insideBoneCells, 64 + 152);
+    EXPECT_EQ(m.elementCount(), 1728 - 64 - 152);
+    EXPECT_EQ(drop.droppedCells, 0);
+    for (int k = 0; k < 12; ++k) {
+        for (int j = 0; j < 12; ++j) {
+            for (int i = 0; i < 12; ++i) {
+                const auto inside = [](int a, int lo, int hi) { return a >= lo && a <= hi; };
+                const bool core = inside(i, 4, 7) && inside(j, 4, 7) && inside(k, 4, 7);
+                const bool innerLayer =
+                    inside(i, 3, 8) && inside(j, 3, 8) && inside(k, 3, 8) && !core;
+                EXPECT_EQ(m.cellActive(m.cell(i, j, k)), !core && !innerLayer) << i << j << k;
+            }
+        }
+    }
+    // The kept bone is the outer layer's nodes (nodes 2..10 per axis less the 5^3 that only
+    // dropped cells share), all fixed; those 5^3 are the only inactive nodes.
+    EXPECT_EQ(drop.boneNodes.size(), 9u * 9u * 9u - 5u * 5u * 5u);
+    EXPECT_EQ(std::count(m.nodeActive().begin(), m.nodeActive().end(), true),
+              13 * 13 * 13 - 5 * 5 * 5);
+    // The surface is the cube's outside, 6 faces of 12 x 12 squares, and the bone box's inner
+    // faces around the cavity, 6 faces of 6 x 6.
+    EXPECT_EQ(m.boundarySurface().triangles.size(), (6u * 144u + 6u * 36u) * 2u);
+}
+
+TEST(Voxelize, TissueUnderABoneSlabOpenAtTheSidesIsKept) {
+    // The synthetic scan's slab, turned: tissue above and below a bone slab that stops 10 mm
+    // short of the block's sides, like the bone phantom's. Nothing is enclosed.
+    volume::initialize();
+    auto grid = openvdb::FloatGrid::create(-1000.0f);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(1e-3));
+    grid->setName(volume::kScanGridName);
+    grid->fill(openvdb::CoordBBox({0, 0, 0}, {39, 39, 39}), 40.0f, true);
+    grid->fill(openvdb::CoordBBox({10, 10, 20}, {29, 29, 24}), 1000.0f, true);
+    const volume::Volume scan{grid, {}};
+    VoxelizeOptions o = options();
+    const VoxelizedMesh keep = voxelizeVolume(scan, o);
+    o.insideBone = InsideBone::drop;
+    const VoxelizedMesh drop = voxelizeVolume(scan, o);
+    EXPECT_EQ(keep.mesh.elementCount(), 512);
+    EXPECT_EQ(drop.mesh.elementCount(), 512);
+    EXPECT_EQ(drop.insideBoneCells, 0);
+    EXPECT_EQ(drop.boneNodes, keep.boneNodes);
+}
+
+TEST(Voxelize, DroppingTissueInsideBoneLeavesThePhantomsAsTheyWere) {
+    for (const auto scene : {volume::PhantomScene::Bone, volume::PhantomScene::Tumour}) {
+        volume::PhantomSpec spec;
+        spec.params.scene = scene;
+        spec.voxelSize = 2e-3;
+        const volume::Volume vol = volume::makePhantomVolume(spec);
+        VoxelizeOptions o;
+        o.boneThreshold = 500;
+        const VoxelizedMesh keep = voxelizeVolume(vol, o);
+        o.insideBone = InsideBone::drop;
+        const VoxelizedMesh drop = voxelizeVolume(vol, o);
+        SCOPED_TRACE(static_cast<int>(scene));
+        EXPECT_GT(keep.mesh.elementCount(), 1000);
+        EXPECT_EQ(drop.mesh.elementCount(), keep.mesh.elementCount());
+        EXPECT_EQ(drop.mesh.cellYoungs(), keep.mesh.cellYoungs());
+        EXPECT_EQ(drop.boneNodes, keep.boneNodes);
+        EXPECT_EQ(drop.insideBoneCells, 0);
+        if (scene == volume::PhantomScene::Bone) {
+            EXPECT_GT(keep.boneNodes.size(), 100u);
+        }
+    }
+}
+
+TEST(Voxelize, HeadCtKeepsTheSkinOnTheSkullAndDropsTheBrain) {
+    PALP_REQUIRE_DATA(dir, "ct-ge-head-tilt");
+    volume::LoadOptions load;
+    load.resample.voxelSize = 2e-3;  // coarse: the 5 mm cells need no more
+    const volume::Volume head = volume::load({dir}, load);
+    VoxelizeOptions o;  // palp palpate --deformable's thresholds: -200 and 500 HU, 5 mm cells
+    o.boneThreshold = 500;
+    const VoxelizedMesh keep = voxelizeVolume(head, o);
+    o.insideBone = InsideBone::drop;
+    const VoxelizedMesh drop = voxelizeVolume(head, o);
+    const HexMesh& k = keep.mesh;
+    const HexMesh& d = drop.mesh;
+    ASSERT_EQ(d.cellCounts(), k.cellCounts());
+    std::printf(
+        "head CT at 5 mm: %d elements keeping tissue inside bone, %d dropping it "
+        "(%d cells inside bone, %zu -> %zu bone nodes)\n",
+        k.elementCount(), d.elementCount(), drop.insideBoneCells, keep.boneNodes.size(),
+        drop.boneNodes.size());
+    // 26,016 -> 15,036 elements at 2 mm voxels (the brain: 10,846 cells).
+    EXPECT_LT(d.elementCount(), 0.65 * k.elementCount());
+    EXPECT_GT(drop.insideBoneCells, 8000);
+    // What a finger meets from the front, back and sides is unchanged: along every lattice line
+    // across the scan (x and y; the slices run along z, and the scan's first and last slices cut
+    // through the brain, which is not skin), the first and the last tissue cells are kept.
+    const auto c = k.cellCounts();
+    int lines = 0, lost = 0;
+    for (int a = 0; a < 2; ++a) {
+        const int b = (a + 1) % 3, e = (a + 2) % 3;
+        for (int ie = 0; ie < c[static_cast<std::size_t>(e)]; ++ie) {
+            for (int ib = 0; ib < c[static_cast<std::size_t>(b)]; ++ib) {
+                int first = -1, last = -1;
+                for (int t = 0; t < c[static_cast<std::size_t>(a)]; ++t) {
+                    std::array<int, 3> ijk{};
+                    ijk[static_cast<std::size_t>(a)] = t;
+                    ijk[static_cast<std::size_t>(b)] = ib;
+                    ijk[static_cast<std::size_t>(e)] = ie;
+                    if (!k.cellActive(k.cell(ijk[0], ijk[1], ijk[2]))) continue;
+                    if (first < 0) first = k.cell(ijk[0], ijk[1], ijk[2]);
+                    last = k.cell(ijk[0], ijk[1], ijk[2]);
+                }
+                if (first < 0) continue;
+                ++lines;
+                lost += (d.cellActive(first) ? 0 : 1) + (d.cellActive(last) ? 0 : 1);
+            }
+        }
+    }
+    EXPECT_GT(lines, 1000);
+    // A few skin cells go with islands that only the brain joined to the rest (3 of ~2,500
+    // lines at 2 mm voxels).
+    EXPECT_LE(lost, lines / 100) << lines;
+    // The bone left is the skull's outside, under the kept tissue: every kept bone node is a
+    // node of a kept cell, and a kept node that was fixed is fixed still.
+    EXPECT_LT(drop.boneNodes.size(), keep.boneNodes.size());
+    for (int n : drop.boneNodes) EXPECT_TRUE(d.nodeActive()[static_cast<std::size_t>(n)]);
+    for (int n : keep.boneNodes) {
+        if (d.nodeActive()[static_cast<std::size_t>(n)]) {
+            EXPECT_TRUE(std::binary_search(drop.boneNodes.begin(), drop.boneNodes.end(), n)) << n;
+        }
+    }
 }
 
 TEST(Voxelize, BadInputNamesTheValue) {

@@ -67,6 +67,11 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
         app->add_option("--tissue-hu", a.tissueHu,
                         "deformable: cells above this are tissue (-200 HU)")
             ->check(within(bounds::kVolumeValue, {1, "HU"})),
+        app->add_option("--inside-bone", a.insideBone,
+                        "deformable: tissue enclosed by bone (bone on both sides along every "
+                        "axis: the brain in a skull), 'drop' (default: the scalp and face on "
+                        "the skull) or 'keep' (every cell above --tissue-hu)")
+            ->check(CLI::IsMember({"drop", "keep"})),
         app->add_option("--fem-solver", a.femSolver,
                         "deformable: 'explicit' (whole mesh every tick, default) or 'regions' "
                         "(asynchronous regions: explicit primary around the contact, implicit "

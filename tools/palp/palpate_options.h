@@ -65,6 +65,7 @@ struct PalpateArgs {
     double filterMm = 3;
     double boneHu = 500;
     double tissueHu = -200;
+    std::string insideBone = "drop";  ///< --inside-bone: drop or keep tissue enclosed by bone
     std::string femSolver = "explicit";
     int primaryNodes = 60;
     double secondaryHz = 100;

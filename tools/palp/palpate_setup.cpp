@@ -118,6 +118,8 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
     setup.voxelize.elementSize = a.femCellMm * 1e-3;
     setup.voxelize.tissueThreshold = a.tissueHu;
     setup.voxelize.boneThreshold = a.boneHu;
+    setup.voxelize.insideBone =
+        a.insideBone == "keep" ? fem::InsideBone::keep : fem::InsideBone::drop;
     setup.material.youngsModulus = a.youngKpa * 1e3;
     setup.material.poissonRatio = a.poisson;
     setup.material.dampingAlpha = a.femAlpha;

@@ -13,6 +13,19 @@
 
 namespace palp::fem {
 
+/// What voxelizeVolume() does with tissue inside bone (VoxelizeOptions::insideBone).
+enum class InsideBone {
+    keep,  ///< every cell above the tissue threshold is tissue (phantoms, bone-free scans)
+    /// Tissue enclosed by bone is dropped: a tissue cell below the bone threshold with bone
+    /// cells on both sides of it along at least two of the three lattice axes (the brain inside
+    /// a skull, also where the scan stops short of the vertex or the skull base) unless it has a
+    /// face on the air outside (skin, e.g. the nape under the skull base), and the bone
+    /// cells that share no node with the tissue kept. What stays is the tissue between the skin
+    /// and the outside of the bone, resting on the bone cells under it; tissue under a plate or
+    /// slab open at its sides (one axis) stays.
+    drop,
+};
+
 /// Options of voxelizeVolume().
 struct VoxelizeOptions {
     /// Element edge h, metres (> 0). Independent of the scan's voxel size.
@@ -26,6 +39,9 @@ struct VoxelizeOptions {
     /// Young's modulus in pascals (finite, > 0) of a tissue cell from its centre value.
     /// Empty: a constant 5 kPa.
     std::function<double(double)> youngsFromValue;
+    /// Tissue inside bone: kept (the default) or dropped (InsideBone::drop). Only matters with a
+    /// finite boneThreshold.
+    InsideBone insideBone = InsideBone::keep;
     /// Keep only the largest connected body (cells sharing a node are connected) and drop
     /// islands (noise, a separate object), since FemModel accepts one body only.
     bool keepLargestComponent = true;
@@ -45,6 +61,9 @@ struct VoxelizedMesh {
     HexMesh mesh;                ///< lattice over the scan's active bounds, void outside tissue
     std::vector<int> boneNodes;  ///< sorted active nodes of bone cells (to fix as supports)
     int droppedCells = 0;        ///< tissue cells removed with islands (keepLargestComponent)
+    /// Cells removed by InsideBone::drop: tissue enclosed by bone and bone cells that touch no
+    /// kept tissue (before the islands are removed).
+    int insideBoneCells = 0;
 };
 
 /// Voxelises @p volume: the lattice covers the world box of the active voxels (each voxel a cube

@@ -18,14 +18,18 @@
 namespace palp::haptics {
 
 /// Everything that makes a deformable body from a scan (defaults: `palp palpate
-/// --deformable`'s: 5 mm cells, tissue above -200, bone above 500 fixed, 5 kPa, nu 0.45,
-/// alpha 60 1/s, a 3 mm filter, the whole-mesh explicit solver at 1 kHz).
+/// --deformable`'s: 5 mm cells, tissue above -200, bone above 500 fixed, tissue enclosed by
+/// bone dropped, 5 kPa, nu 0.45, alpha 60 1/s, a 3 mm filter, the whole-mesh explicit solver at
+/// 1 kHz).
 struct DeformableSetup {
     /// Element size, the tissue and bone thresholds (a cell above boneThreshold is bone: its
-    /// nodes are fixed; +infinity: no bone) and optionally a per-cell modulus.
+    /// nodes are fixed; +infinity: no bone), optionally a per-cell modulus, and insideBone:
+    /// fem::InsideBone::drop here, so a head CT gives the scalp and face on the skull, not the
+    /// brain inside it (the phantoms have no tissue enclosed by bone and are unchanged).
     fem::VoxelizeOptions voxelize = [] {
         fem::VoxelizeOptions v;
         v.boneThreshold = 500;
+        v.insideBone = fem::InsideBone::drop;
         return v;
     }();
     /// The tissue (uniform unless voxelize.youngsFromValue is set).
