@@ -56,12 +56,7 @@ double maxJump(const std::vector<double>& f) {
 }
 
 Run asyncRun(const Config& c, const Problem& p, AsyncRegionsOptions o, bool growing) {
-    o.lod = c.lod;
-    o.secondarySolver = c.solver;
-    o.secondaryIntegrator = c.integrator;
-    o.condensed = c.condensed;
-    o.condensedOncePerTick = c.oncePerTick;
-    o.secondaryFullField = c.fullField;
+    applySecondaryOptions(c, o);
     AsyncRegions a(p.model, p.constraints, {p.contact}, o);
     Run r;
     r.primaryNodes = a.primaryFreeNodeCount();

@@ -122,6 +122,17 @@ inline Run reference(const Config& c, const Problem& p, bool growing) {
     return r;
 }
 
+/// The secondary's options every run takes from the command line (lod, solver, integrator,
+/// condensed coupling, full field).
+inline void applySecondaryOptions(const Config& c, AsyncRegionsOptions& o) {
+    o.lod = c.lod;
+    o.secondarySolver = c.solver;
+    o.secondaryIntegrator = c.integrator;
+    o.condensed = c.condensed;
+    o.condensedOncePerTick = c.oncePerTick;
+    o.secondaryFullField = c.fullField;
+}
+
 inline double relErr(double a, double b) { return std::abs(a - b) / std::abs(b); }
 
 /// RMS of the force difference over the RMS of the reference force.

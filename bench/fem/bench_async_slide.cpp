@@ -33,12 +33,7 @@ AsyncRegionsOptions threadedOptions(const Config& c, double f) {
     AsyncRegionsOptions o;
     o.primaryNodes = c.nodes.front();
     o.secondaryRate = f;
-    o.lod = c.lod;
-    o.secondarySolver = c.solver;
-    o.secondaryIntegrator = c.integrator;
-    o.condensed = c.condensed;
-    o.condensedOncePerTick = c.oncePerTick;
-    o.secondaryFullField = c.fullField;
+    applySecondaryOptions(c, o);
     o.threaded = !c.sync;
     o.globalSecondary = c.global;
     o.slideZoneMaxDofs = c.zoneMax;
