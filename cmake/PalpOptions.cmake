@@ -22,10 +22,12 @@ if(PALP_BUILD_FUZZERS)
   target_link_options(palp_options INTERFACE -fsanitize=address,undefined)
 endif()
 
-# Adds a palp module: MODULE/include is public, sources listed by the caller.
+# Adds a palp module: MODULE/include is public, sources listed by the caller. Modules are shared
+# libraries (versioned and installed by PalpPackage.cmake). SHARED is explicit: they always were
+# shared, but only because Debian's FindOpenVDB sets BUILD_SHARED_LIBS ON in the caller's scope.
 function(palp_add_module name)
   cmake_parse_arguments(ARG "" "" "SOURCES;PUBLIC_DEPS;PRIVATE_DEPS" ${ARGN})
-  add_library(palp_${name} ${ARG_SOURCES})
+  add_library(palp_${name} SHARED ${ARG_SOURCES})
   add_library(palp::${name} ALIAS palp_${name})
   target_include_directories(palp_${name} PUBLIC
     $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>)
