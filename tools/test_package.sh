@@ -1,0 +1,88 @@
+#!/usr/bin/env bash
+# The installed package, checked from outside the tree: installs an existing build (no rebuild)
+# into a temporary prefix, checks the libraries' SONAMEs and RUNPATHs and the installed palp
+# tool, then builds and runs the consumers in tests/package against the prefix: both with
+# find_package(palp CONFIG) (CMAKE_PREFIX_PATH), the C one also with pkg-config
+# (PKG_CONFIG_PATH). Any failure fails the script. .ci/run calls it after tools/test.sh.
+#   bash tools/test_package.sh              the release build (build/release)
+#   PALP_BUILD_DIR=build/debug bash tools/test_package.sh
+#   PALP_KEEP_PREFIX=1 ...                  keep the temporary prefix (its path is printed)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+build="${PALP_BUILD_DIR:-build/release}"
+fail() { echo "test_package: FAILED: $*" >&2; exit 1; }
+# The file the loader picks for libpalp_haptics when running $1 (resolved).
+loaded_haptics() { env -u LD_LIBRARY_PATH ldd "$1" | awk '/libpalp_haptics/ {print $3}' | xargs -r realpath; }
+[[ -f "$build/CMakeCache.txt" ]] || fail "no build in '$build' (run tools/test.sh first)"
+for tool in readelf pkg-config cc; do
+  command -v "$tool" >/dev/null || fail "'$tool' not installed"
+done
+
+tmp="$(mktemp -d /tmp/palp-package.XXXXXX)"
+if [[ -z "${PALP_KEEP_PREFIX:-}" ]]; then trap 'rm -rf "$tmp"' EXIT; fi
+prefix="$tmp/prefix"
+echo "test_package: installing $build into $prefix"
+cmake --install "$build" --prefix "$prefix" >"$tmp/install.log" ||
+  { cat "$tmp/install.log" >&2; fail "cmake --install $build"; }
+
+version="$(sed -n 's/^CMAKE_PROJECT_VERSION:STATIC=//p' "$build/CMakeCache.txt")"
+[[ -n "$version" ]] || fail "no CMAKE_PROJECT_VERSION in $build/CMakeCache.txt"
+major="${version%%.*}"
+minor="${version#*.}"; minor="${minor%%.*}"
+if ((major > 0)); then soversion="$major"; else soversion="$major.$minor"; fi
+libdir="$(dirname "$(find "$prefix" -name palp.pc -path '*/pkgconfig/*' | head -n1)")/.."
+libdir="$(cd "$libdir" && pwd)"
+
+# Every module: a versioned file, its SONAME, the development symlink, RUNPATH $ORIGIN.
+for m in base kernels volume fem haptics; do
+  lib="$libdir/libpalp_$m.so.$version"
+  [[ -f "$lib" && ! -L "$lib" ]] || fail "$lib missing"
+  [[ "$(readlink "$libdir/libpalp_$m.so")" == "libpalp_$m.so.$soversion" ]] ||
+    fail "libpalp_$m.so does not point at libpalp_$m.so.$soversion"
+  dyn="$(readelf -d "$lib")"
+  grep -q "SONAME.*\[libpalp_$m.so.$soversion\]" <<<"$dyn" || fail "$lib: SONAME is not libpalp_$m.so.$soversion"
+  grep -q 'RUNPATH.*\[\$ORIGIN\]' <<<"$dyn" || fail "$lib: RUNPATH is not \$ORIGIN"
+  ! grep -q "$PWD" <<<"$dyn" || fail "$lib refers to the build tree"
+  echo "  libpalp_$m.so.$version: SONAME libpalp_$m.so.$soversion, RUNPATH \$ORIGIN"
+done
+for h in palp/palp.h palp/haptics/session.h palp/volume/volume.h palp/fem/fem_model.h \
+  palp/kernels/volume_ray.h palp/base/error.h; do
+  [[ -f "$prefix/include/$h" ]] || fail "header $h not installed"
+done
+
+# The tool runs from the prefix alone (its RUNPATH, not the build tree's).
+dyn="$(readelf -d "$prefix/bin/palp")"
+grep -q 'RUNPATH.*\[\$ORIGIN/\.\./lib' <<<"$dyn" || fail "bin/palp: RUNPATH is not \$ORIGIN/../lib"
+! grep -q "$PWD" <<<"$dyn" || fail "bin/palp refers to the build tree"
+got="$(env -u LD_LIBRARY_PATH "$prefix/bin/palp" --version)" || fail "bin/palp --version"
+[[ "$got" == "palp $version" ]] || fail "bin/palp --version printed '$got', expected 'palp $version'"
+unresolved="$(env -u LD_LIBRARY_PATH ldd "$prefix/bin/palp" | grep 'not found' || true)"
+[[ -z "$unresolved" ]] || fail "bin/palp: $unresolved"
+haptics="$libdir/libpalp_haptics.so.$version"
+[[ "$(loaded_haptics "$prefix/bin/palp")" == "$haptics" ]] ||
+  fail "bin/palp does not load the installed libpalp_haptics"
+echo "  bin/palp --version: $got (RUNPATH \$ORIGIN/../lib)"
+
+# The consumers with CMake.
+cmake -S tests/package -B "$tmp/consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+  -DCMAKE_PREFIX_PATH="$prefix" >"$tmp/configure.log" 2>&1 ||
+  { cat "$tmp/configure.log" >&2; fail "configuring tests/package with find_package(palp CONFIG)"; }
+cmake --build "$tmp/consumer" >"$tmp/build.log" 2>&1 ||
+  { cat "$tmp/build.log" >&2; fail "building tests/package"; }
+for exe in consumer_c consumer_cpp; do
+  [[ "$(loaded_haptics "$tmp/consumer/$exe")" == "$haptics" ]] ||
+    fail "$exe does not load the installed libpalp_haptics"
+  env -u LD_LIBRARY_PATH "$tmp/consumer/$exe" || fail "$exe (CMake)"
+done
+
+# The C consumer with pkg-config alone.
+export PKG_CONFIG_PATH="$libdir/pkgconfig"
+[[ "$(pkg-config --modversion palp)" == "$version" ]] || fail "pkg-config --modversion palp"
+cflags="$(pkg-config --cflags palp)"
+libs="$(pkg-config --libs palp)"
+echo "  pkg-config: --cflags '$cflags' --libs '$libs'"
+# shellcheck disable=SC2086  # word splitting of the flags is intended
+cc -std=c11 -Wall -Wextra -Werror $cflags tests/package/consumer.c -o "$tmp/consumer_c_pc" \
+  $libs -Wl,-rpath,"$(pkg-config --variable=libdir palp)" -lm || fail "cc with pkg-config"
+env -u LD_LIBRARY_PATH "$tmp/consumer_c_pc" || fail "consumer_c (pkg-config)"
+echo "test_package: ok (prefix $prefix)"
