@@ -34,6 +34,13 @@ add_library(palp_openjpeg INTERFACE)
 target_include_directories(palp_openjpeg SYSTEM INTERFACE ${PALP_OPENJPEG_INCLUDE_DIR})
 target_link_libraries(palp_openjpeg INTERFACE ${PALP_OPENJP2_LIB})
 
+# cairo 1.16 (map figures drawn as PNG, haptics) has no CMake config; find it directly.
+find_library(PALP_CAIRO_LIB cairo REQUIRED)
+find_path(PALP_CAIRO_INCLUDE_DIR cairo.h PATH_SUFFIXES cairo REQUIRED)
+add_library(palp_cairo INTERFACE)
+target_include_directories(palp_cairo SYSTEM INTERFACE ${PALP_CAIRO_INCLUDE_DIR})
+target_link_libraries(palp_cairo INTERFACE ${PALP_CAIRO_LIB})
+
 # CHOLMOD (SuiteSparse 5.12) has no CMake config.
 find_library(PALP_CHOLMOD_LIB cholmod REQUIRED)
 find_path(PALP_CHOLMOD_INCLUDE_DIR cholmod.h PATH_SUFFIXES suitesparse REQUIRED)

@@ -8,7 +8,7 @@ PACKAGES=(
   cmake g++ ninja-build pkg-config git clang-format
   # libraries
   libeigen3-dev libopenvdb-dev libboost-iostreams-dev libembree-dev libtbb-dev
-  libgdcm-dev libopenjp2-7-dev libnifti2-dev zlib1g-dev libpng-dev
+  libgdcm-dev libopenjp2-7-dev libnifti2-dev zlib1g-dev libpng-dev libcairo2-dev
   libsuitesparse-dev libcli11-dev nlohmann-json3-dev libtinyobjloader-dev libassimp-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   # oracles and baselines used by tests and benchmarks

@@ -1,9 +1,6 @@
 #include "palp/haptics/map_svg.h"
 
-#include <algorithm>
-#include <array>
 #include <cmath>
-#include <cstdint>
 #include <cstdio>
 #include <string>
 
@@ -13,25 +10,9 @@ namespace palp::haptics {
 
 namespace {
 
-// Layout, SVG user units (px).
-constexpr double kLeft = 90, kRight = 130, kTop = 56, kBottom = 70;
-constexpr double kBarWidth = 18, kBarGap = 22;
-
-std::string colour(double s, ColorMap cm) {
-    s = std::clamp(s, 0.0, 1.0);
-    const auto c = [](double x) {
-        return static_cast<int>(std::lround(255 * std::clamp(x, 0.0, 1.0)));
-    };
-    int r = 0, g = 0, b = 0;
-    if (cm == ColorMap::Heat) {
-        r = c(3 * s);  // black -> red -> yellow -> white, as writeMapPng()
-        g = c(3 * s - 1);
-        b = c(3 * s - 2);
-    } else {
-        r = g = b = c(s);
-    }
+std::string hex(const std::array<std::uint8_t, 3>& c) {
     char buf[8];
-    std::snprintf(buf, sizeof buf, "#%02x%02x%02x", r, g, b);
+    std::snprintf(buf, sizeof buf, "#%02x%02x%02x", c[0], c[1], c[2]);
     return buf;
 }
 
@@ -64,152 +45,98 @@ std::string num(double x) {
     return buf;
 }
 
-std::string text(double x, double y, const std::string& cls, const std::string& anchor,
-                 const std::string& body, double size = 12, const std::string& extra = "") {
-    return "<text class=\"" + cls + "\" x=\"" + num(x) + "\" y=\"" + num(y) + "\" text-anchor=\"" +
-           anchor + "\" font-size=\"" + num(size) + "\"" + extra + ">" + escape(body) + "</text>\n";
+std::string text(const FigureText& t) {
+    static constexpr const char* kAnchor[] = {"start", "middle", "end"};
+    std::string s = "<text class=\"" + t.cls + "\" x=\"" + num(t.x) + "\" y=\"" + num(t.y) +
+                    "\" text-anchor=\"" + kAnchor[static_cast<int>(t.anchor)] + "\" font-size=\"" +
+                    num(t.size) + "\"";
+    if (t.bold) s += " font-weight=\"bold\"";
+    if (t.vertical) s += " transform=\"rotate(-90 " + num(t.x) + " " + num(t.y) + ")\"";
+    return s + ">" + escape(t.body) + "</text>\n";
 }
 
-/// A step of 1, 2 or 5 x 10^k giving 4-8 ticks over @p span.
-double niceStep(double span) {
-    if (!(span > 0)) return 1;
-    const double raw = span / 6;
-    const double p = std::pow(10.0, std::floor(std::log10(raw)));
-    for (double m : {1.0, 2.0, 5.0, 10.0})
-        if (m * p >= raw) return m * p;
-    return 10 * p;
+std::string rect(double x, double y, double w, double h, const std::string& rest) {
+    return "<rect x=\"" + num(x) + "\" y=\"" + num(y) + "\" width=\"" + num(w) + "\" height=\"" +
+           num(h) + "\" " + rest + "/>\n";
 }
 
-/// Axis name of the world axis @p a points along: "x", "y" or "z".
-char axisLetter(const Eigen::Vector3d& a) {
-    int i = 0;
-    a.cwiseAbs().maxCoeff(&i);
-    return "xyz"[i];
+/// The scaled position in [0, 1] of @p v between @p lo and @p hi (0 when the range is empty).
+double unit(double v, double lo, double hi) {
+    if (!std::isfinite(lo) || !std::isfinite(hi)) return 0;
+    return hi > lo ? (v - lo) / (hi - lo) : 0.0;
 }
 
 }  // namespace
 
-const char* patientDirection(const Eigen::Vector3d& axis) noexcept {
-    int i = 0;
-    axis.cwiseAbs().maxCoeff(&i);
-    static constexpr const char* kPos[] = {"L", "P", "S"};
-    static constexpr const char* kNeg[] = {"R", "A", "I"};
-    return axis[i] >= 0 ? kPos[i] : kNeg[i];
-}
-
 void writeMapSvg(const std::filesystem::path& path, const ScalarMap& map, const MapFigure& figure) {
-    const MapPlane& plane = map.plane();
+    const MapLayout l = layoutMapFigure(map, figure, 1.0);
     const int cols = map.cols(), rows = map.rows();
-    // Square map pixels, the longer side about 480 px.
-    const double s = std::clamp(480.0 / std::max(cols, rows), 1.0, 32.0);
-    const double w = cols * s, h = rows * s;
-    const double width = kLeft + w + kRight, height = kTop + h + kBottom;
-    double lo = figure.lo, hi = figure.hi, mn = 0, mx = 0;
-    map.range(mn, mx);
-    if (!std::isfinite(lo)) lo = mn;
-    if (!std::isfinite(hi)) hi = mx;
-    const double span = std::isfinite(lo) && std::isfinite(hi) && hi > lo ? hi - lo : 1.0;
-
+    const double s = l.cell;
     std::string svg = "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
-    svg += "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + num(width) + "\" height=\"" +
-           num(height) + "\" viewBox=\"0 0 " + num(width) + " " + num(height) +
-           "\" font-family=\"sans-serif\">\n";
-    svg += "<rect x=\"0\" y=\"0\" width=\"" + num(width) + "\" height=\"" + num(height) +
-           "\" fill=\"white\"/>\n";
-    svg += text(width / 2, 24, "title", "middle", figure.title, 14);
+    svg += "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + num(l.width) + "\" height=\"" +
+           num(l.height) + "\" viewBox=\"0 0 " + num(l.width) + " " + num(l.height) +
+           "\" font-family=\"DejaVu Sans, sans-serif\">\n";
+    svg += rect(0, 0, l.width, l.height, "fill=\"white\"");
 
-    // The map: one rect per pixel, image row 0 = the largest v.
-    svg += "<g class=\"map\" shape-rendering=\"crispEdges\">\n";
+    // The underlay, then the map: one rect per pixel, image row 0 = the largest v.
+    const bool under = figure.underlay.has_value();
+    if (under) {
+        const MapUnderlay& u = *figure.underlay;
+        svg += "<g class=\"underlay\" shape-rendering=\"crispEdges\">\n";
+        for (int row = 0; row < rows; ++row) {
+            for (int col = 0; col < cols; ++col) {
+                const double v = u.map.at(col, row);
+                const double x = l.mapX + col * s, y = l.mapY + (rows - 1 - row) * s;
+                if (!std::isfinite(v)) {
+                    svg += rect(x, y, s, s, "fill=\"#000040\"");
+                    continue;
+                }
+                double g = unit(v, l.underLo, l.underHi);
+                if (u.brightLow) g = 1 - g;
+                svg += rect(
+                    x, y, s, s,
+                    "fill=\"" + hex(mapColour(g, ColorMap::Grey)) + "\" data-u=\"" + num(v) + "\"");
+            }
+        }
+        svg += "</g>\n";
+    }
+    svg += "<g class=\"map\" shape-rendering=\"crispEdges\"";
+    if (under) svg += " opacity=\"" + num(figure.mapOpacity) + "\"";
+    svg += ">\n";
     for (int row = 0; row < rows; ++row) {
         for (int col = 0; col < cols; ++col) {
             const double v = map.at(col, row);
-            const double x = kLeft + col * s, y = kTop + (rows - 1 - row) * s;
-            svg += "<rect x=\"" + num(x) + "\" y=\"" + num(y) + "\" width=\"" + num(s) +
-                   "\" height=\"" + num(s) + "\" fill=\"";
+            const double x = l.mapX + col * s, y = l.mapY + (rows - 1 - row) * s;
             if (std::isfinite(v)) {
-                svg += colour(std::isfinite(lo) ? (v - lo) / span : 0, figure.colorMap) +
-                       "\" data-v=\"" + num(v) + "\"/>\n";
-            } else {
-                svg += "#000040\"/>\n";
+                svg += rect(x, y, s, s,
+                            "fill=\"" + hex(mapColour(unit(v, l.lo, l.hi), figure.colorMap)) +
+                                "\" data-v=\"" + num(v) + "\"");
+            } else if (!under) {
+                svg += rect(x, y, s, s, "fill=\"#000040\"");
             }
         }
     }
-    svg += "</g>\n<rect x=\"" + num(kLeft) + "\" y=\"" + num(kTop) + "\" width=\"" + num(w) +
-           "\" height=\"" + num(h) + "\" fill=\"none\" stroke=\"black\"/>\n";
+    svg += "</g>\n" + rect(l.mapX, l.mapY, l.mapW, l.mapH, "fill=\"none\" stroke=\"black\"");
 
-    // Axes: world coordinates (mm) along u (bottom) and v (left). Pixel edges lie at
-    // a = -extentU/2 + col pixelM from the plane's centre (MapPlane::pixelCentre).
-    const double pu = plane.pixelM * 1e3;
-    const struct {
-        const Eigen::Vector3d* axis;
-        int n;
-        bool horizontal;
-    } axes[] = {{&plane.u, cols, true}, {&plane.v, rows, false}};
-    for (const auto& ax : axes) {
-        const Eigen::Vector3d e = ax.axis->cwiseAbs();  // the world axis, positive
-        const double sign = ax.axis->dot(e) >= 0 ? 1 : -1;
-        const double c0 = plane.pixelCentre(0, 0).dot(e) * 1e3 - sign * 0.5 * pu;  // edge
-        const double c1 = c0 + sign * ax.n * pu;  // world coordinate at the far edge
-        const double step = niceStep(std::abs(c1 - c0));
-        const double first = std::ceil(std::min(c0, c1) / step - 1e-9) * step;
-        const std::string cls = ax.horizontal ? "tick-u" : "tick-v";
-        for (double t = first; t <= std::max(c0, c1) + 1e-9 * step; t += step) {
-            const double f = (t - c0) / (c1 - c0);  // 0 at the near edge, 1 at the far edge
-            const double label = std::abs(t) < 1e-9 * step ? 0.0 : t;
-            if (ax.horizontal) {
-                const double x = kLeft + f * w;
-                svg += "<line x1=\"" + num(x) + "\" y1=\"" + num(kTop + h) + "\" x2=\"" + num(x) +
-                       "\" y2=\"" + num(kTop + h + 6) + "\" stroke=\"black\"/>\n";
-                svg += text(x, kTop + h + 20, cls, "middle", num(label));
-            } else {
-                const double y = kTop + h - f * h;
-                svg += "<line x1=\"" + num(kLeft - 6) + "\" y1=\"" + num(y) + "\" x2=\"" +
-                       num(kLeft) + "\" y2=\"" + num(y) + "\" stroke=\"black\"/>\n";
-                svg += text(kLeft - 9, y + 4, cls, "end", num(label));
-            }
+    // The bars: a gradient each, lo at the bottom.
+    int id = 0;
+    for (const FigureBar* b : {&l.bar, l.underBar ? &*l.underBar : nullptr}) {
+        if (!b) continue;
+        const std::string name = "bar" + std::to_string(id++);
+        svg += "<defs><linearGradient id=\"" + name + "\" x1=\"0\" y1=\"1\" x2=\"0\" y2=\"0\">\n";
+        for (int k = 0; k <= 16; ++k) {
+            const double f = k / 16.0;
+            svg += "<stop offset=\"" + num(f) + "\" stop-color=\"" +
+                   hex(mapColour(b->brightLow ? 1 - f : f, b->colorMap)) + "\"/>\n";
         }
-        const std::string name = std::string(1, axisLetter(*ax.axis)) + " (mm)";
-        const Eigen::Vector3d neg = -*ax.axis;
-        if (ax.horizontal) {
-            svg += text(kLeft + w / 2, kTop + h + 44, "axis-u", "middle", name, 13);
-            svg += text(kLeft, kTop + h + 44, "direction", "start", patientDirection(neg), 15,
-                        " font-weight=\"bold\"");
-            svg += text(kLeft + w, kTop + h + 44, "direction", "end", patientDirection(*ax.axis),
-                        15, " font-weight=\"bold\"");
-        } else {
-            const double x = 22, y = kTop + h / 2;
-            svg += text(x, y, "axis-v", "middle", name, 13,
-                        " transform=\"rotate(-90 " + num(x) + " " + num(y) + ")\"");
-            svg += text(x + 12, kTop + h, "direction", "middle", patientDirection(neg), 15,
-                        " font-weight=\"bold\"");
-            svg += text(x + 12, kTop + 12, "direction", "middle", patientDirection(*ax.axis), 15,
-                        " font-weight=\"bold\"");
-        }
+        svg += "</linearGradient></defs>\n";
+        svg += rect(b->x, b->y, b->w, b->h, "fill=\"url(#" + name + ")\" stroke=\"black\"");
     }
-
-    // Colour bar: lo at the bottom, hi at the top.
-    const double bx = kLeft + w + kBarGap;
-    svg += "<defs><linearGradient id=\"bar\" x1=\"0\" y1=\"1\" x2=\"0\" y2=\"0\">\n";
-    for (int k = 0; k <= 16; ++k) {
-        svg += "<stop offset=\"" + num(k / 16.0) + "\" stop-color=\"" +
-               colour(k / 16.0, figure.colorMap) + "\"/>\n";
+    for (const FigureLine& ln : l.lines) {
+        svg += "<line x1=\"" + num(ln.x1) + "\" y1=\"" + num(ln.y1) + "\" x2=\"" + num(ln.x2) +
+               "\" y2=\"" + num(ln.y2) + "\" stroke=\"black\"/>\n";
     }
-    svg += "</linearGradient></defs>\n";
-    svg += "<rect x=\"" + num(bx) + "\" y=\"" + num(kTop) + "\" width=\"" + num(kBarWidth) +
-           "\" height=\"" + num(h) + "\" fill=\"url(#bar)\" stroke=\"black\"/>\n";
-    if (std::isfinite(lo) && std::isfinite(hi)) {
-        const double step = niceStep(hi - lo);
-        for (double t = std::ceil(lo / step - 1e-9) * step; t <= hi + 1e-9 * step; t += step) {
-            const double y = kTop + h - (hi > lo ? (t - lo) / (hi - lo) : 0.0) * h;
-            svg += "<line x1=\"" + num(bx + kBarWidth) + "\" y1=\"" + num(y) + "\" x2=\"" +
-                   num(bx + kBarWidth + 5) + "\" y2=\"" + num(y) + "\" stroke=\"black\"/>\n";
-            svg += text(bx + kBarWidth + 8, y + 4, "colorbar-tick", "start",
-                        num(std::abs(t) < 1e-9 * step ? 0.0 : t), 11);
-        }
-    }
-    const double lx = bx + kBarWidth + 62, ly = kTop + h / 2;
-    svg += text(lx, ly, "colorbar", "middle", figure.quantity + " (" + figure.units + ")", 13,
-                " transform=\"rotate(-90 " + num(lx) + " " + num(ly) + ")\"");
+    for (const FigureText& t : l.texts) svg += text(t);
     svg += "</svg>\n";
     palp::writeFileAtomically(path, "map SVG", svg.data(), svg.size());
 }
