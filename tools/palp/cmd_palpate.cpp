@@ -22,8 +22,9 @@
 #include "palp/base/validate.h"
 #include "palp/haptics/coupling_defaults.h"
 #include "palp/haptics/energy_budget.h"
-#include "palp/haptics/map_png.h"
+#include "palp/haptics/map_figure.h"
 #include "palp/haptics/map_svg.h"
+#include "palp/haptics/map_underlay.h"
 #include "palp/haptics/offline_run.h"
 #include "palp/haptics/scalar_map.h"
 #include "palp/haptics/session.h"
@@ -144,12 +145,51 @@ haptics::MapPlane mapPlane(const PalpateArgs& a, const PathFrame& f) {
     return plane;
 }
 
+/// The underlay --map-underlay asks for, computed before the run (off the servo thread) over
+/// the map's pixels, measured from the plane of the volume's face against the press; auto: the
+/// skin depth on a rigid scan, none on a phantom (its skin is flat) or on deformable tissue (no
+/// iso-surface). @throw palp::ValueError naming --map-underlay when nothing lies under the map.
+std::optional<haptics::MapUnderlay> mapUnderlay(const PalpateArgs& a, const Input& in,
+                                                const haptics::Scene& scene,
+                                                const haptics::MapPlane& mapPlane,
+                                                const Eigen::Vector3d& press,
+                                                const Eigen::AlignedBox3d& box) {
+    std::string kind = a.mapUnderlay;
+    if (kind == "auto") kind = in.phantom || a.deformable ? "none" : "skin-depth";
+    if (a.map.empty() || kind == "none") return std::nullopt;
+    const int pa = axisIndex(press);
+    haptics::MapPlane plane = mapPlane;
+    plane.centre[pa] = press[pa] > 0 ? box.min()[pa] : box.max()[pa];
+    const double length = box.sizes()[pa] + 10e-3;
+    haptics::MapUnderlay u(plane);
+    if (kind == "skin-depth") {
+        u.map = haptics::skinDepthMap(scene.surfaces(), plane, press, length);
+        u.quantity = "skin depth";
+        u.units = "mm";
+        u.brightLow = true;  // near skin bright, deep skin dark
+    } else {
+        u.map = haptics::mipMap(in.vol, plane, press, length);
+        u.quantity = "max along " + axisName(press);
+        u.units = in.vol.info.valueUnits.empty() ? "value" : in.vol.info.valueUnits;
+    }
+    if (u.map.finiteValues().empty()) {
+        throwExpected("--map-underlay " + kind,
+                      kind == "skin-depth"
+                          ? "a skin surface under the map along " + axisName(press) +
+                                " (a deformable scene has none: use mip)"
+                          : "the volume under the map along " + axisName(press),
+                      "none");
+    }
+    return u;
+}
+
 /// Writes --trace and --map (the map's value range in @p mapLo, @p mapHi). The map is made
 /// before either file is written, and a trace is removed again when the map cannot be written,
 /// so a refusal leaves no output behind.
 void writeOutputs(const PalpateArgs& a, const PathFrame& f,
                   const std::vector<haptics::Snapshot>& snaps, const std::string& title,
-                  double& mapLo, double& mapHi) {
+                  const std::optional<haptics::MapUnderlay>& underlay, double& mapLo, double& mapHi,
+                  std::optional<haptics::MapLayout>& layout) {
     std::optional<haptics::ScalarMap> map;
     if (!a.map.empty()) {
         map = haptics::binSnapshots(snaps, mapPlane(a, f), haptics::parseMapQuantity(a.mapQuantity),
@@ -159,23 +199,24 @@ void writeOutputs(const PalpateArgs& a, const PathFrame& f,
     }
     if (!a.trace.empty()) haptics::writeTraceCsv(a.trace, snaps);
     if (!map) return;
-    haptics::PngOptions po;
-    po.colorMap = a.grey ? haptics::ColorMap::Grey : haptics::ColorMap::Heat;
-    po.scale = std::clamp(static_cast<int>(256 / std::max(map->cols(), map->rows())), 1, 16);
+    // A figure a clinician can read: axes in mm, patient directions, colour bar, title, the
+    // underlay; SVG keeps its text as text, PNG is drawn with cairo from the same layout.
+    haptics::MapFigure fig;
+    fig.title = title;
+    fig.quantity = a.mapQuantity;
+    fig.units = a.mapQuantity == "stiffness" ? "N/m" : "N";
+    fig.colorMap = a.grey ? haptics::ColorMap::Grey : haptics::ColorMap::Heat;
+    fig.underlay = underlay;
     try {
         std::string ext = fs::path(a.map).extension().string();
         std::transform(ext.begin(), ext.end(), ext.begin(),
                        [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
         if (ext == ".svg") {
-            // A figure a clinician can read: axes in mm, patient directions, colour bar.
-            haptics::MapFigure fig;
-            fig.title = title;
-            fig.quantity = a.mapQuantity;
-            fig.units = a.mapQuantity == "stiffness" ? "N/m" : "N";
-            fig.colorMap = po.colorMap;
             haptics::writeMapSvg(a.map, *map, fig);
+            layout = haptics::layoutMapFigure(*map, fig, 1.0);
         } else {
-            haptics::writeMapPng(a.map, *map, po);
+            haptics::writeMapFigurePng(a.map, *map, fig, haptics::kMapPngScale);
+            layout = haptics::layoutMapFigure(*map, fig, haptics::kMapPngScale);
         }
     } catch (...) {
         if (!a.trace.empty()) {
@@ -199,8 +240,11 @@ struct Report {
     haptics::EnergyBudget budget;  ///< from the end of the approach on
     double mapLo = NAN, mapHi = NAN;
     SkinPlan skin;
-    double pressedFrom = 0;           ///< when the path rests pressed (after the approach), s
-    double contactAfterApproach = 0;  ///< share of ticks in contact from then on
+    double pressedFrom = 0;               ///< when the path rests pressed (after the approach), s
+    double contactAfterApproach = 0;      ///< share of ticks in contact from then on
+    std::string underlay, underlayUnits;  ///< the map's underlay ("": none) and its units
+    double underlayLo = NAN, underlayHi = NAN;
+    std::optional<haptics::MapLayout> figure;  ///< where the map lies in its figure
 };
 
 /// Share of the ticks from @p from (s) on whose proxy is on a surface.
@@ -312,6 +356,19 @@ void printJson(const PalpateArgs& a, const Report& r) {
         j["map_range"] = {mapLo, mapHi};
         j["map_right"] = axisName(u);
         j["map_up"] = axisName(v);
+        j["map_underlay"] = r.underlay.empty() ? json("none") : json(r.underlay);
+        if (r.figure) {
+            // Where the map lies in the image (px from the top left) and the world mm at its
+            // edges, so that a reader can measure on it.
+            const haptics::MapLayout& l = *r.figure;
+            j["map_image"] = {{"width_px", std::ceil(l.width)},
+                              {"height_px", std::ceil(l.height)},
+                              {"map_px", {l.mapX, l.mapY, l.mapW, l.mapH}},
+                              {"u_mm", {l.mmAtX(l.mapX), l.mmAtX(l.mapX + l.mapW)}},
+                              {"v_mm", {l.mmAtY(l.mapY + l.mapH), l.mmAtY(l.mapY)}}};
+        }
+        if (!r.underlay.empty())
+            j["map_underlay_range"] = {r.underlayLo, r.underlayHi, r.underlayUnits};
     }
     std::printf("%s\n", j.dump(2).c_str());
 }
@@ -392,9 +449,14 @@ void printText(const PalpateArgs& a, const Report& r) {
         std::printf("\n");
     }
     if (!a.trace.empty()) std::printf("wrote %s\n", a.trace.c_str());
-    if (!a.map.empty())
-        std::printf("wrote %s: %s from %.3g to %.3g; image right = %s, up = %s\n", a.map.c_str(),
+    if (!a.map.empty()) {
+        std::printf("wrote %s: %s from %.3g to %.3g; image right = %s, up = %s", a.map.c_str(),
                     a.mapQuantity.c_str(), mapLo, mapHi, axisName(u).c_str(), axisName(v).c_str());
+        if (!r.underlay.empty())
+            std::printf("; under it %s %.3g-%.3g %s", r.underlay.c_str(), r.underlayLo,
+                        r.underlayHi, r.underlayUnits.c_str());
+        std::printf("\n");
+    }
 }
 
 /// `palp palpate`: checks, set-up, run, outputs, report.
@@ -450,7 +512,11 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
                           " s (raise --spacing or --speed, or set --seconds)",
                       formatValue(duration) + " s");
     }
-    if (!a.map.empty()) haptics::validateMapPlane(mapPlane(a, frame));
+    std::optional<haptics::MapUnderlay> underlay;
+    if (!a.map.empty()) {
+        haptics::validateMapPlane(mapPlane(a, frame));
+        underlay = mapUnderlay(a, in, *scene, mapPlane(a, frame), press, box);
+    }
     const auto ticks = static_cast<std::uint64_t>(std::ceil(duration / period));
 
     haptics::SessionParams sp;
@@ -470,8 +536,8 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     haptics::SimulatedDevice device(*spec, plan.traj, haptics::HandModel{}, period);
     haptics::Session session(scene, device, sp);
 
-    Report r{in.label, spec, cp,   kMaxAsked,        frame, body, {}, {}, {},
-             NAN,      NAN,  skin, plan.pressedFrom, 0};
+    Report r{in.label,         spec, cp, kMaxAsked, frame, body, {}, {}, {}, NAN, NAN, skin,
+             plan.pressedFrom, 0,    {}, {},        NAN,   NAN,  {}};
     r.run = a.realtime ? runRealtime(session, ticks) : runFast(session, ticks);
     r.sum = haptics::summarize(r.run.snaps);
     r.contactAfterApproach = contactFrom(r.run.snaps, plan.pressedFrom);
@@ -481,7 +547,12 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
                               haptics::raySourceName(cp.source) + ", " + a.trajectory +
                               (skin.follow ? " on the skin" : "") + ", pressed " + axisName(press) +
                               " (from " + haptics::patientDirection(-press) + ")";
-    writeOutputs(a, frame, r.run.snaps, title, r.mapLo, r.mapHi);
+    writeOutputs(a, frame, r.run.snaps, title, underlay, r.mapLo, r.mapHi, r.figure);
+    if (underlay) {
+        r.underlay = underlay->quantity;
+        underlay->map.range(r.underlayLo, r.underlayHi);
+        r.underlayUnits = underlay->units;
+    }
     if (a.json) {
         printJson(a, r);
     } else if (!globals().quiet) {

@@ -201,8 +201,8 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
         ->check(within(bounds::kPositiveDuration));
     app->add_option("--trace", a.trace, "Write a CSV trace of every tick");
     app->add_option("--map", a.map,
-                    "Write a map over the palpated plane: .svg a figure with axes in mm, "
-                    "patient directions, colour bar and title; otherwise a bare PNG heat image");
+                    "Write a map over the palpated plane as a figure with axes in mm, patient "
+                    "directions, colour bar and title: .svg (text kept as text), otherwise PNG");
     app->add_option("--map-quantity", a.mapQuantity, "stiffness, force or energy")
         ->check(CLI::IsMember({"stiffness", "force", "energy"}));
     app->add_option("--map-at", a.mapAt,
@@ -211,6 +211,11 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
         ->check(CLI::IsMember({"proxy", "ray-end"}));
     app->add_option("--map-pixel", a.mapPixelMm, "Map pixel edge, mm (default: --spacing)")
         ->check(within(bounds::kSpacing, kMm));
+    app->add_option("--map-underlay", a.mapUnderlay,
+                    "Under the map, in grey: the skin's depth below the map's plane along the "
+                    "press (skin-depth), the volume's maximum along the press (mip), or none "
+                    "(auto: skin-depth on a rigid scan, none on a phantom or --deformable)")
+        ->check(CLI::IsMember({"auto", "skin-depth", "mip", "none"}));
     app->add_flag("--grey", a.grey, "Grey map instead of black-red-yellow-white");
     app->add_option("--device", a.device, "Device class whose limits apply");
     app->add_flag("--json", a.json, "Print the figures as JSON");
@@ -278,6 +283,10 @@ void checkRunOptions(const PalpateArgs& a) {
             throw IoError(path.string() + ": expected an existing directory '" + dir.string() +
                           "' for the output, found none");
         }
+    }
+    if (a.mapUnderlay != "auto" && a.map.empty()) {
+        throw ValueError("--map-underlay " + a.mapUnderlay +
+                         ": expected --map FILE to draw it under, found none");
     }
     requirePositive("--depth", a.depthMm, "mm");
     requirePositive("--spacing", a.spacingMm, "mm");

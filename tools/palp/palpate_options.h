@@ -53,6 +53,9 @@ struct PalpateArgs {
     std::string mapQuantity = "stiffness";
     std::string mapAt = "proxy";
     double mapPixelMm = 0;
+    /// --map-underlay: auto (skin-depth on a rigid scan, none on a phantom or deformable
+    /// tissue), skin-depth, mip or none
+    std::string mapUnderlay = "auto";
     bool grey = false;
     std::string device = "3D Systems Touch";
     bool json = false;
