@@ -16,7 +16,8 @@ else
   targets=(test_base test_volume_formats test_volume_raw_data test_volume_reader_checks
            test_volume_checks test_volume_dicom test_volume_dicom_syntax test_volume_dicom_mosaic test_volume_format_sniff test_volume_phantom test_volume_phantom_tumour test_volume_io
            test_volume_resample test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api
-           test_c_api_fields test_c_api_deformable test_c_api_deformable_c)
+           test_c_api_fields test_c_api_deformable test_c_api_deformable_c test_c_api_host
+           test_c_api_host_c)
 fi
 # Without the palp tool: the library and the tests are what is instrumented here (the tool's own
 # checks run in tools/test.sh); the few volume tests that run `palp convert`/`palp phantom` use
@@ -44,7 +45,7 @@ for t in "${targets[@]}"; do
   echo "== asan: $t"
   start=$(date +%s)
   args=(--gtest_brief=1)
-  case "$t" in test_c_api | test_c_api_deformable_c) args=() ;; esac  # plain C, no GoogleTest
+  case "$t" in test_c_api | test_c_api_deformable_c | test_c_api_host_c) args=() ;; esac  # plain C
   if "$exe" "${args[@]}"; then
     echo "== asan: $t passed, 0 reports ($(($(date +%s) - start)) s)"
   else

@@ -3,7 +3,8 @@
 // plumbing (every exception becomes a status code plus a message) and the C <-> C++
 // conversions its files share. c_api.cpp: errors, handles, volumes and scenes;
 // c_api_params.cpp: parameter, trajectory and snapshot conversions and defaults;
-// c_api_session.cpp: sessions; c_api_deformable.cpp: deformable scenes and their surface.
+// c_api_session.cpp: sessions; c_api_deformable.cpp: deformable scenes and their surface;
+// c_api_host.cpp: host devices (callbacks behind a watchdog).
 
 #include <Eigen/Core>
 #include <atomic>
@@ -19,6 +20,7 @@
 #include "palp/haptics/session.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/trajectory.h"
+#include "palp/haptics/watchdog_device.h"
 #include "palp/palp.h"
 #include "palp/volume/volume.h"
 
@@ -37,7 +39,8 @@ struct palp_session {
     std::string deviceName;          // params.device points here
     palp_session_params params;      // in force; guarded by paramsMutex (producer and controller)
     mutable std::mutex paramsMutex;  // never taken by the servo thread
-    std::unique_ptr<palp::haptics::SimulatedDevice> device;
+    std::unique_ptr<palp::haptics::Device> device;            // simulated, or the host's callbacks
+    std::unique_ptr<palp::haptics::WatchdogDevice> watchdog;  // host devices: around device
     std::unique_ptr<palp::haptics::Session> session;  // declared last: destroyed (stopped) first
     ~palp_session() { session.reset(); }
 };
@@ -116,6 +119,9 @@ haptics::HandModel toHand(const palp_trajectory& c);
 void toC(const haptics::Snapshot& s, palp_snapshot& c) noexcept;
 /// The servo period a deformable scene's body was made for, s (0 for a rigid scene).
 double deformablePeriod(const palp_scene& scene) noexcept;
+/// @throw palp::ValueError naming @p function's palp_session_params.period when @p scene is
+/// deformable and made for another period.
+void checkScenePeriod(const palp_scene& scene, double period, const char* function);
 palp_latency toC(const haptics::LatencySummary& l) noexcept;
 
 }  // namespace palp::capi

@@ -477,6 +477,10 @@ void toC(const ph::Snapshot& s, palp_snapshot& c) noexcept {
     c.contact_node = s.contactNode;
     c.max_displacement = s.maxDisplacement;
     c.fem_flags = s.femFlags;
+    c.device_stale = s.deviceStale ? 1 : 0;
+    c.device_force_scale = s.deviceForceScale;
+    c.watchdog_trips = s.watchdogTrips;
+    c.passivity_cut = s.passivityCut;
 }
 
 palp_latency toC(const ph::LatencySummary& l) noexcept {

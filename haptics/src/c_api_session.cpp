@@ -12,6 +12,19 @@
 
 namespace ph = palp::haptics;
 
+namespace palp::capi {
+
+void checkScenePeriod(const palp_scene& scene, double period, const char* function) {
+    if (const double t = deformablePeriod(scene); t > 0 && !(std::abs(t - period) <= 1e-9 * t)) {
+        palp::throwExpected(std::string(function) + ": palp_session_params.period",
+                            "the deformable scene's palp_deformable_options.period (" +
+                                palp::formatValue(t) + " s)",
+                            palp::formatValue(period) + " s");
+    }
+}
+
+}  // namespace palp::capi
+
 using namespace palp::capi;
 
 extern "C" {
@@ -27,13 +40,7 @@ palp_status palp_session_create_simulated(palp_scene* scene, const palp_session_
         const ph::SessionParams sp = toSession(*params);
         const ph::Trajectory path = toTrajectory(*trajectory);
         const ph::HandModel hand = toHand(*trajectory);
-        if (const double t = deformablePeriod(*scene);
-            t > 0 && !(std::abs(t - params->period) <= 1e-9 * t)) {
-            palp::throwExpected("palp_session_create_simulated: palp_session_params.period",
-                                "the deformable scene's palp_deformable_options.period (" +
-                                    palp::formatValue(t) + " s)",
-                                palp::formatValue(params->period) + " s");
-        }
+        checkScenePeriod(*scene, params->period, "palp_session_create_simulated");
         auto handle = std::make_unique<palp_session>();
         handle->deviceName = params->device;
         handle->params = *params;

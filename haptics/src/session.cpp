@@ -240,8 +240,8 @@ struct Session::Impl {
     void coupleWithFade(const ProxyState& ps, const HandSample& hand) noexcept;
     bool rejectUphillMove(const ProxyState& before, const ProxyState& after,
                           const HandSample& hand) noexcept;
-    SentForce forceChain(const Eigen::Vector3d& couplingForce,
-                         const Eigen::Vector3d& handVelocity) noexcept;
+    SentForce forceChain(const Eigen::Vector3d& couplingForce, const Eigen::Vector3d& handVelocity,
+                         double deviceScale) noexcept;
     Eigen::Vector3d worldToDevice(const Eigen::Vector3d& force) const noexcept {
         return workspace.rotation.transpose() * force;  // rotated back, not scaled
     }
@@ -282,6 +282,7 @@ struct Session::Impl {
     PassivityController passivity;
     ForceGuard guard;
     StartupGate gate;
+    DeviceHealth health;     // the device's report on this tick's sample
     bool started = false;    // the first good sample has been seen
     bool freeProxy = false;  // the probe started inside: the proxy follows it until outside
     Eigen::Vector3d lastProxyForce{Eigen::Vector3d::Zero()};
@@ -365,6 +366,7 @@ void Session::Impl::drainCommands() noexcept {
 
 void Session::Impl::tick(double timeSeconds) noexcept {
     const HandSample hand = deviceToWorld(device.read());
+    health = device.health();  // a watchdog's verdict on this sample (WatchdogDevice)
     drainCommands();
     if (body) {
         // Deformable tissue: the rays leave in the material frame of the element the proxy
@@ -387,7 +389,7 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
     }
-    const SentForce sent = forceChain(force, hand.handVelocity);
+    const SentForce sent = forceChain(force, hand.handVelocity, health.forceScale);
     device.write(worldToDevice(sent.force));
     Eigen::Vector3d tissueForce = Eigen::Vector3d::Zero();
     const bool anchored = contactTissue(*ps, sent.force, tissueForce);
@@ -483,12 +485,14 @@ void Session::Impl::coupleWithFade(const ProxyState& ps, const HandSample& hand)
 
 // Stage 3, the force chain: guard, clamp, gate, passivity (and clamp again).
 Session::Impl::SentForce Session::Impl::forceChain(const Eigen::Vector3d& couplingForce,
-                                                   const Eigen::Vector3d& handVelocity) noexcept {
+                                                   const Eigen::Vector3d& handVelocity,
+                                                   double deviceScale) noexcept {
     SentForce out;
     out.faulted = !couplingForce.allFinite();
     const Eigen::Vector3d force = guard.filter(couplingForce);
     out.clamped = force.norm() > spec.maxForceN;
-    Eigen::Vector3d sent = gate.filter(clampForce(force, spec.maxForceN));
+    // A device watchdog's scale (1 for a device with fresh samples) before the observer books it.
+    Eigen::Vector3d sent = gate.filter(clampForce(force, spec.maxForceN)) * deviceScale;
     // The observer books the force that is actually sent (after guard, clamp and gate: always
     // finite); the controller's damping and force cut are applied before it clamps to the
     // device's maxForceN again and books the result, so W is the energy exchanged with the hand.
@@ -552,6 +556,9 @@ void Session::Impl::publish(double timeSeconds, const ProxyState& ps, const Sent
     s.fading = fading;
     s.faults = guard.faultCount();
     s.tissueForce = tissueForce;
+    s.deviceStale = health.stale;
+    s.deviceForceScale = health.forceScale;
+    s.watchdogTrips = health.trips;
 
     snapshots.back().value = s;
     snapshots.publish();

@@ -3,8 +3,8 @@
 /**
  * @file
  * palp's C API: load or generate a volume, build a scene (rigid or deformable tissue), run a
- * haptic session on a simulated device in real time or offline, read its state (and the
- * deformed surface) and change its parameters while it runs.
+ * haptic session on a simulated device or a host's device (callbacks) in real time or offline, read
+ * its state (and the deformed surface) and change its parameters while it runs.
  *
  * Conventions
  * - Opaque handles (palp_volume, palp_scene, palp_session) are reference counted: a create
@@ -326,6 +326,11 @@ typedef struct palp_snapshot {
     int contact_node;        /**< FEM node with the largest share of the contact, -1: none */
     double max_displacement; /**< largest surface displacement after the step, m */
     uint32_t fem_flags;      /**< solver flags of the step (0: a clean step) */
+    /* Host devices' watchdog (palp_session_create_host; 0 / 1 / 0 for simulated devices): */
+    int device_stale;          /**< 1: this tick's read_state brought no fresh sample */
+    double device_force_scale; /**< factor the force was scaled by (1: whole, 0: cut) */
+    uint64_t watchdog_trips;   /**< outages so far whose force reached zero */
+    double passivity_cut;      /**< passivity controller: force cut along the velocity, N */
 } palp_snapshot;
 
 typedef struct palp_latency {
@@ -352,6 +357,90 @@ typedef struct palp_realtime {
  *  without its data in the scene, values out of range). */
 palp_status palp_session_create_simulated(palp_scene* scene, const palp_session_params* params,
                                           const palp_trajectory* trajectory, palp_session** out);
+
+/* ---------------------------------------------------------------------------------------- */
+/* Host devices                                                                             */
+
+/** One sample of a host's device, in the device frame (world = workspace transform of it). */
+typedef struct palp_device_state {
+    double position[3]; /**< end-effector position, m */
+    double velocity[3]; /**< end-effector velocity, m/s */
+    uint32_t buttons;   /**< bit i set: button i pressed */
+    /** The host's sample counter: a sample is new when its sequence or its timestamp differs
+     *  from the last new sample's. Repeat the last values when nothing new has arrived (or
+     *  return non-zero from read_state): the watchdog then counts the tick as missing. */
+    uint64_t sequence;
+    double timestamp; /**< when the sample was taken (host clock), s */
+} palp_device_state;
+
+/** A device's limits. Start from palp_device_spec_from_class(). */
+typedef struct palp_device_spec {
+    double max_force;            /**< N (0 < f <= 1000): every tick's force is clamped here */
+    double max_continuous_force; /**< N (0..1000; informative) */
+    double max_stiffness;        /**< highest stable stiffness, N/m (0..1e6; 0: no limit):
+                                      palp_session_params.max_stiffness is lowered to it */
+    double max_damping;          /**< highest stable damping, N s/m (0..1e4; 0: no limit); with
+                                      the period it bounds the stiffness too (k < 1.8 b / T)
+                                      and caps the passivity controller's damping */
+    double workspace_min[3];     /**< device frame, m (informative) */
+    double workspace_max[3];     /**< device frame, m (>= workspace_min) */
+} palp_device_spec;
+
+/** The spec of a device class of palp's table (the names of palp_session_params.device).
+ *  PALP_ERROR_INVALID_ARGUMENT naming the class when there is none. */
+palp_status palp_device_spec_from_class(const char* device_class, palp_device_spec* out);
+
+/** Fills @p state with the newest sample and returns 0; returns non-zero when there is no
+ *  sample this tick (@p state is then ignored). @p state holds the last sample on entry. */
+typedef int (*palp_device_read_fn)(void* user, palp_device_state* state);
+/** Sends @p force (device frame, N; already clamped to spec.max_force) to the device. */
+typedef void (*palp_device_write_fn)(void* user, const double force[3]);
+
+/** A device made of host callbacks. Start from palp_device_callbacks_default().
+ *
+ *  The callbacks run on the servo thread (palp_session_start) or on the thread that calls
+ *  palp_session_step, once per tick each (read_state, then write_force), and never at the
+ *  same time. They must
+ *  - return in bounded time, well inside the period (a few microseconds: they are part of the
+ *    1 ms tick), and never wait: no I/O that may block, no sleeping;
+ *  - take no lock that another thread may hold (exchange data with lock-free buffers or
+ *    atomics: a lock held by a descheduled thread stalls the loop);
+ *  - allocate no memory (malloc, new) and not call into palp;
+ *  - not unwind (no C++ exception, no longjmp) through palp.
+ *  @p user is passed back unchanged; it must stay valid while the session exists.
+ *
+ *  The watchdog: after watchdog_grace seconds without a new sample (ticks x period) the force
+ *  ramps linearly to zero, reached at watchdog_timeout (a trip: palp_snapshot.watchdog_trips);
+ *  once new samples arrive it climbs back to whole over watchdog_resume seconds, so a hand
+ *  that moved during the outage is not kicked. While samples are missing the probe holds the
+ *  last sample's position with zero velocity. A sample with a NaN or infinite position or
+ *  velocity counts as missing and is guarded like any device's (the last good force is held,
+ *  palp_snapshot.faulted), until the watchdog cuts it. */
+typedef struct palp_device_callbacks {
+    palp_device_read_fn read_state;   /**< required */
+    palp_device_write_fn write_force; /**< NULL: forces are not sent (a tracker) */
+    void* user;                       /**< passed to both callbacks */
+    palp_device_spec spec;            /**< default: "3D Systems Touch X"'s */
+    /** Reported as palp_session_params.device by palp_session_get_params (copied at creation;
+     *  NULL: "host device"); palp_session_set_params expects it there. */
+    const char* name;
+    double watchdog_timeout; /**< s: zero force after this long without a new sample
+                                  (0 < t <= 10; default 0.01) */
+    double watchdog_grace;   /**< s: the force stays whole this long (0 <= g < timeout;
+                                  default 0.002) */
+    double watchdog_resume;  /**< s: time for the force to climb back (0..10; default 0.05) */
+} palp_device_callbacks;
+
+/** Fills @p callbacks with NULL callbacks, NULL user and name, "3D Systems Touch X"'s spec
+ *  and the watchdog defaults. */
+void palp_device_callbacks_default(palp_device_callbacks* callbacks);
+
+/** A session on a host's device (@p device's callbacks, copied). @p params as for
+ *  palp_session_create_simulated, except that params->device is ignored (the spec is
+ *  device->spec). Errors: PALP_ERROR_INVALID_ARGUMENT naming the field
+ *  ("palp_device_callbacks.spec.max_force", ...). */
+palp_status palp_session_create_host(palp_scene* scene, const palp_session_params* params,
+                                     const palp_device_callbacks* device, palp_session** out);
 
 palp_session* palp_session_retain(palp_session* session);
 /** Drops a reference; the last one stops the servo thread and frees the session. */

@@ -16,6 +16,18 @@ struct DeviceState {
     Eigen::Vector3d velocity{Eigen::Vector3d::Zero()};  ///< end-effector velocity, m/s
     std::uint32_t buttons = 0;                          ///< bit i set: button i pressed
     double timestampSeconds = 0.0;                      ///< time of the sample, s
+    /// The device's count of samples (0 where it keeps none). WatchdogDevice takes a sample as
+    /// new when its sequence or its timestamp differs from the last one's.
+    std::uint64_t sequence = 0;
+};
+
+/// What a device reports about its own samples after read() (Session copies it into every
+/// Snapshot). A plain device is always healthy; WatchdogDevice fills it.
+struct DeviceHealth {
+    bool stale = false;            ///< this tick's read() brought no fresh sample
+    double forceScale = 1.0;       ///< factor (0..1) the force must be scaled by this tick
+    std::uint64_t staleTicks = 0;  ///< consecutive reads without a fresh sample
+    std::uint64_t trips = 0;       ///< times the force reached zero for want of samples
 };
 
 /// Axis-aligned workspace box in the device frame, m.
@@ -94,6 +106,11 @@ class Device {
 
     /// Limits of this device.
     virtual const DeviceSpec& spec() const noexcept = 0;
+
+    /// The state of the samples after the last read() (default: always healthy). A device
+    /// whose forceScale is below 1 expects the force written this tick to be scaled by it
+    /// (Session does so before its passivity observer books the force).
+    virtual DeviceHealth health() const noexcept { return {}; }
 };
 
 }  // namespace palp::haptics

@@ -77,6 +77,12 @@ struct Snapshot {
     bool fading = false;       ///< a SetCoupling cross-fade is running
     double fadeWeight = 1;     ///< weight of the newest coupling params (0..1)
     std::uint64_t faults = 0;  ///< ticks so far whose force was non-finite (held last good)
+    /// The device's watchdog (WatchdogDevice; always false / 1 / 0 for other devices): this
+    /// tick brought no fresh sample; the factor the force was scaled by (0: cut); outages so
+    /// far whose force reached zero.
+    bool deviceStale = false;
+    double deviceForceScale = 1;
+    std::uint64_t watchdogTrips = 0;
     // Deformable scenes only (zero / -1 otherwise).
     /// Mean force on the tissue over this tick's FEM step, N: the coupling spring's, solved with
     /// the tissue (-force in a steady contact; it leads -force by the spring's change within the
@@ -123,7 +129,8 @@ struct Command {
 /// energy are blended linearly over crossFadeSeconds (a SetCoupling that arrives during a fade
 /// waits for it to end; the newest waiting one wins); ForceGuard (a non-finite force or device
 /// sample holds the last good force and flags the tick); clampForce to the device's maxForceN;
-/// StartupGate; the passivity observer (and controller when enabled) books that force, the one
+/// StartupGate; the device's Device::health().forceScale (a WatchdogDevice's cut, 1 otherwise);
+/// the passivity observer (and controller when enabled) books that force, the one
 /// actually sent, against the device velocity in the device's scale, so W is the energy
 /// exchanged with the hand (the controller's damping is added and clamped again); the force is
 /// rotated back (F_device = R^T F_world, not scaled) and written;
