@@ -136,16 +136,23 @@ Command addInfo(CLI::App& root) {
                                                {"description", s.description},
                                                {"modality", s.modality},
                                                {"images", s.imageCount},
+                                               {"frames", s.frameCount},
                                                {"positions", s.positionCount},
                                                {"time_points", s.timePointCount}});
                     }
                     if (!args->json) {
                         std::printf("%s: %zu DICOM series\n", in.c_str(), series.size());
                         for (const auto& s : series) {
+                            // Enhanced multi-frame files: the frames are what is grouped.
+                            const std::string frames =
+                                s.frameCount != s.imageCount
+                                    ? " (" + std::to_string(s.frameCount) + " frames)"
+                                    : std::string();
                             std::printf(
-                                "  %s  %-4s %4d images, %4d positions, %3d time points  \"%s\"\n",
-                                s.uid.c_str(), s.modality.c_str(), s.imageCount, s.positionCount,
-                                s.timePointCount, s.description.c_str());
+                                "  %s  %-4s %4d images%s, %4d positions, %3d time points  "
+                                "\"%s\"\n",
+                                s.uid.c_str(), s.modality.c_str(), s.imageCount, frames.c_str(),
+                                s.positionCount, s.timePointCount, s.description.c_str());
                         }
                     }
                 } else {

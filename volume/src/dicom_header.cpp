@@ -113,6 +113,33 @@ std::optional<double> parseTime(const std::string& text) {
     return seconds;
 }
 
+std::optional<double> parseDateTime(const std::string& text) {
+    std::string t = trim(text);
+    if (const std::size_t zone = t.find_first_of("+-"); zone != std::string::npos)
+        t = t.substr(0, zone);
+    if (t.size() < 8 ||
+        !std::all_of(t.begin(), t.begin() + 8, [](char c) { return c >= '0' && c <= '9'; })) {
+        return std::nullopt;
+    }
+    const int y = std::stoi(t.substr(0, 4)), m = std::stoi(t.substr(4, 2)),
+              d = std::stoi(t.substr(6, 2));
+    if (m < 1 || m > 12 || d < 1 || d > 31) return std::nullopt;
+    // Days since 1970-01-01 of the proleptic Gregorian date (H. Hinnant's days_from_civil).
+    const int yy = y - (m <= 2 ? 1 : 0);
+    const int era = yy / 400;
+    const int yoe = yy - era * 400;
+    const int doy = (153 * (m + (m > 2 ? -3 : 9)) + 2) / 5 + d - 1;
+    const int doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    const double days = era * 146097.0 + doe - 719468.0;
+    double seconds = 0;
+    if (t.size() > 8) {
+        const auto time = parseTime(t.substr(8));
+        if (!time) return std::nullopt;
+        seconds = *time;
+    }
+    return days * 86400.0 + seconds;
+}
+
 std::optional<Eigen::Vector3d> normalOf(const Header& h) {
     const std::string* iop = h.get(kImageOrientation);
     if (!iop) return std::nullopt;
@@ -134,7 +161,7 @@ std::optional<Eigen::Vector3d> positionOf(const Header& h) {
 }
 
 FileGeometry geometryOf(const Header& h) {
-    const std::string file = h.path.string();
+    const std::string file = h.label();
     const auto need = [&](const gdcm::Tag& t, const char* name, std::size_t count) {
         const std::string* v = h.get(t);
         if (!v) {

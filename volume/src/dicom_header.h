@@ -17,6 +17,7 @@ namespace palp::volume::dicom {
 inline const gdcm::Tag kTransferSyntax(0x0002, 0x0010);  // from the file meta (structural walk)
 inline const gdcm::Tag kImageType(0x0008, 0x0008);
 inline const gdcm::Tag kSopClassUid(0x0008, 0x0016);
+inline const gdcm::Tag kSopInstanceUid(0x0008, 0x0018);
 inline const gdcm::Tag kAcquisitionTime(0x0008, 0x0032);
 inline const gdcm::Tag kContentTime(0x0008, 0x0033);
 inline const gdcm::Tag kModality(0x0008, 0x0060);
@@ -30,6 +31,12 @@ inline const gdcm::Tag kInstanceNumber(0x0020, 0x0013);
 inline const gdcm::Tag kImagePosition(0x0020, 0x0032);
 inline const gdcm::Tag kImageOrientation(0x0020, 0x0037);
 inline const gdcm::Tag kTemporalPosition(0x0020, 0x0100);
+inline const gdcm::Tag kNumberOfTemporalPositions(0x0020, 0x0105);
+// Per frame of an enhanced multi-frame file (Frame Content Sequence (0020,9111)); palp keeps
+// them as text like the other values (UL values as decimal numbers separated by '\').
+inline const gdcm::Tag kFrameAcquisitionDateTime(0x0018, 0x9074);
+inline const gdcm::Tag kTemporalPositionIndex(0x0020, 0x9128);
+inline const gdcm::Tag kDimensionIndexValues(0x0020, 0x9157);
 inline const gdcm::Tag kSamplesPerPixel(0x0028, 0x0002);
 inline const gdcm::Tag kPhotometric(0x0028, 0x0004);
 inline const gdcm::Tag kNumberOfFrames(0x0028, 0x0008);
@@ -61,10 +68,22 @@ std::optional<double> parseNumber(const std::string& text);
 /// DICOM TM ("HHMMSS.FFFFFF", or the old "HH:MM:SS.frac") as seconds since midnight.
 std::optional<double> parseTime(const std::string& text);
 
+/// DICOM DT ("YYYYMMDDHHMMSS.FFFFFF", time optional, a "+HHMM" offset ignored) as seconds since
+/// 1970-01-01; nullopt when it is not one.
+std::optional<double> parseDateTime(const std::string& text);
+
 /// What the header scan found in one file.
 struct Header {
     std::filesystem::path path;
     std::map<gdcm::Tag, std::string> values;  // trimmed values of the scanned tags present
+    /// 1-based frame of an enhanced multi-frame file this header describes (its values are the
+    /// file's, overridden by the shared and the frame's functional groups); 0 for a whole file.
+    int frame = 0;
+
+    /// The file, and the frame for a frame: "path (frame 7)", for messages.
+    std::string label() const {
+        return frame > 0 ? path.string() + " (frame " + std::to_string(frame) + ")" : path.string();
+    }
 
     const std::string* get(const gdcm::Tag& t) const {
         const auto it = values.find(t);

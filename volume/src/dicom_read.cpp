@@ -1,12 +1,14 @@
 // DICOM series reading through GDCM: a cheap header scan of every file (dicom_scan), series
 // and time point selection from those headers (dicom_slices), then pixel decoding
-// (dicom_pixels) of the chosen files only. Single-frame series and enhanced multi-frame files.
+// (dicom_pixels) of the chosen files only. Single-frame series, Siemens mosaics and enhanced
+// multi-frame files (dicom_frames), one or several per series.
 #include <gdcmImageReader.h>
-#include <gdcmSequenceOfItems.h>
 
 #include <algorithm>
-#include <functional>
+#include <deque>
+#include <map>
 
+#include "dicom_frames.h"
 #include "dicom_header.h"
 #include "dicom_mosaic.h"
 #include "dicom_pixels.h"
@@ -24,111 +26,72 @@ namespace fs = std::filesystem;
 namespace dicom {
 namespace {
 
-// Enhanced (functional group) multi-frame tags.
-const gdcm::Tag kSharedGroups(0x5200, 0x9229);
-const gdcm::Tag kPerFrameGroups(0x5200, 0x9230);
-const gdcm::Tag kPixelMeasuresSequence(0x0028, 0x9110);
-const gdcm::Tag kPlanePositionSequence(0x0020, 0x9113);
-const gdcm::Tag kPlaneOrientationSequence(0x0020, 0x9116);
-const gdcm::Tag kValueTransformSequence(0x0028, 0x9145);
-
-std::optional<std::string> elementText(const gdcm::DataSet& ds, const gdcm::Tag& t) {
-    if (!ds.FindDataElement(t)) return std::nullopt;
-    const gdcm::ByteValue* bv = ds.GetDataElement(t).GetByteValue();
-    if (!bv) return std::nullopt;
-    std::string s = trim(std::string(bv->GetPointer(), bv->GetLength()));
-    if (s.empty()) return std::nullopt;
-    return s;
-}
-
-/// Copies position, orientation, spacing and rescale of one functional group item into @p h.
-void applyFunctionalGroup(const gdcm::DataSet& group, Header& h) {
-    const std::pair<gdcm::Tag, gdcm::Tag> wanted[] = {
-        {kPixelMeasuresSequence, kPixelSpacing},
-        {kPlanePositionSequence, kImagePosition},
-        {kPlaneOrientationSequence, kImageOrientation},
-        {kValueTransformSequence, kRescaleSlope},
-        {kValueTransformSequence, kRescaleIntercept}};
-    for (const auto& [sequence, tag] : wanted) {
-        if (!group.FindDataElement(sequence)) continue;
-        const gdcm::SmartPointer<gdcm::SequenceOfItems> items =
-            group.GetDataElement(sequence).GetValueAsSQ();
-        if (!items || items->GetNumberOfItems() == 0) continue;
-        if (auto v = elementText(items->GetItem(1).GetNestedDataSet(), tag)) h.values[tag] = *v;
-    }
-}
-
-/// One enhanced multi-frame file: every frame's own position from the per-frame functional
-/// groups (so uneven spacing is kept exactly), orientation, spacing and rescale from the
-/// per-frame or shared groups. Repeated positions are time points in frame order.
-SliceStack readMultiFrame(const Header& h, int frames, const std::string& name,
-                          const std::string& uid, const std::vector<fs::path>& inputs,
-                          const ReadOptions& options) {
-    const std::string file = h.path.string();
-    const int rows = h.integer(kRows, 0);
-    const int cols = h.integer(kColumns, 0);
-    // All frames are decoded at once, so the whole file counts against the budget.
-    checkMemory(name, cols, rows, static_cast<std::size_t>(frames), options.maxSourceBytes);
-    gdcm::ImageReader reader;
-    std::vector<char> buffer;
-    decodeFile(h, frames, reader, buffer);
-    const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
-    if (!ds.FindDataElement(kPerFrameGroups)) {
-        throw FormatError(
-            file +
-            ": expected a Per-frame Functional Groups Sequence (5200,9230) giving each of the " +
-            std::to_string(frames) +
-            " frames its position, found none (legacy multi-frame images are not supported)");
-    }
-    Header base = h;
-    if (ds.FindDataElement(kSharedGroups)) {
-        const auto shared = ds.GetDataElement(kSharedGroups).GetValueAsSQ();
-        if (shared && shared->GetNumberOfItems() > 0)
-            applyFunctionalGroup(shared->GetItem(1).GetNestedDataSet(), base);
-    }
-    const auto perFrame = ds.GetDataElement(kPerFrameGroups).GetValueAsSQ();
-    const std::size_t items = perFrame ? perFrame->GetNumberOfItems() : 0;
-    if (items != static_cast<std::size_t>(frames)) {
-        throw FormatError(file + ": expected " + std::to_string(frames) +
-                          " items in the Per-frame Functional Groups Sequence (5200,9230), found " +
-                          std::to_string(items));
-    }
-    std::vector<Header> frameHeaders(items, base);
-    std::vector<const Header*> framePtrs;
-    for (std::size_t k = 0; k < items; ++k) {
-        applyFunctionalGroup(perFrame->GetItem(k + 1).GetNestedDataSet(), frameHeaders[k]);
-        frameHeaders[k].path = file + " (frame " + std::to_string(k + 1) + ")";
-        framePtrs.push_back(&frameHeaders[k]);
-    }
-    const FileGeometry firstGeometry = geometryOf(frameHeaders.front());
-    for (const Header& fh : frameHeaders) geometryOf(fh);
-    auto positions = positionGroups(name, framePtrs, firstGeometry);
+/// A series with enhanced multi-frame files (one file, or several: one per time point, or the
+/// slices of a volume spread over files; single-frame files may join them): every frame is an
+/// image with its own position, orientation, spacing, rescale and time keys; the frames must
+/// agree in size, orientation and spacing and form positions x time points. Only the files
+/// holding a frame of the chosen time point are decoded, one at a time.
+SliceStack readFrameSeries(const std::vector<const Header*>& images, const std::string& name,
+                           const std::string& uid, const std::vector<fs::path>& inputs,
+                           const ReadOptions& options) {
+    std::deque<Header> store;
+    const std::vector<const Header*> frames = expandFrames(images, store);
+    checkFramesAgree(frames);
+    const auto positions = framePositions(name, frames);
     const int timePointCount = static_cast<int>(positions.front().size());
     const int timePoint = detail::chooseTimePoint(timePointCount, options, name);
+    const Header& first = *frames.front();
+    const int rows = first.integer(kRows, 0), cols = first.integer(kColumns, 0);
+    checkMemory(name, cols, rows, positions.size(), options.maxSourceBytes);
 
-    const gdcm::PixelFormat& pf = reader.GetImage().GetPixelFormat();
-    const std::size_t count = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols);
-    const std::size_t frameBytes = count * pf.GetPixelSize();
     SliceStack stack;
     stack.slices.resize(positions.size());
-    bool rescaleVaries = false;
-    const Header& first = frameHeaders.front();
+    // The chosen frame of each position, by file, so that each file is decoded once.
+    std::map<fs::path, std::vector<std::size_t>> byFile;
     for (std::size_t i = 0; i < positions.size(); ++i) {
-        auto& grp = positions[i];
-        std::sort(grp.begin(), grp.end(), std::less<const Header*>());  // frame order
-        const Header& fh = *grp[static_cast<std::size_t>(std::max(timePoint, 0))];
-        const auto k = static_cast<std::size_t>(&fh - frameHeaders.data());
-        Slice& s = stack.slices[i];
-        setGeometry(geometryOf(fh), s);
-        s.cols = cols;
-        s.rows = rows;
-        s.source = fh.path.string();
-        const double slope =
-            checkedSlope(s.source, fh.number(kRescaleSlope), fh.text(kRescaleSlope));
-        const double intercept = fh.number(kRescaleIntercept).value_or(0.0);
-        convertFrame(file, buffer.data() + k * frameBytes, pf, count, slope, intercept, s.values);
-        rescaleVaries = rescaleVaries || slope != first.number(kRescaleSlope).value_or(1.0) ||
-                        intercept != first.number(kRescaleIntercept).value_or(0.0);
+        byFile[positions[i][static_cast<std::size_t>(std::max(timePoint, 0))]->path].push_back(i);
+    }
+    const double slope0 = first.number(kRescaleSlope).value_or(1.0);
+    const double intercept0 = first.number(kRescaleIntercept).value_or(0.0);
+    bool rescaleVaries = false;
+    for (const auto& [path, slots] : byFile) {
+        const auto chosen = [&](std::size_t slot) -> const Header& {
+            return *positions[slot][static_cast<std::size_t>(std::max(timePoint, 0))];
+        };
+        const Header& fileHeader = chosen(slots.front());
+        const int fileFrames = frameCountOf(fileHeader);
+        gdcm::ImageReader reader;
+        std::vector<char> buffer;
+        if (fileFrames > 1) {
+            // GDCM decodes every frame of a file at once: the whole file counts.
+            checkMemory(name, cols, rows, static_cast<std::size_t>(fileFrames),
+                        options.maxSourceBytes);
+            decodeFile(fileHeader, fileFrames, reader, buffer);
+        }
+        for (const std::size_t slot : slots) {
+            const Header& h = chosen(slot);
+            Slice& s = stack.slices[slot];
+            if (h.frame == 0) {
+                decodeSlice(h, s);
+            } else {
+                const gdcm::PixelFormat& pf = reader.GetImage().GetPixelFormat();
+                const std::size_t count =
+                    static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols);
+                const double slope =
+                    checkedSlope(h.label(), h.number(kRescaleSlope), h.text(kRescaleSlope));
+                const double intercept = h.number(kRescaleIntercept).value_or(0.0);
+                convertFrame(h.label(),
+                             buffer.data() +
+                                 static_cast<std::size_t>(h.frame - 1) * count * pf.GetPixelSize(),
+                             pf, count, slope, intercept, s.values);
+                s.cols = cols;
+                s.rows = rows;
+            }
+            setGeometry(geometryOf(h), s);
+            s.source = h.label();
+            rescaleVaries = rescaleVaries || h.number(kRescaleSlope).value_or(1.0) != slope0 ||
+                            h.number(kRescaleIntercept).value_or(0.0) != intercept0;
+        }
     }
     fillInfo(stack.info, first, inputs, uid, positions.size(), timePoint, timePointCount,
              rescaleVaries);
@@ -215,17 +178,9 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
                               h->text(kSamplesPerPixel) + " samples per pixel (" +
                               h->text(kPhotometric) + "); colour images are not supported");
         }
-        const int frames = h->integer(kNumberOfFrames, 1);
-        if (frames > 1) {
-            if (series.images.size() == 1)
-                return readMultiFrame(*h, frames, name, series.uid, inputs, options);
-            throw FormatError(h->path.string() +
-                              ": expected single-frame images or one multi-frame file, found a "
-                              "multi-frame image of " +
-                              std::to_string(frames) + " frames among " +
-                              std::to_string(series.images.size()) + " images of the series");
-        }
     }
+    if (hasMultiFrame(series.images))
+        return readFrameSeries(series.images, name, series.uid, inputs, options);
     const std::vector<const Header*>& images = series.images;
     const Header& first = *images.front();
     const FileGeometry firstGeometry = geometryOf(first);
@@ -237,10 +192,7 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
     const TimeOrder order(images);
     std::vector<const Header*> chosen;
     for (auto& grp : positions) {
-        std::stable_sort(grp.begin(), grp.end(), [&](const Header* a, const Header* b) {
-            const auto ka = order.key(*a), kb = order.key(*b);
-            return ka != kb ? ka < kb : a->path < b->path;
-        });
+        order.sort(grp);
         chosen.push_back(grp[static_cast<std::size_t>(std::max(timePoint, 0))]);
     }
 

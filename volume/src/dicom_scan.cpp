@@ -4,8 +4,10 @@
 #include <gdcmTrace.h>
 
 #include <algorithm>
+#include <deque>
 #include <map>
 
+#include "dicom_frames.h"
 #include "dicom_mosaic.h"
 #include "dicom_slices.h"
 #include "palp/base/error.h"
@@ -77,13 +79,19 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
     scan.fileCount = files.size();
     if (files.empty()) return scan;
 
-    const gdcm::Tag tags[] = {
-        kSopClassUid,       kAcquisitionTime, kContentTime,      kModality,
-        kSeriesDescription, kGantryTilt,      kSeriesUid,        kAcquisitionNumber,
-        kInstanceNumber,    kImagePosition,   kImageOrientation, kTemporalPosition,
-        kSamplesPerPixel,   kPhotometric,     kNumberOfFrames,   kRows,
-        kColumns,           kPixelSpacing,    kBitsAllocated,    kRescaleIntercept,
-        kRescaleSlope,      kImageType,       kSliceThickness,   kSpacingBetweenSlices};
+    const gdcm::Tag tags[] = {kSopClassUid,       kAcquisitionTime,
+                              kContentTime,       kModality,
+                              kSeriesDescription, kGantryTilt,
+                              kSeriesUid,         kAcquisitionNumber,
+                              kInstanceNumber,    kImagePosition,
+                              kImageOrientation,  kTemporalPosition,
+                              kSamplesPerPixel,   kPhotometric,
+                              kNumberOfFrames,    kRows,
+                              kColumns,           kPixelSpacing,
+                              kBitsAllocated,     kRescaleIntercept,
+                              kRescaleSlope,      kImageType,
+                              kSliceThickness,    kSpacingBetweenSlices,
+                              kSopInstanceUid,    kNumberOfTemporalPositions};
     // Only DICOM Part 10 files ("DICM" at byte 128) are read, and only those whose structure is
     // complete reach GDCM.
     std::vector<std::string> complete;
@@ -172,18 +180,49 @@ std::vector<SeriesGroup> groupSeries(const Scan& scan) {
     return out;
 }
 
+namespace {
+
+/// Positions and time points of a series with enhanced multi-frame files, counted over frames
+/// as readDicom groups them; false when the frames cannot be read or grouped (then the series
+/// is described by its files, and converting it gives the reason).
+bool describeFrames(const SeriesGroup& g, DicomSeriesInfo& info) {
+    try {
+        std::deque<Header> store;
+        const std::vector<const Header*> frames = expandFrames(g.images, store);
+        info.frameCount = static_cast<int>(frames.size());
+        const auto n = normalOf(*frames.front());
+        if (!n) return false;
+        const auto groups = groupPositions(frames, *n, positionTolerance(*frames.front()));
+        info.positionCount = static_cast<int>(groups.size());
+        std::size_t most = 0;
+        for (const auto& grp : groups) most = std::max(most, grp.size());
+        info.timePointCount = info.frameCount % info.positionCount == 0
+                                  ? info.frameCount / info.positionCount
+                                  : static_cast<int>(most);
+        return true;
+    } catch (const Error&) {
+        return false;
+    }
+}
+
+}  // namespace
+
 DicomSeriesInfo describeSeries(const SeriesGroup& g) {
     DicomSeriesInfo info;
     info.uid = g.uid;
     info.description = g.files.front()->text(kSeriesDescription);
     info.modality = g.files.front()->text(kModality);
     info.imageCount = static_cast<int>(g.images.size());
+    info.frameCount = info.imageCount;
     for (const Header* h : g.files) info.files.push_back(h->path);
     if (g.images.empty()) {
         info.positionCount = 0;
         info.timePointCount = 0;
         return info;
     }
+    if (hasMultiFrame(g.images) && describeFrames(g, info)) return info;
+    info.frameCount = 0;
+    for (const Header* h : g.images) info.frameCount += frameCountOf(*h);
     const auto n = normalOf(*g.images.front());
     if (!n) {
         info.positionCount = info.imageCount;

@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <map>
 
 #include "palp/base/error.h"
 
@@ -45,26 +46,94 @@ std::vector<std::vector<const Header*>> groupPositions(const std::vector<const H
     return groups;
 }
 
+void checkSameCount(const std::string& name,
+                    const std::vector<std::vector<const Header*>>& positions,
+                    const Eigen::Vector3d& normal) {
+    // The count most positions have is the expected one; the first position that differs is
+    // named (the first may be the odd one).
+    std::map<std::size_t, std::size_t> positionsWith;
+    for (const auto& grp : positions) ++positionsWith[grp.size()];
+    if (positionsWith.size() <= 1) return;
+    const auto common = std::max_element(
+        positionsWith.begin(), positionsWith.end(), [](const auto& a, const auto& b) {
+            // On a tie the larger count: images go missing more often than they multiply.
+            return a.second != b.second ? a.second < b.second : a.first < b.first;
+        });
+    for (const auto& grp : positions) {
+        if (grp.size() == common->first) continue;
+        const auto p = positionOf(*grp.front());
+        const std::string at =
+            p ? " at position " + std::to_string(p->dot(normal)) + " mm along the normal"
+              : std::string(" at an image without a position");
+        throw ValueError(name + ": expected the same number of images at every slice position (" +
+                         std::to_string(common->first) + " at " + std::to_string(common->second) +
+                         " of " + std::to_string(positions.size()) + " positions), found " +
+                         std::to_string(grp.size()) + at + " (e.g. " + grp.front()->label() +
+                         "); the series is incomplete or mixes acquisitions");
+    }
+}
+
 std::vector<std::vector<const Header*>> positionGroups(const std::string& name,
                                                        const std::vector<const Header*>& images,
                                                        const FileGeometry& first) {
     const Eigen::Vector3d normal = first.rowCosine.cross(first.columnCosine).normalized();
     const double tolMm = 0.02 * std::min(first.rowSpacing, first.columnSpacing);
     std::vector<std::vector<const Header*>> positions = groupPositions(images, normal, tolMm);
-    const std::size_t timePoints = positions.front().size();
-    for (const auto& grp : positions) {
-        if (grp.size() != timePoints) {
-            const auto& other = grp.size() < timePoints ? grp : positions.front();
-            const double at = positionOf(*other.front())->dot(normal);
-            throw ValueError(name +
-                             ": expected the same number of images at every slice position (" +
-                             std::to_string(timePoints) + " at the first), found " +
-                             std::to_string(other.size()) + " at position " + std::to_string(at) +
-                             " mm along the normal (e.g. " + other.front()->path.string() +
-                             "); the series is incomplete or mixes acquisitions");
-        }
-    }
+    checkSameCount(name, positions, normal);
     return positions;
+}
+
+TimeOrder::TimeOrder(const std::vector<const Header*>& images) {
+    bool first = true;
+    for (const Header* h : images) {
+        useTemporalIndex = useTemporalIndex && h->number(kTemporalPositionIndex).has_value();
+        useFrameTime = useFrameTime && parseDateTime(h->text(kFrameAcquisitionDateTime));
+        const auto dims = h->get(kDimensionIndexValues)
+                              ? parseNumbers(h->text(kDimensionIndexValues))
+                              : std::nullopt;
+        useDimensionIndex = useDimensionIndex && dims && (first || dims->size() == dimensionCount);
+        if (dims && first) dimensionCount = dims->size();
+        useTemporal = useTemporal && h->number(kTemporalPosition).has_value();
+        useAcqNumber = useAcqNumber && h->number(kAcquisitionNumber).has_value();
+        useAcqTime = useAcqTime && parseTime(h->text(kAcquisitionTime)).has_value();
+        useContentTime = useContentTime && parseTime(h->text(kContentTime)).has_value();
+        useInstance = useInstance && h->number(kInstanceNumber).has_value();
+        first = false;
+    }
+    if (images.empty()) {
+        useTemporalIndex = useFrameTime = useDimensionIndex = false;
+    }
+}
+
+std::vector<double> TimeOrder::key(const Header& h) const {
+    std::vector<double> k;
+    if (useTemporalIndex) k.push_back(*h.number(kTemporalPositionIndex));
+    if (useFrameTime) k.push_back(*parseDateTime(h.text(kFrameAcquisitionDateTime)));
+    if (useDimensionIndex) {
+        const auto dims = parseNumbers(h.text(kDimensionIndexValues));
+        k.insert(k.end(), dims->begin(), dims->end());
+    }
+    if (useTemporal) k.push_back(*h.number(kTemporalPosition));
+    if (useAcqNumber) k.push_back(*h.number(kAcquisitionNumber));
+    if (useAcqTime) {
+        k.push_back(*parseTime(h.text(kAcquisitionTime)));
+    } else if (useContentTime) {
+        k.push_back(*parseTime(h.text(kContentTime)));
+    }
+    if (useInstance) k.push_back(*h.number(kInstanceNumber));
+    return k;
+}
+
+void TimeOrder::sort(std::vector<const Header*>& images) const {
+    std::vector<std::pair<std::vector<double>, const Header*>> keyed;
+    keyed.reserve(images.size());
+    for (const Header* h : images) keyed.emplace_back(key(*h), h);
+    std::stable_sort(keyed.begin(), keyed.end(), [](const auto& a, const auto& b) {
+        if (a.first != b.first) return a.first < b.first;
+        if (a.second->path != b.second->path) return a.second->path < b.second->path;
+        return a.second->frame < b.second->frame;
+    });
+    for (std::size_t i = 0; i < images.size(); ++i) images[i] = keyed[i].second;
 }
 
 void checkMemory(const std::string& name, int cols, int rows, std::size_t slices,

@@ -27,35 +27,34 @@ std::vector<std::vector<const Header*>> positionGroups(const std::string& name,
                                                        const std::vector<const Header*>& images,
                                                        const FileGeometry& first);
 
-/// Orders the images of one position in time: TemporalPositionIdentifier, AcquisitionNumber,
-/// AcquisitionTime (or ContentTime), InstanceNumber, file name. A key is used only when every
-/// image of the series has it, so the comparison stays a strict weak order.
+/// Checks that every group of @p positions (along @p normal) holds as many images as the first.
+/// @throw ValueError naming @p name, the position and an image there when the counts differ.
+void checkSameCount(const std::string& name,
+                    const std::vector<std::vector<const Header*>>& positions,
+                    const Eigen::Vector3d& normal);
+
+/// Orders the images of one position in time. Frames of enhanced files first by their own
+/// Temporal Position Index (0020,9128), Frame Acquisition DateTime (0018,9074) and Dimension
+/// Index Values (0020,9157); then, for every image, TemporalPositionIdentifier, AcquisitionNumber,
+/// AcquisitionTime (or ContentTime), InstanceNumber; then file name and frame. A key is used
+/// only when every image of the series has it, so the comparison stays a strict weak order.
 struct TimeOrder {
+    bool useTemporalIndex = true, useFrameTime = true, useDimensionIndex = true;
     bool useTemporal = true, useAcqNumber = true, useAcqTime = true, useContentTime = true,
          useInstance = true;
+    std::size_t dimensionCount = 0;
 
-    explicit TimeOrder(const std::vector<const Header*>& images) {
-        for (const Header* h : images) {
-            useTemporal = useTemporal && h->number(kTemporalPosition).has_value();
-            useAcqNumber = useAcqNumber && h->number(kAcquisitionNumber).has_value();
-            useAcqTime = useAcqTime && parseTime(h->text(kAcquisitionTime)).has_value();
-            useContentTime = useContentTime && parseTime(h->text(kContentTime)).has_value();
-            useInstance = useInstance && h->number(kInstanceNumber).has_value();
-        }
-    }
+    explicit TimeOrder(const std::vector<const Header*>& images);
 
-    std::vector<double> key(const Header& h) const {
-        std::vector<double> k;
-        if (useTemporal) k.push_back(*h.number(kTemporalPosition));
-        if (useAcqNumber) k.push_back(*h.number(kAcquisitionNumber));
-        if (useAcqTime) {
-            k.push_back(*parseTime(h.text(kAcquisitionTime)));
-        } else if (useContentTime) {
-            k.push_back(*parseTime(h.text(kContentTime)));
-        }
-        if (useInstance) k.push_back(*h.number(kInstanceNumber));
-        return k;
-    }
+    /// The time key of @p h (the keys in use, in order).
+    std::vector<double> key(const Header& h) const;
+
+    /// Whether a frame-level key (Temporal Position Index, Frame Acquisition DateTime, Dimension
+    /// Index Values) is in use: then two frames of one file with equal keys are duplicates.
+    bool frameKeys() const { return useTemporalIndex || useFrameTime || useDimensionIndex; }
+
+    /// Sorts @p images (of one position) in time; ties by file name, then frame.
+    void sort(std::vector<const Header*>& images) const;
 };
 
 /// Refuses @p slices slices of @p cols x @p rows floats when they exceed @p limit bytes.

@@ -17,8 +17,9 @@ struct DicomSeriesInfo {
     std::string description;  ///< SeriesDescription (may be empty)
     std::string modality;     ///< Modality
     int imageCount = 0;       ///< files with pixel data in the series
-    int positionCount = 0;    ///< distinct slice positions
-    int timePointCount = 1;   ///< imageCount / positionCount when positions repeat
+    int frameCount = 0;       ///< frames in those files (a single-frame file counts one)
+    int positionCount = 0;    ///< distinct slice positions (of frames, or of mosaic slices)
+    int timePointCount = 1;   ///< frames per position when positions repeat (as readDicom)
     std::vector<std::filesystem::path> files;
 };
 
@@ -32,6 +33,9 @@ std::vector<DicomSeriesInfo> scanDicom(const std::vector<std::filesystem::path>&
 /// Series choice: options.seriesUid, or the only series present (several without a choice are
 /// refused, listing each with description and image count). 4D series (repeated positions)
 /// need options.timePoint (0-based), or are refused with the number of time points.
+/// Enhanced multi-frame files are read frame by frame (per-frame functional groups), also when
+/// a series is split over several of them (one per time point, or the slices of a volume over
+/// several files): their frames are grouped by position and time point like single-frame images.
 /// @throw IoError, FormatError, ValueError naming the file.
 SliceStack readDicom(const std::vector<std::filesystem::path>& inputs, const ReadOptions& options);
 
