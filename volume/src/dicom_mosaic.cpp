@@ -184,20 +184,19 @@ int mosaicSliceCount(const Header& h) {
     }
 }
 
-std::vector<Slice> readMosaic(const Header& h, std::array<std::int64_t, 3>& originalDims) {
+std::vector<Slice> mosaicSlices(const Header& h, const MosaicLayout& m,
+                                const std::vector<float>& mosaic) {
     const std::string file = h.path.string();
-    const double slope = checkedSlope(file, h.number(kRescaleSlope), h.text(kRescaleSlope));
-    const double intercept = h.number(kRescaleIntercept).value_or(0.0);
-    gdcm::ImageReader reader;
-    std::vector<char> buffer;
-    decodeFile(h, 1, reader, buffer);
-    const MosaicLayout m = mosaicLayout(h, reader.GetFile().GetDataSet());
     const int cols = h.integer(kColumns, 0), rows = h.integer(kRows, 0);
-    std::vector<float> mosaic;
-    convertFrame(file, buffer.data(), reader.GetImage().GetPixelFormat(),
-                 static_cast<std::size_t>(cols) * static_cast<std::size_t>(rows), slope, intercept,
-                 mosaic);
-
+    if (mosaic.size() != static_cast<std::size_t>(cols) * static_cast<std::size_t>(rows) ||
+        m.grid < 1 || m.slices > m.grid * m.grid || m.tileColumns * m.grid != cols ||
+        m.tileRows * m.grid != rows) {
+        throw FormatError(file + ": expected " + std::to_string(cols) + "x" +
+                          std::to_string(rows) + " mosaic pixels in " + std::to_string(m.grid) +
+                          "x" + std::to_string(m.grid) + " tiles for " +
+                          std::to_string(m.slices) + " slices, found " +
+                          std::to_string(mosaic.size()) + " pixels");
+    }
     const FileGeometry g = geometryOf(h);
     const Eigen::Vector3d colStepMm = g.rowCosine * g.columnSpacing;
     const Eigen::Vector3d rowStepMm = g.columnCosine * g.rowSpacing;
@@ -222,6 +221,24 @@ std::vector<Slice> readMosaic(const Header& h, std::array<std::int64_t, 3>& orig
                       s.values.begin() + static_cast<std::ptrdiff_t>(r) * m.tileColumns);
         }
     }
+    return slices;
+}
+
+std::vector<Slice> readMosaic(const Header& h, std::array<std::int64_t, 3>& originalDims) {
+    const std::string file = h.path.string();
+    const double slope = checkedSlope(file, h.number(kRescaleSlope), h.text(kRescaleSlope));
+    const double intercept = h.number(kRescaleIntercept).value_or(0.0);
+    gdcm::ImageReader reader;
+    std::vector<char> buffer;
+    decodeFile(h, 1, reader, buffer);
+    const MosaicLayout m = mosaicLayout(h, reader.GetFile().GetDataSet());
+    const int cols = h.integer(kColumns, 0), rows = h.integer(kRows, 0);
+    std::vector<float> mosaic;
+    convertFrame(file, buffer.data(), reader.GetImage().GetPixelFormat(),
+                 static_cast<std::size_t>(cols) * static_cast<std::size_t>(rows), slope, intercept,
+                 mosaic);
+
+    std::vector<Slice> slices = mosaicSlices(h, m, mosaic);
     originalDims = {m.tileColumns, m.tileRows, m.slices};
     return slices;
 }

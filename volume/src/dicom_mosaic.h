@@ -48,6 +48,13 @@ MosaicLayout mosaicLayout(const Header& h, const gdcm::DataSet& ds);
 /// series); 0 when it cannot be told.
 int mosaicSliceCount(const Header& h);
 
+/// Cuts the rescaled @p mosaic (Columns x Rows of @p h, row by row) into the slices of layout
+/// @p m, each with its own position (from @p h's geometry), in tile order.
+/// @throw FormatError naming the file when the layout does not fit the image, or the geometry is
+///        missing or bad.
+std::vector<Slice> mosaicSlices(const Header& h, const MosaicLayout& m,
+                                const std::vector<float>& mosaic);
+
 /// Decodes the mosaic @p h into its slices (values rescaled, each slice with its own position),
 /// in tile order; @p originalDims receives tile columns, tile rows and the slice count.
 /// @throw FormatError naming the file (see mosaicLayout and decodeFile).
