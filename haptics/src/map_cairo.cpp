@@ -58,13 +58,13 @@ std::uint32_t argb(const std::array<std::uint8_t, 3>& c) {
     return 0xff000000u | (std::uint32_t{c[0]} << 16) | (std::uint32_t{c[1]} << 8) | c[2];
 }
 
-/// Paints @p img over the map's rectangle, each image pixel a square of l.cell px.
-void paintPixels(cairo_t* cr, const MapLayout& l, cairo_surface_t* img, double alpha) {
+/// Paints @p img over the map's rectangle, each image pixel a square of @p cell px.
+void paintPixels(cairo_t* cr, const MapLayout& l, double cell, cairo_surface_t* img, double alpha) {
     cairo_save(cr);
     cairo_rectangle(cr, l.mapX, l.mapY, l.mapW, l.mapH);
     cairo_clip(cr);
     cairo_translate(cr, l.mapX, l.mapY);
-    cairo_scale(cr, l.cell, l.cell);
+    cairo_scale(cr, cell, cell);
     cairo_set_source_surface(cr, img, 0, 0);
     cairo_pattern_set_filter(cairo_get_source(cr), CAIRO_FILTER_NEAREST);
     cairo_paint_with_alpha(cr, alpha);
@@ -141,7 +141,7 @@ void writeMapFigurePng(const std::filesystem::path& path, const ScalarMap& map,
         });
         if (cairo_surface_status(img.get()) != CAIRO_STATUS_SUCCESS)
             throw failed(cairo_surface_status(img.get()));
-        paintPixels(c, l, img.get(), 1.0);
+        paintPixels(c, l, l.underCell, img.get(), 1.0);
     }
     Surface img = pixelImage(map, [&](double v) -> std::uint32_t {
         if (!std::isfinite(v)) return under ? 0u : kEmpty;  // transparent over an underlay
@@ -149,7 +149,7 @@ void writeMapFigurePng(const std::filesystem::path& path, const ScalarMap& map,
     });
     if (cairo_surface_status(img.get()) != CAIRO_STATUS_SUCCESS)
         throw failed(cairo_surface_status(img.get()));
-    paintPixels(c, l, img.get(), under ? figure.mapOpacity : 1.0);
+    paintPixels(c, l, l.cell, img.get(), under ? figure.mapOpacity : 1.0);
 
     const double lw = std::max(1.0, scale);
     cairo_set_source_rgb(c, 0, 0, 0);

@@ -95,15 +95,18 @@ MapLayout layoutMapFigure(const ScalarMap& map, const MapFigure& figure, double 
                          num(figure.mapOpacity));
     }
     const MapPlane& plane = map.plane();
+    const double cover = plane.pixelM * 1e-6;  // how closely the underlay must cover the map
     if (figure.underlay) {
-        const MapPlane& up = figure.underlay->map.plane();
-        if (up.u != plane.u || up.v != plane.v || figure.underlay->map.cols() != map.cols() ||
-            figure.underlay->map.rows() != map.rows() ||
-            std::abs((up.centre - plane.centre).dot(plane.u)) > 1e-9 ||
-            std::abs((up.centre - plane.centre).dot(plane.v)) > 1e-9 || up.pixelM != plane.pixelM) {
+        const ScalarMap& um = figure.underlay->map;
+        const MapPlane& up = um.plane();
+        if (up.u != plane.u || up.v != plane.v || !(up.pixelM <= plane.pixelM * (1 + 1e-9)) ||
+            std::abs(um.cols() * up.pixelM - map.cols() * plane.pixelM) > cover ||
+            std::abs(um.rows() * up.pixelM - map.rows() * plane.pixelM) > cover ||
+            std::abs((up.centre - plane.centre).dot(plane.u)) > cover ||
+            std::abs((up.centre - plane.centre).dot(plane.v)) > cover) {
             throw ValueError(
-                "map figure: expected an underlay over the map's plane and pixels, "
-                "found another plane");
+                "map figure: expected an underlay covering the map's pixels on its plane (same "
+                "axes, centre and area, pixels as fine or finer), found another plane");
         }
     }
     MapLayout l;
@@ -114,6 +117,7 @@ MapLayout layoutMapFigure(const ScalarMap& map, const MapFigure& figure, double 
     l.mapH = rows * l.cell;
     l.mapX = kLeft * k;
     l.mapY = kTop * k;
+    if (figure.underlay) l.underCell = l.cell * figure.underlay->map.plane().pixelM / plane.pixelM;
     const double right = (kRight + (figure.underlay ? kUnderBar : 0.0)) * k;
     l.width = l.mapX + l.mapW + right;
     // Room for the title (a generous estimate of its width).

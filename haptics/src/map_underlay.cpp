@@ -55,8 +55,13 @@ ScalarMap skinDepthMap(const kernels::EmbreeScene& surfaces, const MapPlane& pla
 }
 
 ScalarMap mipMap(const volume::Volume& vol, const MapPlane& plane, const Eigen::Vector3d& press,
-                 double lengthM) {
+                 double lengthM, const ScalarMap* fromMm) {
     checkProjection("MIP map", plane, press, lengthM);
+    if (fromMm && (fromMm->cols() != plane.cols() || fromMm->rows() != plane.rows())) {
+        throw ValueError("MIP map: expected start depths over " + std::to_string(plane.cols()) +
+                         " x " + std::to_string(plane.rows()) + " pixels, found " +
+                         std::to_string(fromMm->cols()) + " x " + std::to_string(fromMm->rows()));
+    }
     ScalarMap map(plane);
     if (!vol.grid) return map;
     const openvdb::BBoxd box = vol.worldBounds();
@@ -71,7 +76,9 @@ ScalarMap mipMap(const volume::Volume& vol, const MapPlane& plane, const Eigen::
                 sampler(*vol.grid);
             for (int row = r.begin(); row < r.end(); ++row) {
                 for (int col = 0; col < cols; ++col) {
-                    const Eigen::Vector3d p0 = plane.pixelCentre(col, row);
+                    const double from = fromMm ? fromMm->at(col, row) * 1e-3 : 0.0;
+                    if (!std::isfinite(from)) continue;
+                    const Eigen::Vector3d p0 = plane.pixelCentre(col, row) + from * press;
                     double best = -std::numeric_limits<double>::infinity();
                     for (int k = 0; k < n; ++k) {
                         const Eigen::Vector3d p = p0 + (k * step) * press;

@@ -98,6 +98,23 @@ TEST(MapFigure, LayoutMapsPixelsToTheWorldMillimetresOfThePlane) {
         }
         EXPECT_GE(ticks, 4);
     }
+    // An underlay in pixels a quarter of the map's, over the same rectangle: a quarter of the
+    // cell each; one in coarser pixels is refused.
+    MapPlane fine = plane;
+    fine.extentU = map.cols() * plane.pixelM;
+    fine.extentV = map.rows() * plane.pixelM;
+    fine.pixelM = plane.pixelM / 4;
+    MapFigure withUnder;
+    withUnder.underlay.emplace(fine);
+    const MapLayout lu = layoutMapFigure(map, withUnder);
+    EXPECT_NEAR(lu.underCell, lu.cell / 4, 1e-12);
+    EXPECT_NEAR(withUnder.underlay->map.cols() * lu.underCell, lu.mapW, 1e-9);
+    MapPlane coarse = plane;
+    coarse.pixelM = plane.pixelM * 2;
+    coarse.extentU = map.cols() * plane.pixelM;
+    coarse.extentV = map.rows() * plane.pixelM;
+    withUnder.underlay.emplace(coarse);
+    EXPECT_THROW(layoutMapFigure(map, withUnder), ValueError);
     // A plane whose u points down x (-x to the right): the mapping follows it.
     MapPlane flipped = plane;
     flipped.u = -Eigen::Vector3d::UnitX();

@@ -125,12 +125,19 @@ RunResult runFast(haptics::Session& session, std::uint64_t ticks) {
 // ---------------------------------------------------------------------------------------------
 // Outputs
 
-/// The plane --map bins over. @throw palp::ValueError naming --map-pixel when the map would
-/// exceed 4096 pixels a side.
-haptics::MapPlane mapPlane(const PalpateArgs& a, const PathFrame& f) {
+/// The map's image right: the path's u, mirrored when the press comes from behind the image
+/// (e.g. from P), so that the map is seen from the side the hand presses from (image right x
+/// image up points back at the examiner).
+Eigen::Vector3d mapRight(const PathFrame& f, const Eigen::Vector3d& press) {
+    return f.u.cross(f.v).dot(press) > 0 ? Eigen::Vector3d(-f.u) : f.u;
+}
+
+/// The plane --map bins over, image right = mapRight(). @throw palp::ValueError naming
+/// --map-pixel when the map would exceed 4096 pixels a side.
+haptics::MapPlane mapPlane(const PalpateArgs& a, const PathFrame& f, const Eigen::Vector3d& press) {
     haptics::MapPlane plane;
     plane.centre = f.centre;
-    plane.u = f.u;
+    plane.u = mapRight(f, press);
     plane.v = f.v;
     plane.extentU = f.extentU;
     plane.extentV = f.extentV;
@@ -146,30 +153,44 @@ haptics::MapPlane mapPlane(const PalpateArgs& a, const PathFrame& f) {
 }
 
 /// The underlay --map-underlay asks for, computed before the run (off the servo thread) over
-/// the map's pixels, measured from the plane of the volume's face against the press; auto: the
-/// skin depth on a rigid scan, none on a phantom (its skin is flat) or on deformable tissue (no
-/// iso-surface). @throw palp::ValueError naming --map-underlay when nothing lies under the map.
+/// the map's rectangle in pixels of a quarter of the map's (down to 0.5 mm, or the voxel),
+/// measured from the plane of the volume's face against the press; auto: the skin depth on a
+/// rigid scan, none on a phantom (its skin is flat) or on deformable tissue (no iso-surface).
+/// mip: the volume's maximum over the slab the rays reach (@p reachM) under the skin, or through
+/// the whole volume where there is no skin surface. @throw palp::ValueError naming
+/// --map-underlay when nothing lies under the map.
 std::optional<haptics::MapUnderlay> mapUnderlay(const PalpateArgs& a, const Input& in,
                                                 const haptics::Scene& scene,
                                                 const haptics::MapPlane& mapPlane,
                                                 const Eigen::Vector3d& press,
-                                                const Eigen::AlignedBox3d& box) {
+                                                const Eigen::AlignedBox3d& box, double reachM) {
     std::string kind = a.mapUnderlay;
     if (kind == "auto") kind = in.phantom || a.deformable ? "none" : "skin-depth";
     if (a.map.empty() || kind == "none") return std::nullopt;
     const int pa = axisIndex(press);
     haptics::MapPlane plane = mapPlane;
     plane.centre[pa] = press[pa] > 0 ? box.min()[pa] : box.max()[pa];
+    const int cols = plane.cols(), rows = plane.rows();
+    const double fine = std::max(0.5e-3, in.vol.voxelSize());
+    const int n = std::clamp(static_cast<int>(std::floor(plane.pixelM / fine)), 1,
+                             std::clamp(1024 / std::max(cols, rows), 1, 4));
+    plane.extentU = cols * plane.pixelM;
+    plane.extentV = rows * plane.pixelM;
+    plane.pixelM /= n;
     const double length = box.sizes()[pa] + 10e-3;
     haptics::MapUnderlay u(plane);
+    const haptics::ScalarMap skin = haptics::skinDepthMap(scene.surfaces(), plane, press, length);
+    const bool hasSkin = !skin.finiteValues().empty();
     if (kind == "skin-depth") {
-        u.map = haptics::skinDepthMap(scene.surfaces(), plane, press, length);
+        u.map = skin;
         u.quantity = "skin depth";
         u.units = "mm";
         u.brightLow = true;  // near skin bright, deep skin dark
     } else {
-        u.map = haptics::mipMap(in.vol, plane, press, length);
-        u.quantity = "max along " + axisName(press);
+        u.map = haptics::mipMap(in.vol, plane, press, hasSkin ? reachM : length,
+                                hasSkin ? &skin : nullptr);
+        u.quantity = hasSkin ? "max within " + formatValue(reachM * 1e3) + " mm under the skin"
+                             : "max along " + axisName(press);
         u.units = in.vol.info.valueUnits.empty() ? "value" : in.vol.info.valueUnits;
     }
     if (u.map.finiteValues().empty()) {
@@ -186,14 +207,15 @@ std::optional<haptics::MapUnderlay> mapUnderlay(const PalpateArgs& a, const Inpu
 /// Writes --trace and --map (the map's value range in @p mapLo, @p mapHi). The map is made
 /// before either file is written, and a trace is removed again when the map cannot be written,
 /// so a refusal leaves no output behind.
-void writeOutputs(const PalpateArgs& a, const PathFrame& f,
+void writeOutputs(const PalpateArgs& a, const PathFrame& f, const Eigen::Vector3d& press,
                   const std::vector<haptics::Snapshot>& snaps, const std::string& title,
                   const std::optional<haptics::MapUnderlay>& underlay, double& mapLo, double& mapHi,
                   std::optional<haptics::MapLayout>& layout) {
     std::optional<haptics::ScalarMap> map;
     if (!a.map.empty()) {
-        map = haptics::binSnapshots(snaps, mapPlane(a, f), haptics::parseMapQuantity(a.mapQuantity),
-                                    true, haptics::parseMapAnchor(a.mapAt));
+        map = haptics::binSnapshots(snaps, mapPlane(a, f, press),
+                                    haptics::parseMapQuantity(a.mapQuantity), true,
+                                    haptics::parseMapAnchor(a.mapAt));
         map->fillGaps(2);
         map->range(mapLo, mapHi);
     }
@@ -294,7 +316,7 @@ void printJson(const PalpateArgs& a, const Report& r) {
     const std::string& tk = a.trajectory;
     const double kMaxAsked = r.kMaxAsked, wallSeconds = r.run.wallSeconds, tps = ticksPerSecond(r);
     const double mapLo = r.mapLo, mapHi = r.mapHi;
-    const Eigen::Vector3d &u = r.frame.u, &v = r.frame.v;
+    const Eigen::Vector3d& v = r.frame.v;
     const json& loopJson = r.run.loopJson;
     const auto& body = r.body;
     json j;
@@ -354,7 +376,7 @@ void printJson(const PalpateArgs& a, const Report& r) {
         j["map_quantity"] = a.mapQuantity;
         j["map_at"] = a.mapAt;
         j["map_range"] = {mapLo, mapHi};
-        j["map_right"] = axisName(u);
+        j["map_right"] = axisName(mapRight(r.frame, r.skin.press));
         j["map_up"] = axisName(v);
         j["map_underlay"] = r.underlay.empty() ? json("none") : json(r.underlay);
         if (r.figure) {
@@ -381,7 +403,7 @@ void printText(const PalpateArgs& a, const Report& r) {
     const std::string& tk = a.trajectory;
     const double wallSeconds = r.run.wallSeconds, tps = ticksPerSecond(r);
     const double mapLo = r.mapLo, mapHi = r.mapHi;
-    const Eigen::Vector3d &u = r.frame.u, &v = r.frame.v;
+    const Eigen::Vector3d& v = r.frame.v;
     const auto& snaps = r.run.snaps;
     const auto& body = r.body;
     std::printf(
@@ -451,7 +473,8 @@ void printText(const PalpateArgs& a, const Report& r) {
     if (!a.trace.empty()) std::printf("wrote %s\n", a.trace.c_str());
     if (!a.map.empty()) {
         std::printf("wrote %s: %s from %.3g to %.3g; image right = %s, up = %s", a.map.c_str(),
-                    a.mapQuantity.c_str(), mapLo, mapHi, axisName(u).c_str(), axisName(v).c_str());
+                    a.mapQuantity.c_str(), mapLo, mapHi,
+                    axisName(mapRight(r.frame, r.skin.press)).c_str(), axisName(v).c_str());
         if (!r.underlay.empty())
             std::printf("; under it %s %.3g-%.3g %s", r.underlay.c_str(), r.underlayLo,
                         r.underlayHi, r.underlayUnits.c_str());
@@ -514,8 +537,9 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     }
     std::optional<haptics::MapUnderlay> underlay;
     if (!a.map.empty()) {
-        haptics::validateMapPlane(mapPlane(a, frame));
-        underlay = mapUnderlay(a, in, *scene, mapPlane(a, frame), press, box);
+        haptics::validateMapPlane(mapPlane(a, frame, press));
+        underlay =
+            mapUnderlay(a, in, *scene, mapPlane(a, frame, press), press, box, cp.bundle.length);
     }
     const auto ticks = static_cast<std::uint64_t>(std::ceil(duration / period));
 
@@ -543,11 +567,12 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     r.contactAfterApproach = contactFrom(r.run.snaps, plan.pressedFrom);
     r.budget = haptics::energyBudget(r.run.snaps, plan.approach);
     // The map's title: what was palpated, how, along which path.
-    const std::string title = in.label + ": " + haptics::couplingModeName(cp.mode) + "/" +
+    const std::string title = (in.phantom ? in.label : fs::path(in.label).filename().string()) +
+                              ": " + haptics::couplingModeName(cp.mode) + "/" +
                               haptics::raySourceName(cp.source) + ", " + a.trajectory +
                               (skin.follow ? " on the skin" : "") + ", pressed " + axisName(press) +
                               " (from " + haptics::patientDirection(-press) + ")";
-    writeOutputs(a, frame, r.run.snaps, title, underlay, r.mapLo, r.mapHi, r.figure);
+    writeOutputs(a, frame, press, r.run.snaps, title, underlay, r.mapLo, r.mapHi, r.figure);
     if (underlay) {
         r.underlay = underlay->quantity;
         underlay->map.range(r.underlayLo, r.underlayHi);

@@ -21,7 +21,8 @@
 
 namespace palp::haptics {
 
-/// A grey picture of the scan under the map (same plane and pixels as the map).
+/// A grey picture of the scan under the map: on the map's plane, covering the same rectangle,
+/// with pixels as fine as the map's or finer (e.g. a quarter of a 2 mm map pixel).
 struct MapUnderlay {
     explicit MapUnderlay(const MapPlane& plane) : map(plane) {}
     ScalarMap map;                        ///< NaN pixels are drawn in the background colour
@@ -42,7 +43,7 @@ struct MapFigure {
     double lo = std::numeric_limits<double>::quiet_NaN();  ///< darkest value; NaN: the map's min
     double hi = std::numeric_limits<double>::quiet_NaN();  ///< brightest value; NaN: its max
     std::optional<MapUnderlay> underlay;                   ///< drawn in grey under the map when set
-    double mapOpacity = 0.6;  ///< of the map's pixels over an underlay (0-1]
+    double mapOpacity = 0.7;  ///< of the map's pixels over an underlay (0-1]
 };
 
 /// The patient direction a world axis points to in LPS: +x "L", -x "R", +y "P", -y "A",
@@ -85,6 +86,7 @@ struct MapLayout {
     double width = 0, height = 0;
     double mapX = 0, mapY = 0, mapW = 0, mapH = 0;
     double cell = 1;                    ///< px per map pixel
+    double underCell = 1;               ///< px per underlay pixel
     double lo = 0, hi = 0;              ///< the map's colour range (NaN when it is empty)
     double underLo = 0, underHi = 0;    ///< the underlay's grey range
     FigureBar bar;                      ///< the map's colour bar

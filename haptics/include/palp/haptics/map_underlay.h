@@ -28,9 +28,11 @@ ScalarMap skinDepthMap(const kernels::EmbreeScene& surfaces, const MapPlane& pla
 
 /// The maximum of @p vol (its units, HU for CT; trilinear samples one voxel apart) along
 /// @p press from each pixel's centre on @p plane over @p lengthM; NaN where every sample lies
-/// outside the volume's active voxels' box.
-/// @throw palp::ValueError as skinDepthMap().
+/// outside the volume's active voxels' box. With @p fromMm (a map over the same plane and
+/// pixels, e.g. skinDepthMap()), each pixel's slab starts that far (mm) along the press instead
+/// (a slab under the skin); pixels where it is NaN stay NaN.
+/// @throw palp::ValueError as skinDepthMap(), or for a @p fromMm over other pixels.
 ScalarMap mipMap(const volume::Volume& vol, const MapPlane& plane, const Eigen::Vector3d& press,
-                 double lengthM);
+                 double lengthM, const ScalarMap* fromMm = nullptr);
 
 }  // namespace palp::haptics
