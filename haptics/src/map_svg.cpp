@@ -83,18 +83,20 @@ void writeMapSvg(const std::filesystem::path& path, const ScalarMap& map, const 
     if (under) {
         const MapUnderlay& u = *figure.underlay;
         svg += "<g class=\"underlay\" shape-rendering=\"crispEdges\">\n";
-        for (int row = 0; row < rows; ++row) {
-            for (int col = 0; col < cols; ++col) {
+        const double us = l.underCell;  // the underlay's pixels may be finer than the map's
+        const int urows = u.map.rows();
+        for (int row = 0; row < urows; ++row) {
+            for (int col = 0; col < u.map.cols(); ++col) {
                 const double v = u.map.at(col, row);
-                const double x = l.mapX + col * s, y = l.mapY + (rows - 1 - row) * s;
+                const double x = l.mapX + col * us, y = l.mapY + (urows - 1 - row) * us;
                 if (!std::isfinite(v)) {
-                    svg += rect(x, y, s, s, "fill=\"#000040\"");
+                    svg += rect(x, y, us, us, "fill=\"#000040\"");
                     continue;
                 }
                 double g = unit(v, l.underLo, l.underHi);
                 if (u.brightLow) g = 1 - g;
                 svg += rect(
-                    x, y, s, s,
+                    x, y, us, us,
                     "fill=\"" + hex(mapColour(g, ColorMap::Grey)) + "\" data-u=\"" + num(v) + "\"");
             }
         }

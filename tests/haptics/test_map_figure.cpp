@@ -7,7 +7,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <string>
 #include <vector>
 
@@ -109,6 +112,31 @@ TEST(MapFigure, LayoutMapsPixelsToTheWorldMillimetresOfThePlane) {
     const MapLayout lu = layoutMapFigure(map, withUnder);
     EXPECT_NEAR(lu.underCell, lu.cell / 4, 1e-12);
     EXPECT_NEAR(withUnder.underlay->map.cols() * lu.underCell, lu.mapW, 1e-9);
+    {
+        // In the SVG: 16 underlay rects per map pixel, tiling the map's rectangle exactly.
+        const fs::path dir = tempDir("svg");
+        writeMapSvg(dir / "u.svg", map, withUnder);
+        std::ifstream in(dir / "u.svg");
+        const std::string svg((std::istreambuf_iterator<char>(in)), {});
+        const auto g0 = svg.find("<g class=\"underlay\"");
+        ASSERT_NE(g0, std::string::npos);
+        const std::string group = svg.substr(g0, svg.find("</g>", g0) - g0);
+        std::size_t rects = 0;
+        double right = 0, bottom = 0;
+        for (auto at = group.find("<rect"); at != std::string::npos;
+             at = group.find("<rect", at + 1)) {
+            ++rects;
+            double x = 0, y = 0, w = 0, h = 0;
+            std::sscanf(group.c_str() + at,
+                        "<rect x=\"%lf\" y=\"%lf\" width=\"%lf\" height=\"%lf\"", &x, &y, &w, &h);
+            right = std::max(right, x + w);
+            bottom = std::max(bottom, y + h);
+        }
+        EXPECT_EQ(rects, 16u * static_cast<std::size_t>(map.cols() * map.rows()));
+        EXPECT_NEAR(right, lu.mapX + lu.mapW, 1e-3);
+        EXPECT_NEAR(bottom, lu.mapY + lu.mapH, 1e-3);
+        fs::remove_all(dir);
+    }
     MapPlane coarse = plane;
     coarse.pixelM = plane.pixelM * 2;
     coarse.extentU = map.cols() * plane.pixelM;
