@@ -12,6 +12,7 @@
 #include "c_api_internal.h"
 #include "palp/base/bounds.h"
 #include "palp/base/validate.h"
+#include "palp/volume/from_memory.h"
 #include "palp/volume/load.h"
 #include "palp/volume/phantom.h"
 
@@ -132,6 +133,51 @@ palp_status palp_volume_make_phantom(const char* scene, int variant, const char*
         spec.voxelSize = voxel_size;
         auto handle = std::make_unique<palp_volume>();
         handle->volume = pv::makePhantomVolume(spec);
+        *out = handle.release();
+        return PALP_OK;
+    });
+}
+
+palp_status palp_volume_from_memory(const void* data, palp_value_type type, const int64_t dims[3],
+                                    const int64_t strides[3], const double index_to_world[16],
+                                    palp_world_frame frame, double voxel_size, palp_volume** out) {
+    constexpr const char* kName = "palp_volume_from_memory";
+    if (!data) return nullArgument(kName, "data");
+    if (!dims) return nullArgument(kName, "dims");
+    if (!index_to_world) return nullArgument(kName, "index_to_world");
+    if (!out) return nullArgument(kName, "out");
+    return guarded([&] {
+        const int t = rawEnum(type);
+        if (t < PALP_VALUE_I8 || t > PALP_VALUE_F64) {
+            palp::throwExpected(std::string(kName) + ": type",
+                                "PALP_VALUE_I8 .. PALP_VALUE_F64 (0..7)", std::to_string(t));
+        }
+        const int f = rawEnum(frame);
+        if (f < PALP_FRAME_LPS_M || f > PALP_FRAME_RAS_MM) {
+            palp::throwExpected(std::string(kName) + ": frame",
+                                "PALP_FRAME_LPS_M, _RAS_M, _LPS_MM or _RAS_MM (0..3)",
+                                std::to_string(f));
+        }
+        if (voxel_size != 0) {
+            palp::requireWithin(std::string(kName) + ": voxel_size (0: the finest spacing)",
+                                voxel_size, palp::bounds::kSpacing);
+        }
+        pv::MemoryGrid g;
+        g.data = data;
+        g.type = static_cast<pv::ValueType>(t);  // same order as palp_value_type
+        g.frame = static_cast<pv::WorldFrame>(f);
+        for (int a = 0; a < 3; ++a) {
+            g.dims[static_cast<std::size_t>(a)] = dims[a];
+            g.strides[static_cast<std::size_t>(a)] = strides ? strides[a] : 0;
+        }
+        for (int r = 0; r < 4; ++r) {
+            for (int c = 0; c < 4; ++c) g.indexToWorld(r, c) = index_to_world[4 * r + c];
+        }
+        g.name = kName;
+        pv::ResampleOptions options;
+        if (voxel_size > 0) options.voxelSize = voxel_size;
+        auto handle = std::make_unique<palp_volume>();
+        handle->volume = pv::fromMemory(g, options);
         *out = handle.release();
         return PALP_OK;
     });

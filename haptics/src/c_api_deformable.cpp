@@ -68,6 +68,11 @@ ph::DeformableSetup toSetup(const palp_deformable_options& c) {
         throwExpected(field("support_face"), "PALP_FACE_NONE .. PALP_FACE_Z_MAX (0..6)",
                       std::to_string(face));
     }
+    const int inside = rawEnum(c.inside_bone);
+    if (inside != PALP_INSIDE_BONE_KEEP && inside != PALP_INSIDE_BONE_DROP) {
+        throwExpected(field("inside_bone"), "PALP_INSIDE_BONE_KEEP or PALP_INSIDE_BONE_DROP (0, 1)",
+                      std::to_string(inside));
+    }
     const int solver = rawEnum(c.solver);
     if (solver != PALP_FEM_WHOLE_MESH && solver != PALP_FEM_REGIONS) {
         throwExpected(field("solver"), "PALP_FEM_WHOLE_MESH or PALP_FEM_REGIONS",
@@ -93,6 +98,8 @@ ph::DeformableSetup toSetup(const palp_deformable_options& c) {
     s.voxelize.elementSize = c.element_size;
     s.voxelize.tissueThreshold = c.tissue_threshold;
     s.voxelize.boneThreshold = noBone ? std::numeric_limits<double>::infinity() : c.bone_threshold;
+    s.voxelize.insideBone =
+        inside == PALP_INSIDE_BONE_DROP ? fem::InsideBone::drop : fem::InsideBone::keep;
     s.material.youngsModulus = c.youngs_modulus;
     s.material.poissonRatio = c.poisson_ratio;
     s.material.density = c.density;
@@ -163,6 +170,8 @@ void palp_deformable_options_default(palp_deformable_options* options) {
     c.lod = 0;
     c.threaded = d.options.regions.threaded ? 1 : 0;
     for (double& x : c.regions_centre) x = std::numeric_limits<double>::quiet_NaN();
+    c.inside_bone = d.voxelize.insideBone == palp::fem::InsideBone::drop ? PALP_INSIDE_BONE_DROP
+                                                                         : PALP_INSIDE_BONE_KEEP;
 }
 
 palp_status palp_scene_make_deformable(const palp_volume* volume, double hard_iso,

@@ -290,6 +290,7 @@ constexpr std::array kParamFields = {
     ParamField{&palp_session_params::damping, "damping", &bounds::kDamping},
     ParamField{&palp_session_params::ray_length, "ray_length", &bounds::kLength},
     ParamField{&palp_session_params::ring_half_angle, "ring_half_angle", &bounds::kAngle},
+    ParamField{&palp_session_params::ring_weight_sigma, "ring_weight_sigma", &bounds::kAngle},
     ParamField{&palp_session_params::sobel_angle, "sobel_angle", &bounds::kAngle},
     ParamField{&palp_session_params::surface_offset, "surface_offset", &bounds::kSpacing},
     ParamField{&palp_session_params::threshold, "threshold", &bounds::kVolumeValue},
@@ -361,6 +362,7 @@ ph::CouplingParams toCoupling(const palp_session_params& p) {
     c.bundle.length = p.ray_length;
     c.bundle.ringCount = p.ring_count;
     c.bundle.ringHalfAngle = p.ring_half_angle;
+    c.bundle.ringWeightSigma = p.ring_weight_sigma;
     c.bundle.sobelAngle = p.sobel_angle;
     c.bundle.surfaceOffset = p.surface_offset;
     c.firstHit.threshold = static_cast<float>(p.threshold);
@@ -515,6 +517,7 @@ void palp_session_params_default(palp_session_params* params) {
     p.ray_length = d.coupling.bundle.length;
     p.ring_count = d.coupling.bundle.ringCount;
     p.ring_half_angle = d.coupling.bundle.ringHalfAngle;
+    p.ring_weight_sigma = d.coupling.bundle.ringWeightSigma;
     p.sobel_angle = d.coupling.bundle.sobelAngle;
     p.surface_offset = d.coupling.bundle.surfaceOffset;
     p.threshold = d.coupling.firstHit.threshold;

@@ -45,7 +45,7 @@ struct DoubleField {
 };
 
 // When a field is added to palp.h, this size changes: add it to the tables below.
-static_assert(sizeof(palp_deformable_options) == 144,
+static_assert(sizeof(palp_deformable_options) == 152,
               "palp_deformable_options changed: update the table");
 
 #define PALP_DFIELD(f) \
@@ -173,6 +173,11 @@ TEST_F(CApiDeformable, EnumsCountsAndTheCentreAreRefusedByName) {
             set([&](palp_deformable_options& o) { std::memcpy(&o.solver, &v, sizeof v); });
         expectRefused(st, "solver", std::to_string(v), "solver " + std::to_string(v));
     }
+    for (const int v : {-1, 2}) {
+        const palp_status st =
+            set([&](palp_deformable_options& o) { std::memcpy(&o.inside_bone, &v, sizeof v); });
+        expectRefused(st, "inside_bone", std::to_string(v), "inside_bone " + std::to_string(v));
+    }
     for (const int v : {-1, 3, 8}) {
         const palp_status st = set([&](palp_deformable_options& o) { o.lod = v; });
         expectRefused(st, "lod", std::to_string(v), "lod " + std::to_string(v));
@@ -285,3 +290,60 @@ TEST_F(CApiDeformable, CSessionAndCppSessionAgreeTickForTick) {
 }
 
 }  // namespace
+
+// inside_bone through the C API, on a volume made from memory: a 2 mm bone box (1000 HU,
+// x, z 4..20 mm, y 8..24 mm) full of soft tissue under a soft slab (y 0..8 mm), air around.
+// PALP_INSIDE_BONE_KEEP: a solid body, no surface inside the box; _DROP (the default): the
+// enclosed tissue goes and the deformable surface reaches into the box.
+TEST(CApiDeformableInsideBone, KeepAndDropReachTheBody) {
+    constexpr std::int64_t n = 24;
+    std::vector<std::int16_t> hu(static_cast<std::size_t>(n * n * n), -1000);
+    const auto inBox = [](std::int64_t x, std::int64_t lo, std::int64_t hi) {
+        return x >= lo && x < hi;
+    };
+    for (std::int64_t k = 0; k < n; ++k)
+        for (std::int64_t j = 0; j < n; ++j)
+            for (std::int64_t i = 0; i < n; ++i) {
+                std::int16_t v = -1000;
+                if (j < 8) v = 40;
+                if (inBox(i, 4, 20) && inBox(k, 4, 20) && inBox(j, 8, 24)) {
+                    const bool inner = inBox(i, 6, 18) && inBox(k, 6, 18) && inBox(j, 10, 22);
+                    v = inner ? 40 : 1000;
+                }
+                hu[static_cast<std::size_t>(i + n * (j + n * k))] = v;
+            }
+    const std::int64_t dims[3] = {n, n, n};
+    const double mm[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    palp_volume* volume = nullptr;
+    ASSERT_EQ(palp_volume_from_memory(hu.data(), PALP_VALUE_I16, dims, nullptr, mm,
+                                      PALP_FRAME_LPS_MM, 1e-3, &volume),
+              PALP_OK)
+        << palp_last_error();
+    const auto insideCount = [&](palp_inside_bone mode) {
+        palp_deformable_options o;
+        palp_deformable_options_default(&o);
+        EXPECT_EQ(o.inside_bone, PALP_INSIDE_BONE_DROP);
+        o.inside_bone = mode;
+        o.element_size = 2e-3;
+        o.support_face = PALP_FACE_NONE;  // the bone holds it
+        palp_scene* scene = nullptr;
+        EXPECT_EQ(palp_scene_make_deformable(volume, NAN, &o, &scene), PALP_OK)
+            << palp_last_error();
+        if (!scene) return -1;
+        size_t nv = 0;
+        EXPECT_EQ(palp_scene_surface_size(scene, &nv, nullptr), PALP_OK);
+        std::vector<float> rest(3 * nv);
+        EXPECT_EQ(palp_scene_surface_topology(scene, nullptr, 0, rest.data(), nv), PALP_OK);
+        int inside = 0;  // surface vertices strictly inside the bone box's outer walls
+        for (size_t v = 0; v < nv; ++v) {
+            const double x = rest[3 * v] * 1e3, y = rest[3 * v + 1] * 1e3,
+                         z = rest[3 * v + 2] * 1e3;
+            if (x > 5 && x < 19 && y > 9 && y < 23 && z > 5 && z < 19) ++inside;
+        }
+        palp_scene_release(scene);
+        return inside;
+    };
+    EXPECT_EQ(insideCount(PALP_INSIDE_BONE_KEEP), 0);
+    EXPECT_GT(insideCount(PALP_INSIDE_BONE_DROP), 10);
+    palp_volume_release(volume);
+}

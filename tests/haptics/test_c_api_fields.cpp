@@ -50,7 +50,7 @@ struct Field {
     }
 
 // When a field is added to palp.h, these sizes change: add it to the tables below.
-static_assert(sizeof(palp_session_params) == 304, "palp_session_params changed: update the table");
+static_assert(sizeof(palp_session_params) == 312, "palp_session_params changed: update the table");
 static_assert(sizeof(palp_trajectory) == 272, "palp_trajectory changed: update the table");
 
 const std::vector<Field<palp_session_params>> kParamFields = {
@@ -61,6 +61,7 @@ const std::vector<Field<palp_session_params>> kParamFields = {
     PALP_FIELD(palp_session_params, damping),
     PALP_FIELD(palp_session_params, ray_length),
     PALP_FIELD(palp_session_params, ring_half_angle),
+    PALP_FIELD(palp_session_params, ring_weight_sigma),
     PALP_FIELD(palp_session_params, sobel_angle),
     PALP_FIELD(palp_session_params, surface_offset),
     PALP_FIELD(palp_session_params, threshold),

@@ -2,9 +2,9 @@
 #define PALP_PALP_H
 /**
  * @file
- * palp's C API: load or generate a volume, build a scene (rigid or deformable tissue), run a
- * haptic session on a simulated device or a host's device (callbacks) in real time or offline, read
- * its state (and the deformed surface) and change its parameters while it runs.
+ * palp's C API: load, generate or copy from memory a volume, build a scene (rigid or deformable
+ * tissue), run a haptic session on a simulated device or a host's device (callbacks) in real time
+ * or offline, read its state (and the deformed surface) and change its parameters while it runs.
  *
  * Conventions
  * - Opaque handles (palp_volume, palp_scene, palp_session) are reference counted: a create
@@ -91,6 +91,41 @@ palp_status palp_volume_load(const char* path, double voxel_size, palp_volume** 
 palp_status palp_volume_make_phantom(const char* scene, int variant, const char* shape,
                                      double voxel_size, palp_volume** out);
 
+/** Scalar type of a host's voxels (native byte order). */
+typedef enum palp_value_type {
+    PALP_VALUE_I8 = 0,
+    PALP_VALUE_U8 = 1,
+    PALP_VALUE_I16 = 2,
+    PALP_VALUE_U16 = 3,
+    PALP_VALUE_I32 = 4,
+    PALP_VALUE_U32 = 5,
+    PALP_VALUE_F32 = 6,
+    PALP_VALUE_F64 = 7
+} palp_value_type;
+
+/** Frame and unit of a host's index-to-world affine (palp's world is LPS in metres; RAS, the
+ *  frame of NIfTI and 3D Slicer, negates x and y). */
+typedef enum palp_world_frame {
+    PALP_FRAME_LPS_M = 0,
+    PALP_FRAME_RAS_M = 1,
+    PALP_FRAME_LPS_MM = 2,
+    PALP_FRAME_RAS_MM = 3 /**< e.g. 3D Slicer's IJKToRAS matrix */
+} palp_world_frame;
+
+/** A volume from a host's buffer (copied; @p data may be freed after the call): voxel (i, j, k)
+ *  (0 <= i < dims[0], ...) is the @p type value at byte offset i strides[0] + j strides[1] +
+ *  k strides[2] from @p data (unaligned is fine) and lies at index_to_world (row-major 4x4,
+ *  last row 0 0 0 1) times (i, j, k, 1) in @p frame. @p strides: bytes, positive, not
+ *  overlapping (NULL or all 0: packed, i fastest; a C-ordered numpy array [k][j][i] has strides
+ *  (s[2], s[1], s[0])). @p voxel_size as for palp_volume_load (0: the finest spacing).
+ *  Checked like the file readers, with their texts: dims (1..2^31-1, product within 8 GiB of
+ *  floats), strides, a finite affine with independent axes (spacing 1 um..0.1 m) and an origin
+ *  within 10 m, values finite within the volume range. Errors: PALP_ERROR_INVALID_ARGUMENT
+ *  naming the value ("palp_volume_from_memory: strides[1]: expected ..., found ..."). */
+palp_status palp_volume_from_memory(const void* data, palp_value_type type, const int64_t dims[3],
+                                    const int64_t strides[3], const double index_to_world[16],
+                                    palp_world_frame frame, double voxel_size, palp_volume** out);
+
 /** Voxel edge, m, and the world box of the active voxels, m (either pointer may be NULL). */
 palp_status palp_volume_geometry(const palp_volume* volume, double* voxel_size,
                                  double bounds_min[3], double bounds_max[3]);
@@ -134,6 +169,14 @@ typedef enum palp_fem_solver {
                                   contact every tick, an implicit secondary at secondary_rate */
 } palp_fem_solver;
 
+/** What happens to tissue enclosed by bone (the brain inside a skull). */
+typedef enum palp_inside_bone {
+    PALP_INSIDE_BONE_KEEP = 0, /**< kept in the body */
+    PALP_INSIDE_BONE_DROP = 1  /**< dropped: soft cells with bone on both sides along at least
+                                    two lattice axes (unless they face the air outside), and
+                                    bone cells touching no kept soft tissue */
+} palp_inside_bone;
+
 /** How a deformable body is made from a volume (the tissue of `palp palpate --deformable`).
  *  Always start from palp_deformable_options_default(); every field is checked (all of them,
  *  whatever the solver) and a refusal names it as "palp_deformable_options.<field>". */
@@ -167,6 +210,10 @@ typedef struct palp_deformable_options {
     double regions_centre[3]; /**< world point, m: the region starts at the free surface node
                                    nearest it (put it under the path); all NAN (default): the
                                    first free surface node */
+    /** Tissue enclosed by bone (only with a bone threshold): default PALP_INSIDE_BONE_DROP,
+     *  as `palp palpate --deformable` (a head CT gives the scalp on the skull, not the brain);
+     *  PALP_INSIDE_BONE_KEEP keeps it. */
+    palp_inside_bone inside_bone;
 } palp_deformable_options;
 
 /** Fills @p options with palp's defaults (those of `palp palpate --deformable`). */
@@ -254,6 +301,9 @@ typedef struct palp_session_params {
     int servo_cpu;                /**< core to pin the servo thread to; -1: the last one */
     int servo_priority;           /**< SCHED_FIFO priority 1..99; 0: do not ask */
     int require_realtime;         /**< non-zero: start fails if pinning/SCHED_FIFO is refused */
+    /** AVC/AVCEC ring rays: width of their Gaussian weight exp(-alpha^2 / (2 sigma^2)) in the
+     *  low-pass of k, rad (> 0 and <= pi/2 when ring_count > 0; default 0.1) */
+    double ring_weight_sigma;
 } palp_session_params;
 
 /** Fills @p params with palp's defaults (AVCEC, volume first-hit at 300 HU, k_s 300 N/m,
