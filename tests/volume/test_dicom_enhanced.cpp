@@ -68,6 +68,7 @@ struct FileOptions {
     // false: one rescale (slope 2, intercept -10) for every frame, for dcm2niix, which applies
     // one frame's rescale to the whole file.
     bool perFrameRescale = true;
+    int temporalPositions = 0;  // > 0: Number of Temporal Positions (0020,0105)
 };
 
 /// @p prefix, @p n and @p suffix (appended in place: GCC 12 warns falsely on "x" + std::string).
@@ -155,6 +156,8 @@ void writeEnhanced(const fs::path& file, const std::vector<Frame>& frames,
     put(ds, 0x0020, 0x0011, gdcm::VR::IS, "7");
     put(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(o.instance));
     put(ds, 0x0020, 0x0052, gdcm::VR::UI, o.seriesUid + ".2");
+    if (o.temporalPositions > 0)
+        put(ds, 0x0020, 0x0105, gdcm::VR::IS, std::to_string(o.temporalPositions));
     putUs(ds, 0x0028, 0x0002, 1);
     put(ds, 0x0028, 0x0004, gdcm::VR::CS, "MONOCHROME2");
     put(ds, 0x0028, 0x0008, gdcm::VR::IS, std::to_string(frames.size()));
@@ -321,7 +324,7 @@ TEST(DicomEnhanced, VolumeSplitByPositionReadsEveryTimePointExactly) {
     expectKnownSeries(tmp / "single", Known::kPositions);
 }
 
-TEST(DicomEnhanced, PalpInfoCountsFramesPositionsAndTimePoints) {
+TEST(DicomEnhanced, PalpInfoCountsFramesAndConvertTakesVolume) {
     TempDir tmp;
     writePerTimePoint(tmp / "s");
     const auto r = palp::test::runCommand("'" + palp::test::palpTool().string() +
@@ -331,6 +334,20 @@ TEST(DicomEnhanced, PalpInfoCountsFramesPositionsAndTimePoints) {
          {"\"images\": 4", "\"frames\": 24", "\"positions\": 6", "\"time_points\": 4"}) {
         EXPECT_NE(r.output.find(field), std::string::npos) << field << "\n" << r.output;
     }
+    // palp convert asks for the time point, then converts the one chosen.
+    const std::string convert = "'" + palp::test::palpTool().string() + "' convert '" +
+                                (tmp / "s").string() + "' -o '" + (tmp / "out.vdb").string() + "'";
+    const auto refused = palp::test::runCommand(convert);
+    EXPECT_NE(refused.exitCode, 0);
+    EXPECT_NE(refused.output.find("one of the 4 time points (0-3)"), std::string::npos)
+        << refused.output;
+    EXPECT_NE(refused.output.find("--volume N"), std::string::npos) << refused.output;
+    const auto converted = palp::test::runCommand(convert + " --volume 2");
+    ASSERT_EQ(converted.exitCode, 0) << converted.output;
+    const palp::volume::Volume vol = palp::volume::loadVdb(tmp / "out.vdb");
+    EXPECT_EQ(vol.info.timePoint, 2);
+    EXPECT_EQ(vol.info.timePointCount, 4);
+    EXPECT_EQ(vol.info.originalDims, (std::array<std::int64_t, 3>{5, 4, 6}));
 }
 
 TEST(DicomEnhanced, FrameWithOtherOrientationIsRefusedByFileAndFrame) {
@@ -371,7 +388,15 @@ TEST(DicomEnhanced, MissingTimePointIsRefused) {
     expectThrowWith<palp::FormatError>(
         [&] { palp::volume::readStack({tmp / "s"}, {}); },
         {"expected Temporal Position Index (0020,9128) values 1 to 3", "found 1, 2, 4",
-         "time point 3 missing"});
+         "(index 3 missing: the series lacks time points)"});
+    // The last time point missing: only Number of Temporal Positions tells.
+    FileOptions declared;
+    declared.temporalPositions = 5;
+    writePerTimePoint(tmp / "d", declared);
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readStack({tmp / "d"}, {}); },
+        {"expected 5 time points as Number of Temporal Positions (0020,0105) of",
+         "t1.dcm says, found 4"});
     // Split by position: a file that lacks a time point leaves its positions short.
     for (int half = 0; half < 2; ++half) {
         std::vector<Frame> frames;

@@ -217,8 +217,8 @@ std::vector<std::vector<const Header*>> framePositions(const std::string& name,
                               ": expected one frame per time point at each slice position, found " +
                               a.label() + " and " + b.label() + " at the same position (" +
                               std::to_string(positionOf(a)->dot(normal)) +
-                              " mm along the normal) with the same time keys (" + keyText(key) +
-                              "); a duplicated file or frame");
+                              " mm along the normal) with the same time keys (" +
+                              order.describe(a) + "); a duplicated file or frame");
         }
         for (std::size_t i = 1; order.useTemporalIndex && i < grp.size(); ++i) {
             if (*grp[i]->number(kTemporalPositionIndex) ==
@@ -255,14 +255,17 @@ std::vector<std::vector<const Header*>> framePositions(const std::string& name,
     for (std::size_t i = 0; i < timePoints; ++i) expected[i] = static_cast<double>(i + 1);
     if (firstIndices != expected) {
         std::string missing;
-        for (double v = 1; v <= firstIndices.back() && v < 1e6; ++v) {
-            if (!std::binary_search(firstIndices.begin(), firstIndices.end(), v))
-                missing += (missing.empty() ? "" : ", ") + keyText({v});
+        int listed = 0;
+        for (double v = 1; v <= firstIndices.back() && listed < 10; ++v) {
+            if (std::binary_search(firstIndices.begin(), firstIndices.end(), v)) continue;
+            missing += (missing.empty() ? "" : ", ") + keyText({v});
+            if (++listed == 10) missing += ", ...";
         }
         throw FormatError(
             name + ": expected Temporal Position Index (0020,9128) values 1 to " +
             std::to_string(timePoints) + " (one per time point), found " + keyText(firstIndices) +
-            (missing.empty() ? std::string() : " (time point " + missing + " missing)"));
+            (missing.empty() ? std::string()
+                             : " (index " + missing + " missing: the series lacks time points)"));
     }
     const auto declared = frames.front()->number(kNumberOfTemporalPositions);
     if (declared && *declared != static_cast<double>(timePoints)) {

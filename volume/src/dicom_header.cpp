@@ -126,7 +126,7 @@ std::optional<double> parseDateTime(const std::string& text) {
     if (m < 1 || m > 12 || d < 1 || d > 31) return std::nullopt;
     // Days since 1970-01-01 of the proleptic Gregorian date (H. Hinnant's days_from_civil).
     const int yy = y - (m <= 2 ? 1 : 0);
-    const int era = yy / 400;
+    const int era = (yy >= 0 ? yy : yy - 399) / 400;
     const int yoe = yy - era * 400;
     const int doy = (153 * (m + (m > 2 ? -3 : 9)) + 2) / 5 + d - 1;
     const int doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;

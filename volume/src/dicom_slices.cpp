@@ -124,6 +124,22 @@ std::vector<double> TimeOrder::key(const Header& h) const {
     return k;
 }
 
+std::string TimeOrder::describe(const Header& h) const {
+    std::string s;
+    const auto add = [&](bool use, const char* name, const gdcm::Tag& t) {
+        if (use) s += (s.empty() ? "" : ", ") + std::string(name) + " " + h.text(t);
+    };
+    add(useTemporalIndex, "Temporal Position Index", kTemporalPositionIndex);
+    add(useFrameTime, "Frame Acquisition DateTime", kFrameAcquisitionDateTime);
+    add(useDimensionIndex, "Dimension Index Values", kDimensionIndexValues);
+    add(useTemporal, "Temporal Position Identifier", kTemporalPosition);
+    add(useAcqNumber, "Acquisition Number", kAcquisitionNumber);
+    add(useAcqTime, "Acquisition Time", kAcquisitionTime);
+    add(!useAcqTime && useContentTime, "Content Time", kContentTime);
+    add(useInstance, "Instance Number", kInstanceNumber);
+    return s;
+}
+
 void TimeOrder::sort(std::vector<const Header*>& images) const {
     std::vector<std::pair<std::vector<double>, const Header*>> keyed;
     keyed.reserve(images.size());

@@ -53,6 +53,9 @@ struct TimeOrder {
     /// Index Values) is in use: then two frames of one file with equal keys are duplicates.
     bool frameKeys() const { return useTemporalIndex || useFrameTime || useDimensionIndex; }
 
+    /// The keys in use of @p h, named, for messages ("Temporal Position Index 2, ...").
+    std::string describe(const Header& h) const;
+
     /// Sorts @p images (of one position) in time; ties by file name, then frame.
     void sort(std::vector<const Header*>& images) const;
 };
