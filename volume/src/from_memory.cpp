@@ -51,7 +51,7 @@ std::array<std::int64_t, 3> checkedStrides(const MemoryGrid& g, std::int64_t ele
                           std::to_string(st[a]));
         }
     }
-    std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
         return (g.dims[a] > 1 ? st[a] : 0) < (g.dims[b] > 1 ? st[b] : 0);
     });
     // Along the axes by increasing stride, each must step over the whole extent of the
