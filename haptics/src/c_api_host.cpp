@@ -116,8 +116,15 @@ palp_status palp_device_spec_from_class(const char* device_class, palp_device_sp
     if (!device_class) return nullArgument("palp_device_spec_from_class", "device_class");
     if (!out) return nullArgument("palp_device_spec_from_class", "out");
     return guarded([&] {
-        const ph::DeviceSpec& s = deviceSpec(device_class);
-        fromSpec(s, *out);
+        if (!ph::findDeviceSpec(device_class)) {
+            std::string choices;
+            for (const ph::DeviceSpec& s : ph::deviceSpecs()) {
+                choices += (choices.empty() ? "'" : ", '") + std::string(s.name) + "'";
+            }
+            palp::throwExpected("palp_device_spec_from_class: device_class", "one of " + choices,
+                                std::string("'") + device_class + "'");
+        }
+        fromSpec(*ph::findDeviceSpec(device_class), *out);
         return PALP_OK;
     });
 }

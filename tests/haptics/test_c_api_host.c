@@ -1,8 +1,8 @@
 /* A host device through the C API, compiled as C11: bad inputs are refused naming the field;
  * a kinematic press into the AVC phantom (VC, offline) feels k D out of the surface; the same
  * press on the servo thread for 200 ms; a host that stops answering gets zero force within
- * the watchdog time and its force comes back without a jump. Returns non-zero on the first
- * failure. */
+ * the watchdog time and its force comes back without a jump; a host volume from C. Returns non-zero
+ * on the first failure. */
 #define _POSIX_C_SOURCE 199309L /* nanosleep */
 #include <math.h>
 #include <stdio.h>
@@ -94,6 +94,7 @@ static void test_bad_inputs(palp_scene* scene) {
 
     palp_device_spec spec;
     CHECK(palp_device_spec_from_class("No Such Arm", &spec) == PALP_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(palp_last_error(), "palp_device_spec_from_class: device_class") != NULL);
     CHECK(strstr(palp_last_error(), "No Such Arm") != NULL);
     CHECK(palp_device_spec_from_class("3D Systems Touch", &spec) == PALP_OK);
     CHECK(fabs(spec.max_force - 3.3) < 1e-12);
@@ -199,6 +200,39 @@ static void test_realtime(palp_scene* scene) {
     palp_session_release(session);
 }
 
+/* A host's buffer as a volume, from C: an 8^3 float32 block (1 mm voxels, RAS mm) whose
+ * world box is the affine's, and a stride that makes rows overlap refused naming it. */
+static void test_volume_from_memory(void) {
+    float block[8][8][8];
+    for (int k = 0; k < 8; ++k)
+        for (int j = 0; j < 8; ++j)
+            for (int i = 0; i < 8; ++i) block[k][j][i] = (float)(10 * i + j - k);
+    const int64_t dims[3] = {8, 8, 8};
+    /* RAS mm, origin (5, 6, 7) mm: in LPS metres x and y flip sign. */
+    const double ijk_to_ras[16] = {1, 0, 0, 5, 0, 1, 0, 6, 0, 0, 1, 7, 0, 0, 0, 1};
+    palp_volume* volume = NULL;
+    CHECK(palp_volume_from_memory(block, PALP_VALUE_F32, dims, NULL, ijk_to_ras, PALP_FRAME_RAS_MM,
+                                  0.0, &volume) == PALP_OK);
+    double size = 0, lo[3], hi[3];
+    CHECK(palp_volume_geometry(volume, &size, lo, hi) == PALP_OK);
+    CHECK(fabs(size - 1e-3) < 1e-12);
+    { /* centred on the affine's centre, RAS (5 + 3.5, 6 + 3.5, 7 + 3.5) mm -> LPS, spanning the
+       * 7 mm of voxel centres plus the resampler's one-voxel border on each side */
+        const double centre[3] = {-0.0085, -0.0095, 0.0105};
+        for (int a = 0; a < 3; ++a) {
+            CHECK(fabs(0.5 * (lo[a] + hi[a]) - centre[a]) < 1e-9);
+            CHECK(hi[a] - lo[a] > 7e-3 - 1e-9 && hi[a] - lo[a] < 9e-3 + 1e-9);
+        }
+    }
+    palp_volume_release(volume);
+    volume = NULL;
+    const int64_t strides[3] = {4, 16, 256}; /* rows of 8 floats need 32 bytes */
+    CHECK(palp_volume_from_memory(block, PALP_VALUE_F32, dims, strides, ijk_to_ras,
+                                  PALP_FRAME_RAS_MM, 0.0, &volume) == PALP_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(palp_last_error(), "strides[1]") != NULL);
+    CHECK(volume == NULL);
+}
+
 int main(void) {
     palp_volume* volume = NULL;
     CHECK(palp_volume_make_phantom("avc", 0, NULL, 1e-3, &volume) == PALP_OK);
@@ -209,6 +243,7 @@ int main(void) {
     test_bad_inputs(scene);
     test_press_and_watchdog(scene);
     test_realtime(scene);
+    test_volume_from_memory();
     palp_scene_release(scene);
     if (gFailures) fprintf(stderr, "%d failure(s)\n", gFailures);
     return gFailures ? 1 : 0;
