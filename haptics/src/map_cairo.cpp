@@ -75,7 +75,7 @@ void drawBar(cairo_t* cr, const FigureBar& b, double lineWidth) {
     Pattern g(cairo_pattern_create_linear(0, b.y + b.h, 0, b.y));
     for (int k = 0; k <= 16; ++k) {
         const double f = k / 16.0;
-        const auto c = mapColour(b.brightLow ? 1 - f : f, b.colorMap);
+        const auto c = mapColour(b.from + (b.to - b.from) * f, b.colorMap);
         cairo_pattern_add_color_stop_rgb(g.get(), f, c[0] / 255.0, c[1] / 255.0, c[2] / 255.0);
     }
     cairo_rectangle(cr, b.x, b.y, b.w, b.h);
@@ -137,7 +137,7 @@ void writeMapFigurePng(const std::filesystem::path& path, const ScalarMap& map,
         Surface img = pixelImage(u.map, [&](double v) {
             if (!std::isfinite(v)) return kEmpty;
             const double g = unit(v, l.underLo, l.underHi);
-            return argb(mapColour(u.brightLow ? 1 - g : g, ColorMap::Grey));
+            return argb(underlayColour(g, u.brightLow));
         });
         if (cairo_surface_status(img.get()) != CAIRO_STATUS_SUCCESS)
             throw failed(cairo_surface_status(img.get()));

@@ -86,6 +86,12 @@ std::array<std::uint8_t, 3> mapColour(double s, ColorMap colorMap) noexcept {
     return {c(s), c(s), c(s)};
 }
 
+std::array<std::uint8_t, 3> underlayColour(double s, bool brightLow) noexcept {
+    s = std::isfinite(s) ? std::clamp(s, 0.0, 1.0) : 0.0;
+    if (brightLow) s = 1 - s;
+    return mapColour(kUnderlayGreyLo + (kUnderlayGreyHi - kUnderlayGreyLo) * s, ColorMap::Grey);
+}
+
 MapLayout layoutMapFigure(const ScalarMap& map, const MapFigure& figure, double k) {
     if (!(k >= 0.25 && k <= 8)) {
         throw ValueError("map figure: expected a scale of 0.25-8, found " + num(k));
@@ -184,13 +190,19 @@ MapLayout layoutMapFigure(const ScalarMap& map, const MapFigure& figure, double 
     }
 
     // Colour bar: lo at the bottom, hi at the top; the underlay's grey bar to its right.
-    l.bar = {l.mapX + l.mapW + kBarGap * k, l.mapY, kBarWidth * k, l.mapH, figure.colorMap, false};
+    l.bar = {l.mapX + l.mapW + kBarGap * k, l.mapY, kBarWidth * k, l.mapH, figure.colorMap, 0, 1};
     barTicks(l, l.bar, l.lo, l.hi, "colorbar", figure.quantity + " (" + figure.units + ")", k);
     if (figure.underlay) {
         const MapUnderlay& u = *figure.underlay;
         valueRange(u.map, u.lo, u.hi, l.underLo, l.underHi);
-        FigureBar ub{l.bar.x + kUnderBar * k, l.mapY,     kBarWidth * k, l.mapH,
-                     ColorMap::Grey,          u.brightLow};
+        const double dark = kUnderlayGreyLo, light = kUnderlayGreyHi;
+        FigureBar ub{l.bar.x + kUnderBar * k,
+                     l.mapY,
+                     kBarWidth * k,
+                     l.mapH,
+                     ColorMap::Grey,
+                     u.brightLow ? light : dark,
+                     u.brightLow ? dark : light};
         l.underBar = ub;
         barTicks(l, ub, l.underLo, l.underHi, "underlay", u.quantity + " (" + u.units + ")", k);
     }

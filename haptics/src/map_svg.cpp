@@ -93,11 +93,10 @@ void writeMapSvg(const std::filesystem::path& path, const ScalarMap& map, const 
                     svg += rect(x, y, us, us, "fill=\"#000040\"");
                     continue;
                 }
-                double g = unit(v, l.underLo, l.underHi);
-                if (u.brightLow) g = 1 - g;
-                svg += rect(
-                    x, y, us, us,
-                    "fill=\"" + hex(mapColour(g, ColorMap::Grey)) + "\" data-u=\"" + num(v) + "\"");
+                const double g = unit(v, l.underLo, l.underHi);
+                svg += rect(x, y, us, us,
+                            "fill=\"" + hex(underlayColour(g, u.brightLow)) + "\" data-u=\"" +
+                                num(v) + "\"");
             }
         }
         svg += "</g>\n";
@@ -129,7 +128,7 @@ void writeMapSvg(const std::filesystem::path& path, const ScalarMap& map, const 
         for (int k = 0; k <= 16; ++k) {
             const double f = k / 16.0;
             svg += "<stop offset=\"" + num(f) + "\" stop-color=\"" +
-                   hex(mapColour(b->brightLow ? 1 - f : f, b->colorMap)) + "\"/>\n";
+                   hex(mapColour(b->from + (b->to - b->from) * f, b->colorMap)) + "\"/>\n";
         }
         svg += "</linearGradient></defs>\n";
         svg += rect(b->x, b->y, b->w, b->h, "fill=\"url(#" + name + ")\" stroke=\"black\"");

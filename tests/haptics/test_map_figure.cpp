@@ -267,8 +267,9 @@ TEST(MapUnderlay, SkinDepthAndMipOfATiltedSkinAndItsGreyUnderTheMap) {
     EXPECT_THROW(skinDepthMap(scene->surfaces(), plane, Eigen::Vector3d::UnitX(), 0.06),
                  ValueError);  // along the plane
 
-    // Drawn under an empty map: the grey falls from white (the nearest skin, at the left) to
-    // black (the deepest, at the right) along every row, and its bar says so.
+    // Drawn under an empty map: the grey falls from light (the nearest skin, at the left) to dark
+    // (the deepest, at the right) along every row, within its range of greys (white and black
+    // stay the map's), and its bar says so.
     const fs::path dir = tempDir("underlay");
     MapFigure fig;
     fig.title = "underlay";
@@ -294,12 +295,14 @@ TEST(MapUnderlay, SkinDepthAndMipOfATiltedSkinAndItsGreyUnderTheMap) {
         }
     }
     const int y0 = static_cast<int>(l.mapY + 0.5 * l.cell);
-    EXPECT_GT(img.lum(static_cast<int>(l.mapX + 0.5 * l.cell), y0), 245);
-    EXPECT_LT(img.lum(static_cast<int>(l.mapX + l.mapW - 0.5 * l.cell), y0), 10);
+    const int light = static_cast<int>(std::lround(255 * kUnderlayGreyHi));
+    const int dark = static_cast<int>(std::lround(255 * kUnderlayGreyLo));
+    EXPECT_NEAR(img.lum(static_cast<int>(l.mapX + 0.5 * l.cell), y0), light, 6);
+    EXPECT_NEAR(img.lum(static_cast<int>(l.mapX + l.mapW - 0.5 * l.cell), y0), dark, 6);
     const int ubx = static_cast<int>(l.underBar->x + l.underBar->w / 2);
-    // The bar runs from the shallowest (bottom, white) to the deepest (top, black).
-    EXPECT_GT(img.lum(ubx, static_cast<int>(l.underBar->y + l.underBar->h) - 3), 240);
-    EXPECT_LT(img.lum(ubx, static_cast<int>(l.underBar->y) + 3), 15);
+    // The bar runs from the shallowest (bottom, light) to the deepest (top, dark).
+    EXPECT_NEAR(img.lum(ubx, static_cast<int>(l.underBar->y + l.underBar->h) - 3), light, 6);
+    EXPECT_NEAR(img.lum(ubx, static_cast<int>(l.underBar->y) + 3), dark, 6);
     fs::remove_all(dir);
 }
 

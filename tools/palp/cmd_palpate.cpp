@@ -204,13 +204,15 @@ std::optional<haptics::MapUnderlay> mapUnderlay(const PalpateArgs& a, const Inpu
     return u;
 }
 
-/// Writes --trace and --map (the map's value range in @p mapLo, @p mapHi). The map is made
+/// Writes --trace and --map (the map's value range in @p mapLo, @p mapHi, where the map lies in
+/// its figure in @p layout; @p kMax: the device's stiffness limit, named on the colour bar when
+/// the map reaches it). The map is made
 /// before either file is written, and a trace is removed again when the map cannot be written,
 /// so a refusal leaves no output behind.
 void writeOutputs(const PalpateArgs& a, const PathFrame& f, const Eigen::Vector3d& press,
                   const std::vector<haptics::Snapshot>& snaps, const std::string& title,
                   const std::optional<haptics::MapUnderlay>& underlay, double& mapLo, double& mapHi,
-                  std::optional<haptics::MapLayout>& layout) {
+                  std::optional<haptics::MapLayout>& layout, double kMax) {
     std::optional<haptics::ScalarMap> map;
     if (!a.map.empty()) {
         map = haptics::binSnapshots(snaps, mapPlane(a, f, press),
@@ -227,6 +229,10 @@ void writeOutputs(const PalpateArgs& a, const PathFrame& f, const Eigen::Vector3
     fig.title = title;
     fig.quantity = a.mapQuantity;
     fig.units = a.mapQuantity == "stiffness" ? "N/m" : "N";
+    if (a.mapQuantity == "stiffness" && mapHi >= kMax * (1 - 1e-6)) {
+        // The stiffest cells hit the device's limit: say so where the scale ends.
+        fig.units += "; " + formatValue(kMax) + " = the device's k_max";
+    }
     fig.colorMap = a.grey ? haptics::ColorMap::Grey : haptics::ColorMap::Heat;
     fig.underlay = underlay;
     try {
@@ -572,7 +578,8 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
                               haptics::raySourceName(cp.source) + ", " + a.trajectory +
                               (skin.follow ? " on the skin" : "") + ", pressed " + axisName(press) +
                               " (from " + haptics::patientDirection(-press) + ")";
-    writeOutputs(a, frame, press, r.run.snaps, title, underlay, r.mapLo, r.mapHi, r.figure);
+    writeOutputs(a, frame, press, r.run.snaps, title, underlay, r.mapLo, r.mapHi, r.figure,
+                 cp.maxStiffness);
     if (underlay) {
         r.underlay = underlay->quantity;
         underlay->map.range(r.underlayLo, r.underlayHi);

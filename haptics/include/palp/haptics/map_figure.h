@@ -72,13 +72,19 @@ struct FigureLine {
     double x1 = 0, y1 = 0, x2 = 0, y2 = 0;
 };
 
-/// A vertical colour bar: @p colorMap from @p lo at the bottom to @p hi at the top (reversed
-/// when @p brightLow).
+/// A vertical colour bar: the colours of @p colorMap from position @p from (0-1) at the bottom
+/// (the low value) to @p to at the top (the high value).
 struct FigureBar {
     double x = 0, y = 0, w = 0, h = 0;
     ColorMap colorMap = ColorMap::Heat;
-    bool brightLow = false;
+    double from = 0, to = 1;
 };
+
+/// The grey levels of an underlay span [kUnderlayGreyLo, kUnderlayGreyHi] of black to white, so
+/// that white (and black) on a figure always belong to the map's own colours.
+inline constexpr double kUnderlayGreyLo = 0.1, kUnderlayGreyHi = 0.65;
+/// The colour of an underlay value at @p s in [0, 1] of its range (reversed when @p brightLow).
+std::array<std::uint8_t, 3> underlayColour(double s, bool brightLow) noexcept;
 
 /// Where everything of a figure lies, px (y down). Map pixel (col, row-from-bottom) covers
 /// [mapX + col cell, mapX + (col + 1) cell] x [mapY + (rows - 1 - row) cell, ... + cell].
