@@ -322,11 +322,8 @@ Eigen::Vector3d AsyncRegions::nodeDisplacement(int node) const noexcept {
 
 std::size_t AsyncRegions::watchedDisplacements(std::span<Eigen::Vector3d> out) const noexcept {
     const Impl& m = *mImpl;
-    const std::vector<int>& watch = m.setup.options.watchNodes;
-    const std::size_t count = std::min(out.size(), watch.size());
-    const Layout& L = m.layout();
-    const double frac = m.primary.shownFraction();
-    for (std::size_t i = 0; i < count; ++i) out[i] = m.primary.shown(L, watch[i], frac);
+    const std::size_t count = std::min(out.size(), m.setup.options.watchNodes.size());
+    m.primary.shownWatched(m.layout(), m.primary.shownFraction(), out.first(count));
     return count;
 }
 

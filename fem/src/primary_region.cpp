@@ -485,4 +485,31 @@ Eigen::Vector3d PrimaryRegion::shown(const Layout& L, int node, double frac) con
     return out;
 }
 
+void PrimaryRegion::shownWatched(const Layout& L, double frac,
+                                 std::span<Eigen::Vector3d> out) const noexcept {
+    const std::size_t count = std::min(out.size(), mWPrev.size() / 3);
+    for (std::size_t i = 0; i < count; ++i) {
+        for (std::size_t k = 0; k < 3; ++k) {
+            const std::size_t j = 3 * i + k;
+            out[i][static_cast<Eigen::Index>(k)] = mWPrev[j] + frac * (mWCur[j] - mWPrev[j]);
+        }
+    }
+    for (const int j : mSetup.watchFixedDofs) {
+        const std::size_t i = sz(j / 3);
+        if (i < count) {
+            const int node = mSetup.options.watchNodes[i];
+            out[i][j % 3] = mU[3 * node + j % 3];
+        }
+    }
+    // P and Gamma show the primary's own state (all three components, as shown()).
+    const auto own = [&](const std::vector<int>& nodes) {
+        for (const int n : nodes) {
+            const int w = mSetup.watchIndex[sz(n)];
+            if (w >= 0 && sz(w) < count) out[sz(w)] = mU.segment<3>(3 * n);
+        }
+    };
+    own(L.primaryNodes);
+    own(L.gammaNodes);
+}
+
 }  // namespace palp::fem

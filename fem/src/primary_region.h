@@ -81,6 +81,10 @@ class PrimaryRegion {
     /// The displacement of @p node as shown with @p L at the period fraction @p frac (see
     /// AsyncRegions::nodeDisplacement).
     Eigen::Vector3d shown(const Layout& L, int node, double frac) const noexcept;
+    /// shown() of every watched node at once (out[i] for watchNodes[i]; out.size() at most
+    /// their count): the secondary's interpolated values in one sweep, then the fixed dofs and
+    /// the nodes of P and Gamma over them. @par Real-time  O(#watched + |P| + |Gamma|).
+    void shownWatched(const Layout& L, double frac, std::span<Eigen::Vector3d> out) const noexcept;
     /// The interpolation fraction of the current secondary period.
     double shownFraction() const noexcept { return mSetup.periodFraction(mTime, mGammaStart); }
 

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <numeric>
 #include <string>
@@ -318,6 +319,10 @@ void RefitMesh::refitNodes() noexcept {
             }
             continue;
         }
+        if (mSlack > 0) {
+            refitLeafFromBase(n);
+            continue;
+        }
         n.lo = {kInf, kInf, kInf};
         n.hi = {-kInf, -kInf, -kInf};
         for (std::size_t s = 3 * n.first; s < 3 * (n.first + n.count); ++s) {
@@ -330,12 +335,115 @@ void RefitMesh::refitNodes() noexcept {
     }
 }
 
+void RefitMesh::refitLeafFromBase(Node& n) noexcept {
+    // Grown a little beyond the slack, so the float rounding of base +- slack and of the
+    // drift test in refit() cannot leave a vertex within the slack outside its box.
+    const float grow = mSlack * 1.001f;
+    n.lo = {kInf, kInf, kInf};
+    n.hi = {-kInf, -kInf, -kInf};
+    for (std::size_t s = 3 * n.first; s < 3 * (n.first + n.count); ++s) {
+        const float* p = &mBase[3 * static_cast<std::size_t>(mSlotIndex[s])];
+        for (std::size_t k = 0; k < 3; ++k) {
+            n.lo[k] = std::min(n.lo[k], p[k] - grow);
+            n.hi[k] = std::max(n.hi[k], p[k] + grow);
+        }
+    }
+}
+
+void RefitMesh::refitInner(std::size_t i) noexcept {
+    Node& n = mNodes[i];
+    const Node& l = mNodes[i + 1];
+    const Node& r = mNodes[n.first];
+    for (std::size_t k = 0; k < 3; ++k) {
+        n.lo[k] = std::min(l.lo[k], r.lo[k]);
+        n.hi[k] = std::max(l.hi[k], r.hi[k]);
+    }
+}
+
+void RefitMesh::setRefitSlack(float slack) {
+    if (!(slack >= 0) || !std::isfinite(slack))
+        throw ValueError("refit mesh slack: expected a finite value >= 0 m, found " +
+                         std::to_string(slack));
+    mSlack = slack;
+    if (slack == 0) {
+        refitNodes();
+        return;
+    }
+    const std::size_t nn = mNodes.size();
+    if (mParent.empty()) {
+        mParent.assign(nn, 0);
+        std::vector<std::vector<std::uint32_t>> leaves(mVertexCount);
+        for (std::size_t i = 0; i < nn; ++i) {
+            const Node& n = mNodes[i];
+            if (n.count & kInner) {
+                mParent[i + 1] = static_cast<std::uint32_t>(i);
+                mParent[n.first] = static_cast<std::uint32_t>(i);
+                continue;
+            }
+            for (std::size_t s = 3 * n.first; s < 3 * (n.first + n.count); ++s) {
+                std::vector<std::uint32_t>& l = leaves[mSlotIndex[s]];
+                if (l.empty() || l.back() != i) l.push_back(static_cast<std::uint32_t>(i));
+            }
+        }
+        mVertexLeafStart.assign(mVertexCount + 1, 0);
+        for (std::size_t v = 0; v < mVertexCount; ++v)
+            mVertexLeafStart[v + 1] =
+                mVertexLeafStart[v] + static_cast<std::uint32_t>(leaves[v].size());
+        mVertexLeaves.clear();
+        mVertexLeaves.reserve(mVertexLeafStart.back());
+        for (const auto& l : leaves) mVertexLeaves.insert(mVertexLeaves.end(), l.begin(), l.end());
+        mChanged.reserve(nn);
+        mChangedMark.assign(nn, 0);
+    }
+    mBase.assign(mPositions.begin(),
+                 mPositions.begin() + static_cast<std::ptrdiff_t>(3 * mVertexCount));
+    refitNodes();
+}
+
 RefitStatus RefitMesh::refit(std::span<const float> positions) noexcept {
     if (positions.size() != 3 * mVertexCount) return RefitStatus::Rejected;
     for (const float x : positions)
         if (!std::isfinite(x)) return RefitStatus::Rejected;
     std::copy(positions.begin(), positions.end(), mPositions.begin());
-    refitNodes();
+    if (mSlack == 0) {
+        refitNodes();
+        mLastRefitNodes = mNodes.size();
+        return mLimit.contains(bounds()) ? RefitStatus::Ok : RefitStatus::OutsideLimit;
+    }
+    // Vertices that drifted beyond the slack take their current position as their new base,
+    // and mark their leaves.
+    mChanged.clear();
+    for (std::size_t v = 0; v < mVertexCount; ++v) {
+        float* b = &mBase[3 * v];
+        const float* p = &positions[3 * v];
+        if (std::abs(p[0] - b[0]) <= mSlack && std::abs(p[1] - b[1]) <= mSlack &&
+            std::abs(p[2] - b[2]) <= mSlack)
+            continue;
+        b[0] = p[0];
+        b[1] = p[1];
+        b[2] = p[2];
+        for (std::uint32_t j = mVertexLeafStart[v]; j < mVertexLeafStart[v + 1]; ++j) {
+            const std::uint32_t leaf = mVertexLeaves[j];
+            if (mChangedMark[leaf]) continue;
+            mChangedMark[leaf] = 1;
+            mChanged.push_back(leaf);
+        }
+    }
+    // The leaves, then every ancestor once, children before parents (descending index: a
+    // child follows its parent in the array).
+    const std::size_t leaves = mChanged.size();
+    for (std::size_t i = 0; i < leaves; ++i) {
+        refitLeafFromBase(mNodes[mChanged[i]]);
+        for (std::uint32_t n = mParent[mChanged[i]]; !mChangedMark[n]; n = mParent[n]) {
+            mChangedMark[n] = 1;
+            mChanged.push_back(n);
+        }
+    }
+    std::sort(mChanged.begin() + static_cast<std::ptrdiff_t>(leaves), mChanged.end(),
+              std::greater<>());
+    for (std::size_t i = leaves; i < mChanged.size(); ++i) refitInner(mChanged[i]);
+    for (const std::uint32_t n : mChanged) mChangedMark[n] = 0;
+    mLastRefitNodes = mChanged.size();
     return mLimit.contains(bounds()) ? RefitStatus::Ok : RefitStatus::OutsideLimit;
 }
 

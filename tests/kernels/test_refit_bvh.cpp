@@ -408,6 +408,71 @@ TEST(RefitMesh, RefitAfterLargeDeformationEqualsFreshBuild) {
     }
 }
 
+// A slack refit touches only the nodes above vertices that moved beyond the slack, and its
+// queries equal an exact refit's on the same positions: a local press grown in small steps
+// (some below the slack, some above) over a far field drifting well below it.
+TEST(RefitMesh, SlackRefitIsExactForQueriesAndLocal) {
+    const Shape s = shapes()[2];  // hex13: a tissue surface
+    const float slack = static_cast<float>(0.02 * s.size);
+    RefitMesh loose(s.mesh);
+    loose.setRefitSlack(slack);
+    RefitMesh exact(s.mesh);
+    EXPECT_THROW(exact.setRefitSlack(-1e-3f), palp::ValueError);
+    EXPECT_THROW(exact.setRefitSlack(kNan), palp::ValueError);
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> noise(-1, 1);
+    const Eigen::Vector3d press = s.centre + Eigen::Vector3d(0, s.size, 0);  // top face centre
+    std::vector<float> x = s.mesh.positions;
+    std::size_t touched = 0;
+    int steps = 0;
+    RandomRays rays(11, s.centre, 4 * s.size, 1.2 * s.size);
+    for (int step = 1; step <= 40; ++step) {
+        const double depth = 0.3 * s.size * step / 40;  // 0.3 slack per step: local refits
+        for (std::size_t v = 0; v < s.mesh.vertexCount(); ++v) {
+            const Eigen::Vector3d p(s.mesh.positions[3 * v], s.mesh.positions[3 * v + 1],
+                                    s.mesh.positions[3 * v + 2]);
+            const double r2 = (p - press).squaredNorm() / (0.15 * s.size * 0.15 * s.size);
+            const double dy = -depth * std::exp(-r2) + 0.2 * slack * noise(rng);
+            x[3 * v + 1] = static_cast<float>(p.y() + dy);
+        }
+        ASSERT_EQ(loose.refit(x), RefitStatus::Ok);
+        ASSERT_EQ(exact.refit(x), RefitStatus::Ok);
+        touched += loose.lastRefitNodes();
+        ++steps;
+        EXPECT_EQ(exact.lastRefitNodes(), exact.nodeCount());
+        // The root box holds the mesh, at most the slack (and rounding) looser than exact.
+        for (std::size_t k = 0; k < 3; ++k) {
+            EXPECT_LE(loose.bounds().lo[k], exact.bounds().lo[k]);
+            EXPECT_GE(loose.bounds().lo[k], exact.bounds().lo[k] - 1.01f * slack);
+            EXPECT_GE(loose.bounds().hi[k], exact.bounds().hi[k]);
+        }
+        for (int r = 0; r < 400; ++r) {
+            Vec3f o, d;
+            float tfar;
+            rays.next(o, d, tfar);
+            TriangleHit a, b;
+            const bool ha = loose.intersect(o, d, 0.0f, tfar, a);
+            ASSERT_EQ(ha, exact.intersect(o, d, 0.0f, tfar, b)) << "step " << step << " ray " << r;
+            ASSERT_EQ(loose.occluded(o, d, 0.0f, tfar), ha);
+            if (!ha) continue;
+            EXPECT_EQ(a.t, b.t);
+            EXPECT_EQ(a.primId, b.primId);
+        }
+    }
+    // The press reaches a small part of the surface: on average well under a tenth of the nodes
+    // per refit (an exact refit recomputes all of them).
+    EXPECT_LT(static_cast<double>(touched) / steps, 0.1 * static_cast<double>(loose.nodeCount()));
+    EXPECT_GT(touched, 0u);
+    // Moving nothing beyond the slack recomputes nothing; a large global move, everything.
+    ASSERT_EQ(loose.refit(x), RefitStatus::Ok);
+    EXPECT_EQ(loose.lastRefitNodes(), 0u);
+    for (float& c : x) c += 3 * slack;
+    ASSERT_EQ(loose.refit(x), RefitStatus::Ok);
+    EXPECT_EQ(loose.lastRefitNodes(), loose.nodeCount());
+    const RefitMesh fresh(TriangleMesh{x, s.mesh.indices});
+    for (std::size_t k = 0; k < 3; ++k) EXPECT_LE(loose.bounds().lo[k], fresh.bounds().lo[k]);
+}
+
 // The user geometry under every way Embree hands it rays: single rays, 1M streams (coherent and
 // not), packets of 4, 8 and 16 with partial valid masks, occlusion; masks and tnear honoured.
 TEST(RefitMesh, EmbreeUserGeometryHandlesStreamsPacketsMasksAndOcclusion) {
@@ -594,6 +659,13 @@ TEST(RefitMesh, ZeroAllocationsPerRefitAndQuery) {
     }
     EXPECT_EQ(palp::test::allocationCount() - before, 0u);
     EXPECT_GT(hits, 200 * 16);
+    // Slack refits (their scratch is reserved by setRefitSlack) allocate nothing either.
+    mesh.setRefitSlack(static_cast<float>(0.01 * s.size));
+    const std::uint64_t beforeSlack = palp::test::allocationCount();
+    for (int tick = 0; tick < 200; ++tick)
+        ASSERT_EQ(mesh.refit(frames[static_cast<std::size_t>(tick) % frames.size()]),
+                  RefitStatus::Ok);
+    EXPECT_EQ(palp::test::allocationCount() - beforeSlack, 0u);
 }
 
 // NaN or infinite rays, a zero direction, tnear > tfar and degenerate triangles give no hit

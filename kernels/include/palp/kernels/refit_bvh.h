@@ -45,7 +45,8 @@ enum class RefitStatus {
 /// A triangle mesh with a binary BVH over fixed topology, built by binned SAH on the rest
 /// positions (median splits below depth 32 or when centroids coincide; leaves of at most
 /// leafSize triangles). Nodes are stored in depth-first order (children after their parent), so
-/// a refit is one reverse sweep over the node array: O(#T), no allocation. Queries test both
+/// a refit is one reverse sweep over the node array: O(#T), no allocation (or, with a slack,
+/// only the nodes above vertices that moved beyond it). Queries test both
 /// children at their parent and descend into the nearer first.
 ///
 /// @par Threading  Construction, refit() and setLimit() are for one thread at a time and must
@@ -70,7 +71,21 @@ class RefitMesh {
 
     /// Copies @p positions (#V by 3, metres) in and refits the hierarchy. A wrong size or a
     /// non-finite coordinate is rejected (the previous positions stay). @par Real-time
+    /// With a slack (setRefitSlack) only the leaves of vertices that moved more than the slack
+    /// since their boxes were made, and their ancestors, are refitted: O(#V + changed nodes x
+    /// depth) instead of O(#T).
     RefitStatus refit(std::span<const float> positions) noexcept;
+
+    /// Boxes grown by @p slack metres (>= 0, finite; 0: exact boxes, the default): a vertex
+    /// that stays within the slack (per axis) of the position its boxes were made from needs no
+    /// refit, so a surface that deforms mostly far below the slack (a tissue's far field) costs
+    /// a sweep over the vertices, not over the tree. Queries stay exact (triangles are tested at
+    /// their current positions); only their boxes are looser. Refits every node (set-up, not
+    /// real-time). @throw palp::ValueError for a negative or non-finite slack.
+    void setRefitSlack(float slack);
+    float refitSlack() const noexcept { return mSlack; }
+    /// Nodes the last refit() recomputed (all of them without slack).
+    std::size_t lastRefitNodes() const noexcept { return mLastRefitNodes; }
 
     /// Closest hit of the ray org + t dir with tnear < t <= tfar. NaN or infinite input, a zero
     /// direction or tnear > tfar give no hit. @return whether @p hit was filled. @par Real-time
@@ -112,6 +127,9 @@ class RefitMesh {
     bool traverse(const std::array<float, 3>& org, const std::array<float, 3>& dir, float tnear,
                   float tfar, TriangleHit* hit) const noexcept;
     void refitNodes() noexcept;
+    // Leaf box of node @p n from mBase (slack refits) grown by the slack.
+    void refitLeafFromBase(Node& n) noexcept;
+    void refitInner(std::size_t i) noexcept;
 
     std::size_t mVertexCount = 0;
     std::vector<float> mPositions;          // 3 #V + 1 (padding)
@@ -121,6 +139,16 @@ class RefitMesh {
     std::vector<Node> mNodes;               // depth-first
     int mDepth = 0;
     Box3f mLimit;
+    // Slack refits (setRefitSlack): positions the boxes were made from, parents, the leaves of
+    // each vertex (CSR), and scratch for the changed nodes.
+    float mSlack = 0;
+    std::size_t mLastRefitNodes = 0;
+    std::vector<float> mBase;                     // 3 #V
+    std::vector<std::uint32_t> mParent;           // per node; the root's is itself
+    std::vector<std::uint32_t> mVertexLeafStart;  // #V + 1
+    std::vector<std::uint32_t> mVertexLeaves;     // leaf node indices
+    std::vector<std::uint32_t> mChanged;          // scratch, capacity #nodes
+    std::vector<std::uint8_t> mChangedMark;       // per node
 };
 
 }  // namespace palp::kernels
