@@ -16,6 +16,9 @@
 namespace palp::haptics {
 namespace {
 
+// Slack of the surface BVH's boxes, in element edges (see the constructor).
+constexpr double kRefitSlackEdges = 0.05;
+
 // Rest positions of the surface vertices as a kernels::TriangleMesh.
 kernels::TriangleMesh toTriangleMesh(const fem::SurfaceMesh& s) {
     kernels::TriangleMesh m;
@@ -223,15 +226,26 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
     const kernels::Box3f rest = mSurface->bounds();
     float extent = 0;
     for (std::size_t k = 0; k < 3; ++k) extent = std::max(extent, rest.hi[k] - rest.lo[k]);
+    // Boxes grown by 5 % of an element edge: the far field, which drifts by far less every
+    // tick, then costs a sweep over the vertices, and only the boxes around the contact are
+    // refitted (kernels::RefitMesh::setRefitSlack; hits stay exact).
+    const auto slack = static_cast<float>(kRefitSlackEdges * mModel->model().mesh().edge());
+    mSurface->setRefitSlack(slack);
     mGeom = mScene->addRefitMesh(*mSurface, kernels::kMaskSurface, extent);
     for (const DeformableModel::Embedded& e : mModel->embedded()) {
         mInclusions.push_back(std::make_unique<kernels::RefitMesh>(e.mesh.restMesh()));
+        mInclusions.back()->setRefitSlack(slack);
         mInclusionPositions.push_back(e.mesh.restMesh().positions);
         mScene->addRefitMesh(*mInclusions.back(), e.mask, extent);
     }
     mScene->commit();  // once: later steps refit palp's BVH only
     mLoaded.resize(mModel->loadNodes().size());
     mWeights.resize(mModel->loadNodes().size());
+    mLoadRest.reserve(3 * mModel->loadNodes().size());
+    for (const int n : mModel->loadNodes()) {
+        const Eigen::Vector3d x = mModel->model().mesh().nodePosition(n);
+        mLoadRest.insert(mLoadRest.end(), {x.x(), x.y(), x.z()});
+    }
 }
 
 DeformableBody::~DeformableBody() = default;
@@ -294,8 +308,12 @@ int DeformableBody::filterWeights(const Eigen::Vector3d& point, double& nearestD
     int nearest = -1;
     std::size_t nearestSlot = 0;
     double total = 0;
-    for (const int n : nodes) {
-        const double d2 = (nodePosition(n) - point).squaredNorm();
+    const Eigen::VectorXd& u = displacement();
+    for (std::size_t i = 0; i < nodes.size(); ++i) {
+        // nodePosition(n), from contiguous rest positions (this loop runs every tick).
+        const int n = nodes[i];
+        const Eigen::Vector3d x = Eigen::Vector3d::Map(&mLoadRest[3 * i]) + u.segment<3>(3 * n);
+        const double d2 = (x - point).squaredNorm();
         const bool listed = sigma > 0 && d2 <= cutoff2;
         if (listed) {
             const double w = std::exp(-d2 * inv2s2);

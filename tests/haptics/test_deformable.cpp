@@ -562,6 +562,53 @@ std::shared_ptr<DeformableModel> asyncCube(double filterWidth, bool threaded = f
 // twice the contact's static stiffness (deformable.h, "Stability with regions").
 constexpr double kAsyncK = 50;
 
+// (6) A held press with a stiff coupling (k 800 N/m) on fine regions tissue (2.5 mm cells,
+// as on a ~33^3-node body; palp palpate's 60 seeds at 100 Hz) settles at the quasi-static
+// equilibrium with a steady force. With the condensed correction of Gamma applied at every
+// primary substep this press chattered: ripple 46 % here, and on the bone phantom's
+// 35,301-node body the force swung to 2.2 N (0.17 N static); once per tick (the default of
+// DeformableOptions) it holds (bench/README.md).
+TEST(DeformableAsync, FineRegionsPressHoldsAtEquilibrium) {
+    DeformableOptions o;
+    o.solverKind = DeformableSolver::asyncRegions;
+    o.regions.threaded = false;
+    o.regions.primaryNodes = 60;
+    o.regions.secondaryRate = 100;
+    o.regions.lod = 2;
+    o.regionsCentre = Eigen::Vector3d::Zero();
+    auto model = DeformableModel::box(Eigen::Vector3d::Constant(0.02), {9, 9, 9}, softTissue(),
+                                      fem::BoxFace::yMax, o, mm(-10, 0, -10));
+    auto scene = deformableScene(model);
+    PathDevice device({{0.0, mm(0, -3, 0)}, {0.5, mm(0, 3, 0)}, {1.5, mm(0, 3, 0)}});
+    Session session(scene, device, vcParams(800));
+    std::vector<double> hold;
+    Snapshot s;
+    double observerMin = 0;
+    for (int i = 0; i < 1500; ++i) {
+        s = session.step();
+        ASSERT_TRUE(s.force.allFinite());
+        ASSERT_EQ(s.femFlags, 0u) << "tick " << i;
+        observerMin = std::min(observerMin, s.observerEnergy);
+        if (i >= 1250) {
+            EXPECT_GT(s.contactCount, 0) << "tick " << i;
+            hold.push_back(s.force.norm());
+        }
+    }
+    double mean = 0, var = 0;
+    for (const double f : hold) mean += f / static_cast<double>(hold.size());
+    for (const double f : hold) var += (f - mean) * (f - mean) / static_cast<double>(hold.size());
+    EXPECT_GT(mean, 0.02);
+    EXPECT_LE(std::sqrt(var) / mean, 0.05) << "mean |F| " << mean;
+    EXPECT_GE(observerMin, 0.0);
+    const DeformableBody* body = session.deformable();
+    const Eigen::VectorXd ref = quasiStatic(*model, contactLoad(*body, s.tissueForce));
+    const int node = s.contactNode;
+    ASSERT_GE(node, 0);
+    const double uy = body->displacement()[3 * node + 1], uyRef = ref[3 * node + 1];
+    EXPECT_NEAR(uy, uyRef, 0.05 * uyRef);
+    EXPECT_NEAR(s.proxy.y(), uy, 0.1e-3);
+}
+
 // (6) A constant force held on the regions body settles where the implicit quasi-static solve
 // of the same nodal load puts it, and where the whole-mesh explicit body does, over the whole
 // free surface, with a primary region that is a small part of the mesh.
@@ -611,7 +658,11 @@ Snapshot runAsyncSession(Session& session, int ticks, int* contactTicks = nullpt
             if (contactTicks) ++*contactTicks;
             if (prev.contactCount > 0 && s.tick == prev.tick + 1) {
                 const double moved = (s.probe - prev.probe).norm() + (s.proxy - prev.proxy).norm();
-                EXPECT_LE((prev.tissueForce + prev.force).norm(), 2 * k * moved + 1e-5)
+                // The condensed correction of Gamma is applied once per tick (at its first
+                // substep), so the tissue's mean force over the tick lags its border's motion
+                // within the tick: up to 2e-4 of the force besides the spring's change.
+                EXPECT_LE((prev.tissueForce + prev.force).norm(),
+                          2 * k * moved + 1e-5 + 2e-4 * prev.tissueForce.norm())
                     << "tick " << s.tick;
             }
         }

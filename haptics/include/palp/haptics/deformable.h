@@ -95,10 +95,13 @@ struct DeformableOptions {
     /// surface nodes and maxLoads = their count; tickSeconds must be the period step() is
     /// called with. threaded (true here, as a live session needs: the secondary and contact
     /// changes run on their own threads) or false: synchronous and deterministic (tests,
-    /// offline runs; the secondary is solved inline every period).
+    /// offline runs; the secondary is solved inline every period). condensedOncePerTick is on
+    /// here: the condensed correction of Gamma was a third of a live tick on a 35,301-node body
+    /// when applied at every substep, for the same force error (bench/README.md).
     fem::AsyncRegionsOptions regions = [] {
         fem::AsyncRegionsOptions o;
         o.threaded = true;
+        o.condensedOncePerTick = true;
         return o;
     }();
     /// asyncRegions: the region centre moves to the load's nearest free surface node once the
@@ -374,6 +377,9 @@ class DeformableBody {
     Eigen::Matrix3d anchorRotation() const noexcept;
     /// Largest displacement magnitude over the surface vertices after the last step, m.
     double maxSurfaceDisplacement() const noexcept { return mMaxSurfaceDisplacement; }
+    /// The deformed surface as the last step() left it (#V by 3 floats, world metres, in
+    /// model().surface() vertex order; the rest surface before the first step).
+    const std::vector<float>& surfacePositions() const noexcept { return mPositions; }
     /// Substeps of the last step().
     int lastSubsteps() const noexcept { return mLastSubsteps; }
 
@@ -406,6 +412,7 @@ class DeformableBody {
     std::vector<float> mPositions;  // #V by 3, deformed, as handed to the refit
     std::vector<int> mLoaded;       // nodes loaded by the last applyContactForce
     std::vector<double> mWeights;   // scratch, one per load node
+    std::vector<double> mLoadRest;  // 3 per load node: its rest position (filterWeights)
     std::size_t mLoadedCount = 0;
     int mContactNode = -1;
     fem::CouplingSpring mSpring;  // active while a coupled contact holds (spans into mLoaded)
