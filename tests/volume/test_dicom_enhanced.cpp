@@ -61,7 +61,7 @@ struct Frame {
 
 struct FileOptions {
     std::string seriesUid = "1.2.826.0.1.3680043.2.1125.9.1";
-    int instance = 1;
+    int instance = 1;           // writePerTimePoint: -1 numbers the files backwards in time
     bool temporalIndex = true;  // Temporal Position Index and Dimension Index Values
     bool frameTime = true;      // Frame Acquisition DateTime
     int rows = Known::kRows;
@@ -211,7 +211,7 @@ void writeEnhanced(const fs::path& file, const std::vector<Frame>& frames,
                 // Slices 0.1 s apart, time points 2 s apart (one TR).
                 const double seconds = 10 + 2.0 * fr.t + 0.1 * fr.k;
                 char dt[64];
-                std::snprintf(dt, sizeof dt, "20250301120%06.3f", seconds);
+                std::snprintf(dt, sizeof dt, "202503011200%06.3f", seconds);
                 put(s, 0x0018, 0x9074, gdcm::VR::DT, dt);
             }
         });
@@ -240,7 +240,7 @@ void writePerTimePoint(const fs::path& dir, const FileOptions& base = {}) {
         std::vector<Frame> frames;
         for (int k : interleaved()) frames.push_back({k, t});
         FileOptions o = base;
-        o.instance = t + 1;
+        o.instance = base.instance < 0 ? Known::kTimes - t : t + 1;
         writeEnhanced(dir / named("t", t + 1, ".dcm"), frames, o);
     }
 }
@@ -278,6 +278,7 @@ void expectKnownSeries(const fs::path& dir, int files) {
     EXPECT_EQ(series[0].frameCount, Known::kPositions * Known::kTimes);
     EXPECT_EQ(series[0].positionCount, Known::kPositions);
     EXPECT_EQ(series[0].timePointCount, Known::kTimes);
+    EXPECT_EQ(series[0].problem, "");
     expectThrowWith<palp::ValueError>([&] { palp::volume::readStack({dir}, {}); },
                                       {"one of the 4 time points (0-3)"});
     for (int t = 0; t < Known::kTimes; ++t) {
@@ -297,6 +298,13 @@ TEST(DicomEnhanced, OneFilePerTimePointReadsEveryTimePointExactly) {
     plain.frameTime = false;
     writePerTimePoint(tmp / "b", plain);
     expectKnownSeries(tmp / "b", 4);
+    // Frame Acquisition DateTime alone orders them, against the files' own keys (Instance Number
+    // and Content Time falling as time goes on; writePerTimePoint reverses them for instance -1).
+    FileOptions frameTimeOnly;
+    frameTimeOnly.temporalIndex = false;
+    frameTimeOnly.instance = -1;
+    writePerTimePoint(tmp / "c", frameTimeOnly);
+    expectKnownSeries(tmp / "c", 4);
 }
 
 TEST(DicomEnhanced, VolumeSplitByPositionReadsEveryTimePointExactly) {
@@ -435,6 +443,14 @@ TEST(DicomEnhanced, DuplicatedPositionsAreRefused) {
         [&] { palp::volume::readStack({tmp / "c"}, {}); },
         {"expected one frame per time point at each slice position",
          (tmp / "c" / "t2 copy.dcm").string(), "a duplicated file or frame"});
+    // scanDicom (palp info) says why the series cannot be converted.
+    const auto series = palp::volume::scanDicom({tmp / "c"});
+    ASSERT_EQ(series.size(), 1u);
+    EXPECT_EQ(series[0].frameCount, 30);
+    EXPECT_NE(series[0].problem.find("a duplicated file or frame"), std::string::npos)
+        << series[0].problem;
+    EXPECT_TRUE(palp::volume::scanDicom({tmp / "s"})[0].problem.find("index 2") !=
+                std::string::npos);
 }
 
 /// dcm2niix as an oracle: it writes each enhanced file (time point) as its own volume; every

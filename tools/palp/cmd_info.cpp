@@ -139,6 +139,7 @@ Command addInfo(CLI::App& root) {
                                                {"frames", s.frameCount},
                                                {"positions", s.positionCount},
                                                {"time_points", s.timePointCount}});
+                        if (!s.problem.empty()) j["series"].back()["problem"] = s.problem;
                     }
                     if (!args->json) {
                         std::printf("%s: %zu DICOM series\n", in.c_str(), series.size());
@@ -153,6 +154,8 @@ Command addInfo(CLI::App& root) {
                                 "\"%s\"\n",
                                 s.uid.c_str(), s.modality.c_str(), s.imageCount, frames.c_str(),
                                 s.positionCount, s.timePointCount, s.description.c_str());
+                            if (!s.problem.empty())
+                                std::printf("    cannot be converted: %s\n", s.problem.c_str());
                         }
                     }
                 } else {

@@ -183,26 +183,38 @@ std::vector<SeriesGroup> groupSeries(const Scan& scan) {
 namespace {
 
 /// Positions and time points of a series with enhanced multi-frame files, counted over frames
-/// as readDicom groups them; false when the frames cannot be read or grouped (then the series
-/// is described by its files, and converting it gives the reason).
+/// as readDicom groups them; where readDicom would refuse the frames, the reason goes to
+/// info.problem and the counts are those of the frames' positions. False when the frames cannot
+/// be read (then the series is described by its files, and converting it gives the reason).
 bool describeFrames(const SeriesGroup& g, DicomSeriesInfo& info) {
+    std::deque<Header> store;
+    std::vector<const Header*> frames;
     try {
-        std::deque<Header> store;
-        const std::vector<const Header*> frames = expandFrames(g.images, store);
-        info.frameCount = static_cast<int>(frames.size());
-        const auto n = normalOf(*frames.front());
-        if (!n) return false;
-        const auto groups = groupPositions(frames, *n, positionTolerance(*frames.front()));
-        info.positionCount = static_cast<int>(groups.size());
-        std::size_t most = 0;
-        for (const auto& grp : groups) most = std::max(most, grp.size());
-        info.timePointCount = info.frameCount % info.positionCount == 0
-                                  ? info.frameCount / info.positionCount
-                                  : static_cast<int>(most);
-        return true;
-    } catch (const Error&) {
+        frames = expandFrames(g.images, store);
+    } catch (const Error& e) {
+        info.problem = e.what();
         return false;
     }
+    info.frameCount = static_cast<int>(frames.size());
+    try {
+        checkFramesAgree(frames);
+        const auto positions = framePositions("series " + g.uid, frames);
+        info.positionCount = static_cast<int>(positions.size());
+        info.timePointCount = static_cast<int>(positions.front().size());
+        return true;
+    } catch (const Error& e) {
+        info.problem = e.what();
+    }
+    const auto n = normalOf(*frames.front());
+    if (!n) return false;
+    const auto groups = groupPositions(frames, *n, positionTolerance(*frames.front()));
+    info.positionCount = static_cast<int>(groups.size());
+    std::size_t most = 0;
+    for (const auto& grp : groups) most = std::max(most, grp.size());
+    info.timePointCount = info.frameCount % info.positionCount == 0
+                              ? info.frameCount / info.positionCount
+                              : static_cast<int>(most);
+    return true;
 }
 
 }  // namespace

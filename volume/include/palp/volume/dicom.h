@@ -20,6 +20,10 @@ struct DicomSeriesInfo {
     int frameCount = 0;       ///< frames in those files (a single-frame file counts one)
     int positionCount = 0;    ///< distinct slice positions (of frames, or of mosaic slices)
     int timePointCount = 1;   ///< frames per position when positions repeat (as readDicom)
+    /// Why readDicom would refuse the frames of enhanced multi-frame files (their size,
+    /// orientation, spacing, duplicates, missing time points); empty when they group cleanly
+    /// and for single-frame series (which are checked only when read).
+    std::string problem;
     std::vector<std::filesystem::path> files;
 };
 
