@@ -68,7 +68,8 @@ struct FileOptions {
     // false: one rescale (slope 2, intercept -10) for every frame, for dcm2niix, which applies
     // one frame's rescale to the whole file.
     bool perFrameRescale = true;
-    int temporalPositions = 0;  // > 0: Number of Temporal Positions (0020,0105)
+    bool constantTemporalIndex = false;  // index 1 in every file
+    int temporalPositions = 0;           // > 0: Number of Temporal Positions (0020,0105)
 };
 
 /// @p prefix, @p n and @p suffix (appended in place: GCC 12 warns falsely on "x" + std::string).
@@ -203,9 +204,10 @@ void writeEnhanced(const fs::path& file, const std::vector<Frame>& frames,
         });
         putItem(g, 0x0020, 0x9111, [&](gdcm::DataSet& s) {
             if (o.temporalIndex) {
-                putUl(s, 0x0020, 0x9128, {static_cast<std::uint32_t>(fr.t + 1)});
-                putUl(s, 0x0020, 0x9157,
-                      {static_cast<std::uint32_t>(fr.t + 1), static_cast<std::uint32_t>(fr.k + 1)});
+                const auto index =
+                    static_cast<std::uint32_t>(o.constantTemporalIndex ? 1 : fr.t + 1);
+                putUl(s, 0x0020, 0x9128, {index});
+                putUl(s, 0x0020, 0x9157, {index, static_cast<std::uint32_t>(fr.k + 1)});
             }
             if (o.frameTime) {
                 // Slices 0.1 s apart, time points 2 s apart (one TR).
@@ -298,6 +300,13 @@ TEST(DicomEnhanced, OneFilePerTimePointReadsEveryTimePointExactly) {
     plain.frameTime = false;
     writePerTimePoint(tmp / "b", plain);
     expectKnownSeries(tmp / "b", 4);
+    // Temporal Position Index 1 and Dimension Index Values 1\k in every file (as Canon and some
+    // Siemens XA files have them): no information, so the files' own keys order them.
+    FileOptions constantIndex = plain;
+    constantIndex.constantTemporalIndex = true;
+    constantIndex.temporalIndex = true;
+    writePerTimePoint(tmp / "i", constantIndex);
+    expectKnownSeries(tmp / "i", 4);
     // Frame Acquisition DateTime alone orders them, against the files' own keys (Instance Number
     // and Content Time falling as time goes on; writePerTimePoint reverses them for instance -1).
     FileOptions frameTimeOnly;

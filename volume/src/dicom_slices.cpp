@@ -102,7 +102,18 @@ TimeOrder::TimeOrder(const std::vector<const Header*>& images) {
     }
     if (images.empty()) {
         useTemporalIndex = useFrameTime = useDimensionIndex = false;
+        return;
     }
+    // A frame-level key with one value over the whole series tells nothing (Canon and some
+    // Siemens XA files give every volume Temporal Position Index 1): it is not used, so that it
+    // neither makes frames look like duplicates nor hides the files' own keys.
+    const auto varies = [&](const gdcm::Tag& t) {
+        return std::any_of(images.begin(), images.end(),
+                           [&](const Header* h) { return h->text(t) != images.front()->text(t); });
+    };
+    useTemporalIndex = useTemporalIndex && varies(kTemporalPositionIndex);
+    useFrameTime = useFrameTime && varies(kFrameAcquisitionDateTime);
+    useDimensionIndex = useDimensionIndex && varies(kDimensionIndexValues);
 }
 
 std::vector<double> TimeOrder::key(const Header& h) const {

@@ -37,7 +37,8 @@ void checkSameCount(const std::string& name,
 /// Temporal Position Index (0020,9128), Frame Acquisition DateTime (0018,9074) and Dimension
 /// Index Values (0020,9157); then, for every image, TemporalPositionIdentifier, AcquisitionNumber,
 /// AcquisitionTime (or ContentTime), InstanceNumber; then file name and frame. A key is used
-/// only when every image of the series has it, so the comparison stays a strict weak order.
+/// only when every image of the series has it, so the comparison stays a strict weak order; a
+/// frame-level key only when its value varies over the series.
 struct TimeOrder {
     bool useTemporalIndex = true, useFrameTime = true, useDimensionIndex = true;
     bool useTemporal = true, useAcqNumber = true, useAcqTime = true, useContentTime = true,
