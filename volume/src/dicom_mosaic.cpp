@@ -191,11 +191,10 @@ std::vector<Slice> mosaicSlices(const Header& h, const MosaicLayout& m,
     if (mosaic.size() != static_cast<std::size_t>(cols) * static_cast<std::size_t>(rows) ||
         m.grid < 1 || m.slices > m.grid * m.grid || m.tileColumns * m.grid != cols ||
         m.tileRows * m.grid != rows) {
-        throw FormatError(file + ": expected " + std::to_string(cols) + "x" +
-                          std::to_string(rows) + " mosaic pixels in " + std::to_string(m.grid) +
-                          "x" + std::to_string(m.grid) + " tiles for " +
-                          std::to_string(m.slices) + " slices, found " +
-                          std::to_string(mosaic.size()) + " pixels");
+        throw FormatError(file + ": expected " + std::to_string(cols) + "x" + std::to_string(rows) +
+                          " mosaic pixels in " + std::to_string(m.grid) + "x" +
+                          std::to_string(m.grid) + " tiles for " + std::to_string(m.slices) +
+                          " slices, found " + std::to_string(mosaic.size()) + " pixels");
     }
     const FileGeometry g = geometryOf(h);
     const Eigen::Vector3d colStepMm = g.rowCosine * g.columnSpacing;
