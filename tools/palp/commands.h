@@ -24,6 +24,10 @@ Command addBenchServo(CLI::App& bench);
 /// `palp bench tick`, registered by addBench() on its `bench` node.
 Command addBenchTick(CLI::App& bench);
 Command addPalpate(CLI::App& root);
+/// `palp serve`: a session for a remote device over UDP (cmd_serve.cpp).
+Command addServe(CLI::App& root);
+/// `palp bridge-sim`: a simulated remote device for `palp serve`.
+Command addBridgeSim(CLI::App& root);
 
 /// Unit axis from "+y", "-x", "y", ...; @throw palp::ValueError naming @p option and the text.
 Eigen::Vector3d parseAxis(const std::string& text, const char* option);
