@@ -8,8 +8,10 @@
 #include <openvdb/tools/Interpolation.h>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -88,11 +90,13 @@ TEST(PalpateScan, HeadCtWithTheDefaultsStaysOnTheSkinAndFeelsTheSkull) {
     palp::test::TempDir tmp;
     const std::string palp = palp::test::palpTool().string();
     const std::string vdb = (tmp / "ge.vdb").string(), trace = (tmp / "t.csv").string();
+    const std::string png = (tmp / "m.png").string();
     // 1 mm voxels keep the test cheap (the 0.5 mm gives the same skin, finer).
     const auto conv =
         runCommand(palp + " convert " + dicom.string() + " -o " + vdb + " --voxel-size 1");
     ASSERT_EQ(conv.exitCode, 0) << conv.output;
-    const auto run = runCommand(palp + " palpate " + vdb + " --json --trace " + trace);
+    const auto run =
+        runCommand(palp + " palpate " + vdb + " --json --trace " + trace + " --map " + png);
     ASSERT_EQ(run.exitCode, 0) << run.output;
     const auto brace = run.output.find('{');
     ASSERT_NE(brace, std::string::npos) << run.output;
@@ -111,6 +115,19 @@ TEST(PalpateScan, HeadCtWithTheDefaultsStaysOnTheSkinAndFeelsTheSkull) {
     const double sign = axis[0] == '-' ? -1 : 1;
     const int ua = std::min((pa + 1) % 3, (pa + 2) % 3), va = 3 - pa - ua;
     const std::vector<double> pc = j["skin"]["patch"]["centre_mm"];
+
+    // The map's defaults on a scan: seen from the side pressed (image right x image up points
+    // against the press) over the skin's depth, which varies over the patch.
+    const auto axisOf = [](const std::string& a) {
+        Eigen::Vector3d v = Eigen::Vector3d::Zero();
+        v[a[1] - 'x'] = a[0] == '-' ? -1 : 1;
+        return v;
+    };
+    EXPECT_LT(axisOf(j["map_right"]).cross(axisOf(j["map_up"])).dot(axisOf(axis)), 0) << j.dump(2);
+    EXPECT_EQ(j["map_underlay"], "skin depth");
+    const double skinLo = j["map_underlay_range"][0], skinHi = j["map_underlay_range"][1];
+    EXPECT_GT(skinHi - skinLo, 3.0);  // mm of relief over a 58 mm patch of the head
+    EXPECT_TRUE(std::filesystem::file_size(png) > 10000u);
     const std::vector<double> pe = j["skin"]["patch"]["extent_mm"];
 
     // The stiffness felt, per 4 mm cell of the patch, after the approach, in contact.
