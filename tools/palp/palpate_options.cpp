@@ -213,7 +213,8 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
         ->check(within(bounds::kSpacing, kMm));
     app->add_option("--map-underlay", a.mapUnderlay,
                     "Under the map, in grey: the skin's depth below the map's plane along the "
-                    "press (skin-depth), the volume's maximum along the press (mip), or none "
+                    "press (skin-depth), the volume's maximum over the rays' reach (L_max) under "
+                    "the skin (mip; the whole depth where there is no skin), or none "
                     "(auto: skin-depth on a rigid scan, none on a phantom or --deformable)")
         ->check(CLI::IsMember({"auto", "skin-depth", "mip", "none"}));
     app->add_flag("--grey", a.grey, "Grey map instead of black-red-yellow-white");
