@@ -11,6 +11,8 @@ PACKAGES=(
   libgdcm-dev libopenjp2-7-dev libnifti2-dev zlib1g-dev libpng-dev libcairo2-dev
   libsuitesparse-dev libcli11-dev nlohmann-json3-dev libtinyobjloader-dev libassimp-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  # Python bindings (python/): pybind11 and Debian's Python headers
+  pybind11-dev python3-dev
   # oracles and baselines used by tests and benchmarks
   dcm2niix calculix-ccx rt-tests libgdcm-tools unzip time
   python3-openvdb python3-nibabel python3-pydicom python3-numpy

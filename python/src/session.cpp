@@ -1,0 +1,397 @@
+// Scenes and sessions: palp.Scene (from a volume; deformable), palp.Snapshot, palp.Session
+// (simulated, playback or Python devices; step(), run(n) as numpy columns, run-time parameter
+// changes; start()/stop() for palp's own devices only).
+#include "palp/haptics/session.h"
+
+#include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
+#include <pybind11/stl.h>
+
+#include <cmath>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "bindings.h"
+#include "palp/base/error.h"
+#include "palp/haptics/deformable_setup.h"
+#include "palp/haptics/offline_run.h"
+#include "palp/haptics/watchdog_device.h"
+#include "python_device.h"
+
+namespace palp::python {
+
+using haptics::Command;
+using haptics::Device;
+using haptics::Scene;
+using haptics::Snapshot;
+
+namespace {
+
+fem::BoxFace parseFace(const std::string& name) {
+    static const std::pair<const char*, fem::BoxFace> kFaces[] = {
+        {"x_min", fem::BoxFace::xMin}, {"x_max", fem::BoxFace::xMax},
+        {"y_min", fem::BoxFace::yMin}, {"y_max", fem::BoxFace::yMax},
+        {"z_min", fem::BoxFace::zMin}, {"z_max", fem::BoxFace::zMax}};
+    for (const auto& [n, f] : kFaces) {
+        if (name == n) return f;
+    }
+    throw ValueError("support_face: expected x_min, x_max, y_min, y_max, z_min or z_max, found '" +
+                     name + "'");
+}
+
+/// A session and what it refers to (the scene, the device and, for a Python device, its
+/// wrapper), destroyed session first.
+struct PySession {
+    std::shared_ptr<Scene> scene;
+    py::object deviceObject;               // keeps a Python or palp device alive
+    std::unique_ptr<PythonDevice> python;  // a Python object's device, or null
+    std::unique_ptr<haptics::WatchdogDevice> watchdog;
+    haptics::CouplingParams coupling;  // the latest sent (set_params fills what it is not given)
+    haptics::ProxyParams proxy;
+    bool passivityControl = false;
+    std::unique_ptr<haptics::Session> session;
+
+    haptics::Session& s() { return *session; }
+    void check() {
+        if (python && python->pending()) python->rethrow();
+    }
+};
+
+std::unique_ptr<PySession> makeSession(std::shared_ptr<Scene> scene, py::object device,
+                                       std::optional<haptics::SessionParams> params,
+                                       const std::string& spec, bool watchdog) {
+    if (!scene) throw ValueError("scene: expected a palp.Scene, found None");
+    auto p = std::make_unique<PySession>();
+    p->scene = std::move(scene);
+    p->deviceObject = device;
+    const haptics::SessionParams sp = params.value_or(haptics::SessionParams{});
+    Device* inner = nullptr;
+    if (py::isinstance<Device>(device)) {
+        inner = device.cast<Device*>();
+    } else {
+        p->python = std::make_unique<PythonDevice>(device, deviceSpecByName(spec));
+        inner = p->python.get();
+    }
+    if (watchdog) {
+        p->watchdog = std::make_unique<haptics::WatchdogDevice>(*inner, haptics::WatchdogParams{},
+                                                                sp.servo.periodSeconds);
+        inner = p->watchdog.get();
+    }
+    if (p->python) {
+        p->session = std::make_unique<haptics::Session>(p->scene, *inner, sp);
+    } else {
+        py::gil_scoped_release release;  // a deformable body is built here
+        p->session = std::make_unique<haptics::Session>(p->scene, *inner, sp);
+    }
+    p->coupling = p->session->params().coupling;
+    p->proxy = p->session->params().proxy;
+    p->passivityControl = p->session->params().passivityControl;
+    return p;
+}
+
+/// Snapshots as columns: (n,) arrays of scalars, (n, 3) arrays of vectors.
+py::dict traceColumns(const std::vector<Snapshot>& trace) {
+    const auto n = static_cast<py::ssize_t>(trace.size());
+    py::dict d;
+    auto vec = [&](const char* name, Eigen::Vector3d Snapshot::*member) {
+        py::array_t<double> a(std::vector<py::ssize_t>{n, 3});
+        auto r = a.mutable_unchecked<2>();
+        for (py::ssize_t i = 0; i < n; ++i)
+            for (py::ssize_t c = 0; c < 3; ++c) r(i, c) = (trace[std::size_t(i)].*member)(c);
+        d[name] = a;
+    };
+    auto col = [&](const char* name, auto member) {
+        using T = std::remove_cvref_t<decltype(trace[0].*member)>;
+        using Out = std::conditional_t<std::is_same_v<T, unsigned>, std::uint32_t, T>;
+        py::array_t<Out> a(n);
+        auto r = a.template mutable_unchecked<1>();
+        for (py::ssize_t i = 0; i < n; ++i) r(i) = static_cast<Out>(trace[std::size_t(i)].*member);
+        d[name] = a;
+    };
+    col("tick", &Snapshot::tick);
+    col("time", &Snapshot::timeSeconds);
+    vec("probe", &Snapshot::probe);
+    vec("proxy", &Snapshot::proxy);
+    vec("force", &Snapshot::force);
+    vec("coupling_force", &Snapshot::couplingForce);
+    vec("energy_force", &Snapshot::energyForce);
+    vec("proxy_force", &Snapshot::proxyForce);
+    vec("tissue_force", &Snapshot::tissueForce);
+    col("stiffness", &Snapshot::stiffness);
+    col("ray_length", &Snapshot::rayLength);
+    col("distance", &Snapshot::distance);
+    col("coupling_energy", &Snapshot::couplingEnergy);
+    col("observer_energy", &Snapshot::observerEnergy);
+    col("added_damping", &Snapshot::addedDamping);
+    col("passivity_cut", &Snapshot::passivityCut);
+    col("contact_count", &Snapshot::contactCount);
+    col("rays", &Snapshot::rays);
+    col("sticking", &Snapshot::sticking);
+    col("gate_open", &Snapshot::gateOpen);
+    col("faulted", &Snapshot::faulted);
+    col("clamped", &Snapshot::clamped);
+    col("stiffness_limited", &Snapshot::stiffnessLimited);
+    col("fading", &Snapshot::fading);
+    col("fade_weight", &Snapshot::fadeWeight);
+    col("device_stale", &Snapshot::deviceStale);
+    col("device_force_scale", &Snapshot::deviceForceScale);
+    col("max_displacement", &Snapshot::maxDisplacement);
+    col("contact_node", &Snapshot::contactNode);
+    py::array_t<std::uint8_t> mode(n);
+    auto r = mode.mutable_unchecked<1>();
+    for (py::ssize_t i = 0; i < n; ++i)
+        r(i) = static_cast<std::uint8_t>(trace[std::size_t(i)].mode);
+    d["mode"] = mode;  // 0 vc, 1 avc, 2 avcec
+    return d;
+}
+
+py::dict run(PySession& p, std::uint64_t ticks, std::uint64_t every) {
+    if (every == 0) throw ValueError("run: every: expected at least 1, found 0");
+    std::vector<Snapshot> trace;
+    if (p.python) {  // Python device: each tick calls into Python, with the GIL held
+        trace.reserve(static_cast<std::size_t>(ticks / every + 1));
+        for (std::uint64_t i = 0; i < ticks; ++i) {
+            const Snapshot& s = p.s().step();
+            p.check();
+            if ((i + 1) % every == 0 || i + 1 == ticks) trace.push_back(s);
+        }
+    } else {
+        py::gil_scoped_release release;
+        trace = haptics::runOffline(p.s(), ticks, every);
+    }
+    return traceColumns(trace);
+}
+
+bool send(PySession& p, const Command& c) {
+    return p.s().send(c);  // validated here; false: the queue is full
+}
+
+}  // namespace
+
+void bindSession(py::module_& m) {
+    py::class_<Scene, std::shared_ptr<Scene>>(
+        m, "Scene", "What a session feels: a volume, its iso-surfaces, optionally deformable.")
+        .def_static(
+            "from_volume",
+            [](const volume::Volume& v, double surfaceIso, std::optional<double> hardIso,
+               double adaptivity) {
+                haptics::SceneOptions o;
+                o.surfaceIso = surfaceIso;
+                o.hardIso = hardIso.value_or(std::nan(""));
+                o.adaptivity = adaptivity;
+                py::gil_scoped_release release;
+                return haptics::Scene::fromVolume(v, o);
+            },
+            py::arg("volume"), py::kw_only(), py::arg("surface_iso") = -500.0,
+            py::arg("hard_iso") = py::none(), py::arg("adaptivity") = 0.0,
+            "The skin at surface_iso (proxy surface) and, with hard_iso, hard meshes for the "
+            "mesh ray source; values in the volume's units (HU).")
+        .def(
+            "make_deformable",
+            [](Scene& scene, const volume::Volume& v, double elementSize, double tissue,
+               double bone, double youngs, double poisson, double alpha,
+               std::optional<std::string> supportFace, double period, bool dropInsideBone) {
+                haptics::DeformableSetup s;
+                s.voxelize.elementSize = elementSize;
+                s.voxelize.tissueThreshold = tissue;
+                s.voxelize.boneThreshold = bone;
+                s.voxelize.insideBone =
+                    dropInsideBone ? fem::InsideBone::drop : fem::InsideBone::keep;
+                s.material.youngsModulus = youngs;
+                s.material.poissonRatio = poisson;
+                s.material.dampingAlpha = alpha;
+                if (supportFace) s.supportFace = parseFace(*supportFace);
+                s.setPeriod(period);
+                py::gil_scoped_release release;
+                scene.setDeformable(haptics::makeDeformableModel(v, s));
+            },
+            py::arg("volume"), py::kw_only(), py::arg("element_size") = 5e-3,
+            py::arg("tissue_threshold") = -200.0, py::arg("bone_threshold") = 500.0,
+            py::arg("youngs_modulus") = 5e3, py::arg("poisson_ratio") = 0.45,
+            py::arg("damping_alpha") = 60.0, py::arg("support_face") = py::none(),
+            py::arg("period") = 1e-3, py::arg("drop_inside_bone") = true,
+            "Makes the scene deformable (palp palpate --deformable's body): sessions made "
+            "afterwards build their own FEM body from it. bone_threshold inf: no bone.")
+        .def("make_rigid", [](Scene& s) { s.setDeformable(nullptr); })
+        .def_property_readonly("deformable",
+                               [](const Scene& s) { return s.deformable() != nullptr; })
+        .def_property_readonly("surface_triangle_count",
+                               [](const Scene& s) { return s.surfaces().triangleCount(); });
+
+    py::class_<Snapshot>(m, "Snapshot", "One tick's state (world frame, SI units).")
+        .def_readonly("tick", &Snapshot::tick)
+        .def_readonly("time", &Snapshot::timeSeconds)
+        .def_readonly("probe", &Snapshot::probe)
+        .def_readonly("proxy", &Snapshot::proxy)
+        .def_readonly("force", &Snapshot::force)
+        .def_readonly("coupling_force", &Snapshot::couplingForce)
+        .def_readonly("energy_force", &Snapshot::energyForce)
+        .def_readonly("proxy_force", &Snapshot::proxyForce)
+        .def_readonly("tissue_force", &Snapshot::tissueForce)
+        .def_readonly("stiffness", &Snapshot::stiffness)
+        .def_readonly("ray_length", &Snapshot::rayLength)
+        .def_readonly("distance", &Snapshot::distance)
+        .def_readonly("coupling_energy", &Snapshot::couplingEnergy)
+        .def_readonly("observer_energy", &Snapshot::observerEnergy)
+        .def_readonly("added_damping", &Snapshot::addedDamping)
+        .def_readonly("passivity_cut", &Snapshot::passivityCut)
+        .def_readonly("contact_count", &Snapshot::contactCount)
+        .def_readonly("rays", &Snapshot::rays)
+        .def_readonly("sticking", &Snapshot::sticking)
+        .def_readonly("gate_open", &Snapshot::gateOpen)
+        .def_readonly("faulted", &Snapshot::faulted)
+        .def_readonly("clamped", &Snapshot::clamped)
+        .def_property_readonly("mode",
+                               [](const Snapshot& s) { return haptics::couplingModeName(s.mode); })
+        .def_readonly("stiffness_limited", &Snapshot::stiffnessLimited)
+        .def_readonly("fading", &Snapshot::fading)
+        .def_readonly("fade_weight", &Snapshot::fadeWeight)
+        .def_readonly("faults", &Snapshot::faults)
+        .def_readonly("device_stale", &Snapshot::deviceStale)
+        .def_readonly("device_force_scale", &Snapshot::deviceForceScale)
+        .def_readonly("watchdog_trips", &Snapshot::watchdogTrips)
+        .def_readonly("contact_node", &Snapshot::contactNode)
+        .def_readonly("max_displacement", &Snapshot::maxDisplacement)
+        .def("__repr__", [](const Snapshot& s) {
+            return "<palp.Snapshot tick " + std::to_string(s.tick) + ", |F| " +
+                   std::to_string(s.force.norm()) + " N, k " + std::to_string(s.stiffness) + ">";
+        });
+
+    py::class_<PySession>(
+        m, "Session",
+        "A haptic session on a scene with a device: a palp device (SimulatedDevice, "
+        "PlaybackDevice) or any Python object with read() -> (position, velocity[, buttons[, "
+        "timestamp[, sequence]]]) and write(force). Step it offline with step() / run(n); "
+        "start() runs palp's own devices on the 1 kHz servo thread (never a Python device: the "
+        "servo thread must not call into Python).")
+        .def(py::init(&makeSession), py::arg("scene"), py::arg("device"),
+             py::arg("params") = py::none(), py::kw_only(), py::arg("spec") = "3D Systems Touch",
+             py::arg("watchdog") = false)
+        .def(
+            "step",
+            [](PySession& p) {
+                const Snapshot s = p.s().step();
+                p.check();
+                return s;
+            },
+            "One tick on this thread; returns its Snapshot.")
+        .def("run", &run, py::arg("ticks"), py::arg("every") = 1,
+             "Steps ticks times (GIL released for palp's devices) and returns every every-th "
+             "snapshot (and the last) as a dict of numpy arrays: 'time' (n,), 'force' (n, 3), "
+             "...")
+        .def(
+            "start",
+            [](PySession& p) {
+                if (p.python) {
+                    throw ValueError(
+                        "Session.start: a Python device cannot run on the 1 kHz "
+                        "servo thread (it must not call into Python); step it "
+                        "offline with step() or run()");
+                }
+                p.s().start();
+            },
+            "Runs on the servo thread (palp's own devices only).")
+        .def("stop", [](PySession& p) { p.s().stop(); })
+        .def_property_readonly("running", [](PySession& p) { return p.s().running(); })
+        .def(
+            "latest", [](PySession& p) { return Snapshot(p.s().latest()); },
+            "The newest published snapshot (viewer thread).")
+        .def(
+            "set_coupling",
+            [](PySession& p, const haptics::CouplingParams& c) {
+                Command cmd;
+                cmd.kind = Command::Kind::SetCoupling;
+                cmd.coupling = c;
+                const bool queued = send(p, cmd);
+                if (queued) p.coupling = c;
+                return queued;
+            },
+            py::arg("coupling"),
+            "Queues a coupling change (cross-faded); False when the queue is full. Raises "
+            "palp.ValueError for invalid parameters.")
+        .def(
+            "set_proxy",
+            [](PySession& p, const haptics::ProxyParams& c) {
+                Command cmd;
+                cmd.kind = Command::Kind::SetProxy;
+                cmd.proxy = c;
+                const bool queued = send(p, cmd);
+                if (queued) p.proxy = c;
+                return queued;
+            },
+            py::arg("proxy"))
+        .def(
+            "set_passivity_control",
+            [](PySession& p, bool on) {
+                Command cmd;
+                cmd.kind = Command::Kind::SetPassivityControl;
+                cmd.flag = on;
+                const bool queued = send(p, cmd);
+                if (queued) p.passivityControl = on;
+                return queued;
+            },
+            py::arg("on"))
+        .def("reset_observer",
+             [](PySession& p) {
+                 Command cmd;
+                 cmd.kind = Command::Kind::ResetObserver;
+                 return send(p, cmd);
+             })
+        .def(
+            "set_params",
+            [](PySession& p, std::optional<haptics::CouplingParams> coupling,
+               std::optional<haptics::ProxyParams> proxy, std::optional<bool> passivity,
+               std::optional<std::string> mode) {
+                Command cmd;
+                cmd.kind = Command::Kind::SetAll;
+                cmd.coupling = coupling.value_or(p.coupling);
+                if (mode) {
+                    haptics::CouplingParams& c = cmd.coupling;
+                    py::cast(&c, py::return_value_policy::reference).attr("mode") = *mode;
+                }
+                cmd.proxy = proxy.value_or(p.proxy);
+                cmd.flag = passivity.value_or(p.passivityControl);
+                const bool queued = send(p, cmd);
+                if (queued) {
+                    p.coupling = cmd.coupling;
+                    p.proxy = cmd.proxy;
+                    p.passivityControl = cmd.flag;
+                }
+                return queued;
+            },
+            py::kw_only(), py::arg("coupling") = py::none(), py::arg("proxy") = py::none(),
+            py::arg("passivity_control") = py::none(), py::arg("mode") = py::none(),
+            "Changes coupling, proxy and the passivity controller at one tick boundary; what "
+            "is not given keeps its last value; mode ('vc', 'avc', 'avcec') replaces the "
+            "coupling's mode.")
+        .def_property_readonly("params",
+                               [](PySession& p) { return haptics::SessionParams(p.s().params()); })
+        .def_property_readonly("stiffness_limited",
+                               [](PySession& p) { return p.s().stiffnessLimited(); })
+        .def_property_readonly(
+            "device_spec", [](PySession& p) { return &p.s().deviceSpec(); },
+            py::return_value_policy::reference)
+        .def(
+            "surface",
+            [](PySession& p) -> py::object {
+                const haptics::SurfaceFrame* f = p.s().latestSurface();
+                if (!f || !p.scene->deformable()) return py::none();
+                const auto nv = static_cast<py::ssize_t>(f->positions.size() / 3);
+                py::array_t<float> v(std::vector<py::ssize_t>{nv, 3});
+                std::copy(f->positions.begin(), f->positions.end(), v.mutable_data());
+                const auto& tris = p.scene->deformable()->surface().triangles;
+                const auto nt = static_cast<py::ssize_t>(tris.size());
+                py::array_t<std::uint32_t> t(std::vector<py::ssize_t>{nt, 3});
+                auto r = t.mutable_unchecked<2>();
+                for (py::ssize_t i = 0; i < nt; ++i)
+                    for (py::ssize_t c = 0; c < 3; ++c)
+                        r(i, c) = tris[std::size_t(i)][std::size_t(c)];
+                return py::make_tuple(v, t);
+            },
+            "Deformable scenes: (vertices (n, 3) float32 m, triangles (m, 3)) of the newest "
+            "tick; None on a rigid scene.");
+}
+
+}  // namespace palp::python

@@ -1,0 +1,266 @@
+#!/usr/bin/env python3
+"""The palp Python module (issue 15 item 5): volumes to numpy and back, numpy against a file
+reader, offline sessions (VC press, a Python device against the simulated one, playback,
+run-time parameter changes), palp's errors as Python exceptions, pyopenvdb interop.
+
+Run by ctest with Debian's /usr/bin/python3 and PYTHONPATH=<build>/python."""
+
+import math
+import os
+import tempfile
+import unittest
+
+import numpy as np
+
+import palp
+
+
+def avc_volume():
+    """The AVC phantom at 1 mm: surface y = 0, fat to 2 mm, plate y in [10, 12] mm for |x|, |z|
+    <= 30 mm, a box y in [20, 28] mm under quadrant 0 (x, z around -15 mm)."""
+    if not hasattr(avc_volume, "cached"):
+        avc_volume.cached = palp.phantom("avc", voxel_size=1e-3)
+    return avc_volume.cached
+
+
+def avc_scene():
+    if not hasattr(avc_scene, "cached"):
+        avc_scene.cached = palp.Scene.from_volume(avc_volume(), surface_iso=-500, hard_iso=500)
+    return avc_scene.cached
+
+
+def value_at(values, affine, world):
+    """The array value of the voxel nearest to world point (LPS m)."""
+    ijk = np.linalg.solve(affine, np.append(world, 1.0))[:3]
+    return values[tuple(np.rint(ijk).astype(int))]
+
+
+class VolumeNumpy(unittest.TestCase):
+    def test_phantom_round_trips_exactly(self):
+        v = avc_volume()
+        values, affine = v.to_numpy(pad=1)
+        self.assertEqual(values.dtype, np.float32)
+        self.assertEqual(values.shape, (102, 52, 102))  # 100 x 50 x 100 mm block + pad
+        np.testing.assert_array_equal(affine[:3, :3], np.eye(3) * 1e-3)
+        # Orientation: the array is indexed (i, j, k) = (x, y, z) through the affine.
+        self.assertEqual(value_at(values, affine, [0, 0.0005, 0]), -100)  # fat
+        self.assertEqual(value_at(values, affine, [0, 0.0055, 0]), 40)  # soft tissue
+        self.assertEqual(value_at(values, affine, [0.02, 0.0105, 0.02]), 1000)  # plate
+        self.assertEqual(value_at(values, affine, [-0.015, 0.0245, -0.015]), 1000)  # box
+        self.assertEqual(value_at(values, affine, [0.015, 0.0245, 0.015]), 40)  # no box
+        self.assertEqual(value_at(values, affine, [0, -0.0005, 0]), -1000)  # pad: air
+        back = palp.volume_from_numpy(values, affine, modality="CT",
+                                      voxel_size=v.voxel_size)
+        self.assertEqual(back.active_voxel_count, v.active_voxel_count)
+        values2, affine2 = back.to_numpy(pad=1)
+        np.testing.assert_array_equal(values2, values)
+        np.testing.assert_array_equal(affine2, affine)
+        # The same through RAS millimetres.
+        ras, ras_affine = v.to_numpy(frame="RAS", units="mm", pad=1)
+        np.testing.assert_array_equal(ras_affine[:3, 3], affine[:3, 3] * [-1e3, -1e3, 1e3])
+        back = palp.volume_from_numpy(ras, ras_affine, frame="RAS", units="mm",
+                                      modality="CT", voxel_size=v.voxel_size)
+        np.testing.assert_array_equal(back.to_numpy(pad=1)[0], values)
+        # Without modality the threshold is 0: fat (-100 HU) becomes background.
+        plain = palp.volume_from_numpy(values, affine, voxel_size=v.voxel_size)
+        self.assertLess(plain.active_voxel_count, v.active_voxel_count)
+
+    def test_numpy_equals_the_nrrd_reader(self):
+        # The C++ test's grid (tests/volume/test_from_memory.cpp): 7 x 6 x 5 int16 with an
+        # oblique affine (0.8, 1.1, 1.5 mm, turned 20 degrees about z and 10 about x).
+        i, j, k = np.meshgrid(np.arange(7), np.arange(6), np.arange(5), indexing="ij")
+        values = (10 * i - 20 * j + 37 * k - 100 + (i * j) % 7).astype(np.int16)
+        cz, sz = math.cos(math.radians(20)), math.sin(math.radians(20))
+        cx, sx = math.cos(math.radians(10)), math.sin(math.radians(10))
+        rot = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]]) @ np.array(
+            [[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+        lps_mm = np.eye(4)
+        lps_mm[:3, :3] = rot @ np.diag([0.8, 1.1, 1.5])
+        lps_mm[:3, 3] = [10, -20, 30]
+        ras_mm = lps_mm.copy()
+        ras_mm[:2] *= -1
+        for space, m, frame in (("left-posterior-superior", lps_mm, "LPS"),
+                                ("right-anterior-superior", ras_mm, "RAS")):
+            with tempfile.TemporaryDirectory() as d:
+                path = os.path.join(d, "grid.nrrd")
+                dirs = " ".join("(%r,%r,%r)" % tuple(m[:3, c]) for c in range(3))
+                header = ("NRRD0004\ntype: short\ndimension: 3\nspace: %s\nsizes: 7 6 5\n"
+                          "space directions: %s\nspace origin: (%r,%r,%r)\nendian: little\n"
+                          "encoding: raw\n\n" % (space, dirs, *m[:3, 3]))
+                with open(path, "wb") as f:
+                    f.write(header.encode())
+                    f.write(values.astype("<i2").tobytes(order="F"))  # i fastest
+                from_file = palp.load(path, voxel_size=0.7e-3)
+            file_values, file_affine = from_file.to_numpy()
+            self.assertGreater(from_file.active_voxel_count, 200)  # 284
+            for array in (values, np.asfortranarray(values), values.astype(np.float64),
+                          values.astype(">i2"), values[::-1, ::-1][::-1, ::-1]):
+                v = palp.volume_from_numpy(array, m, frame=frame, units="mm",
+                                           voxel_size=0.7e-3)
+                got_values, got_affine = v.to_numpy()
+                np.testing.assert_array_equal(got_affine, file_affine)
+                np.testing.assert_array_equal(got_values, file_values)
+
+    def test_bad_inputs_raise_palp_errors_with_palp_messages(self):
+        with self.assertRaises(palp.IoError) as e:
+            palp.load("/nonexistent/palp/scan.nrrd")
+        self.assertIn("/nonexistent/palp/scan.nrrd", str(e.exception))
+        self.assertIsInstance(e.exception, OSError)
+        self.assertIsInstance(e.exception, palp.Error)
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "bad.nrrd")
+            with open(path, "wb") as f:
+                f.write(b"NRRD0004\ntype: short\ndimension: 3\nsizes: 2 2\n\n")
+            with self.assertRaises(palp.FormatError) as e:
+                palp.load(path)
+            self.assertIn(path, str(e.exception))
+            self.assertIsInstance(e.exception, ValueError)
+        singular = np.diag([1e-3, 1e-3, 0.0, 1.0])
+        with self.assertRaises(palp.ValueError) as e:
+            palp.volume_from_numpy(np.zeros((4, 4, 4), np.float32), singular)
+        self.assertIn("numpy array", str(e.exception))
+        with self.assertRaises(ValueError):
+            palp.volume_from_numpy(np.zeros((4, 4), np.float32), np.eye(4))
+        with self.assertRaises(palp.ValueError) as e:
+            palp.volume_from_numpy(np.zeros((4, 4, 4)), np.eye(4), frame="SAR")
+        self.assertIn("'SAR'", str(e.exception))
+        with self.assertRaises(palp.ValueError):
+            palp.phantom("avc", quadrant=7)
+
+
+def vc_params(k=300.0):
+    p = palp.SessionParams()
+    p.coupling.mode = "vc"
+    p.coupling.base_stiffness = k
+    p.coupling.max_stiffness = 1400
+    p.proxy.static_friction = 0
+    p.proxy.dynamic_friction = 0
+    return p
+
+
+def press(depth=0.006):
+    # From 4 mm above the surface at (4, 3) mm, pressing +y (into the block).
+    return palp.PressTrajectory(start=(0.004, -0.004, 0.003), direction=(0, 1, 0),
+                                depth=depth, press_seconds=0.3, hold_seconds=1.0)
+
+
+class Sessions(unittest.TestCase):
+    def test_vc_press_force_is_k_times_depth(self):
+        session = palp.Session(avc_scene(), palp.SimulatedDevice(press()), vc_params())
+        trace = session.run(600)
+        self.assertEqual(trace["force"].shape, (600, 3))
+        np.testing.assert_array_equal(trace["tick"], np.arange(600))
+        s = session.step()
+        self.assertEqual(s.mode, "vc")
+        self.assertTrue(s.gate_open)
+        self.assertEqual(s.contact_count, 1)
+        self.assertAlmostEqual(s.proxy[1], 0.0, delta=0.5e-3)  # on the skin
+        depth = s.probe[1] - s.proxy[1]
+        self.assertGreater(depth, 0.8e-3)  # the hand model yields under the force
+        self.assertAlmostEqual(s.distance, depth, delta=1e-9)
+        self.assertAlmostEqual(s.force[1], -300 * depth, delta=1e-9)
+        self.assertAlmostEqual(np.linalg.norm(s.force), 300 * depth, delta=1e-6)
+        self.assertEqual(s.stiffness, 300)
+
+    def test_python_device_gives_the_simulated_forces(self):
+        class Wrapped:  # a host device written in Python, driven by a simulated hand
+            def __init__(self):
+                self.inner = palp.SimulatedDevice(press())
+                self.forces = 0
+
+            def read(self):
+                position, velocity, buttons = self.inner.read()
+                return position, velocity
+
+            def write(self, force):
+                self.forces += 1
+                self.inner.write(force)
+
+        params = vc_params()
+        params.coupling = palp.scene_coupling_defaults("avc")
+        params.coupling.mode = "avcec"
+        host = Wrapped()
+        a = palp.Session(avc_scene(), host, params)
+        b = palp.Session(avc_scene(), palp.SimulatedDevice(press()), params)
+        ta = a.run(500)
+        tb = b.run(500)
+        sa, sb = a.step(), b.step()
+        self.assertEqual(host.forces, 501)
+        np.testing.assert_array_equal(ta["force"], tb["force"])
+        np.testing.assert_array_equal(ta["probe"], tb["probe"])
+        np.testing.assert_array_equal(sa.force, sb.force)
+        self.assertGreater(np.abs(ta["force"]).max(), 0.2)  # it pressed (0.31 N)
+        with self.assertRaises(palp.ValueError):
+            a.start()  # the servo thread never calls into Python
+
+    def test_python_device_errors_surface_after_the_tick(self):
+        class Broken:
+            def read(self):
+                raise RuntimeError("device unplugged")
+
+            def write(self, force):
+                pass
+
+        session = palp.Session(avc_scene(), Broken(), vc_params())
+        with self.assertRaisesRegex(RuntimeError, "device unplugged"):
+            session.step()
+        with self.assertRaises(palp.ValueError):
+            palp.Session(avc_scene(), object(), vc_params())
+
+    def test_playback_replays_the_recorded_probe(self):
+        session = palp.Session(avc_scene(), palp.SimulatedDevice(press()), vc_params())
+        ref = session.run(400)
+        with tempfile.TemporaryDirectory() as d:
+            log = os.path.join(d, "press.csv")
+            with open(log, "w") as f:
+                f.write("t,x,y,z,vx,vy,vz,buttons,fx,fy,fz\n")
+                for t, p in zip(ref["time"], ref["probe"]):
+                    f.write("%r,%r,%r,%r,0,0,0,0,0,0,0\n" % (t, *p))
+            device = palp.PlaybackDevice(log)
+            replay = palp.Session(avc_scene(), device, vc_params()).run(400)
+        np.testing.assert_array_equal(replay["probe"], ref["probe"])
+        # VC without damping: the force depends on the positions only.
+        np.testing.assert_array_equal(replay["force"], ref["force"])
+
+    def test_set_params_switches_to_avc_above_the_plate(self):
+        params = vc_params()
+        params.coupling.ray_length = 0.02
+        params.coupling.reference_length = 0.02  # k about 600 N/m, below the Touch's 1020
+        session = palp.Session(avc_scene(), palp.SimulatedDevice(press()), params)
+        before = session.run(600)
+        self.assertTrue(np.all(before["stiffness"][-100:] == 300))
+        self.assertTrue(session.set_params(mode="avc"))
+        after = session.run(600)  # 0.2 s cross-fade, then AVC
+        self.assertEqual(after["mode"][-1], 1)
+        s = session.step()
+        self.assertEqual(s.mode, "avc")
+        # The ray from the skin meets the plate's top at 10 mm: k = k_s L_ref / L.
+        self.assertAlmostEqual(s.ray_length, 0.010, delta=0.6e-3)
+        self.assertAlmostEqual(s.stiffness, 300 * 0.02 / s.ray_length,
+                               delta=0.05 * s.stiffness)
+        self.assertAlmostEqual(np.linalg.norm(s.force), s.stiffness * s.distance,
+                               delta=0.02 * np.linalg.norm(s.force))
+        bad = palp.CouplingParams(mode="vc", base_stiffness=-1)
+        with self.assertRaises(palp.ValueError):
+            session.set_coupling(bad)
+
+
+class OpenVdb(unittest.TestCase):
+    def test_pyopenvdb_grid_in_and_out(self):
+        try:
+            palp._pyopenvdb()
+        except ImportError as e:
+            self.skipTest(str(e))
+        v = palp.phantom("bone", voxel_size=2e-3)
+        grid = palp.to_pyopenvdb(v)
+        self.assertEqual(grid.activeVoxelCount(), v.active_voxel_count)
+        self.assertEqual(grid.name, "scan")
+        back = palp.volume_from_pyopenvdb(grid)
+        a, am = v.to_numpy()
+        b, bm = back.to_numpy()
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(am, bm)
+
+
+if __name__ == "__main__":
+    unittest.main(verbosity=2)
