@@ -85,4 +85,19 @@ echo "  pkg-config: --cflags '$cflags' --libs '$libs'"
 cc -std=c11 -Wall -Wextra -Werror $cflags tests/package/consumer.c -o "$tmp/consumer_c_pc" \
   $libs -Wl,-rpath,"$(pkg-config --variable=libdir palp)" -lm || fail "cc with pkg-config"
 env -u LD_LIBRARY_PATH "$tmp/consumer_c_pc" || fail "consumer_c (pkg-config)"
+
+# The Python module, when the build has it (PALP_BUILD_PYTHON): imported from the prefix by
+# Debian's python3 with a clean environment, it loads the installed libraries (RUNPATH) and
+# makes a phantom.
+pydir="$prefix/lib/python3/dist-packages"
+if [[ -d "$pydir/palp" ]]; then
+  (cd "$tmp" && env -u LD_LIBRARY_PATH PYTHONPATH="$pydir" /usr/bin/python3 -c '
+import sys, palp
+assert palp.__file__.startswith(sys.argv[1]), palp.__file__
+libs = {l.split()[-1] for l in open("/proc/self/maps") if "libpalp_haptics" in l}
+assert libs == {sys.argv[2]}, libs
+assert palp.phantom("avc", voxel_size=2e-3).active_voxel_count == 62500
+' "$pydir" "$haptics") || fail "python3: import palp from $pydir"
+  echo "  python3: palp imported from $pydir, loading $haptics"
+fi
 echo "test_package: ok (prefix $prefix)"
