@@ -244,6 +244,24 @@ class Sessions(unittest.TestCase):
         with self.assertRaises(palp.ValueError):
             session.set_coupling(bad)
 
+    def test_deformable_press_dents_the_tissue(self):
+        scene = palp.Scene.from_volume(avc_volume())
+        scene.make_deformable(avc_volume(), support_face="y_max")  # 5 mm cells, 5 kPa
+        self.assertTrue(scene.deformable)
+        params = vc_params()
+        session = palp.Session(scene, palp.SimulatedDevice(press(0.008)), params)
+        trace = session.run(600)
+        # A steady contact: the spring's force on the tissue is minus the hand's.
+        np.testing.assert_allclose(trace["tissue_force"][-1], -trace["force"][-1],
+                                   atol=0.02 * np.linalg.norm(trace["force"][-1]))
+        self.assertGreater(np.linalg.norm(trace["force"][-1]), 0.05)
+        self.assertGreater(trace["max_displacement"][-1], 1e-3)  # a dent of millimetres
+        vertices, triangles = session.surface()
+        self.assertEqual(vertices.shape[1], 3)
+        self.assertLess(int(triangles.max()), len(vertices))
+        self.assertIsNone(palp.Session(avc_scene(), palp.SimulatedDevice(press()),
+                                       params).surface())
+
 
 class OpenVdb(unittest.TestCase):
     def test_pyopenvdb_grid_in_and_out(self):
