@@ -16,6 +16,7 @@
 #include "option_checks.h"
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/trajectory.h"
 #include "palp/haptics/udp_bridge_client.h"
@@ -36,6 +37,7 @@ struct SimArgs {
     double restSeconds = 0.1;
     double seconds = 0;  ///< 0: one press
     double rateHz = 1000;
+    double waitSeconds = 5;
     std::string device = "3D Systems Touch";
     bool json = false;
 };
@@ -72,6 +74,29 @@ int runBridgeSim(const SimArgs& a) {
         std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(cycle / period)));
 
     haptics::UdpBridgeClient client(a.connect);
+    // Handshake: the start position every 10 ms until a force answers (palp serve may still be
+    // building its scene), so that the press itself starts with the session listening.
+    std::uint64_t sequence = 0, handshake = 0;
+    {
+        const auto w0 = std::chrono::steady_clock::now();
+        haptics::bridge::ForceMessage f;
+        for (;;) {
+            haptics::bridge::StateMessage m;
+            m.sequence = ++sequence;
+            m.timeNs = nowNs();
+            m.position = press.start;
+            client.send(m);
+            ++handshake;
+            if (client.receive(f, 0.01)) break;
+            if (std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count() >
+                a.waitSeconds) {
+                throw IoError(a.connect + ": expected palp serve to answer within " +
+                              formatValue(a.waitSeconds) + " s (--wait), found no answer");
+            }
+        }
+        while (client.receive(f, 0)) {
+        }
+    }
     std::optional<haptics::SimulatedDevice> hand;
     std::vector<double> roundTripUs;
     roundTripUs.reserve(static_cast<std::size_t>(samples));
@@ -87,7 +112,7 @@ int runBridgeSim(const SimArgs& a) {
         hand->write(force);
         const haptics::DeviceState ds = hand->read();
         haptics::bridge::StateMessage m;
-        m.sequence = i + 1;
+        m.sequence = ++sequence;
         m.timeNs = nowNs();
         m.position = ds.position;
         m.velocity = ds.velocity;
@@ -136,6 +161,7 @@ int runBridgeSim(const SimArgs& a) {
     j["seconds"] = wall;
     j["rate_hz"] = a.rateHz;
     j["presses"] = (samples + cycleSamples - 1) / cycleSamples;
+    j["handshake_states"] = handshake;
     j["states_sent"] = sent;
     j["states_send_failed"] = sendFailed;
     j["forces_received"] = forces;
@@ -202,6 +228,9 @@ Command addBridgeSim(CLI::App& root) {
     app->add_option("--rate", a.rateHz, "States per second (default 1000)")
         ->check(within(bounds::kPositiveFrequency));
     app->add_option("--device", a.device, "Device class whose force limit the hand feels");
+    app->add_option("--wait", a.waitSeconds,
+                    "Wait this long for palp serve to answer before pressing, s (default 5)")
+        ->check(within(bounds::kPositiveDuration));
     app->add_flag("--json", a.json, "Print the figures as JSON");
     return {app, [args]() -> int { return runBridgeSim(*args); }};
 }

@@ -1,0 +1,78 @@
+// `palp serve` with `palp bridge-sim` over loopback: the simulated hand's press is felt (the
+// spring chain hand - coupling settles at k_h k / (k_h + k) x the target's depth), every state
+// sent is received with none counted lost, the watchdog trips once the hand stops sending; a bad
+// --listen address is refused naming it.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+
+#include "test_support.h"
+
+namespace {
+
+using palp::test::runCommand;
+
+nlohmann::json readJson(const std::filesystem::path& path) {
+    std::ifstream in(path);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    const std::string text = ss.str();
+    const auto brace = text.find('{');
+    if (brace == std::string::npos) return nlohmann::json::object();
+    const auto j = nlohmann::json::parse(text.substr(brace), nullptr, false);
+    return j.is_discarded() ? nlohmann::json::object() : j;
+}
+
+TEST(Serve, BridgeSimPressIsFeltAndEveryStateCounted) {
+    palp::test::TempDir tmp;
+    const std::string palp = palp::test::palpTool().string();
+    const std::string port = std::to_string(20000 + ::getpid() % 20000);
+    const std::string address = "127.0.0.1:" + port;
+    // serve runs 3 s; the hand waits for its answer (set-up), then presses once (1.1 s).
+    const auto r = runCommand(palp + " serve --phantom avc --mode vc --k-base 300 --listen " +
+                              address + " --seconds 3 --json > " + (tmp / "serve.json").string() +
+                              " 2> " + (tmp / "serve.err").string() + " & sleep 0.2; " + palp +
+                              " bridge-sim --connect " + address + " --depth 7 --json > " +
+                              (tmp / "sim.json").string() + "; s=$?; wait; exit $s");
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    const auto serve = readJson(tmp / "serve.json");
+    const auto sim = readJson(tmp / "sim.json");
+    ASSERT_TRUE(serve.contains("datagrams")) << r.output;
+    ASSERT_TRUE(sim.contains("states_sent")) << r.output;
+    const auto& d = serve["datagrams"];
+    const auto sent = sim["states_sent"].get<std::uint64_t>();
+    EXPECT_EQ(sent, 1100u);
+    // The press's states all arrive; of the handshake's (sent until serve answers), at least the
+    // one answered.
+    const auto handshake = sim["handshake_states"].get<std::uint64_t>();
+    EXPECT_GE(handshake, 1u);
+    EXPECT_GE(d["received"].get<std::uint64_t>(), sent + 1);
+    EXPECT_LE(d["received"].get<std::uint64_t>(), sent + handshake);
+    EXPECT_EQ(d["lost"].get<std::uint64_t>(), 0u);
+    EXPECT_EQ(d["late"].get<std::uint64_t>(), 0u);
+    EXPECT_EQ(d["ignored"].get<std::uint64_t>(), 0u);
+    EXPECT_GE(serve["watchdog"]["trips"].get<std::uint64_t>(), 1u);  // the hand stopped
+    EXPECT_TRUE(serve["watchdog"]["stale_at_end"].get<bool>());
+    EXPECT_GT(sim["forces_received"].get<std::uint64_t>(), sent * 9 / 10);
+    EXPECT_EQ(sim["forces_lost"].get<std::uint64_t>(), 0u);
+    // The hand's target rests 3 mm under the skin (from 4 mm above, 7 mm deep); hand spring
+    // 300 N/m in series with the coupling's 300 N/m: 0.45 N while held.
+    EXPECT_NEAR(sim["hold_force_mean_n"].get<double>(), 0.45, 0.06);
+    EXPECT_NEAR(serve["trace"]["max_force_n"].get<double>(), sim["max_force_n"].get<double>(),
+                1e-9);
+}
+
+TEST(Serve, BadListenAddressIsRefusedByName) {
+    const auto r = runCommand(palp::test::palpTool().string() +
+                              " serve --phantom avc --listen localhost7405 --seconds 1");
+    EXPECT_NE(r.exitCode, 0);
+    EXPECT_NE(r.output.find("palp: error: --listen 'localhost7405': expected host:port"),
+              std::string::npos)
+        << r.output;
+}
+
+}  // namespace
