@@ -13,6 +13,8 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   # Python bindings (python/): pybind11 and Debian's Python headers
   pybind11-dev python3-dev
+  # OpenIGTLink v2 stream of `palp serve --igtl-port` (optional: built when found)
+  libopenigtlink-dev
   # oracles and baselines used by tests and benchmarks
   dcm2niix calculix-ccx rt-tests libgdcm-tools unzip time
   python3-openvdb python3-nibabel python3-pydicom python3-numpy

@@ -9,6 +9,7 @@
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -22,6 +23,10 @@
 #include "palp/haptics/udp_device.h"
 #include "palpate_options.h"
 #include "palpate_setup.h"
+
+#ifdef PALP_HAVE_OPENIGTLINK
+#include "igtl_stream.h"
+#endif
 
 namespace palp::tool {
 
@@ -37,6 +42,8 @@ struct ServeArgs {
     double scale = 1;
     double watchdogMs = 10;
     double graceMs = 2;
+    int igtlPort = 0;  ///< 0: no OpenIGTLink stream
+    double igtlRateHz = 30;
     bool json = false;
 };
 
@@ -116,6 +123,13 @@ int runServe(ServeArgs& a) {
                       formatValue(a.graceMs) + " ms");
     }
     const double period = 1e-3;
+#ifndef PALP_HAVE_OPENIGTLINK
+    if (a.igtlPort > 0) {
+        throw ValueError(
+            "--igtl-port: expected a palp built with OpenIGTLink "
+            "(libopenigtlink-dev), found one built without it");
+    }
+#endif
     // The address is checked before the scene is built (a typo fails at once).
     (void)haptics::parseUdpEndpoint(a.listen, "--listen");
 
@@ -156,6 +170,11 @@ int runServe(ServeArgs& a) {
                      haptics::raySourceName(cp.source), std::string(spec->name).c_str(),
                      device.address().c_str(), a.seconds > 0 ? "" : " (Ctrl-C to stop)");
     }
+#ifdef PALP_HAVE_OPENIGTLINK
+    // The stream's thread is the session's viewer (latest()); this thread reads the trace.
+    std::optional<IgtlStream> igtl;
+    if (a.igtlPort > 0) igtl.emplace(session, a.igtlPort, a.igtlRateHz);
+#endif
     InterruptGuard guard;
     gInterrupted.store(false);
     const auto t0 = std::chrono::steady_clock::now();
@@ -183,6 +202,16 @@ int runServe(ServeArgs& a) {
     session.stop();
     drain();
     const double wall = elapsed();
+    json igtlJson;
+#ifdef PALP_HAVE_OPENIGTLINK
+    if (igtl) {
+        igtlJson = {{"port", a.igtlPort},
+                    {"rate_hz", a.igtlRateHz},
+                    {"clients", igtl->clients()},
+                    {"frames", igtl->framesSent()}};
+        igtl.reset();  // joined: latest() is this thread's again
+    }
+#endif
     const haptics::Snapshot& last = session.latest();
 
     json j;
@@ -202,6 +231,7 @@ int runServe(ServeArgs& a) {
                      {"trips", last.watchdogTrips},
                      {"stale_at_end", last.deviceStale}};
     j["servo"] = loopJson(session.stats(), session.realtime());
+    if (!igtlJson.is_null()) j["igtl"] = igtlJson;
     j["trace"] = {{"ticks", ticks},
                   {"dropped", session.traceDropped()},
                   {"contact_fraction",
@@ -278,6 +308,12 @@ Command addServe(CLI::App& root) {
     app->add_option("--watchdog-grace-ms", a.graceMs,
                     "No fresh state for up to this long: force kept whole, ms (default 2)")
         ->check(within({0, 10, "s"}, {1e3, "ms"}));
+    app->add_option("--igtl-port", a.igtlPort,
+                    "Serve an OpenIGTLink v2 stream on this TCP port (Slicer, MITK): TRANSFORM "
+                    "ProxyToRAS and DeviceToRAS (RAS mm), SENSOR Force (N) (default: none)")
+        ->check(integerIn(0, 65535));
+    app->add_option("--igtl-rate", a.igtlRateHz, "OpenIGTLink frames per second (default 30)")
+        ->check(within({0, 200, "Hz", true}));
     app->add_flag("--json", a.json, "Print the summary as JSON");
     return {app, [args]() -> int { return runServe(*args); }};
 }

@@ -1,0 +1,117 @@
+// `palp serve --igtl-port` read by a client built on libopenigtlink while `palp bridge-sim`
+// presses the avc phantom: TRANSFORM ProxyToRAS and DeviceToRAS and SENSOR Force (3 values, N)
+// arrive in that order each frame; the poses are RAS millimetres of the session's LPS metres
+// (the proxy rests on the skin at LPS y = 0, so RAS y = 0; the pressed device lies deeper, RAS
+// y < 0), and the force of each frame is VC's k (proxy - device) of the same frame.
+#include <gtest/gtest.h>
+#include <igtlClientSocket.h>
+#include <igtlMath.h>
+#include <igtlMessageHeader.h>
+#include <igtlSensorMessage.h>
+#include <igtlTransformMessage.h>
+#include <unistd.h>
+
+#include <Eigen/Core>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <string>
+#include <thread>
+
+#include "test_support.h"
+
+namespace {
+
+struct Frame {
+    Eigen::Vector3d proxy{Eigen::Vector3d::Constant(NAN)}, device{Eigen::Vector3d::Constant(NAN)};
+    Eigen::Vector3d force{Eigen::Vector3d::Constant(NAN)};
+};
+
+Eigen::Vector3d translation(igtl::TransformMessage* t) {
+    igtl::Matrix4x4 m;
+    t->GetMatrix(m);
+    return {m[0][3], m[1][3], m[2][3]};
+}
+
+TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
+    palp::test::TempDir tmp;
+    const std::string palp = palp::test::palpTool().string();
+    const int base = 20000 + ::getpid() % 20000;
+    const std::string udp = "127.0.0.1:" + std::to_string(base);
+    const int tcp = base + 1;
+    palp::test::RunResult run;
+    std::thread tools([&] {
+        run = palp::test::runCommand(
+            palp + " serve --phantom avc --mode vc --k-base 300 --listen " + udp +
+            " --seconds 2.5 --igtl-port " + std::to_string(tcp) + " --igtl-rate 50 --json > " +
+            (tmp / "serve.json").string() + " 2>&1 & sleep 0.2; " + palp +
+            " bridge-sim --connect " + udp + " --depth 7 --hold 0.8 > " +
+            (tmp / "sim.txt").string() + " 2>&1; s=$?; wait; exit $s");
+    });
+    igtl::ClientSocket::Pointer socket = igtl::ClientSocket::New();
+    bool connected = false;
+    for (int i = 0; i < 100 && !connected; ++i) {
+        connected = socket->ConnectToServer("127.0.0.1", tcp) == 0;
+        if (!connected) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    ASSERT_TRUE(connected);
+    socket->SetReceiveTimeout(3000);
+    int frames = 0, pressed = 0, order = 0;
+    Frame f;
+    for (;;) {
+        igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
+        header->InitPack();
+        if (socket->Receive(header->GetPackPointer(), header->GetPackSize()) !=
+            header->GetPackSize())
+            break;  // serve closed the stream
+        header->Unpack();
+        const std::string type = header->GetDeviceType();
+        const std::string name = header->GetDeviceName();
+        if (type == "TRANSFORM") {
+            auto t = igtl::TransformMessage::New();
+            t->SetMessageHeader(header);
+            t->AllocatePack();
+            socket->Receive(t->GetPackBodyPointer(), t->GetPackBodySize());
+            ASSERT_TRUE(t->Unpack(1) & igtl::MessageHeader::UNPACK_BODY);
+            if (name == "ProxyToRAS") {
+                EXPECT_EQ(order, 0);
+                f.proxy = translation(t);
+                order = 1;
+            } else {
+                EXPECT_EQ(name, "DeviceToRAS");
+                EXPECT_EQ(order, 1);
+                f.device = translation(t);
+                order = 2;
+            }
+        } else {
+            ASSERT_EQ(type, "SENSOR");
+            EXPECT_EQ(name, "Force");
+            EXPECT_EQ(order, 2);
+            auto s = igtl::SensorMessage::New();
+            s->SetMessageHeader(header);
+            s->AllocatePack();
+            socket->Receive(s->GetPackBodyPointer(), s->GetPackBodySize());
+            ASSERT_TRUE(s->Unpack(1) & igtl::MessageHeader::UNPACK_BODY);
+            ASSERT_EQ(s->GetLength(), 3u);
+            f.force = {s->GetValue(0), s->GetValue(1), s->GetValue(2)};
+            order = 0;
+            ++frames;
+            // Pressed frames: the device below the skin (RAS y < -0.5 mm) with the gate open.
+            if (f.device.y() < -0.5 && f.force.norm() > 0.05) {
+                ++pressed;
+                EXPECT_NEAR(f.proxy.y(), 0.0, 0.5);  // on the skin iso-surface, mm
+                // VC: F = k (proxy - device), RAS N and mm (floats of mm: 1e-4 mm).
+                const Eigen::Vector3d want = 300.0 * (f.proxy - f.device) * 1e-3;
+                EXPECT_NEAR((f.force - want).norm(), 0.0, 1e-3)
+                    << "force " << f.force.transpose() << " want " << want.transpose();
+            }
+        }
+    }
+    tools.join();
+    std::printf("igtl: %d frames, %d pressed\n", frames, pressed);
+    EXPECT_EQ(run.exitCode, 0) << run.output;
+    EXPECT_GT(frames, 50);  // 2.5 s at 50 Hz
+    EXPECT_GT(pressed, 10);
+}
+
+}  // namespace
