@@ -211,6 +211,8 @@ void UdpDevice::drain() noexcept {
         mDeviceState.buttons = mState.buttons;
         mDeviceState.timestampSeconds = static_cast<double>(mState.timeNs) * 1e-9;
         mDeviceState.sequence = mState.sequence;
+        mPublished.back().value = mState;
+        mPublished.publish();
     }
 }
 

@@ -235,6 +235,7 @@ TEST_F(UdpDeviceTest, MalformedForeignLateAndExcessDatagramsAreIgnoredAndCounted
     std::array<std::uint8_t, bridge::kStateSize> good{};
     bridge::StateMessage m = pressState(0);
     m.position = {0.01, 0.02, 0.03};
+    m.orientation = Eigen::Quaterniond(0.5, 0.5, -0.5, 0.5);
     m.buttons = 3;
     bridge::encode(m, good);
     ASSERT_TRUE(client.sendRaw(good));
@@ -278,6 +279,9 @@ TEST_F(UdpDeviceTest, MalformedForeignLateAndExcessDatagramsAreIgnoredAndCounted
     const DeviceState st = device.read();
     EXPECT_EQ(st.position, m.position);
     EXPECT_EQ(st.buttons, 3u);
+    // What a viewer thread sees: the same state, orientation included.
+    EXPECT_EQ(device.publishedState().sequence, m.sequence);
+    EXPECT_EQ(device.publishedState().orientation.coeffs(), m.orientation.coeffs());
 
     // Sequences 5 then 7: 4 lost; then 6 (late); a burst of 40 beyond maxDrain takes three
     // reads, the newest wins and the rest are superseded.

@@ -2,7 +2,8 @@
 // presses the avc phantom: TRANSFORM ProxyToRAS and DeviceToRAS and SENSOR Force (3 values, N)
 // arrive in that order each frame; the poses are RAS millimetres of the session's LPS metres
 // (the proxy rests on the skin at LPS y = 0, so RAS y = 0; the pressed device lies deeper, RAS
-// y < 0), and the force of each frame is VC's k (proxy - device) of the same frame.
+// y < 0), the force of each frame is VC's k (proxy - device) of the same frame, and the device's
+// orientation is the one the hand sends, in RAS axes.
 #include <gtest/gtest.h>
 #include <igtlClientSocket.h>
 #include <igtlMath.h>
@@ -24,6 +25,7 @@ namespace {
 
 struct Frame {
     Eigen::Vector3d proxy{Eigen::Vector3d::Constant(NAN)}, device{Eigen::Vector3d::Constant(NAN)};
+    Eigen::Matrix3d deviceRotation{Eigen::Matrix3d::Constant(NAN)};
     Eigen::Vector3d force{Eigen::Vector3d::Constant(NAN)};
 };
 
@@ -31,6 +33,15 @@ Eigen::Vector3d translation(igtl::TransformMessage* t) {
     igtl::Matrix4x4 m;
     t->GetMatrix(m);
     return {m[0][3], m[1][3], m[2][3]};
+}
+
+Eigen::Matrix3d rotation(igtl::TransformMessage* t) {
+    igtl::Matrix4x4 m;
+    t->GetMatrix(m);
+    Eigen::Matrix3d r;
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) r(i, j) = m[i][j];
+    return r;
 }
 
 TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
@@ -45,7 +56,8 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
             palp + " serve --phantom avc --mode vc --k-base 300 --listen " + udp +
             " --seconds 2.5 --igtl-port " + std::to_string(tcp) + " --igtl-rate 50 --json > " +
             (tmp / "serve.json").string() + " 2>&1 & sleep 0.2; " + palp +
-            " bridge-sim --connect " + udp + " --depth 7 --hold 0.8 > " +
+            " bridge-sim --connect " + udp +
+            " --depth 7 --hold 0.8 --orientation 0.7071067811865476,0,0,0.7071067811865476 > " +
             (tmp / "sim.txt").string() + " 2>&1; s=$?; wait; exit $s");
     });
     igtl::ClientSocket::Pointer socket = igtl::ClientSocket::New();
@@ -81,6 +93,7 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
                 EXPECT_EQ(name, "DeviceToRAS");
                 EXPECT_EQ(order, 1);
                 f.device = translation(t);
+                f.deviceRotation = rotation(t);
                 order = 2;
             }
         } else {
@@ -104,6 +117,12 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
                 const Eigen::Vector3d want = 300.0 * (f.proxy - f.device) * 1e-3;
                 EXPECT_NEAR((f.force - want).norm(), 0.0, 1e-3)
                     << "force " << f.force.transpose() << " want " << want.transpose();
+                // The hand's orientation, 90 degrees about z in palp's LPS world, in RAS axes:
+                // diag(-1, -1, 1) Rz(90) = [[0 1 0] [-1 0 0] [0 0 1]].
+                Eigen::Matrix3d ras;
+                ras << 0, 1, 0, -1, 0, 0, 0, 0, 1;
+                EXPECT_NEAR((f.deviceRotation - ras).cwiseAbs().maxCoeff(), 0.0, 1e-6)
+                    << f.deviceRotation;
             }
         }
     }

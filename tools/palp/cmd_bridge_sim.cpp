@@ -30,6 +30,7 @@ namespace {
 struct SimArgs {
     std::string connect = "127.0.0.1:7405";
     std::vector<double> fromMm{4, -4, 3};
+    std::vector<double> orientation{1, 0, 0, 0};  ///< w, x, y, z
     std::string axis = "+y";
     double depthMm = 7;
     double pressSeconds = 0.3;
@@ -73,6 +74,14 @@ int runBridgeSim(const SimArgs& a) {
     const auto cycleSamples =
         std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(cycle / period)));
 
+    const Eigen::Quaterniond given(a.orientation[0], a.orientation[1], a.orientation[2],
+                                   a.orientation[3]);
+    if (!(given.norm() > 1e-9)) {
+        throw ValueError(
+            "--orientation: expected a quaternion w,x,y,z of non-zero norm, found "
+            "0,0,0,0");
+    }
+    const Eigen::Quaterniond q = given.normalized();
     haptics::UdpBridgeClient client(a.connect);
     // Handshake: the start position every 10 ms until a force answers (palp serve may still be
     // building its scene), so that the press itself starts with the session listening.
@@ -85,6 +94,7 @@ int runBridgeSim(const SimArgs& a) {
             m.sequence = ++sequence;
             m.timeNs = nowNs();
             m.position = press.start;
+            m.orientation = q;
             client.send(m);
             ++handshake;
             if (client.receive(f, 0.01)) break;
@@ -119,6 +129,7 @@ int runBridgeSim(const SimArgs& a) {
         m.position = ds.position;
         m.velocity = ds.velocity;
         m.buttons = ds.buttons;
+        m.orientation = q;
         if (client.send(m)) {
             ++sent;
         } else {
@@ -222,6 +233,12 @@ Command addBridgeSim(CLI::App& root) {
         ->expected(3)
         ->check(within(bounds::kPosition, kMm));
     app->add_option("--axis", a.axis, "Press direction (default +y)");
+    app->add_option("--orientation", a.orientation,
+                    "The hand's orientation sent with every state, quaternion w,x,y,z (default "
+                    "1,0,0,0)")
+        ->delimiter(',')
+        ->expected(4)
+        ->check(within({-1e3, 1e3, ""}));
     app->add_option("--depth", a.depthMm, "How far the hand's target moves, mm (default 7)")
         ->check(within(bounds::kLength, kMm));
     app->add_option("--press-seconds", a.pressSeconds, "Time to press in (and out), s (0.3)")

@@ -173,7 +173,16 @@ int runServe(ServeArgs& a) {
 #ifdef PALP_HAVE_OPENIGTLINK
     // The stream's thread is the session's viewer (latest()); this thread reads the trace.
     std::optional<IgtlStream> igtl;
-    if (a.igtlPort > 0) igtl.emplace(session, a.igtlPort, a.igtlRateHz);
+    if (a.igtlPort > 0) {
+        // The device's orientation (not in a Snapshot) from its published state, in the world.
+        const Eigen::Matrix3d worldFromDeviceFrame = sp.workspace.rotation;
+        igtl.emplace(session, a.igtlPort, a.igtlRateHz, [&device, worldFromDeviceFrame] {
+            const Eigen::Quaterniond q = device.publishedState().orientation;
+            const double n = q.norm();
+            if (!(n > 0.5 && n < 2)) return worldFromDeviceFrame;  // none, or not a rotation
+            return Eigen::Matrix3d(worldFromDeviceFrame * q.normalized().toRotationMatrix());
+        });
+    }
 #endif
     InterruptGuard guard;
     gInterrupted.store(false);

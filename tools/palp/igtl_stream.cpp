@@ -10,6 +10,7 @@
 
 #include <chrono>
 #include <string>
+#include <utility>
 
 #include "palp/base/error.h"
 
@@ -26,12 +27,19 @@ Eigen::Vector3d rasMm(const Eigen::Vector3d& lpsM) {
     return Eigen::Vector3d(-lpsM.x(), -lpsM.y(), lpsM.z()) * 1e3;
 }
 
+/// A pose at @p lpsM with orientation @p worldFromDevice (LPS axes), in RAS: the rotation's
+/// columns (the device's axes) and the translation with x and y negated, the translation in mm.
 igtl::TransformMessage::Pointer transform(const char* name, const Eigen::Vector3d& lpsM,
+                                          const Eigen::Matrix3d& worldFromDevice,
                                           igtl::TimeStamp::Pointer& ts) {
     igtl::Matrix4x4 m;
     igtl::IdentityMatrix(m);
+    const Eigen::Matrix3d rasFromDevice = Eigen::Vector3d(-1, -1, 1).asDiagonal() * worldFromDevice;
     const Eigen::Vector3d r = rasMm(lpsM);
-    for (int i = 0; i < 3; ++i) m[i][3] = static_cast<float>(r[i]);
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) m[i][j] = static_cast<float>(rasFromDevice(i, j));
+        m[i][3] = static_cast<float>(r[i]);
+    }
     auto msg = igtl::TransformMessage::New();
     msg->SetDeviceName(name);
     msg->SetMatrix(m);
@@ -58,8 +66,13 @@ igtl::SensorMessage::Pointer force(const Eigen::Vector3d& lpsN, igtl::TimeStamp:
 
 }  // namespace
 
-IgtlStream::IgtlStream(haptics::Session& session, int port, double rateHz)
-    : mSession(session), mPort(port), mRate(rateHz), mServer(new Server) {
+IgtlStream::IgtlStream(haptics::Session& session, int port, double rateHz,
+                       std::function<Eigen::Matrix3d()> worldFromDevice)
+    : mSession(session),
+      mPort(port),
+      mRate(rateHz),
+      mWorldFromDevice(std::move(worldFromDevice)),
+      mServer(new Server) {
     if (mServer->socket->CreateServer(port) < 0) {
         delete mServer;
         throw IoError("--igtl-port " + std::to_string(port) +
@@ -103,8 +116,10 @@ void IgtlStream::serve() {
         const haptics::Snapshot s = mSession.latest();
         auto ts = igtl::TimeStamp::New();
         ts->GetTime();
-        const auto proxy = transform("ProxyToRAS", s.proxy, ts);
-        const auto device = transform("DeviceToRAS", s.probe, ts);
+        const Eigen::Matrix3d rotation =
+            mWorldFromDevice ? mWorldFromDevice() : Eigen::Matrix3d::Identity();
+        const auto proxy = transform("ProxyToRAS", s.proxy, rotation, ts);
+        const auto device = transform("DeviceToRAS", s.probe, rotation, ts);
         const auto f = force(s.force, ts);
         const bool ok = client->Send(proxy->GetPackPointer(), proxy->GetPackSize()) &&
                         client->Send(device->GetPackPointer(), device->GetPackSize()) &&

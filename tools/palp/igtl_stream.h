@@ -2,10 +2,12 @@
 /// @file
 /// `palp serve --igtl-port`: an OpenIGTLink v2 server (libopenigtlink) that streams a running
 /// session at display rate for 3D Slicer (OpenIGTLinkIF) or MITK: TRANSFORM `ProxyToRAS` and
-/// `DeviceToRAS` (translation in RAS millimetres, rotation identity) and SENSOR `Force` (3
-/// values, newtons, RAS axes). palp's world is LPS metres; RAS = (-x, -y, z).
+/// `DeviceToRAS` (translation in RAS millimetres; rotation: the device's orientation in the
+/// world, in RAS axes) and SENSOR `Force` (3 values, newtons, RAS axes). palp's world is LPS
+/// metres; RAS = (-x, -y, z).
 /// Built only when CMake finds OpenIGTLink (PALP_HAVE_OPENIGTLINK).
 
+#include <Eigen/Core>
 #include <atomic>
 #include <cstdint>
 #include <functional>
@@ -20,9 +22,12 @@ namespace palp::tool {
 /// and sends the three messages; a client that goes away is dropped and the next one awaited.
 class IgtlStream {
   public:
-    /// Opens the server socket and starts the thread. @throw palp::IoError naming the port when
-    /// it cannot listen there.
-    IgtlStream(haptics::Session& session, int port, double rateHz);
+    /// Opens the server socket and starts the thread. @p worldFromDevice (called on the
+    /// stream's thread; empty: identity) gives the device's orientation in palp's world (LPS),
+    /// drawn at both the device and the proxy. @throw palp::IoError naming the port when it
+    /// cannot listen there.
+    IgtlStream(haptics::Session& session, int port, double rateHz,
+               std::function<Eigen::Matrix3d()> worldFromDevice = {});
     ~IgtlStream();  ///< stops and joins
     IgtlStream(const IgtlStream&) = delete;
     IgtlStream& operator=(const IgtlStream&) = delete;
@@ -36,6 +41,7 @@ class IgtlStream {
     haptics::Session& mSession;
     int mPort;
     double mRate;
+    std::function<Eigen::Matrix3d()> mWorldFromDevice;
     struct Server;
     Server* mServer;
     std::atomic<bool> mStop{false};

@@ -13,6 +13,8 @@
 #include <string>
 #include <string_view>
 
+#include "palp/base/nothrow_slot.h"
+#include "palp/base/triple_buffer.h"
 #include "palp/haptics/bridge_protocol.h"
 #include "palp/haptics/device.h"
 #include "palp/haptics/watchdog_device.h"
@@ -88,7 +90,7 @@ struct UdpDeviceCounters {
 /// state has arrived nothing is sent (there is nobody to send to).
 ///
 /// @par Threading  read(), write(), health() and latestState() from the servo thread only;
-///      counters(), port() and address() from any thread.
+///      publishedState() from one viewer thread; counters(), port() and address() from any.
 /// @par Real-time  read() and write() are noexcept, allocation-free and bounded (maxDrain + 1
 ///      non-blocking system calls); the constructor does all set-up.
 class UdpDevice final : public Device {
@@ -120,6 +122,10 @@ class UdpDevice final : public Device {
     const bridge::StateMessage& latestState() const noexcept { return mState; }
     /// Whether any state has been accepted; servo thread only.
     bool hasState() const noexcept { return mHasState; }
+    /// One viewer thread (e.g. a display-rate stream): the newest accepted state as the servo
+    /// thread published it (lock-free, may skip states); sequence 0 before any. Use it for
+    /// what a Snapshot lacks: the orientation and the buttons.
+    const bridge::StateMessage& publishedState() noexcept { return mPublished.read().value; }
 
   private:
     /// The socket as a Device, watched by mWatchdog.
@@ -152,6 +158,7 @@ class UdpDevice final : public Device {
     socklen_t mPeerLength = 0;
     std::uint64_t mWrites = 0;
     std::uint64_t mSendSequence = 0;
+    TripleBuffer<NothrowSlot<bridge::StateMessage>> mPublished;  // servo -> viewer
     // Counts: written by the servo thread (relaxed), read by any.
     struct AtomicCounters {
         std::atomic<std::uint64_t> received{0}, superseded{0}, lost{0}, late{0}, restarts{0},
