@@ -12,7 +12,7 @@ if [ "$#" -gt 0 ]; then
   targets=("$@")
 else
   targets=(test_base test_servo_loop test_session test_c_api test_c_api_deformable_c test_haptics test_async_regions test_async_force
-           test_async_spring test_deformable test_ray_kernels)
+           test_async_spring test_deformable test_ray_kernels test_udp_device)
 fi
 cmake --preset tsan >/dev/null
 cmake --build --preset tsan --target "${targets[@]}"

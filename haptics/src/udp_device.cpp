@@ -221,7 +221,27 @@ DeviceState UdpDevice::Link::read() noexcept {
     return mOwner.mDeviceState;
 }
 
-DeviceState UdpDevice::read() noexcept { return mWatchdog.read(); }
+DeviceState UdpDevice::read() noexcept {
+    if (!mHasState) {
+        // Before the first state there is no sample for the watchdog to judge: the device rests
+        // at the origin and health() asks for no force.
+        drain();
+        if (!mHasState) {
+            ++mWaitingReads;
+            return mDeviceState;
+        }
+    }
+    return mWatchdog.read();
+}
+
+DeviceHealth UdpDevice::health() const noexcept {
+    if (mHasState) return mWatchdog.health();
+    DeviceHealth h;
+    h.stale = true;
+    h.forceScale = 0;
+    h.staleTicks = mWaitingReads;
+    return h;
+}
 
 void UdpDevice::write(const Eigen::Vector3d& forceN) noexcept {
     const std::uint64_t tick = mWrites++;

@@ -147,6 +147,15 @@ TEST_F(UdpDeviceTest, ForcesOverUdpEqualTheSnapshotsAndThePressFeelsKTimesDepth)
     UdpDevice device(touchX(), deviceParams());
     UdpBridgeClient client(address(device));
     Session session(sScene, device, params());
+    // Before any state: stale, no force, nothing sent (nobody to send to), no watchdog trip.
+    for (int i = 0; i < 20; ++i) {
+        const Snapshot& w = session.step();
+        EXPECT_TRUE(w.deviceStale);
+        EXPECT_EQ(w.deviceForceScale, 0.0);
+        EXPECT_EQ(w.force.norm(), 0.0);
+        EXPECT_EQ(w.watchdogTrips, 0u);
+    }
+    EXPECT_EQ(device.counters().sent, 0u);
     const std::uint64_t ticks = 600;
     Snapshot s;
     int compared = 0;

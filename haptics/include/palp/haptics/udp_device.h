@@ -81,7 +81,8 @@ struct UdpDeviceCounters {
 /// sequences are counted as lost. Everything else is ignored and counted (UdpDeviceCounters).
 /// The state goes through a WatchdogDevice (UdpDeviceParams::watchdog), so health() reports
 /// staleness and a sender that stops gets zero force within the watchdog's timeout (Session
-/// scales its force by health().forceScale).
+/// scales its force by health().forceScale). Until the first state arrives read() returns the
+/// device at rest at the origin and health() says stale with force scale 0.
 ///
 /// write() sends one ForceMessage (sendto with MSG_DONTWAIT; a full socket drops it, counted)
 /// with the force clamped to forceScale x maxForceN, the tick (the number of write() calls
@@ -110,7 +111,8 @@ class UdpDevice final : public Device {
     DeviceState read() noexcept override;
     void write(const Eigen::Vector3d& forceN) noexcept override;
     const DeviceSpec& spec() const noexcept override { return mSpec; }
-    DeviceHealth health() const noexcept override { return mWatchdog.health(); }
+    /// The watchdog's; before the first state: stale, force scale 0 (no force is rendered).
+    DeviceHealth health() const noexcept override;
 
     /// The bound port (the one the system chose for port 0).
     std::uint16_t port() const noexcept { return mPort; }
@@ -157,6 +159,7 @@ class UdpDevice final : public Device {
     sockaddr_storage mPeer{};
     socklen_t mPeerLength = 0;
     std::uint64_t mWrites = 0;
+    std::uint64_t mWaitingReads = 0;  // reads before the first state
     std::uint64_t mSendSequence = 0;
     TripleBuffer<NothrowSlot<bridge::StateMessage>> mPublished;  // servo -> viewer
     // Counts: written by the servo thread (relaxed), read by any.
