@@ -75,4 +75,18 @@ TEST(Serve, BadListenAddressIsRefusedByName) {
         << r.output;
 }
 
+TEST(Serve, PortInUseIsRefusedNamingListen) {
+    const std::string port = std::to_string(20000 + (::getpid() + 7) % 20000);
+    const std::string serve = palp::test::palpTool().string() +
+                              " serve --phantom avc --seconds 1.5 --listen 127.0.0.1:" + port;
+    // The second serve binds after the first has (the first answers within ~0.3 s).
+    const auto r =
+        runCommand(serve + " >/dev/null 2>&1 & sleep 0.8; " + serve + " 2>&1; s=$?; wait; exit $s");
+    EXPECT_NE(r.exitCode, 0);
+    EXPECT_NE(r.output.find("palp: error: --listen 127.0.0.1:" + port +
+                            ": cannot bind: Address already in use (EADDRINUSE)"),
+              std::string::npos)
+        << r.output;
+}
+
 }  // namespace

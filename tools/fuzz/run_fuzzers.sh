@@ -14,7 +14,7 @@ seconds="${1:-60}"
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 build="${PALP_FUZZ_BUILD_DIR:-$root/build/fuzz}"
 jobs="${PALP_FUZZ_JOBS:-2}"
-targets=(nrrd_header metaimage_header dicom_mosaic dicom_frames c_api_session)
+targets=(nrrd_header metaimage_header dicom_mosaic dicom_frames c_api_session bridge_datagram)
 
 (cd "$root" && cmake --preset fuzz -B "$build" >/dev/null)
 cmake --build "$build" -j "$jobs" --target "${targets[@]/#/fuzz_}"

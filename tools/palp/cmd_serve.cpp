@@ -130,8 +130,29 @@ int runServe(ServeArgs& a) {
             "(libopenigtlink-dev), found one built without it");
     }
 #endif
-    // The address is checked before the scene is built (a typo fails at once).
-    (void)haptics::parseUdpEndpoint(a.listen, "--listen");
+
+    // The socket first: a port in use fails at once, before the scene is built.
+    haptics::UdpDeviceParams dp;
+    dp.listen = a.listen;
+    dp.periodSeconds = period;
+    dp.watchdog.timeoutSeconds = a.watchdogMs * 1e-3;
+    dp.watchdog.graceSeconds = a.graceMs * 1e-3;
+    // The library names its field; the command line says --listen.
+    const auto asListen = [&](const palp::Error& e) {
+        std::string what = e.what();
+        const std::string field = "udp device listen address";
+        if (what.rfind(field, 0) == 0) what = "--listen" + what.substr(field.size());
+        return what;
+    };
+    std::optional<haptics::UdpDevice> remote;
+    try {
+        remote.emplace(*spec, dp);
+    } catch (const IoError& e) {
+        throw IoError(asListen(e));
+    } catch (const ValueError& e) {
+        throw ValueError(asListen(e));
+    }
+    haptics::UdpDevice& device = *remote;
 
     Input in = loadInput(pa);
     haptics::CouplingParams cp = couplingFromOptions(pa, in.cp);
@@ -156,12 +177,6 @@ int runServe(ServeArgs& a) {
     sp.traceCapacity = 1u << 14;
     haptics::validateSessionParams(sp);
 
-    haptics::UdpDeviceParams dp;
-    dp.listen = a.listen;
-    dp.periodSeconds = period;
-    dp.watchdog.timeoutSeconds = a.watchdogMs * 1e-3;
-    dp.watchdog.graceSeconds = a.graceMs * 1e-3;
-    haptics::UdpDevice device(*spec, dp);  // @throw naming the address (in use, not ours)
     haptics::Session session(scene, device, sp);
 
     if (!globals().quiet) {
