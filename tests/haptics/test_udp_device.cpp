@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <memory>
 #include <string>
 #include <thread>
 #include <vector>
@@ -334,6 +335,30 @@ TEST_F(UdpDeviceTest, MalformedForeignLateAndExcessDatagramsAreIgnoredAndCounted
     other.send(o);
     readUntil(device, [&] { return device.counters().restarts == 1; });
     EXPECT_EQ(device.latestState().position.x(), -2.0);
+}
+
+// IPv6 loopback, where the machine has it: a state in, a force back to the same address.
+TEST_F(UdpDeviceTest, Ipv6LoopbackWorksWhereAvailable) {
+    UdpDeviceParams p = deviceParams();
+    p.listen = "[::1]:0";
+    std::unique_ptr<UdpDevice> device;
+    try {
+        device = std::make_unique<UdpDevice>(touchX(), p);
+    } catch (const IoError& e) {
+        GTEST_SKIP() << "no IPv6 loopback here: " << e.what();
+    }
+    EXPECT_EQ(device->address(), "[::1]:" + std::to_string(device->port()));
+    UdpBridgeClient client(device->address());
+    bridge::StateMessage m = pressState(3);
+    client.send(m);
+    readUntil(*device, [&] { return device->hasState(); });
+    ASSERT_TRUE(device->hasState());
+    EXPECT_EQ(device->latestState().position, m.position);
+    device->write(Eigen::Vector3d(0.5, 0, 0));
+    bridge::ForceMessage f;
+    ASSERT_TRUE(client.receive(f, 1.0));
+    EXPECT_EQ(f.force, Eigen::Vector3d(0.5, 0, 0));
+    EXPECT_EQ(f.stateSequence, m.sequence);
 }
 
 TEST_F(UdpDeviceTest, ReadAndWriteAllocateNothing) {
