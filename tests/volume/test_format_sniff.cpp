@@ -180,21 +180,19 @@ TEST(FormatSniff, ContentDecidesOverTheName) {
 
 TEST(FormatSniff, WhatPalpCannotReadIsDescribed) {
     TempDir tmp;
-    struct Case {
-        std::string name, bytes, found;
-    };
-    const Case cases[] = {
-        {"notes.gz", gzipBytes("plain text, compressed\n"), "found a gzip stream palp cannot read"},
-        {"picture.xyz", std::string("\x89PNG\r\n\x1a\n", 8) + std::string(64, '\0'),
-         "found an unknown format (its first bytes match none of them and its name says "
-         "nothing)"},
-    };
-    for (const Case& c : cases) {
-        writeFile(tmp / c.name, c.bytes);
+    // One call per file.
+    const auto check = [&](const std::string& name, const std::string& bytes,
+                           const std::string& found) {
+        writeFile(tmp / name, bytes);
         expectThrowWith<palp::FormatError>(
-            [&] { palp::volume::readStack({tmp / c.name}, {}); },
-            {(tmp / c.name).string() + ": expected a DICOM file", c.found});
-    }
+            [&] { palp::volume::readStack({tmp / name}, {}); },
+            {(tmp / name).string() + ": expected a DICOM file", found});
+    };
+    check("notes.gz", gzipBytes("plain text, compressed\n"),
+          "found a gzip stream palp cannot read");
+    check("picture.xyz", std::string("\x89PNG\r\n\x1a\n", 8) + std::string(64, '\0'),
+          "found an unknown format (its first bytes match none of them and its name says "
+          "nothing)");
     // Named .nii but without a NIfTI header: the message says what is missing.
     writeFile(tmp / "zeros.nii", std::string(400, '\0'));
     expectThrowWith<palp::FormatError>(
