@@ -19,6 +19,7 @@
 #include "palp/haptics/map_svg.h"
 #include "palp/haptics/map_underlay.h"
 #include "palp/haptics/scene.h"
+#include "png_image.h"
 
 namespace palp::haptics {
 namespace {
@@ -32,34 +33,8 @@ fs::path tempDir(const std::string& name) {
     return d;
 }
 
-/// An RGB image read back with libpng.
-struct Rgb {
-    int w = 0, h = 0;
-    std::vector<unsigned char> px;
-    const unsigned char* at(int x, int y) const {
-        return &px[(static_cast<std::size_t>(y) * static_cast<std::size_t>(w) +
-                    static_cast<std::size_t>(x)) *
-                   3];
-    }
-    int lum(int x, int y) const { return (at(x, y)[0] + at(x, y)[1] + at(x, y)[2]) / 3; }
-};
-
-Rgb readPng(const fs::path& path) {
-    Rgb img;
-    png_image image{};
-    image.version = PNG_IMAGE_VERSION;
-    if (!png_image_begin_read_from_file(&image, path.c_str())) return img;
-    image.format = PNG_FORMAT_RGB;
-    img.px.resize(PNG_IMAGE_SIZE(image));
-    if (!png_image_finish_read(&image, nullptr, img.px.data(), 0, nullptr)) {
-        png_image_free(&image);
-        img.px.clear();
-        return img;
-    }
-    img.w = static_cast<int>(image.width);
-    img.h = static_cast<int>(image.height);
-    return img;
-}
+using palp::test::readPng;
+using palp::test::Rgb;
 
 /// 50 x 30 mm at 2 mm pixels, u = +x, v = +z, on the plane y = 0.
 MapPlane testPlane() {
