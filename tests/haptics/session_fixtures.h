@@ -3,14 +3,18 @@
 // device whose hand follows keyframes exactly.
 
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <Eigen/Core>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <utility>
 #include <vector>
 
 #include "palp/haptics/device.h"
+#include "palp/haptics/scene.h"
+#include "palp/volume/phantom.h"
 
 namespace palp::haptics::fixtures {
 
@@ -26,6 +30,25 @@ inline const DeviceSpec& touchX() {
 
 /// A point in the world (or device) frame, m.
 inline Eigen::Vector3d at(double x, double y, double z) { return Eigen::Vector3d(x, y, z); }
+
+/// Builds the AVC phantom (1 mm voxels) into @p volume and its scene (skin at -500 HU, hard
+/// meshes at 500 HU) into @p scene, for a fixture's SetUpTestSuite. One TBB thread: the
+/// set-up's parallel loops then run on this thread, so that the ThreadSanitizer build reports
+/// only what the session's own threads do (volume's TBB hand-offs are not annotated for it).
+/// The result does not depend on the threads.
+inline void buildAvcScene(volume::Volume*& volume, std::shared_ptr<Scene>& scene) {
+    tbb::task_arena single(1);
+    single.execute([&] {
+        volume::PhantomSpec spec;
+        spec.params.scene = volume::PhantomScene::Avc;
+        spec.voxelSize = 1e-3;
+        volume = new volume::Volume(volume::makePhantomVolume(spec));
+        SceneOptions options;
+        options.surfaceIso = -500;
+        options.hardIso = 500;
+        scene = Scene::fromVolume(*volume, options);
+    });
+}
 
 /// A kinematic device: the hand follows a piecewise-linear path through keyframes exactly (the
 /// force does not move it), so every tick's probe is known; tick i reads the path at i kT.

@@ -30,22 +30,7 @@ using fixtures::touchX;
 // +-30 mm), 1 mm voxels, skin surface at -500 HU and hard meshes at 500 HU. Built once.
 class SessionTest : public ::testing::Test {
   protected:
-    static void SetUpTestSuite() {
-        // One TBB thread: the set-up's parallel loops then run on this thread, so that the
-        // ThreadSanitizer build reports only what the session's own threads do (volume's TBB
-        // hand-offs are not annotated for it). The result does not depend on the threads.
-        tbb::task_arena single(1);
-        single.execute([] {
-            volume::PhantomSpec spec;
-            spec.params.scene = volume::PhantomScene::Avc;
-            spec.voxelSize = 1e-3;
-            sVolume = new volume::Volume(volume::makePhantomVolume(spec));
-            SceneOptions options;
-            options.surfaceIso = -500;
-            options.hardIso = 500;
-            sScene = Scene::fromVolume(*sVolume, options);
-        });
-    }
+    static void SetUpTestSuite() { fixtures::buildAvcScene(sVolume, sScene); }
     static void TearDownTestSuite() {
         sScene.reset();
         delete sVolume;

@@ -37,19 +37,7 @@ constexpr double kDepth = 3e-3;     // m below the surface y = 0 at the hold
 
 class UdpDeviceTest : public ::testing::Test {
   protected:
-    static void SetUpTestSuite() {
-        tbb::task_arena single(1);
-        single.execute([] {
-            volume::PhantomSpec spec;
-            spec.params.scene = volume::PhantomScene::Avc;
-            spec.voxelSize = 1e-3;
-            sVolume = new volume::Volume(volume::makePhantomVolume(spec));
-            SceneOptions options;
-            options.surfaceIso = -500;
-            options.hardIso = 500;
-            sScene = Scene::fromVolume(*sVolume, options);
-        });
-    }
+    static void SetUpTestSuite() { fixtures::buildAvcScene(sVolume, sScene); }
     static void TearDownTestSuite() {
         sScene.reset();
         delete sVolume;
