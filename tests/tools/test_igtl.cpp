@@ -54,9 +54,9 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
     std::thread tools([&] {
         run = palp::test::runCommand(
             palp + " serve --phantom avc --mode vc --k-base 300 --listen " + udp +
-            " --seconds 2.5 --igtl-port " + std::to_string(tcp) + " --igtl-rate 50 --json > " +
-            (tmp / "serve.json").string() + " 2>&1 & sleep 0.2; " + palp +
-            " bridge-sim --connect " + udp +
+            " --seconds 2.5 --watchdog-ms 500 --watchdog-grace-ms 400 --igtl-port " +
+            std::to_string(tcp) + " --igtl-rate 50 --json > " + (tmp / "serve.json").string() +
+            " 2>&1 & sleep 0.2; " + palp + " bridge-sim --connect " + udp +
             " --depth 7 --hold 0.8 --orientation 0.7071067811865476,0,0,0.7071067811865476 > " +
             (tmp / "sim.txt").string() + " 2>&1; s=$?; wait; exit $s");
     });
@@ -68,7 +68,7 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
     }
     ASSERT_TRUE(connected);
     socket->SetReceiveTimeout(3000);
-    int frames = 0, pressed = 0, order = 0;
+    int frames = 0, pressed = 0, exact = 0, order = 0;
     Frame f;
     for (;;) {
         igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
@@ -114,9 +114,14 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
                 ++pressed;
                 EXPECT_NEAR(f.proxy.y(), 0.0, 0.5);  // on the skin iso-surface, mm
                 // VC: F = k (proxy - device), RAS N and mm (floats of mm: 1e-4 mm).
+                // A hand process starved of CPU for longer than the watchdog's grace gets its
+                // force scaled down (never up, never turned): the frame's force is then
+                // s k (proxy - device) with 0 < s < 1. Most frames are whole.
                 const Eigen::Vector3d want = 300.0 * (f.proxy - f.device) * 1e-3;
-                EXPECT_NEAR((f.force - want).norm(), 0.0, 1e-3)
+                EXPECT_NEAR((f.force.normalized() - want.normalized()).norm(), 0.0, 1e-3)
                     << "force " << f.force.transpose() << " want " << want.transpose();
+                EXPECT_LE(f.force.norm(), want.norm() + 1e-3);
+                if ((f.force - want).norm() < 1e-3) ++exact;
                 // The hand's orientation, 90 degrees about z in palp's LPS world, in RAS axes:
                 // diag(-1, -1, 1) Rz(90) = [[0 1 0] [-1 0 0] [0 0 1]].
                 Eigen::Matrix3d ras;
@@ -127,10 +132,11 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
         }
     }
     tools.join();
-    std::printf("igtl: %d frames, %d pressed\n", frames, pressed);
+    std::printf("igtl: %d frames, %d pressed, %d with the whole force\n", frames, pressed, exact);
     EXPECT_EQ(run.exitCode, 0) << run.output;
     EXPECT_GT(frames, 50);  // 2.5 s at 50 Hz
     EXPECT_GT(pressed, 10);
+    EXPECT_GT(exact, pressed / 2);
 }
 
 }  // namespace
