@@ -12,7 +12,7 @@ if [ "$#" -gt 0 ]; then
   targets=("$@")
 else
   targets=(test_base test_servo_loop test_session test_c_api test_c_api_deformable_c test_haptics test_async_regions test_async_force
-           test_async_spring test_deformable test_ray_kernels test_udp_device)
+           test_async_spring test_deformable_async test_ray_kernels test_udp_device)
 fi
 cmake --preset tsan >/dev/null
 cmake --build --preset tsan --target "${targets[@]}"
@@ -23,7 +23,7 @@ export TSAN_OPTIONS="suppressions=$PWD/tools/tsan.supp halt_on_error=1 second_de
 # accuracy cases build a global secondary each, 12 minutes of test_async_force under TSan; the
 # release suite runs them), the deformable body's regions cases (its whole-mesh sessions are
 # stepped on the test's thread) and the spring's threaded tick.
-declare -A filter=([test_ray_kernels]='RayBatch.*' [test_deformable]='DeformableAsync.*'
+declare -A filter=([test_ray_kernels]='RayBatch.*'
                    [test_async_spring]='AsyncSpring.Threaded*'
                    [test_async_force]='AsyncForce.StalledSecondary*:AsyncForce.TicksAllocateNothing'
                    [test_async_regions]='AsyncRegions.StalledSecondary*:AsyncRegions.Threaded*:AsyncRegions.RejectsBadInput')
