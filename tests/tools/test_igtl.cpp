@@ -3,22 +3,25 @@
 // arrive in that order each frame; the poses are RAS millimetres of the session's LPS metres
 // (the proxy rests on the skin at LPS y = 0, so RAS y = 0; the pressed device lies deeper, RAS
 // y < 0), the force of each frame is VC's k (proxy - device) of the same frame, and the device's
-// orientation is the one the hand sends, in RAS axes.
+// orientation is the one the hand sends, in RAS axes. serve's UDP and TCP ports are the
+// system's choice (port 0), read back from its stderr lines.
 #include <gtest/gtest.h>
 #include <igtlClientSocket.h>
 #include <igtlMath.h>
 #include <igtlMessageHeader.h>
 #include <igtlSensorMessage.h>
 #include <igtlTransformMessage.h>
-#include <unistd.h>
 
 #include <Eigen/Core>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <string>
 #include <thread>
 
+#include "serve_address.h"
 #include "test_support.h"
 
 namespace {
@@ -47,26 +50,35 @@ Eigen::Matrix3d rotation(igtl::TransformMessage* t) {
 TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
     palp::test::TempDir tmp;
     const std::string palp = palp::test::palpTool().string();
-    const int base = 20000 + ::getpid() % 20000;
-    const std::string udp = "127.0.0.1:" + std::to_string(base);
-    const int tcp = base + 1;
+    const std::string err = (tmp / "serve.err").string();
     palp::test::RunResult run;
     std::thread tools([&] {
         run = palp::test::runCommand(
-            palp + " serve --phantom avc --mode vc --k-base 300 --listen " + udp +
-            " --seconds 2.5 --watchdog-ms 500 --watchdog-grace-ms 400 --igtl-port " +
-            std::to_string(tcp) + " --igtl-rate 50 --json > " + (tmp / "serve.json").string() +
-            " 2>&1 & sleep 0.2; " + palp + " bridge-sim --connect " + udp +
-            " --depth 7 --hold 0.8 --orientation 0.7071067811865476,0,0,0.7071067811865476 > " +
+            palp +
+            " serve --phantom avc --mode vc --k-base 300 --listen 127.0.0.1:0 --seconds 2.5 "
+            "--watchdog-ms 500 --watchdog-grace-ms 400 --igtl-port 0 --igtl-rate 50 --json > " +
+            (tmp / "serve.json").string() + " 2> " + err + " & serve=$!; " +
+            palp::test::shellAwaitServeAddress(err) + palp +
+            " bridge-sim --connect $addr --depth 7 --hold 0.8 --orientation "
+            "0.7071067811865476,0,0,0.7071067811865476 > " +
             (tmp / "sim.txt").string() + " 2>&1; s=$?; wait; exit $s");
     });
+    // The stream listens before the session starts (and before bridge-sim's press).
+    const std::string port = palp::test::awaitLine(err, "palp serve: igtl on tcp ", 60);
+    if (port.empty()) {
+        tools.join();
+        FAIL() << "serve reported no igtl port: " << run.output;
+    }
+    const int tcp = std::stoi(port);
+    EXPECT_GT(tcp, 0);
     igtl::ClientSocket::Pointer socket = igtl::ClientSocket::New();
     bool connected = false;
     for (int i = 0; i < 100 && !connected; ++i) {
         connected = socket->ConnectToServer("127.0.0.1", tcp) == 0;
         if (!connected) std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
-    ASSERT_TRUE(connected);
+    if (!connected) tools.join();
+    ASSERT_TRUE(connected) << run.output;
     socket->SetReceiveTimeout(3000);
     int frames = 0, pressed = 0, exact = 0, order = 0;
     Frame f;
@@ -134,7 +146,10 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
     tools.join();
     std::printf("igtl: %d frames, %d pressed, %d with the whole force\n", frames, pressed, exact);
     EXPECT_EQ(run.exitCode, 0) << run.output;
-    EXPECT_GT(frames, 50);  // 2.5 s at 50 Hz
+    std::ifstream in(tmp / "serve.json");
+    const std::string json((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_NE(json.find("\"port\": " + port), std::string::npos) << json;  // the bound one
+    EXPECT_GT(frames, 50);                                                 // 2.5 s at 50 Hz
     EXPECT_GT(pressed, 10);
     EXPECT_GT(exact, pressed / 2);
 }

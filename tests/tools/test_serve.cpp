@@ -1,15 +1,16 @@
 // `palp serve` with `palp bridge-sim` over loopback: the simulated hand's press is felt (the
 // spring chain hand - coupling settles at k_h k / (k_h + k) x the target's depth), every state
 // sent is received with none counted lost, the watchdog trips once the hand stops sending; a bad
-// --listen address is refused naming it.
+// --listen address is refused naming it. Ports are the system's choice (--listen 127.0.0.1:0),
+// read back from serve's first line, never guessed.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 
+#include "serve_address.h"
 #include "test_support.h"
 
 namespace {
@@ -30,19 +31,23 @@ nlohmann::json readJson(const std::filesystem::path& path) {
 TEST(Serve, BridgeSimPressIsFeltAndEveryStateCounted) {
     palp::test::TempDir tmp;
     const std::string palp = palp::test::palpTool().string();
-    const std::string port = std::to_string(20000 + ::getpid() % 20000);
-    const std::string address = "127.0.0.1:" + port;
+    const std::string err = (tmp / "serve.err").string();
     // serve runs 3 s; the hand waits for its answer (set-up), then presses once (1.1 s).
-    const auto r = runCommand(palp + " serve --phantom avc --mode vc --k-base 300 --listen " +
-                              address + " --seconds 3 --json > " + (tmp / "serve.json").string() +
-                              " 2> " + (tmp / "serve.err").string() + " & sleep 0.2; " + palp +
-                              " bridge-sim --connect " + address + " --depth 7 --json > " +
+    const auto r = runCommand(palp +
+                              " serve --phantom avc --mode vc --k-base 300 --listen 127.0.0.1:0 "
+                              "--seconds 3 --json > " +
+                              (tmp / "serve.json").string() + " 2> " + err + " & serve=$!; " +
+                              palp::test::shellAwaitServeAddress(err) + palp +
+                              " bridge-sim --connect $addr --depth 7 --json > " +
                               (tmp / "sim.json").string() + "; s=$?; wait; exit $s");
     ASSERT_EQ(r.exitCode, 0) << r.output;
     const auto serve = readJson(tmp / "serve.json");
     const auto sim = readJson(tmp / "sim.json");
     ASSERT_TRUE(serve.contains("datagrams")) << r.output;
     ASSERT_TRUE(sim.contains("states_sent")) << r.output;
+    // The hand connected to the address serve reported, the one it bound.
+    EXPECT_EQ(sim["connect"], serve["listen"]);
+    EXPECT_NE(serve["listen"].get<std::string>(), "127.0.0.1:0");
     const auto& d = serve["datagrams"];
     const auto sent = sim["states_sent"].get<std::uint64_t>();
     EXPECT_EQ(sent, 1100u);
@@ -76,14 +81,24 @@ TEST(Serve, BadListenAddressIsRefusedByName) {
 }
 
 TEST(Serve, PortInUseIsRefusedNamingListen) {
-    const std::string port = std::to_string(20000 + (::getpid() + 7) % 20000);
-    const std::string serve = palp::test::palpTool().string() +
-                              " serve --phantom avc --seconds 1.5 --listen 127.0.0.1:" + port;
-    // The second serve binds after the first has (the first answers within ~0.3 s).
+    palp::test::TempDir tmp;
+    const std::string err = (tmp / "first.err").string();
+    const std::string serve =
+        palp::test::palpTool().string() + " serve --phantom avc --seconds 1 --listen ";
+    // The second serve binds the address the first one was given by the system.
     const auto r =
-        runCommand(serve + " >/dev/null 2>&1 & sleep 0.8; " + serve + " 2>&1; s=$?; wait; exit $s");
+        runCommand(serve + "127.0.0.1:0 >/dev/null 2> " + err + " & serve=$!; " +
+                   palp::test::shellAwaitServeAddress(err) + "echo \"first on $addr\"; " + serve +
+                   "$addr 2>&1; s=$?; wait; exit $s");
     EXPECT_NE(r.exitCode, 0);
-    EXPECT_NE(r.output.find("palp: error: --listen 127.0.0.1:" + port +
+    const std::string first = "first on ";
+    const auto at = r.output.find(first);
+    ASSERT_NE(at, std::string::npos) << r.output;
+    const std::string address =
+        r.output.substr(at + first.size(), r.output.find('\n', at) - at - first.size());
+    EXPECT_EQ(address.rfind("127.0.0.1:", 0), 0u) << address;
+    EXPECT_NE(address, "127.0.0.1:0");
+    EXPECT_NE(r.output.find("palp: error: --listen " + address +
                             ": cannot bind: Address already in use (EADDRINUSE)"),
               std::string::npos)
         << r.output;

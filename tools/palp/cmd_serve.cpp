@@ -42,7 +42,7 @@ struct ServeArgs {
     double scale = 1;
     double watchdogMs = 10;
     double graceMs = 2;
-    int igtlPort = 0;  ///< 0: no OpenIGTLink stream
+    int igtlPort = -1;  ///< -1: no OpenIGTLink stream; 0: any free TCP port
     double igtlRateHz = 30;
     bool json = false;
 };
@@ -124,7 +124,7 @@ int runServe(ServeArgs& a) {
     }
     const double period = 1e-3;
 #ifndef PALP_HAVE_OPENIGTLINK
-    if (a.igtlPort > 0) {
+    if (a.igtlPort >= 0) {
         throw ValueError(
             "--igtl-port: expected a palp built with OpenIGTLink "
             "(libopenigtlink-dev), found one built without it");
@@ -153,6 +153,13 @@ int runServe(ServeArgs& a) {
         throw ValueError(asListen(e));
     }
     haptics::UdpDevice& device = *remote;
+    // The bound address first, on a line of its own (the port the system chose for port 0), so
+    // that a script or a test can connect to it: printed even with --quiet when it was chosen.
+    const bool portChosen = haptics::parseUdpEndpoint(a.listen, "--listen").port == 0;
+    if (!globals().quiet || portChosen) {
+        std::fprintf(stderr, "palp serve: listening on udp %s\n", device.address().c_str());
+        std::fflush(stderr);
+    }
 
     Input in = loadInput(pa);
     haptics::CouplingParams cp = couplingFromOptions(pa, in.cp);
@@ -180,15 +187,14 @@ int runServe(ServeArgs& a) {
     haptics::Session session(scene, device, sp);
 
     if (!globals().quiet) {
-        std::fprintf(stderr, "palp serve: %s, %s/%s on %s; listening on udp %s%s\n",
-                     in.label.c_str(), haptics::couplingModeName(cp.mode),
-                     haptics::raySourceName(cp.source), std::string(spec->name).c_str(),
-                     device.address().c_str(), a.seconds > 0 ? "" : " (Ctrl-C to stop)");
+        std::fprintf(stderr, "palp serve: %s, %s/%s on %s%s\n", in.label.c_str(),
+                     haptics::couplingModeName(cp.mode), haptics::raySourceName(cp.source),
+                     std::string(spec->name).c_str(), a.seconds > 0 ? "" : " (Ctrl-C to stop)");
     }
 #ifdef PALP_HAVE_OPENIGTLINK
     // The stream's thread is the session's viewer (latest()); this thread reads the trace.
     std::optional<IgtlStream> igtl;
-    if (a.igtlPort > 0) {
+    if (a.igtlPort >= 0) {
         // The device's orientation (not in a Snapshot) from its published state, in the world.
         const Eigen::Matrix3d worldFromDeviceFrame = sp.workspace.rotation;
         igtl.emplace(session, a.igtlPort, a.igtlRateHz, [&device, worldFromDeviceFrame] {
@@ -197,6 +203,10 @@ int runServe(ServeArgs& a) {
             if (!(n > 0.5 && n < 2)) return worldFromDeviceFrame;  // none, or not a rotation
             return Eigen::Matrix3d(worldFromDeviceFrame * q.normalized().toRotationMatrix());
         });
+        if (!globals().quiet || a.igtlPort == 0) {
+            std::fprintf(stderr, "palp serve: igtl on tcp %d\n", igtl->port());
+            std::fflush(stderr);
+        }
     }
 #endif
     InterruptGuard guard;
@@ -229,7 +239,7 @@ int runServe(ServeArgs& a) {
     json igtlJson;
 #ifdef PALP_HAVE_OPENIGTLINK
     if (igtl) {
-        igtlJson = {{"port", a.igtlPort},
+        igtlJson = {{"port", igtl->port()},
                     {"rate_hz", a.igtlRateHz},
                     {"clients", igtl->clients()},
                     {"frames", igtl->framesSent()}};
@@ -334,7 +344,8 @@ Command addServe(CLI::App& root) {
         ->check(within({0, 10, "s"}, {1e3, "ms"}));
     app->add_option("--igtl-port", a.igtlPort,
                     "Serve an OpenIGTLink v2 stream on this TCP port (Slicer, MITK): TRANSFORM "
-                    "ProxyToRAS and DeviceToRAS (RAS mm), SENSOR Force (N) (default: none)")
+                    "ProxyToRAS and DeviceToRAS (RAS mm), SENSOR Force (N) (default: none; 0: "
+                    "any free port, printed)")
         ->check(integerIn(0, 65535));
     app->add_option("--igtl-rate", a.igtlRateHz, "OpenIGTLink frames per second (default 30)")
         ->check(within({0, 200, "Hz", true}));

@@ -79,6 +79,7 @@ IgtlStream::IgtlStream(haptics::Session& session, int port, double rateHz,
                       ": expected a free TCP port to serve OpenIGTLink on, found it in use or "
                       "refused");
     }
+    if (port == 0) mPort = mServer->socket->GetServerPort();
     mThread = std::thread([this] { run(); });
 }
 

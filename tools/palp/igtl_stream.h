@@ -22,16 +22,18 @@ namespace palp::tool {
 /// and sends the three messages; a client that goes away is dropped and the next one awaited.
 class IgtlStream {
   public:
-    /// Opens the server socket and starts the thread. @p worldFromDevice (called on the
-    /// stream's thread; empty: identity) gives the device's orientation in palp's world (LPS),
-    /// drawn at both the device and the proxy. @throw palp::IoError naming the port when it
-    /// cannot listen there.
+    /// Opens the server socket (@p port 0: any free port, see port()) and starts the thread. @p
+    /// worldFromDevice (called on the stream's thread; empty: identity) gives the device's
+    /// orientation in palp's world (LPS), drawn at both the device and the proxy. @throw
+    /// palp::IoError naming the port when it cannot listen there.
     IgtlStream(haptics::Session& session, int port, double rateHz,
                std::function<Eigen::Matrix3d()> worldFromDevice = {});
     ~IgtlStream();  ///< stops and joins
     IgtlStream(const IgtlStream&) = delete;
     IgtlStream& operator=(const IgtlStream&) = delete;
 
+    /// The bound TCP port (the one the system chose for port 0).
+    int port() const noexcept { return mPort; }
     std::uint64_t framesSent() const noexcept { return mFrames.load(std::memory_order_relaxed); }
     std::uint64_t clients() const noexcept { return mClients.load(std::memory_order_relaxed); }
 
