@@ -263,6 +263,25 @@ class Sessions(unittest.TestCase):
                                        params).surface())
 
 
+class RayBundle(unittest.TestCase):
+    def test_bundle_geometry_for_viewers(self):
+        c = palp.CouplingParams(mode="avcec", ring_count=6, ring_half_angle=0.2,
+                                sobel_angle=0.1, surface_offset=1e-3, ray_length=0.03)
+        b = palp.ray_bundle([0.01, 0, 0], [0, 2, 0], c)  # direction normalised
+        self.assertEqual(len(b["lengths"]), 1 + 6 + 8 + 8)
+        np.testing.assert_allclose(b["directions"][0], [0, 1, 0], atol=1e-7)
+        np.testing.assert_allclose(b["lengths"], 0.03, rtol=1e-6)
+        np.testing.assert_allclose(np.linalg.norm(b["directions"], axis=1), 1, rtol=1e-6)
+        ring = b["directions"][b["ring"]]
+        np.testing.assert_allclose(ring[:, 1], math.cos(0.2), rtol=1e-6)  # cone half-angle
+        # Surface stencil: parallel rays from origins h apart in the plane normal to d.
+        surf = b["origins"][b["surface"]] - [0.01, 0, 0]
+        np.testing.assert_allclose(surf[:, 1], 0, atol=1e-7)
+        self.assertAlmostEqual(np.sort(np.linalg.norm(surf, axis=1))[0], 1e-3, places=7)
+        self.assertAlmostEqual(float(b["weights"][:7].sum()), 1.0, places=6)
+        self.assertIsNone(palp.ray_bundle([0, 0, 0], [0, 0, 0], c))
+
+
 class OpenVdb(unittest.TestCase):
     def test_pyopenvdb_grid_in_and_out(self):
         try:
