@@ -50,10 +50,10 @@ class CallbackDevice final : public ph::Device {
     palp_device_state mState;
 };
 
-std::string specField(const char* name) { return std::string("palp_device_callbacks.") + name; }
+}  // namespace
 
-/// C -> C++, checking every field. @throw palp::ValueError naming the C field.
-ph::DeviceSpec toSpec(const palp_device_spec& c, std::string_view name) {
+ph::DeviceSpec toSpec(const palp_device_spec& c, std::string_view name, const char* owner) {
+    const auto specField = [owner](const char* field) { return std::string(owner) + "." + field; };
     requireWithin(specField("spec.max_force"), c.max_force, bounds::kPositiveForce);
     requireWithin(specField("spec.max_continuous_force"), c.max_continuous_force, bounds::kForce);
     requireWithin(specField("spec.max_stiffness (0: no limit)"), c.max_stiffness,
@@ -81,17 +81,17 @@ ph::DeviceSpec toSpec(const palp_device_spec& c, std::string_view name) {
     return s;
 }
 
-ph::WatchdogParams toWatchdog(const palp_device_callbacks& c) {
+ph::WatchdogParams toWatchdog(double timeout, double grace, double resume, const char* owner) {
     ph::WatchdogParams w;
-    w.timeoutSeconds = c.watchdog_timeout;
-    w.graceSeconds = c.watchdog_grace;
-    w.resumeSeconds = c.watchdog_resume;
+    w.timeoutSeconds = timeout;
+    w.graceSeconds = grace;
+    w.resumeSeconds = resume;
     try {
         ph::validateWatchdogParams(w);
     } catch (const palp::ValueError& e) {
         // The library names its members; say which C fields they are.
-        throw palp::ValueError(
-            std::string("palp_device_callbacks.watchdog_timeout/_grace/_resume: ") + e.what());
+        throw palp::ValueError(std::string(owner) +
+                               ".watchdog_timeout/_grace/_resume: " + e.what());
     }
     return w;
 }
@@ -105,7 +105,6 @@ void fromSpec(const ph::DeviceSpec& s, palp_device_spec& c) noexcept {
     put(s.workspace.max, c.workspace_max);
 }
 
-}  // namespace
 }  // namespace palp::capi
 
 using namespace palp::capi;
@@ -152,8 +151,11 @@ palp_status palp_session_create_host(palp_scene* scene, const palp_session_param
     return guarded([&] {
         auto handle = std::make_unique<palp_session>();
         handle->deviceName = device->name ? device->name : "host device";
-        const ph::DeviceSpec spec = toSpec(device->spec, handle->deviceName);
-        const ph::WatchdogParams watch = toWatchdog(*device);
+        const ph::DeviceSpec spec =
+            toSpec(device->spec, handle->deviceName, "palp_device_callbacks");
+        const ph::WatchdogParams watch =
+            toWatchdog(device->watchdog_timeout, device->watchdog_grace, device->watchdog_resume,
+                       "palp_device_callbacks");
         const ph::SessionParams sp = toSession(*params);
         checkScenePeriod(*scene, params->period, "palp_session_create_host");
         handle->params = *params;

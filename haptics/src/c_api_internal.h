@@ -4,7 +4,8 @@
 // conversions its files share. c_api.cpp: errors, handles, volumes and scenes;
 // c_api_params.cpp: parameter, trajectory and snapshot conversions and defaults;
 // c_api_session.cpp: sessions; c_api_deformable.cpp: deformable scenes and their surface;
-// c_api_host.cpp: host devices (callbacks behind a watchdog).
+// c_api_host.cpp: host devices (callbacks behind a watchdog); c_api_udp.cpp: remote devices
+// (UdpDevice, the device bridge).
 
 #include <Eigen/Core>
 #include <atomic>
@@ -14,12 +15,14 @@
 #include <mutex>
 #include <new>
 #include <string>
+#include <string_view>
 #include <type_traits>
 
 #include "palp/base/error.h"
 #include "palp/haptics/session.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/trajectory.h"
+#include "palp/haptics/udp_device.h"
 #include "palp/haptics/watchdog_device.h"
 #include "palp/palp.h"
 #include "palp/volume/volume.h"
@@ -41,6 +44,7 @@ struct palp_session {
     mutable std::mutex paramsMutex;  // never taken by the servo thread
     std::unique_ptr<palp::haptics::Device> device;            // simulated, or the host's callbacks
     std::unique_ptr<palp::haptics::WatchdogDevice> watchdog;  // host devices: around device
+    palp::haptics::UdpDevice* udp = nullptr;          // remote devices: device, as what it is
     std::unique_ptr<palp::haptics::Session> session;  // declared last: destroyed (stopped) first
     ~palp_session() { session.reset(); }
 };
@@ -123,5 +127,14 @@ double deformablePeriod(const palp_scene& scene) noexcept;
 /// deformable and made for another period.
 void checkScenePeriod(const palp_scene& scene, double period, const char* function);
 palp_latency toC(const haptics::LatencySummary& l) noexcept;
+
+// --- device specs and watchdogs of host and remote devices (c_api_host.cpp) ---------------
+
+/// C -> C++, checking every field. @throw palp::ValueError naming the C field
+/// ("<owner>.spec.max_force").
+haptics::DeviceSpec toSpec(const palp_device_spec& c, std::string_view name, const char* owner);
+/// @throw palp::ValueError naming "<owner>.watchdog_timeout/_grace/_resume".
+haptics::WatchdogParams toWatchdog(double timeout, double grace, double resume, const char* owner);
+void fromSpec(const haptics::DeviceSpec& s, palp_device_spec& c) noexcept;
 
 }  // namespace palp::capi

@@ -376,7 +376,8 @@ typedef struct palp_snapshot {
     int contact_node;        /**< FEM node with the largest share of the contact, -1: none */
     double max_displacement; /**< largest surface displacement after the step, m */
     uint32_t fem_flags;      /**< solver flags of the step (0: a clean step) */
-    /* Host devices' watchdog (palp_session_create_host; 0 / 1 / 0 for simulated devices): */
+    /* Host and remote devices' watchdog (palp_session_create_host, palp_session_create_udp;
+     * 0 / 1 / 0 for simulated devices): */
     int device_stale;          /**< 1: this tick's read_state brought no fresh sample */
     double device_force_scale; /**< factor the force was scaled by (1: whole, 0: cut) */
     uint64_t watchdog_trips;   /**< outages so far whose force reached zero */
@@ -491,6 +492,76 @@ void palp_device_callbacks_default(palp_device_callbacks* callbacks);
  *  ("palp_device_callbacks.spec.max_force", ...). */
 palp_status palp_session_create_host(palp_scene* scene, const palp_session_params* params,
                                      const palp_device_callbacks* device, palp_session** out);
+
+/* ---------------------------------------------------------------------------------------- */
+/* Remote devices: the device bridge over UDP (docs/device_bridge.md)                       */
+
+/** How a remote device's session listens and when its force is cut. Start from
+ *  palp_udp_device_params_default(). The remote program sends bridge State datagrams to
+ *  @p listen and receives one Force datagram per tick back at the address its newest State came
+ *  from (palp_session_udp_port() says which port was bound). */
+typedef struct palp_udp_device_params {
+    /** Local address to bind, "host:port" or "[ipv6]:port" (port 0: any free one); copied at
+     *  creation. Default "127.0.0.1:7405". */
+    const char* listen;
+    palp_device_spec spec; /**< the remote device's limits; default "3D Systems Touch X"'s */
+    /** Reported as palp_session_params.device by palp_session_get_params (copied; NULL: "udp
+     *  device"); palp_session_set_params expects it there. */
+    const char* name;
+    double watchdog_timeout;  /**< s: zero force after this long without a new State
+                                   (0 < t <= 10; default 0.01) */
+    double watchdog_grace;    /**< s: the force stays whole this long (0 <= g < timeout;
+                                   default 0.002) */
+    double watchdog_resume;   /**< s: time for the force to climb back (0..10; default 0.05) */
+    int max_drain;            /**< most datagrams one tick takes from the socket (1..4096;
+                                   default 64) */
+    int receive_buffer_bytes; /**< SO_RCVBUF asked for, bytes (0: the system's; default 256 KiB) */
+} palp_udp_device_params;
+
+/** Fills @p params with the defaults above. */
+void palp_udp_device_params_default(palp_udp_device_params* params);
+
+/** A session for a remote device (what `palp serve` runs): the socket is opened and bound here,
+ *  each tick drains it without waiting and sends the force back without blocking, and a
+ *  WatchdogDevice cuts the force when States stop coming (as for host devices: grace, ramp to
+ *  zero at the timeout, a trip per outage, climb back over resume). Before the first State the
+ *  device rests at the origin, stale, with no force and nothing sent. Malformed or foreign
+ *  datagrams are ignored and counted (palp_session_udp_counters). @p params as for
+ *  palp_session_create_simulated, except that params->device is ignored (the spec is
+ *  device->spec). Runs on the servo thread (palp_session_start) or offline
+ *  (palp_session_step: each step reads what has arrived by then).
+ *  Errors: PALP_ERROR_INVALID_ARGUMENT naming the field ("palp_udp_device_params.listen
+ *  'localhost7405': expected host:port ...", "palp_udp_device_params.spec.max_force", ...);
+ *  PALP_ERROR_IO when the socket cannot be bound (the address and the system's reason, e.g.
+ *  "Address already in use (EADDRINUSE)"). */
+palp_status palp_session_create_udp(palp_scene* scene, const palp_session_params* params,
+                                    const palp_udp_device_params* device, palp_session** out);
+
+/** The bound UDP port of a remote device's session (the system's choice for port 0); 0 for
+ *  any other session or NULL. Any thread. */
+int palp_session_udp_port(const palp_session* session);
+/** The bound address, "host:port" (valid while the session lives); NULL for any other session
+ *  or NULL. Any thread. */
+const char* palp_session_udp_address(const palp_session* session);
+
+/** What a remote device's session has received and sent so far (each count read on its own,
+ *  from any thread). */
+typedef struct palp_udp_device_counters {
+    uint64_t received;     /**< States accepted */
+    uint64_t superseded;   /**< accepted, but a newer one arrived for the same tick */
+    uint64_t lost;         /**< sequence numbers skipped between accepted States */
+    uint64_t late;         /**< not newer than the last accepted (ignored) */
+    uint64_t restarts;     /**< the sender's sequence fell back by more than 1024 */
+    uint64_t peer_changes; /**< a State came from another address than the last one */
+    uint64_t ignored;      /**< malformed or foreign datagrams: the five counts below */
+    uint64_t short_datagrams, bad_magic, bad_version, bad_type, bad_size;
+    uint64_t receive_errors; /**< recvfrom failed other than "nothing queued" */
+    uint64_t drain_limited;  /**< ticks that stopped at max_drain datagrams */
+    uint64_t forces_sent, forces_send_failed;
+} palp_udp_device_counters;
+
+/** The counters of a remote device's session; PALP_ERROR_STATE for any other session. */
+palp_status palp_session_udp_counters(const palp_session* session, palp_udp_device_counters* out);
 
 palp_session* palp_session_retain(palp_session* session);
 /** Drops a reference; the last one stops the servo thread and frees the session. */
