@@ -18,6 +18,8 @@ PACKAGES=(
   # oracles and baselines used by tests and benchmarks
   dcm2niix calculix-ccx rt-tests libgdcm-tools unzip time
   python3-openvdb python3-nibabel python3-pydicom python3-numpy
+  # the VTK viewer example (tools/examples/viewer.py) and its off-screen test under Xvfb
+  python3-vtk9 xvfb xauth
   # fuzzing (clang's libFuzzer)
   clang libfuzzer-14-dev libclang-rt-14-dev
 )

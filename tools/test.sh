@@ -8,10 +8,12 @@ preset="${PALP_PRESET:-release}"
 bash tools/setup.sh
 # Tests skip an oracle that is missing (so the suite still runs elsewhere); here, where setup.sh
 # installed them, a missing oracle is an error rather than a silent skip.
-for tool in ccx dcm2niix gdcmconv gdcmdump unzip; do
+for tool in ccx dcm2niix gdcmconv gdcmdump unzip xvfb-run; do
   command -v "$tool" >/dev/null || { echo "test.sh: oracle '$tool' missing after setup"; exit 1; }
 done
 /usr/bin/python3 -c "import nibabel" || { echo "test.sh: python3-nibabel missing after setup"; exit 1; }
+/usr/bin/python3 -c "import vtkmodules.vtkRenderingOpenGL2" ||
+  { echo "test.sh: python3-vtk9 missing after setup"; exit 1; }
 cmake --preset "$preset"
 cmake --build --preset "$preset"
 ctest --preset "$preset" "$@"

@@ -1,0 +1,213 @@
+#!/usr/bin/env python3
+"""The VTK viewer example (tools/examples/viewer.py, issue 15 item 6) renders a live session off
+screen and draws the proxy where the session put it.
+
+A session runs on palp's 1 kHz servo thread while the viewer, on this thread, draws its newest
+snapshots; each frame goes to a PNG that is read back and searched for the proxy's (unlit)
+colour. The sphere found there must be centred on the proxy's world position projected through
+the camera (vtkCoordinate), be the size of the sphere, move between two frames as the proxy
+moved, and the force arrow's pixels must point along the snapshot's force.
+
+Run by ctest with Debian's /usr/bin/python3, PYTHONPATH=<build>/python; without DISPLAY it
+re-runs itself under `xvfb-run -a`. Exit 77 (ctest: skipped) when python3-vtk9 or xvfb-run is
+missing (tools/test.sh checks both, so CI fails instead of skipping)."""
+
+import os
+import shutil
+import sys
+import tempfile
+import time
+import unittest
+
+SKIPPED = 77
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", "..", "tools", "examples"))
+
+if not os.environ.get("DISPLAY"):
+    xvfb_run = shutil.which("xvfb-run")
+    if xvfb_run is None:
+        print("SKIP: no DISPLAY and no xvfb-run (Debian: xvfb) to render the viewer off screen")
+        sys.exit(SKIPPED)
+    if os.environ.get("PALP_TEST_UNDER_XVFB"):
+        print("test_viewer: xvfb-run started but DISPLAY is still unset")
+        sys.exit(1)
+    os.environ["PALP_TEST_UNDER_XVFB"] = "1"
+    os.execv(xvfb_run, [xvfb_run, "-a", "-s", "-screen 0 1024x768x24", sys.executable,
+                        os.path.abspath(__file__)] + sys.argv[1:])
+
+try:
+    from vtkmodules.util import numpy_support
+    from vtkmodules.vtkCommonCore import reference
+    from vtkmodules.vtkCommonDataModel import vtkCellLocator
+    from vtkmodules.vtkIOImage import vtkPNGReader
+except ImportError:
+    print("SKIP: python3-vtk9 is not installed (import vtkmodules failed)")
+    sys.exit(SKIPPED)
+
+import numpy as np
+
+import viewer  # noqa: E402 (imports palp)
+
+SIZE = (640, 480)
+
+
+def read_png(path):
+    """(height, width, 3) uint8, row 0 at the bottom (VTK's display y)."""
+    reader = vtkPNGReader()
+    reader.SetFileName(path)
+    reader.Update()
+    image = reader.GetOutput()
+    w, h, _ = image.GetDimensions()
+    pixels = numpy_support.vtk_to_numpy(image.GetPointData().GetScalars())
+    return pixels.reshape(h, w, -1)[:, :, :3]
+
+
+def colour_mask(image, rgb, tolerance=2):
+    return np.all(np.abs(image.astype(int) - np.array(rgb)) <= tolerance, axis=2)
+
+
+def pixel_centroid(mask):
+    """Centroid of the mask in display coordinates (pixel (i, j) covers [i, i + 1) x [j, j + 1))."""
+    y, x = np.nonzero(mask)
+    return np.array([x.mean() + 0.5, y.mean() + 0.5]), len(x)
+
+
+def wait_for(session, predicate, seconds=5.0):
+    """Polls the session's newest snapshot (this thread) until predicate holds."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        s = session.latest()
+        if predicate(s):
+            return s
+        time.sleep(0.01)
+    raise AssertionError(f"the session did not reach the state in {seconds} s "
+                         f"(last snapshot {session.latest()!r})")
+
+
+class ViewerTestCase(unittest.TestCase):
+    deformable = False
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.TemporaryDirectory(prefix="palp_viewer_")
+        cls.live = viewer.make_session("avc", deformable=cls.deformable, path="raster")
+        cls.view = viewer.Viewer(cls.live, SIZE, offscreen=True)
+        cls.frames = 0
+        cls.live.session.start()
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.live.session.stop()
+        cls.tmp.cleanup()
+
+    def frame(self):
+        """Draws the newest snapshot; returns (snapshot, image read back from the PNG)."""
+        s = self.view.update()
+        self.view.render()
+        path = os.path.join(self.tmp.name, f"frame_{type(self).frames}.png")
+        type(self).frames += 1
+        self.view.save_png(path)
+        image = read_png(path)
+        self.assertEqual(image.shape[:2], (SIZE[1], SIZE[0]))
+        return s, image
+
+    def radius_pixels(self, world, radius):
+        """The projected radius of a sphere at world: through a point radius away across the
+        view direction."""
+        camera = self.view.scene_renderer.GetActiveCamera()
+        up = np.array(camera.GetViewUp())
+        return float(np.linalg.norm(self.view.to_display(np.asarray(world) + radius * up)[:2] -
+                                    self.view.to_display(world)[:2]))
+
+    def check_proxy(self, s, image):
+        """The proxy's colour is drawn as a disc centred on its projected world position;
+        returns the disc's centroid."""
+        expected = self.view.to_display(s.proxy)[:2]
+        r_px = self.radius_pixels(s.proxy, self.view.marker_radius)
+        self.assertGreater(r_px, 6)  # big enough to find (about 11 px here)
+        mask = colour_mask(image, viewer.PROXY_RGB)
+        centroid, count = pixel_centroid(mask)
+        # Disc area: the arrow's shaft may hide a sliver of it.
+        self.assertGreater(count, 0.8 * np.pi * r_px ** 2)
+        self.assertLess(count, 1.15 * np.pi * r_px ** 2)
+        self.assertLess(np.linalg.norm(centroid - expected), 1.0,
+                        f"proxy drawn at {centroid}, projected to {expected}")
+        # The colour at and around the projected point; not beyond the sphere.
+        ix, iy = np.floor(expected).astype(int)
+        for dx, dy in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)):
+            h = int(0.5 * r_px)
+            self.assertTrue(mask[iy + dy * h, ix + dx * h], (dx, dy))
+        ring = [(int(round(ix + 1.6 * r_px * np.cos(a))), int(round(iy + 1.6 * r_px * np.sin(a))))
+                for a in np.linspace(0, 2 * np.pi, 24, endpoint=False)]
+        self.assertFalse(any(mask[y, x] for x, y in ring))
+        return centroid
+
+
+class RigidScene(ViewerTestCase):
+    def test_proxy_and_force_arrow_drawn_where_the_session_says(self):
+        session = self.live.session
+        # Pressed and moving along the first raster line (0.3 s approach, 4 mm deep, 50 mm/s).
+        s0 = wait_for(session, lambda s: s.time > 0.5 and np.linalg.norm(s.force) > 0.3)
+        s1, image1 = self.frame()
+        self.assertGreater(s1.tick, s0.tick - 1)
+        c1 = self.check_proxy(s1, image1)
+
+        # The arrow: from the sphere's surface along the force, newtons_to_m per newton.
+        f = np.asarray(s1.force)
+        axis = f / np.linalg.norm(f)
+        base = np.asarray(s1.proxy) + self.view.marker_radius * axis
+        tip = base + min(self.view.newtons_to_m * np.linalg.norm(f), self.view.arrow_max) * axis
+        base_px, tip_px = self.view.to_display(base)[:2], self.view.to_display(tip)[:2]
+        self.assertGreater(np.linalg.norm(tip_px - base_px), 20)
+        arrow = colour_mask(image1, viewer.ARROW_RGB)
+        arrow_centroid, arrow_count = pixel_centroid(arrow)
+        self.assertGreater(arrow_count, 50)
+        along = (tip_px - base_px) / np.linalg.norm(tip_px - base_px)
+        drawn = arrow_centroid - c1
+        angle = np.degrees(np.arccos(np.clip(drawn @ along / np.linalg.norm(drawn), -1, 1)))
+        self.assertLess(angle, 8.0, f"arrow drawn along {drawn}, force projects along {along}")
+        # Its farthest pixel from the proxy is the projected tip.
+        y, x = np.nonzero(arrow)
+        far = np.max(np.hypot(x + 0.5 - c1[0], y + 0.5 - c1[1]))
+        self.assertAlmostEqual(far, np.linalg.norm(tip_px - c1), delta=4.0)  # a cone point
+
+        # A later frame: the proxy moved (at 50 mm/s), and so did its disc, by the same pixels.
+        s2 = wait_for(session, lambda s: np.linalg.norm(np.asarray(s.proxy) -
+                                                        np.asarray(s1.proxy)) > 6e-3)
+        s2, image2 = self.frame()
+        c2 = self.check_proxy(s2, image2)
+        moved = self.view.to_display(s2.proxy)[:2] - self.view.to_display(s1.proxy)[:2]
+        self.assertGreater(np.linalg.norm(moved), 20)
+        np.testing.assert_allclose(c2 - c1, moved, atol=1.5)
+        self.assertFalse(colour_mask(image2, viewer.PROXY_RGB)[int(c1[1]), int(c1[0])])
+        # The servo thread ran at about 1 kHz meanwhile (ticks per wall second between frames).
+        self.assertGreater(self.view.servo_hz, 500)
+
+
+class DeformableScene(ViewerTestCase):
+    deformable = True
+
+    def test_deformed_surface_and_proxy(self):
+        session = self.live.session
+        s0 = wait_for(session, lambda s: s.max_displacement > 2e-3)
+        s, image = self.frame()
+        self.assertGreaterEqual(s.tick, s0.tick)
+        self.check_proxy(s, image)
+        # The drawn surface is the body's deformed one: the proxy, pressed 2+ mm below the rest
+        # surface (y = 0), lies on it (the surface read a few ticks apart from the snapshot).
+        points = numpy_support.vtk_to_numpy(self.view.surface.GetPoints().GetData())
+        vertices, _ = session.surface()
+        self.assertEqual(points.shape, vertices.shape)
+        self.assertGreater(s.proxy[1], 1.5e-3)
+        self.assertGreater(float(points[:, 1].max()), 1.5e-3)  # dented into +y
+        locator = vtkCellLocator()
+        locator.SetDataSet(self.view.surface)
+        locator.BuildLocator()
+        closest = [0.0, 0.0, 0.0]
+        cell, sub, dist2 = reference(0), reference(0), reference(0.0)
+        locator.FindClosestPoint(list(s.proxy), closest, cell, sub, dist2)
+        self.assertLess(np.sqrt(dist2.get()), 1e-3)
+
+
+if __name__ == "__main__":
+    unittest.main(verbosity=2)
