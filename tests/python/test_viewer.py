@@ -12,6 +12,7 @@ Run by ctest with Debian's /usr/bin/python3, PYTHONPATH=<build>/python; without 
 re-runs itself under `xvfb-run -a`. Exit 77 (ctest: skipped) when python3-vtk9 or xvfb-run is
 missing (tools/test.sh checks both, so CI fails instead of skipping)."""
 
+import json
 import os
 import shutil
 import sys
@@ -184,6 +185,24 @@ class RigidScene(ViewerTestCase):
         # timing belongs in benchmarks).
         self.assertGreater(s2.tick, s1.tick)
         self.assertTrue(np.isfinite(self.view.servo_hz))
+
+
+class CommandLine(unittest.TestCase):
+    def test_offscreen_frames_and_their_records(self):
+        with tempfile.TemporaryDirectory(prefix="palp_viewer_cli_") as d:
+            viewer.main(["--offscreen", d, "--frames", "2", "--fps", "10", "--size", "320x240",
+                         "--path", "circle", "--mode", "avcec"])
+            with open(os.path.join(d, "frames.json")) as f:
+                records = json.load(f)["frames"]
+            self.assertEqual(len(records), 2)
+            for r in records:
+                image = read_png(os.path.join(d, r["png"]))
+                self.assertEqual(image.shape[:2], (240, 320))
+                mask = colour_mask(image, viewer.PROXY_RGB)
+                centroid, count = pixel_centroid(mask)
+                self.assertGreater(count, 20)
+                self.assertLess(np.linalg.norm(centroid - r["proxy_pixel"]), 1.0)
+            self.assertGreater(records[1]["tick"], records[0]["tick"])
 
 
 class DeformableScene(ViewerTestCase):

@@ -424,11 +424,15 @@ def run_offscreen(viewer, out_dir, frames, fps):
     for i in range(frames):
         next_frame += period
         time.sleep(max(0.0, next_frame - time.monotonic()))
+        start = time.perf_counter()
         s = viewer.update()
         viewer.render()
+        drawn = time.perf_counter()
         path = os.path.join(out_dir, f"frame_{i:03d}.png")
         viewer.save_png(path)
-        records.append(dict(frame_record(viewer, s), png=os.path.basename(path)))
+        records.append(dict(frame_record(viewer, s), png=os.path.basename(path),
+                            draw_ms=1e3 * (drawn - start),
+                            png_ms=1e3 * (time.perf_counter() - drawn)))
     with open(os.path.join(out_dir, "frames.json"), "w") as f:
         json.dump({"frames": records}, f, indent=1)
     return records
@@ -487,8 +491,12 @@ def main(argv=None):
     try:
         if a.offscreen:
             records = run_offscreen(viewer, a.offscreen, a.frames, a.fps)
-            print(f"viewer: {len(records)} frames in {a.offscreen} (servo "
-                  f"{viewer.servo_hz:.0f} Hz)")
+            ticks = records[-1]["tick"] - records[0]["tick"]
+            seconds = records[-1]["time"] - records[0]["time"]
+            draw = np.median([r["draw_ms"] for r in records[1:]] or [records[0]["draw_ms"]])
+            print(f"viewer: {len(records)} frames in {a.offscreen}; median update + render "
+                  f"{draw:.1f} ms; servo {viewer.servo_hz:.0f} Hz of wall time, "
+                  f"{ticks} ticks in {seconds:.3f} s of session time")
         else:
             run_interactive(viewer, a.fps)
     finally:
