@@ -7,6 +7,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -17,29 +18,21 @@
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/base/validate.h"
+#include "resample_detail.h"
+#include "slice_sampler.h"
 #include "vdb_errors.h"
 
 namespace palp::volume {
 
 namespace {
 
-using LeafT = openvdb::FloatTree::LeafNodeType;
-constexpr int kLeafDim = static_cast<int>(LeafT::DIM);
+using namespace detail;
 
 std::string vecStr(const Eigen::Vector3d& v) {
     std::ostringstream os;
     os << "(" << v.x() << ", " << v.y() << ", " << v.z() << ")";
     return os.str();
 }
-
-/// Geometry shared by all slices plus each slice's offset, prepared once per resample.
-struct StackGeometry {
-    Eigen::Vector3d normal;
-    Eigen::Matrix2d gramInverse;     // inverse of [u v]^T [u v]
-    Eigen::Vector3d u, v;            // column and row steps
-    std::vector<std::size_t> order;  // slice indices sorted along the normal
-    std::vector<double> along;       // normal coordinate of each sorted slice
-};
 
 StackGeometry analyse(const SliceStack& stack) {
     if (stack.slices.empty()) throw ValueError("resample: expected at least one slice, found none");
@@ -101,32 +94,6 @@ StackGeometry analyse(const SliceStack& stack) {
     return g;
 }
 
-/// Bilinear sample of one slice at continuous (c, r), with the edge pixels extended (clamped)
-/// outside the pixel centres. Returns false when (c, r) is more than (mc, mr) pixels outside.
-inline bool sampleSlice(const Slice& s, double c, double r, double& out, double mc, double mr) {
-    const double cmax = s.cols - 1;
-    const double rmax = s.rows - 1;
-    const bool inside = c >= -mc && c <= cmax + mc && r >= -mr && r <= rmax + mr;
-    if (!(c == c) || !(r == r)) return false;
-    c = std::clamp(c, 0.0, cmax);
-    r = std::clamp(r, 0.0, rmax);
-    const int c0 = std::min(static_cast<int>(c), std::max(s.cols - 2, 0));
-    const int r0 = std::min(static_cast<int>(r), std::max(s.rows - 2, 0));
-    const double fc = c - c0;
-    const double fr = r - r0;
-    const int c1 = std::min(c0 + 1, s.cols - 1);
-    const int r1 = std::min(r0 + 1, s.rows - 1);
-    const auto at = [&](int cc, int rr) {
-        return static_cast<double>(
-            s.values[static_cast<std::size_t>(rr) * static_cast<std::size_t>(s.cols) +
-                     static_cast<std::size_t>(cc)]);
-    };
-    const double top = at(c0, r0) * (1 - fc) + at(c1, r0) * fc;
-    const double bottom = at(c0, r1) * (1 - fc) + at(c1, r1) * fc;
-    out = top * (1 - fr) + bottom * fr;
-    return inside;
-}
-
 /// Spacing of the slices along the normal, and the gantry tilt.
 struct StackSpacing {
     double minGap = 0, maxGap = 0, medianGap = 0;  // metres, 0 for a single slice
@@ -164,13 +131,6 @@ double chooseVoxelSize(const StackGeometry& g, const StackSpacing& spacing,
     palp::requireWithin("resample: voxel size", voxel, bounds::kSpacing, {1e3, "mm"});
     return voxel;
 }
-
-/// The output lattice: voxel (x, y, z) is centred at lo + voxel * (x, y, z).
-struct Lattice {
-    Eigen::Vector3d lo;
-    std::array<std::int64_t, 3> dims{};
-    double voxel = 0;
-};
 
 /// Bounds the pixel centres of every slice (plus one voxel of margin), crops and checks size.
 Lattice planLattice(const SliceStack& stack, const StackGeometry& g, double voxel,
@@ -226,312 +186,6 @@ Lattice planLattice(const SliceStack& stack, const StackGeometry& g, double voxe
     return lat;
 }
 
-/// The sorted slices prepared for sampling at world points: in-plane coordinates are affine in
-/// the world point, (c, r) = M p - M position_k, and the normal coordinate is p . n.
-/// Read-only after construction, so blocks may be filled from many threads.
-class SliceSampler {
-  public:
-    SliceSampler(const SliceStack& stack, const StackGeometry& g, double voxel, float threshold)
-        : mG(g), mN(g.order.size()), mThreshold(threshold) {
-        const std::size_t n = mN;
-        mLoAlong = g.along.front();
-        mHiAlong = g.along.back();
-        mAlongTol = n == 1 ? 0.5 * voxel : voxel * g.normal.lpNorm<1>() + 1e-9;
-        Eigen::Matrix<double, 2, 3> uvT;
-        uvT.row(0) = g.u.transpose();
-        uvT.row(1) = g.v.transpose();
-        mM = g.gramInverse * uvT;
-        // In-plane margin in pixels: how far (in c and r) a lattice corner one voxel away can
-        // reach.
-        mMc = voxel * mM.row(0).lpNorm<1>() + 1e-6;
-        mMr = voxel * mM.row(1).lpNorm<1>() + 1e-6;
-        mInvGap.assign(n, 0.0);
-        for (std::size_t k = 0; k + 1 < n; ++k) mInvGap[k] = 1.0 / (g.along[k + 1] - g.along[k]);
-        mSorted.resize(n);
-        mCrOffset.resize(n);
-        for (std::size_t k = 0; k < n; ++k) {
-            mSorted[k] = &stack.slices[g.order[k]];
-            mCrOffset[k] = -(mM * mSorted[k]->position);
-        }
-        computeTileMaxima();
-    }
-
-    std::size_t sliceCount() const { return mN; }
-    const Eigen::Matrix<double, 2, 3>& inPlaneFromWorld() const { return mM; }
-
-    /// Whether a block with corners @p bmin, @p bmax may hold active voxels. When the whole
-    /// block lies within the slices' range along the normal, sets [bracket, bracketEnd] to the
-    /// slices that enclose it (else bracket = slice count).
-    bool blockMayBeActive(const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax,
-                          std::size_t& bracket, std::size_t& bracketEnd) const {
-        const std::size_t n = mN;
-        const StackGeometry& g = mG;
-        bracket = n;
-        double smin = std::numeric_limits<double>::infinity(), smax = -smin;
-        Eigen::Vector2d crMin = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity());
-        Eigen::Vector2d crMax = -crMin;
-        for (int corner = 0; corner < 8; ++corner) {
-            const Eigen::Vector3d p((corner & 1) ? bmax.x() : bmin.x(),
-                                    (corner & 2) ? bmax.y() : bmin.y(),
-                                    (corner & 4) ? bmax.z() : bmin.z());
-            const double sp = p.dot(g.normal);
-            smin = std::min(smin, sp);
-            smax = std::max(smax, sp);
-            const Eigen::Vector2d mp = mM * p;
-            crMin = crMin.cwiseMin(mp);
-            crMax = crMax.cwiseMax(mp);
-        }
-        if (smax < mLoAlong - mAlongTol || smin > mHiAlong + mAlongTol) return false;
-        auto first = static_cast<std::size_t>(
-            std::upper_bound(g.along.begin(), g.along.end(), smin) - g.along.begin());
-        first = first > 0 ? first - 1 : 0;
-        auto last = static_cast<std::size_t>(
-            std::lower_bound(g.along.begin(), g.along.end(), smax) - g.along.begin());
-        last = std::min(last, n - 1);
-        if (n > 1 && smin >= mLoAlong && smax <= mHiAlong) {
-            bracket = std::min(first, n - 2);
-            bracketEnd = std::max(last, bracket + 1);
-        }
-        for (std::size_t k = first; k <= last; ++k) {
-            if (tilesMayBeActive(k, crMin + mCrOffset[k], crMax + mCrOffset[k])) return true;
-        }
-        return false;
-    }
-
-    /// The value at world point @p p (slices bracketing it along the normal, each sampled
-    /// bilinearly, blended by distance); false when @p p is outside the slices.
-    bool valueAt(const Eigen::Vector3d& p, double& out) const {
-        const std::size_t n = mN;
-        const StackGeometry& g = mG;
-        const double sp = p.dot(g.normal);
-        if (sp < mLoAlong - mAlongTol || sp > mHiAlong + mAlongTol) return false;
-        std::size_t k1 = static_cast<std::size_t>(
-            std::upper_bound(g.along.begin(), g.along.end(), sp) - g.along.begin());
-        std::size_t k0;
-        if (k1 == 0) {
-            k0 = k1 = 0;
-        } else if (k1 >= n) {
-            k0 = k1 = n - 1;
-        } else {
-            k0 = k1 - 1;
-        }
-        const Eigen::Vector2d mp = mM * p;
-        const Eigen::Vector2d cr0 = mp + mCrOffset[k0];
-        double v0 = 0;
-        const bool in0 = sampleSlice(*mSorted[k0], cr0.x(), cr0.y(), v0, mMc, mMr);
-        if (k0 == k1) {
-            out = v0;
-            return in0;
-        }
-        const Eigen::Vector2d cr1 = mp + mCrOffset[k1];
-        double v1 = 0;
-        // With tilt the slices are shifted in-plane against each other: near the edge one of
-        // the two may be outside; its clamped edge value is used as long as the other is inside.
-        const bool in1 = sampleSlice(*mSorted[k1], cr1.x(), cr1.y(), v1, mMc, mMr);
-        if (!in0 && !in1) return false;
-        const double f = (sp - g.along[k0]) / (g.along[k1] - g.along[k0]);
-        out = v0 * (1 - f) + v1 * f;
-        return true;
-    }
-
-    /// The value at normal coordinate @p sp and in-plane point (px, py) (without slice offset)
-    /// between slices @p ka and ka + 1 (the caller has found the bracket); false when outside
-    /// both slices.
-    bool bracketedValue(std::size_t ka, double sp, double px, double py, double& out) const {
-        double va = 0, vb = 0;
-        const bool ina =
-            sampleSlice(*mSorted[ka], px + mCrOffset[ka].x(), py + mCrOffset[ka].y(), va, mMc, mMr);
-        const bool inb = sampleSlice(*mSorted[ka + 1], px + mCrOffset[ka + 1].x(),
-                                     py + mCrOffset[ka + 1].y(), vb, mMc, mMr);
-        if (!ina && !inb) return false;
-        const double f = (sp - mG.along[ka]) * mInvGap[ka];
-        out = va * (1 - f) + vb * f;
-        return true;
-    }
-
-  private:
-    static constexpr int kTile = 8;
-
-    /// Maxima over tiles of each slice, to skip blocks whose every source pixel is background:
-    /// an interpolated value is a convex combination of pixels, so it cannot exceed their
-    /// maximum.
-    void computeTileMaxima() {
-        const std::size_t n = mN;
-        mCols = mSorted.front()->cols;
-        mRows = mSorted.front()->rows;
-        mTilesX = (mCols + kTile - 1) / kTile;
-        mTilesY = (mRows + kTile - 1) / kTile;
-        const int cols = mCols, rows = mRows, tilesX = mTilesX, tilesY = mTilesY;
-        mTileMax.assign(n * static_cast<std::size_t>(tilesX * tilesY),
-                        -std::numeric_limits<float>::infinity());
-        palp::parallelForEach(std::size_t{0}, n, [&](std::size_t k) {
-            float* tm = mTileMax.data() + k * static_cast<std::size_t>(tilesX * tilesY);
-            const std::vector<float>& vals = mSorted[k]->values;
-            for (int r = 0; r < rows; ++r) {
-                for (int c = 0; c < cols; ++c) {
-                    float& m = tm[(r / kTile) * tilesX + c / kTile];
-                    m = std::max(m,
-                                 vals[static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) +
-                                      static_cast<std::size_t>(c)]);
-                }
-            }
-        });
-    }
-
-    /// Whether any tile of slice @p k under the in-plane box [a, b] reaches the threshold.
-    bool tilesMayBeActive(std::size_t k, const Eigen::Vector2d& a, const Eigen::Vector2d& b) const {
-        const int cols = mCols, rows = mRows;
-        if (b.x() < -mMc - 1 || a.x() > cols + mMc || b.y() < -mMr - 1 || a.y() > rows + mMr)
-            return false;
-        const int c0 = std::clamp(static_cast<int>(std::floor(a.x())) - 1, 0, cols - 1) / kTile;
-        const int c1 = std::clamp(static_cast<int>(std::floor(b.x())) + 2, 0, cols - 1) / kTile;
-        const int r0 = std::clamp(static_cast<int>(std::floor(a.y())) - 1, 0, rows - 1) / kTile;
-        const int r1 = std::clamp(static_cast<int>(std::floor(b.y())) + 2, 0, rows - 1) / kTile;
-        const float* tm = mTileMax.data() + k * static_cast<std::size_t>(mTilesX * mTilesY);
-        for (int ty = r0; ty <= r1; ++ty)
-            for (int tx = c0; tx <= c1; ++tx)
-                if (tm[ty * mTilesX + tx] >= mThreshold) return true;
-        return false;
-    }
-
-    const StackGeometry& mG;
-    std::size_t mN;
-    float mThreshold;
-    double mLoAlong = 0, mHiAlong = 0, mAlongTol = 0;
-    Eigen::Matrix<double, 2, 3> mM;
-    double mMc = 0, mMr = 0;
-    std::vector<double> mInvGap;
-    std::vector<const Slice*> mSorted;
-    std::vector<Eigen::Vector2d> mCrOffset;
-    int mCols = 0, mRows = 0, mTilesX = 0, mTilesY = 0;
-    std::vector<float> mTileMax;
-};
-
-/// What a block fill needs besides the sampler.
-struct FillContext {
-    const SliceSampler& sampler;
-    const StackGeometry& g;
-    const Lattice& lat;
-    float threshold;
-    float background;
-};
-
-/// Fills @p leaf for a block that lies within the slices' range, between slices [bracket,
-/// bracketEnd]: the along-normal and in-plane coordinates are affine in the voxel offset.
-/// Returns whether any voxel became active.
-bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
-                        const Eigen::Vector3d& bmin, std::size_t bracket, std::size_t bracketEnd,
-                        LeafT& leaf) {
-    const StackGeometry& g = ctx.g;
-    const double voxel = ctx.lat.voxel;
-    const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
-    const Eigen::Matrix<double, 2, 3>& M = ctx.sampler.inPlaneFromWorld();
-    bool any = false;
-    const double s0 = bmin.dot(g.normal);
-    const Eigen::Vector3d ds = voxel * g.normal;
-    const Eigen::Vector2d m0 = M * bmin;
-    const Eigen::Matrix<double, 2, 3> dm = voxel * M;
-    const int ni = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[0] - origin.x()));
-    const int nj = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[1] - origin.y()));
-    const int nk = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[2] - origin.z()));
-    for (int i = 0; i < ni; ++i) {
-        for (int j = 0; j < nj; ++j) {
-            const double sij = s0 + ds.x() * i + ds.y() * j;
-            const double mx = m0.x() + dm(0, 0) * i + dm(0, 1) * j;
-            const double my = m0.y() + dm(1, 0) * i + dm(1, 1) * j;
-            const openvdb::Index base =
-                LeafT::coordToOffset(openvdb::Coord(origin.x() + i, origin.y() + j, origin.z()));
-            for (int k = 0; k < nk; ++k) {
-                const double sp = sij + ds.z() * k;
-                std::size_t ka = bracket;
-                while (ka + 1 < bracketEnd && g.along[ka + 1] <= sp) ++ka;
-                const double px = mx + dm(0, 2) * k;
-                const double py = my + dm(1, 2) * k;
-                double v = 0;
-                if (!ctx.sampler.bracketedValue(ka, sp, px, py, v)) continue;
-                const auto fv = static_cast<float>(v);
-                if (fv < ctx.threshold || fv == ctx.background) continue;
-                leaf.setValueOn(base + static_cast<openvdb::Index>(k), fv);
-                any = true;
-            }
-        }
-    }
-    return any;
-}
-
-/// Fills @p leaf voxel by voxel (a block reaching past the first or last slice).
-/// Returns whether any voxel became active.
-bool fillBlock(const FillContext& ctx, const openvdb::Coord& origin, LeafT& leaf) {
-    const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
-    bool any = false;
-    for (int i = 0; i < kLeafDim; ++i) {
-        const int x = origin.x() + i;
-        if (x >= dims[0]) break;
-        for (int j = 0; j < kLeafDim; ++j) {
-            const int y = origin.y() + j;
-            if (y >= dims[1]) break;
-            for (int k = 0; k < kLeafDim; ++k) {
-                const int z = origin.z() + k;
-                if (z >= dims[2]) break;
-                const Eigen::Vector3d p = ctx.lat.lo + ctx.lat.voxel * Eigen::Vector3d(x, y, z);
-                double v = 0;
-                if (!ctx.sampler.valueAt(p, v)) continue;
-                const auto fv = static_cast<float>(v);
-                if (fv < ctx.threshold || fv == ctx.background) continue;
-                leaf.setValueOn(LeafT::coordToOffset(openvdb::Coord(x, y, z)), fv);
-                any = true;
-            }
-        }
-    }
-    return any;
-}
-
-/// Fills @p tree block by block, one z layer of leaf blocks at a time in parallel; reports
-/// progress after each layer.
-/// @throw Error("resample: cancelled") when the progress callback asks to stop.
-void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree) {
-    const std::size_t n = ctx.sampler.sliceCount();
-    const double voxel = ctx.lat.voxel;
-    const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
-    const int bx = static_cast<int>((dims[0] + kLeafDim - 1) / kLeafDim);
-    const int by = static_cast<int>((dims[1] + kLeafDim - 1) / kLeafDim);
-    const int bz = static_cast<int>((dims[2] + kLeafDim - 1) / kLeafDim);
-    tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
-
-    for (int zb = 0; zb < bz; ++zb) {
-        palp::parallelFor(
-            tbb::blocked_range2d<int>(0, by, 0, bx), [&](const tbb::blocked_range2d<int>& r) {
-                auto& mine = made.local();
-                for (int yb = r.rows().begin(); yb != r.rows().end(); ++yb) {
-                    for (int xb = r.cols().begin(); xb != r.cols().end(); ++xb) {
-                        const openvdb::Coord origin(xb * kLeafDim, yb * kLeafDim, zb * kLeafDim);
-                        const Eigen::Vector3d bmin =
-                            ctx.lat.lo +
-                            voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
-                        const Eigen::Vector3d bmax =
-                            bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
-                        std::size_t bracket = n, bracketEnd = n;
-                        if (!ctx.sampler.blockMayBeActive(bmin, bmax, bracket, bracketEnd))
-                            continue;
-                        auto leaf = std::make_unique<LeafT>(origin, ctx.background, false);
-                        const bool any =
-                            bracket < n
-                                ? fillBracketedBlock(ctx, origin, bmin, bracket, bracketEnd, *leaf)
-                                : fillBlock(ctx, origin, *leaf);
-                        if (any) mine.push_back(std::move(leaf));
-                    }
-                }
-            });
-        for (auto& list : made) {
-            for (auto& leaf : list) tree.addLeaf(leaf.release());  // the tree takes ownership
-            list.clear();
-        }
-        if (progress && !progress(static_cast<double>(zb + 1) / bz)) {
-            throw Error("resample: cancelled");
-        }
-    }
-}
-
 }  // namespace
 
 void checkResampleOptions(const ResampleOptions& options) {
@@ -572,7 +226,8 @@ float backgroundValueFor(const VolumeInfo& info, float threshold) {
 
 namespace {
 
-Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options) {
+Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options,
+                       bool referenceOnly) {
     const StackGeometry g = analyse(stack);
     const std::size_t n = g.order.size();
     const StackSpacing spacing = measureSpacing(stack, g);
@@ -590,7 +245,8 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options) 
     grid->setTransform(xform);
 
     const SliceSampler sampler(stack, g, voxel, threshold);
-    fillTree(FillContext{sampler, g, lat, threshold, background}, options.progress, grid->tree());
+    fillTree(FillContext{sampler, g, lat, threshold, background, referenceOnly}, options.progress,
+             grid->tree());
 
     Volume out;
     out.grid = grid;
@@ -614,8 +270,18 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options) 
 
 Volume resample(const SliceStack& stack, const ResampleOptions& options) {
     checkResampleOptions(options);
-    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build",
-                                             [&] { return resampleChecked(stack, options); });
+    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build", [&] {
+        return resampleChecked(stack, options, false);
+    });
 }
+
+namespace detail {
+
+Volume resampleVoxelByVoxel(const SliceStack& stack, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    return resampleChecked(stack, options, true);
+}
+
+}  // namespace detail
 
 }  // namespace palp::volume

@@ -1,0 +1,213 @@
+// Filling the resampler's output leaves: a row kernel for blocks between two slices, the
+// voxel-by-voxel reference for the rest, in parallel over leaf blocks.
+#include <tbb/blocked_range2d.h>
+#include <tbb/enumerable_thread_specific.h>
+
+#include <array>
+#include <memory>
+
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
+#include "slice_sampler.h"
+
+namespace palp::volume::detail {
+
+namespace {
+
+/// Values of one leaf block and its active mask, filled densely by one thread before a leaf
+/// is made (so blocks that stay inactive cost no allocation).
+struct DenseBlock {
+    std::array<float, LeafT::SIZE> values;
+    LeafT::NodeMaskType mask;
+};
+
+/// One slice's bilinear sample at (c, r) for the row kernel: the pixel centres clamped as in
+/// sampleSlice() (the geometry is finite, analyse() checked it, so no NaN test).
+struct SliceView {
+    const float* data = nullptr;
+    double offC = 0, offR = 0;  // (c, r) = (px, py) + offset
+};
+
+/// Fills @p block for a block that lies within the slices' range, between slices [bracket,
+/// bracketEnd]. Works along rows of the lattice axis most parallel to the slices: on a row the
+/// normal coordinate and the in-plane coordinates are affine in the step, so they advance by
+/// constant increments, the bracketing pair of slices changes rarely (and is cached), and each
+/// voxel costs two clamped bilinear samples and a blend, with no matrix product or search.
+/// The arithmetic is the reference's (valueAt): the same formulas in double.
+/// Returns whether any voxel became active.
+bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
+                        const Eigen::Vector3d& bmin, std::size_t bracket, std::size_t bracketEnd,
+                        DenseBlock& block) {
+    const SliceSampler& sm = ctx.sampler;
+    const std::vector<double>& along = ctx.g.along;
+    const double voxel = ctx.lat.voxel;
+    const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
+    const Eigen::Matrix<double, 2, 3>& M = sm.inPlaneFromWorld();
+    const Eigen::Vector3d ds = voxel * ctx.g.normal;
+    const Eigen::Matrix<double, 2, 3> dm = voxel * M;
+    const double s0 = bmin.dot(ctx.g.normal);
+    const Eigen::Vector2d m0 = M * bmin;
+    const int n[3] = {static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[0] - origin.x())),
+                      static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[1] - origin.y())),
+                      static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[2] - origin.z()))};
+    // Inner axis: the one along which the normal coordinate changes least.
+    int a = 0;
+    for (int axis = 1; axis < 3; ++axis)
+        if (std::abs(ds[axis]) < std::abs(ds[a])) a = axis;
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    constexpr int kStride[3] = {kLeafDim * kLeafDim, kLeafDim, 1};
+
+    const int cols = sm.sliceCols(), rows = sm.sliceRows();
+    const double cmax = cols - 1, rmax = rows - 1;
+    const double mc = sm.marginCols(), mr = sm.marginRows();
+    const int c0max = std::max(cols - 2, 0), r0max = std::max(rows - 2, 0);
+    const std::ptrdiff_t dc1 = cols > 1 ? 1 : 0;
+    const std::ptrdiff_t dr1 = rows > 1 ? cols : 0;
+    const auto sample = [&](const float* data, double cc, double rr, double& out) {
+        const bool inside = cc >= -mc && cc <= cmax + mc && rr >= -mr && rr <= rmax + mr;
+        cc = std::clamp(cc, 0.0, cmax);
+        rr = std::clamp(rr, 0.0, rmax);
+        const int ci = std::min(static_cast<int>(cc), c0max);
+        const int ri = std::min(static_cast<int>(rr), r0max);
+        const double fc = cc - ci;
+        const double fr = rr - ri;
+        const float* p =
+            data + static_cast<std::ptrdiff_t>(ri) * cols + static_cast<std::ptrdiff_t>(ci);
+        const double top = static_cast<double>(p[0]) * (1 - fc) + static_cast<double>(p[dc1]) * fc;
+        const double bottom =
+            static_cast<double>(p[dr1]) * (1 - fc) + static_cast<double>(p[dr1 + dc1]) * fc;
+        out = top * (1 - fr) + bottom * fr;
+        return inside;
+    };
+
+    // The bracketing pair cached by its lower index.
+    std::size_t cached = std::numeric_limits<std::size_t>::max();
+    SliceView lo, hi;
+    double loAlong = 0, invGap = 0;
+    const auto use = [&](std::size_t ka) {
+        if (ka == cached) return;
+        cached = ka;
+        lo = {sm.sliceData(ka), sm.inPlaneOffset(ka).x(), sm.inPlaneOffset(ka).y()};
+        hi = {sm.sliceData(ka + 1), sm.inPlaneOffset(ka + 1).x(), sm.inPlaneOffset(ka + 1).y()};
+        loAlong = along[ka];
+        invGap = sm.inverseGap(ka);
+    };
+
+    bool any = false;
+    std::size_t ka = bracket;
+    for (int ob = 0; ob < n[b]; ++ob) {
+        for (int oc = 0; oc < n[c]; ++oc) {
+            const double sRow = s0 + ds[b] * ob + ds[c] * oc;
+            const double xRow = m0.x() + dm(0, b) * ob + dm(0, c) * oc;
+            const double yRow = m0.y() + dm(1, b) * ob + dm(1, c) * oc;
+            int offset = kStride[b] * ob + kStride[c] * oc;
+            for (int t = 0; t < n[a]; ++t, offset += kStride[a]) {
+                const double sp = sRow + ds[a] * t;
+                while (ka + 1 < bracketEnd && along[ka + 1] <= sp) ++ka;
+                while (ka > bracket && along[ka] > sp) --ka;
+                use(ka);
+                const double px = xRow + dm(0, a) * t;
+                const double py = yRow + dm(1, a) * t;
+                double va = 0, vb = 0;
+                const bool ina = sample(lo.data, px + lo.offC, py + lo.offR, va);
+                const bool inb = sample(hi.data, px + hi.offC, py + hi.offR, vb);
+                if (!ina && !inb) continue;
+                const double f = (sp - loAlong) * invGap;
+                const auto fv = static_cast<float>(va * (1 - f) + vb * f);
+                if (fv < ctx.threshold || fv == ctx.background) continue;
+                block.values[static_cast<std::size_t>(offset)] = fv;
+                block.mask.setOn(static_cast<openvdb::Index>(offset));
+                any = true;
+            }
+        }
+    }
+    return any;
+}
+
+/// Fills @p block voxel by voxel through SliceSampler::valueAt (a block reaching past the first
+/// or last slice; also the reference the row kernel is tested against).
+/// Returns whether any voxel became active.
+bool fillBlock(const FillContext& ctx, const openvdb::Coord& origin, DenseBlock& block) {
+    const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
+    bool any = false;
+    for (int i = 0; i < kLeafDim; ++i) {
+        const int x = origin.x() + i;
+        if (x >= dims[0]) break;
+        for (int j = 0; j < kLeafDim; ++j) {
+            const int y = origin.y() + j;
+            if (y >= dims[1]) break;
+            for (int k = 0; k < kLeafDim; ++k) {
+                const int z = origin.z() + k;
+                if (z >= dims[2]) break;
+                const Eigen::Vector3d p = ctx.lat.lo + ctx.lat.voxel * Eigen::Vector3d(x, y, z);
+                double v = 0;
+                if (!ctx.sampler.valueAt(p, v)) continue;
+                const auto fv = static_cast<float>(v);
+                if (fv < ctx.threshold || fv == ctx.background) continue;
+                const openvdb::Index offset = LeafT::coordToOffset(openvdb::Coord(x, y, z));
+                block.values[offset] = fv;
+                block.mask.setOn(offset);
+                any = true;
+            }
+        }
+    }
+    return any;
+}
+
+}  // namespace
+
+void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree) {
+    const std::size_t n = ctx.sampler.sliceCount();
+    const double voxel = ctx.lat.voxel;
+    const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
+    const int bx = static_cast<int>((dims[0] + kLeafDim - 1) / kLeafDim);
+    const int by = static_cast<int>((dims[1] + kLeafDim - 1) / kLeafDim);
+    const int bz = static_cast<int>((dims[2] + kLeafDim - 1) / kLeafDim);
+    tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
+    tbb::enumerable_thread_specific<DenseBlock> scratch;
+
+    for (int zb = 0; zb < bz; ++zb) {
+        palp::parallelFor(
+            tbb::blocked_range2d<int>(0, by, 0, bx), [&](const tbb::blocked_range2d<int>& r) {
+                auto& mine = made.local();
+                for (int yb = r.rows().begin(); yb != r.rows().end(); ++yb) {
+                    for (int xb = r.cols().begin(); xb != r.cols().end(); ++xb) {
+                        const openvdb::Coord origin(xb * kLeafDim, yb * kLeafDim, zb * kLeafDim);
+                        const Eigen::Vector3d bmin =
+                            ctx.lat.lo +
+                            voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
+                        const Eigen::Vector3d bmax =
+                            bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
+                        std::size_t bracket = n, bracketEnd = n;
+                        if (!ctx.sampler.blockMayBeActive(bmin, bmax, bracket, bracketEnd))
+                            continue;
+                        DenseBlock& block = scratch.local();
+                        block.values.fill(ctx.background);
+                        block.mask.setOff();
+                        const bool any =
+                            bracket < n && !ctx.referenceOnly
+                                ? fillBracketedBlock(ctx, origin, bmin, bracket, bracketEnd, block)
+                                : fillBlock(ctx, origin, block);
+                        if (!any) continue;
+                        // The leaf's buffer is allocated without being filled: the block's
+                        // values (background where inactive) are copied in whole.
+                        auto leaf = std::make_unique<LeafT>(openvdb::PartialCreate(), origin,
+                                                            ctx.background, false);
+                        leaf->allocate();
+                        std::copy(block.values.begin(), block.values.end(), leaf->buffer().data());
+                        leaf->setValueMask(block.mask);
+                        mine.push_back(std::move(leaf));
+                    }
+                }
+            });
+        for (auto& list : made) {
+            for (auto& leaf : list) tree.addLeaf(leaf.release());  // the tree takes ownership
+            list.clear();
+        }
+        if (progress && !progress(static_cast<double>(zb + 1) / bz)) {
+            throw Error("resample: cancelled");
+        }
+    }
+}
+
+}  // namespace palp::volume::detail
