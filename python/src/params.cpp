@@ -2,7 +2,6 @@
 // classes with snake_case fields (the coupling's nested bundle / first-hit / accumulate settings
 // flattened), keyword constructors, and the coupling defaults of scans and phantoms.
 #include <pybind11/eigen.h>
-#include <pybind11/numpy.h>
 #include <pybind11/stl.h>
 
 #include <string>
@@ -11,7 +10,6 @@
 #include "palp/base/error.h"
 #include "palp/haptics/coupling_defaults.h"
 #include "palp/haptics/session.h"
-#include "palp/kernels/ray_bundle.h"
 #include "palp/volume/phantom.h"
 
 namespace palp::python {
@@ -130,50 +128,6 @@ void bindParams(py::module_& m) {
             return haptics::sceneCouplingDefaults(volume::parseScene(scene));
         },
         py::arg("scene"), "Coupling defaults for a phantom scene (avc, avcec, bone, ...).");
-
-    m.def(
-        "ray_bundle",
-        [](const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-           const CouplingParams& params, const Eigen::Vector3d& tangent1,
-           const Eigen::Vector3d& tangent2) -> py::object {
-            kernels::validateBundleParams(params.bundle);
-            kernels::RayBundle b;
-            if (!kernels::generateBundle(origin, direction, tangent1, tangent2, params.bundle, b)) {
-                return py::none();
-            }
-            const auto n = static_cast<py::ssize_t>(b.count);
-            py::array_t<double> o(std::vector<py::ssize_t>{n, 3});
-            py::array_t<double> d(std::vector<py::ssize_t>{n, 3});
-            py::array_t<double> length(n), weight(n);
-            auto ro = o.mutable_unchecked<2>();
-            auto rd = d.mutable_unchecked<2>();
-            for (py::ssize_t i = 0; i < n; ++i) {
-                const auto r = static_cast<std::size_t>(i);
-                ro(i, 0) = b.ox[r], ro(i, 1) = b.oy[r], ro(i, 2) = b.oz[r];
-                rd(i, 0) = b.dx[r], rd(i, 1) = b.dy[r], rd(i, 2) = b.dz[r];
-                length.mutable_at(i) = b.length[r];
-                weight.mutable_at(i) = b.weight[r];
-            }
-            py::dict out;
-            out["origins"] = o;
-            out["directions"] = d;
-            out["lengths"] = length;
-            out["weights"] = weight;
-            out["ring"] = py::slice(b.ringBegin, b.ringBegin + b.ringCount, 1);
-            out["sphere"] = py::slice(b.sphereBegin, b.sphereBegin + 8, 1);
-            out["surface"] = py::slice(b.surfaceBegin, b.surfaceBegin + 8, 1);
-            return out;
-        },
-        py::arg("origin"), py::arg("direction"), py::arg("coupling"), py::kw_only(),
-        py::arg("tangent1") = Eigen::Vector3d::Zero(),
-        py::arg("tangent2") = Eigen::Vector3d::Zero(),
-        "The AVC/AVCEC ray bundle a coupling casts from the proxy origin along direction "
-        "(probe - proxy), for drawing: dict of 'origins' and 'directions' (n, 3), 'lengths' "
-        "(n,) L_max, 'weights' (n,), and the slices 'ring', 'sphere' and 'surface' (row 0 is "
-        "the centre ray). The surface stencil spans tangent1, tangent2 (the proxy's tangent "
-        "plane; zero: the bundle's own e1, e2). None for a zero or non-finite direction. A "
-        "snapshot's first `rays` rows are the rays its tick cast; its ray_length is the centre "
-        "ray's measured L. Pure; any thread.");
 }
 
 }  // namespace palp::python

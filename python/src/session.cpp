@@ -7,6 +7,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/stl.h>
 
+#include <array>
 #include <cmath>
 #include <memory>
 #include <optional>
@@ -18,6 +19,7 @@
 #include "palp/haptics/deformable_setup.h"
 #include "palp/haptics/offline_run.h"
 #include "palp/haptics/watchdog_device.h"
+#include "palp/kernels/ray_bundle.h"
 #include "python_device.h"
 
 namespace palp::python {
@@ -162,6 +164,33 @@ py::dict run(PySession& p, std::uint64_t ticks, std::uint64_t every) {
         trace = haptics::runOffline(p.s(), ticks, every);
     }
     return traceColumns(trace);
+}
+
+/// A ray bundle's rays as numpy (for drawing): 'origins', 'directions' (n, 3), 'lengths',
+/// 'weights' (n,) and the slices 'ring', 'sphere', 'surface' (row 0 is the centre ray).
+py::dict bundleColumns(const kernels::RayBundle& b) {
+    const auto n = static_cast<py::ssize_t>(b.count);
+    py::array_t<double> o(std::vector<py::ssize_t>{n, 3});
+    py::array_t<double> d(std::vector<py::ssize_t>{n, 3});
+    py::array_t<double> length(n), weight(n);
+    auto ro = o.mutable_unchecked<2>();
+    auto rd = d.mutable_unchecked<2>();
+    for (py::ssize_t i = 0; i < n; ++i) {
+        const auto r = static_cast<std::size_t>(i);
+        ro(i, 0) = b.ox[r], ro(i, 1) = b.oy[r], ro(i, 2) = b.oz[r];
+        rd(i, 0) = b.dx[r], rd(i, 1) = b.dy[r], rd(i, 2) = b.dz[r];
+        length.mutable_at(i) = b.length[r];
+        weight.mutable_at(i) = b.weight[r];
+    }
+    py::dict out;
+    out["origins"] = o;
+    out["directions"] = d;
+    out["lengths"] = length;
+    out["weights"] = weight;
+    out["ring"] = py::slice(b.ringBegin, b.ringBegin + b.ringCount, 1);
+    out["sphere"] = py::slice(b.sphereBegin, b.sphereBegin + 8, 1);
+    out["surface"] = py::slice(b.surfaceBegin, b.surfaceBegin + 8, 1);
+    return out;
 }
 
 bool send(PySession& p, const Command& c) {
@@ -391,7 +420,38 @@ void bindSession(py::module_& m) {
                 return py::make_tuple(v, t);
             },
             "Deformable scenes: (vertices (n, 3) float32 m, triangles (m, 3)) of the newest "
-            "tick; None on a rigid scene.");
+            "tick; None on a rigid scene.")
+        .def(
+            "rays", [](PySession& p) { return bundleColumns(p.s().latestRays()); },
+            "The newest tick's ray bundle (viewer thread, like latest()): dict of 'origins' and "
+            "'directions' (n, 3), 'lengths' (n,) L_max, 'weights' (n,) and the slices 'ring', "
+            "'sphere', 'surface'; n = 0 in VC or without contact distance. The snapshot's "
+            "rays counts those its tick traced (AVC: the centre and the ring), ray_length the "
+            "centre ray's measured L.");
+
+    m.def(
+        "ray_bundle",
+        // std::array, not Eigen, arguments: GCC 12 warns maybe-uninitialized inside
+        // pybind11's Eigen caster here.
+        [](const std::array<double, 3>& origin, const std::array<double, 3>& direction,
+           const haptics::CouplingParams& params, const std::array<double, 3>& tangent1,
+           const std::array<double, 3>& tangent2) -> py::object {
+            kernels::validateBundleParams(params.bundle);
+            using V = Eigen::Vector3d;
+            kernels::RayBundle b;
+            if (!kernels::generateBundle(V(origin.data()), V(direction.data()), V(tangent1.data()),
+                                         V(tangent2.data()), params.bundle, b)) {
+                return py::none();
+            }
+            return bundleColumns(b);
+        },
+        py::arg("origin"), py::arg("direction"), py::arg("coupling"), py::kw_only(),
+        py::arg("tangent1") = std::array<double, 3>{},
+        py::arg("tangent2") = std::array<double, 3>{},
+        "The AVC/AVCEC ray bundle a coupling casts from origin (the proxy) along direction "
+        "(probe - proxy), as Session.rays() gives it, for rays not published (a trace from "
+        "run()). The surface stencil spans tangent1, tangent2 (the proxy's tangent plane; zero: "
+        "the bundle's own e1, e2). None for a zero or non-finite direction. Pure; any thread.");
 }
 
 }  // namespace palp::python

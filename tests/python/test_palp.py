@@ -281,6 +281,32 @@ class RayBundle(unittest.TestCase):
         self.assertAlmostEqual(float(b["weights"][:7].sum()), 1.0, places=6)
         self.assertIsNone(palp.ray_bundle([0, 0, 0], [0, 0, 0], c))
 
+    def test_session_publishes_the_ticks_bundle(self):
+        p = palp.SessionParams()
+        p.coupling = palp.scene_coupling_defaults("avc")
+        p.coupling.mode = "avcec"
+        p.coupling.ring_count = 4
+        device = palp.SimulatedDevice(palp.PressTrajectory(
+            start=[0.02, -0.002, 0.02], direction=[0, 1, 0], depth=0.005, press_seconds=0.2,
+            hold_seconds=0.1))
+        session = palp.Session(avc_scene(), device, p)
+        session.run(250)
+        s = session.latest()
+        rays = session.rays()
+        self.assertEqual(s.rays, 1 + 4 + 8 + 8)
+        self.assertEqual(len(rays["lengths"]), s.rays)
+        np.testing.assert_allclose(rays["origins"][0], s.proxy, atol=1e-6)  # float32
+        d = (s.probe - s.proxy) / np.linalg.norm(s.probe - s.proxy)
+        np.testing.assert_allclose(rays["directions"][0], d, atol=1e-6)
+        self.assertLessEqual(s.ray_length, rays["lengths"][0] + 1e-9)
+        # The same geometry as palp.ray_bundle from the snapshot with the coupling in force
+        # (the Touch's stiffness limit widened AVCEC's stencil angle from 0.1 rad) for the
+        # centre, ring and spherical rays (the surface stencil's tangents are the proxy's).
+        self.assertTrue(session.stiffness_limited)
+        self.assertGreater(session.params.coupling.sobel_angle, p.coupling.sobel_angle)
+        b = palp.ray_bundle(s.proxy, s.probe - s.proxy, session.params.coupling)
+        np.testing.assert_allclose(rays["directions"][:13], b["directions"][:13], atol=1e-6)
+
 
 class OpenVdb(unittest.TestCase):
     def test_pyopenvdb_grid_in_and_out(self):

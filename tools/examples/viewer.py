@@ -138,7 +138,6 @@ class Viewer:
 
     def __init__(self, live, size=(800, 600), offscreen=False):
         self.session = live.session
-        self.coupling = live.coupling
         self.deformable = live.deformable
         self.snapshot = None
         self._last = None  # (tick, wall time) of the previous update, for the servo rate
@@ -325,10 +324,11 @@ class Viewer:
         points = vtkPoints()
         lines = vtkCellArray()
         self.ray_colours.Reset()
-        d = np.asarray(s.probe) - np.asarray(s.proxy)
-        bundle = palp.ray_bundle(s.proxy, d, self.coupling) if s.rays > 0 else None
-        if bundle is not None:
-            n = min(int(s.rays), len(bundle["lengths"]))
+        # The newest tick's bundle (published by the servo thread like the snapshot; the two
+        # may be a tick apart): the first s.rays rays were traced.
+        bundle = self.session.rays()
+        n = min(int(s.rays), len(bundle["lengths"]))
+        if n > 0:
             for r in list(range(1, n)) + [0]:  # the centre ray last, over the others
                 o = bundle["origins"][r]
                 # The centre ray ends where the tick measured it (L); the others at L_max
@@ -369,11 +369,9 @@ class Viewer:
 
 @dataclass
 class Live:
-    """What the viewer shows: a session (not started yet), its coupling (for the ray bundle),
-    the skin iso-surface (None on a deformable scene: the session's surface is drawn) and the
+    """What the viewer shows: a session (not started yet), the skin iso-surface (None on a deformable scene: the session's surface is drawn) and the
     hard structures' iso-surface (bone, plates), both LPS m."""
     session: object
-    coupling: object
     skin: object
     hard: object
     deformable: bool
@@ -404,7 +402,7 @@ def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=
         device = palp.SimulatedDevice(trajectories[path]())
     session = palp.Session(scene, device, params)
     skin, hard = iso_surfaces(volume, [surface_iso, hard_iso])
-    return Live(session, params.coupling, None if deformable else skin, hard, deformable)
+    return Live(session, None if deformable else skin, hard, deformable)
 
 
 def frame_record(viewer, s):
