@@ -87,12 +87,13 @@ def wait_for(session, predicate, seconds=5.0):
 
 class ViewerTestCase(unittest.TestCase):
     deformable = False
+    offscreen = True
 
     @classmethod
     def setUpClass(cls):
         cls.tmp = tempfile.TemporaryDirectory(prefix="palp_viewer_")
         cls.live = viewer.make_session("avc", deformable=cls.deformable, path="raster")
-        cls.view = viewer.Viewer(cls.live, SIZE, offscreen=True)
+        cls.view = viewer.Viewer(cls.live, SIZE, offscreen=cls.offscreen)
         cls.frames = 0
         cls.live.session.start()
 
@@ -185,6 +186,17 @@ class RigidScene(ViewerTestCase):
         # timing belongs in benchmarks).
         self.assertGreater(s2.tick, s1.tick)
         self.assertTrue(np.isfinite(self.view.servo_hz))
+
+
+class Interactive(ViewerTestCase):
+    offscreen = False
+
+    def test_timer_redraws_while_the_servo_thread_runs(self):
+        # The interactive loop (a window on the X display, here Xvfb's), ended after 6 redraws.
+        ticks = viewer.run_interactive(self.view, fps=30, frames=6)
+        self.assertEqual(len(ticks), 6)
+        self.assertTrue(all(b > a for a, b in zip(ticks, ticks[1:])), ticks)
+        self.assertEqual(ticks[-1], self.view.snapshot.tick)
 
 
 class CommandLine(unittest.TestCase):

@@ -436,21 +436,27 @@ def run_offscreen(viewer, out_dir, frames, fps):
     return records
 
 
-def run_interactive(viewer, fps):
+def run_interactive(viewer, fps, frames=None):
+    """The window with mouse interaction; a repeating VTK timer (main thread) redraws at fps
+    until the window closes, or after frames redraws. Returns the ticks of the snapshots drawn."""
     interactor = vtkRenderWindowInteractor()
     interactor.SetRenderWindow(viewer.window)
     interactor.SetInteractorStyle(vtkInteractorStyleTrackballCamera())
     interactor.Initialize()
+    ticks = []
 
     def on_timer(_obj, _event):
-        viewer.update()
+        ticks.append(viewer.update().tick)
         viewer.render()
+        if frames is not None and len(ticks) >= frames:
+            interactor.TerminateApp()
 
     interactor.AddObserver("TimerEvent", on_timer)
     interactor.CreateRepeatingTimer(max(1, int(1000 / fps)))
     viewer.update()
     viewer.render()
     interactor.Start()
+    return ticks
 
 
 def main(argv=None):
