@@ -30,7 +30,7 @@ import numpy as np
 
 try:
     import palp
-except ImportError:  # run from the source tree: use the release build's module
+except ModuleNotFoundError:  # run from the source tree: use the release build's module
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..",
                                     "build", "release", "python"))
     import palp
