@@ -4,8 +4,8 @@ probe, the proxy, the rays the coupling cast and the force arrow.
 
 The session runs on palp's 1 kHz servo thread (C++); this program never runs there. A VTK timer
 on the main thread redraws at display rate from the newest published snapshot
-(Session.latest()) and, on a deformable scene, the newest published surface
-(Session.surface()); neither call waits for the servo thread.
+(Session.latest()), ray bundle (Session.rays()) and, on a deformable scene, surface
+(Session.surface()); none of these calls waits for the servo thread.
 
     /usr/bin/python3 tools/examples/viewer.py [--phantom avc|avcec|bone|stiffness|tumour]
         [--deformable] [--mode vc|avc|avcec] [--path raster|circle|press] [--log device.csv]
