@@ -3,9 +3,11 @@
 Volumes (palp.load, palp.phantom, palp.convert, palp.volume_from_numpy, Volume.to_numpy,
 pyopenvdb interop), scenes and sessions stepped offline (palp.Scene, palp.Session with a
 SimulatedDevice, PlaybackDevice or a Python object as the device), snapshots and traces as
-numpy arrays. World coordinates are LPS metres unless a function says otherwise. Errors are
-palp.ValueError / palp.FormatError (subclasses of ValueError) and palp.IoError (an OSError),
-all palp.Error, carrying palp's messages.
+numpy arrays, studies and maps (palp.MapPlane, palp.bin_trace -> palp.Map with numpy values,
+figures and underlays, Otsu masks, palp.summarize, palp.pick_largest). World coordinates are
+LPS metres unless a function says otherwise. Errors are palp.ValueError / palp.FormatError
+(subclasses of ValueError) and palp.IoError (an OSError), all palp.Error, carrying palp's
+messages.
 
 The C++ core is palp._palp; see README.md, "Python".
 """

@@ -16,6 +16,7 @@ void bindNumpyVolume(py::module_& m);  // numpy_volume.cpp: to_numpy, from numpy
 void bindParams(py::module_& m);       // params.cpp: coupling, proxy, session parameters
 void bindDevices(py::module_& m);      // devices.cpp: specs, trajectories, simulated, playback
 void bindSession(py::module_& m);      // session.cpp: Scene, Session, Snapshot, traces
+void bindMaps(py::module_& m);         // maps.cpp: MapPlane, Map, bin_trace, studies' tools
 
 /// Sets the attributes named by @p kwargs on @p object (a pybind11 instance of a bound class);
 /// an unknown name raises AttributeError, so keyword constructors refuse misspelt fields.

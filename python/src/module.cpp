@@ -73,4 +73,5 @@ PYBIND11_MODULE(_palp, m) {
     bindParams(m);
     bindDevices(m);
     bindSession(m);
+    bindMaps(m);
 }
