@@ -2,8 +2,9 @@
 // AVC phantom (surface y = 0, VC, k 300 N/m). The forces that come back over UDP are the
 // snapshots' forces tick for tick (offline lockstep and a 1 kHz live run); a held press feels
 // k x depth; a sender that stops gets zero force within the watchdog's timeout; malformed,
-// foreign, late and excess datagrams are ignored and counted; read() and write() allocate
-// nothing; addresses that do not parse or bind are refused naming the address.
+// foreign, late and excess datagrams are ignored and counted (and 10,000 lossy cycles exactly);
+// read() and write() allocate nothing; addresses that do not parse or bind are refused naming the
+// address.
 #include <gtest/gtest.h>
 #include <tbb/task_arena.h>
 
@@ -369,6 +370,73 @@ TEST_F(UdpDeviceTest, ReadAndWriteAllocateNothing) {
     EXPECT_EQ(allocations, 0u);
     EXPECT_GT(device.counters().sent, 400u);
     EXPECT_GT(device.counters().badMagic, 50u);
+}
+
+// 10,000 cycles in lockstep (one State, one tick, one Force) through a scripted lossy network:
+// a datagram in 97 never sent (lost), a burst of 5 in a row dropped (longer than the watchdog's
+// grace, shorter than its timeout: scaled, never cut), every 211th cycle an old State (3 back)
+// delivered again after the current one (late). The counts are exact whatever the delivery's
+// timing (sends from one socket arrive in order, or not at all); every tick's Force is that
+// tick's snapshot force; the round trip (send -> step -> Force received) is reported.
+TEST_F(UdpDeviceTest, TenThousandLossyCyclesAreCountedExactly) {
+    UdpDevice device(touchX(), deviceParams());
+    UdpBridgeClient client(address(device));
+    Session session(sScene, device, params());
+    constexpr std::uint64_t kCycles = 10000, kBurst = 5000, kBurstLength = 5;
+    const auto dropped = [&](std::uint64_t i) {
+        return (i % 97 == 13) || (i >= kBurst && i < kBurst + kBurstLength);
+    };
+    std::uint64_t sent = 0, lost = 0, late = 0, stale = 0, scaled = 0, matched = 0;
+    std::vector<double> roundTripUs;
+    roundTripUs.reserve(kCycles);
+    for (std::uint64_t i = 0; i < kCycles; ++i) {
+        const auto t0 = std::chrono::steady_clock::now();
+        if (dropped(i)) {
+            ++lost;
+        } else {
+            ASSERT_TRUE(client.send(pressState(i)));
+            ++sent;
+            if (i % 211 == 7 && i >= 3) {
+                ASSERT_TRUE(client.send(pressState(i - 3)));
+                ++late;
+            }
+        }
+        const Snapshot& s = session.step();
+        bridge::ForceMessage f;
+        ASSERT_TRUE(client.receive(f, 1.0)) << "cycle " << i;
+        roundTripUs.push_back(
+            std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
+                .count());
+        ASSERT_EQ(f.tick, s.tick);
+        if (f.force == s.force && f.forceScale == s.deviceForceScale) ++matched;
+        if (f.flags & bridge::kForceStale) ++stale;
+        if (f.forceScale < 1) ++scaled;
+        EXPECT_GT(f.forceScale, 0.0) << "cycle " << i;  // no outage reaches the timeout
+    }
+    readUntil(device, [&] { return device.counters().received == sent; });
+    const UdpDeviceCounters c = device.counters();
+    EXPECT_EQ(matched, kCycles);
+    EXPECT_EQ(c.received, sent);
+    EXPECT_EQ(c.lost, lost);
+    EXPECT_EQ(c.late, late);
+    EXPECT_EQ(c.ignored(), 0u);
+    EXPECT_EQ(c.restarts, 0u);
+    EXPECT_EQ(c.sent, kCycles);
+    EXPECT_EQ(session.latest().watchdogTrips, 0u);
+    // Each dropped State leaves its tick stale (or the next one, when a State arrived only
+    // after its tick's read); the burst's last 3 ticks are past the 2 ms grace: scaled.
+    EXPECT_GE(stale, lost);
+    EXPECT_GE(scaled, kBurstLength - 2);
+    std::sort(roundTripUs.begin(), roundTripUs.end());
+    std::printf(
+        "lossy lockstep: %llu cycles, %llu sent, %llu lost, %llu late (counted %llu, %llu, "
+        "%llu), %llu stale ticks, %llu scaled; round trip p50 %.1f us, p99 %.1f us\n",
+        static_cast<unsigned long long>(kCycles), static_cast<unsigned long long>(sent),
+        static_cast<unsigned long long>(lost), static_cast<unsigned long long>(late),
+        static_cast<unsigned long long>(c.received), static_cast<unsigned long long>(c.lost),
+        static_cast<unsigned long long>(c.late), static_cast<unsigned long long>(stale),
+        static_cast<unsigned long long>(scaled), roundTripUs[kCycles / 2],
+        roundTripUs[kCycles * 99 / 100]);
 }
 
 // A 1 kHz live run: the session on its servo thread, the remote hand on another thread sending
