@@ -207,6 +207,60 @@ class Sessions(unittest.TestCase):
         with self.assertRaises(palp.ValueError):
             palp.Session(avc_scene(), object(), vc_params())
 
+    def test_python_device_watchdog_and_nan_guard(self):
+        class Hand:  # a host device in Python whose samples can stop or turn NaN
+            def __init__(self):
+                self.inner = palp.SimulatedDevice(press())
+                self.sequence = 0
+                self.silent = False
+                self.nan = False
+                self.last = None
+
+            def read(self):
+                if self.silent:
+                    return self.last  # the same sample again: nothing new
+                position, velocity, buttons = self.inner.read()
+                self.sequence += 1
+                if self.nan:
+                    position = np.array([math.nan, position[1], position[2]])
+                self.last = (position, velocity, 0, self.sequence * 1e-3, self.sequence)
+                return self.last
+
+            def write(self, force):
+                self.inner.write(force)
+
+        hand = Hand()
+        session = palp.Session(avc_scene(), hand, vc_params(), watchdog=True)
+        trace = session.run(800)  # pressed and held
+        held = np.linalg.norm(trace["force"][-1])
+        self.assertGreater(held, 0.2)
+        self.assertFalse(trace["device_stale"].any())
+        # Silence: whole for the 2 ms grace, zero by the 10 ms timeout, one trip.
+        hand.silent = True
+        t = session.run(2)
+        self.assertTrue(t["device_stale"].all())
+        np.testing.assert_allclose(np.linalg.norm(t["force"], axis=1), held, rtol=1e-9)
+        t = session.run(8)
+        self.assertEqual(np.linalg.norm(t["force"][-1]), 0.0)
+        self.assertEqual(t["device_force_scale"][-1], 0.0)
+        self.assertEqual(session.step().watchdog_trips, 1)
+        # Samples again: the force climbs back over 50 ms to the held press's.
+        hand.silent = False
+        t = session.run(100)
+        self.assertFalse(t["device_stale"][-50:].any())
+        self.assertAlmostEqual(np.linalg.norm(t["force"][-1]), held, delta=0.05 * held)
+        # NaN samples are guarded like a device's: the last good force held (faulted), then the
+        # watchdog, which counts them as missing, cuts it.
+        good = t["force"][-1]
+        hand.nan = True
+        t = session.run(2)
+        self.assertTrue(t["faulted"].all())
+        np.testing.assert_allclose(t["force"], [good, good], rtol=1e-9)
+        self.assertTrue(np.isfinite(t["probe"]).all())
+        t = session.run(10)
+        self.assertEqual(np.linalg.norm(t["force"][-1]), 0.0)
+        self.assertEqual(session.step().watchdog_trips, 2)
+
     def test_playback_replays_the_recorded_probe(self):
         session = palp.Session(avc_scene(), palp.SimulatedDevice(press()), vc_params())
         ref = session.run(400)
