@@ -1,11 +1,15 @@
 // A C++ program on palp's installed modules (palp::volume, palp::haptics), built by
-// tools/test_package.sh with find_package(palp CONFIG): the AVC phantom as a volume, a scene,
+// tools/test_package.sh with find_package(palp CONFIG): a scan read from a file (an NRRD it
+// writes) and a missing one refused as palp::IoError, the AVC phantom as a volume, a scene,
 // a simulated VC press held 4 mm deep into the skin, stepped offline; the force must push out
 // of the skin with |F| = k D, and palp's exceptions must cross the library boundary as
 // palp::ValueError. Exits non-zero, saying why, on any failure.
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <exception>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <string>
 
@@ -14,6 +18,7 @@
 #include "palp/haptics/session.h"
 #include "palp/haptics/simulated_device.h"
 #include "palp/haptics/trajectory.h"
+#include "palp/volume/load.h"
 #include "palp/volume/phantom.h"
 
 namespace {
@@ -27,7 +32,45 @@ void expect(bool ok, const char* what) {
     }
 }
 
+/// An 8 x 8 x 8 int16 NRRD (1 mm voxels, LPS origin (10, -20, 30) mm, 100 HU) read with
+/// palp::volume::load: 1 mm voxels, world bounds around the voxel centres' box (7 mm) plus at
+/// most the resampler's one-voxel border.
+void readAScan() {
+    namespace fs = std::filesystem;
+    const fs::path path =
+        fs::temp_directory_path() /
+        ("palp_consumer_" +
+         std::to_string(std::chrono::steady_clock::now().time_since_epoch().count()) + ".nrrd");
+    {
+        std::ofstream out(path, std::ios::binary);
+        out << "NRRD0004\ntype: short\ndimension: 3\nspace: left-posterior-superior\n"
+               "sizes: 8 8 8\nspace directions: (1,0,0) (0,1,0) (0,0,1)\n"
+               "space origin: (10,-20,30)\nendian: little\nencoding: raw\n\n";
+        for (int i = 0; i < 8 * 8 * 8; ++i) out.write("\x64\x00", 2);  // 100, little-endian
+    }
+    const palp::volume::Volume scan = palp::volume::load({path});
+    fs::remove(path);
+    expect(std::abs(scan.voxelSize() - 1e-3) < 1e-12, "the scan's 1 mm voxels");
+    const auto bounds = scan.worldBounds();
+    const double centre[3] = {0.0135, -0.0165, 0.0335};  // origin + 3.5 mm, m
+    for (int a = 0; a < 3; ++a) {
+        const double lo = bounds.min()[a], hi = bounds.max()[a];
+        expect(std::abs(0.5 * (lo + hi) - centre[a]) < 1e-9, "the scan where its header puts it");
+        expect(hi - lo > 7e-3 - 1e-9 && hi - lo < 9e-3 + 1e-9, "the scan's extent");
+    }
+    std::printf("consumer_cpp: read %s: x from %.1f to %.1f mm\n", path.c_str(),
+                bounds.min()[0] * 1e3, bounds.max()[0] * 1e3);
+    try {
+        palp::volume::load({path});
+        expect(false, "a missing file is refused");
+    } catch (const palp::IoError& e) {
+        expect(std::string(e.what()).find(path.string()) != std::string::npos,
+               "the I/O error names the file");
+    }
+}
+
 void run() {
+    readAScan();
     namespace pv = palp::volume;
     namespace ph = palp::haptics;
 
