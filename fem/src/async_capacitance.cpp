@@ -317,6 +317,32 @@ bool GlobalSecondary::borderFieldAt(const Layout& L, const std::vector<int>& dof
     return true;
 }
 
+bool GlobalSecondary::borderResponseAt(const Layout& L, const std::vector<int>& dofs,
+                                       Eigen::MatrixXd& out) const {
+    // x = A^-1 E_J Q u_B: the rows of I W_(.,J) at the dofs, times Q.
+    out.resize(0, 0);
+    for (int d : dofs)
+        for (RowSparseMatrix::InnerIterator it(mInterp, d); it; ++it)
+            if (mZonePos[sz(static_cast<int>(it.col()))] < 0) return false;
+    const Eigen::Index nj = static_cast<Eigen::Index>(L.capJ.size());
+    if (L.capQ.size() == 0 || nj == 0) {
+        out = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(dofs.size()),
+                                    static_cast<Eigen::Index>(L.borderDofs.size()));
+        return true;
+    }
+    Eigen::MatrixXd rows = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(dofs.size()), nj);
+    for (std::size_t i = 0; i < dofs.size(); ++i) {
+        for (RowSparseMatrix::InnerIterator it(mInterp, dofs[i]); it; ++it) {
+            const int pu = mZonePos[sz(static_cast<int>(it.col()))];
+            for (Eigen::Index j = 0; j < nj; ++j)
+                rows(static_cast<Eigen::Index>(i), j) +=
+                    it.value() * mW(pu, mZonePos[sz(L.capJ[sz(static_cast<int>(j))])]);
+        }
+    }
+    out.noalias() = rows * L.capQ;
+    return true;
+}
+
 bool GlobalSecondary::prepareLayout(Layout& L, const std::vector<int>& primaryCoarseCells,
                                     const SparseMatrix& stiffness) const {
     const AsyncRegionsOptions& o = mSetup.options;

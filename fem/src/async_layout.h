@@ -77,6 +77,12 @@ struct Layout {
     // secondary interior before, with the secondary's latest values there.
     std::vector<int> entryDofs;
     std::vector<double> entryValues;
+    // The entry values' linear response to the border of the layout they leave (|entryDofs| x
+    // |from.borderDofs|, empty where unknown) and the border they answer: the servo moves them
+    // to the border it shows at the swap, `value + E (u_B - entryBorder)` (a quasi-static
+    // field is linear in its border; values a period old made each swap a kick, issue 18).
+    Eigen::MatrixXd entryResponse;
+    Eigen::VectorXd entryBorder;
     std::vector<int> primaryNodes;             // P, sorted
     std::vector<std::uint8_t> isPrimary;       // per fine node
     std::vector<std::array<int, 8>> cellDofs;  // 3 * node of the 8 nodes of each primary cell

@@ -142,7 +142,34 @@ void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
     // Nodes the servo did not integrate or show take the prepared secondary values; the
     // coupling restarts from the shown values, so nothing jumps at the swap.
     showBorder(from);
-    for (std::size_t i = 0; i < to.entryDofs.size(); ++i) enter(to.entryDofs[i], to.entryValues[i]);
+    const std::size_t nb = from.borderDofs.size();
+    const bool respond =
+        to.entryResponse.rows() == static_cast<Eigen::Index>(to.entryDofs.size()) &&
+        to.entryResponse.cols() == static_cast<Eigen::Index>(nb) &&
+        to.entryBorder.size() == static_cast<Eigen::Index>(nb) && !to.entryDofs.empty();
+    if (!respond) {
+        for (std::size_t i = 0; i < to.entryDofs.size(); ++i)
+            enter(to.entryDofs[i], to.entryValues[i]);
+    } else {
+        // The quasi-static values at the border shown now and at the previous substep, so the
+        // entering nodes join the motion of their neighbours (position and velocity) instead
+        // of a period-old rest state. (mBNow, mWork: work vectors, sized to the dofs.)
+        const Eigen::Index n = static_cast<Eigen::Index>(nb);
+        const Eigen::Index ne = static_cast<Eigen::Index>(to.entryDofs.size());
+        for (std::size_t i = 0; i < nb; ++i)
+            mBNow[static_cast<Eigen::Index>(i)] =
+                mU[from.borderDofs[i]] - to.entryBorder[static_cast<Eigen::Index>(i)];
+        mWork.head(ne).noalias() = to.entryResponse * mBNow.head(n);
+        for (std::size_t i = 0; i < nb; ++i)
+            mBNow[static_cast<Eigen::Index>(i)] =
+                mUPrev[from.borderDofs[i]] - to.entryBorder[static_cast<Eigen::Index>(i)];
+        for (std::size_t i = 0; i < to.entryDofs.size(); ++i) {
+            const Eigen::Index k = static_cast<Eigen::Index>(i);
+            const int d = to.entryDofs[i];
+            mU[d] = to.entryValues[i] + mWork[k];
+            mUPrev[d] = to.entryValues[i] + to.entryResponse.row(k).dot(mBNow.head(n));
+        }
+    }
     restartCoupling(to);
 }
 

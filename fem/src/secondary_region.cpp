@@ -214,6 +214,7 @@ void SecondaryRegion::prepareEntry(Layout& from, Layout& next,
     // (no solve); otherwise the field is brought up to date first.
     next.entryDofs.clear();
     next.entryValues.clear();
+    next.entryResponse.resize(0, 0);
     bool done = false;
     if (from.global != nullptr && from.fieldStale) {
         forEachEnteringDofIndex(from, next, mSetup.fixed,
@@ -227,6 +228,35 @@ void SecondaryRegion::prepareEntry(Layout& from, Layout& next,
             next.entryDofs.push_back(d);
             next.entryValues.push_back(value);
         });
+    }
+    // Their response to the border, so the servo can bring them to the border it shows at the
+    // swap (the values answer the last solve's border: up to a period old, more when the
+    // layout waits). Capacitance layouts only (from the zone block); others enter as solved.
+    if (!next.entryDofs.empty()) {
+        bool known = false;
+        if (from.global != nullptr) {
+            known = from.global->borderResponseAt(from, next.entryDofs, next.entryResponse);
+        } else if (!from.unknownCoarseDof.empty() &&
+                   mSetup.options.secondaryIntegrator == Integrator::quasiStatic &&
+                   mSetup.options.secondarySolver == LinearSolverKind::cholmod) {
+            // The layout's own factor: E = -I_e A^-1 sK K_SB = -(A^-1 I_e^T)^T sK K_SB, one
+            // solve with |entry| right-hand sides (A is symmetric).
+            const Eigen::Index ne = static_cast<Eigen::Index>(next.entryDofs.size());
+            Eigen::MatrixXd rows = Eigen::MatrixXd::Zero(from.interp.cols(), ne);
+            for (Eigen::Index i = 0; i < ne; ++i)
+                for (RowSparseMatrix::InnerIterator it(from.interp,
+                                                       next.entryDofs[sz(static_cast<int>(i))]);
+                     it; ++it)
+                    rows(it.col(), i) = it.value();
+            const Eigen::MatrixXd y = from.cholmod.solve(rows);
+            known = from.cholmod.info() == Eigen::Success && y.allFinite();
+            if (known) next.entryResponse = -mSetup.sK * (from.kcb.transpose() * y).transpose();
+        }
+        if (known) {
+            next.entryBorder = from.border;
+        } else {
+            next.entryResponse.resize(0, 0);
+        }
     }
     // Warm state of the secondary in its own indexing.
     warmStart(next);
