@@ -17,6 +17,7 @@ void bindParams(py::module_& m);       // params.cpp: coupling, proxy, session p
 void bindDevices(py::module_& m);      // devices.cpp: specs, trajectories, simulated, playback
 void bindSession(py::module_& m);      // session.cpp: Scene, Session, Snapshot, traces
 void bindMaps(py::module_& m);         // maps.cpp: MapPlane, Map, bin_trace, studies' tools
+void bindBridge(py::module_& m);       // bridge.cpp: UdpDevice, UdpBridgeClient
 
 /// Sets the attributes named by @p kwargs on @p object (a pybind11 instance of a bound class);
 /// an unknown name raises AttributeError, so keyword constructors refuse misspelt fields.

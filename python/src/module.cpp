@@ -74,4 +74,5 @@ PYBIND11_MODULE(_palp, m) {
     bindDevices(m);
     bindSession(m);
     bindMaps(m);
+    bindBridge(m);
 }

@@ -8,6 +8,7 @@ Run by ctest with Debian's /usr/bin/python3 and PYTHONPATH=<build>/python."""
 import math
 import os
 import tempfile
+import time
 import unittest
 
 import numpy as np
@@ -360,6 +361,81 @@ class RayBundle(unittest.TestCase):
         self.assertGreater(session.params.coupling.sobel_angle, p.coupling.sobel_angle)
         b = palp.ray_bundle(s.proxy, s.probe - s.proxy, session.params.coupling)
         np.testing.assert_allclose(rays["directions"][:13], b["directions"][:13], atol=1e-6)
+
+
+class RemoteDevice(unittest.TestCase):
+    """The device bridge from Python: a session on palp.UdpDevice (palp serve's device) fed by a
+    palp.UdpBridgeClient in this process, offline (one State, one tick, one Force) and on the
+    servo thread."""
+
+    @staticmethod
+    def press_y(i):  # from 4 mm above the skin (y = 0) to 3 mm under it in 0.3 s, held
+        return -4e-3 + 7e-3 * min(i / 300.0, 1.0)
+
+    def test_press_over_udp_is_felt_and_counted(self):
+        device = palp.UdpDevice("127.0.0.1:0")
+        self.assertGreater(device.port, 0)
+        self.assertEqual(device.address, "127.0.0.1:%d" % device.port)
+        client = palp.UdpBridgeClient(device.address)
+        session = palp.Session(avc_scene(), device, vc_params())
+        before = session.run(5)  # no State yet: stale, no force, nothing sent
+        self.assertTrue(before["device_stale"].all())
+        self.assertEqual(np.abs(before["force"]).max(), 0.0)
+        self.assertIsNone(client.receive(0.0))
+        quarter_turn = (math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5))  # 90 degrees about z
+        for i in range(500):
+            self.assertTrue(client.send(i + 1, (0.004, self.press_y(i), 0.003),
+                                        orientation=quarter_turn, time_ns=1000 * (i + 1)))
+            s = session.step()
+            f = client.receive(1.0)
+            self.assertIsNotNone(f, i)
+            self.assertEqual(f["tick"], s.tick)
+            np.testing.assert_array_equal(f["force"], s.force)
+            self.assertFalse(f["stale"] or f["cut"])
+        # Held 3 mm deep, VC without friction: k D out of the skin.
+        self.assertAlmostEqual(s.probe[1], 3e-3, delta=1e-12)
+        self.assertAlmostEqual(s.force[1], -300 * (s.probe[1] - s.proxy[1]), delta=1e-9)
+        self.assertAlmostEqual(np.linalg.norm(s.force), 0.9, delta=0.15)
+        self.assertEqual(f["state_sequence"], 500)
+        self.assertEqual(f["state_time_ns"], 500000)
+        state = device.published_state()  # what a Snapshot lacks: the orientation
+        self.assertEqual(state["sequence"], 500)
+        np.testing.assert_allclose(state["orientation"], quarter_turn, rtol=1e-15)
+        client.send_raw(b"hello, palp")  # foreign: ignored and counted
+        session.step()
+        c = device.counters()
+        self.assertEqual((c["received"], c["lost"], c["late"]), (500, 0, 0))
+        self.assertEqual((c["ignored"], c["bad_magic"]), (1, 1))
+        self.assertEqual(c["forces_sent"], 501)
+        # Bad addresses and a port in use, named.
+        with self.assertRaises(palp.ValueError) as e:
+            palp.UdpDevice("localhost7405")
+        self.assertIn("'localhost7405'", str(e.exception))
+        with self.assertRaises(palp.IoError) as e:
+            palp.UdpDevice(device.address)
+        self.assertIn("EADDRINUSE", str(e.exception))
+
+    def test_servo_thread_renders_a_python_senders_press(self):
+        device = palp.UdpDevice("127.0.0.1:0", watchdog_timeout=0.5, watchdog_grace=0.4)
+        client = palp.UdpBridgeClient(device.address)
+        session = palp.Session(avc_scene(), device, vc_params())
+        session.start()
+        held = []
+        try:
+            for i in range(400):  # about 1 kHz from Python; a starved sender only scales
+                client.send(i + 1, (0.004, self.press_y(i), 0.003))
+                time.sleep(0.001)
+                f = client.receive(0.0)
+                while f is not None:
+                    if f["state_sequence"] >= 320 and f["force_scale"] == 1.0:
+                        held.append(f["force"])
+                    f = client.receive(0.0)
+        finally:
+            session.stop()
+        self.assertGreater(len(held), 20)
+        norms = np.linalg.norm(held, axis=1)
+        np.testing.assert_allclose(norms, 0.9, atol=0.15)
+        self.assertTrue((np.asarray(held)[:, 1] < 0).all())
 
 
 class OpenVdb(unittest.TestCase):
