@@ -5,6 +5,8 @@
 //   bench_convert --generate COLS ROWS SLICES [REPEATS]
 //   bench_convert --write-dicom DIR COLS ROWS SLICES   (the generated series as DICOM files)
 // Prints the median of REPEATS (default 3) of each phase, the grid's memory and active voxels.
+#include <sys/resource.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -28,16 +30,27 @@ double median(std::vector<double> v) {
     return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
 }
 
+double cpuSeconds() {
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return static_cast<double>(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+           1e-6 * static_cast<double>(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+/// Wall seconds of f(); adds its CPU seconds (all threads, user + system) to @p cpu.
 template <class F>
-double seconds(F&& f) {
+double seconds(F&& f, std::vector<double>* cpu = nullptr) {
+    const double c0 = cpuSeconds();
     const auto t0 = Clock::now();
     f();
-    return std::chrono::duration<double>(Clock::now() - t0).count();
+    const double wall = std::chrono::duration<double>(Clock::now() - t0).count();
+    if (cpu) cpu->push_back(cpuSeconds() - c0);
+    return wall;
 }
 
 palp::volume::SliceStack generated(char** dims) {
-    return palp::testing::tiltedSeries(std::atoi(dims[0]), std::atoi(dims[1]), std::atoi(dims[2]),
-                                       0.0005, 0.0005, 12.0);
+    return palp::test::tiltedSeries(std::atoi(dims[0]), std::atoi(dims[1]), std::atoi(dims[2]),
+                                    0.0005, 0.0005, 12.0);
 }
 
 }  // namespace
@@ -65,17 +78,18 @@ int main(int argc, char** argv) {
     const int repeats = argc > repeatArg ? std::max(1, std::atoi(argv[repeatArg])) : 3;
     ResampleOptions ro;
     if (!gen) ro.voxelSize = std::atof(argv[2]) * 1e-3;
-    std::vector<double> tRead, tResample, tBlosc, tMask, tZip;
+    std::vector<double> tRead, tResample, tBlosc, tMask, tZip, cRead, cResample, cBlosc, cMask;
     Volume vol;
     SliceStack stack;
     for (int r = 0; r < repeats; ++r) {
-        tRead.push_back(seconds(
-            [&] { stack = gen ? generated(argv + 2) : readStack({fs::path(argv[1])}, {}); }));
+        tRead.push_back(
+            seconds([&] { stack = gen ? generated(argv + 2) : readStack({fs::path(argv[1])}, {}); },
+                    &cRead));
         vol = {};
-        tResample.push_back(seconds([&] { vol = resample(stack, ro); }));
+        tResample.push_back(seconds([&] { vol = resample(stack, ro); }, &cResample));
         const fs::path out = fs::temp_directory_path() / "palp_bench_convert.vdb";
-        tBlosc.push_back(seconds([&] { save(vol, out, {Compression::Blosc}); }));
-        tMask.push_back(seconds([&] { save(vol, out, {Compression::ActiveMask}); }));
+        tBlosc.push_back(seconds([&] { save(vol, out, {Compression::Blosc}); }, &cBlosc));
+        tMask.push_back(seconds([&] { save(vol, out, {Compression::ActiveMask}); }, &cMask));
         if (r == 0) tZip.push_back(seconds([&] { save(vol, out, {Compression::Zip}); }));
         fs::remove(out);
     }
@@ -91,5 +105,9 @@ int main(int argc, char** argv) {
         "save mask %.3f s, save zip %.3f s (1 run)\n",
         repeats, gen ? "generate" : "read", median(tRead), median(tResample),
         median(tResample) / active * 1e9, median(tBlosc), median(tMask), median(tZip));
+    std::printf(
+        "CPU seconds (user + system, all threads), medians: %s %.3f, resample %.3f, "
+        "save blosc %.3f, save mask %.3f\n",
+        gen ? "generate" : "read", median(cRead), median(cResample), median(cBlosc), median(cMask));
     return 0;
 }

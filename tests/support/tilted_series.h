@@ -11,7 +11,7 @@
 
 #include "palp/volume/slice_stack.h"
 
-namespace palp::testing {
+namespace palp::test {
 
 /// @p cols x @p rows pixels of @p pixel metres, @p slices slices @p gap metres apart along the
 /// normal, tilted by @p tiltDeg degrees. Deterministic.
@@ -59,4 +59,4 @@ inline volume::SliceStack tiltedSeries(int cols, int rows, int slices, double pi
     return s;
 }
 
-}  // namespace palp::testing
+}  // namespace palp::test

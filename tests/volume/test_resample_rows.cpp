@@ -108,7 +108,7 @@ Comparison compare(const SliceStack& st, const Volume& fast, const Volume& ref, 
 }
 
 TEST(ResampleRows, RowKernelGivesTheReferenceVoxelsOnTiltedSeriesInEveryOrientation) {
-    const SliceStack axial = palp::testing::tiltedSeries(48, 40, 14, 0.7e-3, 1.3e-3, 17.0);
+    const SliceStack axial = palp::test::tiltedSeries(48, 40, 14, 0.7e-3, 1.3e-3, 17.0);
     const std::vector<std::pair<std::string, Eigen::Matrix3d>> orientations = {
         {"axial", Eigen::Matrix3d::Identity()},
         // Slices normal to x (sagittal) with the normal pointing to -x: rows run along -x.
@@ -156,7 +156,7 @@ TEST(ResampleRows, PeakMemoryOfALargerSeriesStaysWithinHalfTheGridAboveIt) {
     // 320 x 320 x 200 tilted slices at 0.5 mm (82 MB of input): a ~23 M voxel lattice, ~7 M of
     // them active. Resampling may hold the output grid and at most half of it again (the
     // blocks in flight, the tree's internal nodes): no dense copy of the lattice.
-    const SliceStack st = palp::testing::tiltedSeries(320, 320, 200, 0.5e-3, 0.5e-3, 12.0);
+    const SliceStack st = palp::test::tiltedSeries(320, 320, 200, 0.5e-3, 0.5e-3, 12.0);
     std::ofstream("/proc/self/clear_refs") << "5";  // resets VmHWM to the current RSS
     const auto [before, peak0] = rssAndPeak();
     if (std::abs(peak0 - before) > 4e6) GTEST_SKIP() << "this kernel cannot reset VmHWM";

@@ -10,13 +10,13 @@
 #include <stdexcept>
 
 #include "formats.h"
-#include "grid_copy.h"
 #include "palp/base/atomic_file.h"
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/volume/dicom.h"
 #include "vdb_errors.h"
+#include "vdb_write.h"
 
 namespace palp::volume {
 
@@ -298,8 +298,9 @@ void save(const Volume& volume, const fs::path& path, const SaveOptions& options
     if (!volume.grid) throwExpected(path.string(), "a volume with a grid", "none");
     AtomicFile out(path, "volume");
     // A grid sharing the caller's tree and transform, with metadata and name of its own,
-    // carries the file's name and metadata, so the caller's grid is left as it was.
-    const openvdb::FloatGrid::Ptr grid = detail::gridWithTree(*volume.grid, volume.grid->treePtr());
+    // carries the file's name and metadata, so the caller's grid is left as it was; its leaves
+    // are compressed in parallel (the bytes OpenVDB's serial writer would write).
+    const openvdb::FloatGrid::Ptr grid = detail::parallelWritingGrid(*volume.grid);
     writeInfo(volume.info, *grid);
     grid->setName(kScanGridName);
     try {

@@ -1,0 +1,84 @@
+// Parallel compression of a float grid's leaf buffers for OpenVDB's archive writer.
+#include "vdb_write.h"
+
+#include <openvdb/io/io.h>
+#include <tbb/parallel_pipeline.h>
+#include <tbb/task_arena.h>
+
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace palp::volume::detail {
+
+namespace {
+
+using LeafT = openvdb::FloatTree::LeafNodeType;
+
+/// OpenVDB writes a grid as header, metadata, transform, topology (Archive::writeGrid) and then
+/// the buffers through the virtual Grid::writeBuffers(): the root's children in table order,
+/// each internal node's children in child-mask order, down to LeafNode::writeBuffers (value
+/// mask, then the compressed values). The leaf iterator visits leaves in that same order, so
+/// compressing runs of consecutive leaves into memory and writing them in order gives the
+/// serial writer's bytes.
+class ParallelWritingGrid final : public openvdb::FloatGrid {
+  public:
+    explicit ParallelWritingGrid(openvdb::FloatTree::Ptr tree) : openvdb::FloatGrid(tree) {}
+
+    void writeBuffers(std::ostream& os) const override {
+        std::vector<const LeafT*> leaves;
+        leaves.reserve(tree().leafCount());
+        for (auto it = tree().cbeginLeaf(); it; ++it) leaves.push_back(it.getLeaf());
+        // The stream state the leaves read (compression flags, background, half floats), set
+        // on @p os by the archive and the topology writer, copied to each chunk's stream.
+        const openvdb::io::StreamMetadata state(os);
+        const bool toHalf = saveFloatAsHalf();
+        const void* background = openvdb::io::getGridBackgroundValuePtr(os);
+        const std::uint32_t compression = openvdb::io::getDataCompression(os);
+        constexpr std::size_t kChunk = 64;  // leaves per chunk: ~130 KB before compression
+        std::size_t next = 0;
+        const auto tokens = static_cast<std::size_t>(2 * tbb::this_task_arena::max_concurrency());
+        tbb::parallel_pipeline(
+            tokens, tbb::make_filter<void, std::size_t>(tbb::filter_mode::serial_in_order,
+                                                        [&](tbb::flow_control& fc) {
+                                                            if (next >= leaves.size()) fc.stop();
+                                                            const std::size_t begin = next;
+                                                            next += kChunk;
+                                                            return begin;
+                                                        }) &
+                        tbb::make_filter<std::size_t, std::string>(
+                            tbb::filter_mode::parallel,
+                            [&](std::size_t begin) {
+                                std::ostringstream chunk;
+                                state.transferTo(chunk);
+                                // Not carried by StreamMetadata: the background that mask
+                                // compression compares inactive values with (set on os by the
+                                // topology writer).
+                                openvdb::io::setGridBackgroundValuePtr(chunk, background);
+                                openvdb::io::setDataCompression(chunk, compression);
+                                const std::size_t end = std::min(begin + kChunk, leaves.size());
+                                for (std::size_t i = begin; i < end; ++i)
+                                    leaves[i]->writeBuffers(chunk, toHalf);
+                                return std::move(chunk).str();
+                            }) &
+                        tbb::make_filter<std::string, void>(
+                            tbb::filter_mode::serial_in_order, [&](const std::string& bytes) {
+                                os.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+                            }));
+    }
+};
+
+}  // namespace
+
+openvdb::FloatGrid::Ptr parallelWritingGrid(const openvdb::FloatGrid& source) {
+    auto grid = std::make_shared<ParallelWritingGrid>(
+        std::const_pointer_cast<openvdb::FloatTree>(source.constTreePtr()));
+    // The same transform object (a copy could change the voxel size in its last bits).
+    grid->setTransform(
+        std::const_pointer_cast<openvdb::math::Transform>(source.constTransformPtr()));
+    for (auto it = source.beginMeta(); it != source.endMeta(); ++it)
+        grid->insertMeta(it->first, *it->second);
+    return grid;
+}
+
+}  // namespace palp::volume::detail
