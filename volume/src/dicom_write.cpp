@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <ctime>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -144,6 +145,7 @@ void prepareDirectory(const fs::path& dir, Cleanup& cleanup) {
 struct SeriesIds {
     std::string studyUid, seriesUid, frameUid;
     const char* sopClass = nullptr;
+    std::string date, time;  // one study and series date/time for every file (DA, TM)
 };
 
 /// Writes slice @p k of @p stack to @p finalPath through a temporary file; @p stored is scratch.
@@ -208,6 +210,12 @@ void writeSlice(const SliceStack& stack, std::size_t k, const DicomWriteOptions&
     setString(ds, 0x0008, 0x103e, gdcm::VR::LO, options.seriesDescription.substr(0, 64));
     setString(ds, 0x0010, 0x0010, gdcm::VR::PN, "PALP^PHANTOM");
     setString(ds, 0x0010, 0x0020, gdcm::VR::LO, "PHANTOM");
+    // Study and series date/time, the same in every file (gdcm would stamp each file with the
+    // time it is written, and readers such as dcm2niix split a series whose study time varies).
+    setString(ds, 0x0008, 0x0020, gdcm::VR::DA, ids.date);
+    setString(ds, 0x0008, 0x0030, gdcm::VR::TM, ids.time);
+    setString(ds, 0x0008, 0x0021, gdcm::VR::DA, ids.date);
+    setString(ds, 0x0008, 0x0031, gdcm::VR::TM, ids.time);
     setString(ds, 0x0020, 0x000d, gdcm::VR::UI, ids.studyUid);
     setString(ds, 0x0020, 0x000e, gdcm::VR::UI, ids.seriesUid);
     setString(ds, 0x0020, 0x0052, gdcm::VR::UI, ids.frameUid);
@@ -241,6 +249,16 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir,
     ids.studyUid = uid(gen);
     ids.seriesUid = uid(gen);
     ids.frameUid = uid(gen);
+    {
+        const std::time_t now = std::time(nullptr);
+        std::tm utc{};
+        gmtime_r(&now, &utc);
+        char date[16], time[16];
+        std::strftime(date, sizeof date, "%Y%m%d", &utc);
+        std::strftime(time, sizeof time, "%H%M%S", &utc);
+        ids.date = date;
+        ids.time = time;
+    }
     const bool isCt = options.modality == "CT";
     ids.sopClass = isCt ? gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage)
                         : gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage);
