@@ -99,6 +99,27 @@ const char* palp_session_udp_address(const palp_session* session) {
     return session && session->udp ? session->udp->address().c_str() : nullptr;
 }
 
+palp_status palp_session_udp_state(palp_session* session, palp_udp_state* out) {
+    if (!session) return nullArgument("palp_session_udp_state", "session");
+    if (!out) return nullArgument("palp_session_udp_state", "out");
+    if (!session->udp) {
+        return fail(PALP_ERROR_STATE,
+                    "palp_session_udp_state: expected a session made by palp_session_create_udp, "
+                    "found another device's");
+    }
+    const ph::bridge::StateMessage& m = session->udp->publishedState();
+    out->sequence = m.sequence;
+    out->time_ns = m.timeNs;
+    put(m.position, out->position);
+    out->orientation[0] = m.orientation.w();
+    out->orientation[1] = m.orientation.x();
+    out->orientation[2] = m.orientation.y();
+    out->orientation[3] = m.orientation.z();
+    put(m.velocity, out->velocity);
+    out->buttons = m.buttons;
+    return PALP_OK;
+}
+
 palp_status palp_session_udp_counters(const palp_session* session, palp_udp_device_counters* out) {
     if (!session) return nullArgument("palp_session_udp_counters", "session");
     if (!out) return nullArgument("palp_session_udp_counters", "out");

@@ -4,10 +4,10 @@
  * Offline (one State, then one palp_session_step per tick): nothing is sent before the first
  * State; a press 3 mm into the AVC phantom (VC, k 300 N/m, no friction) is felt as k D out of
  * the skin in the snapshot and in the Force datagram, which echoes the State's sequence and
- * time; a foreign datagram is ignored and counted; when the States stop the force is cut within
- * the watchdog's timeout. Then the same press on the servo thread. Bad listen addresses and a
- * port in use are refused naming palp_udp_device_params.listen. Returns non-zero on the first
- * failure. */
+ * time, and the State's orientation is published for a viewer; a foreign datagram is ignored
+ * and counted; when the States stop the force is cut within the watchdog's timeout. Then the
+ * same press on the servo thread. Bad listen addresses and a port in use are refused naming
+ * palp_udp_device_params.listen. Returns non-zero on the first failure. */
 #define _POSIX_C_SOURCE 200112L /* sockets, nanosleep */
 #include <arpa/inet.h>
 #include <errno.h>
@@ -68,6 +68,9 @@ static double get_f64(const uint8_t* p) {
 
 enum { kStateBytes = 112, kForceBytes = 88 };
 
+/* The remote device's orientation: 90 degrees about z (w, x, y, z). */
+static const double kOrientation[4] = {0.7071067811865476, 0.0, 0.0, 0.7071067811865476};
+
 /* A State: position (m, device frame), identity orientation, velocity, no buttons. */
 static void encode_state(uint8_t out[kStateBytes], uint64_t sequence, uint64_t time_ns,
                          const double position[3], const double velocity[3]) {
@@ -78,7 +81,10 @@ static void encode_state(uint8_t out[kStateBytes], uint64_t sequence, uint64_t t
     put_u64(out + 8, sequence);
     put_u64(out + 16, time_ns);
     for (int i = 0; i < 3; ++i) put_f64(out + 24 + 8 * i, position[i]);
-    put_f64(out + 48, 1.0); /* w; x, y, z stay 0 */
+    put_f64(out + 48, kOrientation[0]); /* w, x, y, z */
+    put_f64(out + 56, kOrientation[1]);
+    put_f64(out + 64, kOrientation[2]);
+    put_f64(out + 72, kOrientation[3]);
     for (int i = 0; i < 3; ++i) put_f64(out + 80 + 8 * i, velocity[i]);
 }
 
@@ -258,6 +264,12 @@ static void test_offline_press(palp_scene* scene) {
     CHECK(fabs(norm3(s.force) - 0.9) < 0.15);
     CHECK(s.device_stale == 0 && s.device_force_scale == 1.0 && s.watchdog_trips == 0);
     const double held = norm3(s.force);
+    /* What a snapshot lacks, published for a viewer: the newest State's orientation. */
+    palp_udp_state state;
+    CHECK(palp_session_udp_state(session, &state) == PALP_OK);
+    CHECK(state.sequence == (uint64_t)ticks && state.time_ns == 1000000u * (uint64_t)ticks);
+    for (int i = 0; i < 4; ++i) CHECK(state.orientation[i] == kOrientation[i]);
+    CHECK(fabs(state.position[1] - 3e-3) < 1e-15 && state.buttons == 0);
 
     /* A foreign datagram: ignored and counted, the force unchanged. */
     CHECK(send(fd, "hello, palp", 11, 0) == 11);

@@ -560,6 +560,22 @@ typedef struct palp_udp_device_counters {
     uint64_t forces_sent, forces_send_failed;
 } palp_udp_device_counters;
 
+/** A remote device's newest State as palp accepted it (device frame). */
+typedef struct palp_udp_state {
+    uint64_t sequence;     /**< the sender's sequence (0 before any State) */
+    uint64_t time_ns;      /**< the sender's time_ns */
+    double position[3];    /**< m */
+    double orientation[4]; /**< unit quaternion w, x, y, z (identity when the device has none) */
+    double velocity[3];    /**< m/s */
+    uint32_t buttons;      /**< bit i set: button i pressed */
+} palp_udp_state;
+
+/** Viewer: the newest State the servo thread accepted, published lock-free each tick, for
+ *  what a palp_snapshot lacks (the orientation and the buttons); may skip States. Call it from
+ *  one viewer thread only (the one that calls palp_session_latest). PALP_ERROR_STATE for a
+ *  session that is not a remote device's. */
+palp_status palp_session_udp_state(palp_session* session, palp_udp_state* out);
+
 /** The counters of a remote device's session; PALP_ERROR_STATE for any other session. */
 palp_status palp_session_udp_counters(const palp_session* session, palp_udp_device_counters* out);
 
