@@ -93,6 +93,39 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
         invGap = sm.inverseGap(ka);
     };
 
+    const float threshold = ctx.threshold, background = ctx.background;
+    // Rows on which the normal coordinate and the in-plane row coordinate r are constant (the
+    // x rows of an axial series, with or without gantry tilt): the slice pair, the blend weight
+    // and both slices' pixel rows are found once per row, and each voxel interpolates along c
+    // only. The arithmetic is the general path's, term for term, so the values are identical.
+    const bool planarRows = ds[a] == 0.0 && dm(1, a) == 0.0;
+    struct PixelRows {
+        const float* p0;  // pixel row at or below r
+        const float* p1;  // the next pixel row (the same at the last row)
+        double fr;
+        bool insideR;
+    };
+    const auto pixelRows = [&](const SliceView& sv, double rr) {
+        PixelRows pr{};
+        pr.insideR = rr >= -mr && rr <= rmax + mr;
+        rr = std::clamp(rr, 0.0, rmax);
+        const int ri = std::min(static_cast<int>(rr), r0max);
+        pr.fr = rr - ri;
+        pr.p0 = sv.data + static_cast<std::ptrdiff_t>(ri) * cols;
+        pr.p1 = pr.p0 + dr1;
+        return pr;
+    };
+    const auto sampleRows = [&](const PixelRows& pr, double cc) {
+        cc = std::clamp(cc, 0.0, cmax);
+        const int ci = std::min(static_cast<int>(cc), c0max);
+        const double fc = cc - ci;
+        const double top =
+            static_cast<double>(pr.p0[ci]) * (1 - fc) + static_cast<double>(pr.p0[ci + dc1]) * fc;
+        const double bottom =
+            static_cast<double>(pr.p1[ci]) * (1 - fc) + static_cast<double>(pr.p1[ci + dc1]) * fc;
+        return top * (1 - pr.fr) + bottom * pr.fr;
+    };
+
     bool any = false;
     std::size_t ka = bracket;
     for (int ob = 0; ob < n[b]; ++ob) {
@@ -101,6 +134,30 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
             const double xRow = m0.x() + dm(0, b) * ob + dm(0, c) * oc;
             const double yRow = m0.y() + dm(1, b) * ob + dm(1, c) * oc;
             int offset = kStride[b] * ob + kStride[c] * oc;
+            if (planarRows) {
+                const double sp = sRow;
+                while (ka + 1 < bracketEnd && along[ka + 1] <= sp) ++ka;
+                while (ka > bracket && along[ka] > sp) --ka;
+                use(ka);
+                const double f = (sp - loAlong) * invGap;
+                const PixelRows rowsLo = pixelRows(lo, yRow + lo.offR);
+                const PixelRows rowsHi = pixelRows(hi, yRow + hi.offR);
+                if (!rowsLo.insideR && !rowsHi.insideR) continue;
+                for (int t = 0; t < n[a]; ++t, offset += kStride[a]) {
+                    const double px = xRow + dm(0, a) * t;
+                    const double cLo = px + lo.offC, cHi = px + hi.offC;
+                    const bool ina = rowsLo.insideR && cLo >= -mc && cLo <= cmax + mc;
+                    const bool inb = rowsHi.insideR && cHi >= -mc && cHi <= cmax + mc;
+                    if (!ina && !inb) continue;
+                    const double va = sampleRows(rowsLo, cLo), vb = sampleRows(rowsHi, cHi);
+                    const auto fv = static_cast<float>(va * (1 - f) + vb * f);
+                    if (fv < threshold || fv == background) continue;
+                    block.values[static_cast<std::size_t>(offset)] = fv;
+                    block.mask.setOn(static_cast<openvdb::Index>(offset));
+                    any = true;
+                }
+                continue;
+            }
             for (int t = 0; t < n[a]; ++t, offset += kStride[a]) {
                 const double sp = sRow + ds[a] * t;
                 while (ka + 1 < bracketEnd && along[ka + 1] <= sp) ++ka;
@@ -114,7 +171,7 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                 if (!ina && !inb) continue;
                 const double f = (sp - loAlong) * invGap;
                 const auto fv = static_cast<float>(va * (1 - f) + vb * f);
-                if (fv < ctx.threshold || fv == ctx.background) continue;
+                if (fv < threshold || fv == background) continue;
                 block.values[static_cast<std::size_t>(offset)] = fv;
                 block.mask.setOn(static_cast<openvdb::Index>(offset));
                 any = true;
