@@ -26,7 +26,7 @@ LayoutBuilder::LayoutBuilder(const AsyncSetup& setup, const std::vector<int>& co
     if (!o.globalSecondary || o.secondarySolver != LinearSolverKind::cholmod ||
         o.secondaryIntegrator != Integrator::quasiStatic)
         return;
-    const std::vector<int> zone = zoneCoarseNodes(contact);
+    const std::vector<int> zone = zoneCoarseNodes(setup, contact, &mSlide);
     if (zone.empty() || 3 * static_cast<int>(zone.size()) > o.slideZoneMaxDofs) {
         mSlide.clear();
         return;
@@ -34,12 +34,14 @@ LayoutBuilder::LayoutBuilder(const AsyncSetup& setup, const std::vector<int>& co
     mGlobal = std::make_unique<GlobalSecondary>(setup, mStiffness, zone);
 }
 
-std::vector<int> LayoutBuilder::zoneCoarseNodes(const std::vector<int>& contact) {
+std::vector<int> LayoutBuilder::zoneCoarseNodes(const AsyncSetup& setup,
+                                                const std::vector<int>& contact,
+                                                std::vector<std::uint8_t>* slideMark) {
     // The coarse nodes a primary around any slide node can reach: seeds lie within the graph
     // radius g of the largest seed count around the first contact (the same on a flat face),
     // primary cells touch a seed and are widened to coarse cells; J is their corners.
-    const HexMesh& mesh = mSetup.model.mesh();
-    const AsyncRegionsOptions& o = mSetup.options;
+    const HexMesh& mesh = setup.model.mesh();
+    const AsyncRegionsOptions& o = setup.options;
     const auto& nc = mesh.nodeCounts();
     std::vector<int> slide = o.slideNodes;
     if (slide.empty()) {
@@ -57,16 +59,18 @@ std::vector<int> LayoutBuilder::zoneCoarseNodes(const std::vector<int>& contact)
         }
     }
     if (slide.empty()) return {};
-    mSlide.assign(sz(mesh.nodeCount()), 0);
-    for (int n : slide)
-        if (n >= 0 && n < mesh.nodeCount()) mSlide[sz(n)] = 1;
+    if (slideMark != nullptr) {
+        slideMark->assign(sz(mesh.nodeCount()), 0);
+        for (int n : slide)
+            if (n >= 0 && n < mesh.nodeCount()) (*slideMark)[sz(n)] = 1;
+    }
     std::vector<int> distance;
-    const std::vector<int> order = seedOrder(contact, &distance);
+    const std::vector<int> order = seedOrder(setup, contact, &distance);
     const int seeds = std::max(o.primaryNodes, o.maxPrimaryNodes);
     if (order.empty()) return {};
     const int g = distance[std::min(order.size(), sz(seeds)) - 1];
-    const int lod = mSetup.lod;
-    const std::array<int, 3>& cc = mSetup.coarseCounts;
+    const int lod = setup.lod;
+    const std::array<int, 3>& cc = setup.coarseCounts;
     std::vector<std::uint8_t> mark(sz(cc[0] * cc[1] * cc[2]), 0);
     std::vector<int> out;
     for (int n : slide) {
@@ -97,7 +101,8 @@ std::unique_ptr<Layout> LayoutBuilder::build(const std::vector<int>& contact, in
     L.generation = mNextGeneration.fetch_add(1, std::memory_order_relaxed);
     L.contactNodes = contact;
     const std::vector<std::uint8_t> driven = drivenDofs(contact, L);
-    const std::vector<std::uint8_t> primaryCell = primaryCells(seedOrder(contact), seedCount);
+    const std::vector<std::uint8_t> primaryCell =
+        primaryCells(seedOrder(mSetup, contact), seedCount);
     const std::vector<std::uint8_t> touchesPrimary = classifyNodes(primaryCell, driven, contact, L);
     collectPrimaryDofs(primaryCell, touchesPrimary, driven, L);
     if (mGlobal && buildGlobal(primaryCell, L)) {
@@ -168,11 +173,11 @@ bool LayoutBuilder::buildGlobal(const std::vector<std::uint8_t>& primaryCell, La
     return true;
 }
 
-std::vector<int> LayoutBuilder::seedOrder(const std::vector<int>& contact,
-                                          std::vector<int>* distance) const {
+std::vector<int> LayoutBuilder::seedOrder(const AsyncSetup& setup, const std::vector<int>& contact,
+                                          std::vector<int>* distance) {
     // Graph distance over lattice edges between active nodes (BFS from all contact nodes), ties
     // broken by Euclidean distance.
-    const HexMesh& mesh = mSetup.model.mesh();
+    const HexMesh& mesh = setup.model.mesh();
     const auto& nc = mesh.nodeCounts();
     const int nodes = mesh.nodeCount();
     const auto& active = mesh.nodeActive();

@@ -31,6 +31,16 @@ class LayoutBuilder {
         return node >= 0 && static_cast<std::size_t>(node) < mSlide.size() &&
                mSlide[static_cast<std::size_t>(node)] != 0;
     }
+    /// The zone of coarse nodes (coarseCounts order) a primary of @p setup around any slide
+    /// node of @p contactNodes can reach (see AsyncRegionsOptions::slideNodes; empty: no slide
+    /// nodes), with the slide nodes marked per fine node in @p slideMark when given. O(nodes).
+    static std::vector<int> zoneCoarseNodes(const AsyncSetup& setup,
+                                            const std::vector<int>& contactNodes,
+                                            std::vector<std::uint8_t>* slideMark = nullptr);
+    /// Active nodes in graph distance from @p contactNodes (ties by Euclidean distance), with
+    /// the distances in @p distance when given.
+    static std::vector<int> seedOrder(const AsyncSetup& setup, const std::vector<int>& contactNodes,
+                                      std::vector<int>* distance = nullptr);
     /// The whole body's secondary, or null when every layout is factorised.
     const GlobalSecondary* global() const { return mGlobal.get(); }
 
@@ -51,9 +61,6 @@ class LayoutBuilder {
   private:
     // Steps of build(), in order.
     std::vector<std::uint8_t> drivenDofs(const std::vector<int>& contact, Layout& L) const;
-    std::vector<int> seedOrder(const std::vector<int>& contact,
-                               std::vector<int>* distance = nullptr) const;
-    std::vector<int> zoneCoarseNodes(const std::vector<int>& contact);
     bool buildGlobal(const std::vector<std::uint8_t>& primaryCell, Layout& L) const;
     std::vector<std::uint8_t> primaryCells(const std::vector<int>& order, int seedCount) const;
     std::vector<std::uint8_t> classifyNodes(const std::vector<std::uint8_t>& primaryCell,

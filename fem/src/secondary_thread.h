@@ -5,6 +5,7 @@
 
 #include <tbb/task_arena.h>
 
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <memory>
@@ -62,6 +63,10 @@ class SecondaryThread {
 
     /// Test hook: while true the thread neither reads snapshots nor publishes. Any thread.
     void setStalled(bool stalled) noexcept { mStalled.store(stalled, std::memory_order_release); }
+    /// Test hook: builds take at least @p seconds more. Any thread.
+    void setBuildDelay(double seconds) noexcept {
+        mBuildDelay.store(seconds, std::memory_order_release);
+    }
 
   private:
     enum BuildState : int { kIdle, kBuilding, kBuilt, kFailed };
@@ -70,6 +75,11 @@ class SecondaryThread {
     bool collectBuild();
     void startBuild(int want, bool prefetch);
     bool offerCached(int want);
+    int latticeStep(int from, int to) const;
+    void track(int want);
+    int ahead(int want) const;
+    double distance2(int a, int b) const;
+    bool nearer(int node, int want) const;
     void offer(std::unique_ptr<Layout> next);
     void prefetch();
     void solveSnapshot(const BorderPacket& in);
@@ -93,9 +103,20 @@ class SecondaryThread {
     // one is offered at once with only its entry state added.
     std::vector<std::unique_ptr<Layout>> mCache;
     std::vector<int> mFailed;  // nodes whose build failed (not prefetched again)
-    int mLastStep = 0;         // node index step of the last contact change (prefetched first)
+    int mLastStep = 0;         // one lattice edge along the last contact change (prefetched first)
+    // The requested nodes of late (a ring), for building ahead of a sliding contact, and the
+    // recent build time (moving average, seconds).
+    struct TrackPoint {
+        std::chrono::steady_clock::time_point time;
+        int node = -1;
+    };
+    static constexpr std::size_t kTrack = 16;
+    std::array<TrackPoint, kTrack> mTrack{};
+    std::size_t mTrackCount = 0;
+    double mBuildSeconds = 0;
     std::thread mBuilderThread;
     std::atomic<bool> mStop{false}, mStalled{false};
+    std::atomic<double> mBuildDelay{0.0};
     std::thread mWorker;  // last: started when everything above is set
 };
 

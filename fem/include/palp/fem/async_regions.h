@@ -55,9 +55,14 @@
 /// zone last. A layout then costs ~10-20 ms of one core (regions, gathers, |J|^3 dense work;
 /// |J| ~ 50-300), and the secondary thread prefetches the layouts of the contact's slide
 /// neighbours, so a request for one is adopted at the next tick (its entry state comes from
-/// the zone block too, without a solve). Other secondaries, contacts off the slide nodes and
-/// zones over slideZoneMaxDofs build and factorise per layout as before. A solve of the whole
-/// secondary field costs two solves with the global factor.
+/// the zone block too, without a solve). A contact that slides faster than a node per build (a 100
+/// mm/s raster on 2.5 mm cells: a node every 25 ms, builds of 40-350 ms on a loaded core) is
+/// followed too: a build the contact has overtaken is still adopted when it is nearer the contact
+/// than the layout in use, and a build aims where the contact will be when it is done (the
+/// requests' velocity over the last 150 ms times the recent build time, on a slide node); before,
+/// each such build was shelved and a raster adopted 3 layouts in 6 s. Other secondaries, contacts
+/// off the slide nodes and zones over slideZoneMaxDofs build and factorise per layout as before. A
+/// solve of the whole secondary field costs two solves with the global factor.
 ///
 /// Why this design: the alternatives in the issue cost more per move. Factorising the layout
 /// (even reusing the symbolic analysis) is ~2 s; CHOLMOD update/downdate of the primary's rows
@@ -336,9 +341,21 @@ class AsyncRegions {
     /// Secondary counters.
     AsyncSecondaryStats secondaryStats() const;
 
+    /// Size in coarse dofs of the zone block a body built with these arguments would invert for
+    /// its sliding contact (see "Sliding contact"; 0 without slide nodes). Above
+    /// options.slideZoneMaxDofs every contact move is factorised (seconds), so a sliding contact
+    /// is not followed: choose a coarser lod or fewer primaryNodes then. O(nodes), no assembly.
+    /// @throw palp::ValueError as the constructor does for bad options or contact nodes.
+    static int slideZoneDofs(const FemModel& model, const Constraints& constraints,
+                             const std::vector<int>& contactNodes,
+                             const AsyncRegionsOptions& options);
+
     /// Test hook: while true, the secondary thread stops solving (it neither reads snapshots nor
     /// publishes), as a secondary that has fallen far behind would. Threaded mode only.
     void setSecondaryStalledForTest(bool stalled) noexcept;
+    /// Test hook: every later layout build for a contact change takes at least @p seconds more
+    /// (as on a loaded core, or a larger body). Threaded mode only.
+    void setBuildDelayForTest(double seconds) noexcept;
 
   private:
     struct Impl;
