@@ -145,6 +145,20 @@ void DeformableModel::embedMesh(const kernels::TriangleMesh& rest, unsigned mask
     mWatchNodes.insert(mWatchNodes.end(), merged.begin(), merged.end());
 }
 
+int DeformableModel::regionsCentreNode() const noexcept {
+    int centre = mLoadNodes.front();
+    if (!mOptions.regionsCentre.allFinite()) return centre;
+    double best = std::numeric_limits<double>::infinity();
+    for (const int n : mLoadNodes) {  // on the rest mesh
+        const double d2 = (mModel.mesh().nodePosition(n) - mOptions.regionsCentre).squaredNorm();
+        if (d2 < best) {
+            best = d2;
+            centre = n;
+        }
+    }
+    return centre;
+}
+
 std::shared_ptr<DeformableModel> DeformableModel::box(const Eigen::Vector3d& size,
                                                       const std::array<int, 3>& nodeCounts,
                                                       const fem::ElasticMaterial& material,
@@ -195,18 +209,7 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
         o.maxLoads = static_cast<int>(nodes.size());
         mU = Eigen::VectorXd::Zero(mModel->model().dofCount());
         mForce = mU;
-        mCentre = nodes.front();
-        if (options.regionsCentre.allFinite()) {  // on the rest mesh
-            double best = std::numeric_limits<double>::infinity();
-            for (const int n : nodes) {
-                const double d2 =
-                    (mModel->model().mesh().nodePosition(n) - options.regionsCentre).squaredNorm();
-                if (d2 < best) {
-                    best = d2;
-                    mCentre = n;
-                }
-            }
-        }
+        mCentre = mModel->regionsCentreNode();
         mRegions = std::make_unique<fem::AsyncRegions>(mModel->model(), mModel->constraints(),
                                                        std::vector<int>{mCentre}, o);
         mLoads.resize(nodes.size());

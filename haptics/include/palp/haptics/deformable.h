@@ -190,6 +190,9 @@ class DeformableModel {
     /// Free nodes of the boundary surface: the nodes a contact force may load.
     const std::vector<int>& loadNodes() const noexcept { return mLoadNodes; }
     const DeformableOptions& options() const noexcept { return mOptions; }
+    /// The regions' initial centre: the free surface node nearest options().regionsCentre on
+    /// the rest mesh (NaN: the first free surface node).
+    int regionsCentreNode() const noexcept;
     /// Surface vertex of node @p n, -1 for a node not on the surface.
     int vertexOfNode(int n) const noexcept { return mVertexOfNode[static_cast<std::size_t>(n)]; }
     /// Triangles around surface vertex @p v: entries [triangleStart[v], triangleStart[v + 1]) of
