@@ -83,13 +83,14 @@ TEST(Serve, BadListenAddressIsRefusedByName) {
 TEST(Serve, PortInUseIsRefusedNamingListen) {
     palp::test::TempDir tmp;
     const std::string err = (tmp / "first.err").string();
-    const std::string serve =
-        palp::test::palpTool().string() + " serve --phantom avc --seconds 1 --listen ";
-    // The second serve binds the address the first one was given by the system.
+    const std::string palp = palp::test::palpTool().string();
+    const std::string serve = " serve --phantom avc --seconds 1 --listen ";
+    // The second serve binds the address the first one was given by the system (which it
+    // reports even with --quiet: nobody could know it otherwise).
     const auto r =
-        runCommand(serve + "127.0.0.1:0 >/dev/null 2> " + err + " & serve=$!; " +
-                   palp::test::shellAwaitServeAddress(err) + "echo \"first on $addr\"; " + serve +
-                   "$addr 2>&1; s=$?; wait; exit $s");
+        runCommand(palp + " --quiet" + serve + "127.0.0.1:0 >/dev/null 2> " + err +
+                   " & serve=$!; " + palp::test::shellAwaitServeAddress(err) +
+                   "echo \"first on $addr\"; " + palp + serve + "$addr 2>&1; s=$?; wait; exit $s");
     EXPECT_NE(r.exitCode, 0);
     const std::string first = "first on ";
     const auto at = r.output.find(first);
