@@ -1,4 +1,6 @@
 // palp convert: any supported scan -> sparse, isotropic .vdb in world metres (LPS).
+#include <malloc.h>
+
 #include <cstdio>
 #include <filesystem>
 
@@ -50,6 +52,13 @@ Command addConvert(CLI::App& root) {
         ->check(CLI::IsMember({"blosc", "zip", "mask"}));
     return {
         app, [args]() -> int {
+            // A batch job that reads hundreds of files: freed buffers stay in the heap for the
+            // next file instead of going back to the kernel (glibc trims the heap top and unmaps
+            // blocks over its mmap threshold, so each file's pixel buffers were faulted in
+            // anew). An 800-file series: 1.2 -> 0.8 s CPU per 100 files on a 2-vCPU VM.
+            mallopt(M_MMAP_THRESHOLD, 32 << 20);
+            mallopt(M_TRIM_THRESHOLD, 1 << 30);
+            mallopt(M_TOP_PAD, 64 << 20);
             const fs::path out(args->output);
             const fs::path dir = out.has_parent_path() ? out.parent_path() : fs::path(".");
             std::error_code ec;

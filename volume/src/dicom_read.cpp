@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <deque>
+#include <exception>
 #include <map>
 
 #include "dicom_frames.h"
@@ -16,6 +17,7 @@
 #include "dicom_slices.h"
 #include "dicom_walk.h"
 #include "palp/base/error.h"
+#include "palp/base/parallel.h"
 #include "palp/volume/dicom.h"
 #include "time_point.h"
 
@@ -209,13 +211,25 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
     bool rescaleVaries = false;
     const double slope0 = first.number(kRescaleSlope).value_or(1.0);
     const double intercept0 = first.number(kRescaleIntercept).value_or(0.0);
-    for (std::size_t i = 0; i < chosen.size(); ++i) {
-        const Header& h = *chosen[i];
-        Slice& s = stack.slices[i];
-        decodeSlice(h, s);
-        setGeometry(geometryOf(h), s);
-        rescaleVaries = rescaleVaries || h.number(kRescaleSlope).value_or(1.0) != slope0 ||
-                        h.number(kRescaleIntercept).value_or(0.0) != intercept0;
+    // Files decoded in parallel (one GDCM reader each); when several fail, the first file's
+    // error is reported, as a serial loop would.
+    std::vector<std::exception_ptr> errors(chosen.size());
+    palp::parallelForEach(
+        std::size_t{0}, chosen.size(),
+        [&](std::size_t i) {
+            try {
+                decodeSlice(*chosen[i], stack.slices[i]);
+                setGeometry(geometryOf(*chosen[i]), stack.slices[i]);
+            } catch (...) {
+                errors[i] = std::current_exception();
+            }
+        },
+        std::size_t{1});
+    for (const std::exception_ptr& e : errors)
+        if (e) std::rethrow_exception(e);
+    for (const Header* h : chosen) {
+        rescaleVaries = rescaleVaries || h->number(kRescaleSlope).value_or(1.0) != slope0 ||
+                        h->number(kRescaleIntercept).value_or(0.0) != intercept0;
     }
     fillInfo(stack.info, first, inputs, series.uid, chosen.size(), timePoint, timePointCount,
              rescaleVaries);

@@ -2,12 +2,12 @@
 #include "vdb_write.h"
 
 #include <openvdb/io/io.h>
-#include <tbb/parallel_pipeline.h>
-#include <tbb/task_arena.h>
 
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include "palp/base/parallel.h"
 
 namespace palp::volume::detail {
 
@@ -35,36 +35,33 @@ class ParallelWritingGrid final : public openvdb::FloatGrid {
         const bool toHalf = saveFloatAsHalf();
         const void* background = openvdb::io::getGridBackgroundValuePtr(os);
         const std::uint32_t compression = openvdb::io::getDataCompression(os);
+        // Batches of chunks: each batch's chunks compressed in parallel into memory, then
+        // written in order (palp::parallelForEach, so ThreadSanitizer sees the fork and join).
         constexpr std::size_t kChunk = 64;  // leaves per chunk: ~130 KB before compression
-        std::size_t next = 0;
-        const auto tokens = static_cast<std::size_t>(2 * tbb::this_task_arena::max_concurrency());
-        tbb::parallel_pipeline(
-            tokens, tbb::make_filter<void, std::size_t>(tbb::filter_mode::serial_in_order,
-                                                        [&](tbb::flow_control& fc) {
-                                                            if (next >= leaves.size()) fc.stop();
-                                                            const std::size_t begin = next;
-                                                            next += kChunk;
-                                                            return begin;
-                                                        }) &
-                        tbb::make_filter<std::size_t, std::string>(
-                            tbb::filter_mode::parallel,
-                            [&](std::size_t begin) {
-                                std::ostringstream chunk;
-                                state.transferTo(chunk);
-                                // Not carried by StreamMetadata: the background that mask
-                                // compression compares inactive values with (set on os by the
-                                // topology writer).
-                                openvdb::io::setGridBackgroundValuePtr(chunk, background);
-                                openvdb::io::setDataCompression(chunk, compression);
-                                const std::size_t end = std::min(begin + kChunk, leaves.size());
-                                for (std::size_t i = begin; i < end; ++i)
-                                    leaves[i]->writeBuffers(chunk, toHalf);
-                                return std::move(chunk).str();
-                            }) &
-                        tbb::make_filter<std::string, void>(
-                            tbb::filter_mode::serial_in_order, [&](const std::string& bytes) {
-                                os.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-                            }));
+        constexpr std::size_t kBatch = 32;  // chunks per batch: ~4 MB before compression
+        std::vector<std::string> bytes(kBatch);
+        for (std::size_t first = 0; first < leaves.size(); first += kChunk * kBatch) {
+            const std::size_t chunks =
+                std::min(kBatch, (leaves.size() - first + kChunk - 1) / kChunk);
+            palp::parallelForEach(
+                std::size_t{0}, chunks,
+                [&](std::size_t c) {
+                    std::ostringstream chunk;
+                    state.transferTo(chunk);
+                    // Not carried by StreamMetadata: the background that mask compression compares
+                    // inactive values with (set on os by the topology writer).
+                    openvdb::io::setGridBackgroundValuePtr(chunk, background);
+                    openvdb::io::setDataCompression(chunk, compression);
+                    const std::size_t begin = first + c * kChunk;
+                    const std::size_t end = std::min(begin + kChunk, leaves.size());
+                    for (std::size_t i = begin; i < end; ++i)
+                        leaves[i]->writeBuffers(chunk, toHalf);
+                    bytes[c] = std::move(chunk).str();
+                },
+                std::size_t{1});
+            for (std::size_t c = 0; c < chunks; ++c)
+                os.write(bytes[c].data(), static_cast<std::streamsize>(bytes[c].size()));
+        }
     }
 };
 

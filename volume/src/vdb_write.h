@@ -8,8 +8,8 @@
 namespace palp::volume::detail {
 
 /// A grid sharing @p source's tree and transform, with a copy of its metadata, whose
-/// writeBuffers() compresses the leaves in parallel (TBB pipeline: chunks of leaves compressed
-/// on every thread into memory, written in order by one). The file is the one
+/// writeBuffers() compresses the leaves in parallel (batches of ~2,000 leaves: chunks of 64
+/// compressed on every thread into memory, then written in order). The file is the one
 /// openvdb::io::File would write for @p source (same layout, compression and values); memory
 /// held besides the grid: a few compressed chunks.
 /// @par Threading  Writing it uses TBB inside; the tree must not change meanwhile.
