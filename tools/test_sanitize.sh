@@ -17,7 +17,7 @@ else
            test_volume_checks test_volume_dicom test_volume_dicom_syntax test_volume_dicom_mosaic test_volume_dicom_enhanced test_volume_format_sniff test_volume_phantom test_volume_phantom_tumour test_volume_io
            test_volume_resample test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api
            test_c_api_fields test_c_api_deformable test_c_api_deformable_c test_c_api_host
-           test_c_api_host_c test_volume_from_memory)
+           test_c_api_host_c test_c_api_udp_c test_volume_from_memory)
 fi
 # Without the palp tool: the library and the tests are what is instrumented here (the tool's own
 # checks run in tools/test.sh); the few volume tests that run `palp convert`/`palp phantom` use
@@ -45,7 +45,7 @@ for t in "${targets[@]}"; do
   echo "== asan: $t"
   start=$(date +%s)
   args=(--gtest_brief=1)
-  case "$t" in test_c_api | test_c_api_deformable_c | test_c_api_host_c) args=() ;; esac  # plain C
+  case "$t" in test_c_api | test_c_api_deformable_c | test_c_api_host_c | test_c_api_udp_c) args=() ;; esac  # plain C
   if "$exe" "${args[@]}"; then
     echo "== asan: $t passed, 0 reports ($(($(date +%s) - start)) s)"
   else

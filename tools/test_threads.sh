@@ -12,7 +12,7 @@ if [ "$#" -gt 0 ]; then
   targets=("$@")
 else
   targets=(test_base test_servo_loop test_session test_c_api test_c_api_deformable_c test_haptics test_async_regions test_async_force
-           test_async_spring test_deformable_async test_ray_kernels test_udp_device)
+           test_async_spring test_deformable_async test_ray_kernels test_udp_device test_c_api_udp_c)
 fi
 cmake --preset tsan >/dev/null
 cmake --build --preset tsan --target "${targets[@]}"
@@ -41,7 +41,7 @@ for t in "${targets[@]}"; do
   echo "== tsan: $t"
   start=$(date +%s)
   args=(--gtest_brief=1 --gtest_filter="${filter[$t]:-*}")
-  case "$t" in test_c_api | test_c_api_deformable_c) args=() ;; esac  # plain C, no GoogleTest
+  case "$t" in test_c_api | test_c_api_deformable_c | test_c_api_udp_c) args=() ;; esac  # plain C, no GoogleTest
   if "$exe" "${args[@]}"; then
     echo "== tsan: $t passed, 0 reports ($(($(date +%s) - start)) s)"
   else
