@@ -173,8 +173,7 @@ void AsyncRegions::Impl::exchangeWithSecondary(AsyncTickResult& result) noexcept
             const std::size_t ng = L.gammaDofs.size(), nb = L.borderDofs.size();
             primary.acceptSolution(
                 L, in.values.data(), in.values.data() + ng,
-                setup.options.watchNodes.empty() ? nullptr : in.values.data() + ng + nb,
-                in.sequence);
+                setup.options.watchNodes.empty() ? nullptr : in.values.data() + ng + nb);
             result.secondaryUpdated = true;
         }
     }
@@ -184,7 +183,7 @@ void AsyncRegions::Impl::publishSnapshot() noexcept {
     const Layout& L = layout();
     BorderPacket& out = exchange.snapshots.back().value;
     primary.readBorder(L, out.values.data());
-    primary.packLoads(out, ticks);
+    primary.packLoads(out);
     out.time = primary.time();
     out.sequence = ticks;
     out.generation = L.generation;
@@ -257,11 +256,11 @@ void AsyncRegions::Impl::solveInline(AsyncTickResult& result) noexcept {
     double* gamma = exchange.results.back().value.values.data();
     double* watch = setup.options.watchNodes.empty() ? nullptr : gamma + setup.model.dofCount();
     primary.readBorder(L, border);
-    primary.packLoads(in, ticks);
+    primary.packLoads(in);
     bool ok = false;
     arena.execute([&] { ok = secondary.solve(L, border, &in, gamma, watch); });
     if (ok) {
-        primary.acceptSolution(L, gamma, border, watch, ticks);
+        primary.acceptSolution(L, gamma, border, watch);
         result.secondaryUpdated = true;
     }
 }
