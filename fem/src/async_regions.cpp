@@ -173,7 +173,8 @@ void AsyncRegions::Impl::exchangeWithSecondary(AsyncTickResult& result) noexcept
             const std::size_t ng = L.gammaDofs.size(), nb = L.borderDofs.size();
             primary.acceptSolution(
                 L, in.values.data(), in.values.data() + ng,
-                setup.options.watchNodes.empty() ? nullptr : in.values.data() + ng + nb);
+                setup.options.watchNodes.empty() ? nullptr : in.values.data() + ng + nb,
+                in.sequence);
             result.secondaryUpdated = true;
         }
     }
@@ -183,7 +184,7 @@ void AsyncRegions::Impl::publishSnapshot() noexcept {
     const Layout& L = layout();
     BorderPacket& out = exchange.snapshots.back().value;
     primary.readBorder(L, out.values.data());
-    primary.packLoads(out);
+    primary.packLoads(out, ticks);
     out.time = primary.time();
     out.sequence = ticks;
     out.generation = L.generation;
@@ -256,11 +257,11 @@ void AsyncRegions::Impl::solveInline(AsyncTickResult& result) noexcept {
     double* gamma = exchange.results.back().value.values.data();
     double* watch = setup.options.watchNodes.empty() ? nullptr : gamma + setup.model.dofCount();
     primary.readBorder(L, border);
-    primary.packLoads(in);
+    primary.packLoads(in, ticks);
     bool ok = false;
     arena.execute([&] { ok = secondary.solve(L, border, &in, gamma, watch); });
     if (ok) {
-        primary.acceptSolution(L, gamma, border, watch);
+        primary.acceptSolution(L, gamma, border, watch, ticks);
         result.secondaryUpdated = true;
     }
 }

@@ -1,8 +1,11 @@
 #include "primary_region.h"
 
+#include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
 #include <limits>
+
+#include "async_capacitance.h"
 
 namespace palp::fem {
 
@@ -59,6 +62,88 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     mFExtDofs.assign(3 * sz(o.maxLoads), 0);
     mAccNodes.assign(sz(nodes), 0);
     mAccMark.assign(sz(nodes), 0);
+    for (std::size_t a = 0; a < 3; ++a) {
+        mSharePos[a].assign(kShareEntries, 0);
+        mShareWeight[a].assign(kShareEntries, 0.0);
+    }
+    mShareV = Eigen::MatrixXd::Zero(std::max(1, setup.coarseDofs), 3);
+    mShareHDV = mShareV;
+    mShareH = Eigen::VectorXd::Zero(mShareV.rows());
+    mShareSeq.fill(~std::uint64_t{0});
+    for (Eigen::Vector3d& f : mShareSent) f.setZero();
+}
+
+bool PrimaryRegion::shareCompliance(const Layout& L, const CouplingSpring& spring,
+                                    Eigen::Matrix3d& C) noexcept {
+    // C = w_S^T I M^-1 I^T w_S per axis pair: the secondary's compliance at the spring's
+    // nodes outside P (M: the layout's secondary, (M^-1)_TT = W_TT - W_TJ H D W_JT on the
+    // capacitance zone). false: nothing outside P, or a node outside the zone.
+    if (L.global == nullptr) return false;
+    const GlobalSecondary& g = *L.global;
+    const RowSparseMatrix& I = g.interpolation();
+    const Eigen::MatrixXd& W = g.zoneInverse();
+    const HexMesh& mesh = mSetup.model.mesh();
+    mShareCount = {0, 0, 0};
+    bool outside = false;
+    for (std::size_t i = 0; i < spring.nodes.size(); ++i) {
+        const int n = spring.nodes[i];
+        const double w = spring.weights[i];
+        if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)] || L.isPrimary[sz(n)] ||
+            !(w > 0.0))
+            continue;
+        outside = true;
+        for (std::size_t a = 0; a < 3; ++a) {
+            const int d = 3 * n + static_cast<int>(a);
+            if (mSetup.fixed[sz(d)]) continue;
+            for (RowSparseMatrix::InnerIterator it(I, d); it; ++it) {
+                const int p = g.zonePosition(static_cast<int>(it.col()));
+                if (p < 0 || mShareCount[a] >= kShareEntries) return false;
+                mSharePos[a][mShareCount[a]] = p;
+                mShareWeight[a][mShareCount[a]] = w * it.value();
+                ++mShareCount[a];
+            }
+        }
+    }
+    if (!outside) return false;
+    const Eigen::Index nj = static_cast<Eigen::Index>(L.capJ.size());
+    if (nj > mShareV.rows() || L.capHD.rows() != nj || L.capHD.cols() != nj) return false;
+    for (std::size_t a = 0; a < 3; ++a) {
+        for (std::size_t b = 0; b < 3; ++b) {
+            double s = 0.0;
+            for (std::size_t e = 0; e < mShareCount[a]; ++e)
+                for (std::size_t f = 0; f < mShareCount[b]; ++f)
+                    s += mShareWeight[a][e] * mShareWeight[b][f] *
+                         W(mSharePos[a][e], mSharePos[b][f]);
+            C(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)) = s;
+        }
+        for (Eigen::Index j = 0; j < nj; ++j) {
+            const int pj = g.zonePosition(L.capJ[sz(static_cast<int>(j))]);
+            double v = 0.0;
+            for (std::size_t e = 0; e < mShareCount[a]; ++e)
+                v += mShareWeight[a][e] * W(mSharePos[a][e], pj);
+            mShareV(j, static_cast<Eigen::Index>(a)) = v;
+        }
+    }
+    // C -= V^T (H D) V, as loops (no temporaries on the servo).
+    for (Eigen::Index r = 0; r < nj; ++r) {
+        double s0 = 0.0, s1 = 0.0, s2 = 0.0;
+        for (Eigen::Index j = 0; j < nj; ++j) {
+            const double h = L.capHD(r, j);
+            s0 += h * mShareV(j, 0);
+            s1 += h * mShareV(j, 1);
+            s2 += h * mShareV(j, 2);
+        }
+        mShareHDV(r, 0) = s0;
+        mShareHDV(r, 1) = s1;
+        mShareHDV(r, 2) = s2;
+    }
+    for (Eigen::Index a = 0; a < 3; ++a)
+        for (Eigen::Index b = 0; b < 3; ++b) {
+            double s = 0.0;
+            for (Eigen::Index j = 0; j < nj; ++j) s += mShareV(j, a) * mShareHDV(j, b);
+            C(a, b) -= s;
+        }
+    return C.allFinite();
 }
 
 void PrimaryRegion::restartCoupling(const Layout& L) noexcept {
@@ -109,9 +194,12 @@ void PrimaryRegion::setGamma(const Layout& L, double* target, double t, bool pro
 }
 
 void PrimaryRegion::acceptSolution(const Layout& L, const double* gamma, const double* border,
-                                   const double* watch) noexcept {
+                                   const double* watch, std::uint64_t sequence) noexcept {
     // Start from the value shown now, so a solution arriving mid-period does not jump.
     const double frac = mSetup.periodFraction(mTime, mGammaStart);
+    mSharePrev += frac * (mShareCur - mSharePrev);
+    for (std::size_t j = 0; j < mShareSeq.size(); ++j)
+        if (mShareSeq[j] == sequence) mShareCur = mShareSent[j];
     for (std::size_t i = 0; i < L.gammaDofs.size(); ++i) {
         mGPrev[i] = mGPrev[i] + frac * (mGCur[i] - mGPrev[i]);
         mGCur[i] = gamma[i];
@@ -142,6 +230,8 @@ void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
     // Nodes the servo did not integrate or show take the prepared secondary values; the
     // coupling restarts from the shown values, so nothing jumps at the swap.
     showBorder(from);
+    // The spring share the shown secondary values answer, as the watched values restart.
+    mSharePrev += shownFraction() * (mShareCur - mSharePrev);
     const std::size_t nb = from.borderDofs.size();
     const bool respond =
         to.entryResponse.rows() == static_cast<Eigen::Index>(to.entryDofs.size()) &&
@@ -170,7 +260,45 @@ void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
             mUPrev[d] = to.entryValues[i] + to.entryResponse.row(k).dot(mBNow.head(n));
         }
     }
+    applyShareCorrection(from, to);
     restartCoupling(to);
+}
+
+void PrimaryRegion::applyShareCorrection(const Layout& from, const Layout& to) noexcept {
+    // The condensed spring share (advance()) held the spring's nodes outside P at the shown
+    // field plus C (F - F~); the nodes the new layout shows that the old one did not integrate
+    // take that correction, (M^-1 I_S^T w_S (F - F~))_d, so the swap does not jump the spring.
+    if (!mShareLive || from.global == nullptr) return;
+    mShareLive = false;
+    const GlobalSecondary& g = *from.global;
+    const RowSparseMatrix& I = g.interpolation();
+    const Eigen::MatrixXd& W = g.zoneInverse();
+    const Eigen::Index nj = static_cast<Eigen::Index>(from.capJ.size());
+    for (Eigen::Index j = 0; j < nj; ++j) mShareH[j] = mShareHDV.row(j).dot(mShareDelta);
+    auto correct = [&](int n) {
+        if (from.isPrimary[sz(n)]) return;
+        for (int a = 0; a < 3; ++a) {
+            const int d = 3 * n + a;
+            if (mSetup.fixed[sz(d)]) continue;
+            double delta = 0.0;
+            for (RowSparseMatrix::InnerIterator it(I, d); it; ++it) {
+                const int p = g.zonePosition(static_cast<int>(it.col()));
+                if (p < 0) return;
+                double s = 0.0;
+                for (std::size_t b = 0; b < 3; ++b)
+                    for (std::size_t f = 0; f < mShareCount[b]; ++f)
+                        s += mShareWeight[b][f] * mShareDelta[static_cast<Eigen::Index>(b)] *
+                             W(p, mSharePos[b][f]);
+                for (Eigen::Index j = 0; j < nj; ++j)
+                    s -= W(p, g.zonePosition(from.capJ[sz(static_cast<int>(j))])) * mShareH[j];
+                delta += it.value() * s;
+            }
+            mU[d] += delta;
+            mUPrev[d] += delta;
+        }
+    };
+    for (int n : to.primaryNodes) correct(n);
+    for (int n : to.gammaNodes) correct(n);
 }
 
 void PrimaryRegion::seedWatched(const Layout& from) noexcept {
@@ -280,6 +408,27 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
         }
     }
     setSubstep(L, substeps, dtNew);
+    // The spring's share on nodes outside P reaches the secondary as a load, solved a period
+    // or two later; a(u) sees the shown secondary values, which answer the share force
+    // F~ of an older snapshot. Condensed like Gamma: a_S = a~_S + C (F - F~) with C the
+    // secondary's compliance there, so F solves (I + k C) F = k (c - a) + k C F~ (exact in
+    // the quasi-static limit; a stiff spring on a lagging secondary otherwise rings, issue 18).
+    bool share = false;
+    Eigen::Matrix3d shareSolve = Eigen::Matrix3d::Identity();
+    Eigen::Vector3d shareShift = Eigen::Vector3d::Zero();
+    if (springOn) {
+        Eigen::Matrix3d C;
+        if (shareCompliance(L, *spring, C)) {
+            const double k = spring->stiffness;
+            const Eigen::Matrix3d S = (Eigen::Matrix3d::Identity() + k * C).inverse();
+            const Eigen::Vector3d shown = mSharePrev + shownFraction() * (mShareCur - mSharePrev);
+            if (S.allFinite() && shown.allFinite()) {
+                share = true;
+                shareSolve = S;
+                shareShift = k * (C * shown);
+            }
+        }
+    }
     auto springPoint = [&]() {
         Eigen::Vector3d a = aOutside;
         for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
@@ -343,9 +492,19 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
             // rebuilt every substep).
             const Eigen::Vector3d a =
                 springPoint() - (static_cast<double>(s) * dt) * spring->targetVelocity;
-            const Eigen::Vector3d F = springForce(*spring, a);
+            Eigen::Vector3d F = springForce(*spring, a);
             if ((spring->stiffness * (spring->target - a)).norm() > spring->maxForce)
                 result.spring.clamped = true;
+            if (share) {
+                F = shareSolve * (spring->stiffness * (spring->target - a) + shareShift);
+                const double norm = F.norm();
+                if (!std::isfinite(norm)) {
+                    F.setZero();
+                } else if (norm > spring->maxForce) {
+                    F *= spring->maxForce / norm;
+                    result.spring.clamped = true;
+                }
+            }
             impulse += dt * F;
             result.spring.endForce = F;
             for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
@@ -403,12 +562,19 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
         const double seconds = mSubsteps * dt;
         result.spring.meanForce = impulse / seconds;
         result.spring.endPoint = springPoint();
+        bool outside = false;
         for (std::size_t i = 0; i < spring->nodes.size(); ++i) {
             const int n = spring->nodes[i];
             if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)] || L.isPrimary[sz(n)])
                 continue;
             addSecondaryLoad(n, spring->weights[i] * result.spring.meanForce);
+            outside = outside || spring->weights[i] > 0.0;
         }
+        if (outside) mShareAcc += result.spring.meanForce;  // the share F~ of this period
+        mShareLive = share;
+        if (share)
+            mShareDelta =
+                result.spring.endForce - (mSharePrev + shownFraction() * (mShareCur - mSharePrev));
     }
     bool finite = true;
     for (int d : L.freeDofs) finite = finite && std::isfinite(mU[d]);
@@ -469,7 +635,11 @@ void PrimaryRegion::clearTickLoads() noexcept {
     mFExtCount = 0;
 }
 
-void PrimaryRegion::packLoads(BorderPacket& out) noexcept {
+void PrimaryRegion::packLoads(BorderPacket& out, std::uint64_t sequence) noexcept {
+    const std::size_t slot = mShareNext++ % mShareSeq.size();
+    mShareSeq[slot] = sequence;
+    mShareSent[slot] = mShareAcc / static_cast<double>(mSetup.period);
+    mShareAcc.setZero();
     // The period's mean load on each secondary dof (its impulse over the period).
     const double inv = 1.0 / mSetup.period;
     int count = 0;

@@ -5,6 +5,7 @@
 /// its force readout.
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -50,15 +51,17 @@ class PrimaryRegion {
     /// Clears this tick's primary loads (after advance()).
     void clearTickLoads() noexcept;
     /// The period's mean load on each secondary dof into @p out; restarts the period's sum.
-    void packLoads(BorderPacket& out) noexcept;
+    /// @p sequence tags the snapshot (its solution's acceptSolution() gives it back): the
+    /// spring's mean share on secondary nodes it carries is remembered under it.
+    void packLoads(BorderPacket& out, std::uint64_t sequence) noexcept;
     /// The primary border values of @p L (L.borderDofs order) into @p out.
     void readBorder(const Layout& L, double* out) const noexcept;
 
     /// Takes a secondary solution: Gamma values @p gamma, the border values @p border they
-    /// answer, the watched values @p watch (or nullptr); the interpolation restarts from the
-    /// values shown now.
+    /// answer, the watched values @p watch (or nullptr), solved from the snapshot packed as
+    /// @p sequence; the interpolation restarts from the values shown now.
     void acceptSolution(const Layout& L, const double* gamma, const double* border,
-                        const double* watch) noexcept;
+                        const double* watch, std::uint64_t sequence) noexcept;
     /// Gamma as @p L shows it at time @p t into @p target (u or uPrev); with @p product the
     /// condensed correction is recomputed from @p target's border.
     void setGamma(const Layout& L, double* target, double t, bool product) noexcept;
@@ -99,6 +102,8 @@ class PrimaryRegion {
     void seedWatched(const Layout& from) noexcept;
     void setSubstep(const Layout& L, int substeps, double dt) noexcept;
     void addSecondaryLoad(int node, const Eigen::Vector3d& force) noexcept;
+    bool shareCompliance(const Layout& L, const CouplingSpring& spring,
+                         Eigen::Matrix3d& C) noexcept;
 
     const AsyncSetup& mSetup;
     double mDtSub = 0.0;
@@ -125,6 +130,27 @@ class PrimaryRegion {
     std::vector<int> mAccNodes;  // nodes with a non-zero mFAcc entry, capacity #nodes
     std::size_t mAccCount = 0;
     std::vector<std::uint8_t> mAccMark;  // per node
+    // The spring's share on secondary nodes, condensed (see advance()): its compliance's work
+    // space (per axis: zone positions and weights of the share's coarse support; W_(J, g)),
+    // the period's sum of the share force, and the share force each snapshot carried and the
+    // shown secondary values answer (interpolated like them).
+    static constexpr std::size_t kShareEntries = 1024;  // per axis
+    std::array<std::vector<int>, 3> mSharePos;
+    std::array<std::vector<double>, 3> mShareWeight;
+    std::array<std::size_t, 3> mShareCount{};
+    Eigen::MatrixXd mShareV;    // |J| x 3
+    Eigen::MatrixXd mShareHDV;  // |J| x 3
+    Eigen::Vector3d mShareAcc = Eigen::Vector3d::Zero();
+    Eigen::Vector3d mSharePrev = Eigen::Vector3d::Zero(), mShareCur = Eigen::Vector3d::Zero();
+    std::array<std::uint64_t, 8> mShareSeq{};
+    std::array<Eigen::Vector3d, 8> mShareSent{};
+    std::size_t mShareNext = 0;
+    // The last tick's condensed share (layout it was computed on, F - F~ at its end) and a
+    // work vector: nodes the next layout shows take the share's correction at a swap.
+    bool mShareLive = false;
+    Eigen::Vector3d mShareDelta = Eigen::Vector3d::Zero();
+    Eigen::VectorXd mShareH;
+    void applyShareCorrection(const Layout& from, const Layout& to) noexcept;
 };
 
 }  // namespace palp::fem
