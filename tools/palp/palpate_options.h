@@ -72,7 +72,8 @@ struct PalpateArgs {
     std::string femSolver = "explicit";
     int primaryNodes = 60;
     double secondaryHz = 100;
-    int lod = 0;  ///< 0: 2 where the cell counts are even, else 1
+    int lod = 0;  ///< 0: haptics::autoRegionsLod (2 where the cell counts are even, else 1; 4 on
+                  ///< large faces)
 };
 
 /// The options checked against the scene: each scene option belongs to one phantom (or any), the
