@@ -39,9 +39,12 @@
 /// never waits; until then the old contact stays driven. At the swap the old contact node is
 /// released with its current displacement and velocity, the new one moves from its current
 /// displacement to the tick's target within that tick, and the coupling restarts from the
-/// values the primary shows (no jump in Gamma). Only single-node contacts move; the seed count
-/// is kept; a contact that cannot be prepared (e.g. a non-zero prescribed value would fall in
-/// the secondary) is ignored until another node is requested.
+/// values the primary shows (no jump in Gamma). Nodes that enter P or Gamma take the secondary
+/// field at the border shown at the swap (the solution's values moved by their response to the
+/// border since that solve; quasi-static CHOLMOD secondaries), not a period-old one. Only
+/// single-node contacts move; the seed count is kept; a contact that cannot be prepared (e.g. a
+/// non-zero prescribed value would fall in the secondary) is ignored until another node is
+/// requested.
 ///
 /// Sliding contact (issue 18). A layout used to cost an assembly and a CHOLMOD factorisation of
 /// its secondary plus its responses: 2-4.5 s at 33^3 lod 2, so a contact sliding a node every
@@ -286,13 +289,18 @@ class AsyncRegions {
     /// substep. Spring nodes outside P (Gamma or secondary) enter a(u) with their shown
     /// displacement (nodeDisplacement(); an unwatched secondary node counts as zero: watch
     /// them or keep them in P) and take their share `w_i F` of the tick's mean force as an
-    /// ordinary load (the secondary path, averaged over the period). The substep is at most
-    /// safetyFactor times criticalTimeStepWith(model, k sum_{i in P} w_i^2 / m_i), so the
-    /// substep count may change from tick to tick (the half-step velocity is kept); when that
-    /// needs more than maxSubsteps, maxSubsteps substeps of that step run (less time than a
-    /// tick) and kStepSubstepLimit is flagged. Bad spring nodes are skipped and flagged
+    /// ordinary load (the secondary path, averaged over the period). On the capacitance
+    /// secondary that share is condensed: F solves `(I + k C) F = k (c - a) + k C F~` with C the
+    /// secondary's compliance over those nodes (3 x 3, from the zone block, per tick while some
+    /// weight is outside P) and F~ the share the shown values answer, so a stiff spring on a
+    /// lagging secondary (a late layout) settles instead of ringing (docs/algorithms.md). The
+    /// substep is at most safetyFactor times criticalTimeStepWith(model, k sum_{i in P} w_i^2 /
+    /// m_i), so the substep count may change from tick to tick (the half-step velocity is kept);
+    /// when that needs more than maxSubsteps, maxSubsteps substeps of that step run (less time than
+    /// a tick) and kStepSubstepLimit is flagged. Bad spring nodes are skipped and flagged
     /// (kAsyncLoadsRefused). result.spring holds the spring's mean and end force and end point.
-    /// @par Real-time  As the other tick(); O(#spring nodes) more per substep.
+    /// @par Real-time  As the other tick(); O(#spring nodes) more per substep, and O(|J|^2) per
+    /// tick while the spring has weight outside P (the share's compliance).
     AsyncTickResult tick(std::span<const NodalLoad> loads, const CouplingSpring& spring) noexcept;
 
     /// Displacement of node @p node now, m: the primary's value on P and Gamma (Gamma as shown in
