@@ -256,6 +256,7 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
     const HexMesh& mesh = model.mesh();
     // The spring: valid nodes only; its frequency on P bounds the substep.
     const bool springOn = spring != nullptr && spring->active();
+    if (!springOn) mShareLive = false;  // a swap after a tick without the spring corrects nothing
     Eigen::Vector3d aOutside = Eigen::Vector3d::Zero();  // a(u) share of non-P, non-Gamma nodes
     int substeps = mBaseSubsteps;
     double dtNew = mBaseDt;
