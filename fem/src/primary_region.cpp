@@ -67,6 +67,7 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     mShareV = Eigen::MatrixXd::Zero(std::max(1, setup.coarseDofs), 3);
     mShareHDV = mShareV;
     mShareH = Eigen::VectorXd::Zero(mShareV.rows());
+    mShareSlot.assign(sz(std::max(1, setup.coarseDofs)), -1);
     mShareSeq.fill(~std::uint64_t{0});
     for (Eigen::Vector3d& f : mShareSent) f.setZero();
 }

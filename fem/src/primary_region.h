@@ -138,8 +138,9 @@ class PrimaryRegion {
     std::array<std::vector<int>, 3> mSharePos;
     std::array<std::vector<double>, 3> mShareWeight;
     std::array<std::size_t, 3> mShareCount{};
-    Eigen::MatrixXd mShareV;    // |J| x 3
-    Eigen::MatrixXd mShareHDV;  // |J| x 3
+    std::vector<int> mShareSlot;  // per zone position: its entry, or -1 (all -1 between calls)
+    Eigen::MatrixXd mShareV;      // |J| x 3
+    Eigen::MatrixXd mShareHDV;    // |J| x 3
     Eigen::Vector3d mShareAcc = Eigen::Vector3d::Zero();
     Eigen::Vector3d mSharePrev = Eigen::Vector3d::Zero(), mShareCur = Eigen::Vector3d::Zero();
     std::array<std::uint64_t, 8> mShareSeq{};

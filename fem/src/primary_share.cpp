@@ -21,6 +21,12 @@ bool PrimaryRegion::shareCompliance(const Layout& L, const CouplingSpring& sprin
     const Eigen::MatrixXd& W = g.zoneInverse();
     const HexMesh& mesh = mSetup.model.mesh();
     mShareCount = {0, 0, 0};
+    // Entries on one zone position (a coarse dof several of the spring's nodes interpolate
+    // from) are merged, so the double sums below run over distinct coarse dofs.
+    auto clearSlots = [&] {
+        for (std::size_t a = 0; a < 3; ++a)
+            for (std::size_t e = 0; e < mShareCount[a]; ++e) mShareSlot[sz(mSharePos[a][e])] = -1;
+    };
     bool outside = false;
     for (std::size_t i = 0; i < spring.nodes.size(); ++i) {
         const int n = spring.nodes[i];
@@ -34,13 +40,22 @@ bool PrimaryRegion::shareCompliance(const Layout& L, const CouplingSpring& sprin
             if (mSetup.fixed[sz(d)]) continue;
             for (RowSparseMatrix::InnerIterator it(I, d); it; ++it) {
                 const int p = g.zonePosition(static_cast<int>(it.col()));
-                if (p < 0 || mShareCount[a] >= kShareEntries) return false;
+                if (p < 0 || sz(p) >= mShareSlot.size() || mShareCount[a] >= kShareEntries) {
+                    clearSlots();
+                    return false;
+                }
+                if (mShareSlot[sz(p)] >= 0) {
+                    mShareWeight[a][sz(mShareSlot[sz(p)])] += w * it.value();
+                    continue;
+                }
+                mShareSlot[sz(p)] = static_cast<int>(mShareCount[a]);
                 mSharePos[a][mShareCount[a]] = p;
                 mShareWeight[a][mShareCount[a]] = w * it.value();
                 ++mShareCount[a];
             }
         }
     }
+    clearSlots();
     if (!outside) return false;
     const Eigen::Index nj = static_cast<Eigen::Index>(L.capJ.size());
     if (nj > mShareV.rows() || L.capHD.rows() != nj || L.capHD.cols() != nj) return false;
