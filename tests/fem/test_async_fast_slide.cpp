@@ -38,7 +38,8 @@ TEST(AsyncFastSlide, ContactFasterThanItsBuildsIsFollowed) {
     o.primaryNodes = 30;
     o.secondaryRate = 100.0;
     o.threaded = true;
-    const int first = 1, last = nx - 2, moveTicks = 30, holdTicks = 300;
+    const int first = 1, last = nx - 2, moveTicks = 30,
+              holdTicks = 1000;  // the hold: margin for a loaded CI
     AsyncRegions a(model, constraints, {top(first)}, o);
     a.setBuildDelayForTest(0.1);
     const auto xOf = [&](int node) { return model.mesh().nodeCoords(node)[0]; };
