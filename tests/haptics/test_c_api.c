@@ -4,18 +4,8 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "c_check.h"
 #include "palp/palp.h"
-
-static int gFailures = 0;
-
-#define CHECK(cond)                                                                           \
-    do {                                                                                      \
-        if (!(cond)) {                                                                        \
-            fprintf(stderr, "%s:%d: CHECK failed: %s (last error: %s)\n", __FILE__, __LINE__, \
-                    #cond, palp_last_error());                                                \
-            ++gFailures;                                                                      \
-        }                                                                                     \
-    } while (0)
 
 typedef struct callback_log {
     int calls;

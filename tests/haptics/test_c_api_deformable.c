@@ -9,18 +9,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "c_check.h"
 #include "palp/palp.h"
-
-static int gFailures = 0;
-
-#define CHECK(cond)                                                                           \
-    do {                                                                                      \
-        if (!(cond)) {                                                                        \
-            fprintf(stderr, "%s:%d: CHECK failed: %s (last error: %s)\n", __FILE__, __LINE__, \
-                    #cond, palp_last_error());                                                \
-            ++gFailures;                                                                      \
-        }                                                                                     \
-    } while (0)
 
 #define STIFFNESS 300.0 /* N/m: VC */
 #define DEPTH 4e-3      /* m: the path's press below the rest surface */

@@ -9,18 +9,8 @@
 #include <string.h>
 #include <time.h>
 
+#include "c_check.h"
 #include "palp/palp.h"
-
-static int gFailures = 0;
-
-#define CHECK(cond)                                                                           \
-    do {                                                                                      \
-        if (!(cond)) {                                                                        \
-            fprintf(stderr, "%s:%d: CHECK failed: %s (last error: %s)\n", __FILE__, __LINE__, \
-                    #cond, palp_last_error());                                                \
-            ++gFailures;                                                                      \
-        }                                                                                     \
-    } while (0)
 
 /* The host's device: a hand that moves from 3 mm above the surface (y = 0, facing -y) to
  * `depth` below it in 0.3 s at 1 kHz, then holds; `silent` stops its samples. */

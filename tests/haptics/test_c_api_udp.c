@@ -21,18 +21,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "c_check.h"
 #include "palp/palp.h"
-
-static int gFailures = 0;
-
-#define CHECK(cond)                                                                           \
-    do {                                                                                      \
-        if (!(cond)) {                                                                        \
-            fprintf(stderr, "%s:%d: CHECK failed: %s (last error: %s)\n", __FILE__, __LINE__, \
-                    #cond, palp_last_error());                                                \
-            ++gFailures;                                                                      \
-        }                                                                                     \
-    } while (0)
 
 /* --- the bridge protocol, little-endian, from docs/device_bridge.md ----------------------- */
 
