@@ -8,6 +8,7 @@
 #include <deque>
 #include <exception>
 #include <map>
+#include <memory>
 
 #include "dicom_frames.h"
 #include "dicom_header.h"
@@ -16,6 +17,7 @@
 #include "dicom_scan.h"
 #include "dicom_slices.h"
 #include "dicom_walk.h"
+#include "lazy_stack.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/volume/dicom.h"
@@ -144,8 +146,12 @@ std::vector<DicomSeriesInfo> scanDicom(const std::vector<fs::path>& inputs) {
     return out;
 }
 
-SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& options) {
-    const Scan scan = scanHeaders(inputs);
+namespace detail {
+
+LazySliceStack openDicom(const std::vector<fs::path>& inputs, const ReadOptions& options) {
+    // The headers stay alive with the decoder, which reads the chosen files through them.
+    const auto scanned = std::make_shared<const Scan>(scanHeaders(inputs));
+    const Scan& scan = *scanned;
     if (scan.headers.empty() && !scan.damaged.empty())
         throwDamaged(scan.damaged.front().first, scan.damaged.front().second);
     if (scan.headers.empty()) throwNoDicom(scan);
@@ -182,7 +188,7 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
         }
     }
     if (hasMultiFrame(series.images))
-        return readFrameSeries(series.images, name, series.uid, inputs, options);
+        return {readFrameSeries(series.images, name, series.uid, inputs, options), {}};
     const std::vector<const Header*>& images = series.images;
     const Header& first = *images.front();
     const FileGeometry firstGeometry = geometryOf(first);
@@ -198,28 +204,56 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
         chosen.push_back(grp[static_cast<std::size_t>(std::max(timePoint, 0))]);
     }
 
-    if (isMosaic(first))
-        return readMosaicSeries(images, chosen, name, series.uid, inputs, options, timePoint,
-                                timePointCount);
+    if (isMosaic(first)) {
+        return {readMosaicSeries(images, chosen, name, series.uid, inputs, options, timePoint,
+                                 timePointCount),
+                {}};
+    }
 
     // Refuse before decoding anything that would not fit the memory budget.
     checkMemory(name, first.integer(kColumns, 0), first.integer(kRows, 0), chosen.size(),
                 options.maxSourceBytes);
 
-    SliceStack stack;
+    LazySliceStack lazy;
+    SliceStack& stack = lazy.stack;
     stack.slices.resize(chosen.size());
+    for (std::size_t i = 0; i < chosen.size(); ++i) {
+        Slice& s = stack.slices[i];
+        s.cols = chosen[i]->integer(kColumns, 0);
+        s.rows = chosen[i]->integer(kRows, 0);
+        s.source = chosen[i]->path.string();
+        setGeometry(geometryOf(*chosen[i]), s);
+    }
     bool rescaleVaries = false;
     const double slope0 = first.number(kRescaleSlope).value_or(1.0);
     const double intercept0 = first.number(kRescaleIntercept).value_or(0.0);
-    // Files decoded in parallel (one GDCM reader each); when several fail, the first file's
-    // error is reported, as a serial loop would.
-    std::vector<std::exception_ptr> errors(chosen.size());
+    for (const Header* h : chosen) {
+        rescaleVaries = rescaleVaries || h->number(kRescaleSlope).value_or(1.0) != slope0 ||
+                        h->number(kRescaleIntercept).value_or(0.0) != intercept0;
+    }
+    fillInfo(stack.info, first, inputs, series.uid, chosen.size(), timePoint, timePointCount,
+             rescaleVaries);
+    // One GDCM reader per call, so files may be decoded from several threads at once.
+    lazy.decode = [scanned, chosen](std::size_t i, Slice& slice) {
+        decodeSlice(*chosen[i], slice);
+    };
+    return lazy;
+}
+
+}  // namespace detail
+
+SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& options) {
+    detail::LazySliceStack lazy = detail::openDicom(inputs, options);
+    if (!lazy.decode) return std::move(lazy.stack);
+    std::vector<Slice>& slices = lazy.stack.slices;
+    // Files decoded in parallel; when several fail, the first file's error is reported, as a
+    // serial loop would.
+    std::vector<std::exception_ptr> errors(slices.size());
     palp::parallelForEach(
-        std::size_t{0}, chosen.size(),
+        std::size_t{0}, slices.size(),
         [&](std::size_t i) {
             try {
-                decodeSlice(*chosen[i], stack.slices[i]);
-                setGeometry(geometryOf(*chosen[i]), stack.slices[i]);
+                lazy.decode(i, slices[i]);
             } catch (...) {
                 errors[i] = std::current_exception();
             }
@@ -227,13 +261,7 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
         std::size_t{1});
     for (const std::exception_ptr& e : errors)
         if (e) std::rethrow_exception(e);
-    for (const Header* h : chosen) {
-        rescaleVaries = rescaleVaries || h->number(kRescaleSlope).value_or(1.0) != slope0 ||
-                        h->number(kRescaleIntercept).value_or(0.0) != intercept0;
-    }
-    fillInfo(stack.info, first, inputs, series.uid, chosen.size(), timePoint, timePointCount,
-             rescaleVaries);
-    return stack;
+    return std::move(lazy.stack);
 }
 
 }  // namespace palp::volume

@@ -10,6 +10,7 @@
 #include <stdexcept>
 
 #include "formats.h"
+#include "lazy_stack.h"
 #include "palp/base/atomic_file.h"
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
@@ -213,6 +214,13 @@ Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
             // A stored grid has no slices: it is re-gridded as a volume, with the same options.
             if (detectFormat(inputs.front()) == Format::Vdb)
                 return resample(loadVdb(inputs.front()), options.resample);
+        }
+        if (!inputs.empty() && detectFormat(inputs.front()) == Format::Dicom) {
+            // Decoded as the resampler reaches each slice and released behind it: the whole
+            // series is never held (readStack() would hold it beside the grid).
+            for (const fs::path& p : inputs) requireExists(p);
+            detail::LazySliceStack lazy = detail::openDicom(inputs, options);
+            return detail::resampleLazy(lazy, options.resample);
         }
         return resample(readStack(inputs, options), options.resample);
     });

@@ -1,19 +1,18 @@
 #include "palp/volume/resample.h"
 
 #include <openvdb/tools/Prune.h>
-#include <tbb/blocked_range2d.h>
-#include <tbb/enumerable_thread_specific.h>
-#include <tbb/parallel_for.h>
 
 #include <Eigen/Dense>
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <exception>
 #include <limits>
 #include <memory>
 #include <numeric>
 #include <sstream>
 
+#include "lazy_stack.h"
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
@@ -34,17 +33,19 @@ std::string vecStr(const Eigen::Vector3d& v) {
     return os.str();
 }
 
-StackGeometry analyse(const SliceStack& stack) {
+/// With @p resident false the slices' values are not there yet (a lazy stack): only the
+/// geometry is checked, the values as they are decoded.
+StackGeometry analyse(const SliceStack& stack, bool resident) {
     if (stack.slices.empty()) throw ValueError("resample: expected at least one slice, found none");
-    checkStackValues(stack);
+    if (resident) checkStackValues(stack);
     StackGeometry g;
     const Slice& first = stack.slices.front();
     g.u = first.colStep;
     g.v = first.rowStep;
     for (const Slice& s : stack.slices) {
         if (s.cols <= 0 || s.rows <= 0 ||
-            s.values.size() !=
-                static_cast<std::size_t>(s.cols) * static_cast<std::size_t>(s.rows)) {
+            (resident && s.values.size() !=
+                             static_cast<std::size_t>(s.cols) * static_cast<std::size_t>(s.rows))) {
             throw ValueError(s.source + ": expected " + std::to_string(s.cols) + "x" +
                              std::to_string(s.rows) + " values, found " +
                              std::to_string(s.values.size()));
@@ -226,9 +227,100 @@ float backgroundValueFor(const VolumeInfo& info, float threshold) {
 
 namespace {
 
-Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options,
-                       bool referenceOnly) {
-    const StackGeometry g = analyse(stack);
+/// Decodes the slices of a lazy stack as fillTree's window asks, checks them, and releases
+/// those it has passed.
+class LazyWindow {
+  public:
+    LazyWindow(LazySliceStack& lazy, SliceSampler& sampler)
+        : mLazy(lazy),
+          mSampler(sampler),
+          mResident(sampler.sliceCount(), 0),
+          mDecoded(sampler.sliceCount(), 0) {}
+
+    void operator()(std::size_t releaseBelow, std::size_t lo, std::size_t hi) {
+        for (std::size_t k = mReleased; k < releaseBelow; ++k) release(k);
+        mReleased = std::max(mReleased, releaseBelow);
+        std::vector<std::size_t> todo;
+        for (std::size_t k = lo; k <= hi; ++k)
+            if (!mResident[k]) todo.push_back(k);
+        decode(todo, false);
+    }
+
+    /// Decodes (and checks) the slices never decoded, one at a time per thread, and releases
+    /// every slice.
+    void finish() {
+        for (std::size_t k = 0; k < mResident.size(); ++k) release(k);
+        std::vector<std::size_t> todo;
+        for (std::size_t k = 0; k < mDecoded.size(); ++k)
+            if (!mDecoded[k]) todo.push_back(k);
+        decode(todo, true);
+    }
+
+  private:
+    void release(std::size_t k) {
+        if (!mResident[k]) return;
+        std::vector<float>().swap(slice(k).values);
+        mResident[k] = 0;
+    }
+
+    Slice& slice(std::size_t k) { return mLazy.stack.slices[mSampler.stackIndex(k)]; }
+
+    /// Decodes sorted slices @p todo in parallel; when several fail, the first one's error (by
+    /// position along the normal) is thrown.
+    void decode(const std::vector<std::size_t>& todo, bool thenRelease) {
+        std::vector<std::exception_ptr> errors(todo.size());
+        palp::parallelForEach(
+            std::size_t{0}, todo.size(),
+            [&](std::size_t i) {
+                const std::size_t k = todo[i];
+                const std::size_t index = mSampler.stackIndex(k);
+                Slice& s = slice(k);
+                try {
+                    const std::int32_t cols = s.cols, rows = s.rows;
+                    mLazy.decode(index, s);
+                    if (s.cols != cols || s.rows != rows ||
+                        s.values.size() !=
+                            static_cast<std::size_t>(cols) * static_cast<std::size_t>(rows)) {
+                        throw FormatError(s.source + ": expected " + std::to_string(cols) + "x" +
+                                          std::to_string(rows) + " values, found " +
+                                          std::to_string(s.values.size()));
+                    }
+                    try {
+                        checkSliceValues(s, index);
+                    } catch (const ValueError& e) {
+                        throw FormatError(e.what());  // the file is at fault
+                    }
+                    if (thenRelease) {
+                        std::vector<float>().swap(s.values);
+                    } else {
+                        mSampler.sliceLoaded(k);
+                    }
+                } catch (...) {
+                    std::vector<float>().swap(s.values);
+                    errors[i] = std::current_exception();
+                }
+            },
+            std::size_t{1});
+        for (const std::exception_ptr& e : errors)
+            if (e) std::rethrow_exception(e);
+        for (const std::size_t k : todo) {
+            mDecoded[k] = 1;
+            mResident[k] = thenRelease ? 0 : 1;
+        }
+    }
+
+    LazySliceStack& mLazy;
+    SliceSampler& mSampler;
+    std::vector<char> mResident, mDecoded;  // by sorted slice
+    std::size_t mReleased = 0;
+};
+
+/// resample() of @p stack; with @p lazy (whose stack is @p stack) the values are decoded as
+/// the blocks reach them.
+Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, bool referenceOnly,
+                       LazySliceStack* lazy = nullptr) {
+    const bool resident = lazy == nullptr || !lazy->decode;
+    const StackGeometry g = analyse(stack, resident);
     const std::size_t n = g.order.size();
     const StackSpacing spacing = measureSpacing(stack, g);
     const double voxel = chooseVoxelSize(g, spacing, options);
@@ -244,9 +336,18 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options,
     xform->postTranslate(openvdb::Vec3d(lat.lo.x(), lat.lo.y(), lat.lo.z()));
     grid->setTransform(xform);
 
-    const SliceSampler sampler(stack, g, voxel, threshold);
-    fillTree(FillContext{sampler, g, lat, threshold, background, referenceOnly}, options.progress,
-             grid->tree());
+    SliceSampler sampler(stack, g, voxel, threshold, resident);
+    const FillContext ctx{sampler, g, lat, threshold, background, referenceOnly};
+    if (resident) {
+        fillTree(ctx, options.progress, grid->tree());
+    } else {
+        LazyWindow window(*lazy, sampler);
+        fillTree(ctx, options.progress, grid->tree(),
+                 [&](std::size_t releaseBelow, std::size_t lo, std::size_t hi) {
+                     window(releaseBelow, lo, hi);
+                 });
+        window.finish();
+    }
 
     Volume out;
     out.grid = grid;
@@ -276,6 +377,20 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
 }
 
 namespace detail {
+
+Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    if (!lazy.decode) {
+        try {
+            checkStackValues(lazy.stack);
+        } catch (const ValueError& e) {
+            throw FormatError(e.what());  // the file is at fault, as readStack() says
+        }
+    }
+    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build", [&] {
+        return resampleChecked(lazy.stack, options, false, &lazy);
+    });
+}
 
 Volume resampleVoxelByVoxel(const SliceStack& stack, const ResampleOptions& options) {
     checkResampleOptions(options);

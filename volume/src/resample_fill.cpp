@@ -1,9 +1,11 @@
 // Filling the resampler's output leaves: a row kernel for blocks between two slices, the
 // voxel-by-voxel reference for the rest, in parallel over leaf blocks.
-#include <tbb/blocked_range2d.h>
+#include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 
 #include <array>
+#include <cstdint>
+#include <limits>
 #include <memory>
 
 #include "palp/base/error.h"
@@ -13,6 +15,10 @@
 namespace palp::volume::detail {
 
 namespace {
+
+/// Sorted slices per group of blocks (fillTree): the band of slices a group reads is about this
+/// many plus the slices one block spans along the normal.
+constexpr std::size_t kSlicesPerGroup = 16;
 
 /// Values of one leaf block and its active mask, filled densely by one thread before a leaf
 /// is made (so blocks that stay inactive cost no allocation).
@@ -213,31 +219,84 @@ bool fillBlock(const FillContext& ctx, const openvdb::Coord& origin, DenseBlock&
 
 }  // namespace
 
-void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree) {
-    const std::size_t n = ctx.sampler.sliceCount();
+void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree,
+              const SliceWindowFn& window) {
+    const SliceSampler& sm = ctx.sampler;
+    const std::size_t n = sm.sliceCount();
     const double voxel = ctx.lat.voxel;
     const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
-    const int bx = static_cast<int>((dims[0] + kLeafDim - 1) / kLeafDim);
-    const int by = static_cast<int>((dims[1] + kLeafDim - 1) / kLeafDim);
-    const int bz = static_cast<int>((dims[2] + kLeafDim - 1) / kLeafDim);
+    const auto bx = static_cast<std::size_t>((dims[0] + kLeafDim - 1) / kLeafDim);
+    const auto by = static_cast<std::size_t>((dims[1] + kLeafDim - 1) / kLeafDim);
+    const auto bz = static_cast<std::size_t>((dims[2] + kLeafDim - 1) / kLeafDim);
+    const std::size_t blocks = bx * by * bz;
+    const auto originOf = [&](std::size_t i) {
+        return openvdb::Coord(static_cast<int>((i % bx) * kLeafDim),
+                              static_cast<int>((i / bx % by) * kLeafDim),
+                              static_cast<int>((i / (bx * by)) * kLeafDim));
+    };
+    const auto cornersOf = [&](const openvdb::Coord& origin, Eigen::Vector3d& bmin,
+                               Eigen::Vector3d& bmax) {
+        bmin = ctx.lat.lo + voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
+        bmax = bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
+    };
+
+    // Each block that may hold active voxels goes to the group of the first slice it reads
+    // (blocks wholly outside the slices hold none); the last slice it reads bounds the
+    // group's band. One slice of margin either side covers the rounding of the voxel-by-voxel
+    // path's normal coordinates against the corners'.
+    constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+    std::vector<std::uint32_t> groupOf(blocks), lastOf(blocks);
+    palp::parallelForEach(
+        std::size_t{0}, blocks,
+        [&](std::size_t i) {
+            Eigen::Vector3d bmin, bmax;
+            cornersOf(originOf(i), bmin, bmax);
+            double smin = 0, smax = 0;
+            sm.blockAlong(bmin, bmax, smin, smax);
+            if (sm.outsideAlong(smin, smax)) {
+                groupOf[i] = kNone;
+                return;
+            }
+            const auto [first, last] = sm.slicesSpanned(smin, smax);
+            groupOf[i] = static_cast<std::uint32_t>(first / kSlicesPerGroup);
+            lastOf[i] = static_cast<std::uint32_t>(last);
+        },
+        std::size_t{4096});
+    const std::size_t groups = (n + kSlicesPerGroup - 1) / kSlicesPerGroup;
+    std::vector<std::size_t> start(groups + 1, 0), bandEnd(groups, 0);
+    for (std::size_t i = 0; i < blocks; ++i) {
+        if (groupOf[i] == kNone) continue;
+        ++start[groupOf[i] + 1];
+        bandEnd[groupOf[i]] = std::max<std::size_t>(bandEnd[groupOf[i]], lastOf[i]);
+    }
+    lastOf = {};
+    for (std::size_t g = 0; g < groups; ++g) start[g + 1] += start[g];
+    std::vector<std::uint32_t> order(start.back());
+    {
+        std::vector<std::size_t> next(start.begin(), start.end() - 1);
+        for (std::size_t i = 0; i < blocks; ++i)
+            if (groupOf[i] != kNone) order[next[groupOf[i]]++] = static_cast<std::uint32_t>(i);
+    }
+    groupOf = {};
+
     tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
     tbb::enumerable_thread_specific<DenseBlock> scratch;
-
-    for (int zb = 0; zb < bz; ++zb) {
-        palp::parallelFor(
-            tbb::blocked_range2d<int>(0, by, 0, bx), [&](const tbb::blocked_range2d<int>& r) {
-                auto& mine = made.local();
-                for (int yb = r.rows().begin(); yb != r.rows().end(); ++yb) {
-                    for (int xb = r.cols().begin(); xb != r.cols().end(); ++xb) {
-                        const openvdb::Coord origin(xb * kLeafDim, yb * kLeafDim, zb * kLeafDim);
-                        const Eigen::Vector3d bmin =
-                            ctx.lat.lo +
-                            voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
-                        const Eigen::Vector3d bmax =
-                            bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
+    for (std::size_t g = 0; g < groups; ++g) {
+        if (start[g] < start[g + 1]) {
+            if (window) {
+                const std::size_t lo = g * kSlicesPerGroup > 0 ? g * kSlicesPerGroup - 1 : 0;
+                window(lo, lo, std::min(bandEnd[g] + 1, n - 1));
+            }
+            palp::parallelFor(
+                tbb::blocked_range<std::size_t>(start[g], start[g + 1], 16),
+                [&](const tbb::blocked_range<std::size_t>& r) {
+                    auto& mine = made.local();
+                    for (std::size_t b = r.begin(); b != r.end(); ++b) {
+                        const openvdb::Coord origin = originOf(order[b]);
+                        Eigen::Vector3d bmin, bmax;
+                        cornersOf(origin, bmin, bmax);
                         std::size_t bracket = n, bracketEnd = n;
-                        if (!ctx.sampler.blockMayBeActive(bmin, bmax, bracket, bracketEnd))
-                            continue;
+                        if (!sm.blockMayBeActive(bmin, bmax, bracket, bracketEnd)) continue;
                         DenseBlock& block = scratch.local();
                         block.values.fill(ctx.background);
                         block.mask.setOff();
@@ -255,13 +314,13 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
                         leaf->setValueMask(block.mask);
                         mine.push_back(std::move(leaf));
                     }
-                }
-            });
-        for (auto& list : made) {
-            for (auto& leaf : list) tree.addLeaf(leaf.release());  // the tree takes ownership
-            list.clear();
+                });
+            for (auto& list : made) {
+                for (auto& leaf : list) tree.addLeaf(leaf.release());  // the tree takes ownership
+                list.clear();
+            }
         }
-        if (progress && !progress(static_cast<double>(zb + 1) / bz)) {
+        if (progress && !progress(static_cast<double>(g + 1) / static_cast<double>(groups))) {
             throw Error("resample: cancelled");
         }
     }

@@ -9,7 +9,9 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
+#include <utility>
 #include <vector>
 
 #include "palp/base/parallel.h"
@@ -68,7 +70,10 @@ struct Lattice {
 /// Read-only after construction, so blocks may be filled from many threads.
 class SliceSampler {
   public:
-    SliceSampler(const SliceStack& stack, const StackGeometry& g, double voxel, float threshold)
+    /// With @p resident false the slices' values are not there yet: each sorted slice k is
+    /// made usable by sliceLoaded(k) once its values are (see fillTree's window).
+    SliceSampler(const SliceStack& stack, const StackGeometry& g, double voxel, float threshold,
+                 bool resident = true)
         : mG(g), mN(g.order.size()), mThreshold(threshold) {
         const std::size_t n = mN;
         mLoAlong = g.along.front();
@@ -90,8 +95,22 @@ class SliceSampler {
             mSorted[k] = &stack.slices[g.order[k]];
             mCrOffset[k] = -(mM * mSorted[k]->position);
         }
-        computeTileMaxima();
+        mCols = mSorted.front()->cols;
+        mRows = mSorted.front()->rows;
+        mTilesX = (mCols + kTile - 1) / kTile;
+        mTilesY = (mRows + kTile - 1) / kTile;
+        mTileMax.assign(n * static_cast<std::size_t>(mTilesX * mTilesY),
+                        -std::numeric_limits<float>::infinity());
+        if (resident)
+            palp::parallelForEach(std::size_t{0}, n, [&](std::size_t k) { sliceLoaded(k); });
     }
+
+    /// Prepares sorted slice @p k after its values arrived (its tile maxima). Slices that are
+    /// not in use may be loaded from several threads at once (each writes its own tiles).
+    void sliceLoaded(std::size_t k) { computeTileMaxima(k); }
+
+    /// The slice (in the stack's order) at sorted position @p k.
+    std::size_t stackIndex(std::size_t k) const { return mG.order[k]; }
 
     std::size_t sliceCount() const { return mN; }
     const Eigen::Matrix<double, 2, 3>& inPlaneFromWorld() const { return mM; }
@@ -110,32 +129,50 @@ class SliceSampler {
     /// Whether a block with corners @p bmin, @p bmax may hold active voxels. When the whole
     /// block lies within the slices' range along the normal, sets [bracket, bracketEnd] to the
     /// slices that enclose it (else bracket = slice count).
+    /// The normal coordinates [smin, smax] the corners of the block [bmin, bmax] span.
+    void blockAlong(const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax, double& smin,
+                    double& smax) const {
+        smin = std::numeric_limits<double>::infinity();
+        smax = -smin;
+        for (int corner = 0; corner < 8; ++corner) {
+            const double sp = corner3(bmin, bmax, corner).dot(mG.normal);
+            smin = std::min(smin, sp);
+            smax = std::max(smax, sp);
+        }
+    }
+
+    /// Whether normal coordinates [smin, smax] lie wholly outside the slices (no voxel there is
+    /// active).
+    bool outsideAlong(double smin, double smax) const {
+        return smax < mLoAlong - mAlongTol || smin > mHiAlong + mAlongTol;
+    }
+
+    /// The sorted slices [first, last] whose tiles a block spanning [smin, smax] consults.
+    std::pair<std::size_t, std::size_t> slicesSpanned(double smin, double smax) const {
+        const std::vector<double>& along = mG.along;
+        auto first = static_cast<std::size_t>(std::upper_bound(along.begin(), along.end(), smin) -
+                                              along.begin());
+        first = first > 0 ? first - 1 : 0;
+        auto last = static_cast<std::size_t>(std::lower_bound(along.begin(), along.end(), smax) -
+                                             along.begin());
+        return {first, std::min(last, mN - 1)};
+    }
+
     bool blockMayBeActive(const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax,
                           std::size_t& bracket, std::size_t& bracketEnd) const {
         const std::size_t n = mN;
-        const StackGeometry& g = mG;
         bracket = n;
-        double smin = std::numeric_limits<double>::infinity(), smax = -smin;
+        double smin = 0, smax = 0;
+        blockAlong(bmin, bmax, smin, smax);
+        if (outsideAlong(smin, smax)) return false;
         Eigen::Vector2d crMin = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity());
         Eigen::Vector2d crMax = -crMin;
         for (int corner = 0; corner < 8; ++corner) {
-            const Eigen::Vector3d p((corner & 1) ? bmax.x() : bmin.x(),
-                                    (corner & 2) ? bmax.y() : bmin.y(),
-                                    (corner & 4) ? bmax.z() : bmin.z());
-            const double sp = p.dot(g.normal);
-            smin = std::min(smin, sp);
-            smax = std::max(smax, sp);
-            const Eigen::Vector2d mp = mM * p;
+            const Eigen::Vector2d mp = mM * corner3(bmin, bmax, corner);
             crMin = crMin.cwiseMin(mp);
             crMax = crMax.cwiseMax(mp);
         }
-        if (smax < mLoAlong - mAlongTol || smin > mHiAlong + mAlongTol) return false;
-        auto first = static_cast<std::size_t>(
-            std::upper_bound(g.along.begin(), g.along.end(), smin) - g.along.begin());
-        first = first > 0 ? first - 1 : 0;
-        auto last = static_cast<std::size_t>(
-            std::lower_bound(g.along.begin(), g.along.end(), smax) - g.along.begin());
-        last = std::min(last, n - 1);
+        const auto [first, last] = slicesSpanned(smin, smax);
         if (n > 1 && smin >= mLoAlong && smax <= mHiAlong) {
             bracket = std::min(first, n - 2);
             bracketEnd = std::max(last, bracket + 1);
@@ -185,30 +222,27 @@ class SliceSampler {
   private:
     static constexpr int kTile = 8;
 
-    /// Maxima over tiles of each slice, to skip blocks whose every source pixel is background:
-    /// an interpolated value is a convex combination of pixels, so it cannot exceed their
-    /// maximum.
-    void computeTileMaxima() {
-        const std::size_t n = mN;
-        mCols = mSorted.front()->cols;
-        mRows = mSorted.front()->rows;
-        mTilesX = (mCols + kTile - 1) / kTile;
-        mTilesY = (mRows + kTile - 1) / kTile;
-        const int cols = mCols, rows = mRows, tilesX = mTilesX, tilesY = mTilesY;
-        mTileMax.assign(n * static_cast<std::size_t>(tilesX * tilesY),
-                        -std::numeric_limits<float>::infinity());
-        palp::parallelForEach(std::size_t{0}, n, [&](std::size_t k) {
-            float* tm = mTileMax.data() + k * static_cast<std::size_t>(tilesX * tilesY);
-            const std::vector<float>& vals = mSorted[k]->values;
-            for (int r = 0; r < rows; ++r) {
-                for (int c = 0; c < cols; ++c) {
-                    float& m = tm[(r / kTile) * tilesX + c / kTile];
-                    m = std::max(m,
-                                 vals[static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) +
-                                      static_cast<std::size_t>(c)]);
-                }
+    static Eigen::Vector3d corner3(const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax,
+                                   int corner) {
+        return {(corner & 1) ? bmax.x() : bmin.x(), (corner & 2) ? bmax.y() : bmin.y(),
+                (corner & 4) ? bmax.z() : bmin.z()};
+    }
+
+    /// Maxima over tiles of sorted slice @p k, to skip blocks whose every source pixel is
+    /// background: an interpolated value is a convex combination of pixels, so it cannot
+    /// exceed their maximum.
+    void computeTileMaxima(std::size_t k) {
+        const int cols = mCols, rows = mRows, tilesX = mTilesX;
+        float* tm = mTileMax.data() + k * static_cast<std::size_t>(mTilesX * mTilesY);
+        std::fill(tm, tm + mTilesX * mTilesY, -std::numeric_limits<float>::infinity());
+        const std::vector<float>& vals = mSorted[k]->values;
+        for (int r = 0; r < rows; ++r) {
+            for (int c = 0; c < cols; ++c) {
+                float& m = tm[(r / kTile) * tilesX + c / kTile];
+                m = std::max(m, vals[static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) +
+                                     static_cast<std::size_t>(c)]);
             }
-        });
+        }
     }
 
     /// Whether any tile of slice @p k under the in-plane box [a, b] reaches the threshold.
@@ -250,9 +284,18 @@ struct FillContext {
     bool referenceOnly = false;  // every block voxel by voxel through valueAt (for tests)
 };
 
-/// Fills @p tree block by block, one z layer of leaf blocks at a time in parallel; reports
-/// progress after each layer.
+/// Called by fillTree before each group of blocks it fills: sorted slices [lo, hi] must hold
+/// their values (and SliceSampler::sliceLoaded must have run for each) when it returns; sorted
+/// slices below @p releaseBelow are not used again and may be released. Called from the
+/// calling thread, with @p releaseBelow and @p hi non-decreasing from call to call.
+using SliceWindowFn = std::function<void(std::size_t releaseBelow, std::size_t lo, std::size_t hi)>;
+
+/// Fills @p tree block by block, in groups of blocks ordered along the slice normal (each group
+/// the blocks whose first slice lies in a run of kSlicesPerGroup sorted slices), each group in
+/// parallel; so the slices a group reads are a bounded band, which @p window (when set) makes
+/// resident before the group. Reports progress after each group.
 /// @throw Error("resample: cancelled") when the progress callback asks to stop.
-void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree);
+void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree,
+              const SliceWindowFn& window = {});
 
 }  // namespace palp::volume::detail

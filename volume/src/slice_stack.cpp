@@ -4,6 +4,7 @@
 #include <cstddef>
 #include <string>
 
+#include "lazy_stack.h"
 #include "palp/base/bounds.h"
 
 namespace palp::volume {
@@ -32,19 +33,25 @@ SliceStack stackFromAffine(const std::vector<float>& values,
     return stack;
 }
 
+namespace detail {
+
+void checkSliceValues(const Slice& s, std::size_t k) {
+    const auto bad = std::find_if(s.values.begin(), s.values.end(), [](float v) {
+        return !bounds::kVolumeValue.contains(static_cast<double>(v));
+    });
+    if (bad == s.values.end()) return;
+    const auto at = static_cast<std::size_t>(bad - s.values.begin());
+    const auto cols = static_cast<std::size_t>(std::max(s.cols, 1));
+    requireWithin(s.source + ": voxel (column " + std::to_string(at % cols) + ", row " +
+                      std::to_string(at / cols) + ", slice " + std::to_string(k) + ")",
+                  static_cast<double>(*bad), bounds::kVolumeValue);
+}
+
+}  // namespace detail
+
 void checkStackValues(const SliceStack& stack) {
-    for (std::size_t k = 0; k < stack.slices.size(); ++k) {
-        const Slice& s = stack.slices[k];
-        const auto bad = std::find_if(s.values.begin(), s.values.end(), [](float v) {
-            return !bounds::kVolumeValue.contains(static_cast<double>(v));
-        });
-        if (bad == s.values.end()) continue;
-        const auto at = static_cast<std::size_t>(bad - s.values.begin());
-        const auto cols = static_cast<std::size_t>(std::max(s.cols, 1));
-        requireWithin(s.source + ": voxel (column " + std::to_string(at % cols) + ", row " +
-                          std::to_string(at / cols) + ", slice " + std::to_string(k) + ")",
-                      static_cast<double>(*bad), bounds::kVolumeValue);
-    }
+    for (std::size_t k = 0; k < stack.slices.size(); ++k)
+        detail::checkSliceValues(stack.slices[k], k);
 }
 
 }  // namespace palp::volume
