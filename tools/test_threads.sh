@@ -12,21 +12,20 @@ if [ "$#" -gt 0 ]; then
   targets=("$@")
 else
   targets=(test_base test_servo_loop test_session test_c_api test_c_api_deformable_c test_haptics test_async_regions test_async_force
-           test_async_spring test_deformable_async test_ray_kernels test_udp_device test_c_api_udp_c)
+           test_async_spring test_deformable_async test_ray_batch test_udp_device test_c_api_udp_c)
 fi
 cmake --preset tsan >/dev/null
 cmake --build --preset tsan --target "${targets[@]}"
 # halt_on_error: stop at the first report so its stacks are the last thing in the log.
 export TSAN_OPTIONS="suppressions=$PWD/tools/tsan.supp halt_on_error=1 second_deadlock_stack=1"
-# The ray tests' non-threaded accuracy cases take minutes under TSan; the batch cases are the
-# threaded ones. Likewise only the threaded cases of the asynchronous regions (the synchronous
-# accuracy cases build a global secondary each, 12 minutes of test_async_force under TSan; the
-# release suite runs them), the deformable regions session on threaded regions and its
-# refusals (its synchronous physics cases step both regions on the test's thread, and took most
-# of the executable's 150 s under TSan; the release suite runs them) and the spring's threaded
-# tick.
-declare -A filter=([test_ray_kernels]='RayBatch.*'
-                   [test_deformable_async]='DeformableAsync.TicksAllocateNothing:DeformableAsync.RejectsBadOptions*'
+# The ray batch (TBB workers over bundles) is its own executable, test_ray_batch, so the ray
+# accuracy tests and the benchmark harness are not built here. Only the threaded cases of the
+# asynchronous regions run (the synchronous accuracy cases build a global secondary each, 12
+# minutes of test_async_force under TSan; the release suite runs them), the deformable regions
+# session on threaded regions and its refusals (its synchronous physics cases step both regions
+# on the test's thread, and took most of the executable's 150 s under TSan; the release suite
+# runs them) and the spring's threaded tick.
+declare -A filter=([test_deformable_async]='DeformableAsync.TicksAllocateNothing:DeformableAsync.RejectsBadOptions*'
                    [test_async_spring]='AsyncSpring.Threaded*'
                    [test_async_force]='AsyncForce.StalledSecondary*:AsyncForce.TicksAllocateNothing'
                    [test_async_regions]='AsyncRegions.StalledSecondary*:AsyncRegions.Threaded*:AsyncRegions.RejectsBadInput')

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
+#include "mesh_test_shapes.h"
 #include "palp/base/error.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/kernels/ray_batch.h"
@@ -18,77 +19,11 @@
 namespace {
 
 using namespace palp::kernels;
+using palp::test::boxMesh;
+using palp::test::bundleAt;
+using palp::test::icosphere;
 using palp::test::kVoxel;
-
-void addVertex(TriangleMesh& m, const Eigen::Vector3d& p) {
-    for (int a = 0; a < 3; ++a) m.positions.push_back(static_cast<float>(p[a]));
-}
-void addTri(TriangleMesh& m, std::uint32_t a, std::uint32_t b, std::uint32_t c) {
-    m.indices.insert(m.indices.end(), {a, b, c});
-}
-
-/// Square of half-size @p s in the plane through @p c with normal @p n.
-TriangleMesh planeMesh(const Eigen::Vector3d& n, const Eigen::Vector3d& c, double s) {
-    Eigen::Vector3d u, v;
-    orthonormalBasis(n, u, v);
-    TriangleMesh m;
-    addVertex(m, c - s * u - s * v);
-    addVertex(m, c + s * u - s * v);
-    addVertex(m, c + s * u + s * v);
-    addVertex(m, c - s * u + s * v);
-    addTri(m, 0, 1, 2);
-    addTri(m, 0, 2, 3);
-    return m;
-}
-
-TriangleMesh boxMesh(const palp::test::Box& b) {
-    TriangleMesh m;
-    for (int k = 0; k < 8; ++k)
-        addVertex(m, b.centre + Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(),
-                                                (k & 2) ? b.half.y() : -b.half.y(),
-                                                (k & 4) ? b.half.z() : -b.half.z()));
-    const std::uint32_t f[6][4] = {{0, 2, 6, 4}, {1, 5, 7, 3}, {0, 4, 5, 1},
-                                   {2, 3, 7, 6}, {0, 1, 3, 2}, {4, 6, 7, 5}};
-    for (const auto& q : f) {
-        addTri(m, q[0], q[1], q[2]);
-        addTri(m, q[0], q[2], q[3]);
-    }
-    return m;
-}
-
-/// Icosphere: icosahedron subdivided @p levels times, vertices on the sphere.
-TriangleMesh icosphere(const palp::test::Sphere& s, int levels) {
-    const double t = (1 + std::sqrt(5.0)) / 2;
-    std::vector<Eigen::Vector3d> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0},
-                                      {0, -1, t}, {0, 1, t}, {0, -1, -t}, {0, 1, -t},
-                                      {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
-    std::vector<std::array<std::uint32_t, 3>> f = {
-        {0, 11, 5},  {0, 5, 1},  {0, 1, 7},  {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
-        {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
-        {3, 8, 9},   {4, 9, 5},  {2, 4, 11}, {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
-    for (auto& p : v) p.normalize();
-    for (int l = 0; l < levels; ++l) {
-        std::vector<std::array<std::uint32_t, 3>> nf;
-        for (const auto& tri : f) {
-            std::uint32_t m[3];
-            for (int e = 0; e < 3; ++e) {
-                v.push_back((v[tri[static_cast<std::size_t>(e)]] +
-                             v[tri[static_cast<std::size_t>((e + 1) % 3)]])
-                                .normalized());
-                m[e] = static_cast<std::uint32_t>(v.size() - 1);
-            }
-            nf.push_back({tri[0], m[0], m[2]});
-            nf.push_back({tri[1], m[1], m[0]});
-            nf.push_back({tri[2], m[2], m[1]});
-            nf.push_back({m[0], m[1], m[2]});
-        }
-        f = nf;
-    }
-    TriangleMesh out;
-    for (const auto& p : v) addVertex(out, s.centre + s.radius * p);
-    for (const auto& tri : f) addTri(out, tri[0], tri[1], tri[2]);
-    return out;
-}
+using palp::test::planeMesh;
 
 /// Exact closest hit against a mesh in double precision (brute force, Moller-Trumbore on the
 /// float vertices).
@@ -114,19 +49,6 @@ double bruteForceHit(const TriangleMesh& m, const Eigen::Vector3d& o, const Eige
         if (tt >= 0 && tt <= tMax) best = std::min(best, tt);
     }
     return best;
-}
-
-/// One bundle per proxy pointing at @p target, for tests.
-RayBundle bundleAt(const Eigen::Vector3d& proxy, const Eigen::Vector3d& target, int ring = 0,
-                   double len = 20e-3) {
-    BundleParams p;
-    p.length = len;
-    p.ringCount = ring;
-    p.sobelAngle = 0.08;
-    p.surfaceOffset = 0.8e-3;
-    RayBundle b;
-    generateBundle(proxy, target - proxy, Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0), p, b);
-    return b;
 }
 
 // Rays whose origin lies inside the solid (inside(o)) are left out: the exact functions give the
@@ -312,69 +234,6 @@ TEST(EmbreeScene, DegenerateInputAndNoAllocation) {
     }
     EXPECT_EQ(palp::test::allocationCount() - before, 0u);
     EXPECT_EQ(hits, 400);
-}
-
-// The batch API equals the single-thread path, for volumes and meshes (run under tsan too).
-TEST(RayBatch, ParallelEqualsSingleThread) {
-    const palp::test::Sphere s{Eigen::Vector3d(0, 0, 0), 6e-3};
-    auto grid = palp::test::shapeVolume([&](const Eigen::Vector3d& x) { return s.sdf(x); },
-                                        {-20, -20, -20}, {20, 20, 20});
-    const VolumeView view(grid);
-    EmbreeScene scene;
-    scene.addRigidMesh(icosphere(s, 3));
-    scene.commit();
-    std::mt19937 rng(17);
-    std::normal_distribution<double> n;
-    std::vector<RayBundle> bundles(400);
-    for (auto& b : bundles)
-        b = bundleAt(9e-3 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized(),
-                     3e-3 * Eigen::Vector3d(n(rng), n(rng), n(rng)).normalized(), 8);
-    FirstHitParams fp;
-    fp.threshold = palp::test::kIso;
-    AccumulateParams ap;
-    ap.sigma = TransferFunction::step(200.0f, 3000.0f);
-    std::vector<BundleHits> v1(bundles.size()), vN(bundles.size()), m1(bundles.size()),
-        mN(bundles.size());
-    std::vector<BundleAccumulation> a1(bundles.size()), aN(bundles.size());
-    // The same first-hit through a HitField shared by the workers (immutable).
-    const HitField field(view, fp.threshold);
-    FirstHitParams withField = fp;
-    withField.field = &field;
-    std::vector<BundleHits> f1(bundles.size()), fN(bundles.size());
-    for (std::size_t i = 0; i < bundles.size(); ++i) {
-        traceFirstHit(view, bundles[i], fp, v1[i]);
-        traceFirstHit(view, bundles[i], withField, f1[i]);
-        traceAccumulate(view, bundles[i], ap, a1[i]);
-        traceBundle(scene, bundles[i], kMaskAll, m1[i]);
-    }
-    tbb::task_arena arena(2);
-    arena.execute([&] {
-        traceFirstHitBatch(view, bundles, fp, vN);
-        traceFirstHitBatch(view, bundles, withField, fN);
-        traceAccumulateBatch(view, bundles, ap, aN);
-        traceMeshBatch(scene, bundles, kMaskAll, mN);
-    });
-    int hits = 0;
-    for (std::size_t i = 0; i < bundles.size(); ++i) {
-        ASSERT_EQ(vN[i].count, 25);
-        for (std::size_t r = 0; r < 25; ++r) {
-            EXPECT_EQ(v1[i].t[r], vN[i].t[r]);
-            EXPECT_EQ(v1[i].hit[r], vN[i].hit[r]);
-            EXPECT_EQ(f1[i].t[r], fN[i].t[r]);
-            EXPECT_EQ(f1[i].hit[r], fN[i].hit[r]);
-            // The field's own lattice: the same hits, t within float rounding.
-            EXPECT_EQ(v1[i].hit[r], f1[i].hit[r]);
-            EXPECT_NEAR(v1[i].t[r], f1[i].t[r], 1e-3 * view.voxelSize());
-            EXPECT_EQ(a1[i].t[r], aN[i].t[r]);
-            EXPECT_EQ(a1[i].integral[r], aN[i].integral[r]);
-            EXPECT_EQ(m1[i].t[r], mN[i].t[r]);
-            EXPECT_EQ(m1[i].hit[r], mN[i].hit[r]);
-            hits += vN[i].hit[r];
-        }
-    }
-    EXPECT_GT(hits, 1000);
-    std::vector<BundleHits> small(3);
-    EXPECT_THROW(traceFirstHitBatch(view, bundles, fp, small), palp::ValueError);
 }
 
 }  // namespace
