@@ -127,8 +127,8 @@ TEST(LazyLoad, PeakMemoryGrowsWithTheGridNotWithTheSeries) {
     // peak (above what was resident before) grows by at most 1.5x what the grid grows, and at
     // 320 slices is within 1.5x the grid. (At 80 slices the band and the threads' buffers, a
     // few MB that do not grow with the series, are a larger part of an 8 MB grid.)
-#if defined(__SANITIZE_ADDRESS__)
-    GTEST_SKIP() << "AddressSanitizer's shadow memory and quarantine change the resident set";
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+    GTEST_SKIP() << "the sanitizer's shadow memory and quarantine change the resident set";
 #endif
     double peaks[2] = {0, 0}, grids[2] = {0, 0};
     const int sizes[2] = {80, 320};
