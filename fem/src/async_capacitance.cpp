@@ -318,19 +318,23 @@ bool GlobalSecondary::borderFieldAt(const Layout& L, const std::vector<int>& dof
 }
 
 bool GlobalSecondary::borderResponseAt(const Layout& L, const std::vector<int>& dofs,
-                                       Eigen::MatrixXd& out) const {
+                                       Eigen::MatrixXd& basis, Eigen::MatrixXd& q) const {
     // x = A^-1 E_J Q u_B: the rows of I W_(.,J) at the dofs, times Q.
-    out.resize(0, 0);
+    basis.resize(0, 0);
+    q.resize(0, 0);
     for (int d : dofs)
         for (RowSparseMatrix::InnerIterator it(mInterp, d); it; ++it)
             if (mZonePos[sz(static_cast<int>(it.col()))] < 0) return false;
     const Eigen::Index nj = static_cast<Eigen::Index>(L.capJ.size());
-    if (L.capQ.size() == 0 || nj == 0) {
-        out = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(dofs.size()),
-                                    static_cast<Eigen::Index>(L.borderDofs.size()));
+    const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
+    if (L.capQ.rows() != nj || L.capQ.cols() != nb || nj == 0) {
+        // No response (no border coupling): a zero-rank factorisation.
+        basis = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(dofs.size()), 0);
+        q = Eigen::MatrixXd::Zero(0, nb);
         return true;
     }
-    Eigen::MatrixXd rows = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(dofs.size()), nj);
+    Eigen::MatrixXd& rows = basis;
+    rows = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(dofs.size()), nj);
     for (std::size_t i = 0; i < dofs.size(); ++i) {
         for (RowSparseMatrix::InnerIterator it(mInterp, dofs[i]); it; ++it) {
             const int pu = mZonePos[sz(static_cast<int>(it.col()))];
@@ -339,7 +343,7 @@ bool GlobalSecondary::borderResponseAt(const Layout& L, const std::vector<int>& 
                     it.value() * mW(pu, mZonePos[sz(L.capJ[sz(static_cast<int>(j))])]);
         }
     }
-    out.noalias() = rows * L.capQ;
+    q = L.capQ;
     return true;
 }
 
@@ -431,9 +435,9 @@ bool GlobalSecondary::prepareLayout(Layout& L, const std::vector<int>& primaryCo
     Eigen::MatrixXd kcbJ = Eigen::MatrixXd::Zero(nj, nb);
     for (const Triplet& t : kbt) kcbJ(posInJ[sz(t.row())], t.col()) = t.value();
     L.capQ = -mSetup.sK * (h * kcbJ);
-    const Eigen::MatrixXd& q = L.capQ;
-    auto responseRows = [&](const RowSparseMatrix& rowsInterp, Eigen::MatrixXd& out) {
-        // Rows of rowsInterp times the response; false when one leaves the zone.
+    auto basisRows = [&](const RowSparseMatrix& rowsInterp, Eigen::MatrixXd& out) {
+        // Rows of rowsInterp times W(., J) (the response is that times Q); false when one
+        // leaves the zone.
         std::vector<int> cols;
         std::vector<int> slot(sz(n), -1);
         for (int r = 0; r < rowsInterp.rows(); ++r)
@@ -451,18 +455,18 @@ bool GlobalSecondary::prepareLayout(Layout& L, const std::vector<int>& primaryCo
             for (std::size_t i = 0; i < cols.size(); ++i)
                 wuj(static_cast<Eigen::Index>(i), j) = mW(mZonePos[sz(cols[i])], pj);
         }
-        const Eigen::MatrixXd ru = wuj * q;
-        out = Eigen::MatrixXd::Zero(rowsInterp.rows(), nb);
+        out = Eigen::MatrixXd::Zero(rowsInterp.rows(), nj);
         for (int r = 0; r < rowsInterp.rows(); ++r)
             for (RowSparseMatrix::InnerIterator it(rowsInterp, r); it; ++it)
-                out.row(r) += it.value() * ru.row(slot[sz(static_cast<int>(it.col()))]);
+                out.row(r) += it.value() * wuj.row(slot[sz(static_cast<int>(it.col()))]);
         return true;
     };
-    Eigen::MatrixXd g;
-    if (!responseRows(L.interpGamma, g)) return false;
+    Eigen::MatrixXd basis;
+    if (!basisRows(L.interpGamma, basis)) return false;
     const bool direct = !o.secondaryFullField;
     if (direct) {
-        L.gammaResponse = g;
+        // Gamma's response G = basis Q stays factored (secondaryRegion's solveDirect): rank
+        // |J|, where the |Gamma| x |border| product took a third of a layout's build.
         // Watched nodes in the zone: from the zone field per solve (zoneField); outside it,
         // whole-field solves.
         L.watchInZone = L.interpWatch.rows() > 0;
@@ -470,15 +474,11 @@ bool GlobalSecondary::prepareLayout(Layout& L, const std::vector<int>& primaryCo
             for (RowSparseMatrix::InnerIterator it(L.interpWatch, r); it; ++it)
                 if (mZonePos[sz(static_cast<int>(it.col()))] < 0) L.watchInZone = false;
     }
-    if (!o.condensed) return true;
-    const double drop = o.condensedDropTolerance * g.cwiseAbs().maxCoeff();
-    std::vector<Triplet> t;
-    for (Eigen::Index col = 0; col < g.cols(); ++col)
-        for (Eigen::Index r = 0; r < g.rows(); ++r)
-            if (std::abs(g(r, col)) > drop)
-                t.emplace_back(static_cast<int>(r), static_cast<int>(col), g(r, col));
-    L.response.resize(static_cast<int>(g.rows()), static_cast<int>(g.cols()));
-    L.response.setFromTriplets(t.begin(), t.end());
+    // The condensed G = basis Q, kept factored and whole (no entry dropped): G has rank |J|.
+    if (direct || o.condensed) {
+        L.gammaBasis = std::move(basis);
+        L.capZ = Eigen::VectorXd::Zero(nj);
+    }
     return true;
 }
 

@@ -104,10 +104,12 @@ class GlobalSecondary {
     bool borderFieldAt(const Layout& L, const std::vector<int>& dofs,
                        std::vector<double>& values) const;
     /// The response of @p L's field at fine dofs @p dofs (secondary nodes) to its border,
-    /// `d x_dofs / d u_B = I_dofs W_(.,J) Q` (|dofs| x |border|), into @p out. @return false
-    /// (out empty) when one of them interpolates from outside the zone. Read-only, any thread.
-    bool borderResponseAt(const Layout& L, const std::vector<int>& dofs,
-                          Eigen::MatrixXd& out) const;
+    /// `d x_dofs / d u_B = I_dofs W_(.,J) Q` (|dofs| x |border|), factored: @p basis =
+    /// `I_dofs W_(.,J)` (|dofs| x |J|) and @p q = Q (|J| x |border|; |J| may be 0). @return
+    /// false (both empty) when one of them interpolates from outside the zone. Read-only, any
+    /// thread.
+    bool borderResponseAt(const Layout& L, const std::vector<int>& dofs, Eigen::MatrixXd& basis,
+                          Eigen::MatrixXd& q) const;
 
   private:
     struct Factor;

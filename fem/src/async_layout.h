@@ -83,6 +83,10 @@ struct Layout {
     // field is linear in its border; values a period old made each swap a kick, issue 18).
     Eigen::MatrixXd entryResponse;
     Eigen::VectorXd entryBorder;
+    // Capacitance layouts: the same response factored, E = entryBasis entryQ (|entryDofs| x
+    // |J| and from's capQ, |J| x |from.borderDofs|; entryResponse then empty): the swap's
+    // product has inner size |J| (~50-100) instead of |border| (hundreds).
+    Eigen::MatrixXd entryBasis, entryQ;
     std::vector<int> primaryNodes;             // P, sorted
     std::vector<std::uint8_t> isPrimary;       // per fine node
     std::vector<std::array<int, 8>> cellDofs;  // 3 * node of the 8 nodes of each primary cell
@@ -105,6 +109,14 @@ struct Layout {
     Eigen::VectorXd inverseDiagonal;
     // G: gamma dofs x border dofs (condensed coupling), small entries dropped.
     RowSparseMatrix response;
+    // Capacitance secondary: Gamma's response to the border, factored: G = gammaBasis capQ
+    // exactly (gammaBasis = I_Gamma W(., J), |Gamma| x |J|; response and gammaResponse then
+    // empty). G has rank |J| (the primary coarse cells' corners, ~50-100 dofs) but |Gamma| x
+    // |border| entries (~620,000 on the bone phantom's 2.5 mm body): the servo's condensed
+    // correction and the secondary's direct solve are two dense products through |J| values
+    // (capZ: the secondary's work vector, |J|).
+    Eigen::MatrixXd gammaBasis;
+    Eigen::VectorXd capZ;
     // Quasi-static CHOLMOD secondary: the exact Gamma response to the border (dense), so that a
     // secondary solve needs only Gamma = R u_B; the whole field x is solved when asked for.
     Eigen::MatrixXd gammaResponse;

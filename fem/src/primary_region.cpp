@@ -53,6 +53,8 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     mBCur = mBPrev;
     mBNow = mBPrev;
     mGFix = mBPrev;
+    mEntryWork = mBPrev;
+    mCapZ = Eigen::VectorXd::Zero(2 * std::max(1, setup.coarseDofs));
     mWPrev.assign(3 * o.watchNodes.size(), 0.0);
     mWCur = mWPrev;
     mFExt = Eigen::VectorXd::Zero(dofs);
@@ -100,15 +102,27 @@ void PrimaryRegion::restartGammaFrom(const Layout& L, const Eigen::VectorXd& x) 
 void PrimaryRegion::setGamma(const Layout& L, double* target, double t, bool product) noexcept {
     const double frac = mSetup.periodFraction(t, mGammaStart);
     const std::size_t n = L.gammaDofs.size();
-    if (L.response.nonZeros() > 0) {
+    const bool factored = mSetup.options.condensed &&
+                          L.gammaBasis.rows() == static_cast<Eigen::Index>(n) && n > 0 &&
+                          L.capQ.cols() == static_cast<Eigen::Index>(L.borderDofs.size()) &&
+                          L.capQ.rows() == L.gammaBasis.cols();
+    if (factored || L.response.nonZeros() > 0) {
         const std::size_t nb = L.borderDofs.size();
         if (product) {
             for (std::size_t i = 0; i < nb; ++i) {
                 const Eigen::Index k = static_cast<Eigen::Index>(i);
                 mBNow[k] = target[L.borderDofs[i]] - (mBPrev[k] + frac * (mBCur[k] - mBPrev[k]));
             }
-            mGFix.head(static_cast<Eigen::Index>(n)).noalias() =
-                L.response * mBNow.head(static_cast<Eigen::Index>(nb));
+            const auto b = mBNow.head(static_cast<Eigen::Index>(nb));
+            auto fix = mGFix.head(static_cast<Eigen::Index>(n));
+            if (factored) {
+                // G b = gammaBasis (Q b): |J| (Q's rows) values in between.
+                auto z = mCapZ.head(L.capQ.rows());
+                z.noalias() = L.capQ * b;
+                fix.noalias() = L.gammaBasis * z;
+            } else {
+                fix.noalias() = L.response * b;
+            }
         }
         for (std::size_t i = 0; i < n; ++i)
             target[L.gammaDofs[i]] =
@@ -159,11 +173,16 @@ void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
     // The spring share the shown secondary values answer, as the watched values restart.
     mSharePrev += shownFraction() * (mShareCur - mSharePrev);
     const std::size_t nb = from.borderDofs.size();
-    const bool respond =
-        to.entryResponse.rows() == static_cast<Eigen::Index>(to.entryDofs.size()) &&
-        to.entryResponse.cols() == static_cast<Eigen::Index>(nb) &&
-        to.entryBorder.size() == static_cast<Eigen::Index>(nb) && !to.entryDofs.empty();
-    if (!respond) {
+    const Eigen::Index ne = static_cast<Eigen::Index>(to.entryDofs.size());
+    const bool known = to.entryBorder.size() == static_cast<Eigen::Index>(nb) && ne > 0;
+    const bool factored =
+        known && to.entryBasis.rows() == ne && to.entryQ.cols() == static_cast<Eigen::Index>(nb) &&
+        to.entryQ.rows() == to.entryBasis.cols() && to.entryQ.rows() <= mCapZ.size() / 2;
+    const bool respond = known && to.entryResponse.rows() == ne &&
+                         to.entryResponse.cols() == static_cast<Eigen::Index>(nb);
+    if (factored) {
+        enterFactored(from, to);
+    } else if (!respond) {
         for (std::size_t i = 0; i < to.entryDofs.size(); ++i)
             enter(to.entryDofs[i], to.entryValues[i]);
     } else {
@@ -171,7 +190,6 @@ void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
         // entering nodes join the motion of their neighbours (position and velocity) instead
         // of a period-old rest state. (mBNow, mWork: work vectors, sized to the dofs.)
         const Eigen::Index n = static_cast<Eigen::Index>(nb);
-        const Eigen::Index ne = static_cast<Eigen::Index>(to.entryDofs.size());
         for (std::size_t i = 0; i < nb; ++i)
             mBNow[static_cast<Eigen::Index>(i)] =
                 mU[from.borderDofs[i]] - to.entryBorder[static_cast<Eigen::Index>(i)];
@@ -188,6 +206,40 @@ void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
     }
     applyShareCorrection(from, to);
     restartCoupling(to);
+}
+
+void PrimaryRegion::enterFactored(const Layout& from, const Layout& to) noexcept {
+    // E = entryBasis entryQ: the border's motion since the prepared values through Q (|J|
+    // values each for the position and the previous substep), then one sweep over the basis's
+    // columns for both (each column read once; mWork and mEntryWork: work vectors).
+    const std::size_t nb = from.borderDofs.size();
+    const Eigen::Index nj = to.entryQ.rows();
+    const Eigen::Index ne = static_cast<Eigen::Index>(to.entryDofs.size());
+    const auto b = mBNow.head(static_cast<Eigen::Index>(nb));
+    auto z = mCapZ.head(nj);
+    auto zPrev = mCapZ.segment(nj, nj);
+    for (std::size_t i = 0; i < nb; ++i)
+        mBNow[static_cast<Eigen::Index>(i)] =
+            mU[from.borderDofs[i]] - to.entryBorder[static_cast<Eigen::Index>(i)];
+    z.noalias() = to.entryQ * b;
+    for (std::size_t i = 0; i < nb; ++i)
+        mBNow[static_cast<Eigen::Index>(i)] =
+            mUPrev[from.borderDofs[i]] - to.entryBorder[static_cast<Eigen::Index>(i)];
+    zPrev.noalias() = to.entryQ * b;
+    auto w = mWork.head(ne);
+    auto wPrev = mEntryWork.head(ne);
+    w.setZero();
+    wPrev.setZero();
+    for (Eigen::Index j = 0; j < nj; ++j) {
+        const auto col = to.entryBasis.col(j);
+        w.noalias() += z[j] * col;
+        wPrev.noalias() += zPrev[j] * col;
+    }
+    for (Eigen::Index i = 0; i < ne; ++i) {
+        const int d = to.entryDofs[sz(static_cast<int>(i))];
+        mU[d] = to.entryValues[sz(static_cast<int>(i))] + w[i];
+        mUPrev[d] = to.entryValues[sz(static_cast<int>(i))] + wPrev[i];
+    }
 }
 
 void PrimaryRegion::seedWatched(const Layout& from) noexcept {

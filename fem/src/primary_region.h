@@ -100,6 +100,7 @@ class PrimaryRegion {
 
   private:
     void seedWatched(const Layout& from) noexcept;
+    void enterFactored(const Layout& from, const Layout& to) noexcept;
     void setSubstep(const Layout& L, int substeps, double dt) noexcept;
     void addSecondaryLoad(int node, const Eigen::Vector3d& force) noexcept;
     bool shareCompliance(const Layout& L, const CouplingSpring& spring,
@@ -119,6 +120,8 @@ class PrimaryRegion {
     std::vector<double> mGPrev, mGCur;  // Gamma values the interpolation runs between
     Eigen::VectorXd mBPrev, mBCur;      // primary border values those Gamma values answer
     Eigen::VectorXd mBNow, mGFix;       // condensed coupling work vectors
+    Eigen::VectorXd mCapZ;              // factored products: |J| values (twice), see setGamma
+    Eigen::VectorXd mEntryWork;         // adopt(): the entry values at the previous substep
     double mGammaStart = 0.0;           // coupling clock: time the interpolation started
     // Watched secondary values the interpolation runs between (3 per watched node).
     std::vector<double> mWPrev, mWCur;

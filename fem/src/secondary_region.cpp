@@ -33,8 +33,10 @@ bool SecondaryRegion::solve(Layout& L, const double* borderValues, const BorderP
     // Gamma (and the watched nodes) alone when their responses to the border are at hand and
     // the loads on secondary nodes, if any, are answered from the capacitance zone block (a
     // sliding contact's spring share on the surface); other loads need the whole field.
-    const bool responses =
-        L.gammaResponse.size() > 0 && (!watching || L.watchResponse.size() > 0 || L.watchInZone);
+    const bool gammaKnown =
+        L.gammaResponse.size() > 0 ||
+        (L.global != nullptr && L.gammaBasis.size() > 0 && !mSetup.options.secondaryFullField);
+    const bool responses = gammaKnown && (!watching || L.watchResponse.size() > 0 || L.watchInZone);
     bool direct = responses && loadCount == 0;
     if (responses && loadCount > 0 && L.global != nullptr)
         direct = L.global->loadResponse(L, *loads);
@@ -85,8 +87,14 @@ bool SecondaryRegion::solveDirect(Layout& L, const double* borderValues, double*
                 out[r] +=
                     it.value() * L.loadZone[L.global->zonePosition(static_cast<int>(it.col()))];
     };
-    Eigen::Map<Eigen::VectorXd> out(gammaOut, L.gammaResponse.rows());
-    out.noalias() = L.gammaResponse * L.border;
+    Eigen::Map<Eigen::VectorXd> out(gammaOut, static_cast<Eigen::Index>(L.gammaDofs.size()));
+    if (L.gammaResponse.size() > 0) {
+        out.noalias() = L.gammaResponse * L.border;
+    } else {
+        // Capacitance: G = gammaBasis Q, factored (rank |J|).
+        L.capZ.noalias() = L.capQ * L.border;
+        out.noalias() = L.gammaBasis * L.capZ;
+    }
     addLoads(L.interpGamma, out);
     bool ok = out.allFinite();
     if (watchOut != nullptr && L.watchResponse.size() == 0) {
@@ -215,6 +223,8 @@ void SecondaryRegion::prepareEntry(Layout& from, Layout& next,
     next.entryDofs.clear();
     next.entryValues.clear();
     next.entryResponse.resize(0, 0);
+    next.entryBasis.resize(0, 0);
+    next.entryQ.resize(0, 0);
     bool done = false;
     if (from.global != nullptr && from.fieldStale) {
         forEachEnteringDofIndex(from, next, mSetup.fixed,
@@ -235,7 +245,8 @@ void SecondaryRegion::prepareEntry(Layout& from, Layout& next,
     if (!next.entryDofs.empty()) {
         bool known = false;
         if (from.global != nullptr) {
-            known = from.global->borderResponseAt(from, next.entryDofs, next.entryResponse);
+            known =
+                from.global->borderResponseAt(from, next.entryDofs, next.entryBasis, next.entryQ);
         } else if (!from.unknownCoarseDof.empty() &&
                    mSetup.options.secondaryIntegrator == Integrator::quasiStatic &&
                    mSetup.options.secondarySolver == LinearSolverKind::cholmod) {
@@ -256,6 +267,8 @@ void SecondaryRegion::prepareEntry(Layout& from, Layout& next,
             next.entryBorder = from.border;
         } else {
             next.entryResponse.resize(0, 0);
+            next.entryBasis.resize(0, 0);
+            next.entryQ.resize(0, 0);
         }
     }
     // Warm state of the secondary in its own indexing.

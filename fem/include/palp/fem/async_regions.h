@@ -183,7 +183,9 @@ struct AsyncRegionsOptions {
     /// shows (`u_Gamma = u~_Gamma + G (u_B - u~_B)`). Off: the thesis's plain staggered coupling,
     /// which goes unstable at high secondary rates with larger borders (bench/README.md).
     bool condensed = true;
-    /// Entries of G below this fraction of its largest are dropped.
+    /// Entries of G below this fraction of its largest are dropped (layouts with their own
+    /// factorisation; the capacitance secondary keeps G whole, as the rank-|J| product
+    /// `I_Gamma W(., J) Q`).
     double condensedDropTolerance = 1e-3;
     /// Apply G once per tick (at the first substep; later substeps reuse that correction)
     /// instead of at every substep: cheaper for large borders with several substeps.
