@@ -33,4 +33,11 @@ function(palp_add_module name)
     $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>)
   target_link_libraries(palp_${name} PUBLIC ${ARG_PUBLIC_DEPS} PRIVATE palp::options ${ARG_PRIVATE_DEPS})
   set_target_properties(palp_${name} PROPERTIES POSITION_INDEPENDENT_CODE ON)
+  if(PALP_UNITY_BUILD)
+    set_target_properties(palp_${name} PROPERTIES UNITY_BUILD ON
+                                                  UNITY_BUILD_BATCH_SIZE ${PALP_UNITY_BATCH_SIZE})
+    # A batch includes the sources as headers, so a member whose type lives in a source's
+    # anonymous namespace draws GCC's header-only warning; it is no hazard within one file.
+    target_compile_options(palp_${name} PRIVATE -Wno-subobject-linkage)
+  endif()
 endfunction()

@@ -7,6 +7,7 @@
 #include <numbers>
 #include <string>
 
+#include "map_util.h"
 #include "palp/base/atomic_file.h"
 #include "palp/base/error.h"
 #include "palp/haptics/map_figure.h"
@@ -27,11 +28,6 @@ struct PatternFree {
 using Surface = std::unique_ptr<cairo_surface_t, SurfaceFree>;
 using Context = std::unique_ptr<cairo_t, ContextFree>;
 using Pattern = std::unique_ptr<cairo_pattern_t, PatternFree>;
-
-double unit(double v, double lo, double hi) {
-    if (!std::isfinite(lo) || !std::isfinite(hi)) return 0;
-    return hi > lo ? (v - lo) / (hi - lo) : 0.0;
-}
 
 constexpr std::uint32_t kEmpty = 0xff000040;  // dark blue, opaque (ARGB)
 

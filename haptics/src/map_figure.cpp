@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <string>
 
+#include "map_util.h"
 #include "palp/base/error.h"
 
 namespace palp::haptics {
@@ -18,12 +19,6 @@ constexpr double kBarLabel = 62;    // from a bar's right edge to its (vertical)
 constexpr double kUnderBar = 100;   // from the colour bar to the underlay's bar
 constexpr double kMapSide = 480;    // the map's longer side
 constexpr double kCharWidth = 0.6;  // a generous width of a character, in font sizes
-
-std::string num(double x) {
-    char buf[32];
-    std::snprintf(buf, sizeof buf, "%.6g", x);
-    return buf;
-}
 
 /// A step of 1, 2 or 5 x 10^k giving 4-8 ticks over @p span.
 double niceStep(double span) {

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <string>
 
+#include "map_util.h"
 #include "palp/base/atomic_file.h"
 
 namespace palp::haptics {
@@ -39,12 +40,6 @@ std::string escape(const std::string& text) {
     return out;
 }
 
-std::string num(double x) {
-    char buf[32];
-    std::snprintf(buf, sizeof buf, "%.6g", x);
-    return buf;
-}
-
 std::string text(const FigureText& t) {
     static constexpr const char* kAnchor[] = {"start", "middle", "end"};
     std::string s = "<text class=\"" + t.cls + "\" x=\"" + num(t.x) + "\" y=\"" + num(t.y) +
@@ -58,12 +53,6 @@ std::string text(const FigureText& t) {
 std::string rect(double x, double y, double w, double h, const std::string& rest) {
     return "<rect x=\"" + num(x) + "\" y=\"" + num(y) + "\" width=\"" + num(w) + "\" height=\"" +
            num(h) + "\" " + rest + "/>\n";
-}
-
-/// The scaled position in [0, 1] of @p v between @p lo and @p hi (0 when the range is empty).
-double unit(double v, double lo, double hi) {
-    if (!std::isfinite(lo) || !std::isfinite(hi)) return 0;
-    return hi > lo ? (v - lo) / (hi - lo) : 0.0;
 }
 
 }  // namespace

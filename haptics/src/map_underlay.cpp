@@ -10,14 +10,13 @@
 #include <sstream>
 #include <string>
 
+#include "map_util.h"
 #include "palp/base/error.h"
 #include "palp/kernels/embree_scene.h"
 
 namespace palp::haptics {
 
 namespace {
-
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 void checkProjection(const char* what, const MapPlane& plane, const Eigen::Vector3d& press,
                      double lengthM) {

@@ -7,15 +7,10 @@
 #include <random>
 #include <string>
 
+#include "map_util.h"
 #include "palp/base/error.h"
 
 namespace palp::haptics {
-
-namespace {
-
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-}  // namespace
 
 double otsuThreshold(const ScalarMap& map) {
     const std::vector<double> values = map.finiteValues();

@@ -7,13 +7,12 @@
 #include <utility>
 
 #include "in_contact.h"
+#include "map_util.h"
 #include "palp/base/error.h"
 
 namespace palp::haptics {
 
 namespace {
-
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 bool finite(const Eigen::Vector3d& v) { return v.allFinite(); }
 

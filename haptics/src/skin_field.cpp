@@ -6,14 +6,13 @@
 #include <sstream>
 #include <string>
 
+#include "map_util.h"
 #include "palp/base/error.h"
 #include "palp/kernels/embree_scene.h"
 
 namespace palp::haptics {
 
 namespace {
-
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 /// Nodes along a side of @p extent at about @p cell spacing (at least 2).
 int nodeCount(double extent, double cell) {

@@ -11,7 +11,7 @@ namespace palp::kernels {
 
 namespace {
 
-bool finite3(const Eigen::Vector3d& v) noexcept {
+bool finiteVec3(const Eigen::Vector3d& v) noexcept {
     return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
 }
 
@@ -73,13 +73,13 @@ bool generateBundle(const Eigen::Vector3d& origin, const Eigen::Vector3d& direct
     const bool paramsOk = std::isfinite(params.length) && params.length >= 0 &&
                           params.ringCount >= 0 && params.ringCount <= kMaxRingRays &&
                           std::isfinite(params.sobelAngle) && std::isfinite(params.surfaceOffset);
-    if (!paramsOk || !finite3(origin) || !std::isfinite(n) || !(n > 0)) return false;
+    if (!paramsOk || !finiteVec3(origin) || !std::isfinite(n) || !(n > 0)) return false;
     const Eigen::Vector3d d = direction / n;
     Eigen::Vector3d e1, e2;
     orthonormalBasis(d, e1, e2);
     // Surface frame: Gram-Schmidt of the caller's tangents; fall back to (e1, e2).
     Eigen::Vector3d t1 = tangent1, t2 = tangent2;
-    bool frameOk = finite3(t1) && finite3(t2);
+    bool frameOk = finiteVec3(t1) && finiteVec3(t2);
     if (frameOk) {
         const double n1 = t1.norm();
         frameOk = n1 > 1e-12;
