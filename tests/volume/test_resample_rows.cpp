@@ -156,8 +156,8 @@ TEST(ResampleRows, PeakMemoryOfALargerSeriesStaysWithinHalfTheGridAboveIt) {
     // 320 x 320 x 200 tilted slices at 0.5 mm (82 MB of input): a ~23 M voxel lattice, ~7 M of
     // them active. Resampling may hold the output grid and at most half of it again (the
     // blocks in flight, the tree's internal nodes): no dense copy of the lattice.
-#if defined(__SANITIZE_ADDRESS__)
-    GTEST_SKIP() << "AddressSanitizer's shadow memory and quarantine change the resident set";
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+    GTEST_SKIP() << "the sanitizer's shadow memory and quarantine change the resident set";
 #endif
     const SliceStack st = palp::test::tiltedSeries(320, 320, 200, 0.5e-3, 0.5e-3, 12.0);
     std::ofstream("/proc/self/clear_refs") << "5";  // resets VmHWM to the current RSS
