@@ -1,7 +1,11 @@
 // palp convert: any supported scan -> sparse, isotropic .vdb in world metres (LPS).
 #include <malloc.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
+#include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 
 #include "commands.h"
@@ -15,6 +19,30 @@
 namespace palp::tool {
 
 namespace fs = std::filesystem;
+
+namespace {
+
+/// The grid's leaves (2 KB each, hundreds of MB) are faulted in page by page: with 4 KB pages
+/// the faults and glibc's malloc on fresh pages were about a quarter of convert's CPU samples
+/// (head CT at 0.5 mm, perf; 47,000 faults, 4,300 with huge pages). glibc backs its heap with
+/// transparent huge pages only when asked at start-up (GLIBC_TUNABLES), so the heap is reserved
+/// here: every thread allocates from the main arena, whose top grows 1 GiB at a time (address space
+/// only: untouched pages cost nothing), and that range is marked for huge pages (the kernel's THP
+/// mode "madvise", Debian's default). Without THP the madvise fails and nothing else changes.
+void hugePageHeap() {
+    mallopt(M_ARENA_MAX, 1);
+    mallopt(M_TOP_PAD, 1 << 30);
+    void* probe = std::malloc(16 << 20);  // below the mmap threshold: grows the heap top
+    const auto begin = reinterpret_cast<std::uintptr_t>(probe);
+    const auto end = reinterpret_cast<std::uintptr_t>(sbrk(0));
+    constexpr std::uintptr_t kHuge = std::uintptr_t{2} << 20;
+    const std::uintptr_t from = (begin + kHuge - 1) & ~(kHuge - 1);
+    if (probe && end > from + kHuge)
+        madvise(reinterpret_cast<void*>(from), (end - from) & ~(kHuge - 1), MADV_HUGEPAGE);
+    std::free(probe);
+}
+
+}  // namespace
 
 Command addConvert(CLI::App& root) {
     struct Args {
@@ -58,7 +86,7 @@ Command addConvert(CLI::App& root) {
             // anew). An 800-file series: 1.2 -> 0.8 s CPU per 100 files on a 2-vCPU VM.
             mallopt(M_MMAP_THRESHOLD, 32 << 20);
             mallopt(M_TRIM_THRESHOLD, 1 << 30);
-            mallopt(M_TOP_PAD, 64 << 20);
+            hugePageHeap();
             const fs::path out(args->output);
             const fs::path dir = out.has_parent_path() ? out.parent_path() : fs::path(".");
             std::error_code ec;
