@@ -16,6 +16,7 @@
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/volume/dicom.h"
+#include "reader_util.h"
 #include "vdb_errors.h"
 #include "vdb_write.h"
 
@@ -24,12 +25,6 @@ namespace palp::volume {
 namespace fs = std::filesystem;
 
 namespace {
-
-std::string lower(std::string s) {
-    std::transform(s.begin(), s.end(), s.begin(),
-                   [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-    return s;
-}
 
 bool endsWith(const std::string& s, const std::string& suffix) {
     return s.size() >= suffix.size() &&
@@ -168,7 +163,7 @@ Sniffed sniff(const fs::path& path) {
 std::string describeContent(const fs::path& path) { return sniff(path).what; }
 
 bool hasNiftiName(const fs::path& path) {
-    const std::string name = lower(path.filename().string());
+    const std::string name = detail::lower(path.filename().string());
     for (const char* ext : {".nii", ".nii.gz", ".hdr", ".img", ".hdr.gz", ".img.gz"}) {
         if (endsWith(name, ext)) return true;
     }
@@ -182,7 +177,7 @@ Format detectFormat(const fs::path& path) {
     // DICOM file without its preamble, a damaged file a reader should name).
     const Sniffed s = sniff(path);
     if (s.format != Format::Unknown) return s.format;
-    const std::string name = lower(path.filename().string());
+    const std::string name = detail::lower(path.filename().string());
     if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr"))
         return Format::Nifti;
     if (endsWith(name, ".nrrd") || endsWith(name, ".nhdr")) return Format::Nrrd;
