@@ -70,6 +70,8 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     mShareHDV = mShareV;
     mShareH = Eigen::VectorXd::Zero(mShareV.rows());
     mShareSlot.assign(sz(std::max(1, setup.coarseDofs)), -1);
+    mZoneCorrection = Eigen::VectorXd::Zero(std::max(1, setup.coarseDofs));
+    mZoneDone.assign(sz(std::max(1, setup.coarseDofs)), 0);
     mShareSeq.fill(~std::uint64_t{0});
     for (Eigen::Vector3d& f : mShareSent) f.setZero();
 }

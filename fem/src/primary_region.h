@@ -154,6 +154,10 @@ class PrimaryRegion {
     bool mShareLive = false;
     Eigen::Vector3d mShareDelta = Eigen::Vector3d::Zero();
     Eigen::VectorXd mShareH;
+    // applyShareCorrection(): the correction per zone position, and whether it is computed
+    // (sized to the coarse dofs, which bound the zone).
+    Eigen::VectorXd mZoneCorrection;
+    std::vector<std::uint8_t> mZoneDone;
     void applyShareCorrection(const Layout& from, const Layout& to) noexcept;
 };
 

@@ -1,6 +1,8 @@
 // PrimaryRegion: the coupling spring's share on secondary nodes, condensed (issue 18,
 // docs/algorithms.md "Swaps and a finger off its primary"): its compliance from the capacitance
 // zone block, and the correction the nodes a new layout shows take at a swap.
+#include <algorithm>
+
 #include "async_capacitance.h"
 #include "primary_region.h"
 
@@ -108,7 +110,28 @@ void PrimaryRegion::applyShareCorrection(const Layout& from, const Layout& to) n
     const RowSparseMatrix& I = g.interpolation();
     const Eigen::MatrixXd& W = g.zoneInverse();
     const Eigen::Index nj = static_cast<Eigen::Index>(from.capJ.size());
+    const Eigen::Index zone = W.rows();
+    if (zone > mZoneCorrection.size()) return;
     for (Eigen::Index j = 0; j < nj; ++j) mShareH[j] = mShareHDV.row(j).dot(mShareDelta);
+    // The correction at zone position p, (W c)_p with c the share's load on the zone less its
+    // capacitance part: once per position (the entering nodes share their coarse dofs), from
+    // W's column p (W is symmetric; its rows are strided in memory).
+    std::fill(mZoneDone.begin(), mZoneDone.begin() + zone, std::uint8_t{0});
+    auto at = [&](int p) {
+        if (mZoneDone[sz(p)]) return mZoneCorrection[p];
+        const double* col = W.col(p).data();
+        double s = 0.0;
+        for (std::size_t b = 0; b < 3; ++b) {
+            const double db = mShareDelta[static_cast<Eigen::Index>(b)];
+            for (std::size_t f = 0; f < mShareCount[b]; ++f)
+                s += mShareWeight[b][f] * db * col[mSharePos[b][f]];
+        }
+        for (Eigen::Index j = 0; j < nj; ++j)
+            s -= col[g.zonePosition(from.capJ[sz(static_cast<int>(j))])] * mShareH[j];
+        mZoneDone[sz(p)] = 1;
+        mZoneCorrection[p] = s;
+        return s;
+    };
     auto correct = [&](int n) {
         if (from.isPrimary[sz(n)]) return;
         for (int a = 0; a < 3; ++a) {
@@ -118,14 +141,7 @@ void PrimaryRegion::applyShareCorrection(const Layout& from, const Layout& to) n
             for (RowSparseMatrix::InnerIterator it(I, d); it; ++it) {
                 const int p = g.zonePosition(static_cast<int>(it.col()));
                 if (p < 0) return;
-                double s = 0.0;
-                for (std::size_t b = 0; b < 3; ++b)
-                    for (std::size_t f = 0; f < mShareCount[b]; ++f)
-                        s += mShareWeight[b][f] * mShareDelta[static_cast<Eigen::Index>(b)] *
-                             W(p, mSharePos[b][f]);
-                for (Eigen::Index j = 0; j < nj; ++j)
-                    s -= W(p, g.zonePosition(from.capJ[sz(static_cast<int>(j))])) * mShareH[j];
-                delta += it.value() * s;
+                delta += it.value() * at(p);
             }
             mU[d] += delta;
             mUPrev[d] += delta;
