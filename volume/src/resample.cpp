@@ -250,6 +250,7 @@ class LazyWindow {
     /// every slice.
     void finish() {
         for (std::size_t k = 0; k < mResident.size(); ++k) release(k);
+        mSpare = {};
         std::vector<std::size_t> todo;
         for (std::size_t k = 0; k < mDecoded.size(); ++k)
             if (!mDecoded[k]) todo.push_back(k);
@@ -257,9 +258,13 @@ class LazyWindow {
     }
 
   private:
+    /// Keeps the released slice's buffer for the next slice to decode (the band holds the same
+    /// number of same-sized slices all along): no allocation, page faults or zero-filling of a
+    /// fresh buffer per slice.
     void release(std::size_t k) {
         if (!mResident[k]) return;
-        std::vector<float>().swap(slice(k).values);
+        mSpare.push_back(std::move(slice(k).values));
+        slice(k).values = {};
         mResident[k] = 0;
     }
 
@@ -268,6 +273,11 @@ class LazyWindow {
     /// Decodes sorted slices @p todo in parallel; when several fail, the first one's error (by
     /// position along the normal) is thrown.
     void decode(const std::vector<std::size_t>& todo, bool thenRelease) {
+        for (const std::size_t k : todo) {
+            if (mSpare.empty() || thenRelease) break;
+            slice(k).values = std::move(mSpare.back());
+            mSpare.pop_back();
+        }
         std::vector<std::exception_ptr> errors(todo.size());
         palp::parallelForEach(
             std::size_t{0}, todo.size(),
@@ -311,7 +321,8 @@ class LazyWindow {
 
     LazySliceStack& mLazy;
     SliceSampler& mSampler;
-    std::vector<char> mResident, mDecoded;  // by sorted slice
+    std::vector<char> mResident, mDecoded;   // by sorted slice
+    std::vector<std::vector<float>> mSpare;  // buffers of released slices
     std::size_t mReleased = 0;
 };
 

@@ -235,12 +235,14 @@ class SliceSampler {
         const int cols = mCols, rows = mRows, tilesX = mTilesX;
         float* tm = mTileMax.data() + k * static_cast<std::size_t>(mTilesX * mTilesY);
         std::fill(tm, tm + mTilesX * mTilesY, -std::numeric_limits<float>::infinity());
-        const std::vector<float>& vals = mSorted[k]->values;
+        const float* vals = mSorted[k]->values.data();
         for (int r = 0; r < rows; ++r) {
-            for (int c = 0; c < cols; ++c) {
-                float& m = tm[(r / kTile) * tilesX + c / kTile];
-                m = std::max(m, vals[static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) +
-                                     static_cast<std::size_t>(c)]);
+            const float* row = vals + static_cast<std::ptrdiff_t>(r) * cols;
+            float* tileRow = tm + (r / kTile) * tilesX;
+            for (int c0 = 0; c0 < cols; c0 += kTile) {
+                float m = tileRow[c0 / kTile];
+                for (int c = c0; c < std::min(c0 + kTile, cols); ++c) m = std::max(m, row[c]);
+                tileRow[c0 / kTile] = m;
             }
         }
     }

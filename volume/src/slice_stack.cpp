@@ -36,6 +36,14 @@ SliceStack stackFromAffine(const std::vector<float>& values,
 namespace detail {
 
 void checkSliceValues(const Slice& s, std::size_t k) {
+    // A branch-free pass first (it vectorises; NaN fails both comparisons), the search for the
+    // offending value only when there is one.
+    const double lo = bounds::kVolumeValue.min, hi = bounds::kVolumeValue.max;
+    static_assert(!bounds::kVolumeValue.minOpen && !bounds::kVolumeValue.maxOpen);
+    bool within = true;
+    for (const float v : s.values)
+        within &= (static_cast<double>(v) >= lo) & (static_cast<double>(v) <= hi);
+    if (within) return;
     const auto bad = std::find_if(s.values.begin(), s.values.end(), [](float v) {
         return !bounds::kVolumeValue.contains(static_cast<double>(v));
     });
