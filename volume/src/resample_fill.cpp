@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <string>
 
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
@@ -229,6 +230,12 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
     const auto by = static_cast<std::size_t>((dims[1] + kLeafDim - 1) / kLeafDim);
     const auto bz = static_cast<std::size_t>((dims[2] + kLeafDim - 1) / kLeafDim);
     const std::size_t blocks = bx * by * bz;
+    if (blocks > std::numeric_limits<std::uint32_t>::max()) {
+        throw ValueError("resample: expected at most " +
+                         std::to_string(std::numeric_limits<std::uint32_t>::max()) +
+                         " leaf blocks of 8^3 voxels, found " + std::to_string(blocks) +
+                         "; choose a larger voxel size or a crop");
+    }
     const auto originOf = [&](std::size_t i) {
         return openvdb::Coord(static_cast<int>((i % bx) * kLeafDim),
                               static_cast<int>((i / bx % by) * kLeafDim),
