@@ -15,7 +15,7 @@ if [ "$#" -gt 0 ]; then
 else
   targets=(test_base test_volume_formats test_volume_raw_data test_volume_reader_checks
            test_volume_checks test_volume_dicom test_volume_dicom_syntax test_volume_dicom_mosaic test_volume_dicom_enhanced test_volume_format_sniff test_volume_phantom test_volume_phantom_tumour test_volume_io
-           test_volume_resample test_volume_resample_rows test_volume_vdb_write test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api
+           test_volume_resample test_volume_resample_rows test_volume_lazy_load test_volume_vdb_write test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api
            test_c_api_fields test_c_api_deformable test_c_api_deformable_c test_c_api_host
            test_c_api_host_c test_c_api_udp_c test_volume_from_memory)
 fi
