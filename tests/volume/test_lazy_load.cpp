@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 #include <malloc.h>
 
+#include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -25,12 +27,20 @@ namespace fs = std::filesystem;
 using palp::test::TempDir;
 using palp::volume::Volume;
 
-/// The generated tilted CT (tests/support/tilted_series.h) written as DICOM into @p dir.
-void writeSeries(const fs::path& dir, int cols, int rows, int slices) {
+/// The generated tilted CT (tests/support/tilted_series.h), turned by @p R, written as DICOM
+/// into @p dir.
+void writeSeries(const fs::path& dir, int cols, int rows, int slices,
+                 const Eigen::Matrix3d& R = Eigen::Matrix3d::Identity()) {
+    palp::volume::SliceStack st =
+        palp::test::tiltedSeries(cols, rows, slices, 0.5e-3, 0.5e-3, 12.0);
+    for (palp::volume::Slice& sl : st.slices) {
+        sl.position = R * sl.position;
+        sl.colStep = R * sl.colStep;
+        sl.rowStep = R * sl.rowStep;
+    }
     palp::volume::DicomWriteOptions wo;
-    wo.gantryTiltDeg = 12;
-    palp::volume::writeDicomSeries(
-        palp::test::tiltedSeries(cols, rows, slices, 0.5e-3, 0.5e-3, 12.0), dir, wo);
+    wo.gantryTiltDeg = R.isIdentity() ? 12 : 0;
+    palp::volume::writeDicomSeries(st, dir, wo);
 }
 
 /// Leaves with different origins, masks or values (every one of a's leaves looked up in b, and
@@ -82,6 +92,25 @@ TEST(LazyLoad, GivesTheGridOfTheWholeDecodedSeries) {
     box.min = Eigen::Vector3d(-1, -1, 0.010);
     box.max = Eigen::Vector3d(1, 1, 0.030);
     opt.resample.crop = box;
+    expectSameVolume(palp::volume::load(in, opt), palp::volume::resample(decoded, opt.resample));
+}
+
+TEST(LazyLoad, GivesTheGridOfAnObliqueSeriesWhoseNormalPointsBackwards) {
+    // The band follows the slice normal, not a lattice axis: the same series turned to an
+    // oblique sagittal whose normal points along -x (the slices' order runs against the
+    // lattice's).
+    TempDir dir;
+    const Eigen::Matrix3d R = (Eigen::AngleAxisd(-M_PI / 2, Eigen::Vector3d::UnitY()) *
+                               Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()))
+                                  .toRotationMatrix();
+    writeSeries(dir.path(), 64, 56, 70, R);
+    const std::vector<fs::path> in{dir.path()};
+    const palp::volume::SliceStack decoded = palp::volume::readDicom(in, {});
+    const Eigen::Vector3d n =
+        decoded.slices.front().colStep.cross(decoded.slices.front().rowStep).normalized();
+    EXPECT_LT(n.x(), -0.5) << "the normal must point backwards along x";
+    palp::volume::LoadOptions opt;
+    opt.resample.voxelSize = 0.6e-3;
     expectSameVolume(palp::volume::load(in, opt), palp::volume::resample(decoded, opt.resample));
 }
 
