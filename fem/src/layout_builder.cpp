@@ -291,13 +291,48 @@ void LayoutBuilder::collectPrimaryDofs(const std::vector<std::uint8_t>& primaryC
     const HexMesh& mesh = mSetup.model.mesh();
     const int nodes = mesh.nodeCount();
     const Eigen::VectorXd& mass = mSetup.model.lumpedMass();
+    std::vector<int> cellIndex(sz(mesh.cellCount()), -1);
     for (int c = 0; c < mesh.cellCount(); ++c) {
         if (!mesh.cellActive(c) || !primaryCell[sz(c)]) continue;
         std::array<int, 8> d{};
         const auto cn = mesh.cellNodes(c);
         for (int a = 0; a < 8; ++a) d[sz(a)] = 3 * cn[sz(a)];
+        cellIndex[sz(c)] = static_cast<int>(L.cellDofs.size());
         L.cellDofs.push_back(d);
         L.cellE.push_back(mesh.cellYoungs()[sz(c)]);
+    }
+    // P nodes by rows: the unit stencil where all eight cells are present with one modulus.
+    const std::array<int, 3> cc = mesh.cellCounts();
+    L.edgeCellStart.push_back(0);
+    for (int n : L.primaryNodes) {
+        const std::array<int, 3> x = mesh.nodeCoords(n);
+        std::array<std::array<int, 2>, 8> cells{};
+        int count = 0;
+        bool uniform = true;
+        for (int corner = 0; corner < 8; ++corner) {
+            // The cell on the low (bit 0) or high side of the node per axis; the node is its
+            // opposite corner there.
+            std::array<int, 3> at{};
+            bool inside = true;
+            for (std::size_t k = 0; k < 3; ++k) {
+                at[k] = x[k] - 1 + ((corner >> k) & 1);
+                inside = inside && at[k] >= 0 && at[k] < cc[k];
+            }
+            if (!inside) continue;
+            const int c = mesh.cell(at[0], at[1], at[2]);
+            if (!mesh.cellActive(c) || cellIndex[sz(c)] < 0) continue;
+            const int index = cellIndex[sz(c)];
+            cells[sz(count++)] = {index, 7 - corner};
+            uniform = uniform && L.cellE[sz(index)] == L.cellE[sz(cells[0][0])];
+        }
+        if (count == 8 && uniform) {
+            L.stencilNodes.push_back(n);
+            L.stencilE.push_back(L.cellE[sz(cells[0][0])]);
+        } else {
+            L.edgeNodes.push_back(n);
+            for (int i = 0; i < count; ++i) L.edgeCells.push_back(cells[sz(i)]);
+            L.edgeCellStart.push_back(static_cast<int>(L.edgeCells.size()));
+        }
     }
     for (int n = 0; n < nodes; ++n) {
         if (!touchesPrimary[sz(n)]) continue;

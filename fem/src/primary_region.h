@@ -100,6 +100,10 @@ class PrimaryRegion {
 
   private:
     void seedWatched(const Layout& from) noexcept;
+    /// mFInt on @p L's P nodes from @p operand (K: the unit element stiffness).
+    void internalForces(
+        const Layout& L, const double* operand,
+        const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept;
     void enterFactored(const Layout& from, const Layout& to) noexcept;
     void setSubstep(const Layout& L, int substeps, double dt) noexcept;
     void addSecondaryLoad(int node, const Eigen::Vector3d& force) noexcept;
@@ -115,6 +119,12 @@ class PrimaryRegion {
     double mTime = 0.0;
     std::uint64_t mUsed = 0;
     Eigen::VectorXd mU, mUPrev, mFInt, mWork, mInvDen, mPrevCoef, mTwoMass, mContactStart;
+    // The lattice's unit stencil (internalForces()): 27 3 x 3 blocks, column-major with columns
+    // padded to 4 rows, neighbour (dx, dy, dz) at 9 (dz + 1) + 3 (dy + 1) + dx + 1, and the
+    // neighbours' node offsets.
+    static constexpr std::size_t kStencilPoints = 27;
+    alignas(16) std::array<double, 12 * kStencilPoints> mStencil{};
+    std::array<int, kStencilPoints> mStencilOffset{};
     // Coupling state, sized to the dof count once so that a layout change never allocates;
     // the first |Gamma| / |border| entries are used.
     std::vector<double> mGPrev, mGCur;  // Gamma values the interpolation runs between

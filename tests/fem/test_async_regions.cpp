@@ -98,6 +98,38 @@ TEST(AsyncRegions, PrimaryCoveringTheMeshAtTickRateEqualsWholeMeshExplicit) {
     }
 }
 
+TEST(AsyncRegions, PrimaryRowsOnAnInclusionAndAVoidEqualWholeMeshExplicit) {
+    // The primary's forces by node rows (the lattice's unit stencil where a node's eight cells
+    // share one modulus, its cells' rows elsewhere) on a body with a stiff inclusion and a void
+    // cell: the same forces as the whole mesh's element loop.
+    const int n = 7;
+    std::vector<double> youngs(static_cast<std::size_t>((n - 1) * (n - 1) * (n - 1)), 5e3);
+    auto cell = [&](int i, int j, int k) {
+        return static_cast<std::size_t>(i + (n - 1) * (j + (n - 1) * k));
+    };
+    for (int k = 2; k <= 3; ++k)
+        for (int j = 2; j <= 3; ++j)
+            for (int i = 1; i <= 2; ++i) youngs[cell(i, j, k)] = 4e4;
+    youngs[cell(4, 4, 3)] = 0.0;
+    Problem p(n, 10.0);
+    p.model = FemModel(HexMesh::fromCells({n, n, n}, 0.005, Eigen::Vector3d::Zero(), youngs),
+                       ElasticMaterial{5e3, 0.45, 1e3, 10.0, 0.0});
+    p.constraints = Constraints(p.model.dofCount());
+    p.constraints.fixNodes(p.model.mesh().faceNodes(BoxFace::zMin));
+    AsyncRegionsOptions o;
+    o.primaryNodes = p.model.mesh().nodeCount();
+    o.secondaryRate = 1000.0;
+    const int ticks = 200;
+    const auto ref = referenceForce(p, ticks, 0.002, 2.0);
+    const auto got = asyncForce(p, o, ticks, 0.002, 2.0);
+    for (int t = 0; t < ticks; ++t) {
+        ASSERT_NEAR(got[static_cast<std::size_t>(t)], ref[static_cast<std::size_t>(t)],
+                    1e-9 * peak(ref))
+            << "tick " << t;
+    }
+    EXPECT_GT(peak(ref), 0.0);
+}
+
 TEST(AsyncRegions, RegionsContainTheSeedsAndBorderCouplesToThem) {
     const Problem p(9, 0.0);
     AsyncRegionsOptions o;
