@@ -264,7 +264,9 @@ void decodeSlice(const Header& h, Slice& slice) {
     const double slope = checkedSlope(file, h.number(kRescaleSlope), h.text(kRescaleSlope));
     const double intercept = h.number(kRescaleIntercept).value_or(0.0);
     gdcm::ImageReader reader;
-    std::vector<char> buffer;
+    // Kept per thread: a series decodes hundreds of same-sized files, and a fresh buffer each
+    // time was allocated, zero-filled and freed for nothing (GDCM writes all of it).
+    thread_local std::vector<char> buffer;
     decodeFile(h, 1, reader, buffer);
     slice.cols = h.integer(kColumns, 0);
     slice.rows = h.integer(kRows, 0);

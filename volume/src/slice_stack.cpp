@@ -38,11 +38,14 @@ namespace detail {
 void checkSliceValues(const Slice& s, std::size_t k) {
     // A branch-free pass first (it vectorises; NaN fails both comparisons), the search for the
     // offending value only when there is one.
-    const double lo = bounds::kVolumeValue.min, hi = bounds::kVolumeValue.max;
+    // The bounds are floats exactly (+-1e9), so comparing floats is comparing doubles.
+    constexpr auto lo = static_cast<float>(bounds::kVolumeValue.min);
+    constexpr auto hi = static_cast<float>(bounds::kVolumeValue.max);
+    static_assert(static_cast<double>(lo) == bounds::kVolumeValue.min &&
+                  static_cast<double>(hi) == bounds::kVolumeValue.max);
     static_assert(!bounds::kVolumeValue.minOpen && !bounds::kVolumeValue.maxOpen);
     bool within = true;
-    for (const float v : s.values)
-        within &= (static_cast<double>(v) >= lo) & (static_cast<double>(v) <= hi);
+    for (const float v : s.values) within &= (v >= lo) & (v <= hi);
     if (within) return;
     const auto bad = std::find_if(s.values.begin(), s.values.end(), [](float v) {
         return !bounds::kVolumeValue.contains(static_cast<double>(v));
