@@ -9,6 +9,27 @@ namespace palp::fem {
 
 namespace {
 std::size_t sz(int v) { return static_cast<std::size_t>(v); }
+
+/// y1 = A x1 and y2 = A x2 in one sweep over A's columns (each read once from memory).
+void dualProduct(const Eigen::MatrixXd& A, Eigen::Ref<const Eigen::VectorXd> x1,
+                 Eigen::Ref<const Eigen::VectorXd> x2, Eigen::Ref<Eigen::VectorXd> y1,
+                 Eigen::Ref<Eigen::VectorXd> y2) noexcept {
+    y1.setZero();
+    y2.setZero();
+    for (Eigen::Index j = 0; j < A.cols(); ++j) {
+        const auto col = A.col(j);
+        y1.noalias() += x1[j] * col;
+        y2.noalias() += x2[j] * col;
+    }
+}
+
+/// Whether @p L's condensed G is factored (gammaBasis capQ) and usable.
+bool factoredGamma(const Layout& L, bool condensed) noexcept {
+    const std::size_t n = L.gammaDofs.size();
+    return condensed && L.gammaBasis.rows() == static_cast<Eigen::Index>(n) && n > 0 &&
+           L.capQ.cols() == static_cast<Eigen::Index>(L.borderDofs.size()) &&
+           L.capQ.rows() == L.gammaBasis.cols();
+}
 }  // namespace
 
 PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
@@ -47,23 +68,7 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
         mTwoMass[d] = 2.0 * mass[d];
     }
     mContactStart = Eigen::VectorXd::Zero(dofs);
-    // The lattice's assembled unit stiffness at a node inside eight cells: block (node, node +
-    // offset) sums K_e's (a, b) blocks over the cells where the node is corner a and its
-    // neighbour corner b (corner bits: x, y, z).
-    const std::array<int, 3> nc = model.mesh().nodeCounts();
-    const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64> Ke(
-        model.unitStiffness());
-    mStencil.fill(0.0);
-    for (int q = 0; q < 27; ++q)
-        mStencilOffset[sz(q)] = (q % 3 - 1) + nc[0] * ((q / 3) % 3 - 1 + nc[1] * (q / 9 - 1));
-    for (int a = 0; a < 8; ++a)
-        for (int b = 0; b < 8; ++b) {
-            const int q = ((b & 1) - (a & 1) + 1) + 3 * (((b >> 1) & 1) - ((a >> 1) & 1) + 1) +
-                          9 * (((b >> 2) & 1) - ((a >> 2) & 1) + 1);
-            for (int r = 0; r < 3; ++r)
-                for (int col = 0; col < 3; ++col)
-                    mStencil[sz(12 * q + 4 * col + r)] += Ke(3 * a + r, 3 * b + col);
-        }
+    buildStencil();
     mGPrev.assign(sz(dofs), 0.0);
     mGCur = mGPrev;
     mBPrev = Eigen::VectorXd::Zero(dofs);
@@ -121,10 +126,7 @@ void PrimaryRegion::restartGammaFrom(const Layout& L, const Eigen::VectorXd& x) 
 void PrimaryRegion::setGamma(const Layout& L, double* target, double t, bool product) noexcept {
     const double frac = mSetup.periodFraction(t, mGammaStart);
     const std::size_t n = L.gammaDofs.size();
-    const bool factored = mSetup.options.condensed &&
-                          L.gammaBasis.rows() == static_cast<Eigen::Index>(n) && n > 0 &&
-                          L.capQ.cols() == static_cast<Eigen::Index>(L.borderDofs.size()) &&
-                          L.capQ.rows() == L.gammaBasis.cols();
+    const bool factored = factoredGamma(L, mSetup.options.condensed);
     if (factored || L.response.nonZeros() > 0) {
         const std::size_t nb = L.borderDofs.size();
         if (product) {
@@ -179,9 +181,33 @@ void PrimaryRegion::acceptSolution(const Layout& L, const double* gamma, const d
 }
 
 void PrimaryRegion::showBorder(const Layout& from) noexcept {
-    // The border as the primary shows it now (current and previous substep).
-    setGamma(from, mU.data(), mTime, true);
-    setGamma(from, mUPrev.data(), mTime - mDtSub, true);
+    // The border as the primary shows it now (current and previous substep); a factored G
+    // takes both products in one sweep over each factor.
+    if (factoredGamma(from, mSetup.options.condensed)) {
+        const Eigen::Index n = static_cast<Eigen::Index>(from.gammaDofs.size());
+        const Eigen::Index nb = static_cast<Eigen::Index>(from.borderDofs.size());
+        const Eigen::Index nj = from.capQ.rows();
+        const double f = shownFraction();
+        const double fPrev = mSetup.periodFraction(mTime - mDtSub, mGammaStart);
+        for (Eigen::Index i = 0; i < nb; ++i) {
+            const int d = from.borderDofs[sz(static_cast<int>(i))];
+            mBNow[i] = mU[d] - (mBPrev[i] + f * (mBCur[i] - mBPrev[i]));
+            mEntryWork[i] = mUPrev[d] - (mBPrev[i] + fPrev * (mBCur[i] - mBPrev[i]));
+        }
+        dualProduct(from.capQ, mBNow.head(nb), mEntryWork.head(nb), mCapZ.head(nj),
+                    mCapZ.segment(nj, nj));
+        dualProduct(from.gammaBasis, mCapZ.head(nj), mCapZ.segment(nj, nj), mWork.head(n),
+                    mGFix.head(n));
+        for (Eigen::Index i = 0; i < n; ++i) {
+            const std::size_t k = sz(static_cast<int>(i));
+            const int d = from.gammaDofs[k];
+            mU[d] = mGPrev[k] + f * (mGCur[k] - mGPrev[k]) + mWork[i];
+            mUPrev[d] = mGPrev[k] + fPrev * (mGCur[k] - mGPrev[k]) + mGFix[i];
+        }
+    } else {
+        setGamma(from, mU.data(), mTime, true);
+        setGamma(from, mUPrev.data(), mTime - mDtSub, true);
+    }
     seedWatched(from);
 }
 
@@ -229,31 +255,22 @@ void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
 
 void PrimaryRegion::enterFactored(const Layout& from, const Layout& to) noexcept {
     // E = entryBasis entryQ: the border's motion since the prepared values through Q (|J|
-    // values each for the position and the previous substep), then one sweep over the basis's
-    // columns for both (each column read once; mWork and mEntryWork: work vectors).
+    // values each for the position and the previous substep), then the basis, each factor
+    // swept once for both (mWork and mEntryWork: work vectors).
     const std::size_t nb = from.borderDofs.size();
     const Eigen::Index nj = to.entryQ.rows();
     const Eigen::Index ne = static_cast<Eigen::Index>(to.entryDofs.size());
-    const auto b = mBNow.head(static_cast<Eigen::Index>(nb));
-    auto z = mCapZ.head(nj);
-    auto zPrev = mCapZ.segment(nj, nj);
-    for (std::size_t i = 0; i < nb; ++i)
-        mBNow[static_cast<Eigen::Index>(i)] =
-            mU[from.borderDofs[i]] - to.entryBorder[static_cast<Eigen::Index>(i)];
-    z.noalias() = to.entryQ * b;
-    for (std::size_t i = 0; i < nb; ++i)
-        mBNow[static_cast<Eigen::Index>(i)] =
-            mUPrev[from.borderDofs[i]] - to.entryBorder[static_cast<Eigen::Index>(i)];
-    zPrev.noalias() = to.entryQ * b;
+    const Eigen::Index n = static_cast<Eigen::Index>(nb);
+    for (std::size_t i = 0; i < nb; ++i) {
+        const Eigen::Index k = static_cast<Eigen::Index>(i);
+        mBNow[k] = mU[from.borderDofs[i]] - to.entryBorder[k];
+        mEntryWork[k] = mUPrev[from.borderDofs[i]] - to.entryBorder[k];
+    }
+    dualProduct(to.entryQ, mBNow.head(n), mEntryWork.head(n), mCapZ.head(nj),
+                mCapZ.segment(nj, nj));
     auto w = mWork.head(ne);
     auto wPrev = mEntryWork.head(ne);
-    w.setZero();
-    wPrev.setZero();
-    for (Eigen::Index j = 0; j < nj; ++j) {
-        const auto col = to.entryBasis.col(j);
-        w.noalias() += z[j] * col;
-        wPrev.noalias() += zPrev[j] * col;
-    }
+    dualProduct(to.entryBasis, mCapZ.head(nj), mCapZ.segment(nj, nj), w, wPrev);
     for (Eigen::Index i = 0; i < ne; ++i) {
         const int d = to.entryDofs[sz(static_cast<int>(i))];
         mU[d] = to.entryValues[sz(static_cast<int>(i))] + w[i];
@@ -538,39 +555,6 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
     for (std::size_t i = 0; i < contactDofs.size(); ++i)
         force[static_cast<Eigen::Index>(i % 3)] += mFInt[contactDofs[i]];
     if (!mSetup.forceDrive) result.contactForce = finite ? force : Eigen::Vector3d::Zero();
-}
-
-void PrimaryRegion::internalForces(
-    const Layout& L, const double* operand,
-    const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept {
-    // Rows of K u on P nodes (the only rows read): the unit stencil scaled by the modulus
-    // where all eight cells are present with one modulus, the node's cells' rows elsewhere.
-    for (std::size_t i = 0; i < L.stencilNodes.size(); ++i) {
-        const int n = L.stencilNodes[i];
-        // Columns padded to 4 rows: whole packets.
-        Eigen::Vector4d f = Eigen::Vector4d::Zero();
-        for (std::size_t o = 0; o < kStencilPoints; ++o) {
-            const double* u = operand + 3 * (n + mStencilOffset[o]);
-            const double* s = mStencil.data() + 12 * o;
-            f.noalias() += Eigen::Map<const Eigen::Vector4d, Eigen::Aligned16>(s) * u[0];
-            f.noalias() += Eigen::Map<const Eigen::Vector4d, Eigen::Aligned16>(s + 4) * u[1];
-            f.noalias() += Eigen::Map<const Eigen::Vector4d, Eigen::Aligned16>(s + 8) * u[2];
-        }
-        mFInt.segment<3>(3 * n) = L.stencilE[i] * f.head<3>();
-    }
-    for (std::size_t i = 0; i < L.edgeNodes.size(); ++i) {
-        Eigen::Vector3d f = Eigen::Vector3d::Zero();
-        for (int e = L.edgeCellStart[i]; e < L.edgeCellStart[i + 1]; ++e) {
-            const std::array<int, 2>& cell = L.edgeCells[sz(e)];
-            const std::array<int, 8>& nd = L.cellDofs[sz(cell[0])];
-            Eigen::Matrix<double, 24, 1> ue;
-            for (int a = 0; a < 8; ++a) {
-                for (int k = 0; k < 3; ++k) ue[3 * a + k] = operand[nd[sz(a)] + k];
-            }
-            f.noalias() += L.cellE[sz(cell[0])] * (K.middleRows<3>(3 * cell[1]) * ue);
-        }
-        mFInt.segment<3>(3 * L.edgeNodes[i]) = f;
-    }
 }
 
 void PrimaryRegion::takeLoads(const Layout& L, std::span<const NodalLoad> loads,

@@ -100,6 +100,8 @@ class PrimaryRegion {
 
   private:
     void seedWatched(const Layout& from) noexcept;
+    /// The lattice's unit stencil (mStencil, mStencilOffset), at construction.
+    void buildStencil() noexcept;
     /// mFInt on @p L's P nodes from @p operand (K: the unit element stiffness).
     void internalForces(
         const Layout& L, const double* operand,
