@@ -8,13 +8,13 @@
 #include <cmath>
 #include <sstream>
 
+#include "index_cast.h"
 #include "palp/base/error.h"
 
 namespace palp::fem {
 
 namespace {
 
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
 using Triplet = Eigen::Triplet<double, int>;
 
 double secondsSince(std::chrono::steady_clock::time_point t) {

@@ -20,16 +20,13 @@
 
 #include "async_layout.h"
 #include "async_setup.h"
+#include "index_cast.h"
 #include "layout_builder.h"
 #include "primary_region.h"
 #include "secondary_region.h"
 #include "secondary_thread.h"
 
 namespace palp::fem {
-
-namespace {
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
-}  // namespace
 
 /// @par Threading  The servo thread owns everything here but the secondary's parts: `secondary`
 /// and the secondary work state of the layouts belong to the secondary thread in threaded mode

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <string>
 
+#include "index_cast.h"
 #include "palp/base/bounds.h"
 #include "palp/base/validate.h"
 #include "palp/fem/explicit_solver.h"
@@ -11,8 +12,6 @@
 namespace palp::fem {
 
 namespace {
-
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
 
 [[noreturn]] void fail(const std::string& what, const std::string& expected, double found) {
     throwExpected("async regions " + what, expected, formatValue(found));

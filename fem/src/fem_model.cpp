@@ -9,6 +9,7 @@
 #include <sstream>
 #include <string>
 
+#include "index_cast.h"
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
@@ -17,8 +18,6 @@
 namespace palp::fem {
 
 namespace {
-
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
 
 /// Eight doubles (one AVX-512 register, two AVX2 ones, four SSE2 ones): GCC lowers the vector
 /// extension to whatever the clone being compiled supports.

@@ -5,14 +5,13 @@
 #include <sstream>
 #include <string>
 
+#include "index_cast.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 
 namespace palp::fem {
 
 namespace {
-
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
 
 void checkCounts(const std::array<int, 3>& counts) {
     for (int a = 0; a < 3; ++a) {

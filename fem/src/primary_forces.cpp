@@ -1,13 +1,10 @@
 // PrimaryRegion: the primary's internal forces by P-node rows (docs/algorithms.md section 6,
 // "Primary"): the lattice's unit stencil where a node's eight cells share one modulus, the
 // node's cells' rows elsewhere.
+#include "index_cast.h"
 #include "primary_region.h"
 
 namespace palp::fem {
-
-namespace {
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
-}  // namespace
 
 void PrimaryRegion::buildStencil() noexcept {
     // The lattice's assembled unit stiffness at a node inside eight cells: block (node, node +

@@ -5,11 +5,11 @@
 #include <cmath>
 #include <limits>
 
+#include "index_cast.h"
+
 namespace palp::fem {
 
 namespace {
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
-
 /// y1 = A x1 and y2 = A x2 in one sweep over A's columns (each read once from memory).
 void dualProduct(const Eigen::MatrixXd& A, Eigen::Ref<const Eigen::VectorXd> x1,
                  Eigen::Ref<const Eigen::VectorXd> x2, Eigen::Ref<Eigen::VectorXd> y1,

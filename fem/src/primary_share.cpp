@@ -4,13 +4,10 @@
 #include <algorithm>
 
 #include "async_capacitance.h"
+#include "index_cast.h"
 #include "primary_region.h"
 
 namespace palp::fem {
-
-namespace {
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
-}  // namespace
 
 bool PrimaryRegion::shareCompliance(const Layout& L, const CouplingSpring& spring,
                                     Eigen::Matrix3d& C) noexcept {

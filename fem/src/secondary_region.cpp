@@ -3,12 +3,11 @@
 #include <ctime>
 
 #include "async_capacitance.h"
+#include "index_cast.h"
 
 namespace palp::fem {
 
 namespace {
-
-std::size_t sz(int v) { return static_cast<std::size_t>(v); }
 
 double threadCpuSeconds() noexcept {
     timespec cpu{};
