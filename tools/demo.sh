@@ -9,7 +9,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
-cmake --preset release
+unity=()  # a fresh build directory compiles the modules as unity batches, as tools/test.sh does
+[ -f build/release/CMakeCache.txt ] || unity=(-DPALP_UNITY_BUILD=ON)
+cmake --preset release "${unity[@]}"
 cmake --build --preset release --target palp
 palp=build/release/tools/palp
 out="${PALP_DEMO_DIR:-out/demo}"
