@@ -8,6 +8,8 @@
 #include <random>
 #include <vector>
 
+#include "memory_use.h"
+
 namespace palp::test {
 
 namespace fs = std::filesystem;
@@ -55,6 +57,19 @@ RunResult runCommand(const std::string& commandLine) {
 fs::path palpTool() {
     const char* bin = std::getenv("PALP_BIN_DIR");
     return fs::path(bin ? bin : PALP_DEFAULT_BIN_DIR) / "tools" / "palp";
+}
+
+std::pair<double, double> rssAndPeak() {
+    std::ifstream in("/proc/self/status");
+    std::string key;
+    double rss = 0, hwm = 0;
+    while (in >> key) {
+        double kb = 0;
+        if (key == "VmRSS:" && in >> kb) rss = kb * 1024;
+        if (key == "VmHWM:" && in >> kb) hwm = kb * 1024;
+        in.ignore(1 << 20, '\n');
+    }
+    return {rss, hwm};
 }
 
 bool haveProgram(const std::string& program) {

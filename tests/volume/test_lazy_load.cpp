@@ -14,6 +14,7 @@
 #include <fstream>
 #include <string>
 
+#include "memory_use.h"
 #include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
@@ -135,20 +136,6 @@ TEST(LazyLoad, RefusesADamagedFileOutsideTheCrop) {
                                                    {damaged.string(), "truncated"});
 }
 
-/// Resident set size now and its peak since the last reset (bytes), from /proc/self/status.
-std::pair<double, double> rssAndPeak() {
-    std::ifstream in("/proc/self/status");
-    std::string key;
-    double rss = 0, hwm = 0;
-    while (in >> key) {
-        double kb = 0;
-        if (key == "VmRSS:" && in >> kb) rss = kb * 1024;
-        if (key == "VmHWM:" && in >> kb) hwm = kb * 1024;
-        in.ignore(1 << 20, '\n');
-    }
-    return {rss, hwm};
-}
-
 TEST(LazyLoad, PeakMemoryGrowsWithTheGridNotWithTheSeries) {
     // The scale test, small: 256 x 256 tilted slices, 80 and then 320 of them. Holding
     // the decoded series as float (21 and 84 MB) beside the grid would add 63 MB from one to
@@ -168,10 +155,10 @@ TEST(LazyLoad, PeakMemoryGrowsWithTheGridNotWithTheSeries) {
         writeSeries(dir.path(), 256, 256, slices);
         malloc_trim(0);  // the generated series is gone: its pages must not serve load()
         std::ofstream("/proc/self/clear_refs") << "5";  // resets VmHWM to the current RSS
-        const auto [before, peak0] = rssAndPeak();
+        const auto [before, peak0] = palp::test::rssAndPeak();
         if (std::abs(peak0 - before) > 4e6) GTEST_SKIP() << "this kernel cannot reset VmHWM";
         const Volume v = palp::volume::load({dir.path()});
-        const auto [after, peak] = rssAndPeak();
+        const auto [after, peak] = palp::test::rssAndPeak();
         grids[i] = static_cast<double>(v.grid->memUsage());
         peaks[i] = peak - before;
         std::printf(

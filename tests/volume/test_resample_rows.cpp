@@ -9,6 +9,7 @@
 #include <fstream>
 #include <string>
 
+#include "memory_use.h"
 #include "palp/volume/resample.h"
 #include "resample_detail.h"
 #include "tilted_series.h"
@@ -138,20 +139,6 @@ TEST(ResampleRows, RowKernelGivesTheReferenceVoxelsOnTiltedSeriesInEveryOrientat
     }
 }
 
-/// Resident set size now and its peak since the last reset (bytes), from /proc/self/status.
-std::pair<double, double> rssAndPeak() {
-    std::ifstream in("/proc/self/status");
-    std::string key;
-    double rss = 0, hwm = 0;
-    while (in >> key) {
-        double kb = 0;
-        if (key == "VmRSS:" && in >> kb) rss = kb * 1024;
-        if (key == "VmHWM:" && in >> kb) hwm = kb * 1024;
-        in.ignore(1 << 20, '\n');
-    }
-    return {rss, hwm};
-}
-
 TEST(ResampleRows, PeakMemoryOfALargerSeriesStaysWithinHalfTheGridAboveIt) {
     // 320 x 320 x 200 tilted slices at 0.5 mm (82 MB of input): a ~23 M voxel lattice, ~7 M of
     // them active. Resampling may hold the output grid and at most half of it again (the
@@ -161,10 +148,10 @@ TEST(ResampleRows, PeakMemoryOfALargerSeriesStaysWithinHalfTheGridAboveIt) {
 #endif
     const SliceStack st = palp::test::tiltedSeries(320, 320, 200, 0.5e-3, 0.5e-3, 12.0);
     std::ofstream("/proc/self/clear_refs") << "5";  // resets VmHWM to the current RSS
-    const auto [before, peak0] = rssAndPeak();
+    const auto [before, peak0] = palp::test::rssAndPeak();
     if (std::abs(peak0 - before) > 4e6) GTEST_SKIP() << "this kernel cannot reset VmHWM";
     const Volume v = palp::volume::resample(st);
-    const auto [after, peak] = rssAndPeak();
+    const auto [after, peak] = palp::test::rssAndPeak();
     const double grid = static_cast<double>(v.grid->memUsage());
     EXPECT_GT(v.grid->activeVoxelCount(), 5'000'000u);
     EXPECT_GT(after - before, 0.8 * grid) << "the grid lives in this process";
