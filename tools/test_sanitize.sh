@@ -19,12 +19,18 @@ else
            test_c_api_fields test_c_api_deformable test_c_api_deformable_c test_c_api_host
            test_c_api_host_c test_c_api_udp_c test_volume_from_memory)
 fi
+# PALP_SANITIZE_STEP=build only builds (.ci/run builds in the background while the TSan tests
+# run), =run only runs an existing build; both by default.
+step="${PALP_SANITIZE_STEP:-all}"
 # Without the palp tool: the library and the tests are what is instrumented here (the tool's own
 # checks run in tools/test.sh); the few volume tests that run `palp convert`/`palp phantom` use
 # the release tool that tools/test.sh has built (PALP_BIN_DIR).
-cmake --preset asan -DPALP_BUILD_TOOLS=OFF >/dev/null
-# Two jobs: CI has two cores.
-cmake --build --preset asan -j 2 --target "${targets[@]}"
+if [ "$step" != run ]; then
+  cmake --preset asan -DPALP_BUILD_TOOLS=OFF >/dev/null
+  # Two jobs: CI has two cores.
+  cmake --build --preset asan -j 2 --target "${targets[@]}"
+fi
+[ "$step" = build ] && exit 0
 export PALP_BIN_DIR="${PALP_BIN_DIR:-$PWD/build/release}"
 if [ ! -x "$PALP_BIN_DIR/tools/palp" ]; then
   echo "test_sanitize.sh: no $PALP_BIN_DIR/tools/palp; run tools/test.sh (the release build) first"
@@ -34,24 +40,36 @@ fi
 # detect_leaks: a leak is a finding too.
 export ASAN_OPTIONS="halt_on_error=1:abort_on_error=0:detect_leaks=1:strict_string_checks=1:detect_stack_use_after_return=1"
 export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
-failed=()
-for t in "${targets[@]}"; do
+# Two executables at a time (CI has two cores; most of these tests use one), each into its own
+# log, printed whole when it fails. The release suite (ctest -j 2) already runs them side by side.
+logs="build/asan/sanitize-logs"
+rm -rf "$logs"
+mkdir -p "$logs"
+run_one() {
+  local t="$1" exe start
   exe=$(find build/asan/tests -type f -name "$t" -perm -u+x | head -n 1)
   if [ -z "$exe" ]; then
-    echo "test_sanitize.sh: no executable $t under build/asan/tests"
-    failed+=("$t")
-    continue
+    echo "== asan: no executable $t under build/asan/tests"
+    touch "$logs/$t.failed"
+    return 0
   fi
-  echo "== asan: $t"
   start=$(date +%s)
-  args=(--gtest_brief=1)
+  local args=(--gtest_brief=1)
   case "$t" in test_c_api | test_c_api_deformable_c | test_c_api_host_c | test_c_api_udp_c) args=() ;; esac  # plain C
-  if "$exe" "${args[@]}"; then
+  if "$exe" "${args[@]}" >"$logs/$t.log" 2>&1; then
     echo "== asan: $t passed, 0 reports ($(($(date +%s) - start)) s)"
   else
-    echo "== asan: $t FAILED (exit $?: a test failed or a sanitizer reported)"
-    failed+=("$t")
+    echo "== asan: $t FAILED (exit $?: a test failed or a sanitizer reported; log follows)"
+    cat "$logs/$t.log"
+    touch "$logs/$t.failed"
   fi
+}
+export -f run_one
+export logs
+printf '%s\n' "${targets[@]}" | xargs -P 2 -I{} bash -c 'run_one "$1"' _ {}
+failed=()
+for t in "${targets[@]}"; do
+  [ -e "$logs/$t.failed" ] && failed+=("$t")
 done
 if [ "${#failed[@]}" -gt 0 ]; then
   echo "test_sanitize.sh: failed under AddressSanitizer+UBSan: ${failed[*]}"
