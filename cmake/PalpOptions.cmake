@@ -33,11 +33,19 @@ function(palp_add_module name)
     $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>)
   target_link_libraries(palp_${name} PUBLIC ${ARG_PUBLIC_DEPS} PRIVATE palp::options ${ARG_PRIVATE_DEPS})
   set_target_properties(palp_${name} PROPERTIES POSITION_INDEPENDENT_CODE ON)
+  palp_unity(palp_${name})
+endfunction()
+
+# With PALP_UNITY_BUILD, compiles a target's sources in batches of PALP_UNITY_BATCH_SIZE (the
+# library modules, the palp tool, the Python extension): each batch parses OpenVDB's and Eigen's
+# headers once. A batch needs one definition per name across its sources, anonymous namespaces
+# included.
+function(palp_unity target)
   if(PALP_UNITY_BUILD)
-    set_target_properties(palp_${name} PROPERTIES UNITY_BUILD ON
-                                                  UNITY_BUILD_BATCH_SIZE ${PALP_UNITY_BATCH_SIZE})
+    set_target_properties(${target} PROPERTIES UNITY_BUILD ON
+                                               UNITY_BUILD_BATCH_SIZE ${PALP_UNITY_BATCH_SIZE})
     # A batch includes the sources as headers, so a member whose type lives in a source's
     # anonymous namespace draws GCC's header-only warning; it is no hazard within one file.
-    target_compile_options(palp_${name} PRIVATE -Wno-subobject-linkage)
+    target_compile_options(${target} PRIVATE -Wno-subobject-linkage)
   endif()
 endfunction()
