@@ -102,8 +102,9 @@ void bindVolume(py::module_& m) {
         .def_property_readonly(
             "background", [](const Volume& v) { return v.grid->background(); },
             "value of inactive voxels (-1000 HU for CT)")
-        .def("save", &saveVolume, py::arg("path"), py::arg("compression") = "blosc",
-             "Writes a compressed .vdb (grid 'scan', metadata); blosc, zip or active-mask.")
+        .def("save", &saveVolume, py::arg("path"), py::arg("compression") = "active-mask",
+             "Writes a .vdb (grid 'scan', metadata); active-mask (active values as plain "
+             "floats), blosc (~15 % smaller for CT, ~3x the write time) or zip.")
         .def("__repr__", [](const Volume& v) {
             return "<palp.Volume " + std::to_string(v.grid->activeVoxelCount()) +
                    " active voxels, " + std::to_string(v.voxelSize() * 1e3) + " mm, '" +
@@ -128,8 +129,9 @@ void bindVolume(py::module_& m) {
         "to isotropic voxels of voxel_size metres (default: the finest input spacing). Raises "
         "palp.IoError / palp.FormatError / palp.ValueError naming the file.");
 
-    m.def("save", &saveVolume, py::arg("volume"), py::arg("path"), py::arg("compression") = "blosc",
-          "Writes @p volume as a compressed .vdb.");
+    m.def("save", &saveVolume, py::arg("volume"), py::arg("path"),
+          py::arg("compression") = "active-mask",
+          "Writes @p volume as a .vdb (compression as Volume.save).");
 
     m.def(
         "convert",
@@ -148,7 +150,7 @@ void bindVolume(py::module_& m) {
         },
         py::arg("inputs"), py::arg("output"), py::kw_only(), py::arg("voxel_size") = py::none(),
         py::arg("background_threshold") = py::none(), py::arg("series_uid") = py::none(),
-        py::arg("time_point") = py::none(), py::arg("compression") = "blosc",
+        py::arg("time_point") = py::none(), py::arg("compression") = "active-mask",
         "load() then save() to a .vdb, as `palp convert` does; returns the volume.");
 
     m.def(

@@ -57,7 +57,7 @@ Command addConvert(CLI::App& root) {
         int volume = -1;
         double background = std::numeric_limits<double>::quiet_NaN();
         std::vector<double> cropMm;
-        std::string compression = "blosc";
+        std::string compression = "mask";
     };
     auto args = std::make_shared<Args>();
     CLI::App* app = root.add_subcommand(
@@ -80,7 +80,9 @@ Command addConvert(CLI::App& root) {
         ->expected(6)
         ->check(within(bounds::kPosition, kMm));
     app->add_option("--compression", args->compression,
-                    "Leaf compression: blosc (default), zip or mask")
+                    "Leaf values: mask (default: active values as plain floats, inactive "
+                    "dropped), blosc (LZ4: ~15 % smaller for CT, ~3x the write time) or zip "
+                    "(~9 % smaller, ~20x the write time)")
         ->check(CLI::IsMember({"blosc", "zip", "mask"}));
     return {
         app, [args]() -> int {
