@@ -21,6 +21,49 @@ double secondsSince(std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
 
+/// `I_rows W(., J)` factored into @p out (interp_basis.h): the zone positions the rows
+/// interpolate from (T, first-use order), the block W(T, J) and the rows' weights on T.
+/// @p rows(r, f) calls f(unknown, weight) for each entry of row r. false (out cleared) when a
+/// row interpolates from outside the zone.
+template <class Rows>
+bool zoneBasis(Eigen::Index rowCount, Rows&& rows, const std::vector<int>& capJ,
+               const std::vector<int>& zonePos, const Eigen::MatrixXd& W, InterpBasis& out) {
+    out.clear();
+    std::vector<int> cols;  // T, as zone positions
+    std::vector<int> slot(sz(static_cast<int>(W.rows())), -1);
+    bool inside = true;
+    out.start.reserve(sz(static_cast<int>(rowCount)) + 1);
+    for (Eigen::Index r = 0; r < rowCount && inside; ++r) {
+        rows(r, [&](int u, double w) {
+            const int p = zonePos[sz(u)];
+            if (p < 0) {
+                inside = false;
+                return;
+            }
+            if (slot[sz(p)] < 0) {
+                slot[sz(p)] = static_cast<int>(cols.size());
+                cols.push_back(p);
+            }
+            out.col.push_back(slot[sz(p)]);
+            out.weight.push_back(w);
+        });
+        out.start.push_back(static_cast<int>(out.col.size()));
+    }
+    if (!inside) {
+        out.clear();
+        return false;
+    }
+    const Eigen::Index nj = static_cast<Eigen::Index>(capJ.size());
+    out.pos = cols;
+    out.block.resize(static_cast<Eigen::Index>(cols.size()), nj);
+    for (Eigen::Index j = 0; j < nj; ++j) {
+        const int pj = zonePos[sz(capJ[sz(static_cast<int>(j))])];
+        for (std::size_t i = 0; i < cols.size(); ++i)
+            out.block(static_cast<Eigen::Index>(i), j) = W(cols[i], pj);
+    }
+    return true;
+}
+
 }  // namespace
 
 /// The raw CHOLMOD factor (ordered with the zone last) and the solve's reusable workspaces.
@@ -317,33 +360,33 @@ bool GlobalSecondary::borderFieldAt(const Layout& L, const std::vector<int>& dof
     return true;
 }
 
+bool GlobalSecondary::zoneRowsAt(const std::vector<int>& dofs, const std::vector<int>& capJ,
+                                 InterpBasis& basis) const {
+    return zoneBasis(
+        static_cast<Eigen::Index>(dofs.size()),
+        [&](Eigen::Index r, auto&& f) {
+            for (RowSparseMatrix::InnerIterator it(mInterp, dofs[sz(static_cast<int>(r))]); it;
+                 ++it)
+                f(static_cast<int>(it.col()), it.value());
+        },
+        capJ, mZonePos, mW, basis);
+}
+
 bool GlobalSecondary::borderResponseAt(const Layout& L, const std::vector<int>& dofs,
-                                       Eigen::MatrixXd& basis, Eigen::MatrixXd& q) const {
-    // x = A^-1 E_J Q u_B: the rows of I W_(.,J) at the dofs, times Q.
-    basis.resize(0, 0);
+                                       InterpBasis& basis, Eigen::MatrixXd& q) const {
+    // x = A^-1 E_J Q u_B: the rows of I W_(.,J) at the dofs (factored), times Q.
+    basis.clear();
     q.resize(0, 0);
-    for (int d : dofs)
-        for (RowSparseMatrix::InnerIterator it(mInterp, d); it; ++it)
-            if (mZonePos[sz(static_cast<int>(it.col()))] < 0) return false;
     const Eigen::Index nj = static_cast<Eigen::Index>(L.capJ.size());
     const Eigen::Index nb = static_cast<Eigen::Index>(L.borderDofs.size());
-    if (L.capQ.rows() != nj || L.capQ.cols() != nb || nj == 0) {
-        // No response (no border coupling): a zero-rank factorisation.
-        basis = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(dofs.size()), 0);
+    const bool coupled = L.capQ.rows() == nj && L.capQ.cols() == nb && nj > 0;
+    // No response (no border coupling): a zero-rank factorisation.
+    if (!zoneRowsAt(dofs, coupled ? L.capJ : std::vector<int>{}, basis)) return false;
+    if (coupled) {
+        q = L.capQ;
+    } else {
         q = Eigen::MatrixXd::Zero(0, nb);
-        return true;
     }
-    Eigen::MatrixXd& rows = basis;
-    rows = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(dofs.size()), nj);
-    for (std::size_t i = 0; i < dofs.size(); ++i) {
-        for (RowSparseMatrix::InnerIterator it(mInterp, dofs[i]); it; ++it) {
-            const int pu = mZonePos[sz(static_cast<int>(it.col()))];
-            for (Eigen::Index j = 0; j < nj; ++j)
-                rows(static_cast<Eigen::Index>(i), j) +=
-                    it.value() * mW(pu, mZonePos[sz(L.capJ[sz(static_cast<int>(j))])]);
-        }
-    }
-    q = L.capQ;
     return true;
 }
 
@@ -435,34 +478,15 @@ bool GlobalSecondary::prepareLayout(Layout& L, const std::vector<int>& primaryCo
     Eigen::MatrixXd kcbJ = Eigen::MatrixXd::Zero(nj, nb);
     for (const Triplet& t : kbt) kcbJ(posInJ[sz(t.row())], t.col()) = t.value();
     L.capQ = -mSetup.sK * (h * kcbJ);
-    auto basisRows = [&](const RowSparseMatrix& rowsInterp, Eigen::MatrixXd& out) {
-        // Rows of rowsInterp times W(., J) (the response is that times Q); false when one
-        // leaves the zone.
-        std::vector<int> cols;
-        std::vector<int> slot(sz(n), -1);
-        for (int r = 0; r < rowsInterp.rows(); ++r)
-            for (RowSparseMatrix::InnerIterator it(rowsInterp, r); it; ++it) {
-                const int u = static_cast<int>(it.col());
-                if (mZonePos[sz(u)] < 0) return false;
-                if (slot[sz(u)] < 0) {
-                    slot[sz(u)] = static_cast<int>(cols.size());
-                    cols.push_back(u);
-                }
-            }
-        Eigen::MatrixXd wuj(static_cast<Eigen::Index>(cols.size()), nj);
-        for (int j = 0; j < nj; ++j) {
-            const int pj = mZonePos[sz(L.capJ[sz(j)])];
-            for (std::size_t i = 0; i < cols.size(); ++i)
-                wuj(static_cast<Eigen::Index>(i), j) = mW(mZonePos[sz(cols[i])], pj);
-        }
-        out = Eigen::MatrixXd::Zero(rowsInterp.rows(), nj);
-        for (int r = 0; r < rowsInterp.rows(); ++r)
-            for (RowSparseMatrix::InnerIterator it(rowsInterp, r); it; ++it)
-                out.row(r) += it.value() * wuj.row(slot[sz(static_cast<int>(it.col()))]);
-        return true;
-    };
-    Eigen::MatrixXd basis;
-    if (!basisRows(L.interpGamma, basis)) return false;
+    InterpBasis basis;
+    const bool inside = zoneBasis(
+        L.interpGamma.rows(),
+        [&](Eigen::Index r, auto&& f) {
+            for (RowSparseMatrix::InnerIterator it(L.interpGamma, r); it; ++it)
+                f(static_cast<int>(it.col()), it.value());
+        },
+        L.capJ, mZonePos, mW, basis);
+    if (!inside) return false;
     const bool direct = !o.secondaryFullField;
     if (direct) {
         // Gamma's response G = basis Q stays factored (secondaryRegion's solveDirect): rank
@@ -476,8 +500,9 @@ bool GlobalSecondary::prepareLayout(Layout& L, const std::vector<int>& primaryCo
     }
     // The condensed G = basis Q, kept factored and whole (no entry dropped): G has rank |J|.
     if (direct || o.condensed) {
-        L.gammaBasis = std::move(basis);
         L.capZ = Eigen::VectorXd::Zero(nj);
+        L.capY = Eigen::VectorXd::Zero(basis.block.rows());
+        L.gammaBasis = std::move(basis);
     }
     return true;
 }

@@ -103,12 +103,18 @@ class GlobalSecondary {
     /// state.
     bool borderFieldAt(const Layout& L, const std::vector<int>& dofs,
                        std::vector<double>& values) const;
+    /// `I_dofs W(., J)` at fine dofs @p dofs for the unknowns @p capJ, factored into @p basis
+    /// (interp_basis.h). @return false (basis cleared) when one of the dofs interpolates from
+    /// outside the zone. Read-only, any thread.
+    bool zoneRowsAt(const std::vector<int>& dofs, const std::vector<int>& capJ,
+                    InterpBasis& basis) const;
     /// The response of @p L's field at fine dofs @p dofs (secondary nodes) to its border,
     /// `d x_dofs / d u_B = I_dofs W_(.,J) Q` (|dofs| x |border|), factored: @p basis =
-    /// `I_dofs W_(.,J)` (|dofs| x |J|) and @p q = Q (|J| x |border|; |J| may be 0). @return
+    /// `I_dofs W_(.,J)` (|dofs| x |J|, itself factored, interp_basis.h) and @p q = Q (|J| x
+    /// |border|; |J| may be 0). @return
     /// false (both empty) when one of them interpolates from outside the zone. Read-only, any
     /// thread.
-    bool borderResponseAt(const Layout& L, const std::vector<int>& dofs, Eigen::MatrixXd& basis,
+    bool borderResponseAt(const Layout& L, const std::vector<int>& dofs, InterpBasis& basis,
                           Eigen::MatrixXd& q) const;
 
   private:

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "interp_basis.h"
 #include "palp/base/nothrow_slot.h"
 #include "palp/base/triple_buffer.h"
 #include "palp/fem/fem_model.h"
@@ -84,9 +85,17 @@ struct Layout {
     Eigen::MatrixXd entryResponse;
     Eigen::VectorXd entryBorder;
     // Capacitance layouts: the same response factored, E = entryBasis entryQ (|entryDofs| x
-    // |J| and from's capQ, |J| x |from.borderDofs|; entryResponse then empty): the swap's
-    // product has inner size |J| (~50-100) instead of |border| (hundreds).
-    Eigen::MatrixXd entryBasis, entryQ;
+    // |J|, itself kept as interpolation times zone block, and from's capQ, |J| x
+    // |from.borderDofs|; entryResponse then empty): the swap's product has inner size |J|
+    // (~50-100) instead of |border| (hundreds).
+    InterpBasis entryBasis;
+    Eigen::MatrixXd entryQ;
+    // Capacitance layouts: the free dofs of the nodes of P and Gamma that the layout left
+    // (from) did not integrate, and `I W(., from's J)` there (factored, T its zone positions):
+    // the spring share's correction at the swap, `I (W_(., share) - W_(., J) H D V) (F - F~)`,
+    // needs only these rows and the share's columns of W (primary_share.cpp).
+    std::vector<int> shareDofs;
+    InterpBasis shareBasis;
     std::vector<int> primaryNodes;             // P, sorted
     std::vector<std::uint8_t> isPrimary;       // per fine node
     std::vector<std::array<int, 8>> cellDofs;  // 3 * node of the 8 nodes of each primary cell
@@ -119,13 +128,14 @@ struct Layout {
     // G: gamma dofs x border dofs (condensed coupling), small entries dropped.
     RowSparseMatrix response;
     // Capacitance secondary: Gamma's response to the border, factored: G = gammaBasis capQ
-    // exactly (gammaBasis = I_Gamma W(., J), |Gamma| x |J|; response and gammaResponse then
-    // empty). G has rank |J| (the primary coarse cells' corners, ~50-100 dofs) but |Gamma| x
-    // |border| entries (~620,000 on the bone phantom's 2.5 mm body): the servo's condensed
-    // correction and the secondary's direct solve are two dense products through |J| values
-    // (capZ: the secondary's work vector, |J|).
-    Eigen::MatrixXd gammaBasis;
-    Eigen::VectorXd capZ;
+    // exactly (gammaBasis = I_Gamma W(., J), |Gamma| x |J|, itself kept as Gamma's
+    // interpolation times the zone block W(T, J), interp_basis.h; response and gammaResponse
+    // then empty). G has rank |J| (the primary coarse cells' corners, ~50-100 dofs) but
+    // |Gamma| x |border| entries (~620,000 on the bone phantom's 2.5 mm body): the servo's
+    // condensed correction and the secondary's direct solve are products through |J| values
+    // (capZ, capY: the secondary's work vectors, |J| and |T|).
+    InterpBasis gammaBasis;
+    Eigen::VectorXd capZ, capY;
     // Quasi-static CHOLMOD secondary: the exact Gamma response to the border (dense), so that a
     // secondary solve needs only Gamma = R u_B; the whole field x is solved when asked for.
     Eigen::MatrixXd gammaResponse;

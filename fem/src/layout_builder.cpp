@@ -163,7 +163,7 @@ bool LayoutBuilder::buildGlobal(const std::vector<std::uint8_t>& primaryCell, La
         L.watchResponse.resize(0, 0);
         L.watchInZone = false;
         L.response.resize(0, 0);
-        L.gammaBasis.resize(0, 0);
+        L.gammaBasis.clear();
         return false;
     }
     sizeWorkVectors(L);

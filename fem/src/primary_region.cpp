@@ -10,25 +10,13 @@
 namespace palp::fem {
 
 namespace {
-/// y1 = A x1 and y2 = A x2 in one sweep over A's columns (each read once from memory).
-void dualProduct(const Eigen::MatrixXd& A, Eigen::Ref<const Eigen::VectorXd> x1,
-                 Eigen::Ref<const Eigen::VectorXd> x2, Eigen::Ref<Eigen::VectorXd> y1,
-                 Eigen::Ref<Eigen::VectorXd> y2) noexcept {
-    y1.setZero();
-    y2.setZero();
-    for (Eigen::Index j = 0; j < A.cols(); ++j) {
-        const auto col = A.col(j);
-        y1.noalias() += x1[j] * col;
-        y2.noalias() += x2[j] * col;
-    }
-}
-
-/// Whether @p L's condensed G is factored (gammaBasis capQ) and usable.
-bool factoredGamma(const Layout& L, bool condensed) noexcept {
+/// Whether @p L's condensed G is factored (gammaBasis capQ) and usable (its work vectors
+/// fit: @p workRows values).
+bool factoredGamma(const Layout& L, bool condensed, Eigen::Index workRows) noexcept {
     const std::size_t n = L.gammaDofs.size();
-    return condensed && L.gammaBasis.rows() == static_cast<Eigen::Index>(n) && n > 0 &&
+    return condensed && L.gammaBasis.fits(static_cast<Eigen::Index>(n), L.capQ.rows()) && n > 0 &&
            L.capQ.cols() == static_cast<Eigen::Index>(L.borderDofs.size()) &&
-           L.capQ.rows() == L.gammaBasis.cols();
+           2 * L.gammaBasis.block.rows() <= workRows;
 }
 }  // namespace
 
@@ -77,6 +65,7 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     mGFix = mBPrev;
     mEntryWork = mBPrev;
     mCapZ = Eigen::VectorXd::Zero(2 * std::max(1, setup.coarseDofs));
+    mCapY = mCapZ;
     mWPrev.assign(3 * o.watchNodes.size(), 0.0);
     mWCur = mWPrev;
     mFExt = Eigen::VectorXd::Zero(dofs);
@@ -92,8 +81,6 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     mShareHDV = mShareV;
     mShareH = Eigen::VectorXd::Zero(mShareV.rows());
     mShareSlot.assign(sz(std::max(1, setup.coarseDofs)), -1);
-    mZoneCorrection = Eigen::VectorXd::Zero(std::max(1, setup.coarseDofs));
-    mZoneDone.assign(sz(std::max(1, setup.coarseDofs)), 0);
     mShareSeq.fill(~std::uint64_t{0});
     for (Eigen::Vector3d& f : mShareSent) f.setZero();
 }
@@ -126,21 +113,27 @@ void PrimaryRegion::restartGammaFrom(const Layout& L, const Eigen::VectorXd& x) 
 void PrimaryRegion::setGamma(const Layout& L, double* target, double t, bool product) noexcept {
     const double frac = mSetup.periodFraction(t, mGammaStart);
     const std::size_t n = L.gammaDofs.size();
-    const bool factored = factoredGamma(L, mSetup.options.condensed);
+    const bool factored = factoredGamma(L, mSetup.options.condensed, mCapY.size());
     if (factored || L.response.nonZeros() > 0) {
         const std::size_t nb = L.borderDofs.size();
         if (product) {
+            bool moved = false;
             for (std::size_t i = 0; i < nb; ++i) {
                 const Eigen::Index k = static_cast<Eigen::Index>(i);
                 mBNow[k] = target[L.borderDofs[i]] - (mBPrev[k] + frac * (mBCur[k] - mBPrev[k]));
+                moved = moved || mBNow[k] != 0.0;
             }
             const auto b = mBNow.head(static_cast<Eigen::Index>(nb));
             auto fix = mGFix.head(static_cast<Eigen::Index>(n));
-            if (factored) {
+            if (!moved) {
+                // The border as the values shown answer it (the first substep after a swap,
+                // restartCoupling()): G 0 = 0 without sweeping G.
+                fix.setZero();
+            } else if (factored) {
                 // G b = gammaBasis (Q b): |J| (Q's rows) values in between.
                 auto z = mCapZ.head(L.capQ.rows());
                 z.noalias() = L.capQ * b;
-                fix.noalias() = L.gammaBasis * z;
+                L.gammaBasis.apply(z, mCapY.head(L.gammaBasis.block.rows()), fix.data());
             } else {
                 fix.noalias() = L.response * b;
             }
@@ -183,7 +176,7 @@ void PrimaryRegion::acceptSolution(const Layout& L, const double* gamma, const d
 void PrimaryRegion::showBorder(const Layout& from) noexcept {
     // The border as the primary shows it now (current and previous substep); a factored G
     // takes both products in one sweep over each factor.
-    if (factoredGamma(from, mSetup.options.condensed)) {
+    if (factoredGamma(from, mSetup.options.condensed, mCapY.size())) {
         const Eigen::Index n = static_cast<Eigen::Index>(from.gammaDofs.size());
         const Eigen::Index nb = static_cast<Eigen::Index>(from.borderDofs.size());
         const Eigen::Index nj = from.capQ.rows();
@@ -196,8 +189,8 @@ void PrimaryRegion::showBorder(const Layout& from) noexcept {
         }
         dualProduct(from.capQ, mBNow.head(nb), mEntryWork.head(nb), mCapZ.head(nj),
                     mCapZ.segment(nj, nj));
-        dualProduct(from.gammaBasis, mCapZ.head(nj), mCapZ.segment(nj, nj), mWork.head(n),
-                    mGFix.head(n));
+        dualProduct(from.gammaBasis, mCapZ.head(nj), mCapZ.segment(nj, nj), mCapY, mWork.data(),
+                    mGFix.data());
         for (Eigen::Index i = 0; i < n; ++i) {
             const std::size_t k = sz(static_cast<int>(i));
             const int d = from.gammaDofs[k];
@@ -220,9 +213,10 @@ void PrimaryRegion::adopt(const Layout& from, const Layout& to) noexcept {
     const std::size_t nb = from.borderDofs.size();
     const Eigen::Index ne = static_cast<Eigen::Index>(to.entryDofs.size());
     const bool known = to.entryBorder.size() == static_cast<Eigen::Index>(nb) && ne > 0;
-    const bool factored =
-        known && to.entryBasis.rows() == ne && to.entryQ.cols() == static_cast<Eigen::Index>(nb) &&
-        to.entryQ.rows() == to.entryBasis.cols() && to.entryQ.rows() <= mCapZ.size() / 2;
+    const bool factored = known && to.entryBasis.fits(ne, to.entryQ.rows()) &&
+                          to.entryQ.cols() == static_cast<Eigen::Index>(nb) &&
+                          to.entryQ.rows() <= mCapZ.size() / 2 &&
+                          2 * to.entryBasis.block.rows() <= mCapY.size();
     const bool respond = known && to.entryResponse.rows() == ne &&
                          to.entryResponse.cols() == static_cast<Eigen::Index>(nb);
     if (factored) {
@@ -270,7 +264,8 @@ void PrimaryRegion::enterFactored(const Layout& from, const Layout& to) noexcept
                 mCapZ.segment(nj, nj));
     auto w = mWork.head(ne);
     auto wPrev = mEntryWork.head(ne);
-    dualProduct(to.entryBasis, mCapZ.head(nj), mCapZ.segment(nj, nj), w, wPrev);
+    dualProduct(to.entryBasis, mCapZ.head(nj), mCapZ.segment(nj, nj), mCapY, w.data(),
+                wPrev.data());
     for (Eigen::Index i = 0; i < ne; ++i) {
         const int d = to.entryDofs[sz(static_cast<int>(i))];
         mU[d] = to.entryValues[sz(static_cast<int>(i))] + w[i];

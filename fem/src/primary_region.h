@@ -133,6 +133,7 @@ class PrimaryRegion {
     Eigen::VectorXd mBPrev, mBCur;      // primary border values those Gamma values answer
     Eigen::VectorXd mBNow, mGFix;       // condensed coupling work vectors
     Eigen::VectorXd mCapZ;              // factored products: |J| values (twice), see setGamma
+    Eigen::VectorXd mCapY;              // and the zone block's |T| values (twice), interp_basis.h
     Eigen::VectorXd mEntryWork;         // adopt(): the entry values at the previous substep
     double mGammaStart = 0.0;           // coupling clock: time the interpolation started
     // Watched secondary values the interpolation runs between (3 per watched node).
@@ -166,10 +167,6 @@ class PrimaryRegion {
     bool mShareLive = false;
     Eigen::Vector3d mShareDelta = Eigen::Vector3d::Zero();
     Eigen::VectorXd mShareH;
-    // applyShareCorrection(): the correction per zone position, and whether it is computed
-    // (sized to the coarse dofs, which bound the zone).
-    Eigen::VectorXd mZoneCorrection;
-    std::vector<std::uint8_t> mZoneDone;
     void applyShareCorrection(const Layout& from, const Layout& to) noexcept;
 };
 

@@ -101,51 +101,38 @@ void PrimaryRegion::applyShareCorrection(const Layout& from, const Layout& to) n
     // The condensed spring share (advance()) held the spring's nodes outside P at the shown
     // field plus C (F - F~); the nodes the new layout shows that the old one did not integrate
     // take that correction, (M^-1 I_S^T w_S (F - F~))_d, so the swap does not jump the spring.
+    // With c the share's load on the zone less its capacitance part, the correction is I (W c)
+    // at those dofs: the prepared rows I W(T, J) (to.shareBasis) give W c's J part, and the
+    // share's own columns of W, read at T, the rest.
     if (!mShareLive || from.global == nullptr) return;
     mShareLive = false;
-    const GlobalSecondary& g = *from.global;
-    const RowSparseMatrix& I = g.interpolation();
-    const Eigen::MatrixXd& W = g.zoneInverse();
+    const InterpBasis& B = to.shareBasis;
     const Eigen::Index nj = static_cast<Eigen::Index>(from.capJ.size());
-    const Eigen::Index zone = W.rows();
-    if (zone > mZoneCorrection.size()) return;
+    const Eigen::Index t = B.block.rows();
+    if (!B.fits(static_cast<Eigen::Index>(to.shareDofs.size()), nj) || 2 * t > mCapY.size() ||
+        nj > mShareH.size())
+        return;
+    const Eigen::MatrixXd& W = from.global->zoneInverse();
     for (Eigen::Index j = 0; j < nj; ++j) mShareH[j] = mShareHDV.row(j).dot(mShareDelta);
-    // The correction at zone position p, (W c)_p with c the share's load on the zone less its
-    // capacitance part: once per position (the entering nodes share their coarse dofs), from
-    // W's column p (W is symmetric; its rows are strided in memory).
-    std::fill(mZoneDone.begin(), mZoneDone.begin() + zone, std::uint8_t{0});
-    auto at = [&](int p) {
-        if (mZoneDone[sz(p)]) return mZoneCorrection[p];
-        const double* col = W.col(p).data();
-        double s = 0.0;
-        for (std::size_t b = 0; b < 3; ++b) {
-            const double db = mShareDelta[static_cast<Eigen::Index>(b)];
-            for (std::size_t f = 0; f < mShareCount[b]; ++f)
-                s += mShareWeight[b][f] * db * col[mSharePos[b][f]];
+    // y = -(W c) at T, the J part first.
+    auto y = mCapY.head(t);
+    y.noalias() = B.block * mShareH.head(nj);
+    for (std::size_t b = 0; b < 3; ++b) {
+        const double db = mShareDelta[static_cast<Eigen::Index>(b)];
+        for (std::size_t f = 0; f < mShareCount[b]; ++f) {
+            // W is symmetric: its column at the share's position, read at T.
+            const double* col = W.col(mSharePos[b][f]).data();
+            const double c = mShareWeight[b][f] * db;
+            for (Eigen::Index i = 0; i < t; ++i) y[i] -= c * col[B.pos[sz(static_cast<int>(i))]];
         }
-        for (Eigen::Index j = 0; j < nj; ++j)
-            s -= col[g.zonePosition(from.capJ[sz(static_cast<int>(j))])] * mShareH[j];
-        mZoneDone[sz(p)] = 1;
-        mZoneCorrection[p] = s;
-        return s;
-    };
-    auto correct = [&](int n) {
-        if (from.isPrimary[sz(n)]) return;
-        for (int a = 0; a < 3; ++a) {
-            const int d = 3 * n + a;
-            if (mSetup.fixed[sz(d)]) continue;
-            double delta = 0.0;
-            for (RowSparseMatrix::InnerIterator it(I, d); it; ++it) {
-                const int p = g.zonePosition(static_cast<int>(it.col()));
-                if (p < 0) return;
-                delta += it.value() * at(p);
-            }
-            mU[d] += delta;
-            mUPrev[d] += delta;
-        }
-    };
-    for (int n : to.primaryNodes) correct(n);
-    for (int n : to.gammaNodes) correct(n);
+    }
+    double* delta = mCapY.data() + t;
+    B.interpolate(y.data(), delta);
+    for (std::size_t i = 0; i < to.shareDofs.size(); ++i) {
+        const int d = to.shareDofs[i];
+        mU[d] -= delta[i];
+        mUPrev[d] -= delta[i];
+    }
 }
 
 }  // namespace palp::fem

@@ -33,8 +33,8 @@ bool SecondaryRegion::solve(Layout& L, const double* borderValues, const BorderP
     // the loads on secondary nodes, if any, are answered from the capacitance zone block (a
     // sliding contact's spring share on the surface); other loads need the whole field.
     const bool gammaKnown =
-        L.gammaResponse.size() > 0 ||
-        (L.global != nullptr && L.gammaBasis.size() > 0 && !mSetup.options.secondaryFullField);
+        L.gammaResponse.size() > 0 || (L.global != nullptr && L.gammaBasis.block.size() > 0 &&
+                                       !mSetup.options.secondaryFullField);
     const bool responses = gammaKnown && (!watching || L.watchResponse.size() > 0 || L.watchInZone);
     bool direct = responses && loadCount == 0;
     if (responses && loadCount > 0 && L.global != nullptr)
@@ -92,7 +92,7 @@ bool SecondaryRegion::solveDirect(Layout& L, const double* borderValues, double*
     } else {
         // Capacitance: G = gammaBasis Q, factored (rank |J|).
         L.capZ.noalias() = L.capQ * L.border;
-        out.noalias() = L.gammaBasis * L.capZ;
+        L.gammaBasis.apply(L.capZ, L.capY, out.data());
     }
     addLoads(L.interpGamma, out);
     bool ok = out.allFinite();
@@ -222,7 +222,7 @@ void SecondaryRegion::prepareEntry(Layout& from, Layout& next,
     next.entryDofs.clear();
     next.entryValues.clear();
     next.entryResponse.resize(0, 0);
-    next.entryBasis.resize(0, 0);
+    next.entryBasis.clear();
     next.entryQ.resize(0, 0);
     bool done = false;
     if (from.global != nullptr && from.fieldStale) {
@@ -266,9 +266,30 @@ void SecondaryRegion::prepareEntry(Layout& from, Layout& next,
             next.entryBorder = from.border;
         } else {
             next.entryResponse.resize(0, 0);
-            next.entryBasis.resize(0, 0);
+            next.entryBasis.clear();
             next.entryQ.resize(0, 0);
         }
+    }
+    // The spring share's correction at the swap (applyShareCorrection): the dofs it moves
+    // (a node stops at its first dof outside the zone) and their rows of I W(., J).
+    next.shareDofs.clear();
+    next.shareBasis.clear();
+    if (from.global != nullptr) {
+        const RowSparseMatrix& I = from.global->interpolation();
+        auto add = [&](int n) {
+            if (from.isPrimary[sz(n)]) return;
+            for (int k = 0; k < 3; ++k) {
+                const int d = 3 * n + k;
+                if (mSetup.fixed[sz(d)]) continue;
+                for (RowSparseMatrix::InnerIterator it(I, d); it; ++it)
+                    if (from.global->zonePosition(static_cast<int>(it.col())) < 0) return;
+                next.shareDofs.push_back(d);
+            }
+        };
+        for (int n : next.primaryNodes) add(n);
+        for (int n : next.gammaNodes) add(n);
+        if (!from.global->zoneRowsAt(next.shareDofs, from.capJ, next.shareBasis))
+            next.shareDofs.clear();
     }
     // Warm state of the secondary in its own indexing.
     warmStart(next);
