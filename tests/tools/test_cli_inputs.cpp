@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <filesystem>
 #include <functional>
 #include <map>
@@ -17,6 +18,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -78,44 +80,82 @@ std::string commandLine(const Base& base, const Option& o, const std::string& va
     return line + " " + o.name + " '" + joined + "'";
 }
 
+/// One run of checkEveryOption: the command line and what it left.
+struct Job {
+    Option option;
+    std::string value, line;
+    std::vector<std::string> outputs;  ///< this run's own output paths
+    palp::test::RunResult result;
+    std::vector<std::string> leftBehind;  ///< outputs that exist after the run
+};
+
 /// Runs every bad value of every option of @p command on @p baseFor(option) and checks the
-/// outcome; @p accepted lists the (option, value) pairs the option's range admits.
+/// outcome; @p accepted lists the (option, value) pairs the option's range admits. The runs go
+/// three at a time (each a process that mostly loads shared libraries), each writing into a
+/// folder of its own so a refusal's check for files left behind sees only its own.
 void checkEveryOption(const std::string& command, const std::function<Base(const Option&)>& baseFor,
                       const std::set<std::pair<std::string, std::string>>& accepted,
                       const std::set<std::string>& skip = {}) {
     const std::vector<Option> options = optionsOf(command);
     ASSERT_GT(options.size(), 3u) << command;
     const std::vector<std::string> numericValues = {"nan", "inf", "-inf", "-1", "0", "1e300", ""};
-    int refused = 0, ran = 0;
+    palp::test::TempDir runs;
+    std::vector<Job> jobs;
     for (const Option& o : options) {
         if (skip.count(o.name)) continue;
-        const Base base = baseFor(o);
         const std::vector<std::string> values =
             o.numeric ? numericValues : std::vector<std::string>{""};
         for (const std::string& v : values) {
-            for (const std::string& f : base.outputs) fs::remove_all(f);
-            const std::string line = commandLine(base, o, v);
-            const auto r = runCommand(line);
-            const bool accept = accepted.count({o.name, v}) > 0;
-            if (accept) {
-                EXPECT_EQ(r.exitCode, 0) << line << "\n" << r.output;
-                ++ran;
-                continue;
+            Base base = baseFor(o);
+            // The run's outputs move to a folder of its own (same file names).
+            const fs::path dir = runs / std::to_string(jobs.size());
+            fs::create_directories(dir);
+            for (std::string& f : base.outputs) {
+                const std::string moved = (dir / fs::path(f).filename()).string();
+                for (auto& arg : base.args) {
+                    if (arg.second == f) arg.second = moved;
+                }
+                f = moved;
             }
-            ++refused;
-            EXPECT_EQ(r.exitCode, 1) << "expected a refusal: " << line << "\n" << r.output;
-            EXPECT_NE(r.output.find("palp: error: "), std::string::npos) << line << "\n"
-                                                                         << r.output;
-            EXPECT_NE(r.output.find(o.name), std::string::npos)
-                << "the refusal must name " << o.name << ": " << line << "\n"
-                << r.output;
-            for (const std::string& f : base.outputs) {
-                EXPECT_FALSE(fs::exists(f)) << f << " left behind by the refusal of: " << line;
-            }
-            // Numbers as the user wrote them (%g), not 1e300 spelled out in 301 digits.
-            EXPECT_FALSE(std::regex_search(r.output, std::regex("[0-9]{40}"))) << line << "\n"
-                                                                               << r.output;
+            jobs.push_back({o, v, commandLine(base, o, v), base.outputs, {}, {}});
         }
+    }
+    std::atomic<std::size_t> next{0};
+    auto worker = [&] {
+        for (;;) {
+            const std::size_t i = next.fetch_add(1);
+            if (i >= jobs.size()) return;
+            Job& j = jobs[i];
+            j.result = runCommand(j.line);
+            for (const std::string& f : j.outputs) {
+                if (fs::exists(f)) j.leftBehind.push_back(f);
+            }
+        }
+    };
+    std::vector<std::thread> pool;
+    for (int t = 0; t < 3; ++t) pool.emplace_back(worker);
+    for (std::thread& t : pool) t.join();
+    int refused = 0, ran = 0;
+    for (const Job& j : jobs) {
+        const std::string& line = j.line;
+        const auto& r = j.result;
+        if (accepted.count({j.option.name, j.value}) > 0) {
+            EXPECT_EQ(r.exitCode, 0) << line << "\n" << r.output;
+            ++ran;
+            continue;
+        }
+        ++refused;
+        EXPECT_EQ(r.exitCode, 1) << "expected a refusal: " << line << "\n" << r.output;
+        EXPECT_NE(r.output.find("palp: error: "), std::string::npos) << line << "\n" << r.output;
+        EXPECT_NE(r.output.find(j.option.name), std::string::npos)
+            << "the refusal must name " << j.option.name << ": " << line << "\n"
+            << r.output;
+        for (const std::string& f : j.leftBehind) {
+            ADD_FAILURE() << f << " left behind by the refusal of: " << line;
+        }
+        // Numbers as the user wrote them (%g), not 1e300 spelled out in 301 digits.
+        EXPECT_FALSE(std::regex_search(r.output, std::regex("[0-9]{40}"))) << line << "\n"
+                                                                           << r.output;
     }
     std::printf("%s: %d refusals, %d accepted runs\n", command.c_str(), refused, ran);
 }
