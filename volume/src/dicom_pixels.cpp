@@ -11,6 +11,7 @@
 #include <type_traits>
 
 #include "dicom_j2k.h"
+#include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "raw_data.h"
 
@@ -155,9 +156,9 @@ void convertSmallPixels(const char* raw, std::size_t count, std::int32_t mask, s
     }
 }
 
-/// Converts one decoded frame to rescaled floats.
+/// Converts one decoded frame to rescaled floats; returns convertFrame()'s verdict.
 template <typename T>
-void convertPixels(const char* raw, std::size_t count, int bitsStored, int highBit, bool isSigned,
+bool convertPixels(const char* raw, std::size_t count, int bitsStored, int highBit, bool isSigned,
                    double slope, double intercept, std::vector<float>& out) {
     out.resize(count);
     const bool maskBits = std::is_integral_v<T> && bitsStored > 0 &&
@@ -165,8 +166,10 @@ void convertPixels(const char* raw, std::size_t count, int bitsStored, int highB
     const std::int64_t mask = maskBits ? (std::int64_t{1} << bitsStored) - 1 : 0;
     const std::int64_t signBit = maskBits ? std::int64_t{1} << (bitsStored - 1) : 0;
     if constexpr (std::is_integral_v<T> && sizeof(T) <= 2) {
-        // |stored| <= 65536, so every rescaled value is within this bound (FLT_MAX below).
-        if (std::abs(slope) * 65536.0 + std::abs(intercept) <= 3.4028234663852886e38) {
+        // |stored| <= 65536, so every rescaled value is within this bound (rounding is
+        // monotone, so the computed values are too): FLT_MAX below, bounds::kVolumeValue after.
+        const double bound = std::abs(slope) * 65536.0 + std::abs(intercept);
+        if (bound <= 3.4028234663852886e38) {
             const auto m = static_cast<std::int32_t>(mask);
             const auto sb = static_cast<std::int32_t>(signBit);
             if (!maskBits) {
@@ -179,7 +182,7 @@ void convertPixels(const char* raw, std::size_t count, int bitsStored, int highB
                 convertSmallPixels<T, StoredBits::Masked>(raw, count, m, sb, slope, intercept,
                                                           out.data());
             }
-            return;
+            return bounds::kVolumeValue.contains(bound) && bounds::kVolumeValue.contains(-bound);
         }
     }
     for (std::size_t i = 0; i < count; ++i) {
@@ -198,46 +201,39 @@ void convertPixels(const char* raw, std::size_t count, int bitsStored, int highB
         }
         out[i] = saturatingFloat(slope * stored + intercept);
     }
+    return false;
 }
 
 }  // namespace
 
-void convertFrame(const std::string& file, const char* raw, const gdcm::PixelFormat& pf,
+bool convertFrame(const std::string& file, const char* raw, const gdcm::PixelFormat& pf,
                   std::size_t count, double slope, double intercept, std::vector<float>& out) {
     const int bitsStored = pf.GetBitsStored();
     const int highBit = pf.GetHighBit();
     const bool isSigned = pf.GetPixelRepresentation() == 1;
     switch (pf.GetScalarType()) {
         case gdcm::PixelFormat::UINT8:
-            convertPixels<std::uint8_t>(raw, count, bitsStored, highBit, false, slope, intercept,
-                                        out);
-            break;
+            return convertPixels<std::uint8_t>(raw, count, bitsStored, highBit, false, slope,
+                                               intercept, out);
         case gdcm::PixelFormat::INT8:
-            convertPixels<std::int8_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept,
-                                       out);
-            break;
+            return convertPixels<std::int8_t>(raw, count, bitsStored, highBit, isSigned, slope,
+                                              intercept, out);
         case gdcm::PixelFormat::UINT16:
-            convertPixels<std::uint16_t>(raw, count, bitsStored, highBit, false, slope, intercept,
-                                         out);
-            break;
+            return convertPixels<std::uint16_t>(raw, count, bitsStored, highBit, false, slope,
+                                                intercept, out);
         case gdcm::PixelFormat::INT16:
-            convertPixels<std::int16_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept,
-                                        out);
-            break;
+            return convertPixels<std::int16_t>(raw, count, bitsStored, highBit, isSigned, slope,
+                                               intercept, out);
         case gdcm::PixelFormat::UINT32:
-            convertPixels<std::uint32_t>(raw, count, bitsStored, highBit, false, slope, intercept,
-                                         out);
-            break;
+            return convertPixels<std::uint32_t>(raw, count, bitsStored, highBit, false, slope,
+                                                intercept, out);
         case gdcm::PixelFormat::INT32:
-            convertPixels<std::int32_t>(raw, count, bitsStored, highBit, isSigned, slope, intercept,
-                                        out);
-            break;
+            return convertPixels<std::int32_t>(raw, count, bitsStored, highBit, isSigned, slope,
+                                               intercept, out);
         case gdcm::PixelFormat::FLOAT32:
-            convertPixels<float>(raw, count, 0, 0, true, slope, intercept, out);
-            break;
+            return convertPixels<float>(raw, count, 0, 0, true, slope, intercept, out);
         case gdcm::PixelFormat::FLOAT64:
-            convertPixels<double>(raw, count, 0, 0, true, slope, intercept, out);
-            break;
+            return convertPixels<double>(raw, count, 0, 0, true, slope, intercept, out);
         default:
             throw FormatError(file + ": expected 8, 16 or 32-bit integer or float pixels, found " +
                               std::string(pf.GetScalarTypeAsString()));
@@ -300,7 +296,7 @@ double checkedSlope(const std::string& file, const std::optional<double>& slope,
 
 /// Decodes one single-frame image into @p slice (values rescaled with the file's own slope and
 /// intercept). Geometry is filled by the caller.
-void decodeSlice(const Header& h, Slice& slice) {
+bool decodeSlice(const Header& h, Slice& slice) {
     const std::string file = h.path.string();
     const double slope = checkedSlope(file, h.number(kRescaleSlope), h.text(kRescaleSlope));
     const double intercept = h.number(kRescaleIntercept).value_or(0.0);
@@ -314,8 +310,8 @@ void decodeSlice(const Header& h, Slice& slice) {
     slice.source = file;
     const std::size_t count =
         static_cast<std::size_t>(slice.rows) * static_cast<std::size_t>(slice.cols);
-    convertFrame(file, buffer.data(), reader.GetImage().GetPixelFormat(), count, slope, intercept,
-                 slice.values);
+    return convertFrame(file, buffer.data(), reader.GetImage().GetPixelFormat(), count, slope,
+                        intercept, slice.values);
 }
 
 }  // namespace palp::volume::dicom

@@ -235,7 +235,7 @@ LazySliceStack openDicom(const std::vector<fs::path>& inputs, const ReadOptions&
              rescaleVaries);
     // One GDCM reader per call, so files may be decoded from several threads at once.
     lazy.decode = [scanned, chosen](std::size_t i, Slice& slice) {
-        decodeSlice(*chosen[i], slice);
+        return decodeSlice(*chosen[i], slice);
     };
     return lazy;
 }

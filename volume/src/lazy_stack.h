@@ -20,9 +20,11 @@ struct LazySliceStack {
     /// @ref decode is set.
     SliceStack stack;
     /// Decodes slice @p index (stack order) into @p slice's values (cols x rows of them, as
-    /// @ref stack says). Called from several threads at once, for distinct slices. Empty when
-    /// the values are already there.
-    std::function<void(std::size_t index, Slice& slice)> decode;
+    /// @ref stack says); returns true when the values are known to pass checkSliceValues()
+    /// without looking at them (integer pixels with a moderate rescale), false when they must
+    /// be checked. Called from several threads at once, for distinct slices. Empty when the
+    /// values are already there.
+    std::function<bool(std::size_t index, Slice& slice)> decode;
 };
 
 /// resample() of @p lazy, the same grid as resample(SliceStack) of the decoded stack. Each slice
