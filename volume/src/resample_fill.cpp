@@ -122,6 +122,25 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
         pr.p1 = pr.p0 + dr1;
         return pr;
     };
+    // The column coordinate clamped, split into its pixel and fraction (sampleRows' first half).
+    struct Column {
+        int ci;
+        double fc;
+    };
+    const auto columnAt = [&](double cc) {
+        cc = std::clamp(cc, 0.0, cmax);
+        const int ci = std::min(static_cast<int>(cc), c0max);
+        return Column{ci, cc - ci};
+    };
+    const auto bilinear = [&](const PixelRows& pr, Column col) {
+        const int ci = col.ci;
+        const double fc = col.fc;
+        const double top =
+            static_cast<double>(pr.p0[ci]) * (1 - fc) + static_cast<double>(pr.p0[ci + dc1]) * fc;
+        const double bottom =
+            static_cast<double>(pr.p1[ci]) * (1 - fc) + static_cast<double>(pr.p1[ci + dc1]) * fc;
+        return top * (1 - pr.fr) + bottom * pr.fr;
+    };
     const auto sampleRows = [&](const PixelRows& pr, double cc) {
         cc = std::clamp(cc, 0.0, cmax);
         const int ci = std::min(static_cast<int>(cc), c0max);
@@ -150,6 +169,23 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                 const PixelRows rowsLo = pixelRows(lo, yRow + lo.offR);
                 const PixelRows rowsHi = pixelRows(hi, yRow + hi.offR);
                 if (!rowsLo.insideR && !rowsHi.insideR) continue;
+                if (lo.offC == hi.offC) {
+                    // Both slices at the same column coordinate (slices shifted only along
+                    // their rows, as with gantry tilt): the column's pixel and fraction are
+                    // found once for both, the same numbers as the loop below.
+                    for (int t = 0; t < n[a]; ++t, offset += kStride[a]) {
+                        const double cc = xRow + dm(0, a) * t + lo.offC;
+                        if (!(cc >= -mc && cc <= cmax + mc)) continue;
+                        const Column col = columnAt(cc);
+                        const double va = bilinear(rowsLo, col), vb = bilinear(rowsHi, col);
+                        const auto fv = static_cast<float>(va * (1 - f) + vb * f);
+                        if (fv < threshold || fv == background) continue;
+                        block.values[static_cast<std::size_t>(offset)] = fv;
+                        block.mask.setOn(static_cast<openvdb::Index>(offset));
+                        any = true;
+                    }
+                    continue;
+                }
                 for (int t = 0; t < n[a]; ++t, offset += kStride[a]) {
                     const double px = xRow + dm(0, a) * t;
                     const double cLo = px + lo.offC, cHi = px + hi.offC;
