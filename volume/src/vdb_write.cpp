@@ -3,7 +3,8 @@
 
 #include <openvdb/io/io.h>
 
-#include <sstream>
+#include <ostream>
+#include <streambuf>
 #include <string>
 #include <vector>
 
@@ -14,6 +15,29 @@ namespace palp::volume::detail {
 namespace {
 
 using LeafT = openvdb::FloatTree::LeafNodeType;
+
+/// An output stream buffer that appends to a string its owner keeps: a chunk's bytes go into a
+/// buffer reused from batch to batch (cleared, its capacity kept) instead of an ostringstream
+/// grown by doubling and freed for every chunk (perf of `palp convert` on the head CT at 0.5 mm:
+/// the writer, malloc/free and copies 12 % of the CPU samples before, 9 % after).
+class AppendBuf final : public std::streambuf {
+  public:
+    explicit AppendBuf(std::string& out) : mOut(out) {}
+
+  protected:
+    std::streamsize xsputn(const char* s, std::streamsize n) override {
+        mOut.append(s, static_cast<std::size_t>(n));
+        return n;
+    }
+    int_type overflow(int_type c) override {
+        if (!traits_type::eq_int_type(c, traits_type::eof()))
+            mOut.push_back(traits_type::to_char_type(c));
+        return traits_type::not_eof(c);
+    }
+
+  private:
+    std::string& mOut;
+};
 
 /// OpenVDB writes a grid as header, metadata, transform, topology (Archive::writeGrid) and then
 /// the buffers through the virtual Grid::writeBuffers(): the root's children in table order,
@@ -40,13 +64,19 @@ class ParallelWritingGrid final : public openvdb::FloatGrid {
         constexpr std::size_t kChunk = 64;  // leaves per chunk: ~130 KB before compression
         constexpr std::size_t kBatch = 32;  // chunks per batch: ~4 MB before compression
         std::vector<std::string> bytes(kBatch);
+        // A leaf's buffers: its value mask, a metadata byte and at most its values (compression
+        // adds a size field and never makes a chunk larger than that).
+        for (std::string& b : bytes)
+            b.reserve(kChunk * (sizeof(LeafT::NodeMaskType) + 16 + sizeof(float) * LeafT::SIZE));
         for (std::size_t first = 0; first < leaves.size(); first += kChunk * kBatch) {
             const std::size_t chunks =
                 std::min(kBatch, (leaves.size() - first + kChunk - 1) / kChunk);
             palp::parallelForEach(
                 std::size_t{0}, chunks,
                 [&](std::size_t c) {
-                    std::ostringstream chunk;
+                    bytes[c].clear();
+                    AppendBuf buffer(bytes[c]);
+                    std::ostream chunk(&buffer);
                     state.transferTo(chunk);
                     // Not carried by StreamMetadata: the background that mask compression compares
                     // inactive values with (set on os by the topology writer).
@@ -56,7 +86,6 @@ class ParallelWritingGrid final : public openvdb::FloatGrid {
                     const std::size_t end = std::min(begin + kChunk, leaves.size());
                     for (std::size_t i = begin; i < end; ++i)
                         leaves[i]->writeBuffers(chunk, toHalf);
-                    bytes[c] = std::move(chunk).str();
                 },
                 std::size_t{1});
             for (std::size_t c = 0; c < chunks; ++c)
