@@ -8,7 +8,8 @@
 # all threads), peak RSS and output size of each and the ratios (palp / dcm2niix; below 1 means
 # palp is faster / smaller), and the load average before and after (the runs are paired, dcm2niix
 # then palp, so both see the same load). VOXEL_MM "auto" keeps palp's default (the finest input
-# spacing).
+# spacing). COMPRESSED=0 skips the compressed pair (dcm2niix's internal gzip takes ~10x its
+# default's time).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/../.." && pwd)"
 series="${1:-$root/../shared/data/ct-ge-head-tilt}"
@@ -32,6 +33,7 @@ for ((i = 0; i < repeats; i++)); do
   rm -rf "$tmp/nii" "$tmp/niigz" && mkdir "$tmp/nii" "$tmp/niigz"
   measure dcm2niix dcm2niix -z n -o "$tmp/nii" "$series"
   measure palp "$palp" --quiet convert "$series" -o "$tmp/out.vdb" "${voxelArgs[@]}"
+  [[ "${COMPRESSED:-1}" == 0 ]] && continue
   measure dcm2niix-gz dcm2niix -z y -o "$tmp/niigz" "$series"
   measure palp-blosc "$palp" --quiet convert "$series" -o "$tmp/blosc.vdb" "${voxelArgs[@]}" \
     --compression blosc
@@ -55,5 +57,6 @@ row() {  # row LABEL PALP-NAME DCM2NIIX-NAME PALP-BYTES DCM2NIIX-BYTES
     printf "%s output:    palp %.1f MB; dcm2niix %.1f MB; ratio %.2fx\n", l, pb / 1e6, db / 1e6, pb / db }'
 }
 row "default (palp mask, dcm2niix -z n)" palp dcm2niix "$(bytes "$tmp/out.vdb")" "$(bytes "$tmp"/nii/*.nii)"
+[[ "${COMPRESSED:-1}" == 0 ]] && exit 0
 row "compressed (palp blosc, dcm2niix -z y)" palp-blosc dcm2niix-gz "$(bytes "$tmp/blosc.vdb")" \
   "$(bytes "$tmp"/niigz/*.nii.gz)"
