@@ -64,8 +64,8 @@ std::vector<int> LayoutBuilder::zoneCoarseNodes(const AsyncSetup& setup,
             if (n >= 0 && n < mesh.nodeCount()) (*slideMark)[sz(n)] = 1;
     }
     std::vector<int> distance;
-    const std::vector<int> order = seedOrder(setup, contact, &distance);
     const int seeds = std::max(o.primaryNodes, o.maxPrimaryNodes);
+    const std::vector<int> order = seedOrder(setup, contact, seeds, &distance);
     if (order.empty()) return {};
     const int g = distance[std::min(order.size(), sz(seeds)) - 1];
     const int lod = setup.lod;
@@ -101,7 +101,7 @@ std::unique_ptr<Layout> LayoutBuilder::build(const std::vector<int>& contact, in
     L.contactNodes = contact;
     const std::vector<std::uint8_t> driven = drivenDofs(contact, L);
     const std::vector<std::uint8_t> primaryCell =
-        primaryCells(seedOrder(mSetup, contact), seedCount);
+        primaryCells(seedOrder(mSetup, contact, seedCount), seedCount);
     const std::vector<std::uint8_t> touchesPrimary = classifyNodes(primaryCell, driven, contact, L);
     collectPrimaryDofs(primaryCell, touchesPrimary, driven, L);
     if (mGlobal && buildGlobal(primaryCell, L)) {
@@ -174,23 +174,34 @@ bool LayoutBuilder::buildGlobal(const std::vector<std::uint8_t>& primaryCell, La
 }
 
 std::vector<int> LayoutBuilder::seedOrder(const AsyncSetup& setup, const std::vector<int>& contact,
-                                          std::vector<int>* distance) {
+                                          int count, std::vector<int>* distance) {
     // Graph distance over lattice edges between active nodes (BFS from all contact nodes), ties
-    // broken by Euclidean distance.
+    // broken by Euclidean distance. The BFS discovers nodes in graph-distance order, so once
+    // count nodes are found (the last at distance D), every node of distance below D is found
+    // and those of distance D are found by expanding the nodes below D only: the first count
+    // of the whole body's order lie among the nodes found (each layout build searched and
+    // sorted all 35,301 nodes of the bone phantom's 2.5 mm body before).
     const HexMesh& mesh = setup.model.mesh();
     const auto& nc = mesh.nodeCounts();
     const int nodes = mesh.nodeCount();
     const auto& active = mesh.nodeActive();
     std::vector<int> dist(sz(nodes), -1);
+    std::vector<int> found;
     std::queue<int> frontier;
     for (int n : contact) {
         if (dist[sz(n)] < 0) {
             dist[sz(n)] = 0;
             frontier.push(n);
+            found.push_back(n);
         }
     }
+    const std::size_t want = sz(std::max(count, 0));
+    int stopAt = std::numeric_limits<int>::max();  // D, once count nodes are found
     while (!frontier.empty()) {
         const int n = frontier.front();
+        if (found.size() >= want && stopAt == std::numeric_limits<int>::max())
+            stopAt = want > 0 ? dist[sz(found[want - 1])] : 0;
+        if (dist[sz(n)] >= stopAt) break;
         frontier.pop();
         const auto ijk = mesh.nodeCoords(n);
         for (int a = 0; a < 3; ++a) {
@@ -202,18 +213,22 @@ std::vector<int> LayoutBuilder::seedOrder(const AsyncSetup& setup, const std::ve
                 if (!active[sz(m)] || dist[sz(m)] >= 0) continue;
                 dist[sz(m)] = dist[sz(n)] + 1;
                 frontier.push(m);
+                found.push_back(m);
             }
         }
     }
     std::vector<std::pair<double, int>> order;
-    for (int n = 0; n < nodes; ++n) {
-        if (dist[sz(n)] < 0) continue;
+    order.reserve(found.size());
+    for (int n : found) {
         double e = std::numeric_limits<double>::infinity();
         for (int cn : contact)
             e = std::min(e, (mesh.nodePosition(n) - mesh.nodePosition(cn)).norm());
         order.emplace_back(dist[sz(n)] * 1e6 + e / mesh.edge(), n);
     }
-    std::sort(order.begin(), order.end());
+    const std::size_t keep = std::min(order.size(), want);
+    std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep),
+                      order.end());
+    order.resize(keep);
     std::vector<int> sorted(order.size());
     for (std::size_t i = 0; i < order.size(); ++i) sorted[i] = order[i].second;
     if (distance != nullptr) {

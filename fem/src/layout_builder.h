@@ -37,10 +37,12 @@ class LayoutBuilder {
     static std::vector<int> zoneCoarseNodes(const AsyncSetup& setup,
                                             const std::vector<int>& contactNodes,
                                             std::vector<std::uint8_t>* slideMark = nullptr);
-    /// Active nodes in graph distance from @p contactNodes (ties by Euclidean distance), with
-    /// the distances in @p distance when given.
+    /// The @p count active nodes nearest @p contactNodes in graph distance (ties by Euclidean
+    /// distance), nearest first (fewer when fewer are reachable), with the distances in
+    /// @p distance when given. O(nodes reached): the search stops at the graph distance of the
+    /// count-th node.
     static std::vector<int> seedOrder(const AsyncSetup& setup, const std::vector<int>& contactNodes,
-                                      std::vector<int>* distance = nullptr);
+                                      int count, std::vector<int>* distance = nullptr);
     /// The whole body's secondary, or null when every layout is factorised.
     const GlobalSecondary* global() const { return mGlobal.get(); }
 
