@@ -125,8 +125,12 @@ class PrimaryRegion {
     // padded to 4 rows, neighbour (dx, dy, dz) at 9 (dz + 1) + 3 (dy + 1) + dx + 1, and the
     // neighbours' node offsets.
     static constexpr std::size_t kStencilPoints = 27;
-    alignas(16) std::array<double, 12 * kStencilPoints> mStencil{};
+    alignas(32) std::array<double, 12 * kStencilPoints> mStencil{};
     std::array<int, kStencilPoints> mStencilOffset{};
+    bool mStencilAvx2 = false;  // the CPU has AVX2 and FMA (primary_forces.cpp), at construction
+    // The unit element stiffness's three rows of each corner a, column-major with columns
+    // padded to 4 rows (24 columns a corner): the other P nodes' rows, AVX2 path.
+    alignas(32) std::array<double, 8 * 24 * 4> mCornerRows{};
     // Coupling state, sized to the dof count once so that a layout change never allocates;
     // the first |Gamma| / |border| entries are used.
     std::vector<double> mGPrev, mGCur;  // Gamma values the interpolation runs between
