@@ -327,9 +327,9 @@ class LazyWindow {
 };
 
 /// resample() of @p stack; with @p lazy (whose stack is @p stack) the values are decoded as
-/// the blocks reach them.
+/// the blocks reach them. @p referenceOnly and @p scalarRows: see FillContext.
 Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, bool referenceOnly,
-                       LazySliceStack* lazy = nullptr) {
+                       LazySliceStack* lazy = nullptr, bool scalarRows = false) {
     const bool resident = lazy == nullptr || !lazy->decode;
     const StackGeometry g = analyse(stack, resident);
     const std::size_t n = g.order.size();
@@ -348,7 +348,7 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
     grid->setTransform(xform);
 
     SliceSampler sampler(stack, g, voxel, threshold, resident);
-    const FillContext ctx{sampler, g, lat, threshold, background, referenceOnly};
+    const FillContext ctx{sampler, g, lat, threshold, background, referenceOnly, scalarRows};
     if (resident) {
         fillTree(ctx, options.progress, grid->tree());
     } else {
@@ -406,6 +406,11 @@ Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options) {
 Volume resampleVoxelByVoxel(const SliceStack& stack, const ResampleOptions& options) {
     checkResampleOptions(options);
     return resampleChecked(stack, options, true);
+}
+
+Volume resampleScalarRows(const SliceStack& stack, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    return resampleChecked(stack, options, false, nullptr, true);
 }
 
 }  // namespace detail

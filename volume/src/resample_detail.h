@@ -11,4 +11,8 @@ namespace palp::volume::detail {
 /// not by the row kernel: the reference the fast path must reproduce.
 Volume resampleVoxelByVoxel(const SliceStack& stack, const ResampleOptions& options = {});
 
+/// resample(SliceStack) with the row kernel's scalar rows only (no AVX2 rows where the CPU has
+/// AVX2): the vector rows must give the same grid, bit for bit.
+Volume resampleScalarRows(const SliceStack& stack, const ResampleOptions& options = {});
+
 }  // namespace palp::volume::detail
