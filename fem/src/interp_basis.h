@@ -8,9 +8,65 @@
 /// for Gamma, ~|J|) plus the interpolation: the servo's products read a tenth of the bytes.
 
 #include <Eigen/Core>
+#include <cstddef>
 #include <vector>
 
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#include <immintrin.h>
+#define PALP_SWEEP_AVX2 1
+#endif
+
 namespace palp::fem {
+
+/// Whether the CPU has AVX2 and FMA: dualProduct() then takes 4-wide FMAs (the build targets
+/// baseline x86-64, where Eigen's products are SSE2 multiplies and adds; for one vector
+/// Eigen's own product was as fast). The first call initialises a static: make it off the servo
+/// (PrimaryRegion's constructor does).
+inline bool sweepAvx2() noexcept {
+#ifdef PALP_SWEEP_AVX2
+    static const bool yes = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    return yes;
+#else
+    return false;
+#endif
+}
+
+#ifdef PALP_SWEEP_AVX2
+/// y_k = A x_k (k < K) for column-major A (rows x cols, leading dimension ld),
+/// each column read once: 16-row strips whose accumulators stay in registers, then the rest.
+template <std::size_t K>
+__attribute__((target("avx2,fma"))) void sweepProductAvx2(const double* A, Eigen::Index rows,
+                                                          Eigen::Index cols, Eigen::Index ld,
+                                                          const double* const* x,
+                                                          double* const* y) noexcept {
+    Eigen::Index r = 0;
+    for (; r + 16 <= rows; r += 16) {
+        __m256d acc[K][4];
+        for (std::size_t k = 0; k < K; ++k)
+            for (std::size_t p = 0; p < 4; ++p) acc[k][p] = _mm256_setzero_pd();
+        for (Eigen::Index j = 0; j < cols; ++j) {
+            const double* c = A + j * ld + r;
+            const __m256d c0 = _mm256_loadu_pd(c), c1 = _mm256_loadu_pd(c + 4),
+                          c2 = _mm256_loadu_pd(c + 8), c3 = _mm256_loadu_pd(c + 12);
+            for (std::size_t k = 0; k < K; ++k) {
+                const __m256d a = _mm256_broadcast_sd(x[k] + j);
+                acc[k][0] = _mm256_fmadd_pd(a, c0, acc[k][0]);
+                acc[k][1] = _mm256_fmadd_pd(a, c1, acc[k][1]);
+                acc[k][2] = _mm256_fmadd_pd(a, c2, acc[k][2]);
+                acc[k][3] = _mm256_fmadd_pd(a, c3, acc[k][3]);
+            }
+        }
+        for (std::size_t k = 0; k < K; ++k)
+            for (std::size_t p = 0; p < 4; ++p) _mm256_storeu_pd(y[k] + r + 4 * p, acc[k][p]);
+    }
+    for (; r < rows; ++r) {
+        double s[K] = {};
+        for (Eigen::Index j = 0; j < cols; ++j)
+            for (std::size_t k = 0; k < K; ++k) s[k] += A[j * ld + r] * x[k][j];
+        for (std::size_t k = 0; k < K; ++k) y[k][r] = s[k];
+    }
+}
+#endif
 
 /// `B = S block`: S sparse (rows x |T|, CSR in start/col/weight), block dense |T| x |J|.
 struct InterpBasis {
@@ -57,6 +113,14 @@ struct InterpBasis {
 inline void dualProduct(const Eigen::MatrixXd& A, Eigen::Ref<const Eigen::VectorXd> x1,
                         Eigen::Ref<const Eigen::VectorXd> x2, Eigen::Ref<Eigen::VectorXd> y1,
                         Eigen::Ref<Eigen::VectorXd> y2) noexcept {
+#ifdef PALP_SWEEP_AVX2
+    if (sweepAvx2()) {
+        const double* xs[2] = {x1.data(), x2.data()};
+        double* ys[2] = {y1.data(), y2.data()};
+        sweepProductAvx2<2>(A.data(), A.rows(), A.cols(), A.rows(), xs, ys);
+        return;
+    }
+#endif
     y1.setZero();
     y2.setZero();
     for (Eigen::Index j = 0; j < A.cols(); ++j) {

@@ -66,6 +66,7 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     mEntryWork = mBPrev;
     mCapZ = Eigen::VectorXd::Zero(2 * std::max(1, setup.coarseDofs));
     mCapY = mCapZ;
+    (void)sweepAvx2();  // its static, initialised here rather than on the servo
     mWPrev.assign(3 * o.watchNodes.size(), 0.0);
     mWCur = mWPrev;
     mFExt = Eigen::VectorXd::Zero(dofs);
