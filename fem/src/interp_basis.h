@@ -11,6 +11,8 @@
 #include <cstddef>
 #include <vector>
 
+#include "palp/base/simd.h"
+
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
 #include <immintrin.h>
 #define PALP_SWEEP_AVX2 1
@@ -24,8 +26,7 @@ namespace palp::fem {
 /// (PrimaryRegion's constructor does).
 inline bool sweepAvx2() noexcept {
 #ifdef PALP_SWEEP_AVX2
-    static const bool yes = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-    return yes;
+    return palp::avx2FmaEnabled();
 #else
     return false;
 #endif

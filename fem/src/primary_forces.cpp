@@ -2,6 +2,7 @@
 // "Primary"): the lattice's unit stencil where a node's eight cells share one modulus, the
 // node's cells' rows elsewhere.
 #include "index_cast.h"
+#include "palp/base/simd.h"
 #include "primary_region.h"
 
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
@@ -83,7 +84,7 @@ void PrimaryRegion::buildStencil() noexcept {
     const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64> Ke(
         mSetup.model.unitStiffness());
 #ifdef PALP_STENCIL_AVX2
-    mStencilAvx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    mStencilAvx2 = palp::avx2FmaEnabled();
 #endif
     for (int a = 0; a < 8; ++a)
         for (int c = 0; c < 24; ++c)

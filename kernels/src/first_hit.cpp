@@ -8,6 +8,7 @@
 
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
+#include "palp/base/simd.h"
 #include "palp/base/validate.h"
 #include "palp/kernels/volume_ray.h"
 #if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
@@ -120,11 +121,7 @@ LatticeSetupCheck checkLatticeSetup(const VolumeView& view, const RayBundle& bun
 
 #ifdef PALP_RAY_AVX2
 namespace {
-bool detectAvx2() noexcept {
-    __builtin_cpu_init();
-    return __builtin_cpu_supports("avx2");
-}
-const bool kHasAvx2 = detectAvx2();  // once, at load
+const bool kHasAvx2 = palp::avx2Enabled();  // once, at load (PALP_SIMD=off: never)
 }  // namespace
 #endif
 
