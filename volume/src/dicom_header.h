@@ -79,6 +79,9 @@ struct Header {
     /// 1-based frame of an enhanced multi-frame file this header describes (its values are the
     /// file's, overridden by the shared and the frame's functional groups); 0 for a whole file.
     int frame = 0;
+    /// The scan's walk (walkFile) found the file's Pixel Data value (or all of its fragments)
+    /// within the file, so checkComplete() need not parse the header again to measure it.
+    bool pixelDataFits = false;
 
     /// The file, and the frame for a frame: "path (frame 7)", for messages.
     std::string label() const {

@@ -103,6 +103,8 @@ void checkComplete(const Header& h, const gdcm::File& file, int cols, int rows, 
         throw FormatError(name + ": expected Pixel Data (7fe0,0010) of " +
                           pixelDescription(cols, rows, bits) + ", found none");
     }
+    // The scan's walk measured the value against the file's size: no second parse per file.
+    if (h.pixelDataFits) return;
     const gdcm::DataElement& pixels = ds.GetDataElement(kPixelData);
     const gdcm::TransferSyntax& ts = file.GetHeader().GetDataSetTransferSyntax();
     if (ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) return;

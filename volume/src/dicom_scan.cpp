@@ -123,6 +123,7 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
             if (value) h.values[tag] = trim(value);
         }
         if (!walk.transferSyntax.empty()) h.values[kTransferSyntax] = walk.transferSyntax;
+        h.pixelDataFits = walk.pixelDataFits;
         // A file GDCM parsed but that carries none of the tags every DICOM object has is not
         // DICOM for our purposes (GDCM accepts some raw data sets without preamble).
         if (!h.get(kSopClassUid) && !h.get(kSeriesUid) && !h.isImage()) continue;

@@ -133,6 +133,7 @@ Walk walkFile(const fs::path& path) {
                 ++depth;
             } else if (element == 0xE0DD && pixelData && depth == 0) {
                 w.complete = true;
+                w.pixelDataFits = true;
                 return w;
             } else if (element == 0xE00D || element == 0xE0DD) {
                 if (depth == 0) return fail("an unmatched delimiter", start);
@@ -174,6 +175,7 @@ Walk walkFile(const fs::path& path) {
         pos += length;
         if (group == 0x7FE0 && element == 0x0010 && depth == 0) {
             w.complete = true;  // what follows Pixel Data (padding) does not matter
+            w.pixelDataFits = true;
             return w;
         }
     }

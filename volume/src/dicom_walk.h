@@ -15,6 +15,7 @@ struct Walk {
     bool complete = false;       // every header and value through the end of Pixel Data fits
     bool inPixelData = false;    // the damage lies in the Pixel Data value
     bool noPixelData = false;    // an image file that ends cleanly before Pixel Data
+    bool pixelDataFits = false;  // the walk reached the end of the top-level Pixel Data value
     std::string problem;         // what is wrong, for messages
     std::string seriesUid;       // (0020,000e) when it was reached
     std::string transferSyntax;  // (0002,0010) as the file meta information gives it
