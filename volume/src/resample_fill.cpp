@@ -16,6 +16,7 @@
 
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
+#include "palp/base/simd.h"
 #include "slice_sampler.h"
 
 namespace palp::volume::detail {
@@ -139,11 +140,6 @@ __attribute__((target("avx2"))) bool planarRowAvx2(const PlanarRow& row, const C
     return any;
 }
 
-bool detectAvx2() {
-    __builtin_cpu_init();
-    return __builtin_cpu_supports("avx2");
-}
-const bool kHasAvx2 = detectAvx2();
 #endif
 
 /// Fills @p block for a block that lies within the slices' range, between slices [bracket,
@@ -218,7 +214,7 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
     // only. The arithmetic is the general path's, term for term, so the values are identical.
     const bool planarRows = ds[a] == 0.0 && dm(1, a) == 0.0;
 #ifdef PALP_FILL_AVX2
-    const bool simd = kHasAvx2 && !ctx.scalarRows;
+    const bool simd = palp::avx2Enabled() && !ctx.scalarRows;
     const Columns columns{-mc, cmax + mc, cmax, c0max, dc1};
 #endif
     const auto pixelRows = [&](const SliceView& sv, double rr) {
