@@ -22,6 +22,7 @@
 #include "async_setup.h"
 #include "index_cast.h"
 #include "layout_builder.h"
+#include "palp/base/parallel.h"
 #include "primary_region.h"
 #include "secondary_region.h"
 #include "secondary_thread.h"
@@ -82,7 +83,7 @@ AsyncRegions::Impl::Impl(const FemModel& model, const Constraints& constraints,
                                        static_cast<double>(k) *
                                        (o.maxPrimaryNodes - o.primaryNodes) / (levels - 1)));
         layouts.push_back(builder.build(contactNodes, seeds));
-        arena.execute([&] { builder.prepare(*layouts.back()); });
+        arenaExecute(arena, [&] { builder.prepare(*layouts.back()); });
     }
     primary.restartCoupling(*layouts[0]);
     if (o.threaded)
@@ -207,7 +208,7 @@ void AsyncRegions::Impl::changeContact(int want, AsyncTickResult& result) noexce
                 secondary.prepareEntry(*layouts[k], *next[k], begin);
             } else {
                 next[k] = builder.build({want}, layouts[k]->seeds);
-                arena.execute([&] { builder.prepare(*next[k]); });
+                arenaExecute(arena, [&] { builder.prepare(*next[k]); });
             }
         }
         primary.adopt(layout(), *next[sz(current)]);
@@ -256,7 +257,7 @@ void AsyncRegions::Impl::solveInline(AsyncTickResult& result) noexcept {
     primary.readBorder(L, border);
     primary.packLoads(in, ticks);
     bool ok = false;
-    arena.execute([&] { ok = secondary.solve(L, border, &in, gamma, watch); });
+    arenaExecute(arena, [&] { ok = secondary.solve(L, border, &in, gamma, watch); });
     if (ok) {
         primary.acceptSolution(L, gamma, border, watch, ticks);
         result.secondaryUpdated = true;

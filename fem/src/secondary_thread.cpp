@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdlib>
 
+#include "palp/base/parallel.h"
 #include "palp/base/thread.h"
 
 namespace palp::fem {
@@ -39,7 +40,7 @@ SecondaryThread::~SecondaryThread() {
 void SecondaryThread::run() {
     nameCurrentThread("palp-secondary");
     if (mSetup.options.secondaryCpu >= 0) pinCurrentThread(mSetup.options.secondaryCpu);
-    mArena.execute([this] {
+    arenaExecute(mArena, [this] {
         while (!mStop.load(std::memory_order_acquire)) {
             if (Layout* old = mChannel.retired.exchange(nullptr, std::memory_order_acq_rel)) {
                 mSec = mOffered;  // the servo adopted the offered layout

@@ -1,6 +1,7 @@
 #pragma once
 /// @file
-/// palp::parallelFor: tbb::parallel_for with its fork and join edges stated for ThreadSanitizer.
+/// palp::parallelFor: tbb::parallel_for with its fork and join edges stated for ThreadSanitizer;
+/// palp::arenaExecute: tbb::task_arena::execute likewise.
 ///
 /// Debian's libtbb is not instrumented, so TSan cannot see that a task starts after the caller
 /// wrote the data the loop reads (the lambda's captures, output sizes) and that the caller reads
@@ -11,6 +12,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #if defined(__SANITIZE_THREAD__)
 #define PALP_TSAN 1
@@ -53,6 +55,26 @@ void parallelForEach(Index first, Index last, const F& f, Index grain = 0) {
     parallelFor(range, [&](const tbb::blocked_range<Index>& r) {
         for (Index i = r.begin(); i != r.end(); ++i) f(i);
     });
+}
+
+/// arena.execute(f) with its two edges stated for ThreadSanitizer: what the caller did before
+/// happens before f, and what f did (on whichever thread TBB ran it: the caller, or one of the
+/// arena's workers while the caller waits) happens before the return. Objects f allocates on a
+/// worker and the caller frees later are then no race to TSan.
+template <class F>
+void arenaExecute(tbb::task_arena& arena, const F& f) {
+#ifdef PALP_TSAN
+    char fork = 0, join = 0;  // addresses only: the sync objects of the two edges
+    __tsan_release(&fork);
+    arena.execute([&] {
+        __tsan_acquire(&fork);
+        f();
+        __tsan_release(&join);
+    });
+    __tsan_acquire(&join);
+#else
+    arena.execute(f);
+#endif
 }
 
 }  // namespace palp
