@@ -272,7 +272,15 @@ TEST(AsyncRegions, StalledSecondaryLeavesPrimaryRunningWithBoundedForce) {
         std::this_thread::sleep_for(std::chrono::microseconds(200));
     }
     a.setSecondaryStalledForTest(true);
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));  // let an in-flight solve land
+    // Let an in-flight solve land: wait until the count of finished solves holds still for
+    // twice the longest solve so far (a fixed 5 ms was too short under ThreadSanitizer on a
+    // loaded machine).
+    for (int w = 0; w < 100; ++w) {
+        const AsyncSecondaryStats before = a.secondaryStats();
+        std::this_thread::sleep_for(
+            std::chrono::duration<double>(2.0 * before.maxSolveSeconds + 0.005));
+        if (a.secondaryStats().solves == before.solves) break;
+    }
     a.tick(Eigen::Vector3d(0, 0, press(101 * kTick, 0.002, 2.0)));
     const auto usedAtStall = a.secondaryStats().used;
     for (int t = 102; t <= 400; ++t) {
