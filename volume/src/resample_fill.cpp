@@ -142,6 +142,17 @@ __attribute__((target("avx2"))) bool planarRowAvx2(const PlanarRow& row, const C
 
 #endif
 
+/// Stores the blend va (1 - f) + vb f of two slices' samples at @p offset when it passes the
+/// threshold and differs from the background; returns whether it was stored.
+inline bool storeBlend(DenseBlock& block, int offset, double va, double vb, double f,
+                       float threshold, float background) noexcept {
+    const auto fv = static_cast<float>(va * (1 - f) + vb * f);
+    if (fv < threshold || fv == background) return false;
+    block.values[static_cast<std::size_t>(offset)] = fv;
+    block.mask.setOn(static_cast<openvdb::Index>(offset));
+    return true;
+}
+
 /// Fills @p block for a block that lies within the slices' range, between slices [bracket,
 /// bracketEnd]. Works along rows of the lattice axis most parallel to the slices: on a row the
 /// normal coordinate and the in-plane coordinates are affine in the step, so they advance by
@@ -305,12 +316,9 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                         const double cc = xRow + dm(0, a) * t + lo.offC;
                         if (!(cc >= -mc && cc <= cmax + mc)) continue;
                         const Column col = columnAt(cc);
-                        const double va = bilinear(rowsLo, col), vb = bilinear(rowsHi, col);
-                        const auto fv = static_cast<float>(va * (1 - f) + vb * f);
-                        if (fv < threshold || fv == background) continue;
-                        block.values[static_cast<std::size_t>(offset)] = fv;
-                        block.mask.setOn(static_cast<openvdb::Index>(offset));
-                        any = true;
+                        any = storeBlend(block, offset, bilinear(rowsLo, col),
+                                         bilinear(rowsHi, col), f, threshold, background) ||
+                              any;
                     }
                     continue;
                 }
@@ -320,12 +328,9 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                     const bool ina = rowsLo.insideR && cLo >= -mc && cLo <= cmax + mc;
                     const bool inb = rowsHi.insideR && cHi >= -mc && cHi <= cmax + mc;
                     if (!ina && !inb) continue;
-                    const double va = sampleRows(rowsLo, cLo), vb = sampleRows(rowsHi, cHi);
-                    const auto fv = static_cast<float>(va * (1 - f) + vb * f);
-                    if (fv < threshold || fv == background) continue;
-                    block.values[static_cast<std::size_t>(offset)] = fv;
-                    block.mask.setOn(static_cast<openvdb::Index>(offset));
-                    any = true;
+                    any = storeBlend(block, offset, sampleRows(rowsLo, cLo),
+                                     sampleRows(rowsHi, cHi), f, threshold, background) ||
+                          any;
                 }
                 continue;
             }
@@ -341,11 +346,7 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                 const bool inb = sample(hi.data, px + hi.offC, py + hi.offR, vb);
                 if (!ina && !inb) continue;
                 const double f = (sp - loAlong) * invGap;
-                const auto fv = static_cast<float>(va * (1 - f) + vb * f);
-                if (fv < threshold || fv == background) continue;
-                block.values[static_cast<std::size_t>(offset)] = fv;
-                block.mask.setOn(static_cast<openvdb::Index>(offset));
-                any = true;
+                any = storeBlend(block, offset, va, vb, f, threshold, background) || any;
             }
         }
     }
