@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <thread>
+#include <vector>
 
 #include "commands.h"
 #include "option_checks.h"
@@ -44,6 +45,14 @@ void hugePageHeap() {
     if (probe && end > from + kHuge)
         madvise(reinterpret_cast<void*>(from), (end - from) & ~(kHuge - 1), MADV_HUGEPAGE);
     std::free(probe);
+}
+
+/// @p v moved to the heap and never freed (reachable through a static pointer, so LeakSanitizer
+/// does not count it); a second call replaces nothing, it keeps both.
+const volume::Volume& keepUntilExit(volume::Volume&& v) {
+    static std::vector<volume::Volume*> kept;
+    kept.push_back(new volume::Volume(std::move(v)));
+    return *kept.back();
 }
 
 }  // namespace
@@ -121,7 +130,11 @@ Command addConvert(CLI::App& root) {
             }
             opt.resample.progress = progressLine("palp convert: resampling");
             std::vector<fs::path> inputs(args->inputs.begin(), args->inputs.end());
-            const volume::Volume vol = withVolumeFlags([&] { return volume::load(inputs, opt); });
+            // Held to the end of the process: the grid is left to the kernel at exit. Freeing its
+            // leaves one by one (73,636 of them, each with its buffer, for the head CT at 0.5 mm)
+            // was ~3 % of convert's CPU samples, for memory the process returns anyway.
+            const volume::Volume& vol =
+                keepUntilExit(withVolumeFlags([&] { return volume::load(inputs, opt); }));
             endProgress();
             volume::SaveOptions so;
             so.compression = args->compression == "zip"    ? volume::Compression::Zip
