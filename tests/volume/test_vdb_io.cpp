@@ -147,4 +147,39 @@ TEST(VdbIo, NotAVdbIsAClearError) {
     }
 }
 
+// A .vdb cut short anywhere (header, metadata, topology, leaf buffers) is refused with the
+// file named: OpenVDB's reader does not check its stream, so a file cut inside the leaf buffers
+// used to load with the missing values as whatever its buffers held, and one cut inside the
+// metadata made the delayed-loading reader spin forever.
+TEST(VdbIo, ATruncatedVdbIsRefusedWhereverItIsCut) {
+    palp::test::TempDir tmp;
+    auto v = smallVolume();
+    for (int i = 0; i < 4000; ++i) v.grid->tree().setValue({i % 40, i / 40, 7}, 1.0f);
+    palp::volume::save(v, tmp / "a.vdb");
+    std::string bytes;
+    {
+        std::ifstream in(tmp / "a.vdb", std::ios::binary);
+        bytes.assign(std::istreambuf_iterator<char>(in), {});
+    }
+    ASSERT_GT(bytes.size(), 8000u);
+    // The same file whole loads, with every value.
+    EXPECT_EQ(palp::volume::loadVdb(tmp / "a.vdb").grid->activeVoxelCount(),
+              v.grid->activeVoxelCount());
+    const std::size_t size = bytes.size();
+    for (const std::size_t n :
+         {std::size_t{10}, std::size_t{100}, std::size_t{1000}, size / 2, size - 1000, size - 1}) {
+        SCOPED_TRACE(n);
+        {
+            std::ofstream(tmp / "cut.vdb", std::ios::binary)
+                .write(bytes.data(), static_cast<std::streamsize>(n));
+        }
+        try {
+            (void)palp::volume::loadVdb(tmp / "cut.vdb");
+            ADD_FAILURE() << "a file cut at " << n << " of " << size << " bytes loaded";
+        } catch (const palp::Error& e) {
+            EXPECT_NE(std::string(e.what()).find("cut.vdb"), std::string::npos) << e.what();
+        }
+    }
+}
+
 }  // namespace

@@ -1,12 +1,16 @@
 // palp info: what a .vdb, a DICOM directory or a scan file holds.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <vector>
 
+#include "batch_heap.h"
 #include "commands.h"
 #include "palp/base/error.h"
+#include "palp/base/parallel.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
 #include "volume_flags.h"
@@ -28,16 +32,43 @@ json describeVolume(const volume::Volume& v, const fs::path& path) {
     const auto& g = *v.grid;
     const openvdb::CoordBBox ibox = g.evalActiveVoxelBoundingBox();
     const auto wb = v.worldBounds();
-    double mn = std::numeric_limits<double>::infinity(), mx = -mn, sum = 0, sum2 = 0;
-    std::uint64_t n = 0;
-    for (auto it = g.cbeginValueOn(); it; ++it) {
-        const double x = *it;
-        mn = std::min(mn, x);
-        mx = std::max(mx, x);
-        sum += x;
-        sum2 += x * x;
-        ++n;
-    }
+    // Statistics of the active values: per leaf in parallel, then summed in tree order (the
+    // same sums whatever the thread count); an active tile counts once per voxel it covers.
+    struct Stats {
+        double mn = std::numeric_limits<double>::infinity(), mx = -mn, sum = 0, sum2 = 0;
+        std::uint64_t n = 0;
+        void add(double x, std::uint64_t count) {
+            mn = std::min(mn, x);
+            mx = std::max(mx, x);
+            sum += x * static_cast<double>(count);
+            sum2 += x * x * static_cast<double>(count);
+            n += count;
+        }
+        void add(const Stats& o) {
+            mn = std::min(mn, o.mn);
+            mx = std::max(mx, o.mx);
+            sum += o.sum;
+            sum2 += o.sum2;
+            n += o.n;
+        }
+    };
+    Stats total;
+    auto tiles = g.cbeginValueOn();
+    tiles.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; tiles; ++tiles) total.add(*tiles, tiles.getVoxelCount());
+    std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
+    leaves.reserve(g.tree().leafCount());
+    for (auto it = g.tree().cbeginLeaf(); it; ++it) leaves.push_back(it.getLeaf());
+    std::vector<Stats> perLeaf(leaves.size());
+    palp::parallelForEach(
+        std::size_t{0}, leaves.size(),
+        [&](std::size_t i) {
+            for (auto it = leaves[i]->cbeginValueOn(); it; ++it) perLeaf[i].add(*it, 1);
+        },
+        std::size_t{64});
+    for (const Stats& s : perLeaf) total.add(s);
+    const double mn = total.mn, mx = total.mx, sum = total.sum, sum2 = total.sum2;
+    const std::uint64_t n = total.n;
     const double mean = n ? sum / static_cast<double>(n) : 0.0;
     const double sd =
         n ? std::sqrt(std::max(0.0, sum2 / static_cast<double>(n) - mean * mean)) : 0.0;
@@ -116,6 +147,7 @@ Command addInfo(CLI::App& root) {
         ->required();
     app->add_flag("--json", args->json, "Print JSON");
     return {app, [args]() -> int {
+                batchHeap();
                 const fs::path in(args->input);
                 std::error_code ec;
                 if (!fs::exists(in, ec)) {

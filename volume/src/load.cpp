@@ -14,10 +14,12 @@
 #include "palp/base/atomic_file.h"
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
+#include "palp/base/parallel.h"
 #include "palp/base/validate.h"
 #include "palp/volume/dicom.h"
 #include "reader_util.h"
 #include "vdb_errors.h"
+#include "vdb_read.h"
 #include "vdb_write.h"
 
 namespace palp::volume {
@@ -55,12 +57,45 @@ void checkStoredGrid(const std::string& name, const openvdb::FloatGrid& grid) tr
     requireWithin(name + ": grid voxel size", voxel[0], bounds::kSpacing, {1e3, "mm"});
     requireWithin(name + ": grid background", static_cast<double>(grid.background()),
                   bounds::kVolumeValue);
-    for (auto it = grid.cbeginValueOn(); it; ++it) {
-        if (bounds::kVolumeValue.contains(static_cast<double>(*it))) continue;
-        const openvdb::Coord c = it.getCoord();
+    const auto refuse = [&](const openvdb::Coord& c, float v) {
         requireWithin(name + ": grid value at (" + std::to_string(c.x()) + ", " +
                           std::to_string(c.y()) + ", " + std::to_string(c.z()) + ")",
-                      static_cast<double>(*it), bounds::kVolumeValue);
+                      static_cast<double>(v), bounds::kVolumeValue);
+    };
+    // Active tiles above the leaves (few), then the leaves in parallel: a branch-free pass over
+    // each leaf's active values (NaN fails both comparisons), and the first leaf in tree order
+    // with a value out of bounds names its first such voxel.
+    auto tiles = grid.cbeginValueOn();
+    tiles.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; tiles; ++tiles)
+        if (!bounds::kVolumeValue.contains(static_cast<double>(*tiles)))
+            refuse(tiles.getCoord(), *tiles);
+    std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
+    leaves.reserve(grid.tree().leafCount());
+    for (auto it = grid.tree().cbeginLeaf(); it; ++it) leaves.push_back(it.getLeaf());
+    constexpr auto lo = static_cast<float>(bounds::kVolumeValue.min);
+    constexpr auto hi = static_cast<float>(bounds::kVolumeValue.max);
+    static_assert(static_cast<double>(lo) == bounds::kVolumeValue.min &&
+                  static_cast<double>(hi) == bounds::kVolumeValue.max);
+    std::vector<char> bad(leaves.size(), 0);
+    palp::parallelForEach(
+        std::size_t{0}, leaves.size(),
+        [&](std::size_t i) {
+            const auto& leaf = *leaves[i];
+            const float* v = leaf.buffer().data();
+            if (v == nullptr) return;  // no buffer: every value is the (checked) background
+            const auto& mask = leaf.getValueMask();
+            bool within = true;
+            for (openvdb::Index k = 0; k < leaf.SIZE; ++k)
+                within &= (!mask.isOn(k)) | ((v[k] >= lo) & (v[k] <= hi));
+            bad[i] = within ? 0 : 1;
+        },
+        std::size_t{64});
+    for (std::size_t i = 0; i < leaves.size(); ++i) {
+        if (!bad[i]) continue;
+        for (auto it = leaves[i]->cbeginValueOn(); it; ++it)
+            if (!bounds::kVolumeValue.contains(static_cast<double>(*it)))
+                refuse(it.getCoord(), *it);
     }
 } catch (const ValueError& e) {
     throw FormatError(e.what());
@@ -261,10 +296,7 @@ Volume loadVdb(const fs::path& path) {
     initialize();
     openvdb::GridPtrVecPtr grids;
     try {
-        openvdb::io::File file(path.string());
-        file.open();
-        grids = file.getGrids();
-        file.close();
+        grids = detail::readGridsMapped(path);
     } catch (const openvdb::Exception& e) {
         throw IoError(path.string() +
                       ": expected a readable OpenVDB file, found an error: " + e.what());
