@@ -252,6 +252,26 @@ Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
             detail::LazySliceStack lazy = detail::openDicom(inputs, options);
             return detail::resampleLazy(lazy, options.resample);
         }
+        if (inputs.size() == 1) {
+            // Likewise a NIfTI, NRRD or MetaImage volume: read (or converted from the stored
+            // bytes) a slice at a time, never held as float beside the grid.
+            const fs::path& in = inputs.front();
+            detail::LazySliceStack lazy;
+            switch (detectFormat(in)) {
+                case Format::Nifti:
+                    lazy = detail::openNifti(in, options);
+                    break;
+                case Format::Nrrd:
+                    lazy = detail::openNrrd(in, options);
+                    break;
+                case Format::MetaImage:
+                    lazy = detail::openMetaImage(in, options);
+                    break;
+                default:
+                    return resample(readStack(inputs, options), options.resample);
+            }
+            return detail::resampleLazy(lazy, options.resample);
+        }
         return resample(readStack(inputs, options), options.resample);
     });
 }

@@ -10,6 +10,7 @@
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "raw_data.h"
+#include "raw_slices.h"
 #include "reader_util.h"
 #include "time_point.h"
 
@@ -204,7 +205,9 @@ MetaImageHeader parseMetaImageHeader(std::string_view text, const std::string& n
     return h;
 }
 
-SliceStack readMetaImage(const fs::path& path, const ReadOptions& options) {
+namespace detail {
+
+LazySliceStack openMetaImage(const fs::path& path, const ReadOptions& options) {
     const std::string name = path.string();
     const std::string prefix = detail::readHeaderPrefix(path);
     const MetaImageHeader h = parseMetaImageHeader(prefix, name);
@@ -283,60 +286,73 @@ SliceStack readMetaImage(const fs::path& path, const ReadOptions& options) {
         dataPath = df.is_absolute() ? df : path.parent_path() / df;
     }
 
-    std::vector<float> values(static_cast<std::size_t>(volumeBytes / esize));
-    const ByteOrder order = h.byteOrder;
+    const std::array<std::int64_t, 3> dims{h.dimSize[0], h.dimSize[1], h.dimSize[2]};
+    LazySliceStack lazy;
     if (!h.binaryData) {
         std::vector<float> all = readAsciiValues(
             dataPath, offset + static_cast<std::uint64_t>(std::max<std::int64_t>(h.headerSize, 0)),
             total / esize);
         const auto first = static_cast<std::ptrdiff_t>(volumeStart / esize);
-        std::copy(all.begin() + first,
-                  all.begin() + first + static_cast<std::ptrdiff_t>(values.size()), values.begin());
-    } else if (h.compressed) {
-        if (h.headerSize == -1) {
-            throw FormatError(name + ": expected 'HeaderSize' >= 0 with compressed data, found -1");
-        }
-        offset += static_cast<std::uint64_t>(h.headerSize);
-        const std::vector<std::byte> bytes = inflateFileRange(
-            dataPath, offset,
-            h.compressedDataSize.value_or(std::numeric_limits<std::uint64_t>::max()), total);
-        decodeElements(
-            std::span<const std::byte>(bytes).subspan(static_cast<std::size_t>(volumeStart),
-                                                      static_cast<std::size_t>(volumeBytes)),
-            h.type, order, values);
+        std::vector<float> values(
+            all.begin() + first,
+            all.begin() + first + static_cast<std::ptrdiff_t>(volumeBytes / esize));
+        all = {};
+        lazy.stack = stackFromAffine(values, dims, axes, origin, name);
     } else {
-        if (h.headerSize == -1) {
-            const std::uint64_t fsz = fileSize(dataPath);
-            if (fsz < offset + total) {
-                throw FormatError(
-                    dataPath.string() + ": expected " + std::to_string(total) +
-                    " bytes of voxel data at the end of the file (HeaderSize -1), found " +
-                    std::to_string(fsz > offset ? fsz - offset : 0));
+        RawVolume raw;
+        raw.file = dataPath;
+        raw.item = name;
+        raw.type = h.type;
+        raw.order = h.byteOrder;
+        raw.dims = dims;
+        if (h.compressed) {
+            if (h.headerSize == -1) {
+                throw FormatError(name +
+                                  ": expected 'HeaderSize' >= 0 with compressed data, found -1");
             }
-            offset = fsz - total;
+            raw.compressed = true;
+            raw.offset = offset + static_cast<std::uint64_t>(h.headerSize);
+            raw.compressedLimit =
+                h.compressedDataSize.value_or(std::numeric_limits<std::uint64_t>::max());
+            raw.streamBytes = total;
+            raw.volumeAt = volumeStart;
         } else {
-            offset += static_cast<std::uint64_t>(h.headerSize);
+            if (h.headerSize == -1) {
+                const std::uint64_t fsz = fileSize(dataPath);
+                if (fsz < offset + total) {
+                    throw FormatError(
+                        dataPath.string() + ": expected " + std::to_string(total) +
+                        " bytes of voxel data at the end of the file (HeaderSize -1), found " +
+                        std::to_string(fsz > offset ? fsz - offset : 0));
+                }
+                offset = fsz - total;
+            } else {
+                offset += static_cast<std::uint64_t>(h.headerSize);
+            }
+            // The whole data block must be there, though only the chosen volume is read.
+            const std::uint64_t fsz = fileSize(dataPath);
+            if (fsz < offset || fsz - offset < total) {
+                throw FormatError(dataPath.string() + ": expected " + std::to_string(total) +
+                                  " bytes of voxel data after the header, found " +
+                                  std::to_string(fsz > offset ? fsz - offset : 0));
+            }
+            raw.offset = offset + volumeStart;
         }
-        // Check the whole data block is there, then read only the chosen volume.
-        const std::uint64_t fsz = fileSize(dataPath);
-        if (fsz < offset || fsz - offset < total) {
-            throw FormatError(dataPath.string() + ": expected " + std::to_string(total) +
-                              " bytes of voxel data after the header, found " +
-                              std::to_string(fsz > offset ? fsz - offset : 0));
-        }
-        const std::vector<std::byte> bytes =
-            readFileRange(dataPath, offset + volumeStart, volumeBytes);
-        decodeElements(bytes, h.type, order, values);
+        lazy = openRawVolume(raw, axes, origin);
     }
-
-    const std::array<std::int64_t, 3> dims{h.dimSize[0], h.dimSize[1], h.dimSize[2]};
-    SliceStack stack = stackFromAffine(values, dims, axes, origin, name);
+    SliceStack& stack = lazy.stack;
     stack.info.sourceFormat = "MetaImage";
     stack.info.sourceDescription = path.filename().string();
     stack.info.timePoint = t;
     stack.info.timePointCount =
         static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
-    return stack;
+    return lazy;
+}
+
+}  // namespace detail
+
+SliceStack readMetaImage(const fs::path& path, const ReadOptions& options) {
+    return detail::decodeAll(detail::openMetaImage(path, options));
 }
 
 }  // namespace palp::volume

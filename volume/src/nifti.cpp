@@ -14,6 +14,7 @@
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "raw_data.h"
+#include "raw_slices.h"
 #include "reader_util.h"
 #include "time_point.h"
 
@@ -88,7 +89,9 @@ std::array<double, 3> rawPixdim(const std::string& name, const nifti_image& nim,
 
 }  // namespace
 
-SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
+namespace detail {
+
+LazySliceStack openNifti(const fs::path& path, const ReadOptions& options) {
     const std::string name = path.string();
     (void)fileSize(path);  // a clear IoError for a missing or unreadable file
 
@@ -248,28 +251,37 @@ SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
     const std::string description(descrip, strnlen(descrip, sizeof(nim->descrip)));
     const int niftiKind = nim->nifti_type;
 
-    if (nifti_image_load(nim.get()) != 0 || !nim->data) {
-        throw FormatError(
-            name + ": expected " + std::to_string(total) +
-            " bytes of voxel data after the header, found a shorter or unreadable data stream");
-    }
+    // The chosen volume, decoded a slice at a time (nifticlib would read every volume of the
+    // file into memory, to be converted to float beside it).
     const std::uint64_t volumeBytes = total / static_cast<std::uint64_t>(volumeCount);
     const std::uint64_t start = t > 0 ? static_cast<std::uint64_t>(t) * volumeBytes : 0;
-    std::vector<float> values(static_cast<std::size_t>(volumeBytes / esize));
-    const std::span<const std::byte> all(static_cast<const std::byte*>(nim->data),
-                                         static_cast<std::size_t>(total));
-    decodeElements(
-        all.subspan(static_cast<std::size_t>(start), static_cast<std::size_t>(volumeBytes)), *type,
-        nativeByteOrder(), values);  // nifticlib swapped to native order
+    const auto voxOffset = static_cast<std::uint64_t>(std::max<std::int64_t>(nim->iname_offset, 0));
+    RawVolume raw;
+    raw.file = iname;
+    raw.item = name;
+    raw.compressed = isGzipName(iname);
+    if (raw.compressed) {
+        // A gzip stream of the header (.nii.gz) or of the image alone (.img.gz): the data start
+        // vox_offset bytes into the decompressed stream; what follows the data is not read (as
+        // nifticlib reads it).
+        raw.streamBytes = voxOffset + total;
+        raw.volumeAt = voxOffset + start;
+        raw.trailingAllowed = true;
+    } else {
+        raw.offset = voxOffset + start;
+    }
+    raw.type = *type;
+    // nifticlib's MSB_FIRST (2; its LSB_FIRST is 1), defined only inside nifticlib.
+    raw.order = nim->byteorder == 2 ? ByteOrder::Big : ByteOrder::Little;
+    raw.dims = {dims[0], dims[1], dims[2]};
+    raw.rescale = rescale;
+    raw.slope = slope;
+    raw.intercept = inter;
     nim.reset();
     lock.unlock();
 
-    if (rescale) {
-        for (float& v : values) v = saturatingFloat(slope * static_cast<double>(v) + inter);
-    }
-
-    const std::array<std::int64_t, 3> dims3{dims[0], dims[1], dims[2]};
-    SliceStack stack = stackFromAffine(values, dims3, axes, origin, name);
+    LazySliceStack lazy = openRawVolume(raw, axes, origin);
+    SliceStack& stack = lazy.stack;
     stack.info.sourceFormat = headerVersion == 2 || niftiKind >= NIFTI_FTYPE_NIFTI2_1 ? "NIfTI-2"
                               : niftiKind == NIFTI_FTYPE_ANALYZE ? "Analyze 7.5"
                                                                  : "NIfTI-1";
@@ -283,7 +295,13 @@ SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
         stack.info.rescaleSlope = slope;
         stack.info.rescaleIntercept = inter;
     }
-    return stack;
+    return lazy;
+}
+
+}  // namespace detail
+
+SliceStack readNifti(const fs::path& path, const ReadOptions& options) {
+    return detail::decodeAll(detail::openNifti(path, options));
 }
 
 }  // namespace palp::volume

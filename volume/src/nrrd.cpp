@@ -11,6 +11,7 @@
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "raw_data.h"
+#include "raw_slices.h"
 #include "reader_util.h"
 #include "time_point.h"
 
@@ -150,15 +151,17 @@ struct NrrdData {
     std::uint64_t dataStart = 0;
 };
 
-/// Reads the @p total bytes (@p count elements) of voxel data that @p h describes; @p prefix is
-/// what was read of the header file.
-NrrdData readNrrdData(const fs::path& path, const std::string& prefix, const NrrdHeader& h,
-                      std::uint64_t total, std::uint64_t count, const ReadOptions& options) {
+/// The file holding the data @p h describes and where in it the data start: after the line skip
+/// and, for raw data, the byte skip (-1: the last @p total bytes of the file); for gzip and ASCII
+/// data the byte skip applies to what follows.
+struct NrrdDataPlace {
+    fs::path file;
+    std::uint64_t offset = 0;
+};
+
+NrrdDataPlace placeNrrdData(const fs::path& path, const std::string& prefix, const NrrdHeader& h,
+                            std::uint64_t total) {
     const std::string name = path.string();
-    NrrdData d;
-    std::vector<std::byte>& bytes = d.bytes;
-    std::vector<float>& asciiValues = d.asciiValues;
-    std::uint64_t& dataStart = d.dataStart;  // offset of the first element inside `bytes`
     fs::path dataPath = path;
     std::uint64_t offset = 0;
     if (h.dataFile.empty()) {
@@ -175,21 +178,35 @@ NrrdData readNrrdData(const fs::path& path, const std::string& prefix, const Nrr
         dataPath = df.is_absolute() ? df : path.parent_path() / df;
     }
     offset = skipLines(dataPath, offset, h.lineSkip);
+    if (h.encoding == NrrdEncoding::Raw) {
+        if (h.byteSkip == -1) {
+            const std::uint64_t fsz = fileSize(dataPath);
+            if (fsz < offset + total) {
+                throw FormatError(
+                    dataPath.string() + ": expected " + std::to_string(total) +
+                    " bytes of voxel data at the end of the file (byte skip -1), found " +
+                    std::to_string(fsz > offset ? fsz - offset : 0));
+            }
+            offset = fsz - total;
+        } else {
+            offset += static_cast<std::uint64_t>(h.byteSkip);
+        }
+    }
+    return {dataPath, offset};
+}
 
+/// Reads the @p total bytes (@p count elements) of voxel data that @p h describes; @p prefix is
+/// what was read of the header file.
+NrrdData readNrrdData(const fs::path& path, const std::string& prefix, const NrrdHeader& h,
+                      std::uint64_t total, std::uint64_t count, const ReadOptions& options) {
+    const std::string name = path.string();
+    NrrdData d;
+    std::vector<std::byte>& bytes = d.bytes;
+    std::vector<float>& asciiValues = d.asciiValues;
+    std::uint64_t& dataStart = d.dataStart;  // offset of the first element inside `bytes`
+    const auto [dataPath, offset] = placeNrrdData(path, prefix, h, total);
     switch (h.encoding) {
         case NrrdEncoding::Raw: {
-            if (h.byteSkip == -1) {
-                const std::uint64_t fsz = fileSize(dataPath);
-                if (fsz < offset + total) {
-                    throw FormatError(
-                        dataPath.string() + ": expected " + std::to_string(total) +
-                        " bytes of voxel data at the end of the file (byte skip -1), found " +
-                        std::to_string(fsz > offset ? fsz - offset : 0));
-                }
-                offset = fsz - total;
-            } else {
-                offset += static_cast<std::uint64_t>(h.byteSkip);
-            }
             bytes = readFileRange(dataPath, offset, total);
             break;
         }
@@ -215,9 +232,21 @@ NrrdData readNrrdData(const fs::path& path, const std::string& prefix, const Nrr
     return d;
 }
 
+/// The stack's source fields for an NRRD.
+void describeNrrd(SliceStack& stack, const NrrdHeader& h, const fs::path& path, int t,
+                  std::int64_t volumeCount) {
+    stack.info.sourceFormat = "NRRD";
+    stack.info.sourceDescription = h.content.empty() ? path.filename().string() : h.content;
+    stack.info.timePoint = t;
+    stack.info.timePointCount =
+        static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
+}
+
 }  // namespace
 
-SliceStack readNrrd(const fs::path& path, const ReadOptions& options) {
+namespace detail {
+
+LazySliceStack openNrrd(const fs::path& path, const ReadOptions& options) {
     const std::string name = path.string();
     const std::string prefix = detail::readHeaderPrefix(path);
     const NrrdHeader h = parseNrrdHeader(prefix, name);
@@ -244,6 +273,46 @@ SliceStack readNrrd(const fs::path& path, const ReadOptions& options) {
     Eigen::Matrix3d axes;
     Eigen::Vector3d origin;
     nrrdGeometry(h, spatial, name, axes, origin);
+
+    // The chosen volume stored contiguously (the spatial axes first and in order, a time axis,
+    // if any, last) and as bytes: decoded a slice at a time.
+    const bool inOrder = spatial.size() == 3 && spatial[0] == 0 && spatial[1] == 1 &&
+                         spatial[2] == 2 && (volumeAxis < 0 || volumeAxis == 3);
+    if (inOrder && h.encoding != NrrdEncoding::Ascii) {
+        const std::uint64_t volumeBytes = total / static_cast<std::uint64_t>(volumeCount);
+        const std::uint64_t volumeAt = t > 0 ? static_cast<std::uint64_t>(t) * volumeBytes : 0;
+        const NrrdDataPlace place = placeNrrdData(path, prefix, h, total);
+        RawVolume raw;
+        raw.file = place.file;
+        raw.item = name;
+        raw.type = h.type;
+        raw.order = h.endianGiven ? h.endian : nativeByteOrder();
+        raw.dims = {h.sizes[0], h.sizes[1], h.sizes[2]};
+        if (h.encoding == NrrdEncoding::Gzip) {
+            const auto skip = static_cast<std::uint64_t>(h.byteSkip);
+            if (skip > options.maxSourceBytes - total) {
+                throw ValueError(name + ": expected a byte skip of at most " +
+                                 std::to_string(options.maxSourceBytes - total) + ", found " +
+                                 std::to_string(skip));
+            }
+            raw.compressed = true;
+            raw.offset = place.offset;
+            raw.streamBytes = total + skip;
+            raw.volumeAt = skip + volumeAt;
+        } else {
+            // The whole data block must be there, though only the chosen volume is read.
+            const std::uint64_t fsz = fileSize(place.file);
+            if (fsz < place.offset || fsz - place.offset < total) {
+                throw FormatError(place.file.string() + ": expected " + std::to_string(total) +
+                                  " bytes of voxel data after the header, found " +
+                                  std::to_string(fsz > place.offset ? fsz - place.offset : 0));
+            }
+            raw.offset = place.offset + volumeAt;
+        }
+        LazySliceStack lazy = openRawVolume(raw, axes, origin);
+        describeNrrd(lazy.stack, h, path, t, volumeCount);
+        return lazy;
+    }
 
     NrrdData data = readNrrdData(path, prefix, h, total, count, options);
     std::vector<std::byte>& bytes = data.bytes;
@@ -296,13 +365,16 @@ SliceStack readNrrd(const fs::path& path, const ReadOptions& options) {
     bytes.clear();
     bytes.shrink_to_fit();
 
-    SliceStack stack = stackFromAffine(values, dims, axes, origin, name);
-    stack.info.sourceFormat = "NRRD";
-    stack.info.sourceDescription = h.content.empty() ? path.filename().string() : h.content;
-    stack.info.timePoint = t;
-    stack.info.timePointCount =
-        static_cast<int>(std::min<std::int64_t>(volumeCount, std::numeric_limits<int>::max()));
-    return stack;
+    LazySliceStack lazy;
+    lazy.stack = stackFromAffine(values, dims, axes, origin, name);
+    describeNrrd(lazy.stack, h, path, t, volumeCount);
+    return lazy;
+}
+
+}  // namespace detail
+
+SliceStack readNrrd(const fs::path& path, const ReadOptions& options) {
+    return detail::decodeAll(detail::openNrrd(path, options));
 }
 
 }  // namespace palp::volume

@@ -202,10 +202,16 @@ std::vector<std::byte> readFileRange(const fs::path& path, std::uint64_t offset,
 
 namespace {
 
-/// Streams compressed bytes from @p next (returns a chunk; empty at the end) into a bounded buffer.
+/// Streams compressed bytes from @p next (returns a chunk; empty at the end) and keeps the
+/// decompressed bytes [keepFrom, keepFrom + keepCount) of the stream, in a buffer that grows as
+/// they arrive (never beyond keepCount, so a header claiming a huge size allocates nothing a small
+/// stream does not fill). The stream must hold exactly @p expectedBytes (or at least that many
+/// with @p allowTrailing, whose extra bytes are then not decompressed).
 template <typename NextChunk>
 std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedBytes,
-                                     const std::string& item) {
+                                     const std::string& item, std::uint64_t keepFrom,
+                                     std::uint64_t keepCount, bool allowTrailing,
+                                     std::uint64_t compressedBytes) {
     z_stream zs{};
     if (inflateInit2(&zs, 15 + 32) != Z_OK) {
         throw Error(item + ": expected zlib to initialise, found an error");
@@ -215,7 +221,17 @@ std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedByt
         ~Guard() { inflateEnd(s); }
     } guard{&zs};
 
+    const std::uint64_t keepEnd = keepFrom + keepCount;  // <= expectedBytes (callers' check)
     std::vector<std::byte> out;
+    // Room for what @p compressedBytes can decompress to at most (deflate expands no byte more
+    // than 1032-fold), so the output grows in place: a buffer doubled and copied held 1.5x the
+    // data at its last step. A header's size alone reserves nothing a small stream cannot fill.
+    constexpr std::uint64_t kMaxRatio = 1032;
+    out.reserve(static_cast<std::size_t>(std::min<std::uint64_t>(
+        keepCount, compressedBytes > (std::numeric_limits<std::uint64_t>::max() >> 11)
+                       ? keepCount
+                       : compressedBytes * kMaxRatio + (std::uint64_t{1} << 16))));
+    std::vector<std::byte> discard;  // bytes before or after the kept window
     std::uint64_t produced = 0;
     constexpr std::uint64_t kFirstChunk = std::uint64_t{1} << 20;
     bool ended = false;
@@ -231,22 +247,34 @@ std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedByt
                 zs.avail_in = static_cast<uInt>(chunk.size());
             }
         }
-        // Grow the output geometrically, never past the expected size; once it is full, give zlib
-        // a one-byte probe so that a longer stream is detected without allocating.
-        if (produced == out.size() && out.size() < expectedBytes) {
-            const std::uint64_t grown = std::min<std::uint64_t>(
-                expectedBytes, std::max<std::uint64_t>(kFirstChunk, out.size() * 2));
-            out.resize(static_cast<std::size_t>(grown));
+        // Inside the window: straight into the output, grown geometrically; outside it: into a
+        // scratch buffer; once the expected bytes are in, a one-byte probe detects a longer
+        // stream without allocating.
+        const bool probing = produced == expectedBytes;
+        if (probing && allowTrailing) {
+            ended = true;
+            break;
         }
-        const bool probing = produced == out.size();
-        if (!probing) {
-            const std::uint64_t room =
-                std::min<std::uint64_t>(out.size() - produced, std::uint64_t{1} << 30);
-            zs.next_out = reinterpret_cast<Bytef*>(out.data() + produced);
-            zs.avail_out = static_cast<uInt>(room);
-        } else {
+        if (probing) {
             zs.next_out = reinterpret_cast<Bytef*>(overflowProbe);
             zs.avail_out = 1;
+        } else if (produced >= keepFrom && produced < keepEnd) {
+            const std::uint64_t at = produced - keepFrom;
+            if (at == out.size()) {
+                const std::uint64_t grown = std::min<std::uint64_t>(
+                    keepCount, std::max<std::uint64_t>(kFirstChunk, out.size() * 2));
+                out.resize(static_cast<std::size_t>(grown));
+            }
+            const std::uint64_t room =
+                std::min<std::uint64_t>(out.size() - at, std::uint64_t{1} << 30);
+            zs.next_out = reinterpret_cast<Bytef*>(out.data() + at);
+            zs.avail_out = static_cast<uInt>(room);
+        } else {
+            if (discard.empty()) discard.resize(std::size_t{1} << 18);
+            const std::uint64_t limit = produced < keepFrom ? keepFrom : expectedBytes;
+            zs.next_out = reinterpret_cast<Bytef*>(discard.data());
+            zs.avail_out =
+                static_cast<uInt>(std::min<std::uint64_t>(discard.size(), limit - produced));
         }
         const uInt availBefore = zs.avail_out;
         const int rc = inflate(&zs, Z_NO_FLUSH);
@@ -291,6 +319,19 @@ std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedByt
 std::vector<std::byte> inflateFileRange(const fs::path& path, std::uint64_t offset,
                                         std::uint64_t maxCompressedBytes,
                                         std::uint64_t expectedBytes) {
+    return inflateFileWindow(path, offset, maxCompressedBytes, expectedBytes, 0, expectedBytes,
+                             false);
+}
+
+std::vector<std::byte> inflateFileWindow(const fs::path& path, std::uint64_t offset,
+                                         std::uint64_t maxCompressedBytes,
+                                         std::uint64_t expectedBytes, std::uint64_t keepFrom,
+                                         std::uint64_t keepCount, bool allowTrailing) {
+    if (keepFrom > expectedBytes || keepCount > expectedBytes - keepFrom) {
+        throw ValueError(path.string() + ": expected a window inside the " +
+                         std::to_string(expectedBytes) + " decompressed bytes, found bytes " +
+                         std::to_string(keepFrom) + " + " + std::to_string(keepCount));
+    }
     const std::uint64_t size = fileSize(path);
     if (offset > size) {
         throw FormatError(path.string() + ": expected compressed voxel data at byte " +
@@ -316,7 +357,8 @@ std::vector<std::byte> inflateFileRange(const fs::path& path, std::uint64_t offs
         remaining = got == 0 ? 0 : remaining - got;
         return {buffer.data(), got};
     };
-    return inflateStream(next, expectedBytes, path.string());
+    return inflateStream(next, expectedBytes, path.string(), keepFrom, keepCount, allowTrailing,
+                         remaining);
 }
 
 std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed,
@@ -337,9 +379,10 @@ std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed,
             pos += n;
             return s;
         };
-        return inflateStream(chunked, expectedBytes, item);
+        return inflateStream(chunked, expectedBytes, item, 0, expectedBytes, false,
+                             compressed.size());
     }
-    return inflateStream(next, expectedBytes, item);
+    return inflateStream(next, expectedBytes, item, 0, expectedBytes, false, compressed.size());
 }
 
 std::vector<float> readAsciiValues(const fs::path& path, std::uint64_t offset,

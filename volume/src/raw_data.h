@@ -81,6 +81,16 @@ std::vector<std::byte> inflateFileRange(const std::filesystem::path& path, std::
                                         std::uint64_t maxCompressedBytes,
                                         std::uint64_t expectedBytes);
 
+/// inflateFileRange() keeping only the decompressed bytes [@p keepFrom, @p keepFrom +
+/// @p keepCount) (one volume of a 4D file, the data after a NIfTI header), while checking the whole
+/// stream. With @p allowTrailing the stream may hold more than @p expectedBytes (what follows is
+/// not decompressed), as nifticlib reads a .nii.gz.
+/// @throw ValueError when the window is not inside @p expectedBytes; as inflateFileRange().
+std::vector<std::byte> inflateFileWindow(const std::filesystem::path& path, std::uint64_t offset,
+                                         std::uint64_t maxCompressedBytes,
+                                         std::uint64_t expectedBytes, std::uint64_t keepFrom,
+                                         std::uint64_t keepCount, bool allowTrailing);
+
 /// In-memory variant of inflateFileRange; @p item names the source in messages.
 std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed,
                                     std::uint64_t expectedBytes, const std::string& item);
