@@ -17,7 +17,7 @@ else
            test_volume_checks test_volume_dicom test_volume_dicom_syntax test_volume_dicom_mosaic test_volume_dicom_enhanced test_volume_format_sniff test_volume_phantom test_volume_phantom_tumour test_volume_io
            test_volume_resample test_volume_resample_rows test_volume_lazy_load test_volume_vdb_write test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api
            test_c_api_fields test_c_api_deformable test_c_api_deformable_c test_c_api_host
-           test_c_api_host_c test_c_api_udp_c test_volume_from_memory)
+           test_c_api_host_c test_c_api_udp_c test_volume_from_memory test_volume_lazy_formats)
 fi
 # PALP_SANITIZE_STEP=build only builds (.ci/run builds in the background while the TSan tests
 # run), =run only runs an existing build; both by default.
@@ -40,6 +40,7 @@ fi
 # detect_leaks: a leak is a finding too.
 export ASAN_OPTIONS="halt_on_error=1:abort_on_error=0:detect_leaks=1:strict_string_checks=1:detect_stack_use_after_return=1"
 export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
+export LSAN_OPTIONS="suppressions=$PWD/tools/lsan.supp"
 # Two executables at a time (CI has two cores; most of these tests use one), each into its own
 # log, printed whole when it fails. The release suite (ctest -j 2) already runs them side by side.
 logs="build/asan/sanitize-logs"

@@ -19,40 +19,69 @@ namespace palp::volume::detail {
 
 namespace {
 
-/// Thrown by MemoryBuf when a read goes past the end of the bytes.
-struct PastTheEnd {};
-
 /// A read-only, seekable stream buffer over bytes in memory: tellg() and seekg() are pointer
-/// arithmetic, reads are copies, and a read past the end throws PastTheEnd (OpenVDB does not
-/// check its stream between reads: counts read from a file cut short could drive it around a
-/// loop for a long time).
+/// arithmetic and reads are copies. Past the end it reads zeros and remembers that it did.
+/// OpenVDB does not check its stream between reads: from a failed stream, counts keep whatever
+/// the last read left (a file cut in its metadata made OpenVDB's own reader spin forever), and
+/// throwing out of OpenVDB's reads leaks the node being read (it holds it by a raw pointer).
+/// Zeros end every loop at once (no tiles, no children, empty masks), and the caller refuses
+/// the file afterwards.
 class MemoryBuf final : public std::streambuf {
   public:
-    MemoryBuf(const char* data, std::size_t size) {
-        char* p = const_cast<char*>(data);  // get area only: never written through
-        setg(p, p, p + size);
+    MemoryBuf(const char* data, std::size_t size)
+        : mData(const_cast<char*>(data)),  // get area only: never written through
+          mSize(static_cast<off_type>(size)) {
+        setg(mData, mData, mData + mSize);
     }
+
+    /// Whether a read or a seek went past the end of the bytes.
+    bool pastTheEnd() const { return mPastTheEnd; }
 
   protected:
     int_type underflow() override {
         if (gptr() < egptr()) return traits_type::to_int_type(*gptr());
-        throw PastTheEnd{};
+        zerosFrom(position());
+        return traits_type::to_int_type(*gptr());
     }
     pos_type seekoff(off_type off, std::ios_base::seekdir dir,
                      std::ios_base::openmode which) override {
         if (!(which & std::ios_base::in)) return pos_type(off_type(-1));
         const off_type base = dir == std::ios_base::beg   ? 0
-                              : dir == std::ios_base::cur ? gptr() - eback()
-                                                          : egptr() - eback();
+                              : dir == std::ios_base::cur ? position()
+                                                          : mSize;
         const off_type to = base + off;
-        if (to < 0 || to > egptr() - eback()) return pos_type(off_type(-1));
-        setg(eback(), eback() + to, egptr());
+        if (to < 0) return pos_type(off_type(-1));
+        if (to <= mSize) {
+            setg(mData, mData + to, mData + mSize);
+        } else {
+            zerosFrom(to);
+        }
         return pos_type(to);
     }
     pos_type seekpos(pos_type pos, std::ios_base::openmode which) override {
         return seekoff(off_type(pos), std::ios_base::beg, which);
     }
+
+  private:
+    /// The stream position of the next byte.
+    off_type position() const {
+        return eback() == sZeros ? mZerosAt + (gptr() - eback()) : gptr() - eback();
+    }
+    /// Serves zeros from stream position @p at on.
+    void zerosFrom(off_type at) {
+        mPastTheEnd = true;
+        mZerosAt = at;
+        setg(sZeros, sZeros, sZeros + sizeof(sZeros));
+    }
+
+    static char sZeros[1 << 16];  // read only: the get area is never written through
+    char* mData;
+    off_type mSize;
+    off_type mZerosAt = 0;
+    bool mPastTheEnd = false;
 };
+
+char MemoryBuf::sZeros[1 << 16] = {};
 
 /// A file mapped read-only for the lifetime of the object.
 class MappedFile {
@@ -106,7 +135,6 @@ openvdb::GridPtrVecPtr readGridsMapped(const std::filesystem::path& path) {
     const MappedFile file(path);
     MemoryBuf buffer(file.data(), file.size());
     std::istream in(&buffer);
-    in.exceptions(std::ios::badbit);  // the stream rethrows what its buffer throws
     const auto truncated = [&] {
         return FormatError(path.string() + ": expected a complete OpenVDB file, found it ends " +
                            "early (" + std::to_string(file.size()) +
@@ -116,11 +144,13 @@ openvdb::GridPtrVecPtr readGridsMapped(const std::filesystem::path& path) {
     try {
         openvdb::io::Stream stream(in, /*delayLoad=*/false);
         grids = stream.getGrids();
-    } catch (const PastTheEnd&) {
-        throw truncated();
+    } catch (...) {
+        // What OpenVDB made of the zeros past the end (an unregistered grid type "", an empty
+        // metadata name) is not the file's fault: its end is.
+        if (buffer.pastTheEnd()) throw truncated();
+        throw;
     }
-    // Without OpenVDB reading past the end, a short read still leaves the stream failed.
-    if (in.fail()) throw truncated();
+    if (buffer.pastTheEnd() || in.fail()) throw truncated();
     return grids;
 }
 
