@@ -166,7 +166,8 @@ TEST(ServoLoop, RunsConsecutiveTicksAndReportsConsistentStats) {
     EXPECT_EQ(s.ticks, n);
     EXPECT_EQ(s.compute.count, n);
     EXPECT_EQ(s.wakeLatency.count, n);
-    EXPECT_EQ(s.periodError.count, n - 1);  // needs a previous wake
+    EXPECT_EQ(s.periodError.count, n - 1);          // needs a previous wake
+    std::uint64_t missesSeen = 0, skippedSeen = 0;  // as the recorded nominal times show them
     for (std::uint64_t i = 0; i < n; ++i) {
         ASSERT_EQ(task.mIndex[i], i);
         EXPECT_DOUBLE_EQ(task.mPeriod[i], 1e-3);
@@ -176,11 +177,23 @@ TEST(ServoLoop, RunsConsecutiveTicksAndReportsConsistentStats) {
             const double steps = (task.mTime[i] - task.mTime[i - 1]) / 1e-3;
             EXPECT_NEAR(steps, std::round(steps), 1e-6);
             EXPECT_GE(std::round(steps), 1.0);
+            if (std::round(steps) > 1.0) {
+                ++missesSeen;
+                skippedSeen += static_cast<std::uint64_t>(std::round(steps)) - 1;
+            }
         }
     }
     EXPECT_DOUBLE_EQ(task.mTime[0], 0.0);
-    // ticks + skipped deadlines cover the nominal time span exactly.
-    EXPECT_NEAR(task.mTime[n - 1] / 1e-3, static_cast<double>(n - 1 + s.skipped), 1e-6);
+    // ticks + skipped deadlines cover the nominal time span exactly: each overrun shows as one
+    // gap of several periods before the next tick, except an overrun of the last tick, which
+    // ends after its time was recorded (a loaded machine can preempt it: seen once in ctest -j 2).
+    EXPECT_NEAR(task.mTime[n - 1] / 1e-3, static_cast<double>(n - 1 + skippedSeen), 1e-6);
+    if (s.misses == missesSeen) {
+        EXPECT_EQ(s.skipped, skippedSeen);
+    } else {
+        EXPECT_EQ(s.misses, missesSeen + 1);  // the last tick's
+        EXPECT_GT(s.skipped, skippedSeen);
+    }
     for (const LatencySummary* l : {&s.wakeLatency, &s.periodError, &s.compute}) {
         EXPECT_LE(l->p50, l->p99);
         EXPECT_LE(l->p99, l->p999);
