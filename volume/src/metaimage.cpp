@@ -330,12 +330,7 @@ LazySliceStack openMetaImage(const fs::path& path, const ReadOptions& options) {
                 offset += static_cast<std::uint64_t>(h.headerSize);
             }
             // The whole data block must be there, though only the chosen volume is read.
-            const std::uint64_t fsz = fileSize(dataPath);
-            if (fsz < offset || fsz - offset < total) {
-                throw FormatError(dataPath.string() + ": expected " + std::to_string(total) +
-                                  " bytes of voxel data after the header, found " +
-                                  std::to_string(fsz > offset ? fsz - offset : 0));
-            }
+            requireDataAfterHeader(dataPath, offset, total);
             raw.offset = offset + volumeStart;
         }
         lazy = openRawVolume(raw, axes, origin);

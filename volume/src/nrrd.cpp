@@ -301,12 +301,7 @@ LazySliceStack openNrrd(const fs::path& path, const ReadOptions& options) {
             raw.volumeAt = skip + volumeAt;
         } else {
             // The whole data block must be there, though only the chosen volume is read.
-            const std::uint64_t fsz = fileSize(place.file);
-            if (fsz < place.offset || fsz - place.offset < total) {
-                throw FormatError(place.file.string() + ": expected " + std::to_string(total) +
-                                  " bytes of voxel data after the header, found " +
-                                  std::to_string(fsz > place.offset ? fsz - place.offset : 0));
-            }
+            requireDataAfterHeader(place.file, place.offset, total);
             raw.offset = place.offset + volumeAt;
         }
         LazySliceStack lazy = openRawVolume(raw, axes, origin);

@@ -180,6 +180,15 @@ std::uint64_t fileSize(const fs::path& path) {
     return static_cast<std::uint64_t>(size);
 }
 
+void requireDataAfterHeader(const fs::path& path, std::uint64_t offset, std::uint64_t count) {
+    const std::uint64_t size = fileSize(path);
+    if (size < offset || size - offset < count) {
+        throw FormatError(path.string() + ": expected " + std::to_string(count) +
+                          " bytes of voxel data after the header, found " +
+                          std::to_string(size > offset ? size - offset : 0));
+    }
+}
+
 std::vector<std::byte> readFileRange(const fs::path& path, std::uint64_t offset,
                                      std::uint64_t count) {
     const std::uint64_t size = fileSize(path);

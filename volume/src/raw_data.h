@@ -66,6 +66,12 @@ std::uint64_t checkedDataBytes(std::span<const std::int64_t> dims, std::uint64_t
 /// @throw IoError naming the file when it does not exist or is not readable.
 std::uint64_t fileSize(const std::filesystem::path& path);
 
+/// Checks that @p path holds @p count bytes from @p offset on, before anything is read.
+/// @throw IoError when it cannot be read; FormatError naming it when it is shorter
+///        (`<file>: expected 1234567 bytes of voxel data after the header, found 1000`).
+void requireDataAfterHeader(const std::filesystem::path& path, std::uint64_t offset,
+                            std::uint64_t count);
+
 /// Reads @p count bytes at @p offset of @p path. The file size is checked before allocating.
 /// @throw IoError when the file cannot be read, FormatError when it is too short
 ///        (`<file>: expected 1234567 bytes of voxel data after the header, found 1000`).
