@@ -8,6 +8,7 @@
 #define PALP_FILL_AVX2 1
 #endif
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <limits>
@@ -27,10 +28,11 @@ namespace {
 /// many plus the slices one block spans along the normal.
 constexpr std::size_t kSlicesPerGroup = 16;
 
-/// Values of one leaf block and its active mask, filled densely by one thread before a leaf
-/// is made (so blocks that stay inactive cost no allocation).
+/// Values of one leaf block (the buffer of a leaf not yet in the tree) and its active mask,
+/// filled densely by one thread; a block that stays inactive leaves its leaf to the next block,
+/// so it costs no allocation, and an active one's values are filled in place, not copied.
 struct DenseBlock {
-    std::array<float, LeafT::SIZE> values;
+    float* values = nullptr;
     LeafT::NodeMaskType mask;
 };
 
@@ -453,6 +455,7 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
 
     tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
     tbb::enumerable_thread_specific<DenseBlock> scratch;
+    tbb::enumerable_thread_specific<std::unique_ptr<LeafT>> spareLeaf;
     for (std::size_t g = 0; g < groups; ++g) {
         if (start[g] < start[g + 1]) {
             if (window) {
@@ -469,20 +472,23 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
                         cornersOf(origin, bmin, bmax);
                         std::size_t bracket = n, bracketEnd = n;
                         if (!sm.blockMayBeActive(bmin, bmax, bracket, bracketEnd)) continue;
+                        std::unique_ptr<LeafT>& leaf = spareLeaf.local();
+                        if (!leaf) {
+                            // Its buffer is allocated without being filled: the block fills it.
+                            leaf = std::make_unique<LeafT>(openvdb::PartialCreate(), origin,
+                                                           ctx.background, false);
+                            leaf->allocate();
+                        }
                         DenseBlock& block = scratch.local();
-                        block.values.fill(ctx.background);
+                        block.values = leaf->buffer().data();
+                        std::fill_n(block.values, LeafT::SIZE, ctx.background);
                         block.mask.setOff();
                         const bool any =
                             bracket < n && !ctx.referenceOnly
                                 ? fillBracketedBlock(ctx, origin, bmin, bracket, bracketEnd, block)
                                 : fillBlock(ctx, origin, block);
-                        if (!any) continue;
-                        // The leaf's buffer is allocated without being filled: the block's
-                        // values (background where inactive) are copied in whole.
-                        auto leaf = std::make_unique<LeafT>(openvdb::PartialCreate(), origin,
-                                                            ctx.background, false);
-                        leaf->allocate();
-                        std::copy(block.values.begin(), block.values.end(), leaf->buffer().data());
+                        if (!any) continue;  // the leaf stays spare for the next block
+                        leaf->setOrigin(origin);
                         leaf->setValueMask(block.mask);
                         mine.push_back(std::move(leaf));
                     }
