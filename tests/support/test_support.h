@@ -50,6 +50,9 @@ bool haveProgram(const std::string& program);
 /// Writes @p bytes to @p path (binary), replacing it.
 void writeFile(const std::filesystem::path& path, const std::string& bytes);
 
+/// @p data as a zlib stream, or a gzip one when @p gzip, at compression @p level.
+std::string deflateBytes(const std::string& data, bool gzip, int level = 6);
+
 /// @p values as little-endian float32 bytes (the test machines are x86-64).
 std::string floatsLE(const std::vector<float>& values);
 

@@ -4,7 +4,6 @@
 // described. Every file is made at test time (a few bytes each).
 #include <gtest/gtest.h>
 #include <nifti2_io.h>
-#include <zlib.h>
 
 #include <cstring>
 #include <string>
@@ -17,6 +16,7 @@
 namespace {
 
 namespace fs = std::filesystem;
+using palp::test::deflateBytes;
 using palp::test::expectThrowWith;
 using palp::test::floatsLE;
 using palp::test::TempDir;
@@ -78,20 +78,6 @@ std::string nifti2Bytes() {
     return bytes + floatsLE(kValues);
 }
 
-std::string gzipBytes(const std::string& data) {
-    z_stream z{};
-    EXPECT_EQ(deflateInit2(&z, 6, Z_DEFLATED, 15 + 16, 8, Z_DEFAULT_STRATEGY), Z_OK);
-    std::string out(deflateBound(&z, static_cast<uLong>(data.size())) + 64, '\0');
-    z.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
-    z.avail_in = static_cast<uInt>(data.size());
-    z.next_out = reinterpret_cast<Bytef*>(out.data());
-    z.avail_out = static_cast<uInt>(out.size());
-    EXPECT_EQ(deflate(&z, Z_FINISH), Z_STREAM_END);
-    out.resize(z.total_out);
-    deflateEnd(&z);
-    return out;
-}
-
 /// The image both NIfTI files hold, checked in LPS metres: RAS (10, 20, 30) mm is LPS
 /// (-10, -20, 30) mm, and the columns step -1 mm along x (RAS +x is LPS -x).
 void expectTheKnownImage(const SliceStack& st) {
@@ -107,7 +93,7 @@ TEST(FormatSniff, Nifti2IsNamedNifti2InSlicesMetadataAndInfo) {
     TempDir tmp;
     writeFile(tmp / "one.nii", nifti1Bytes());
     writeFile(tmp / "two.nii", nifti2Bytes());
-    writeFile(tmp / "two.nii.gz", gzipBytes(nifti2Bytes()));
+    writeFile(tmp / "two.nii.gz", deflateBytes(nifti2Bytes(), true));
     const SliceStack one = palp::volume::readStack({tmp / "one.nii"}, {});
     expectTheKnownImage(one);
     EXPECT_EQ(one.info.sourceFormat, "NIfTI-1");
@@ -141,7 +127,8 @@ TEST(FormatSniff, NiftiUnderAnotherNameIsRefusedSayingWhatItIs) {
     const Case cases[] = {
         {"scan.dat", nifti1Bytes(), "found a NIfTI-1 file named 'scan.dat'"},
         {"scan", nifti2Bytes(), "found a NIfTI-2 file named 'scan'"},
-        {"scan.bin", gzipBytes(nifti2Bytes()), "found a gzip-compressed NIfTI-2 file named"},
+        {"scan.bin", deflateBytes(nifti2Bytes(), true),
+         "found a gzip-compressed NIfTI-2 file named"},
         {"scan.nrrd", nifti1Bytes(), "found a NIfTI-1 file named 'scan.nrrd'"},
     };
     for (const Case& c : cases) {
@@ -188,7 +175,7 @@ TEST(FormatSniff, WhatPalpCannotReadIsDescribed) {
             [&] { palp::volume::readStack({tmp / name}, {}); },
             {(tmp / name).string() + ": expected a DICOM file", found});
     };
-    check("notes.gz", gzipBytes("plain text, compressed\n"),
+    check("notes.gz", deflateBytes("plain text, compressed\n", true),
           "found a gzip stream palp cannot read");
     check("picture.xyz", std::string("\x89PNG\r\n\x1a\n", 8) + std::string(64, '\0'),
           "found an unknown format (its first bytes match none of them and its name says "

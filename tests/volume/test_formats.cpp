@@ -3,7 +3,6 @@
 // inputs (right exception, message naming the file with expected/found, nothing written).
 #include <gtest/gtest.h>
 #include <openvdb/tools/Interpolation.h>
-#include <zlib.h>
 
 #include <cmath>
 #include <cstring>
@@ -20,6 +19,7 @@
 namespace {
 
 namespace fs = std::filesystem;
+using palp::test::deflateBytes;
 using palp::test::expectThrowWith;
 using palp::test::floatsLE;
 using palp::test::TempDir;
@@ -35,21 +35,6 @@ std::string int16BE(const std::vector<std::int16_t>& v) {
         s.push_back(static_cast<char>(u & 0xff));
     }
     return s;
-}
-
-/// zlib (gzip = false) or gzip (gzip = true) stream of @p data.
-std::string deflateString(const std::string& data, bool gzip) {
-    z_stream zs{};
-    EXPECT_EQ(deflateInit2(&zs, 6, Z_DEFLATED, gzip ? 15 + 16 : 15, 8, Z_DEFAULT_STRATEGY), Z_OK);
-    std::string out(deflateBound(&zs, static_cast<uLong>(data.size())) + 64, '\0');
-    zs.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
-    zs.avail_in = static_cast<uInt>(data.size());
-    zs.next_out = reinterpret_cast<Bytef*>(out.data());
-    zs.avail_out = static_cast<uInt>(out.size());
-    EXPECT_EQ(deflate(&zs, Z_FINISH), Z_STREAM_END);
-    out.resize(zs.total_out);
-    deflateEnd(&zs);
-    return out;
 }
 
 double stackSum(const SliceStack& st) {
@@ -335,7 +320,7 @@ TEST(Nrrd, DetachedGzipAsciiAnd4D) {
     std::vector<float> second = vals;
     for (float& x : second) x += 1000;
     vals.insert(vals.end(), second.begin(), second.end());
-    writeFile(tmp / "d.raw.gz", deflateString(floatsLE(vals), true));
+    writeFile(tmp / "d.raw.gz", deflateBytes(floatsLE(vals), true));
     writeFile(tmp / "d.nhdr",
               "NRRD0005\ntype: float\ndimension: 4\nspace: LPS\nsizes: 3 2 2 2\n"
               "space directions: (1,0,0) (0,1,0) (0,0,1) none\nkinds: space space space time\n"
@@ -392,7 +377,7 @@ TEST(Nrrd, ShortRawFileIsRefused) {
 TEST(Nrrd, TruncatedAndOverlongGzipAreRefused) {
     TempDir tmp;
     const std::string data = floatsLE(fieldValues(8, 8, 8));
-    const std::string gz = deflateString(data, true);
+    const std::string gz = deflateBytes(data, true);
     const std::string header =
         "NRRD0004\ntype: float\ndimension: 3\nsizes: 8 8 8\nendian: little\nencoding: gzip\n\n";
     writeFile(tmp / "t.nrrd", header + gz.substr(0, gz.size() / 2));
@@ -492,7 +477,7 @@ TEST(MetaImage, CompressedLocalDataAnd4D) {
     std::vector<float> second = vals;
     for (float& x : second) x = -x;
     vals.insert(vals.end(), second.begin(), second.end());
-    const std::string z = deflateString(floatsLE(vals), false);
+    const std::string z = deflateBytes(floatsLE(vals), false);
     writeFile(tmp / "c.mha",
               "ObjectType = Image\nNDims = 4\nBinaryData = True\nBinaryDataByteOrderMSB = False\n"
               "CompressedData = True\nCompressedDataSize = " +
@@ -512,7 +497,7 @@ TEST(MetaImage, CompressedLocalDataAnd4D) {
     EXPECT_LT((st.slices[1].position - Eigen::Vector3d(1e-3, 2e-3, 4e-3)).norm(), 1e-15);
 
     // A 3D file whose compressed stream is cut short.
-    const std::string z3 = deflateString(floatsLE(fieldValues(4, 3, 2)), false);
+    const std::string z3 = deflateBytes(floatsLE(fieldValues(4, 3, 2)), false);
     writeFile(tmp / "cut.mha",
               "NDims = 3\nCompressedData = True\nDimSize = 4 3 2\nElementType = MET_FLOAT\n"
               "ElementDataFile = LOCAL\n" +

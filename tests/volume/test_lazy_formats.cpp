@@ -4,7 +4,6 @@
 #include <gtest/gtest.h>
 #include <malloc.h>
 #include <nifti1_io.h>
-#include <zlib.h>
 
 #include <cstdint>
 #include <cstdio>
@@ -22,6 +21,7 @@
 namespace {
 
 namespace fs = std::filesystem;
+using palp::test::deflateBytes;
 using palp::test::TempDir;
 using palp::test::writeFile;
 using palp::volume::LoadOptions;
@@ -53,20 +53,6 @@ void expectLazyEqualsWhole(const fs::path& file, const LoadOptions& opt = {}) {
     EXPECT_EQ(lazy.info.sourceFormat, whole.info.sourceFormat);
     EXPECT_EQ(lazy.info.originalDims, whole.info.originalDims);
     EXPECT_EQ(lazy.info.timePoint, whole.info.timePoint);
-}
-
-std::string gzip(const std::string& data) {
-    z_stream zs{};
-    EXPECT_EQ(deflateInit2(&zs, 1, Z_DEFLATED, 15 + 16, 8, Z_DEFAULT_STRATEGY), Z_OK);
-    std::string out(deflateBound(&zs, static_cast<uLong>(data.size())) + 64, '\0');
-    zs.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
-    zs.avail_in = static_cast<uInt>(data.size());
-    zs.next_out = reinterpret_cast<Bytef*>(out.data());
-    zs.avail_out = static_cast<uInt>(out.size());
-    EXPECT_EQ(deflate(&zs, Z_FINISH), Z_STREAM_END);
-    out.resize(zs.total_out);
-    deflateEnd(&zs);
-    return out;
 }
 
 /// An int16 NIfTI-1 (.nii, or .nii.gz when @p name ends so) of nx x ny x nz x nt voxels, value
@@ -116,7 +102,7 @@ fs::path niftiInt16(const fs::path& dir, const std::string& name, int nx, int ny
                 }
     const fs::path file = dir / name;
     const bool gz = name.size() > 3 && name.compare(name.size() - 3, 3, ".gz") == 0;
-    writeFile(file, gz ? gzip(bytes) : bytes);
+    writeFile(file, gz ? deflateBytes(bytes, true, 1) : bytes);
     return file;
 }
 
@@ -168,7 +154,7 @@ TEST(LazyFormats, NrrdAndMetaImageGiveTheGridOfTheWholeVolume) {
                                     data);
     writeFile(tmp / "gz.nrrd", "NRRD0004\ndimension: 3\nsizes: 13 11 9\n" + common +
                                    "space directions: " + dirs + "\nencoding: gzip\n\n" +
-                                   gzip(data.substr(0, data.size() / 2)));
+                                   deflateBytes(data.substr(0, data.size() / 2), true, 1));
     writeFile(tmp / "first.nrrd", "NRRD0004\ndimension: 4\nsizes: 2 13 11 9\n" + common +
                                       "space directions: none " + dirs + "\nencoding: raw\n\n" +
                                       data);
@@ -183,7 +169,7 @@ TEST(LazyFormats, NrrdAndMetaImageGiveTheGridOfTheWholeVolume) {
         "BinaryData = True\nBinaryDataByteOrderMSB = False\n";
     const std::string one = data.substr(0, data.size() / 2);
     writeFile(tmp / "raw.mha", mhaHeader + "ElementDataFile = LOCAL\n" + one);
-    const std::string z = gzip(one);
+    const std::string z = deflateBytes(one, true, 1);
     writeFile(tmp / "z.mha", mhaHeader + "CompressedData = True\nCompressedDataSize = " +
                                  std::to_string(z.size()) + "\nElementDataFile = LOCAL\n" + z);
     expectLazyEqualsWhole(tmp / "raw.mha");
