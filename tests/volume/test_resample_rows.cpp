@@ -159,19 +159,21 @@ std::int64_t voxelsDiffering(const Volume& a, const Volume& b) {
 TEST(ResampleRows, VectorRowsGiveTheScalarRowsBitForBit) {
     // Gantry tilt about x: the slices share their column coordinate (one column per voxel for
     // both); then every other slice shifted by a third of a pixel along its rows (a column per
-    // slice). Where the CPU has no AVX2 both grids come from the scalar rows.
+    // slice). Where the CPU has no AVX2 both grids come from the scalar rows. At 0.45 and 0.7 mm
+    // four voxels of a row span at most eight pixels, which the vector rows load and permute; at
+    // 1.6 mm they span more and the vector rows gather them.
     const SliceStack tilted = palp::test::tiltedSeries(48, 40, 14, 0.7e-3, 1.3e-3, 17.0);
     SliceStack shifted = tilted;
     for (std::size_t k = 1; k < shifted.slices.size(); k += 2)
         shifted.slices[k].position += shifted.slices[k].colStep / 3;
     for (const auto& [name, st] : {std::pair{"tilted", tilted}, std::pair{"shifted", shifted}}) {
-        for (const double voxel : {0.45e-3, 0.7e-3}) {
+        for (const double voxel : {0.45e-3, 0.7e-3, 1.6e-3}) {
             SCOPED_TRACE(std::string(name) + ", voxel " + std::to_string(voxel * 1e3) + " mm");
             palp::volume::ResampleOptions opt;
             opt.voxelSize = voxel;
             const Volume fast = palp::volume::resample(st, opt);
             const Volume scalar = palp::volume::detail::resampleScalarRows(st, opt);
-            EXPECT_GT(fast.grid->activeVoxelCount(), 10000u);
+            EXPECT_GT(fast.grid->activeVoxelCount(), voxel < 1e-3 ? 10000u : 1000u);
             EXPECT_EQ(fast.grid->activeVoxelCount(), scalar.grid->activeVoxelCount());
             EXPECT_EQ(voxelsDiffering(fast, scalar), 0);
         }

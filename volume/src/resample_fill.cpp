@@ -75,6 +75,11 @@ PALP_FILL_AVX2_INLINE __m256d gatherAvx2(const float* base, __m128i ci) {
     return _mm256_cvtps_pd(_mm_i32gather_ps(base, ci, 4));
 }
 
+/// w[i] for the four low lanes of @p i, as doubles.
+PALP_FILL_AVX2_INLINE __m256d pickAvx2(__m256 w, __m256i i) {
+    return _mm256_cvtps_pd(_mm256_castps256_ps128(_mm256_permutevar8x32_ps(w, i)));
+}
+
 /// The clamped bilinear samples of four voxels on one slice's pixel rows, with the scalar
 /// kernel's double-precision operations in the same order (no FMA), so each lane is bit for bit
 /// the scalar sample.
@@ -85,10 +90,29 @@ PALP_FILL_AVX2_INLINE __m256d sampleRowsAvx2(const PixelRows& pr, const Columns&
     const __m128i ci = _mm_min_epi32(_mm256_cvttpd_epi32(cc), _mm_set1_epi32(cs.c0max));
     const __m256d fc = _mm256_sub_pd(cc, _mm256_cvtepi32_pd(ci));
     const __m256d gc = _mm256_sub_pd(one, fc);
-    const __m256d top = _mm256_add_pd(_mm256_mul_pd(gatherAvx2(pr.p0, ci), gc),
-                                      _mm256_mul_pd(gatherAvx2(pr.p0 + cs.dc1, ci), fc));
-    const __m256d bottom = _mm256_add_pd(_mm256_mul_pd(gatherAvx2(pr.p1, ci), gc),
-                                         _mm256_mul_pd(gatherAvx2(pr.p1 + cs.dc1, ci), fc));
+    __m256d p00, p01, p10, p11;  // (row, column) pixels: p0[ci], p0[ci + dc1], p1[...]
+    // The clamped columns are monotonic along the row, so the four lanes' pixels lie between
+    // lane 0's and lane 3's: when they fit in eight pixels of the row, two loads and lane
+    // permutes fetch them (the same values as the gathers, which cost more).
+    const int ca = _mm_cvtsi128_si32(ci), cb = _mm_extract_epi32(ci, 3);
+    const int base = std::min(ca, cb);
+    const int cols = cs.c0max + 1 + static_cast<int>(cs.dc1);
+    if (std::max(ca, cb) + static_cast<int>(cs.dc1) - base < 8 && base + 8 <= cols) {
+        const __m256i i0 = _mm256_castsi128_si256(_mm_sub_epi32(ci, _mm_set1_epi32(base)));
+        const __m256i i1 = _mm256_add_epi32(i0, _mm256_set1_epi32(static_cast<int>(cs.dc1)));
+        const __m256 w0 = _mm256_loadu_ps(pr.p0 + base), w1 = _mm256_loadu_ps(pr.p1 + base);
+        p00 = pickAvx2(w0, i0);
+        p01 = pickAvx2(w0, i1);
+        p10 = pickAvx2(w1, i0);
+        p11 = pickAvx2(w1, i1);
+    } else {
+        p00 = gatherAvx2(pr.p0, ci);
+        p01 = gatherAvx2(pr.p0 + cs.dc1, ci);
+        p10 = gatherAvx2(pr.p1, ci);
+        p11 = gatherAvx2(pr.p1 + cs.dc1, ci);
+    }
+    const __m256d top = _mm256_add_pd(_mm256_mul_pd(p00, gc), _mm256_mul_pd(p01, fc));
+    const __m256d bottom = _mm256_add_pd(_mm256_mul_pd(p10, gc), _mm256_mul_pd(p11, fc));
     return _mm256_add_pd(_mm256_mul_pd(top, _mm256_set1_pd(1 - pr.fr)),
                          _mm256_mul_pd(bottom, _mm256_set1_pd(pr.fr)));
 }
