@@ -9,7 +9,7 @@ LPS metres unless a function says otherwise. Errors are palp.ValueError / palp.F
 (subclasses of ValueError) and palp.IoError (an OSError), all palp.Error, carrying palp's
 messages.
 
-The C++ core is palp._palp; see README.md, "Python".
+The C++ core is palp._palp; see README.md, "Python" (and docs/api.md for the whole reference).
 """
 
 import os
