@@ -1,5 +1,7 @@
 // Tests of the raw-data helpers shared by the format readers.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include <cstring>
@@ -121,3 +123,85 @@ TEST(RawData, FileRangesAreCheckedBeforeReading) {
 }
 
 }  // namespace
+
+namespace {
+
+/// Compressible bytes with structure at several scales (runs, ramps, noise), so deflate makes
+/// blocks of varied lengths whose boundaries mostly fall inside a byte.
+std::string structuredBytes(std::size_t n) {
+    std::string s(n, '\0');
+    std::uint32_t x = 12345;
+    for (std::size_t i = 0; i < n; ++i) {
+        x = x * 1103515245u + 12345u;
+        const std::size_t region = (i >> 14) % 4;
+        const unsigned v = region == 0   ? 7u
+                           : region == 1 ? static_cast<unsigned>(i % 251)
+                           : region == 2 ? (x >> 16) & 0xffu
+                                         : static_cast<unsigned>((i / 3) % 17) + ((x >> 20) & 3u);
+        s[i] = static_cast<char>(v);
+    }
+    return s;
+}
+
+}  // namespace
+
+TEST(RawData, AnIndexedStreamGivesAnyRangeOfItsBytes) {
+    palp::test::TempDir tmp;
+    const std::string data = structuredBytes(std::size_t{3} << 20);
+    for (const bool gzip : {true, false}) {
+        SCOPED_TRACE(gzip ? "gzip" : "zlib");
+        const std::string header = "a header of 23 bytes...";
+        const auto file = tmp / (gzip ? "d.gz" : "d.z");
+        palp::test::writeFile(file, header + palp::test::deflateBytes(data, gzip));
+        const InflateIndex index =
+            indexFileStream(file, header.size(), std::numeric_limits<std::uint64_t>::max(),
+                            data.size(), false, std::uint64_t{1} << 17);
+        ASSERT_TRUE(index.singleMember);
+        // Points about 128 KiB apart, each with the window before it; most mid-byte.
+        EXPECT_GE(index.points.size(), 12u);
+        EXPECT_LE(index.points.size(), 25u);
+        int midByte = 0;
+        for (const auto& p : index.points) {
+            EXPECT_EQ(p.window.size(), std::min<std::uint64_t>(p.out, 32768));
+            midByte += p.bits > 0;
+        }
+        EXPECT_GT(midByte, 0);
+        const int fd = ::open(file.c_str(), O_RDONLY);
+        ASSERT_GE(fd, 0);
+        std::uint32_t x = 99;
+        const std::size_t n = data.size();
+        std::vector<std::pair<std::size_t, std::size_t>> ranges = {
+            {0, 1}, {0, n}, {n - 1, 1}, {n - 70000, 70000}, {131072, 262144}};
+        for (const auto& p : index.points) ranges.push_back({p.out, 1000});  // at each point
+        for (int i = 0; i < 40; ++i) {
+            x = x * 1664525u + 1013904223u;
+            const std::size_t from = x % n;
+            x = x * 1664525u + 1013904223u;
+            ranges.push_back({from, 1 + x % std::min<std::size_t>(n - from, 400000)});
+        }
+        for (const auto& [from, count] : ranges) {
+            std::vector<std::byte> out(count);
+            inflateAt(index, fd, from, out);
+            ASSERT_EQ(std::memcmp(out.data(), data.data() + from, count), 0)
+                << "bytes " << from << " + " << count;
+        }
+        ::close(fd);
+    }
+    // Two gzip members: checked like one stream, but no random access.
+    const std::string two = palp::test::deflateBytes(data.substr(0, 1000000), true) +
+                            palp::test::deflateBytes(data.substr(1000000), true);
+    palp::test::writeFile(tmp / "two.gz", two);
+    const InflateIndex twoIndex = indexFileStream(
+        tmp / "two.gz", 0, std::numeric_limits<std::uint64_t>::max(), data.size(), false, 1 << 17);
+    EXPECT_FALSE(twoIndex.singleMember);
+    // A damaged stream is refused while indexing, as when its bytes are kept.
+    std::string bad = palp::test::deflateBytes(data, true);
+    bad[bad.size() / 2] = static_cast<char>(bad[bad.size() / 2] ^ 0x5a);
+    palp::test::writeFile(tmp / "bad.gz", bad);
+    palp::test::expectThrowWith<palp::FormatError>(
+        [&] {
+            (void)indexFileStream(tmp / "bad.gz", 0, std::numeric_limits<std::uint64_t>::max(),
+                                  data.size(), false, 1 << 17);
+        },
+        {"bad.gz"});
+}

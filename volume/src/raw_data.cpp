@@ -1,10 +1,13 @@
 #include "raw_data.h"
 
+#include <fcntl.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include <algorithm>
 #include <bit>
 #include <cctype>
+#include <cerrno>
 #include <charconv>
 #include <cstdlib>
 #include <cstring>
@@ -216,11 +219,24 @@ namespace {
 /// they arrive (never beyond keepCount, so a header claiming a huge size allocates nothing a small
 /// stream does not fill). The stream must hold exactly @p expectedBytes (or at least that many
 /// with @p allowTrailing, whose extra bytes are then not decompressed).
+/// Sees what inflateStream() decompresses, to index the stream (indexFileStream()).
+struct InflateObserver {
+    virtual ~InflateObserver() = default;
+    /// Every decompressed byte, in order (the bytes of later gzip members too).
+    virtual void output(std::span<const std::byte> bytes) = 0;
+    /// At the start of the first member's data and at each of its deflate block boundaries:
+    /// @p produced bytes out, @p consumed compressed bytes in, @p bits unused bits of the last.
+    virtual void boundary(std::uint64_t produced, std::uint64_t consumed, int bits) = 0;
+    /// A second gzip member starts.
+    virtual void anotherMember() = 0;
+};
+
 template <typename NextChunk>
 std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedBytes,
                                      const std::string& item, std::uint64_t keepFrom,
                                      std::uint64_t keepCount, bool allowTrailing,
-                                     std::uint64_t compressedBytes) {
+                                     std::uint64_t compressedBytes,
+                                     InflateObserver* observer = nullptr) {
     z_stream zs{};
     if (inflateInit2(&zs, 15 + 32) != Z_OK) {
         throw Error(item + ": expected zlib to initialise, found an error");
@@ -286,8 +302,15 @@ std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedByt
                 static_cast<uInt>(std::min<std::uint64_t>(discard.size(), limit - produced));
         }
         const uInt availBefore = zs.avail_out;
-        const int rc = inflate(&zs, Z_NO_FLUSH);
+        // An observer stops inflate at every block boundary (Z_BLOCK) to see it.
+        const int rc = inflate(&zs, observer ? Z_BLOCK : Z_NO_FLUSH);
         const uInt written = availBefore - zs.avail_out;
+        if (observer) {
+            observer->output({reinterpret_cast<const std::byte*>(zs.next_out) - written, written});
+            // Bit 7: at the end of a block or of the header; bit 6: the last block ended.
+            if ((zs.data_type & 128) != 0 && (zs.data_type & 64) == 0 && rc == Z_OK)
+                observer->boundary(produced + written, zs.total_in, zs.data_type & 7);
+        }
         if (probing && written > 0) {
             throw FormatError(item + ": expected " + std::to_string(expectedBytes) +
                               " bytes of decompressed voxel data, found more");
@@ -298,6 +321,7 @@ std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedByt
             const bool moreInput = zs.avail_in > 0 || !inputDone;
             if (produced < expectedBytes && moreInput && zs.avail_in > 0) {
                 inflateReset(&zs);
+                if (observer) observer->anotherMember();
                 continue;
             }
             ended = true;
@@ -368,6 +392,181 @@ std::vector<std::byte> inflateFileWindow(const fs::path& path, std::uint64_t off
     };
     return inflateStream(next, expectedBytes, path.string(), keepFrom, keepCount, allowTrailing,
                          remaining);
+}
+
+namespace {
+
+/// Records InflateIndex points: the last 32 KiB of output kept in a ring, copied at each block
+/// boundary at least @p spacing bytes past the previous point.
+class IndexBuilder final : public InflateObserver {
+  public:
+    IndexBuilder(InflateIndex& index, std::uint64_t offset, std::uint64_t spacing)
+        : mIndex(index), mOffset(offset), mSpacing(spacing), mRing(kWindow) {}
+
+    void output(std::span<const std::byte> bytes) override {
+        // Only the last kWindow bytes of a long piece can end up in the ring.
+        if (bytes.size() > kWindow) {
+            mProduced += bytes.size() - kWindow;
+            bytes = bytes.last(kWindow);
+        }
+        for (std::size_t done = 0; done < bytes.size();) {
+            const std::size_t at = static_cast<std::size_t>(mProduced % kWindow);
+            const std::size_t n = std::min(bytes.size() - done, kWindow - at);
+            std::memcpy(mRing.data() + at, bytes.data() + done, n);
+            done += n;
+            mProduced += n;
+        }
+    }
+
+    void boundary(std::uint64_t produced, std::uint64_t consumed, int bits) override {
+        if (!mIndex.singleMember) return;  // the first member's points only
+        if (mProduced != produced) {
+            mIndex.singleMember = false;  // cannot happen; no random access rather than a wrong one
+            return;
+        }
+        if (!mIndex.points.empty() && produced < mIndex.points.back().out + mSpacing) return;
+        InflateIndex::Point p;
+        p.out = produced;
+        p.in = mOffset + consumed;
+        p.bits = bits;
+        const auto held = static_cast<std::size_t>(std::min<std::uint64_t>(produced, kWindow));
+        p.window.resize(held);
+        for (std::size_t i = 0; i < held; ++i)
+            p.window[i] = mRing[static_cast<std::size_t>((produced - held + i) % kWindow)];
+        mIndex.points.push_back(std::move(p));
+    }
+
+    void anotherMember() override { mIndex.singleMember = false; }
+
+  private:
+    static constexpr std::size_t kWindow = std::size_t{1} << 15;  // deflate's largest distance
+    InflateIndex& mIndex;
+    std::uint64_t mOffset, mSpacing;
+    std::vector<std::byte> mRing;
+    std::uint64_t mProduced = 0;
+};
+
+}  // namespace
+
+InflateIndex indexFileStream(const fs::path& path, std::uint64_t offset,
+                             std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes,
+                             bool allowTrailing, std::uint64_t spacing) {
+    InflateIndex index;
+    index.file = path;
+    const std::uint64_t size = fileSize(path);
+    if (offset > size) {
+        throw FormatError(path.string() + ": expected compressed voxel data at byte " +
+                          std::to_string(offset) + ", found a file of " + std::to_string(size) +
+                          " bytes");
+    }
+    std::uint64_t remaining = std::min(size - offset, maxCompressedBytes);
+    if (maxCompressedBytes != std::numeric_limits<std::uint64_t>::max() &&
+        remaining < maxCompressedBytes) {
+        throw FormatError(path.string() + ": expected " + std::to_string(maxCompressedBytes) +
+                          " bytes of compressed voxel data after the header, found " +
+                          std::to_string(remaining));
+    }
+    index.end = offset + remaining;
+    std::ifstream in = openOrThrow(path);
+    in.seekg(static_cast<std::streamoff>(offset));
+    std::vector<std::byte> buffer(std::size_t{1} << 18);
+    auto next = [&]() -> std::span<const std::byte> {
+        if (remaining == 0) return {};
+        const auto want =
+            static_cast<std::size_t>(std::min<std::uint64_t>(remaining, buffer.size()));
+        in.read(reinterpret_cast<char*>(buffer.data()), static_cast<std::streamsize>(want));
+        const auto got = static_cast<std::size_t>(std::max<std::streamsize>(in.gcount(), 0));
+        remaining = got == 0 ? 0 : remaining - got;
+        return {buffer.data(), got};
+    };
+    IndexBuilder builder(index, offset, std::max<std::uint64_t>(spacing, 1));
+    (void)inflateStream(next, expectedBytes, path.string(), 0, 0, allowTrailing, remaining,
+                        &builder);
+    return index;
+}
+
+void inflateAt(const InflateIndex& index, int fd, std::uint64_t from, std::span<std::byte> out) {
+    const std::string item = index.file.string();
+    if (!index.singleMember || index.points.empty()) {
+        throw Error(item + ": expected an index of a single-member stream, found none");
+    }
+    // The last point at or before @p from.
+    auto it =
+        std::upper_bound(index.points.begin(), index.points.end(), from,
+                         [](std::uint64_t v, const InflateIndex::Point& p) { return v < p.out; });
+    if (it == index.points.begin()) throw Error(item + ": expected an index point before a byte");
+    const InflateIndex::Point& p = *std::prev(it);
+
+    z_stream zs{};
+    if (inflateInit2(&zs, -15) != Z_OK) throw Error(item + ": expected zlib to initialise");
+    struct Guard {
+        z_stream* s;
+        ~Guard() { inflateEnd(s); }
+    } guard{&zs};
+    std::vector<std::byte> input(std::size_t{1} << 16), skip(std::size_t{1} << 16);
+    std::uint64_t at = p.in;  // next compressed byte to read
+    const auto readInput = [&](std::byte* dst, std::size_t want) -> std::size_t {
+        want = static_cast<std::size_t>(std::min<std::uint64_t>(want, index.end - at));
+        std::size_t done = 0;
+        while (done < want) {
+            const ssize_t got = ::pread(fd, dst + done, want - done, static_cast<off_t>(at + done));
+            if (got < 0 && errno == EINTR) continue;
+            if (got <= 0) {
+                throw FormatError(item + ": expected compressed bytes at byte " +
+                                  std::to_string(at + done) + ", found " +
+                                  (got < 0 ? std::string("a read error: ") + std::strerror(errno)
+                                           : std::string("the end of the file (it shrank)")));
+            }
+            done += static_cast<std::size_t>(got);
+        }
+        at += done;
+        return done;
+    };
+    if (p.bits > 0) {
+        // The point starts inside the byte before p.in: its high bits are the next block's.
+        std::byte last{};
+        at = p.in - 1;
+        (void)readInput(&last, 1);
+        inflatePrime(&zs, p.bits,
+                     static_cast<int>(std::to_integer<unsigned>(last) >> (8 - p.bits)));
+    }
+    if (!p.window.empty() &&
+        inflateSetDictionary(&zs, reinterpret_cast<const Bytef*>(p.window.data()),
+                             static_cast<uInt>(p.window.size())) != Z_OK) {
+        throw Error(item + ": expected zlib to take the index's window");
+    }
+    std::uint64_t produced = p.out;
+    std::size_t filled = 0;
+    while (filled < out.size()) {
+        if (zs.avail_in == 0) {
+            const std::size_t got = readInput(input.data(), input.size());
+            zs.next_in = reinterpret_cast<Bytef*>(input.data());
+            zs.avail_in = static_cast<uInt>(got);
+        }
+        std::byte* dst;
+        std::size_t room;
+        if (produced < from) {
+            dst = skip.data();
+            room = static_cast<std::size_t>(std::min<std::uint64_t>(skip.size(), from - produced));
+        } else {
+            dst = out.data() + filled;
+            room = std::min<std::size_t>(out.size() - filled, std::size_t{1} << 30);
+        }
+        zs.next_out = reinterpret_cast<Bytef*>(dst);
+        zs.avail_out = static_cast<uInt>(room);
+        const int rc = inflate(&zs, Z_NO_FLUSH);
+        const std::size_t written = room - zs.avail_out;
+        if (produced >= from) filled += written;
+        produced += written;
+        if (filled == out.size()) break;
+        if (rc == Z_STREAM_END || (rc == Z_BUF_ERROR && zs.avail_in == 0 && at >= index.end) ||
+            (rc != Z_OK && rc != Z_BUF_ERROR)) {
+            throw FormatError(item + ": expected " + std::to_string(out.size()) +
+                              " decompressed bytes at byte " + std::to_string(from) +
+                              " of the stream, found " + std::to_string(filled) + " (" +
+                              (zs.msg ? std::string(zs.msg) : std::to_string(rc)) + ")");
+        }
+    }
 }
 
 std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed,

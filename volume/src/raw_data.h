@@ -97,6 +97,34 @@ std::vector<std::byte> inflateFileWindow(const std::filesystem::path& path, std:
                                          std::uint64_t expectedBytes, std::uint64_t keepFrom,
                                          std::uint64_t keepCount, bool allowTrailing);
 
+/// Access points into a zlib/gzip stream's deflate data, for decompressing any part of it
+/// again without keeping its bytes (each point: where a deflate block starts, in and out, and the
+/// 32 KiB of output before it that the block may refer to).
+struct InflateIndex {
+    struct Point {
+        std::uint64_t out = 0;  ///< decompressed bytes before the point
+        std::uint64_t in = 0;   ///< file offset of the first byte the point reads
+        int bits = 0;           ///< unused high bits of the byte before @ref in that it reads
+        std::vector<std::byte> window;
+    };
+    std::filesystem::path file;
+    std::uint64_t end = 0;     ///< the file offset past the compressed data
+    bool singleMember = true;  ///< points cover one gzip member; false: no random access
+    std::vector<Point> points;
+};
+
+/// Checks the stream as inflateFileWindow() does (the same errors) while keeping none of its
+/// bytes, and records points at deflate block boundaries at least @p spacing decompressed bytes
+/// apart (~32 KiB each). A stream of several gzip members comes back with singleMember false.
+InflateIndex indexFileStream(const std::filesystem::path& path, std::uint64_t offset,
+                             std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes,
+                             bool allowTrailing, std::uint64_t spacing);
+
+/// The decompressed bytes [@p from, @p from + out.size()) of @p index's stream, read by pread
+/// from @p fd (the index's file, open; safe from several threads at once).
+/// @throw FormatError when the file no longer holds them; Error for an unusable index.
+void inflateAt(const InflateIndex& index, int fd, std::uint64_t from, std::span<std::byte> out);
+
 /// In-memory variant of inflateFileRange; @p item names the source in messages.
 std::vector<std::byte> inflateBytes(std::span<const std::byte> compressed,
                                     std::uint64_t expectedBytes, const std::string& item);

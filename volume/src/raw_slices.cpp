@@ -28,6 +28,17 @@ struct FileHandle {
     }
 };
 
+/// @p path opened for reading (pread from any thread), closed with the last decoder holding it.
+std::shared_ptr<FileHandle> openHandle(const std::filesystem::path& path) {
+    auto file = std::make_shared<FileHandle>();
+    file->fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (file->fd < 0) {
+        throw IoError(path.string() + ": expected a readable file, found that open failed: " +
+                      std::strerror(errno));
+    }
+    return file;
+}
+
 /// True when every value of @p raw, decoded and rescaled, is finite and within
 /// bounds::kVolumeValue whatever the stored bits: integers up to 32 bits under a rescale that
 /// maps their whole range inside the bounds (the slice check is then skipped, as for DICOM).
@@ -97,6 +108,25 @@ LazySliceStack openRawVolume(const RawVolume& raw, const Eigen::Matrix3d& axes,
     lazy.stack.info.originalSpacing = {axes.col(0).norm(), axes.col(1).norm(), axes.col(2).norm()};
     const bool bounded = valuesBounded(raw);
 
+    if (raw.compressed && volumeBytes >= raw.indexFromBytes) {
+        // Access points about a slice apart: a slice decompresses at most ~two slices' bytes.
+        auto index = std::make_shared<const InflateIndex>(indexFileStream(
+            raw.file, raw.offset, raw.compressedLimit, raw.streamBytes, raw.trailingAllowed,
+            std::max<std::uint64_t>(sliceBytes, std::uint64_t{1} << 18)));
+        if (index->singleMember && !index->points.empty()) {
+            auto file = openHandle(raw.file);
+            lazy.decode = [file, index, raw, sliceBytes, bounded](std::size_t k, Slice& s) {
+                thread_local std::vector<std::byte> stored;
+                stored.resize(static_cast<std::size_t>(sliceBytes));
+                inflateAt(*index, file->fd, raw.volumeAt + k * sliceBytes, stored);
+                s.values.resize(static_cast<std::size_t>(sliceBytes / elementSize(raw.type)));
+                toFloat(stored, raw, s.values);
+                return bounded;
+            };
+            return lazy;
+        }
+        // Several gzip members: decompressed again below, the volume's bytes kept.
+    }
     if (raw.compressed) {
         auto stored = std::make_shared<const std::vector<std::byte>>(
             inflateFileWindow(raw.file, raw.offset, raw.compressedLimit, raw.streamBytes,
@@ -118,12 +148,7 @@ LazySliceStack openRawVolume(const RawVolume& raw, const Eigen::Matrix3d& axes,
                           " bytes of voxel data at byte " + std::to_string(raw.offset) +
                           ", found " + std::to_string(size > raw.offset ? size - raw.offset : 0));
     }
-    auto file = std::make_shared<FileHandle>();
-    file->fd = ::open(raw.file.c_str(), O_RDONLY | O_CLOEXEC);
-    if (file->fd < 0) {
-        throw IoError(raw.file.string() + ": expected a readable file, found that open failed: " +
-                      std::strerror(errno));
-    }
+    auto file = openHandle(raw.file);
     lazy.decode = [file, raw, sliceBytes, bounded](std::size_t k, Slice& s) {
         // One slice's stored bytes, read into a buffer per thread and converted in place.
         thread_local std::vector<std::byte> stored;

@@ -33,6 +33,9 @@ struct RawVolume {
     ElementType type = ElementType::Float32;
     ByteOrder order = ByteOrder::Little;
     std::array<std::int64_t, 3> dims{};
+    /// Compressed volumes of at least this many stored bytes are not kept: the stream is checked
+    /// and indexed once, and each slice decompressed again from the access point before it.
+    std::uint64_t indexFromBytes = std::uint64_t{32} << 20;
     bool rescale = false;  ///< values are slope * stored + intercept
     double slope = 1, intercept = 0;
 };
