@@ -16,6 +16,7 @@
 #include "memory_use.h"
 #include "palp/base/error.h"
 #include "palp/volume/load.h"
+#include "raw_slices.h"
 #include "test_support.h"
 
 namespace {
@@ -174,6 +175,53 @@ TEST(LazyFormats, NrrdAndMetaImageGiveTheGridOfTheWholeVolume) {
                                  std::to_string(z.size()) + "\nElementDataFile = LOCAL\n" + z);
     expectLazyEqualsWhole(tmp / "raw.mha");
     expectLazyEqualsWhole(tmp / "z.mha");
+}
+
+TEST(LazyFormats, SlicesDecompressedFromTheStreamsIndexEqualTheKeptBytes) {
+    // load() indexes compressed volumes of 32 MiB or more (the peak-memory test below); here the
+    // threshold is lowered so small streams take that path, in parallel (decodeAll), under the
+    // sanitizers too. The second volume of a two-volume stream, with bytes before and after it.
+    TempDir tmp;
+    const std::int64_t nx = 61, ny = 47, nz = 29;
+    const std::size_t volume = static_cast<std::size_t>(nx * ny * nz) * 2;
+    std::string data(2 * volume + 999, '\0');
+    std::uint32_t x = 7;
+    for (std::size_t i = 0; i < data.size(); i += 2) {
+        x = x * 1664525u + 1013904223u;
+        const auto v = static_cast<std::int16_t>((i / 2) % 3000 - 1000 + ((x >> 24) & 15));
+        std::memcpy(&data[i], &v, 2);
+    }
+    const std::string header(348, 'h');
+    writeFile(tmp / "v.gz", header + deflateBytes(data, true, 1));
+    palp::volume::detail::RawVolume raw;
+    raw.file = tmp / "v.gz";
+    raw.item = raw.file.string();
+    raw.compressed = true;
+    raw.offset = header.size();
+    raw.streamBytes = data.size();
+    raw.volumeAt = volume;
+    raw.type = palp::volume::ElementType::Int16;
+    raw.dims = {nx, ny, nz};
+    raw.rescale = true;
+    raw.slope = 0.5;
+    raw.intercept = -3;
+    const Eigen::Matrix3d axes = Eigen::Vector3d(1e-3, 1.1e-3, 2e-3).asDiagonal();
+    const Eigen::Vector3d origin(0.01, -0.02, 0.03);
+    const auto decode = [&](std::uint64_t indexFrom) {
+        raw.indexFromBytes = indexFrom;
+        return palp::volume::detail::decodeAll(
+            palp::volume::detail::openRawVolume(raw, axes, origin));
+    };
+    const palp::volume::SliceStack kept = decode(UINT64_MAX), indexed = decode(0);
+    ASSERT_EQ(indexed.slices.size(), static_cast<std::size_t>(nz));
+    for (std::size_t k = 0; k < indexed.slices.size(); ++k) {
+        ASSERT_EQ(indexed.slices[k].values, kept.slices[k].values) << "slice " << k;
+        // And the file's own values: slice k of the second volume.
+        const std::size_t at = volume + k * static_cast<std::size_t>(nx * ny) * 2 + 2 * 5;
+        std::int16_t v;
+        std::memcpy(&v, &data[at], 2);
+        EXPECT_EQ(indexed.slices[k].values[5], 0.5f * static_cast<float>(v) - 3.0f);
+    }
 }
 
 TEST(LazyFormats, ADamagedStreamOrAShortFileIsRefusedByLoad) {
