@@ -155,7 +155,7 @@ TEST(RawData, AnIndexedStreamGivesAnyRangeOfItsBytes) {
         palp::test::writeFile(file, header + palp::test::deflateBytes(data, gzip));
         const InflateIndex index =
             indexFileStream(file, header.size(), std::numeric_limits<std::uint64_t>::max(),
-                            data.size(), false, std::uint64_t{1} << 17);
+                            data.size(), 0, data.size(), false, std::uint64_t{1} << 17);
         ASSERT_TRUE(index.singleMember);
         // Points about 128 KiB apart, each with the window before it; most mid-byte.
         EXPECT_GE(index.points.size(), 12u);
@@ -185,14 +185,28 @@ TEST(RawData, AnIndexedStreamGivesAnyRangeOfItsBytes) {
             ASSERT_EQ(std::memcmp(out.data(), data.data() + from, count), 0)
                 << "bytes " << from << " + " << count;
         }
+        // Points for a window only: the last before it and those inside it.
+        const std::uint64_t from = 1000000, count = 700000;
+        const InflateIndex part =
+            indexFileStream(file, header.size(), std::numeric_limits<std::uint64_t>::max(),
+                            data.size(), from, count, false, std::uint64_t{1} << 17);
+        ASSERT_GE(part.points.size(), 4u);
+        EXPECT_LE(part.points.size(), 8u);
+        EXPECT_LE(part.points.front().out, from);
+        EXPECT_GT(part.points[1].out, from);
+        EXPECT_LT(part.points.back().out, from + count);
+        std::vector<std::byte> out(count);
+        inflateAt(part, fd, from, out);
+        EXPECT_EQ(std::memcmp(out.data(), data.data() + from, count), 0);
         ::close(fd);
     }
     // Two gzip members: checked like one stream, but no random access.
     const std::string two = palp::test::deflateBytes(data.substr(0, 1000000), true) +
                             palp::test::deflateBytes(data.substr(1000000), true);
     palp::test::writeFile(tmp / "two.gz", two);
-    const InflateIndex twoIndex = indexFileStream(
-        tmp / "two.gz", 0, std::numeric_limits<std::uint64_t>::max(), data.size(), false, 1 << 17);
+    const InflateIndex twoIndex =
+        indexFileStream(tmp / "two.gz", 0, std::numeric_limits<std::uint64_t>::max(), data.size(),
+                        0, data.size(), false, 1 << 17);
     EXPECT_FALSE(twoIndex.singleMember);
     // A damaged stream is refused while indexing, as when its bytes are kept.
     std::string bad = palp::test::deflateBytes(data, true);
@@ -201,7 +215,7 @@ TEST(RawData, AnIndexedStreamGivesAnyRangeOfItsBytes) {
     palp::test::expectThrowWith<palp::FormatError>(
         [&] {
             (void)indexFileStream(tmp / "bad.gz", 0, std::numeric_limits<std::uint64_t>::max(),
-                                  data.size(), false, 1 << 17);
+                                  data.size(), 0, data.size(), false, 1 << 17);
         },
         {"bad.gz"});
 }

@@ -397,11 +397,18 @@ std::vector<std::byte> inflateFileWindow(const fs::path& path, std::uint64_t off
 namespace {
 
 /// Records InflateIndex points: the last 32 KiB of output kept in a ring, copied at each block
-/// boundary at least @p spacing bytes past the previous point.
+/// boundary at least @p spacing bytes past the previous point, for output [keepFrom, keepEnd)
+/// only: of the points before keepFrom, only the last is kept.
 class IndexBuilder final : public InflateObserver {
   public:
-    IndexBuilder(InflateIndex& index, std::uint64_t offset, std::uint64_t spacing)
-        : mIndex(index), mOffset(offset), mSpacing(spacing), mRing(kWindow) {}
+    IndexBuilder(InflateIndex& index, std::uint64_t offset, std::uint64_t spacing,
+                 std::uint64_t keepFrom, std::uint64_t keepEnd)
+        : mIndex(index),
+          mOffset(offset),
+          mSpacing(spacing),
+          mKeepFrom(keepFrom),
+          mKeepEnd(keepEnd),
+          mRing(kWindow) {}
 
     void output(std::span<const std::byte> bytes) override {
         // Only the last kWindow bytes of a long piece can end up in the ring.
@@ -424,7 +431,11 @@ class IndexBuilder final : public InflateObserver {
             mIndex.singleMember = false;  // cannot happen; no random access rather than a wrong one
             return;
         }
+        if (produced >= mKeepEnd) return;
         if (!mIndex.points.empty() && produced < mIndex.points.back().out + mSpacing) return;
+        // A point before the window is replaced by a later one that is not inside it yet.
+        if (!mIndex.points.empty() && mIndex.points.back().out < mKeepFrom && produced <= mKeepFrom)
+            mIndex.points.pop_back();
         InflateIndex::Point p;
         p.out = produced;
         p.in = mOffset + consumed;
@@ -441,7 +452,7 @@ class IndexBuilder final : public InflateObserver {
   private:
     static constexpr std::size_t kWindow = std::size_t{1} << 15;  // deflate's largest distance
     InflateIndex& mIndex;
-    std::uint64_t mOffset, mSpacing;
+    std::uint64_t mOffset, mSpacing, mKeepFrom, mKeepEnd;
     std::vector<std::byte> mRing;
     std::uint64_t mProduced = 0;
 };
@@ -450,7 +461,13 @@ class IndexBuilder final : public InflateObserver {
 
 InflateIndex indexFileStream(const fs::path& path, std::uint64_t offset,
                              std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes,
-                             bool allowTrailing, std::uint64_t spacing) {
+                             std::uint64_t keepFrom, std::uint64_t keepCount, bool allowTrailing,
+                             std::uint64_t spacing) {
+    if (keepFrom > expectedBytes || keepCount > expectedBytes - keepFrom) {
+        throw ValueError(path.string() + ": expected a window inside the " +
+                         std::to_string(expectedBytes) + " decompressed bytes, found bytes " +
+                         std::to_string(keepFrom) + " + " + std::to_string(keepCount));
+    }
     InflateIndex index;
     index.file = path;
     const std::uint64_t size = fileSize(path);
@@ -479,7 +496,8 @@ InflateIndex indexFileStream(const fs::path& path, std::uint64_t offset,
         remaining = got == 0 ? 0 : remaining - got;
         return {buffer.data(), got};
     };
-    IndexBuilder builder(index, offset, std::max<std::uint64_t>(spacing, 1));
+    IndexBuilder builder(index, offset, std::max<std::uint64_t>(spacing, 1), keepFrom,
+                         keepFrom + keepCount);
     (void)inflateStream(next, expectedBytes, path.string(), 0, 0, allowTrailing, remaining,
                         &builder);
     return index;

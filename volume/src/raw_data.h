@@ -115,10 +115,13 @@ struct InflateIndex {
 
 /// Checks the stream as inflateFileWindow() does (the same errors) while keeping none of its
 /// bytes, and records points at deflate block boundaries at least @p spacing decompressed bytes
-/// apart (~32 KiB each). A stream of several gzip members comes back with singleMember false.
+/// apart (~32 KiB each) for the bytes [@p keepFrom, @p keepFrom + @p keepCount): the last point
+/// before the window and those inside it, so a 4D stream costs points for its chosen volume only.
+/// A stream of several gzip members comes back with singleMember false.
 InflateIndex indexFileStream(const std::filesystem::path& path, std::uint64_t offset,
                              std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes,
-                             bool allowTrailing, std::uint64_t spacing);
+                             std::uint64_t keepFrom, std::uint64_t keepCount, bool allowTrailing,
+                             std::uint64_t spacing);
 
 /// The decompressed bytes [@p from, @p from + out.size()) of @p index's stream, read by pread
 /// from @p fd (the index's file, open; safe from several threads at once).

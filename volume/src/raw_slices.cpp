@@ -111,8 +111,8 @@ LazySliceStack openRawVolume(const RawVolume& raw, const Eigen::Matrix3d& axes,
     if (raw.compressed && volumeBytes >= raw.indexFromBytes) {
         // Access points about a slice apart: a slice decompresses at most ~two slices' bytes.
         auto index = std::make_shared<const InflateIndex>(indexFileStream(
-            raw.file, raw.offset, raw.compressedLimit, raw.streamBytes, raw.trailingAllowed,
-            std::max<std::uint64_t>(sliceBytes, std::uint64_t{1} << 18)));
+            raw.file, raw.offset, raw.compressedLimit, raw.streamBytes, raw.volumeAt, volumeBytes,
+            raw.trailingAllowed, std::max<std::uint64_t>(sliceBytes, std::uint64_t{1} << 18)));
         if (index->singleMember && !index->points.empty()) {
             auto file = openHandle(raw.file);
             lazy.decode = [file, index, raw, sliceBytes, bounded](std::size_t k, Slice& s) {
