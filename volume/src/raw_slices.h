@@ -1,8 +1,8 @@
 #pragma once
 /// @file
 /// Internal to palp_volume: the chosen 3D volume of a NIfTI, NRRD or MetaImage file decoded a
-/// slice at a time as the resampler reaches it (LazySliceStack), so that load() holds the file's
-/// stored bytes at most (compressed files) and never the volume as float beside the grid.
+/// slice at a time as the resampler reaches it (LazySliceStack), so that load() never holds the
+/// volume as float beside the grid, nor (from 32 MiB) a compressed volume's stored bytes.
 
 #include <Eigen/Core>
 #include <array>
@@ -43,7 +43,9 @@ struct RawVolume {
 /// A lazy stack over @p raw with stackFromAffine()'s slices (voxel (i, j, k) at origin +
 /// i axes.col(0) + j axes.col(1) + k axes.col(2)), the same values once decoded. An uncompressed
 /// volume is read a slice at a time (pread); a compressed one is decompressed here, the whole
-/// stream checked and only the volume's stored bytes kept, then converted a slice at a time.
+/// stream checked, and either only the volume's stored bytes kept or (from
+/// RawVolume::indexFromBytes, one gzip member) an index of access points, from which each slice
+/// is decompressed again; then converted a slice at a time.
 /// @throw IoError, FormatError as readFileRange() and inflateFileWindow() (a file too short for
 ///        the volume is refused here, before any slice is decoded).
 LazySliceStack openRawVolume(const RawVolume& raw, const Eigen::Matrix3d& axes,
