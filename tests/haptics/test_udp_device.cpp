@@ -499,12 +499,17 @@ TEST_F(UdpDeviceTest, LiveRunAtOneKilohertzReturnsTheSnapshotsForces) {
         if (it == snaps.end()) continue;  // a tick the trace ring dropped
         EXPECT_EQ(f.force, it->second.force) << "tick " << f.tick;
         ++matched;
-        if (!(f.flags & bridge::kForceStale)) lastPressed = &f;
+        // A fresh sample at full force: on a loaded machine (ThreadSanitizer on two cores) the
+        // remote thread can stall long enough for the watchdog to scale the forces after it down
+        // while they climb back (forceScale < 1); those are checked against their tick above.
+        if (!(f.flags & bridge::kForceStale) && f.forceScale == 1.0) lastPressed = &f;
     }
     EXPECT_GT(matched, static_cast<int>(samples / 2));
     // The press was felt: the last force computed from a fresh sample (the hold) is k x depth.
     ASSERT_NE(lastPressed, nullptr);
-    EXPECT_NEAR(lastPressed->force.y(), -kStiffness * kDepth, kStiffness * 0.5e-3);
+    EXPECT_NEAR(lastPressed->force.y(), -kStiffness * kDepth, kStiffness * 0.5e-3)
+        << "tick " << lastPressed->tick << ", state " << lastPressed->stateSequence << " of "
+        << samples << ", flags " << lastPressed->flags;
     const UdpDeviceCounters c = device.counters();
     // Every sequence from 1 to the newest accepted is either accepted or counted lost.
     EXPECT_EQ(c.received + c.lost, device.latestState().sequence);
