@@ -349,6 +349,61 @@ std::vector<std::byte> inflateStream(NextChunk&& next, std::uint64_t expectedByt
 
 }  // namespace
 
+namespace {
+
+/// The compressed bytes of a stream at @p offset of @p path, at most @p maxCompressedBytes (all of
+/// them when it is a header's size), handed out in chunks; the window [keepFrom, keepFrom +
+/// keepCount) of the decompressed bytes is checked to lie inside @p expectedBytes.
+class CompressedChunks {
+  public:
+    CompressedChunks(const fs::path& path, std::uint64_t offset, std::uint64_t maxCompressedBytes,
+                     std::uint64_t expectedBytes, std::uint64_t keepFrom, std::uint64_t keepCount)
+        : mBuffer(std::size_t{1} << 18) {
+        if (keepFrom > expectedBytes || keepCount > expectedBytes - keepFrom) {
+            throw ValueError(path.string() + ": expected a window inside the " +
+                             std::to_string(expectedBytes) + " decompressed bytes, found bytes " +
+                             std::to_string(keepFrom) + " + " + std::to_string(keepCount));
+        }
+        const std::uint64_t size = fileSize(path);
+        if (offset > size) {
+            throw FormatError(path.string() + ": expected compressed voxel data at byte " +
+                              std::to_string(offset) + ", found a file of " + std::to_string(size) +
+                              " bytes");
+        }
+        mRemaining = std::min(size - offset, maxCompressedBytes);
+        if (maxCompressedBytes != std::numeric_limits<std::uint64_t>::max() &&
+            mRemaining < maxCompressedBytes) {
+            throw FormatError(path.string() + ": expected " + std::to_string(maxCompressedBytes) +
+                              " bytes of compressed voxel data after the header, found " +
+                              std::to_string(mRemaining));
+        }
+        mEnd = offset + mRemaining;
+        mIn = openOrThrow(path);
+        mIn.seekg(static_cast<std::streamoff>(offset));
+    }
+
+    /// The next chunk; empty at the end.
+    std::span<const std::byte> operator()() {
+        if (mRemaining == 0) return {};
+        const auto want =
+            static_cast<std::size_t>(std::min<std::uint64_t>(mRemaining, mBuffer.size()));
+        mIn.read(reinterpret_cast<char*>(mBuffer.data()), static_cast<std::streamsize>(want));
+        const auto got = static_cast<std::size_t>(std::max<std::streamsize>(mIn.gcount(), 0));
+        mRemaining = got == 0 ? 0 : mRemaining - got;
+        return {mBuffer.data(), got};
+    }
+
+    std::uint64_t remaining() const { return mRemaining; }
+    std::uint64_t end() const { return mEnd; }
+
+  private:
+    std::ifstream mIn;
+    std::vector<std::byte> mBuffer;
+    std::uint64_t mRemaining = 0, mEnd = 0;
+};
+
+}  // namespace
+
 std::vector<std::byte> inflateFileRange(const fs::path& path, std::uint64_t offset,
                                         std::uint64_t maxCompressedBytes,
                                         std::uint64_t expectedBytes) {
@@ -360,38 +415,9 @@ std::vector<std::byte> inflateFileWindow(const fs::path& path, std::uint64_t off
                                          std::uint64_t maxCompressedBytes,
                                          std::uint64_t expectedBytes, std::uint64_t keepFrom,
                                          std::uint64_t keepCount, bool allowTrailing) {
-    if (keepFrom > expectedBytes || keepCount > expectedBytes - keepFrom) {
-        throw ValueError(path.string() + ": expected a window inside the " +
-                         std::to_string(expectedBytes) + " decompressed bytes, found bytes " +
-                         std::to_string(keepFrom) + " + " + std::to_string(keepCount));
-    }
-    const std::uint64_t size = fileSize(path);
-    if (offset > size) {
-        throw FormatError(path.string() + ": expected compressed voxel data at byte " +
-                          std::to_string(offset) + ", found a file of " + std::to_string(size) +
-                          " bytes");
-    }
-    std::uint64_t remaining = std::min(size - offset, maxCompressedBytes);
-    if (maxCompressedBytes != std::numeric_limits<std::uint64_t>::max() &&
-        remaining < maxCompressedBytes) {
-        throw FormatError(path.string() + ": expected " + std::to_string(maxCompressedBytes) +
-                          " bytes of compressed voxel data after the header, found " +
-                          std::to_string(remaining));
-    }
-    std::ifstream in = openOrThrow(path);
-    in.seekg(static_cast<std::streamoff>(offset));
-    std::vector<std::byte> buffer(std::size_t{1} << 18);
-    auto next = [&]() -> std::span<const std::byte> {
-        if (remaining == 0) return {};
-        const auto want =
-            static_cast<std::size_t>(std::min<std::uint64_t>(remaining, buffer.size()));
-        in.read(reinterpret_cast<char*>(buffer.data()), static_cast<std::streamsize>(want));
-        const auto got = static_cast<std::size_t>(std::max<std::streamsize>(in.gcount(), 0));
-        remaining = got == 0 ? 0 : remaining - got;
-        return {buffer.data(), got};
-    };
+    CompressedChunks next(path, offset, maxCompressedBytes, expectedBytes, keepFrom, keepCount);
     return inflateStream(next, expectedBytes, path.string(), keepFrom, keepCount, allowTrailing,
-                         remaining);
+                         next.remaining());
 }
 
 namespace {
@@ -463,42 +489,13 @@ InflateIndex indexFileStream(const fs::path& path, std::uint64_t offset,
                              std::uint64_t maxCompressedBytes, std::uint64_t expectedBytes,
                              std::uint64_t keepFrom, std::uint64_t keepCount, bool allowTrailing,
                              std::uint64_t spacing) {
-    if (keepFrom > expectedBytes || keepCount > expectedBytes - keepFrom) {
-        throw ValueError(path.string() + ": expected a window inside the " +
-                         std::to_string(expectedBytes) + " decompressed bytes, found bytes " +
-                         std::to_string(keepFrom) + " + " + std::to_string(keepCount));
-    }
+    CompressedChunks next(path, offset, maxCompressedBytes, expectedBytes, keepFrom, keepCount);
     InflateIndex index;
     index.file = path;
-    const std::uint64_t size = fileSize(path);
-    if (offset > size) {
-        throw FormatError(path.string() + ": expected compressed voxel data at byte " +
-                          std::to_string(offset) + ", found a file of " + std::to_string(size) +
-                          " bytes");
-    }
-    std::uint64_t remaining = std::min(size - offset, maxCompressedBytes);
-    if (maxCompressedBytes != std::numeric_limits<std::uint64_t>::max() &&
-        remaining < maxCompressedBytes) {
-        throw FormatError(path.string() + ": expected " + std::to_string(maxCompressedBytes) +
-                          " bytes of compressed voxel data after the header, found " +
-                          std::to_string(remaining));
-    }
-    index.end = offset + remaining;
-    std::ifstream in = openOrThrow(path);
-    in.seekg(static_cast<std::streamoff>(offset));
-    std::vector<std::byte> buffer(std::size_t{1} << 18);
-    auto next = [&]() -> std::span<const std::byte> {
-        if (remaining == 0) return {};
-        const auto want =
-            static_cast<std::size_t>(std::min<std::uint64_t>(remaining, buffer.size()));
-        in.read(reinterpret_cast<char*>(buffer.data()), static_cast<std::streamsize>(want));
-        const auto got = static_cast<std::size_t>(std::max<std::streamsize>(in.gcount(), 0));
-        remaining = got == 0 ? 0 : remaining - got;
-        return {buffer.data(), got};
-    };
+    index.end = next.end();
     IndexBuilder builder(index, offset, std::max<std::uint64_t>(spacing, 1), keepFrom,
                          keepFrom + keepCount);
-    (void)inflateStream(next, expectedBytes, path.string(), 0, 0, allowTrailing, remaining,
+    (void)inflateStream(next, expectedBytes, path.string(), 0, 0, allowTrailing, next.remaining(),
                         &builder);
     return index;
 }
