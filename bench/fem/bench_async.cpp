@@ -25,8 +25,6 @@
 // ticks.
 // --global 0: factorise every layout instead of the capacitance secondary; --sync 1: run the
 // threaded mode's loop with the secondary inline (synchronous mode, same moves).
-#include "bench_async.h"
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -38,6 +36,8 @@
 #include <thread>
 #include <vector>
 
+#include "async_problem.h"
+#include "bench_async_slide.h"
 #include "palp/base/thread.h"
 #include "palp/fem/explicit_solver.h"
 

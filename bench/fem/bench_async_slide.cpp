@@ -14,6 +14,8 @@
 // same spring. The regions are asked for the node nearest the point --lead ms ahead.
 // --contact jump: the driven node jumps one node along +x every MS ms (wrapping to x = 1), the
 // reference switching at the same ticks: the abrupt worse case.
+#include "bench_async_slide.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -21,7 +23,7 @@
 #include <thread>
 #include <vector>
 
-#include "bench_async.h"
+#include "async_problem.h"
 #include "palp/base/thread.h"
 #include "palp/fem/coupling_spring.h"
 

@@ -1,7 +1,7 @@
 #pragma once
-// Shared parts of bench_async (bench_async.cpp: the thesis's tables and the force drive;
-// bench_async_slide.cpp: the threaded run and the moving contact): options, the cube problem,
-// the input and the error measures.
+// The problem both halves of bench_async share (bench_async.cpp: the thesis's tables and the
+// force drive; bench_async_slide.cpp: the threaded run and the moving contact): options, the cube
+// problem, the input and the error measures. It includes neither half.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -144,9 +144,5 @@ inline double rmsErr(const std::vector<double>& a, const std::vector<double>& re
     }
     return std::sqrt(num / den);
 }
-
-/// Threaded mode (bench_async_slide.cpp): the servo thread pinned to CPU 0 at 1 kHz wall clock,
-/// the secondary on CPU 1; with --move a moving contact against the whole mesh.
-void threaded(const Config& c);
 
 }  // namespace palp::fem::bench
