@@ -27,7 +27,7 @@ target_include_directories(palp_gdcm SYSTEM INTERFACE ${GDCM_INCLUDE_DIRS})
 target_link_libraries(palp_gdcm INTERFACE gdcmMSFF gdcmDSED gdcmCommon)
 
 # OpenJPEG (the library GDCM decodes JPEG 2000 with): palp asks it for the damage check GDCM
-# does not (volume/src/dicom_j2k.h). No CMake config is needed; find it directly.
+# does not (volume/src/dicom/dicom_j2k.h). No CMake config is needed; find it directly.
 find_path(PALP_OPENJPEG_INCLUDE_DIR openjpeg.h PATH_SUFFIXES openjpeg-2.5 REQUIRED)
 find_library(PALP_OPENJP2_LIB openjp2 REQUIRED)
 add_library(palp_openjpeg INTERFACE)

@@ -34,7 +34,7 @@ libdir="$(dirname "$(find "$prefix" -name palp.pc -path '*/pkgconfig/*' | head -
 libdir="$(cd "$libdir" && pwd)"
 
 # Every module: a versioned file, its SONAME, the development symlink, RUNPATH $ORIGIN.
-for m in base kernels volume fem haptics; do
+for m in base kernels volume fem tissue rendering devices haptics studies capi; do
   lib="$libdir/libpalp_$m.so.$version"
   [[ -f "$lib" && ! -L "$lib" ]] || fail "$lib missing"
   [[ "$(readlink "$libdir/libpalp_$m.so")" == "libpalp_$m.so.$soversion" ]] ||
@@ -45,10 +45,21 @@ for m in base kernels volume fem haptics; do
   ! grep -q "$PWD" <<<"$dyn" || fail "$lib refers to the build tree"
   echo "  libpalp_$m.so.$version: SONAME libpalp_$m.so.$soversion, RUNPATH \$ORIGIN"
 done
-for h in palp/palp.h palp/haptics/session.h palp/volume/volume.h palp/fem/fem_model.h \
-  palp/kernels/volume_ray.h palp/base/error.h; do
+for h in palp/palp.h palp/haptics/session.h palp/haptics/devices/device.h \
+  palp/haptics/rendering/coupling.h palp/haptics/tissue/deformable.h palp/studies/scalar_map.h \
+  palp/volume/volume.h palp/fem/fem_model.h palp/kernels/volume_ray.h palp/base/error.h; do
   [[ -f "$prefix/include/$h" ]] || fail "header $h not installed"
 done
+
+# The servo's libraries (the runtime and every room below it) load nothing that draws: libpng
+# and cairo are palp::studies' alone.
+for m in tissue rendering devices haptics; do
+  drawing="$(env -u LD_LIBRARY_PATH ldd "$libdir/libpalp_$m.so.$version" | grep -E 'libpng|libcairo' || true)"
+  [[ -z "$drawing" ]] || fail "libpalp_$m loads a drawing library: $drawing"
+done
+env -u LD_LIBRARY_PATH ldd "$libdir/libpalp_studies.so.$version" | grep -q libcairo ||
+  fail "libpalp_studies does not load libcairo (the check above would prove nothing)"
+echo "  libpalp_{tissue,rendering,devices,haptics}: no libpng, no libcairo (libpalp_studies has them)"
 
 # The tool runs from the prefix alone (its RUNPATH, not the build tree's).
 dyn="$(readelf -d "$prefix/bin/palp")"
@@ -69,6 +80,8 @@ cmake -S tests/package -B "$tmp/consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release \
   { cat "$tmp/configure.log" >&2; fail "configuring tests/package with find_package(palp CONFIG)"; }
 cmake --build "$tmp/consumer" >"$tmp/build.log" 2>&1 ||
   { cat "$tmp/build.log" >&2; fail "building tests/package"; }
+env -u LD_LIBRARY_PATH ldd "$tmp/consumer/consumer_c" | grep -q "libpalp_capi.so.$soversion" ||
+  fail "consumer_c does not load libpalp_capi"
 for exe in consumer_c consumer_cpp; do
   [[ "$(loaded_haptics "$tmp/consumer/$exe")" == "$haptics" ]] ||
     fail "$exe does not load the installed libpalp_haptics"

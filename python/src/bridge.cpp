@@ -11,8 +11,8 @@
 
 #include "bindings.h"
 #include "palp/base/error.h"
-#include "palp/haptics/udp_bridge_client.h"
-#include "palp/haptics/udp_device.h"
+#include "palp/haptics/devices/udp_bridge_client.h"
+#include "palp/haptics/devices/udp_device.h"
 #include "python_device.h"
 
 namespace palp::python {

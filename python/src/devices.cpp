@@ -12,9 +12,9 @@
 
 #include "bindings.h"
 #include "palp/base/error.h"
-#include "palp/haptics/playback_device.h"
-#include "palp/haptics/simulated_device.h"
-#include "palp/haptics/trajectory.h"
+#include "palp/haptics/devices/playback_device.h"
+#include "palp/haptics/devices/simulated_device.h"
+#include "palp/haptics/devices/trajectory.h"
 #include "python_device.h"
 
 namespace palp::python {

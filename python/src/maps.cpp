@@ -17,14 +17,14 @@
 
 #include "bindings.h"
 #include "palp/base/error.h"
-#include "palp/haptics/map_figure.h"
-#include "palp/haptics/map_png.h"
-#include "palp/haptics/map_svg.h"
-#include "palp/haptics/map_underlay.h"
-#include "palp/haptics/mask.h"
-#include "palp/haptics/offline_run.h"
-#include "palp/haptics/scalar_map.h"
 #include "palp/haptics/scene.h"
+#include "palp/studies/map_figure.h"
+#include "palp/studies/map_png.h"
+#include "palp/studies/map_svg.h"
+#include "palp/studies/map_underlay.h"
+#include "palp/studies/mask.h"
+#include "palp/studies/offline_run.h"
+#include "palp/studies/scalar_map.h"
 #include "palp/volume/volume.h"
 
 namespace palp::python {

@@ -8,7 +8,7 @@
 
 #include "bindings.h"
 #include "palp/base/error.h"
-#include "palp/haptics/coupling_defaults.h"
+#include "palp/haptics/rendering/coupling_defaults.h"
 #include "palp/haptics/session.h"
 #include "palp/volume/phantom.h"
 

@@ -7,7 +7,7 @@
 #include <exception>
 #include <string>
 
-#include "palp/haptics/device.h"
+#include "palp/haptics/devices/device.h"
 
 namespace palp::python {
 

@@ -16,10 +16,10 @@
 
 #include "bindings.h"
 #include "palp/base/error.h"
-#include "palp/haptics/deformable_setup.h"
-#include "palp/haptics/offline_run.h"
-#include "palp/haptics/watchdog_device.h"
+#include "palp/haptics/devices/watchdog_device.h"
+#include "palp/haptics/tissue/deformable_setup.h"
 #include "palp/kernels/ray_bundle.h"
+#include "palp/studies/offline_run.h"
 #include "python_device.h"
 
 namespace palp::python {

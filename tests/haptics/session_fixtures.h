@@ -12,7 +12,7 @@
 #include <utility>
 #include <vector>
 
-#include "palp/haptics/device.h"
+#include "palp/haptics/devices/device.h"
 #include "palp/haptics/scene.h"
 #include "palp/volume/phantom.h"
 

@@ -14,10 +14,10 @@
 #include <string>
 
 #include "palp/base/error.h"
-#include "palp/haptics/offline_run.h"
+#include "palp/haptics/devices/simulated_device.h"
+#include "palp/haptics/devices/trajectory.h"
 #include "palp/haptics/session.h"
-#include "palp/haptics/simulated_device.h"
-#include "palp/haptics/trajectory.h"
+#include "palp/studies/offline_run.h"
 #include "palp/volume/load.h"
 #include "palp/volume/phantom.h"
 

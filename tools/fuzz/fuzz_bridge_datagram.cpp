@@ -7,7 +7,7 @@
 #include <cstring>
 #include <span>
 
-#include "palp/haptics/bridge_protocol.h"
+#include "palp/haptics/devices/bridge_protocol.h"
 
 namespace bridge = palp::haptics::bridge;
 

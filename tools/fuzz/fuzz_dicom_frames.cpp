@@ -22,9 +22,9 @@
 #include <string>
 #include <vector>
 
-#include "dicom_frames.h"
-#include "dicom_header.h"
-#include "dicom_slices.h"
+#include "dicom/dicom_frames.h"
+#include "dicom/dicom_header.h"
+#include "dicom/dicom_slices.h"
 #include "palp/base/error.h"
 #include "time_point.h"
 

@@ -16,8 +16,8 @@
 #include <string>
 #include <vector>
 
-#include "dicom_header.h"
-#include "dicom_mosaic.h"
+#include "dicom/dicom_header.h"
+#include "dicom/dicom_mosaic.h"
 #include "palp/base/error.h"
 
 namespace {

@@ -12,8 +12,8 @@
 #include <string>
 #include <string_view>
 
-#include "formats.h"
-#include "header_parsers.h"
+#include "formats/formats.h"
+#include "formats/header_parsers.h"
 #include "palp/base/error.h"
 #include "palp/volume/resample.h"
 

@@ -17,9 +17,9 @@
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
-#include "palp/haptics/simulated_device.h"
-#include "palp/haptics/trajectory.h"
-#include "palp/haptics/udp_bridge_client.h"
+#include "palp/haptics/devices/simulated_device.h"
+#include "palp/haptics/devices/trajectory.h"
+#include "palp/haptics/devices/udp_bridge_client.h"
 
 namespace palp::tool {
 

@@ -19,8 +19,8 @@
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
+#include "palp/haptics/devices/udp_device.h"
 #include "palp/haptics/session.h"
-#include "palp/haptics/udp_device.h"
 #include "palpate_options.h"
 #include "palpate_setup.h"
 

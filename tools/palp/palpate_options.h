@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "palp/haptics/device.h"
+#include "palp/haptics/devices/device.h"
 
 namespace palp::tool {
 

@@ -8,9 +8,9 @@
 #include "commands.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
-#include "palp/haptics/coupling_defaults.h"
-#include "palp/haptics/deformable_setup.h"
-#include "palp/haptics/offline_run.h"
+#include "palp/haptics/rendering/coupling_defaults.h"
+#include "palp/haptics/tissue/deformable_setup.h"
+#include "palp/studies/offline_run.h"
 #include "palp/volume/load.h"
 
 namespace palp::tool {

@@ -11,12 +11,12 @@
 #include <optional>
 #include <string>
 
-#include "palp/haptics/coupling.h"
-#include "palp/haptics/deformable.h"
+#include "palp/haptics/devices/skin_field.h"
+#include "palp/haptics/devices/skin_patch.h"
+#include "palp/haptics/devices/trajectory.h"
+#include "palp/haptics/rendering/coupling.h"
 #include "palp/haptics/scene.h"
-#include "palp/haptics/skin_field.h"
-#include "palp/haptics/skin_patch.h"
-#include "palp/haptics/trajectory.h"
+#include "palp/haptics/tissue/deformable.h"
 #include "palp/volume/phantom.h"
 #include "palp/volume/volume.h"
 #include "palpate_options.h"

@@ -7,10 +7,10 @@
 #include <numeric>
 #include <vector>
 
+#include "formats/raw_data.h"
+#include "formats/reader_util.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
-#include "raw_data.h"
-#include "reader_util.h"
 
 namespace palp::volume {
 namespace {

@@ -9,7 +9,8 @@
 #include <new>
 #include <stdexcept>
 
-#include "formats.h"
+#include "formats/formats.h"
+#include "formats/reader_util.h"
 #include "lazy_stack.h"
 #include "palp/base/atomic_file.h"
 #include "palp/base/bounds.h"
@@ -17,10 +18,9 @@
 #include "palp/base/parallel.h"
 #include "palp/base/validate.h"
 #include "palp/volume/dicom.h"
-#include "reader_util.h"
-#include "vdb_errors.h"
-#include "vdb_read.h"
-#include "vdb_write.h"
+#include "vdb/vdb_errors.h"
+#include "vdb/vdb_read.h"
+#include "vdb/vdb_write.h"
 
 namespace palp::volume {
 

@@ -1,0 +1,328 @@
+#include "palp/haptics/rendering/coupling.h"
+
+#include <algorithm>
+#include <cmath>
+#include <span>
+#include <string>
+#include <utility>
+
+#include "palp/base/bounds.h"
+#include "palp/base/error.h"
+#include "palp/base/validate.h"
+#include "palp/haptics/tissue/deformable.h"
+
+namespace palp::haptics {
+
+namespace {
+
+bool finite3(const Eigen::Vector3d& v) noexcept {
+    return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
+
+/// A bound on the tangential curvature (N/m) of E's stiffness terms as the proxy moves: the
+/// surface stencil's second differences of k times D^2 / 2, the spherical stencil's times 1/2
+/// (a proxy step dx turns d by dx / D), and the cross terms of the gradients with D.
+double tangentialCurvature(const kernels::RayBundle& b,
+                           const std::array<double, kernels::kMaxBundleRays>& k, double D,
+                           const CouplingOutput& out) noexcept {
+    auto bound = [&](bool sphere, double s) {
+        auto at = [&](int i, int j) {
+            return k[static_cast<std::size_t>(sphere ? b.sphereRay(i, j) : b.surfaceRay(i, j))];
+        };
+        const double kxx = at(1, 0) - 2 * at(0, 0) + at(-1, 0);
+        const double kyy = at(0, 1) - 2 * at(0, 0) + at(0, -1);
+        const double kxy = 0.25 * (at(1, 1) - at(1, -1) - at(-1, 1) + at(-1, -1));
+        return (std::abs(kxx) + std::abs(kyy) + 2 * std::abs(kxy)) / (s * s);
+    };
+    const double c = 0.5 * D * D * bound(false, b.surfaceOffset) + 0.5 * bound(true, b.sobelAngle) +
+                     D * std::hypot(out.surface.g1, out.surface.g2) +
+                     std::hypot(out.sphere.g1, out.sphere.g2);
+    return std::isfinite(c) ? c : 0.0;
+}
+
+}  // namespace
+
+void validateCouplingParams(const CouplingParams& p) {
+    if (p.mode != CouplingMode::VC && p.mode != CouplingMode::AVC && p.mode != CouplingMode::AVCEC)
+        throw ValueError("coupling mode: expected VC, AVC or AVCEC, found value " +
+                         std::to_string(static_cast<int>(p.mode)));
+    if (p.source != RaySource::Mesh && p.source != RaySource::VolumeFirstHit &&
+        p.source != RaySource::VolumeAccumulate)
+        throw ValueError(
+            "coupling source: expected Mesh, VolumeFirstHit or VolumeAccumulate, found value " +
+            std::to_string(static_cast<int>(p.source)));
+    requireWithin("coupling baseStiffness", p.baseStiffness, bounds::kPositiveStiffness);
+    requireWithin("coupling referenceLength", p.referenceLength, bounds::kLength);
+    requireWithin("coupling maxMultiplier", p.maxMultiplier, bounds::kMultiplier);
+    requireWithin("coupling maxStiffness", p.maxStiffness, bounds::kPositiveStiffness);
+    if (!(std::isfinite(p.maxStiffness) && p.maxStiffness >= p.baseStiffness))
+        throwExpected("coupling maxStiffness",
+                      "a finite value >= baseStiffness (" + formatValue(p.baseStiffness) + " N/m)",
+                      formatValue(p.maxStiffness));
+    requireWithin("coupling damping", p.damping, bounds::kDamping);
+    requireWithin("coupling minDistance", p.minDistance, bounds::kSpacing);
+    if (p.source == RaySource::Mesh && p.hardMask == 0)
+        throw ValueError(
+            "coupling hardMask: expected at least one mask bit for the Mesh source, "
+            "found 0");
+    kernels::validateBundleParams(p.bundle);
+    kernels::validateFirstHitParams(p.firstHit);
+    kernels::validateAccumulateParams(p.accumulate);
+    // Every tick marches each volume ray length / step samples: keep a tick's work bounded.
+    for (const auto& [what, step] : {std::pair{"first-hit step", p.firstHit.step},
+                                     std::pair{"accumulate step", p.accumulate.step}}) {
+        if (p.bundle.length / step > kMaxRaySamples) {
+            throwExpected(std::string("coupling ") + what,
+                          "at least bundle length / " + std::to_string(kMaxRaySamples) + " = " +
+                              formatValue(p.bundle.length / kMaxRaySamples) + " m",
+                          formatValue(step) + " m");
+        }
+    }
+}
+
+double stiffnessMultiplier(const CouplingParams& params, double rayLength) noexcept {
+    if (std::isnan(rayLength)) return 1.0;
+    if (!(rayLength > 0)) return params.maxMultiplier;
+    return std::clamp(params.referenceLength / rayLength, 1.0, params.maxMultiplier);
+}
+
+Coupling::Coupling(const kernels::VolumeView* volume, const kernels::EmbreeScene* hardMeshes,
+                   const CouplingParams& params, const kernels::EmbreeScene* movingMeshes)
+    : mVolume(volume), mMeshes(hardMeshes), mMoving(movingMeshes), mParams(params) {
+    validateCouplingParams(params);
+    if (params.mode != CouplingMode::VC && !sourceAvailable()) {
+        const char* what = params.source == RaySource::Mesh
+                               ? "coupling source Mesh: expected a committed, non-empty Embree "
+                                 "scene of hard meshes, found "
+                               : "coupling source Volume*: expected a volume view, found ";
+        const bool none =
+            params.source == RaySource::Mesh ? hardMeshes == nullptr : volume == nullptr;
+        throw ValueError(std::string(what) + (none ? "none" : "an empty or uncommitted scene"));
+    }
+}
+
+void Coupling::setParams(const CouplingParams& params) noexcept { mParams = params; }
+
+bool Coupling::sourceAvailable() const noexcept {
+    switch (mParams.source) {
+        case RaySource::Mesh:
+            return (mMeshes != nullptr && !mMeshes->empty() && mMeshes->committed()) ||
+                   mMoving != nullptr;
+        case RaySource::VolumeFirstHit:
+        case RaySource::VolumeAccumulate:
+            return mVolume != nullptr;
+    }
+    return false;
+}
+
+void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
+                       const Eigen::Vector3d& proxyVelocity, const Eigen::Vector3d& probeVelocity,
+                       const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2,
+                       CouplingOutput& out) noexcept {
+    out = CouplingOutput{};
+    const CouplingParams& p = mParams;
+    if (!finite3(proxy) || !finite3(probe) || !finite3(proxyVelocity) || !finite3(probeVelocity) ||
+        !finite3(tangent1) || !finite3(tangent2))
+        return;
+    const Eigen::Vector3d delta = probe - proxy;
+    const double D = delta.norm();
+    if (!std::isfinite(D) || !(D >= p.minDistance)) return;
+    const Eigen::Vector3d d = delta / D;
+    out.distance = D;
+    const Eigen::Vector3d dampingForce = p.damping * (proxyVelocity - probeVelocity);
+
+    // Deformable tissue: the rays leave in the material frame at the contact.
+    const Eigen::Matrix3d Rt = mFrame.transpose();
+    const bool rays =
+        p.mode != CouplingMode::VC && sourceAvailable() &&
+        (mFramed ? kernels::generateBundle(proxy, Rt * d, Rt * tangent1, Rt * tangent2, p.bundle,
+                                           mBundle)
+                 : kernels::generateBundle(proxy, d, tangent1, tangent2, p.bundle, mBundle));
+    if (!rays) {
+        mBundle.count = 0;
+        mBundle.valid = false;
+        out.stiffness = std::min(p.baseStiffness, p.maxStiffness);
+        out.force = -out.stiffness * D * d + dampingForce;
+        out.energy = 0.5 * out.stiffness * D * D;
+        out.stepStiffness = out.stiffness;
+        return;
+    }
+    const bool ec = p.mode == CouplingMode::AVCEC;
+    // AVC needs only the centre and the ring: the stencil rays are not traced at all.
+    if (!ec) mBundle.count = 1 + mBundle.ringCount;
+    const int n = mBundle.count;
+    std::array<double, kernels::kMaxBundleRays> k{};
+    double centreLength = 0;
+    traceStiffness(mBundle, n, k, centreLength);
+    const std::span<const double> perRay(k.data(), static_cast<std::size_t>(n));
+
+    out.rays = n;
+    out.rayLength = centreLength;
+    out.stiffness = kernels::lowPass(mBundle, perRay);
+    out.force = -out.stiffness * D * d + dampingForce;
+    out.energy = 0.5 * out.stiffness * D * D;
+    out.stepStiffness = out.stiffness;
+    if (!ec) return;
+
+    // E = 1/2 k D^2: the probe gradient adds -1/2 D (g1 e1 + g2 e2), the proxy gradient
+    // -1/2 D^2 (gs1 t1 + gs2 t2). Both stencils read the raw per-ray k (centre ray in the middle).
+    out.sphere = kernels::sphericalSobel(mBundle, perRay);
+    out.surface = kernels::surfaceSobel(mBundle, perRay);
+    out.energyForce = -0.5 * D * (out.sphere.g1 * mBundle.e1 + out.sphere.g2 * mBundle.e2);
+    out.proxyForce = -0.5 * D * D * (out.surface.g1 * mBundle.t1 + out.surface.g2 * mBundle.t2);
+    if (mFramed) {
+        // The stencils' axes were R^T e and R^T t: back to the world.
+        out.energyForce = mFrame * out.energyForce;
+        out.proxyForce = mFrame * out.proxyForce;
+    }
+    out.force += out.energyForce;
+    out.stepStiffness = out.stiffness + tangentialCurvature(mBundle, k, D, out);
+}
+
+void Coupling::traceStiffness(kernels::RayBundle& bundle, int n,
+                              std::array<double, kernels::kMaxBundleRays>& k,
+                              double& centreLength) noexcept {
+    const CouplingParams& p = mParams;
+    bundle.count = n;
+    auto stiffness = [&](double length) {
+        return std::min(p.baseStiffness * stiffnessMultiplier(p, length), p.maxStiffness);
+    };
+    // Deformable scenes: the volume is sampled where the tissue was at rest.
+    const bool mapped = mDeformation != nullptr && p.source != RaySource::Mesh;
+    const kernels::RayBundle& traced = mapped ? restBundle(bundle, n) : bundle;
+    const auto length = [&](int r, double t, bool found) {
+        return mapped && found ? currentLength(bundle, r, t) : t;
+    };
+    switch (p.source) {
+        case RaySource::Mesh: {
+            const bool fixed = mMeshes != nullptr && !mMeshes->empty() && mMeshes->committed();
+            if (fixed) kernels::traceBundle(*mMeshes, bundle, p.hardMask, mHits);
+            if (mMoving != nullptr) {
+                kernels::traceBundle(*mMoving, bundle, p.hardMask, fixed ? mMovingHits : mHits);
+                if (fixed) {
+                    // Per ray, the nearer of the two scenes' hits.
+                    for (int r = 0; r < mHits.count && r < mMovingHits.count; ++r) {
+                        const auto i = static_cast<std::size_t>(r);
+                        if (mMovingHits.t[i] < mHits.t[i]) {
+                            mHits.t[i] = mMovingHits.t[i];
+                            mHits.hit[i] = mMovingHits.hit[i];
+                            mHits.geomId[i] = mMovingHits.geomId[i];
+                        }
+                    }
+                }
+            }
+            for (int r = 0; r < mHits.count; ++r)
+                k[static_cast<std::size_t>(r)] = stiffness(mHits.t[static_cast<std::size_t>(r)]);
+            centreLength = mHits.count > 0 ? mHits.t[0] : p.bundle.length;
+            break;
+        }
+        case RaySource::VolumeFirstHit: {
+            kernels::traceFirstHit(*mVolume, traced, p.firstHit, mHits);
+            for (int r = 0; r < mHits.count; ++r) {
+                const auto i = static_cast<std::size_t>(r);
+                const double L = length(r, mHits.t[i], mHits.hit[i] != 0);
+                k[i] = stiffness(L);
+                if (r == 0) centreLength = L;
+            }
+            if (mHits.count == 0) centreLength = p.bundle.length;
+            break;
+        }
+        case RaySource::VolumeAccumulate:
+            kernels::traceAccumulate(*mVolume, traced, p.accumulate, mAccum);
+            for (int r = 0; r < mAccum.count; ++r) {
+                const auto i = static_cast<std::size_t>(r);
+                const double L = length(r, mAccum.t[i], mAccum.stopped[i] != 0);
+                k[i] = stiffness(L);
+                if (r == 0) centreLength = L;
+            }
+            if (mAccum.count == 0) centreLength = p.bundle.length;
+            break;
+    }
+}
+
+const kernels::RayBundle& Coupling::restBundle(const kernels::RayBundle& bundle, int n) noexcept {
+    mRestBundle = bundle;
+    for (int r = 0; r < n; ++r) {
+        const auto i = static_cast<std::size_t>(r);
+        const Eigen::Vector3d o(bundle.ox[i], bundle.oy[i], bundle.oz[i]);
+        const Eigen::Vector3d dir(bundle.dx[i], bundle.dy[i], bundle.dz[i]);
+        const Eigen::Vector3d from = mDeformation->restFromCurrent(o);
+        const Eigen::Vector3d to = mDeformation->restFromCurrent(o + bundle.length[i] * dir);
+        const Eigen::Vector3d chord = to - from;
+        const double len = chord.norm();
+        // A degenerate chord (a ray shorter than the map's tolerance) keeps the current ray.
+        if (!from.allFinite() || !(len > 1e-9) || !std::isfinite(len)) continue;
+        const Eigen::Vector3d unit = chord / len;
+        mRestBundle.ox[i] = static_cast<float>(from.x());
+        mRestBundle.oy[i] = static_cast<float>(from.y());
+        mRestBundle.oz[i] = static_cast<float>(from.z());
+        mRestBundle.dx[i] = static_cast<float>(unit.x());
+        mRestBundle.dy[i] = static_cast<float>(unit.y());
+        mRestBundle.dz[i] = static_cast<float>(unit.z());
+        mRestBundle.length[i] = static_cast<float>(len);
+    }
+    return mRestBundle;
+}
+
+double Coupling::currentLength(const kernels::RayBundle& bundle, int r,
+                               double tRest) const noexcept {
+    const auto i = static_cast<std::size_t>(r);
+    const kernels::RayBundle& b = mRestBundle;
+    const Eigen::Vector3d at = Eigen::Vector3d(b.ox[i], b.oy[i], b.oz[i]) +
+                               tRest * Eigen::Vector3d(b.dx[i], b.dy[i], b.dz[i]);
+    const Eigen::Vector3d now = mDeformation->currentFromRest(at);
+    const double L = (now - Eigen::Vector3d(bundle.ox[i], bundle.oy[i], bundle.oz[i])).norm();
+    return std::isfinite(L) ? std::min(L, static_cast<double>(bundle.length[i])) : tRest;
+}
+
+double Coupling::storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
+                              const Eigen::Vector3d& tangent1,
+                              const Eigen::Vector3d& tangent2) noexcept {
+    const CouplingParams& p = mParams;
+    if (!finite3(proxy) || !finite3(probe) || !finite3(tangent1) || !finite3(tangent2)) return 0;
+    const Eigen::Vector3d delta = probe - proxy;
+    const double D = delta.norm();
+    if (!std::isfinite(D) || !(D >= p.minDistance)) return 0;
+    double k = std::min(p.baseStiffness, p.maxStiffness);
+    const Eigen::Matrix3d Rt = mFrame.transpose();
+    const bool rays = p.mode != CouplingMode::VC && sourceAvailable() &&
+                      (mFramed ? kernels::generateBundle(proxy, Rt * (delta / D), Rt * tangent1,
+                                                         Rt * tangent2, p.bundle, mProbeBundle)
+                               : kernels::generateBundle(proxy, delta / D, tangent1, tangent2,
+                                                         p.bundle, mProbeBundle));
+    if (rays) {
+        std::array<double, kernels::kMaxBundleRays> perRay{};
+        double centreLength = 0;
+        const int n = 1 + mProbeBundle.ringCount;
+        traceStiffness(mProbeBundle, n, perRay, centreLength);
+        k = kernels::lowPass(mProbeBundle,
+                             std::span<const double>(perRay.data(), static_cast<std::size_t>(n)));
+    }
+    return 0.5 * k * D * D;
+}
+
+const char* couplingModeName(CouplingMode mode) noexcept {
+    switch (mode) {
+        case CouplingMode::VC:
+            return "vc";
+        case CouplingMode::AVC:
+            return "avc";
+        case CouplingMode::AVCEC:
+            return "avcec";
+    }
+    return "?";
+}
+
+const char* raySourceName(RaySource source) noexcept {
+    switch (source) {
+        case RaySource::Mesh:
+            return "mesh";
+        case RaySource::VolumeFirstHit:
+            return "first-hit";
+        case RaySource::VolumeAccumulate:
+            return "accumulate";
+    }
+    return "?";
+}
+
+}  // namespace palp::haptics

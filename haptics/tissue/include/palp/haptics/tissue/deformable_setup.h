@@ -1,0 +1,79 @@
+#pragma once
+/// @file
+/// How a deformable body is made from a scan: the voxelisation, the material, the supports and
+/// the solver in one struct, and the one function that builds the model from them. `palp
+/// palpate --deformable` and the C API (palp_scene_make_deformable) both build their tissue
+/// here, so a body made through either is the same body.
+
+#include <Eigen/Core>
+#include <memory>
+#include <optional>
+
+#include "palp/fem/hex_mesh.h"
+#include "palp/fem/material.h"
+#include "palp/fem/voxelize.h"
+#include "palp/haptics/tissue/deformable.h"
+#include "palp/volume/volume.h"
+
+namespace palp::haptics {
+
+/// Everything that makes a deformable body from a scan (defaults: `palp palpate
+/// --deformable`'s: 5 mm cells, tissue above -200, bone above 500 fixed, tissue enclosed by
+/// bone dropped, 5 kPa, nu 0.45, alpha 60 1/s, a 3 mm filter, the whole-mesh explicit solver at
+/// 1 kHz).
+struct DeformableSetup {
+    /// Element size, the tissue and bone thresholds (a cell above boneThreshold is bone: its
+    /// nodes are fixed; +infinity: no bone), optionally a per-cell modulus, and insideBone:
+    /// fem::InsideBone::drop here, so a head CT gives the scalp and face on the skull, not the
+    /// brain inside it (the phantoms have no tissue enclosed by bone and are unchanged).
+    fem::VoxelizeOptions voxelize = [] {
+        fem::VoxelizeOptions v;
+        v.boneThreshold = 500;
+        v.insideBone = fem::InsideBone::drop;
+        return v;
+    }();
+    /// The tissue (uniform unless voxelize.youngsFromValue is set).
+    fem::ElasticMaterial material = [] {
+        fem::ElasticMaterial m;
+        m.dampingAlpha = 60;
+        return m;
+    }();
+    /// The nodes on this face of the tissue's lattice are fixed (a support); none: only bone
+    /// (and then the scan must have some).
+    std::optional<fem::BoxFace> supportFace;
+    /// Filter, solver kind, regions. regions.lod 0 asks for autoRegionsLod(); the servo period
+    /// goes in tickSeconds and regions.tickSeconds (setPeriod()).
+    DeformableOptions options;
+
+    /// Sets the period the sessions will step the body with, s (tickSeconds and, for the
+    /// regions, regions.tickSeconds).
+    void setPeriod(double seconds) noexcept {
+        options.tickSeconds = seconds;
+        options.regions.tickSeconds = seconds;
+    }
+};
+
+/// The regions' secondary level of detail `lod = 0` stands for: 2 where it divides every cell
+/// count of @p mesh (a coarser secondary keeps the zone a contact slides over without a
+/// factorisation small on phantom-sized bodies), 1 otherwise.
+int autoRegionsLod(const fem::HexMesh& mesh) noexcept;
+/// The regions' lod for @p model (built with any lod): autoRegionsLod() of its lattice, raised
+/// from 2 to 4 (where 4 divides every cell count) when the zone a contact slides over without a
+/// factorisation (fem::AsyncRegions::slideZoneDofs, around regionsCentreNode()) is over
+/// regions.slideZoneMaxDofs at lod 2 and within it at 4. The bone phantom at 2.5 mm cells
+/// (40 x 20 x 40, 60 seeds): 5,292 dofs at lod 2, 1,089 at lod 4; at 5 mm: lod 2 (1,452).
+/// @throw palp::ValueError as fem::AsyncRegions::slideZoneDofs.
+int autoRegionsLod(const DeformableModel& model);
+
+/// The face opposite the one a press along @p press (any non-zero vector; its largest
+/// component's axis) goes into: the support of a body pressed from the other side.
+fem::BoxFace faceOpposite(const Eigen::Vector3d& press) noexcept;
+
+/// Builds the body of @p setup from @p volume (DeformableModel::fromVolume), with regions.lod 0
+/// resolved by autoRegionsLod().
+/// @throw palp::ValueError naming the field (voxelisation, material, options, a body too stiff
+/// for its period, no fixed node).
+std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volume,
+                                                     const DeformableSetup& setup);
+
+}  // namespace palp::haptics

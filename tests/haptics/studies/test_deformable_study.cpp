@@ -1,0 +1,384 @@
+// The thesis's displaced-bone study (paper VI) as a virtual experiment on deformable tissue
+// (docs/algorithms.md sections 3, 5, 9 and 10), and AVCEC's closed-loop energy on that tissue.
+//
+// The scene: the bone phantom (a soft block over a bone slab tilted so that one side is closer
+// to the surface, displacement -1 / 0 / +1) with 10 HU of seeded CT noise, voxelised as
+// `palp palpate --deformable` does (tissue > -200 HU, bone > 500 HU cells with fixed nodes,
+// E 5 kPa, nu 0.45, alpha 60/s, support on the back face) but on 10 mm cells instead of the
+// tool's 5 mm: the whole-mesh explicit FEM then costs a fraction of a millisecond per tick
+// (726 nodes instead of 4851), which keeps 3 x 8 trials under a minute. The filter width is
+// 5 mm (half a cell) so the contact load spreads over the nodes around it.
+//
+// The observer presses twice on each half of the block (x < 0, the patient's right, and x > 0;
+// seeded hand-path noise: place, depth 3-4 mm, press time) and compares what it felt during the
+// holds: the log ratio left / right of the mean stiffness rendered (the rigid experiments'
+// observer) and, as a second observer, of the force over the hand's own depth (the stiffness
+// the hand feels: tissue and coupling in series). A ratio beyond +-threshold says which side
+// the bone is closer on; inside it says level. The thresholds were chosen once from
+// calibration trials (seeds and noise seeds disjoint from the study's; DISABLED_Calibrate).
+// Presses, not a lateral sweep: sweeping on this tissue the proxy lags the probe sideways
+// (friction and the dimple's front slope) so much that the proxy-to-probe direction tilts
+// ~50 degrees from the press axis and the rays mostly pass beside the bone: a 70 mm sweep
+// observer's |log k ratio| was 0.03-0.08 for a displaced bone and up to 0.035 for a level one
+// (bench/README.md).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <map>
+#include <memory>
+#include <random>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include "palp/base/error.h"
+#include "palp/haptics/devices/simulated_device.h"
+#include "palp/haptics/devices/trajectory.h"
+#include "palp/haptics/rendering/coupling_defaults.h"
+#include "palp/haptics/session.h"
+#include "palp/studies/energy_budget.h"
+#include "palp/studies/offline_run.h"
+#include "palp/volume/phantom.h"
+
+namespace palp::haptics {
+namespace {
+
+namespace geo = volume::phantom_geometry;
+
+constexpr double kPeriod = 1e-3;
+constexpr double kCell = 10e-3;  // FEM cell edge (the tool's default is 5 mm)
+
+const DeviceSpec& touch() {
+    const DeviceSpec* s = findDeviceSpec("3D Systems Touch");
+    if (!s) throw ValueError("no 3D Systems Touch spec");
+    return *s;
+}
+
+// The bone phantom with 10 HU noise (seed @p noiseSeed) as deformable tissue of mass damping
+// @p alpha (1/s) and contact damping @p contactDamping (ratio of critical), cached.
+std::shared_ptr<const Scene> boneTissue(int displacement, std::uint64_t noiseSeed,
+                                        double alpha = 60, double contactDamping = 1) {
+    static std::map<std::tuple<int, std::uint64_t, double, double>, std::shared_ptr<const Scene>>
+        cache;
+    const auto key = std::make_tuple(displacement, noiseSeed, alpha, contactDamping);
+    if (auto it = cache.find(key); it != cache.end()) return it->second;
+    volume::PhantomSpec spec;
+    spec.params.scene = volume::PhantomScene::Bone;
+    spec.params.displacement = displacement;
+    spec.voxelSize = 1e-3;
+    spec.noiseSigmaHu = 10;
+    spec.seed = noiseSeed;
+    const volume::Volume vol = volume::makePhantomVolume(spec);
+    SceneOptions so;
+    so.surfaceIso = std::numeric_limits<double>::quiet_NaN();  // the proxy feels the FEM surface
+    std::shared_ptr<Scene> scene = Scene::fromVolume(vol, so);
+    fem::VoxelizeOptions vo;
+    vo.elementSize = kCell;
+    vo.tissueThreshold = -200;
+    vo.boneThreshold = 500;
+    fem::ElasticMaterial mat;
+    mat.youngsModulus = 5e3;
+    mat.poissonRatio = 0.45;
+    mat.dampingAlpha = alpha;
+    DeformableOptions dopt;
+    dopt.filterWidth = 5e-3;
+    dopt.contactDampingRatio = contactDamping;
+    scene->commit();
+    scene->setDeformable(DeformableModel::fromVolume(vol, vo, mat, fem::BoxFace::yMax, dopt));
+    cache.emplace(key, scene);
+    return scene;
+}
+
+SessionParams studyParams(CouplingMode mode) {
+    SessionParams p;
+    p.coupling = sceneCouplingDefaults(volume::PhantomScene::Bone);  // AVCEC, first hit 500 HU
+    p.coupling.mode = mode;
+    limitStiffnessToDevice(p.coupling, touch(), kPeriod);
+    p.servo.periodSeconds = kPeriod;
+    return p;
+}
+
+struct Trial {
+    int truth = 0;
+    std::array<int, 2> pick{};         // per observer: stiffness, force
+    std::array<double, 2> logRatio{};  // per observer: log(left / right)
+    // Per side: mean stiffness rendered, mean normal force over the hand's depth (N/m).
+    std::array<double, 2> left{}, right{};
+    double seconds = 0, maxForce = 0;
+    bool finite = true;
+    std::uint64_t clamped = 0;
+};
+
+// Thresholds on |log(left / right)| per coupling (stiffness observer, force observer), chosen
+// once by DISABLED_Calibrate (seeds 0xca1b0000 + i, noise seeds 100 and 101, disjoint from the
+// study's), again since AVCEC's rays leave in the material frame of the contacted element:
+// AVCEC 18/18 and 16/18 calibration trials right, VC 6/18 (k is k_s everywhere: the stiffness
+// observer always says level) and 14/18.
+std::array<double, 2> thresholds(CouplingMode mode) {
+    return mode == CouplingMode::VC ? std::array<double, 2>{0.1128, 0.0680}
+                                    : std::array<double, 2>{0.0956, 0.0871};
+}
+
+int decide(double logRatio, double threshold) {
+    if (logRatio > threshold) return +1;  // stiffer on the left (x > 0): bone closer there
+    if (logRatio < -threshold) return -1;
+    return 0;
+}
+
+// One trial: bone position @p truth; two short presses on each half (x = -+(12..28) mm,
+// z within +-10 mm, 3-4 mm deep, seeded), each on fresh tissue (a Session of its own).
+Trial runTrial(std::uint64_t seed, int truth, std::uint64_t noiseSeed, CouplingMode mode) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> unit(0, 1);
+    const auto jitter = [&](double a) { return a * (2 * unit(rng) - 1); };
+    Trial out;
+    out.truth = truth;
+    const auto scene = boneTissue(truth, noiseSeed);
+    const SessionParams params = studyParams(mode);
+    std::array<double, 2> kSum{}, fSum{}, n{};
+    for (int press = 0; press < 4; ++press) {
+        const std::size_t side = static_cast<std::size_t>(press % 2);  // 0: x < 0, 1: x > 0
+        PressTrajectory p;
+        const double approach = 0.005;
+        p.start =
+            Eigen::Vector3d((side ? 1 : -1) * (0.020 + jitter(0.008)), -approach, jitter(0.010));
+        p.direction = Eigen::Vector3d(0, 1, 0);
+        p.depthM = approach + 0.003 + 0.001 * unit(rng);
+        p.pressSeconds = 0.25 + 0.1 * unit(rng);
+        p.holdSeconds = 0.25;
+        const double seconds = 2 * p.pressSeconds + p.holdSeconds;
+        SimulatedDevice device(touch(), p, HandModel{}, kPeriod);
+        Session session(scene, device, params);
+        const auto ticks = static_cast<std::uint64_t>(std::ceil(seconds / kPeriod));
+        for (std::uint64_t i = 0; i < ticks; ++i) {
+            const Snapshot& sn = session.step();
+            out.finite = out.finite && sn.force.allFinite();
+            out.maxForce = std::max(out.maxForce, sn.force.norm());
+            out.clamped += sn.clamped ? 1 : 0;
+            // What the hand feels while it holds the press.
+            if (sn.contactCount == 0 || sn.timeSeconds < p.pressSeconds ||
+                sn.timeSeconds > p.pressSeconds + p.holdSeconds)
+                continue;
+            kSum[side] += sn.stiffness;
+            // Force over the hand's own depth below the rest surface (y = 0): the stiffness the
+            // hand feels, tissue and coupling in series.
+            fSum[side] += -sn.force.y() / std::max(sn.probe.y(), 1e-4);
+            n[side] += 1;
+        }
+        out.seconds += seconds;
+    }
+    for (std::size_t side = 0; side < 2; ++side) {
+        const double m = std::max(n[side], 1.0);
+        (side ? out.left : out.right) = {kSum[side] / m, fSum[side] / m};
+    }
+    for (std::size_t o = 0; o < 2; ++o) {
+        out.logRatio[o] = std::log(out.left[o] / out.right[o]);
+        out.pick[o] =
+            std::isfinite(out.logRatio[o]) ? decide(out.logRatio[o], thresholds(mode)[o]) : 0;
+    }
+    return out;
+}
+
+struct StudyResult {
+    int trials = 0;
+    std::array<int, 2> correct{};
+    double simulatedSeconds = 0, wallSeconds = 0, maxForce = 0;
+    std::uint64_t clamped = 0;
+    bool finite = true;
+};
+
+// @p perClass trials of each bone position (seeds 0x57d90000 + trial; noise seed trial % 4).
+StudyResult runStudy(int perClass, CouplingMode mode, bool print) {
+    StudyResult r;
+    const auto t0 = std::chrono::steady_clock::now();
+    for (int t = 0; t < 3 * perClass; ++t) {
+        const int truth = t % 3 - 1;
+        const Trial a = runTrial(0x57d90000u + static_cast<std::uint64_t>(t), truth,
+                                 static_cast<std::uint64_t>(t % 4), mode);
+        ++r.trials;
+        for (std::size_t o = 0; o < 2; ++o) r.correct[o] += a.pick[o] == truth ? 1 : 0;
+        r.simulatedSeconds += a.seconds;
+        r.maxForce = std::max(r.maxForce, a.maxForce);
+        r.clamped += a.clamped;
+        r.finite = r.finite && a.finite;
+        if (print)
+            std::printf(
+                "%-5s trial %2d: bone %+d; k right/left %4.0f/%4.0f N/m (log %+.3f) -> %+d %s; "
+                "F/depth right/left %.0f/%.0f N/m (log %+.3f) -> %+d %s\n",
+                couplingModeName(mode), t, truth, a.right[0], a.left[0], a.logRatio[0], a.pick[0],
+                a.pick[0] == truth ? "right" : "wrong", a.right[1], a.left[1], a.logRatio[1],
+                a.pick[1], a.pick[1] == truth ? "right" : "wrong");
+    }
+    r.wallSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    std::printf(
+        "displaced-bone study, %s + FEM (%d trials, 3 bone positions): stiffness observer %d/%d "
+        "correct (%.1f %%), force observer %d/%d (%.1f %%); mean trial %.2f s simulated, "
+        "%.2f s wall; max force %.3f N, %llu clamped ticks\n",
+        couplingModeName(mode), r.trials, r.correct[0], r.trials, 100.0 * r.correct[0] / r.trials,
+        r.correct[1], r.trials, 100.0 * r.correct[1] / r.trials, r.simulatedSeconds / r.trials,
+        r.wallSeconds / r.trials, r.maxForce, static_cast<unsigned long long>(r.clamped));
+    return r;
+}
+
+// The reduced study (3 x 8 trials): AVCEC on FEM tissue finds the bone; plain VC is reported.
+TEST(DisplacedBoneStudy, AvcecOnFemTissueFindsTheCloserSide) {
+    const StudyResult ec = runStudy(8, CouplingMode::AVCEC, true);
+    // The full study (DISABLED_Full, 3 x 40) is 116/120 (96.7 %); these 24 trials miss two
+    // weak -1 cases (|log| 0.067 and 0.091 under the threshold 0.0956): >= 90 % here.
+    EXPECT_GE(ec.correct[0], 22);
+    EXPECT_TRUE(ec.finite);
+    EXPECT_EQ(ec.clamped, 0u);
+    EXPECT_LE(ec.maxForce, touch().maxForceN + 1e-9);
+}
+
+// The full study (3 x 40 trials per coupling): figures in bench/README.md.
+TEST(DisplacedBoneStudy, DISABLED_Full) {
+    const StudyResult ec = runStudy(40, CouplingMode::AVCEC, true);
+    const StudyResult vc = runStudy(40, CouplingMode::VC, true);
+    EXPECT_GE(ec.correct[0], 114);  // >= 95 % of 120
+    EXPECT_TRUE(ec.finite && vc.finite);
+}
+
+// Calibration: 3 x 6 trials per coupling on seeds and noise seeds the study never uses; prints
+// the log ratios per bone position and, per observer, the threshold on |log(left / right)|
+// that decides the most calibration trials right (the smallest of the best, taken halfway to
+// the next larger |log ratio|).
+TEST(DisplacedBoneStudy, DISABLED_Calibrate) {
+    for (CouplingMode mode : {CouplingMode::AVCEC, CouplingMode::VC}) {
+        std::vector<Trial> trials;
+        for (int t = 0; t < 18; ++t) {
+            const int truth = t % 3 - 1;
+            trials.push_back(runTrial(0xca1b0000u + static_cast<std::uint64_t>(t), truth,
+                                      100 + static_cast<std::uint64_t>(t % 2), mode));
+            const Trial& a = trials.back();
+            std::printf("%-5s calib %2d: bone %+d  log k %+.4f  log F %+.4f\n",
+                        couplingModeName(mode), t, truth, a.logRatio[0], a.logRatio[1]);
+        }
+        for (std::size_t o = 0; o < 2; ++o) {
+            std::vector<double> cuts{0};
+            for (const Trial& a : trials) cuts.push_back(std::abs(a.logRatio[o]));
+            std::sort(cuts.begin(), cuts.end());
+            int best = -1;
+            double bestCut = 0;
+            for (std::size_t i = 0; i < cuts.size(); ++i) {
+                const double cut =
+                    i + 1 < cuts.size() ? 0.5 * (cuts[i] + cuts[i + 1]) : cuts[i] + 1e-3;
+                int right = 0;
+                for (const Trial& a : trials) right += decide(a.logRatio[o], cut) == a.truth;
+                if (right > best) best = right, bestCut = cut;
+            }
+            std::printf("%-5s %s observer: threshold %.4f decides %d/18 calibration trials\n",
+                        couplingModeName(mode), o ? "force" : "stiffness", bestCut, best);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Closed loops of the hand on deformable tissue
+
+struct LoopResult {
+    EnergyBudget budget;
+    std::vector<double> loopWork;  // hand work per loop, J
+    double maxForce = 0, minStiffness = INFINITY, maxStiffness = 0;
+    std::uint64_t clamped = 0;
+    bool finite = true;
+};
+
+constexpr int kLoops = 6;
+
+// Frictionless circles (3 mm radius, 4 mm deep, 1 Hz) around @p centre on the bone phantom's
+// tissue (displacement -1: the bone is closest at its right edge, x = -40 mm).
+LoopResult runLoops(const Eigen::Vector3d& centre, CouplingMode mode, double alpha,
+                    double contactDamping) {
+    SessionParams sp = studyParams(mode);
+    sp.proxy.staticFriction = 0;
+    sp.proxy.dynamicFriction = 0;
+    CircleTrajectory path;
+    path.centre = centre;
+    path.radiusM = 0.003;
+    path.frequencyHz = 1;
+    path.depthM = 0.004;
+    SimulatedDevice device(touch(), path, HandModel{}, kPeriod);
+    Session session(boneTissue(-1, 0, alpha, contactDamping), device, sp);
+    const double start = path.approachSeconds + path.rampSeconds;
+    const auto ticks = static_cast<std::uint64_t>(std::ceil((start + kLoops) / kPeriod));
+    LoopResult r;
+    std::vector<Snapshot> snaps;
+    snaps.reserve(ticks);
+    for (std::uint64_t i = 0; i < ticks; ++i) {
+        snaps.push_back(session.step());
+        const Snapshot& s = snaps.back();
+        r.finite = r.finite && s.force.allFinite();
+        r.maxForce = std::max(r.maxForce, s.force.norm());
+        r.clamped += s.clamped ? 1 : 0;
+        if (s.timeSeconds >= start && s.contactCount > 0) {
+            r.minStiffness = std::min(r.minStiffness, s.stiffness);
+            r.maxStiffness = std::max(r.maxStiffness, s.stiffness);
+        }
+    }
+    r.budget = energyBudget(snaps, start);
+    // Loop by loop (the circle turns at exactly 1 Hz after the ramp).
+    for (int l = 0; l < kLoops; ++l) {
+        std::vector<Snapshot> one;
+        for (const Snapshot& s : snaps)
+            if (s.timeSeconds >= start + l - 1e-9 && s.timeSeconds <= start + l + 1 + 1e-9)
+                one.push_back(s);
+        r.loopWork.push_back(energyBudget(one, start + l).handWork);
+    }
+    return r;
+}
+
+double positiveSum(const std::vector<double>& v) {
+    double s = 0;
+    for (double x : v) s += std::max(x, 0.0);
+    return s;
+}
+
+// Circles over the bone's right edge (x = -40 mm; the slab's top at 18 mm there) and over its
+// slope halfway (x = -20 mm), on the study's tissue (alpha 60/s, critical contact damping) and
+// on a nearly undamped one (alpha 2/s, contact damping 0.1 of critical), where the tissue
+// takes less of what the coupling gives. The measure (as test_energy_loop): the hand work of
+// each loop, and the sum of the positive ones.
+TEST(DeformableEnergyLoop, AvcecGivesTheHandNoEnergyOverTheBoneEdgeAndSlope) {
+    struct Tissue {
+        const char* name;
+        double alpha, contactDamping;
+    };
+    for (const Tissue& tissue :
+         {Tissue{"alpha 60/s, contact 1.0", 60, 1.0}, Tissue{"alpha 2/s, contact 0.1", 2, 0.1}}) {
+        for (const Eigen::Vector3d& centre :
+             {Eigen::Vector3d(-0.040, 0, 0.0), Eigen::Vector3d(-0.020, 0, 0.0)}) {
+            std::array<LoopResult, 3> r;
+            const std::array<CouplingMode, 3> modes{CouplingMode::VC, CouplingMode::AVC,
+                                                    CouplingMode::AVCEC};
+            for (std::size_t m = 0; m < 3; ++m)
+                r[m] = runLoops(centre, modes[m], tissue.alpha, tissue.contactDamping);
+            std::printf("tissue %s, circles at x = %.0f mm (%d loops, frictionless):\n",
+                        tissue.name, centre.x() * 1e3, kLoops);
+            for (std::size_t m = 0; m < 3; ++m) {
+                std::printf("  %-5s hand work %+.4f mJ, positive loop sum %.4f mJ; per loop (mJ):",
+                            couplingModeName(modes[m]), r[m].budget.handWork * 1e3,
+                            positiveSum(r[m].loopWork) * 1e3);
+                for (double w : r[m].loopWork) std::printf(" %+.4f", w * 1e3);
+                std::printf("; k %.0f-%.0f N/m, max force %.3f N\n", r[m].minStiffness,
+                            r[m].maxStiffness, r[m].maxForce);
+                EXPECT_TRUE(r[m].finite) << couplingModeName(modes[m]);
+                EXPECT_EQ(r[m].clamped, 0u) << couplingModeName(modes[m]);
+                EXPECT_LE(r[m].maxForce, touch().maxForceN + 1e-9);
+            }
+            // AVCEC gives the hand at most 5 % of AVC's positive loop work (1 uJ when AVC
+            // gives none), loop by loop as in all.
+            const double avcPositive = positiveSum(r[1].loopWork);
+            EXPECT_LE(positiveSum(r[2].loopWork), std::max(0.05 * avcPositive, 1e-6))
+                << tissue.name << " x " << centre.x();
+        }
+    }
+}
+
+}  // namespace
+}  // namespace palp::haptics

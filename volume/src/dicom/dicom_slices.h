@@ -1,0 +1,77 @@
+#pragma once
+// Slice ordering and geometry of a DICOM series (internal): grouping images by position along
+// the slice normal, ordering the images of one position in time, the memory check, and the
+// geometry and VolumeInfo of the slices read.
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "dicom/dicom_header.h"
+#include "palp/volume/slice_stack.h"
+
+namespace palp::volume::dicom {
+
+/// Tolerance (mm) below which two slice positions along the normal count as the same.
+double positionTolerance(const Header& h);
+
+/// Groups images by position along the normal @p n; groups in increasing position.
+/// Images without a position each form their own group.
+std::vector<std::vector<const Header*>> groupPositions(const std::vector<const Header*>& images,
+                                                       const Eigen::Vector3d& n, double tolMm);
+
+/// Groups @p images by position and checks that every position holds the same number.
+/// @throw ValueError naming @p name when the counts differ.
+std::vector<std::vector<const Header*>> positionGroups(const std::string& name,
+                                                       const std::vector<const Header*>& images,
+                                                       const FileGeometry& first);
+
+/// Checks that every group of @p positions (along @p normal) holds as many images as the first.
+/// @throw ValueError naming @p name, the position and an image there when the counts differ.
+void checkSameCount(const std::string& name,
+                    const std::vector<std::vector<const Header*>>& positions,
+                    const Eigen::Vector3d& normal);
+
+/// Orders the images of one position in time. Frames of enhanced files first by their own
+/// Temporal Position Index (0020,9128), Frame Acquisition DateTime (0018,9074) and Dimension
+/// Index Values (0020,9157); then, for every image, TemporalPositionIdentifier, AcquisitionNumber,
+/// AcquisitionTime (or ContentTime), InstanceNumber; then file name and frame. A key is used
+/// only when every image of the series has it, so the comparison stays a strict weak order; a
+/// frame-level key only when its value varies over the series.
+struct TimeOrder {
+    bool useTemporalIndex = true, useFrameTime = true, useDimensionIndex = true;
+    bool useTemporal = true, useAcqNumber = true, useAcqTime = true, useContentTime = true,
+         useInstance = true;
+    std::size_t dimensionCount = 0;
+
+    explicit TimeOrder(const std::vector<const Header*>& images);
+
+    /// The time key of @p h (the keys in use, in order).
+    std::vector<double> key(const Header& h) const;
+
+    /// Whether a frame-level key (Temporal Position Index, Frame Acquisition DateTime, Dimension
+    /// Index Values) is in use: then two frames of one file with equal keys are duplicates.
+    bool frameKeys() const { return useTemporalIndex || useFrameTime || useDimensionIndex; }
+
+    /// The keys in use of @p h, named, for messages ("Temporal Position Index 2, ...").
+    std::string describe(const Header& h) const;
+
+    /// Sorts @p images (of one position) in time; ties by file name, then frame.
+    void sort(std::vector<const Header*>& images) const;
+};
+
+/// Refuses @p slices slices of @p cols x @p rows floats when they exceed @p limit bytes.
+/// @throw ValueError naming @p name.
+void checkMemory(const std::string& name, int cols, int rows, std::size_t slices,
+                 std::uint64_t limit);
+
+/// Sets @p s's position and steps (metres) from the file geometry @p g (mm).
+void setGeometry(const FileGeometry& g, Slice& s);
+
+/// Fills @p info from the first file of the series and what was read.
+void fillInfo(VolumeInfo& info, const Header& first,
+              const std::vector<std::filesystem::path>& inputs, const std::string& uid,
+              std::size_t positions, int timePoint, int timePointCount, bool rescaleVaries);
+
+}  // namespace palp::volume::dicom

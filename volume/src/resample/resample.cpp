@@ -1,0 +1,418 @@
+#include "palp/volume/resample.h"
+
+#include <openvdb/tools/Prune.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <exception>
+#include <limits>
+#include <memory>
+#include <numeric>
+#include <sstream>
+
+#include "lazy_stack.h"
+#include "palp/base/bounds.h"
+#include "palp/base/error.h"
+#include "palp/base/parallel.h"
+#include "palp/base/validate.h"
+#include "resample/resample_detail.h"
+#include "resample/slice_sampler.h"
+#include "vdb/vdb_errors.h"
+
+namespace palp::volume {
+
+namespace {
+
+using namespace detail;
+
+std::string vecStr(const Eigen::Vector3d& v) {
+    std::ostringstream os;
+    os << "(" << v.x() << ", " << v.y() << ", " << v.z() << ")";
+    return os.str();
+}
+
+/// With @p resident false the slices' values are not there yet (a lazy stack): only the
+/// geometry is checked, the values as they are decoded.
+StackGeometry analyse(const SliceStack& stack, bool resident) {
+    if (stack.slices.empty()) throw ValueError("resample: expected at least one slice, found none");
+    if (resident) checkStackValues(stack);
+    StackGeometry g;
+    const Slice& first = stack.slices.front();
+    g.u = first.colStep;
+    g.v = first.rowStep;
+    for (const Slice& s : stack.slices) {
+        if (s.cols <= 0 || s.rows <= 0 ||
+            (resident && s.values.size() !=
+                             static_cast<std::size_t>(s.cols) * static_cast<std::size_t>(s.rows))) {
+            throw ValueError(s.source + ": expected " + std::to_string(s.cols) + "x" +
+                             std::to_string(s.rows) + " values, found " +
+                             std::to_string(s.values.size()));
+        }
+        if (!s.position.allFinite() || !s.colStep.allFinite() || !s.rowStep.allFinite()) {
+            throw ValueError(s.source + ": slice geometry is not finite");
+        }
+        if (s.cols != first.cols || s.rows != first.rows) {
+            throw ValueError(s.source + ": expected " + std::to_string(first.cols) + "x" +
+                             std::to_string(first.rows) + " pixels like " + first.source +
+                             ", found " + std::to_string(s.cols) + "x" + std::to_string(s.rows));
+        }
+        const double tol = 1e-4 * std::max(g.u.norm(), g.v.norm());
+        if ((s.colStep - g.u).norm() > tol || (s.rowStep - g.v).norm() > tol) {
+            throw ValueError(s.source + ": expected the orientation and spacing of " +
+                             first.source + " (steps " + vecStr(g.u) + ", " + vecStr(g.v) +
+                             " m), found " + vecStr(s.colStep) + ", " + vecStr(s.rowStep));
+        }
+    }
+    const Eigen::Vector3d cross = g.u.cross(g.v);
+    if (cross.norm() < 1e-12 * g.u.norm() * g.v.norm() || g.u.norm() <= 0 || g.v.norm() <= 0) {
+        throw ValueError(first.source + ": expected independent row and column directions, found " +
+                         vecStr(g.u) + " and " + vecStr(g.v));
+    }
+    g.normal = cross.normalized();
+    Eigen::Matrix2d gram;
+    gram << g.u.dot(g.u), g.u.dot(g.v), g.u.dot(g.v), g.v.dot(g.v);
+    g.gramInverse = gram.inverse();
+
+    g.order.resize(stack.slices.size());
+    std::iota(g.order.begin(), g.order.end(), std::size_t{0});
+    std::vector<double> s(stack.slices.size());
+    for (std::size_t i = 0; i < s.size(); ++i) s[i] = stack.slices[i].position.dot(g.normal);
+    std::stable_sort(g.order.begin(), g.order.end(),
+                     [&](std::size_t a, std::size_t b) { return s[a] < s[b]; });
+    g.along.resize(s.size());
+    for (std::size_t i = 0; i < s.size(); ++i) g.along[i] = s[g.order[i]];
+    const double minStep = std::min(g.u.norm(), g.v.norm());
+    for (std::size_t i = 1; i < g.along.size(); ++i) {
+        if (g.along[i] - g.along[i - 1] < 1e-6 * minStep) {
+            throw ValueError(stack.slices[g.order[i]].source +
+                             ": expected distinct slice positions, found the same position as " +
+                             stack.slices[g.order[i - 1]].source +
+                             " (a 4D series needs a time point)");
+        }
+    }
+    return g;
+}
+
+/// Spacing of the slices along the normal, and the gantry tilt.
+struct StackSpacing {
+    double minGap = 0, maxGap = 0, medianGap = 0;  // metres, 0 for a single slice
+    double tiltDeg = 0;  // angle between the slice normal and the stacking direction
+};
+
+StackSpacing measureSpacing(const SliceStack& stack, const StackGeometry& g) {
+    const std::size_t n = g.order.size();
+    StackSpacing out;
+    std::vector<double> gaps;
+    for (std::size_t i = 1; i < n; ++i) gaps.push_back(g.along[i] - g.along[i - 1]);
+    if (!gaps.empty()) {
+        std::vector<double> sorted = gaps;
+        std::sort(sorted.begin(), sorted.end());
+        out.minGap = sorted.front();
+        out.maxGap = sorted.back();
+        out.medianGap = sorted[sorted.size() / 2];
+    }
+    if (n > 1) {
+        const Eigen::Vector3d stackDir =
+            stack.slices[g.order.back()].position - stack.slices[g.order.front()].position;
+        const double c = std::clamp(std::abs(stackDir.normalized().dot(g.normal)), 0.0, 1.0);
+        out.tiltDeg = std::acos(c) * 180.0 / M_PI;
+        if (out.tiltDeg < 1e-3) out.tiltDeg = 0;
+    }
+    return out;
+}
+
+/// The requested voxel size, or the finest input spacing (in-plane steps, smallest gap).
+double chooseVoxelSize(const StackGeometry& g, const StackSpacing& spacing,
+                       const ResampleOptions& options) {
+    double voxel = std::min(g.u.norm(), g.v.norm());
+    if (spacing.minGap > 0) voxel = std::min(voxel, spacing.minGap);
+    if (options.voxelSize) voxel = *options.voxelSize;
+    palp::requireWithin("resample: voxel size", voxel, bounds::kSpacing, {1e3, "mm"});
+    return voxel;
+}
+
+/// Bounds the pixel centres of every slice (plus one voxel of margin), crops and checks size.
+Lattice planLattice(const SliceStack& stack, const StackGeometry& g, double voxel,
+                    const ResampleOptions& options) {
+    const std::size_t n = g.order.size();
+    // World bounding box of all pixel centres.
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -lo;
+    for (const Slice& s : stack.slices) {
+        for (int a = 0; a < 2; ++a) {
+            for (int b = 0; b < 2; ++b) {
+                const Eigen::Vector3d p =
+                    s.position + a * (s.cols - 1) * g.u + b * (s.rows - 1) * g.v;
+                lo = lo.cwiseMin(p);
+                hi = hi.cwiseMax(p);
+            }
+        }
+    }
+    if (n == 1) {  // a single slice is a slab one voxel thick
+        lo -= 0.5 * voxel * g.normal.cwiseAbs();
+        hi += 0.5 * voxel * g.normal.cwiseAbs();
+    }
+    // One voxel of margin on every side, filled by extending the edge pixels, so that trilinear
+    // sampling of the grid is exact up to the outermost pixel centres (a lattice cell around a
+    // point on the data's edge has corners up to one voxel away along each axis). Shifting by a
+    // whole voxel keeps the lattice of an axis-aligned source on its pixel centres.
+    lo -= Eigen::Vector3d::Constant(voxel);
+    hi += Eigen::Vector3d::Constant(voxel);
+    if (options.crop) {
+        lo = lo.cwiseMax(options.crop->min);
+        hi = hi.cwiseMin(options.crop->max);
+        if ((hi.array() < lo.array()).any()) {
+            throw ValueError("resample: the crop box " + vecStr(options.crop->min) + " - " +
+                             vecStr(options.crop->max) + " m does not overlap the scan (" +
+                             vecStr(lo) + " - " + vecStr(hi) + ")");
+        }
+    }
+    Lattice lat;
+    lat.lo = lo;
+    lat.voxel = voxel;
+    std::array<std::int64_t, 3>& dims = lat.dims;
+    for (int a = 0; a < 3; ++a) {
+        dims[static_cast<std::size_t>(a)] =
+            static_cast<std::int64_t>(std::floor((hi[a] - lo[a]) / voxel + 1e-6)) + 1;
+    }
+    const long double total = static_cast<long double>(dims[0]) * dims[1] * dims[2];
+    if (total > static_cast<long double>(options.maxVoxels)) {
+        throw ValueError("resample: a voxel size of " + std::to_string(voxel * 1e3) + " mm gives " +
+                         std::to_string(dims[0]) + "x" + std::to_string(dims[1]) + "x" +
+                         std::to_string(dims[2]) + " voxels, more than the limit of " +
+                         std::to_string(options.maxVoxels) + "; choose a larger voxel size");
+    }
+    return lat;
+}
+
+}  // namespace
+
+void checkResampleOptions(const ResampleOptions& options) {
+    if (options.voxelSize) {
+        palp::requireWithin("resample: voxel size", *options.voxelSize, bounds::kSpacing,
+                            {1e3, "mm"});
+    }
+    if (options.backgroundThreshold) {
+        palp::requireWithin("resample: background threshold",
+                            static_cast<double>(*options.backgroundThreshold),
+                            bounds::kVolumeValue);
+    }
+    if (options.crop) {
+        for (int a = 0; a < 3; ++a) {
+            const std::string axis = "[" + std::to_string(a) + "]";
+            palp::requireWithin("resample: crop min" + axis, options.crop->min[a],
+                                bounds::kPosition, {1e3, "mm"});
+            palp::requireWithin("resample: crop max" + axis, options.crop->max[a],
+                                bounds::kPosition, {1e3, "mm"});
+            if (options.crop->min[a] > options.crop->max[a]) {
+                throwExpected("resample: crop" + axis, "min <= max",
+                              formatValue(options.crop->min[a] * 1e3) + " > " +
+                                  formatValue(options.crop->max[a] * 1e3) + " mm");
+            }
+        }
+    }
+    if (options.maxVoxels == 0) throwExpected("resample: maxVoxels", "at least 1", "0");
+}
+
+float defaultBackgroundThreshold(const VolumeInfo& info) {
+    return info.modality == "CT" ? -900.0f : 0.0f;
+}
+
+float backgroundValueFor(const VolumeInfo& info, float threshold) {
+    const float preferred = info.modality == "CT" ? -1000.0f : 0.0f;
+    return std::min(preferred, threshold);
+}
+
+namespace {
+
+/// Decodes the slices of a lazy stack as fillTree's window asks, checks them, and releases
+/// those it has passed.
+class LazyWindow {
+  public:
+    LazyWindow(LazySliceStack& lazy, SliceSampler& sampler)
+        : mLazy(lazy),
+          mSampler(sampler),
+          mResident(sampler.sliceCount(), 0),
+          mDecoded(sampler.sliceCount(), 0) {}
+
+    void operator()(std::size_t releaseBelow, std::size_t lo, std::size_t hi) {
+        for (std::size_t k = mReleased; k < releaseBelow; ++k) release(k);
+        mReleased = std::max(mReleased, releaseBelow);
+        std::vector<std::size_t> todo;
+        for (std::size_t k = lo; k <= hi; ++k)
+            if (!mResident[k]) todo.push_back(k);
+        decode(todo, false);
+    }
+
+    /// Decodes (and checks) the slices never decoded, one at a time per thread, and releases
+    /// every slice.
+    void finish() {
+        for (std::size_t k = 0; k < mResident.size(); ++k) release(k);
+        mSpare = {};
+        std::vector<std::size_t> todo;
+        for (std::size_t k = 0; k < mDecoded.size(); ++k)
+            if (!mDecoded[k]) todo.push_back(k);
+        decode(todo, true);
+    }
+
+  private:
+    /// Keeps the released slice's buffer for the next slice to decode (the band holds the same
+    /// number of same-sized slices all along): no allocation, page faults or zero-filling of a
+    /// fresh buffer per slice.
+    void release(std::size_t k) {
+        if (!mResident[k]) return;
+        mSpare.push_back(std::move(slice(k).values));
+        slice(k).values = {};
+        mResident[k] = 0;
+    }
+
+    Slice& slice(std::size_t k) { return mLazy.stack.slices[mSampler.stackIndex(k)]; }
+
+    /// Decodes sorted slices @p todo in parallel; when several fail, the first one's error (by
+    /// position along the normal) is thrown.
+    void decode(const std::vector<std::size_t>& todo, bool thenRelease) {
+        for (const std::size_t k : todo) {
+            if (mSpare.empty() || thenRelease) break;
+            slice(k).values = std::move(mSpare.back());
+            mSpare.pop_back();
+        }
+        std::vector<std::exception_ptr> errors(todo.size());
+        palp::parallelForEach(
+            std::size_t{0}, todo.size(),
+            [&](std::size_t i) {
+                const std::size_t k = todo[i];
+                const std::size_t index = mSampler.stackIndex(k);
+                Slice& s = slice(k);
+                try {
+                    const std::int32_t cols = s.cols, rows = s.rows;
+                    const bool checked = mLazy.decode(index, s);
+                    if (s.cols != cols || s.rows != rows ||
+                        s.values.size() !=
+                            static_cast<std::size_t>(cols) * static_cast<std::size_t>(rows)) {
+                        throw FormatError(s.source + ": expected " + std::to_string(cols) + "x" +
+                                          std::to_string(rows) + " values, found " +
+                                          std::to_string(s.values.size()));
+                    }
+                    try {
+                        if (!checked) checkSliceValues(s, index);
+                    } catch (const ValueError& e) {
+                        throw FormatError(e.what());  // the file is at fault
+                    }
+                    if (thenRelease) {
+                        std::vector<float>().swap(s.values);
+                    } else {
+                        mSampler.sliceLoaded(k);
+                    }
+                } catch (...) {
+                    std::vector<float>().swap(s.values);
+                    errors[i] = std::current_exception();
+                }
+            },
+            std::size_t{1});
+        for (const std::exception_ptr& e : errors)
+            if (e) std::rethrow_exception(e);
+        for (const std::size_t k : todo) {
+            mDecoded[k] = 1;
+            mResident[k] = thenRelease ? 0 : 1;
+        }
+    }
+
+    LazySliceStack& mLazy;
+    SliceSampler& mSampler;
+    std::vector<char> mResident, mDecoded;   // by sorted slice
+    std::vector<std::vector<float>> mSpare;  // buffers of released slices
+    std::size_t mReleased = 0;
+};
+
+/// resample() of @p stack; with @p lazy (whose stack is @p stack) the values are decoded as
+/// the blocks reach them. @p referenceOnly and @p scalarRows: see FillContext.
+Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, bool referenceOnly,
+                       LazySliceStack* lazy = nullptr, bool scalarRows = false) {
+    const bool resident = lazy == nullptr || !lazy->decode;
+    const StackGeometry g = analyse(stack, resident);
+    const std::size_t n = g.order.size();
+    const StackSpacing spacing = measureSpacing(stack, g);
+    const double voxel = chooseVoxelSize(g, spacing, options);
+    const Lattice lat = planLattice(stack, g, voxel, options);
+
+    const float threshold =
+        options.backgroundThreshold.value_or(defaultBackgroundThreshold(stack.info));
+    const float background = backgroundValueFor(stack.info, threshold);
+
+    auto grid = openvdb::FloatGrid::create(background);
+    grid->setName(kScanGridName);
+    auto xform = openvdb::math::Transform::createLinearTransform(voxel);
+    xform->postTranslate(openvdb::Vec3d(lat.lo.x(), lat.lo.y(), lat.lo.z()));
+    grid->setTransform(xform);
+
+    SliceSampler sampler(stack, g, voxel, threshold, resident);
+    const FillContext ctx{sampler, g, lat, threshold, background, referenceOnly, scalarRows};
+    if (resident) {
+        fillTree(ctx, options.progress, grid->tree());
+    } else {
+        LazyWindow window(*lazy, sampler);
+        fillTree(ctx, options.progress, grid->tree(),
+                 [&](std::size_t releaseBelow, std::size_t lo, std::size_t hi) {
+                     window(releaseBelow, lo, hi);
+                 });
+        window.finish();
+    }
+
+    Volume out;
+    out.grid = grid;
+    out.info = stack.info;
+    out.info.backgroundThreshold = threshold;
+    out.info.minSliceGap = spacing.minGap;
+    out.info.maxSliceGap = spacing.maxGap;
+    out.info.originalSpacing = {g.u.norm(), g.v.norm(), spacing.medianGap};
+    if (out.info.originalDims[0] == 0) {
+        out.info.originalDims = {stack.slices.front().cols, stack.slices.front().rows,
+                                 static_cast<std::int64_t>(n)};
+    }
+    // The geometry gives the angle; a DICOM Gantry/Detector Tilt (0018,1120) gives its sign,
+    // which the metadata keeps as the tag says.
+    out.info.gantryTiltDeg = stack.info.gantryTiltDeg < 0 ? -spacing.tiltDeg : spacing.tiltDeg;
+    writeInfo(out.info, *grid);
+    return out;
+}
+
+}  // namespace
+
+Volume resample(const SliceStack& stack, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build", [&] {
+        return resampleChecked(stack, options, false);
+    });
+}
+
+namespace detail {
+
+Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    if (!lazy.decode) {
+        try {
+            checkStackValues(lazy.stack);
+        } catch (const ValueError& e) {
+            throw FormatError(e.what());  // the file is at fault, as readStack() says
+        }
+    }
+    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build", [&] {
+        return resampleChecked(lazy.stack, options, false, &lazy);
+    });
+}
+
+Volume resampleVoxelByVoxel(const SliceStack& stack, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    return resampleChecked(stack, options, true);
+}
+
+Volume resampleScalarRows(const SliceStack& stack, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    return resampleChecked(stack, options, false, nullptr, true);
+}
+
+}  // namespace detail
+
+}  // namespace palp::volume
