@@ -33,6 +33,12 @@ function(palp_add_module name)
     $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>)
   target_link_libraries(palp_${name} PUBLIC ${ARG_PUBLIC_DEPS} PRIVATE palp::options ${ARG_PRIVATE_DEPS})
   set_target_properties(palp_${name} PROPERTIES POSITION_INDEPENDENT_CODE ON)
+  # Every symbol a module uses must come from the libraries it links (-z defs), so a room that
+  # calls into a room above it fails to link instead of loading by luck. Not under sanitizers or
+  # the fuzz build, whose runtimes resolve their symbols from the executable.
+  if(NOT PALP_SANITIZE AND NOT PALP_BUILD_FUZZERS)
+    target_link_options(palp_${name} PRIVATE LINKER:-z,defs)
+  endif()
   palp_unity(palp_${name})
 endfunction()
 
