@@ -16,19 +16,19 @@ import sys
 
 ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
 
-# The rooms, each with the folders its files live in and the public include prefix of its
-# headers, listed bottom up.
+# The rooms, bottom up: the folder their files live in and the public include prefix of their
+# headers.
 ROOMS = {
-    'base': (['kernels/base/'], r'palp/base/'),
-    'kernels': (['kernels/'], r'palp/kernels/'),
-    'volume': (['volume/'], r'palp/volume/'),
-    'fem': (['fem/'], r'palp/fem/'),
-    'tissue': (['haptics/tissue/'], r'palp/haptics/tissue/'),
-    'rendering': (['haptics/rendering/'], r'palp/haptics/rendering/'),
-    'devices': (['haptics/devices/'], r'palp/haptics/devices/'),
-    'runtime': (['haptics/runtime/'], r'palp/haptics/[a-z_]+\.h$'),
-    'studies': (['haptics/studies/'], r'palp/studies/'),
-    'capi': (['haptics/capi/'], r'palp/palp\.h$'),
+    'base': ('kernels/base/', r'palp/base/'),
+    'kernels': ('kernels/', r'palp/kernels/'),
+    'volume': ('volume/', r'palp/volume/'),
+    'fem': ('fem/', r'palp/fem/'),
+    'tissue': ('haptics/tissue/', r'palp/haptics/tissue/'),
+    'rendering': ('haptics/rendering/', r'palp/haptics/rendering/'),
+    'devices': ('haptics/devices/', r'palp/haptics/devices/'),
+    'runtime': ('haptics/runtime/', r'palp/haptics/[a-z_]+\.h$'),
+    'studies': ('haptics/studies/', r'palp/studies/'),
+    'capi': ('haptics/capi/', r'palp/palp\.h$'),
 }
 # What each room may include besides itself: the rooms below it that it builds on.
 BELOW = {
@@ -51,12 +51,8 @@ INCLUDE = re.compile(r'^\s*#\s*include\s*[<"](palp/[^>"]+)[>"]', re.M)
 
 def room_of_file(path):
     """The room a repository path belongs to (the longest matching folder), or None."""
-    best = None
-    for room, (folders, _) in ROOMS.items():
-        for folder in folders:
-            if path.startswith(folder) and (best is None or len(folder) > best[1]):
-                best = (room, len(folder))
-    return best[0] if best else None
+    matches = [room for room, (folder, _) in ROOMS.items() if path.startswith(folder)]
+    return max(matches, key=lambda room: len(ROOMS[room][0]), default=None)
 
 
 def room_of_header(header):
