@@ -20,6 +20,9 @@ PACKAGES=(
   python3-openvdb python3-nibabel python3-pydicom python3-numpy
   # the VTK viewer example (tools/examples/viewer.py) and its off-screen test under Xvfb
   python3-vtk9 xvfb xauth
+  # error-analysis sweeps (palp sweep / errormap): Philox streams, MPI, a one-node Slurm for the
+  # cluster test, and the OpenTURNS / scipy oracles of the partial rank correlations
+  librandom123-dev libopenmpi-dev openmpi-bin slurm-wlm munge python3-openturns python3-scipy
   # fuzzing (clang's libFuzzer)
   clang libfuzzer-14-dev libclang-rt-14-dev
 )
