@@ -28,6 +28,10 @@ Command addPalpate(CLI::App& root);
 Command addServe(CLI::App& root);
 /// `palp bridge-sim`: a simulated remote device for `palp serve`.
 Command addBridgeSim(CLI::App& root);
+/// `palp sweep` (and `palp sweep merge`): the error-analysis sweep (cmd_sweep.cpp).
+Command addSweep(CLI::App& root);
+/// `palp errormap`: partial rank correlations and plots of a sweep table (cmd_errormap.cpp).
+Command addErrormap(CLI::App& root);
 
 /// Unit axis from "+y", "-x", "y", ...; @throw palp::ValueError naming @p option and the text.
 Eigen::Vector3d parseAxis(const std::string& text, const char* option);
