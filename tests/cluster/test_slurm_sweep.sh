@@ -1,0 +1,205 @@
+#!/usr/bin/env bash
+# `palp sweep` on real cluster engines (issue 33): a one-node Slurm started by hand (munged as the
+# munge user on its own socket, slurmctld and slurmd with a slurm.conf in a temp dir, no
+# systemd; recipe in docs/error_analysis.md), a sweep submitted as an `sbatch --array` job whose
+# task 1 computes part of its range and fails, resubmitted with --resume (which computes only
+# the missing samples), merged, and compared byte for byte with a one-process run; then the same
+# sweep under `srun --mpi=pmix -n 2` and `mpirun --oversubscribe -np 2`, the latter resuming a
+# directory with shards removed. The daemons are stopped at the end whatever happens.
+#
+# Usage: test_slurm_sweep.sh PATH/TO/palp      (as root, as CI runs; ~10-20 s)
+set -euo pipefail
+
+PALP=$(readlink -f "${1:?usage: test_slurm_sweep.sh PATH/TO/palp}")
+for prog in /usr/sbin/munged /usr/sbin/slurmctld /usr/sbin/slurmd sbatch srun squeue scontrol \
+    mpirun; do
+  command -v "$prog" > /dev/null || { echo "FAIL: $prog not found (tools/setup.sh installs" \
+    "slurm-wlm, munge and openmpi-bin)"; exit 1; }
+done
+[[ $(id -u) -eq 0 ]] || { echo "FAIL: the one-node Slurm needs root (munged runs as munge)"; exit 1; }
+
+D=$(mktemp -d /tmp/palp-slurm.XXXXXX)
+chmod 0755 "$D"
+MUNGED_PID="" CTLD_PID="" SLURMD_PID=""
+
+stop_all() {
+  set +e
+  if [[ -n $CTLD_PID ]]; then
+    scancel --user=root > /dev/null 2>&1
+    scontrol shutdown > /dev/null 2>&1
+    for _ in $(seq 50); do
+      kill -0 "$CTLD_PID" 2> /dev/null || kill -0 "$SLURMD_PID" 2> /dev/null || break
+      sleep 0.1
+    done
+  fi
+  for pid in $SLURMD_PID $CTLD_PID; do kill -0 "$pid" 2> /dev/null && kill "$pid"; done
+  if [[ -n $MUNGED_PID ]]; then
+    /usr/sbin/munged --stop --socket="$D/munge/socket" > /dev/null 2>&1 ||
+      kill "$MUNGED_PID" 2> /dev/null
+  fi
+  rm -rf "$D"
+}
+fail() {
+  echo "FAIL: $*"
+  for f in "$D"/log/*.log "$D"/out/*; do
+    [[ -f $f ]] && { echo "--- $f"; tail -n 20 "$f"; }
+  done
+  exit 1
+}
+trap stop_all EXIT
+trap 'exit 130' INT TERM
+
+# munged on its own socket and files, as the munge user (it refuses root).
+install -d -o munge -g munge -m 0755 "$D/munge"
+KEY=/etc/munge/munge.key
+if [[ ! -r $KEY ]]; then
+  KEY=$D/munge/munge.key
+  head -c 1024 /dev/urandom > "$KEY"
+  chown munge:munge "$KEY"
+  chmod 0400 "$KEY"
+fi
+runuser -u munge -- /usr/sbin/munged --socket="$D/munge/socket" --pid-file="$D/munge/pid" \
+  --log-file="$D/munge/log" --seed-file="$D/munge/seed" --key-file="$KEY" ||
+  fail "munged did not start"
+MUNGED_PID=$(cat "$D/munge/pid")
+munge -n --socket="$D/munge/socket" | unmunge --socket="$D/munge/socket" > /dev/null ||
+  fail "munge round trip"
+
+# Ports of their own (another one-node Slurm may run on the machine).
+PORT=$((20000 + $$ % 20000))
+mkdir -p "$D/state" "$D/spool" "$D/log" "$D/out"
+cat > "$D/slurm.conf" << EOF
+ClusterName=palp
+SlurmctldHost=localhost
+SlurmctldPort=$PORT
+SlurmdPort=$((PORT + 1))
+SlurmUser=root
+SlurmdUser=root
+AuthType=auth/munge
+AuthInfo=socket=$D/munge/socket
+CredType=cred/munge
+StateSaveLocation=$D/state
+SlurmdSpoolDir=$D/spool
+SlurmctldPidFile=$D/slurmctld.pid
+SlurmdPidFile=$D/slurmd.pid
+SlurmctldLogFile=$D/log/slurmctld.log
+SlurmdLogFile=$D/log/slurmd.log
+ProctrackType=proctrack/linuxproc
+TaskPlugin=task/none
+SelectType=select/cons_tres
+SelectTypeParameters=CR_Core
+MpiDefault=pmix
+ReturnToService=2
+NodeName=localhost NodeAddr=127.0.0.1 CPUs=2 Sockets=1 CoresPerSocket=2 ThreadsPerCore=1 RealMemory=2000 State=UNKNOWN
+PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP
+SchedulerParameters=batch_sched_delay=0,sched_min_interval=0
+JobCompType=jobcomp/filetxt
+JobCompLoc=$D/log/jobcomp.txt
+EOF
+export SLURM_CONF=$D/slurm.conf
+/usr/sbin/slurmctld || fail "slurmctld did not start"
+for _ in $(seq 50); do [[ -s $D/slurmctld.pid ]] && break; sleep 0.1; done
+CTLD_PID=$(cat "$D/slurmctld.pid")
+/usr/sbin/slurmd -N localhost || fail "slurmd did not start"
+for _ in $(seq 50); do [[ -s $D/slurmd.pid ]] && break; sleep 0.1; done
+SLURMD_PID=$(cat "$D/slurmd.pid")
+for _ in $(seq 100); do
+  [[ $(sinfo -h -n localhost -o %T 2> /dev/null) == idle ]] && break
+  sleep 0.1
+done
+[[ $(sinfo -h -n localhost -o %T) == idle ]] || fail "the node did not come up"
+echo "slurm up (ctld $CTLD_PID, slurmd $SLURMD_PID)"
+
+# The sweep: a 7^3 cube, 20 ms per sample, 30 samples in groups of 3.
+cat > "$D/ranges.json" << 'EOF'
+{"palp_sweep_ranges": 1, "mesh": {"nodes": 7, "spacing_mm": 5}, "duration_s": 0.02,
+ "adaptivity_per_reference": 3, "variables": {
+  "strain": {"min": 0.01, "max": 0.06}, "frequency": {"min": 10, "max": 40},
+  "contact": {"min": 0, "max": 8, "integer": true},
+  "youngs": {"min": 2000, "max": 20000, "scale": "log"}, "poisson": {"min": 0.3, "max": 0.45},
+  "density": {"min": 900, "max": 1100}, "damping": {"min": 2, "max": 20},
+  "lod": {"values": [1, 2]}, "primary": {"min": 3, "max": 12, "integer": true},
+  "rate": {"min": 50, "max": 500}, "coupling": {"values": [0, 1]}}}
+EOF
+SWEEP=(sweep "$D/ranges.json" --samples 30 --seed 17)
+"$PALP" -q "${SWEEP[@]}" -o "$D/one" || fail "one-process sweep"
+[[ -s $D/one/table.csv ]] || fail "no one-process table"
+
+wait_job() {  # waits until job $1 (all its array tasks) has left the queue
+  for _ in $(seq 600); do
+    [[ -z $(squeue -h -j "$1" 2> /dev/null) ]] && return 0
+    sleep 0.1
+  done
+  fail "job $1 still queued after 60 s"
+}
+
+# Job array of 3 tasks (one chunk of groups each); task 1 computes 2 samples and fails once.
+cat > "$D/task.sh" << EOF
+#!/bin/bash
+if [[ \$SLURM_ARRAY_TASK_ID == 1 && -e $D/fail_once ]]; then
+  rm -f $D/fail_once
+  "$PALP" -q ${SWEEP[*]} -o $D/array --shard \$SLURM_ARRAY_TASK_ID/\$SLURM_ARRAY_TASK_COUNT \
+    --resume --max-samples 2
+  exit 1
+fi
+exec "$PALP" -q ${SWEEP[*]} -o $D/array --shard \$SLURM_ARRAY_TASK_ID/\$SLURM_ARRAY_TASK_COUNT \
+  --resume
+EOF
+touch "$D/fail_once"
+JOB=$(sbatch --parsable --array=0-2 -n 1 -o "$D/out/a-%A_%a.out" "$D/task.sh") || fail "sbatch"
+wait_job "$JOB"
+grep -q "JobState=FAILED" "$D/log/jobcomp.txt" || fail "task 1 did not fail"
+[[ $(grep -c "JobState=COMPLETED" "$D/log/jobcomp.txt") -eq 2 ]] || fail "tasks 0 and 2 did not complete"
+"$PALP" -q sweep merge "$D/array" -o "$D/array/table.csv" 2> "$D/out/merge1.err" &&
+  fail "merge of an incomplete sweep succeeded"
+grep -q "in no shard" "$D/out/merge1.err" || fail "merge of a gap: $(cat "$D/out/merge1.err")"
+[[ ! -e $D/array/table.csv ]] || fail "a table was written from an incomplete sweep"
+before=$(ls "$D/array/shards" | grep -c '^shard-[0-9-]*\.csv$' | tr -d ' ')
+# Resubmit: tasks 0 and 2 find their shards, task 1 computes only its 7 missing samples.
+JOB2=$(sbatch --parsable --array=0-2 -n 1 -o "$D/out/b-%A_%a.out" "$D/task.sh") || fail "resubmit"
+wait_job "$JOB2"
+[[ $(grep -c "JobState=COMPLETED" "$D/log/jobcomp.txt") -eq 5 ]] || fail "resubmitted tasks failed"
+ls "$D/array/shards" | grep -q "shard-0000000011-0000000018.csv$" ||
+  fail "the resume did not compute exactly the missing range: $(ls "$D/array/shards")"
+after=$(ls "$D/array/shards" | grep -c '^shard-[0-9-]*\.csv$' | tr -d ' ')
+[[ $after -eq $((before + 1)) ]] || fail "resume wrote $((after - before)) shards, expected 1"
+"$PALP" -q sweep merge "$D/array" -o "$D/array/table.csv" || fail "merge"
+cmp "$D/one/table.csv" "$D/array/table.csv" || fail "job array table differs from one process"
+echo "ok: sbatch --array, one task failed, --resume, merge: byte-identical"
+
+# MPI under Slurm: srun --mpi=pmix -n 2 (rank 0 hands out chunks and works too).
+srun --mpi=pmix -n 2 -o "$D/out/srun.out" "$PALP" -q "${SWEEP[@]}" -o "$D/srun" --mpi --chunk 1 ||
+  fail "srun --mpi=pmix"
+cmp "$D/one/table.csv" "$D/srun/table.csv" || fail "srun table differs from one process"
+echo "ok: srun --mpi=pmix -n 2: byte-identical"
+
+# mpirun as root, resuming a directory whose shards 2 and 5 were lost.
+cp -r "$D/srun" "$D/mpirun"
+rm "$D/mpirun/table.csv" "$D/mpirun/shards/shard-0000000006-0000000009.csv" \
+  "$D/mpirun/shards/shard-0000000015-0000000018.csv"
+touch -d 2000-01-01 "$D"/mpirun/shards/*
+OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 mpirun --oversubscribe -np 2 \
+  "$PALP" -q "${SWEEP[@]}" -o "$D/mpirun" --mpi --chunk 1 --resume > "$D/out/mpirun.out" 2>&1 ||
+  fail "mpirun"
+fresh=$(find "$D/mpirun/shards" -name 'shard-*[0-9].csv' -newermt 2001-01-01 -printf '%f ')
+[[ $fresh == *shard-0000000006-0000000009.csv* && $fresh == *shard-0000000015-0000000018.csv* &&
+  $(wc -w <<< "$fresh") -eq 2 ]] || fail "mpirun --resume recomputed '$fresh', expected the 2 lost shards"
+cmp "$D/one/table.csv" "$D/mpirun/table.csv" || fail "mpirun table differs from one process"
+echo "ok: mpirun --oversubscribe -np 2 --resume: byte-identical"
+
+# A shard of another sweep (another seed) is refused by name; nothing is merged.
+"$PALP" -q sweep "$D/ranges.json" --samples 30 --seed 18 -o "$D/other" --shard 0/10 ||
+  fail "other sweep"
+cp "$D/other/shards/shard-0000000000-0000000003.csv" "$D/one/shards/shard-0000000000-0000000003.csv"
+"$PALP" -q sweep merge "$D/one" -o "$D/one/again.csv" 2> "$D/out/foreign.err" &&
+  fail "a foreign shard was merged"
+grep -q "shard-0000000000-0000000003.csv: field 'sweep'" "$D/out/foreign.err" ||
+  fail "foreign shard message: $(cat "$D/out/foreign.err")"
+[[ ! -e $D/one/again.csv ]] || fail "a table was written beside a foreign shard"
+# Another sweep into this directory (another seed) is refused naming the manifest's field.
+"$PALP" -q sweep "$D/ranges.json" --samples 30 --seed 99 -o "$D/one" 2> "$D/out/manifest.err" &&
+  fail "a sweep ran into another sweep's directory"
+grep -q "manifest.json: field 'sweep'" "$D/out/manifest.err" ||
+  fail "manifest message: $(cat "$D/out/manifest.err")"
+echo "ok: foreign shard and another sweep's manifest refused"
+echo PASS
