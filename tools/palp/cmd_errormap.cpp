@@ -2,10 +2,12 @@
 // with p-values and confidence intervals, and the error map's figures (docs/error_analysis.md).
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "commands.h"
 #include "palp/base/atomic_file.h"
@@ -27,14 +29,42 @@ struct ErrormapArgs {
     double level = 0.95;
     int maxLines = 2000;
     bool noPlots = false;
+    std::vector<std::string> where;
 };
+
+/// Keeps the rows of @p t where every "COLUMN=VALUE" of @p where holds (e.g. coupling=0).
+SweepTable filtered(const SweepTable& t, const std::vector<std::string>& where) {
+    if (where.empty()) return t;
+    std::vector<std::pair<int, double>> conds;
+    for (const auto& w : where) {
+        const auto eq = w.find('=');
+        const int c = eq == std::string::npos ? -1 : t.column(w.substr(0, eq));
+        char* end = nullptr;
+        const double v = c < 0 ? 0.0 : std::strtod(w.c_str() + eq + 1, &end);
+        if (c < 0 || end == w.c_str() + eq + 1 || *end != '\0')
+            throw ValueError("--where: expected COLUMN=NUMBER with a column of the table, found '" +
+                             w + "'");
+        conds.emplace_back(c, v);
+    }
+    std::vector<Eigen::Index> keep;
+    for (Eigen::Index r = 0; r < t.data.rows(); ++r) {
+        bool ok = true;
+        for (const auto& [c, v] : conds) ok = ok && t.data(r, c) == v;
+        if (ok) keep.push_back(r);
+    }
+    SweepTable out = t;
+    out.data.resize(static_cast<Eigen::Index>(keep.size()), t.data.cols());
+    for (std::size_t i = 0; i < keep.size(); ++i)
+        out.data.row(static_cast<Eigen::Index>(i)) = t.data.row(keep[i]);
+    return out;
+}
 
 void writeText(const fs::path& p, const std::string& what, const std::string& text) {
     writeFileAtomically(p, what, text.data(), text.size());
 }
 
 int run(const ErrormapArgs& a) {
-    const SweepTable t = readSweepTable(a.table);
+    const SweepTable t = filtered(readSweepTable(a.table), a.where);
     int dropped = 0, used = 0;
     const auto prcc = sweepPrcc(t, a.response, a.level, &dropped, &used);
     const fs::path dir(a.out);
@@ -47,6 +77,7 @@ int run(const ErrormapArgs& a) {
     nlohmann::json j;
     j["table"] = fs::absolute(a.table).string();
     j["response"] = a.response;
+    j["where"] = a.where;
     j["rows_used"] = used;
     j["rows_dropped_nonfinite"] = dropped;
     j["controlled_variables"] = k;
@@ -102,6 +133,8 @@ Command addErrormap(CLI::App& root) {
         ->check(CLI::Range(1, 1000000))
         ->capture_default_str();
     app->add_flag("--no-plots", args->noPlots, "Only the tables");
+    app->add_option("--where", args->where,
+                    "Analyse only the rows where COLUMN=VALUE (repeatable; e.g. coupling=0)");
     return {app, [args]() -> int { return run(*args); }};
 }
 

@@ -235,13 +235,27 @@ int mpiSweep(const SweepArgs& a, const SweepSpec& spec) {
 int sweepCommand(const SweepArgs& a) {
     if (a.ranges.empty()) throw ValueError("palp sweep: expected a RANGES.json argument");
     if (a.out.empty()) throw ValueError("palp sweep: -o DIR is required");
+    if (a.samples < 1) throw ValueError("palp sweep: --samples N is required (N >= 1)");
     const SweepSpec spec = specOf(a);
     SweepSampler check(spec);  // refuses a bad sample count before anything is written
     (void)check;
     if (a.mpi) {
 #ifdef PALP_HAVE_MPI
         if (!a.shard.empty()) throw ValueError("--mpi and --shard exclude each other");
-        return mpiSweep(a, spec);
+        try {
+            return mpiSweep(a, spec);
+        } catch (const std::exception& e) {
+            // A rank that fails mid-sweep would leave the others waiting on it: end the job
+            // (its written shards stay; --resume continues).
+            int initialised = 0, finalised = 0;
+            MPI_Initialized(&initialised);
+            MPI_Finalized(&finalised);
+            if (initialised && !finalised) {
+                std::fprintf(stderr, "palp: error: %s\n", e.what());
+                MPI_Abort(MPI_COMM_WORLD, 1);
+            }
+            throw;
+        }
 #else
         throw ValueError("--mpi: this palp was built without MPI (install libopenmpi-dev)");
 #endif
