@@ -141,12 +141,48 @@ TEST(Prcc, ErrormapWritesTablesAndFigures) {
     std::ifstream svg(d / "map" / "variables.svg");
     const std::string text((std::istreambuf_iterator<char>(svg)), {});
     EXPECT_NE(text.find("<svg"), std::string::npos);
+    // A subset: the rows with lod 2 (lod, now constant, drops out); a bad filter is refused.
+    const auto sub = palp::test::runCommand(palp::test::palpTool().string() + " errormap " +
+                                            (d / "table.csv").string() + " -o " +
+                                            (d / "sub").string() + " --where lod=2 --no-plots");
+    ASSERT_EQ(sub.exitCode, 0) << sub.output;
+    EXPECT_NE(sub.output.find("primary"), std::string::npos);
+    EXPECT_EQ(sub.output.find("\nlod"), std::string::npos) << sub.output;
+    EXPECT_FALSE(fs::exists(d / "sub" / "parallel.png"));
+    const auto where = palp::test::runCommand(palp::test::palpTool().string() + " errormap " +
+                                              (d / "table.csv").string() + " -o " +
+                                              (d / "sub").string() + " --where lod 2>&1");
+    EXPECT_EQ(where.exitCode, 1);
+    EXPECT_NE(where.output.find("--where: expected COLUMN=NUMBER"), std::string::npos)
+        << where.output;
     // A response that is not a column is refused by name.
     const auto bad = palp::test::runCommand(palp::test::palpTool().string() + " errormap " +
                                             (d / "table.csv").string() + " -o " +
                                             (d / "m2").string() + " --response err 2>&1");
     EXPECT_EQ(bad.exitCode, 1);
     EXPECT_NE(bad.output.find("--response"), std::string::npos) << bad.output;
+}
+
+TEST(Prcc, SweepCommandRefusesBadRangesBeforeWritingAnything) {
+    TempDir d;
+    palp::test::writeFile(d / "r.json", R"({"palp_sweep_ranges": 1, "mesh": {"nodes": 7,
+        "spacing_mm": 5}, "duration_s": 0.02, "adaptivity_per_reference": 3, "variables": {
+        "strain": {"min": 0.06, "max": 0.01}}})");
+    const auto r = palp::test::runCommand(palp::test::palpTool().string() + " sweep " +
+                                          (d / "r.json").string() + " -n 4 -o " +
+                                          (d / "out").string() + " 2>&1");
+    EXPECT_EQ(r.exitCode, 1);
+    EXPECT_NE(r.output.find("r.json: field 'variables.strain': expected min < max, found an "
+                            "inverted range"),
+              std::string::npos)
+        << r.output;
+    EXPECT_FALSE(fs::exists(d / "out"));
+    const auto merge = palp::test::runCommand(palp::test::palpTool().string() + " sweep merge " +
+                                              (d / "nothing").string() + " -o " +
+                                              (d / "t.csv").string() + " 2>&1");
+    EXPECT_EQ(merge.exitCode, 1);
+    EXPECT_NE(merge.output.find("manifest.json: no sweep manifest"), std::string::npos)
+        << merge.output;
 }
 
 }  // namespace
