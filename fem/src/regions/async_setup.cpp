@@ -58,6 +58,7 @@ AsyncSetup::AsyncSetup(const FemModel& m, const Constraints& c, const std::vecto
              describe({1.0 / bounds::kDuration.max, bounds::kFrequency.max, "Hz"}),
              o.secondaryRate);
     if (o.lod != 1 && o.lod != 2 && o.lod != 4) fail("lod", "1, 2 or 4", o.lod);
+    if (!(o.plainLead <= 1.0)) fail("plain lead", "a value <= 1", o.plainLead);
     if (!(o.safetyFactor > 0.0 && o.safetyFactor <= 1.0))
         fail("safety factor", "a value in (0, 1]", o.safetyFactor);
     if (o.maxSubsteps < 1 || o.maxSubsteps > kMaxExplicitSubsteps)

@@ -144,6 +144,13 @@ void PrimaryRegion::setGamma(const Layout& L, double* target, double t, bool pro
                 mGPrev[i] + frac * (mGCur[i] - mGPrev[i]) + mGFix[static_cast<Eigen::Index>(i)];
         return;
     }
+    if (leads()) {
+        // Plain coupling: from the newest solution on along its last change (plainLead).
+        const double lead = mSetup.options.plainLead * frac;
+        for (std::size_t i = 0; i < n; ++i)
+            target[L.gammaDofs[i]] = mGCur[i] + lead * (mGCur[i] - mGPrev[i]);
+        return;
+    }
     for (std::size_t i = 0; i < n; ++i)
         target[L.gammaDofs[i]] = mGPrev[i] + frac * (mGCur[i] - mGPrev[i]);
 }
@@ -155,8 +162,10 @@ void PrimaryRegion::acceptSolution(const Layout& L, const double* gamma, const d
     mSharePrev += frac * (mShareCur - mSharePrev);
     for (std::size_t j = 0; j < mShareSeq.size(); ++j)
         if (mShareSeq[j] == sequence) mShareCur = mShareSent[j];
+    // Plain coupling with a lead: the previous solution, which the lead extrapolates from.
+    const bool lead = leads();
     for (std::size_t i = 0; i < L.gammaDofs.size(); ++i) {
-        mGPrev[i] = mGPrev[i] + frac * (mGCur[i] - mGPrev[i]);
+        mGPrev[i] = lead ? mGCur[i] : mGPrev[i] + frac * (mGCur[i] - mGPrev[i]);
         mGCur[i] = gamma[i];
     }
     for (std::size_t i = 0; i < L.borderDofs.size(); ++i) {

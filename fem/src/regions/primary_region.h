@@ -99,6 +99,12 @@ class PrimaryRegion {
     std::uint64_t used() const noexcept { return mUsed; }
 
   private:
+    /// Whether Gamma leads from the newest solution (plain coupling, interpolation, plainLead
+    /// >= 0) instead of interpolating towards it.
+    bool leads() const noexcept {
+        return !mSetup.options.condensed && mSetup.options.interpolate &&
+               mSetup.options.plainLead >= 0.0;
+    }
     void seedWatched(const Layout& from) noexcept;
     /// The lattice's unit stencil (mStencil, mStencilOffset), at construction.
     void buildStencil() noexcept;

@@ -16,7 +16,9 @@
 /// Primary: central difference (same scheme as ExplicitSolver, substepped below the stable step)
 /// over the primary cells only; Gamma follows `u~_S(t)`, linear in time from the displayed value
 /// to the newest secondary solution over one secondary period (or the newest solution at once
-/// when interpolation is off: the "moving wall").
+/// when interpolation is off: the "moving wall"). With the plain coupling Gamma instead starts at
+/// the newest solution and moves on along its last change (plainLead): the interpolation lags a
+/// whole period and diverged at 500 Hz.
 ///
 /// With `condensed` (the default, beyond the thesis) Gamma additionally follows the secondary's
 /// linear response to the primary border's motion since the last solve, so the stiff part of the
@@ -178,10 +180,18 @@ struct AsyncRegionsOptions {
     int primaryNodes = 30;        ///< N seeds of the primary region (>= contact node count)
     int lod = 1;                  ///< secondary level of detail: 1, 2 or 4 (times h)
     bool interpolate = true;      ///< interpolate the secondary border in time
+    /// Plain coupling with interpolate: how Gamma moves over a secondary period. >= 0: from the
+    /// newest solution G_k on along its last change, `u_Gamma = G_k + plainLead s (G_k - G_k-1)`
+    /// (s the period fraction; 0 is the moving wall): on bench_async's cube stable at N 5 and 30,
+    /// 10-500 Hz, with the quasi-static and backward-Euler secondaries (Newmark stays unstable).
+    /// Negative: the thesis's interpolation from the value shown to G_k, a whole period late,
+    /// which diverged at 500 Hz with N 30 (docs/algorithms.md, "Stability of the staggered
+    /// coupling"). Must be <= 1.
+    double plainLead = 0.5;
     /// Condensed (Schur/Norton) coupling: Gamma also follows the secondary's instantaneous linear
     /// response `G = -I_Gamma A^-1 sK K_SB` to the primary border's motion since the solution it
-    /// shows (`u_Gamma = u~_Gamma + G (u_B - u~_B)`). Off: the thesis's plain staggered coupling,
-    /// which goes unstable at high secondary rates with larger borders (bench/README.md).
+    /// shows (`u_Gamma = u~_Gamma + G (u_B - u~_B)`). Off: the thesis's plain staggered coupling
+    /// (see plainLead; its stability analysis: palp/fem/async_stability.h).
     bool condensed = true;
     /// Entries of G below this fraction of its largest are dropped (layouts with their own
     /// factorisation; the capacitance secondary keeps G whole, as the rank-|J| product
