@@ -83,12 +83,27 @@ SweepSampleResult SweepRunner::run(std::int64_t index) {
     SweepSampleResult out;
     out.index = index;
     out.x = mSampler.sample(index);
-    const SweepSpec& spec = mSampler.spec();
-    const SweepRanges& r = spec.ranges;
     // One core: TBB loops inside the FEM run in a one-thread arena (deterministic reductions,
     // and samples/s per core is what the sweep's cost is counted in).
     tbb::task_arena arena(1);
-    arena.execute([&] {
+    try {
+        arena.execute([&] { runIn(index, out); });
+    } catch (const Error& e) {
+        char what[160];
+        std::snprintf(what, sizeof what,
+                      "sweep sample %lld (lod %g, primary %g, rate %g Hz, coupling %g): ",
+                      static_cast<long long>(index), value(out.x, SweepVar::lod),
+                      value(out.x, SweepVar::primary), value(out.x, SweepVar::rate),
+                      value(out.x, SweepVar::coupling));
+        throw ValueError(what + std::string(e.what()));
+    }
+    return out;
+}
+
+void SweepRunner::runIn(std::int64_t index, SweepSampleResult& out) {
+    const SweepSpec& spec = mSampler.spec();
+    const SweepRanges& r = spec.ranges;
+    {
         const std::int64_t group = index / spec.groupSize();
         if (group != mCachedGroup) {
             const auto b = Clock::now();
@@ -135,8 +150,7 @@ SweepSampleResult SweepRunner::run(std::int64_t index) {
         out.diverged = !finite || !(peakA < 100.0 * peakR);
         if (!finite)
             out.errPeak = out.errRms = out.errMax = std::numeric_limits<double>::infinity();
-    });
-    return out;
+    }
 }
 
 const std::vector<SweepColumn>& sweepColumns() {

@@ -42,13 +42,15 @@ double sweepInput(const SweepRanges& ranges, const std::array<double, kSweepVarC
 class SweepRunner {
   public:
     explicit SweepRunner(const SweepSpec& spec);
-    /// Runs sample @p index. @throw palp::ValueError if the regions refuse the sample's options.
+    /// Runs sample @p index. @throw palp::ValueError naming the sample and its adaptivity when
+    /// the regions or the solvers refuse it.
     SweepSampleResult run(std::int64_t index);
     const SweepSampler& sampler() const { return mSampler; }
     /// References computed so far.
     int referencesComputed() const { return mReferences; }
 
   private:
+    void runIn(std::int64_t index, SweepSampleResult& out);
     SweepSampler mSampler;
     std::int64_t mCachedGroup = -1;
     std::vector<double> mReference;  // reference contact force per tick, N
