@@ -119,13 +119,6 @@ FemModel::FemModel(HexMesh mesh, const ElasticMaterial& material)
     if (mMesh.elementCount() == 0) {
         throw ValueError("FEM model mesh: expected at least one element, found an empty mesh");
     }
-    const int components = mMesh.connectedComponents();
-    if (components != 1) {
-        std::ostringstream s;
-        s << "FEM model mesh: expected one connected body, found " << components
-          << " disconnected parts";
-        throw ValueError(s.str());
-    }
     const double h = mMesh.edge();
     const Eigen::Matrix<double, 24, 24> ke = hexStiffness(h, 1.0, material.poissonRatio);
     std::copy(ke.data(), ke.data() + 576, mUnitKe.begin());

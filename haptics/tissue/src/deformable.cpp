@@ -96,6 +96,7 @@ DeformableModel::DeformableModel(fem::FemModel model, std::vector<int> fixedNode
             "deformable: expected fixed nodes (a support face or an inhomogeneity), found none");
     }
     mConstraints.fixNodes(mFixed);  // throws for nodes outside the model
+    fem::requireAnchored(mModel.mesh(), mFixed);
     mSurface = mModel.mesh().boundarySurface();
     std::vector<std::uint8_t> seen(static_cast<std::size_t>(mModel.mesh().nodeCount()), 0);
     for (const std::int32_t n : mSurface.vertexNode) {
@@ -182,6 +183,8 @@ std::shared_ptr<DeformableModel> DeformableModel::fromVolume(
         const double e = material.youngsModulus;
         voxelize.youngsFromValue = [e](double) { return e; };
     }
+    // Every piece the supports hold stays (fem::anchorBody), not only the largest.
+    voxelize.keepLargestComponent = false;
     fem::VoxelizedMesh vm = fem::voxelizeVolume(volume, voxelize);
     std::vector<int> fixed = vm.boneNodes;
     if (supportFace) {
@@ -192,8 +195,13 @@ std::shared_ptr<DeformableModel> DeformableModel::fromVolume(
         const std::vector<int> masked = vm.mesh.nodesWhere(fixedMask);
         fixed.insert(fixed.end(), masked.begin(), masked.end());
     }
-    fem::FemModel model(std::move(vm.mesh), material);
-    return std::make_shared<DeformableModel>(std::move(model), std::move(fixed), options);
+    fem::AnchoredBody body = fem::anchorBody(vm.mesh, fixed);
+    fem::FemModel model(std::move(body.mesh), material);
+    auto out =
+        std::make_shared<DeformableModel>(std::move(model), std::move(body.fixedNodes), options);
+    out->mKept = std::move(body.kept);
+    out->mDropped = std::move(body.dropped);
+    return out;
 }
 
 DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)

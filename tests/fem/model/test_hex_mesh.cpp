@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "palp/base/error.h"
+#include "palp/fem/components.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/hex_mesh.h"
 #include "palp/fem/material.h"
@@ -62,17 +63,59 @@ TEST(HexMesh, BadInputThrowsWithValue) {
     }
 }
 
-TEST(HexMesh, DisconnectedMeshIsRejectedByTheModel) {
+TEST(HexMesh, PiecesTheSupportsDoNotHoldAreRefusedOrDropped) {
     std::vector<double> e(27, 0.0);
     e[0] = 1.0;
     e[26] = 1.0;  // opposite corners: no shared node
     const HexMesh m = HexMesh::fromCells({4, 4, 4}, 0.01, Eigen::Vector3d::Zero(), e);
     EXPECT_EQ(m.connectedComponents(), 2);
+    // The model takes both pieces; the supports must hold each.
+    EXPECT_NO_THROW(FemModel(m, ElasticMaterial{}));
+    const std::vector<int> face = m.faceNodes(BoxFace::zMin);  // holds the first piece only
     try {
-        FemModel model(m, ElasticMaterial{});
+        requireAnchored(m, face);
         FAIL() << "expected a ValueError";
     } catch (const ValueError& err) {
-        EXPECT_NE(std::string(err.what()).find("2 disconnected"), std::string::npos) << err.what();
+        EXPECT_NE(std::string(err.what()).find("piece 2 of 2 (1 cells, 0 fixed nodes"),
+                  std::string::npos)
+            << err.what();
+    }
+    // anchorBody drops it and crops the lattice to the piece held (padded to 4 cells a side).
+    const AnchoredBody body = anchorBody(m, face);
+    ASSERT_EQ(body.kept.size(), 1u);
+    ASSERT_EQ(body.dropped.size(), 1u);
+    EXPECT_EQ(body.droppedCells, 1);
+    EXPECT_EQ(body.mesh.elementCount(), 1);
+    EXPECT_EQ(body.mesh.cellCounts(), (std::array<int, 3>{4, 4, 4}));
+    EXPECT_EQ(body.fixedNodes.size(), 4u);  // the held piece's face
+    EXPECT_NO_THROW(requireAnchored(body.mesh, body.fixedNodes));
+    // Held by both ends, both stay.
+    std::vector<int> both = face;
+    const std::vector<int> top = m.faceNodes(BoxFace::zMax);
+    both.insert(both.end(), top.begin(), top.end());
+    EXPECT_NO_THROW(requireAnchored(m, both));
+    EXPECT_EQ(anchorBody(m, both).kept.size(), 2u);
+}
+
+TEST(HexMesh, APieceOnAnEdgeOrOnALineOfFixedNodesIsNotHeld) {
+    // Two cells sharing one edge: two pieces (a hexahedron turns about a shared edge).
+    std::vector<double> e(4, 0.0);
+    e[0] = 1.0;  // cell (0, 0, 0)
+    e[3] = 1.0;  // cell (1, 1, 0): shares the edge x = y = 1 with the first
+    const HexMesh m = HexMesh::fromCells({3, 3, 2}, 0.01, Eigen::Vector3d::Zero(), e);
+    std::vector<std::uint8_t> fixed(static_cast<std::size_t>(m.nodeCount()), 0);
+    for (int n : m.faceNodes(BoxFace::xMin)) fixed[static_cast<std::size_t>(n)] = 1;
+    const std::vector<BodyPiece> pieces = bodyPieces(m, fixed);
+    ASSERT_EQ(pieces.size(), 2u);
+    EXPECT_TRUE(pieces[0].anchored);  // the first cell's x = 0 face: four fixed nodes
+    EXPECT_FALSE(pieces[1].anchored);
+    // Fixed nodes on one line (the shared edge) do not hold a piece either.
+    std::fill(fixed.begin(), fixed.end(), 0);
+    fixed[static_cast<std::size_t>(m.node(1, 1, 0))] = 1;
+    fixed[static_cast<std::size_t>(m.node(1, 1, 1))] = 1;
+    for (const BodyPiece& p : bodyPieces(m, fixed)) {
+        EXPECT_EQ(p.fixedNodes, 2);
+        EXPECT_FALSE(p.anchored);
     }
 }
 

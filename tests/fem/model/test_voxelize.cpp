@@ -5,6 +5,7 @@
 #include <string>
 
 #include "palp/base/error.h"
+#include "palp/fem/components.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/implicit_solver.h"
 #include "palp/fem/voxelize.h"
@@ -85,13 +86,19 @@ TEST(Voxelize, BoneNodesSupportAStaticSolve) {
     EXPECT_NEAR(s.reactionSum(v.boneNodes).z(), 1e-3, 1e-9) << "bone carries the load";
 }
 
-TEST(Voxelize, KeepingIslandsGivesADisconnectedMeshThatTheModelRejects) {
+TEST(Voxelize, KeptIslandsAreDroppedWhenNothingHoldsThem) {
     VoxelizeOptions o = options();
     o.keepLargestComponent = false;
     const VoxelizedMesh v = voxelizeVolume(phantom(), o);
     EXPECT_EQ(v.mesh.elementCount(), 217);
     EXPECT_EQ(v.mesh.connectedComponents(), 2);
-    EXPECT_THROW(FemModel(v.mesh, ElasticMaterial{}), ValueError);
+    EXPECT_NO_THROW(FemModel(v.mesh, ElasticMaterial{}));
+    // Supported on its bottom face, the body stays and the island (not on that face) goes.
+    const AnchoredBody body = anchorBody(v.mesh, v.mesh.faceNodes(BoxFace::zMin));
+    EXPECT_EQ(body.kept.size(), 1u);
+    EXPECT_EQ(body.dropped.size(), 1u);
+    EXPECT_EQ(body.mesh.elementCount() + body.droppedCells, 217);
+    EXPECT_EQ(body.droppedCells, 1);
 }
 
 /// A 1 mm scan: a 60 mm cube of tissue (40) around a closed bone box (1000) two 5 mm cells thick

@@ -23,9 +23,10 @@ using SparseMatrix = Eigen::SparseMatrix<double, Eigen::ColMajor, int>;
 /// @par Threading  Immutable after construction: const methods may be called from many threads.
 class FemModel {
   public:
-    /// Validates the material and the mesh (non-empty, one connected body) and precomputes the
-    /// unit element stiffness (E = 1 Pa) and the lumped mass.
-    /// @throw palp::ValueError for bad material, an empty or a disconnected mesh.
+    /// Validates the material and the mesh (non-empty) and precomputes the unit element
+    /// stiffness (E = 1 Pa) and the lumped mass. The mesh may hold several pieces: the supports
+    /// must hold each (fem/components.h checks and resolves that).
+    /// @throw palp::ValueError for bad material or an empty mesh.
     FemModel(HexMesh mesh, const ElasticMaterial& material);
 
     const HexMesh& mesh() const { return mMesh; }

@@ -39,6 +39,7 @@
 #include <vector>
 
 #include "palp/fem/async_regions.h"
+#include "palp/fem/components.h"
 #include "palp/fem/constraints.h"
 #include "palp/fem/coupling_spring.h"
 #include "palp/fem/embedded_mesh.h"
@@ -133,8 +134,10 @@ void validateDeformableOptions(const DeformableOptions& options);
 /// @par Threading  Built on one thread, then immutable; shared (const) by sessions.
 class DeformableModel {
   public:
-    /// @p fixedNodes (all three components fixed) must leave no rigid-body motion free in
-    /// practice (a support face does). @throw palp::ValueError for bad options, a model that
+    /// @p fixedNodes (all three components fixed) must hold every piece of the mesh
+    /// (fem::bodyPieces: three fixed nodes of each face-connected piece not on one line; a
+    /// support face does). @throw palp::ValueError for a piece the supports do not hold (named
+    /// with its cells and box: it would move as a rigid body), bad options, a model that
     /// needs more explicit substeps per tick than the solver's maxSubsteps (whole mesh:
     /// solver.maxSubsteps at tickSeconds; regions: regions.maxSubsteps at regions.tickSeconds;
     /// fem::requireExplicitSubsteps), nodes outside the model, no fixed node, or no free surface
@@ -156,7 +159,10 @@ class DeformableModel {
     /// the nodes of bone cells (value above voxelize.boneThreshold), the nodes of
     /// @p supportFace when given and the nodes where @p fixedMask (world point -> bool) is true.
     /// Bone cells stay elements (their nodes are fixed, so their modulus only enters the stable
-    /// time step: give them the tissue's). @throw palp::ValueError (voxelisation, no support).
+    /// time step: give them the tissue's). The pieces the fixed nodes do not hold (islands, parts
+    /// hanging on an edge or a corner) are dropped and the lattice cropped (fem::anchorBody;
+    /// voxelize.keepLargestComponent is not used: every held piece stays); keptPieces() and
+    /// droppedPieces() say what happened. @throw palp::ValueError (voxelisation, no piece held).
     static std::shared_ptr<DeformableModel> fromVolume(
         const volume::Volume& volume, fem::VoxelizeOptions voxelize,
         const fem::ElasticMaterial& material, std::optional<fem::BoxFace> supportFace,
@@ -199,6 +205,10 @@ class DeformableModel {
     /// vertexTriangles().
     const std::vector<int>& triangleStart() const noexcept { return mTriStart; }
     const std::vector<int>& vertexTriangles() const noexcept { return mVertexTris; }
+    /// fromVolume(): the pieces of the voxelised tissue its supports hold (kept, largest first)
+    /// and those they do not (dropped); empty for a body made otherwise.
+    const std::vector<fem::BodyPiece>& keptPieces() const noexcept { return mKept; }
+    const std::vector<fem::BodyPiece>& droppedPieces() const noexcept { return mDropped; }
 
   private:
     fem::FemModel mModel;
@@ -210,6 +220,7 @@ class DeformableModel {
     std::vector<Embedded> mEmbedded;
     std::vector<int> mWatchNodes;
     DeformableOptions mOptions;
+    std::vector<fem::BodyPiece> mKept, mDropped;
 };
 
 /// The per-session state of a deformable body: explicit solver, nodal forces and the deformed
