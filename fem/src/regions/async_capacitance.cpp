@@ -10,6 +10,7 @@
 
 #include "index_cast.h"
 #include "palp/base/error.h"
+#include "regions/coarse_weights.h"
 
 namespace palp::fem {
 
@@ -123,16 +124,15 @@ GlobalSecondary::GlobalSecondary(const AsyncSetup& setup, const SparseMatrix& st
                         J = cand[1][sz(b)];
                         K = cand[2][sz(e)];
                     }
-        if (I < 0) continue;
+        std::array<double, 8> weight{};
+        if (I < 0 || !coarseWeights(mesh, lod, ijk, I, J, K, weight)) continue;
         for (int k = 0; k < 3; ++k) {
             const int d = 3 * n + k;
             if (setup.fixed[sz(d)] || mass[d] <= 0.0) continue;
             for (int corner = 0; corner < 8; ++corner) {
-                const int X = I + (corner & 1), Y = J + ((corner >> 1) & 1), Z = K + (corner >> 2);
-                const double w = (1.0 - std::abs(ijk[0] - X * lod) / static_cast<double>(lod)) *
-                                 (1.0 - std::abs(ijk[1] - Y * lod) / static_cast<double>(lod)) *
-                                 (1.0 - std::abs(ijk[2] - Z * lod) / static_cast<double>(lod));
+                const double w = weight[sz(corner)];
                 if (w == 0.0) continue;
+                const int X = I + (corner & 1), Y = J + ((corner >> 1) & 1), Z = K + (corner >> 2);
                 const int fineDof = 3 * mesh.node(X * lod, Y * lod, Z * lod) + k;
                 if (setup.fixed[sz(fineDof)]) continue;
                 const int coarseDof = 3 * (X + cc[0] * (Y + cc[1] * Z)) + k;

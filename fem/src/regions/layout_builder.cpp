@@ -10,6 +10,7 @@
 
 #include "index_cast.h"
 #include "palp/base/error.h"
+#include "regions/coarse_weights.h"
 
 namespace palp::fem {
 
@@ -419,15 +420,15 @@ SparseMatrix LayoutBuilder::interpolation(const std::vector<std::uint8_t>& prima
             }
         }
         if (I < 0) continue;  // no secondary cell (cannot happen on a box): held at rest
+        std::array<double, 8> weight{};
+        if (!coarseWeights(mesh, lod, ijk, I, J, K, weight)) continue;  // held at rest
         for (int k = 0; k < 3; ++k) {
             const int d = 3 * n + k;
             if (driven[sz(d)] || mass[d] <= 0.0) continue;
             for (int corner = 0; corner < 8; ++corner) {
-                const int X = I + (corner & 1), Y = J + ((corner >> 1) & 1), Z = K + (corner >> 2);
-                const double w = (1.0 - std::abs(ijk[0] - X * lod) / static_cast<double>(lod)) *
-                                 (1.0 - std::abs(ijk[1] - Y * lod) / static_cast<double>(lod)) *
-                                 (1.0 - std::abs(ijk[2] - Z * lod) / static_cast<double>(lod));
+                const double w = weight[sz(corner)];
                 if (w == 0.0) continue;
+                const int X = I + (corner & 1), Y = J + ((corner >> 1) & 1), Z = K + (corner >> 2);
                 const int fineCorner = mesh.node(X * lod, Y * lod, Z * lod);
                 const int fineDof = 3 * fineCorner + k;
                 if (driven[sz(fineDof)] || L.isPrimary[sz(fineCorner)]) continue;
