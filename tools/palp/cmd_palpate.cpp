@@ -508,14 +508,24 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     auto scene = haptics::Scene::fromVolume(vol, so);
 
     // The path: on a scan, laid on the skin of the side that faces the press the most; on a
-    // phantom, the face of the volume against the press.
+    // phantom, the face of the volume against the press. A deformable scan's side and patch
+    // come from the scan's iso-surface (its scene has none: the proxy slides on the body), the
+    // heights under the path from the body's own surface at rest, which the proxy meets.
     const Eigen::AlignedBox3d box = volumeBox(vol, in.label);
-    SkinPlan skin = planSkin(a, o.pressAxis->count() > 0, in, *scene, box);
+    std::shared_ptr<haptics::Scene> skinScene = scene;
+    if (a.deformable && followsSkin(a, in)) {
+        haptics::SceneOptions iso;
+        iso.surfaceIso = a.surfaceIso;
+        skinScene = haptics::Scene::fromVolume(vol, iso);
+    }
+    SkinPlan skin = planSkin(a, o.pressAxis->count() > 0, in, skinScene->surfaces(), box);
+    skinScene.reset();
     const Eigen::Vector3d press = skin.press;
+    PathFrame frame = pathFrame(a, box, press, skin.patch ? &*skin.patch : nullptr);
     std::shared_ptr<const haptics::DeformableModel> body;
     if (a.deformable) {
         try {
-            body = makeBody(a, in, press, pathFrame(a, box, press).centre, period);
+            body = makeBody(a, in, press, frame.centre, period);
         } catch (const ValueError& e) {
             // Say which options made the tissue (the library speaks of fields, not flags).
             throw ValueError(std::string(e.what()) + "\n(the tissue of --fem-cell-mm " +
@@ -528,8 +538,11 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
         }
         scene->setDeformable(body);
     }
-    PathFrame frame = pathFrame(a, box, press, skin.patch ? &*skin.patch : nullptr);
-    measureSkin(a, *scene, box, frame, skin);
+    if (body && skin.follow) {
+        measureSkin(a, *restSurface(*body), box, frame, skin);
+    } else {
+        measureSkin(a, scene->surfaces(), box, frame, skin);
+    }
     const PathPlan plan = trajectoryFromOptions(a, frame, press, skin.field);
     double duration = plan.duration;
     if (a.seconds > 0) {

@@ -161,31 +161,40 @@ Eigen::AlignedBox3d volumeBox(const volume::Volume& vol, const std::string& labe
             Eigen::Vector3d(box.max().x() + half, box.max().y() + half, box.max().z() + half)};
 }
 
+bool followsSkin(const PalpateArgs& a, const Input& in) {
+    // A phantom's skin is the flat face of its box: its path stays as it was. A deformable
+    // scan's path follows its skin at rest as a rigid scan's does.
+    return a.followSkin == "auto" ? !in.phantom : a.followSkin == "on";
+}
+
+std::unique_ptr<kernels::EmbreeScene> restSurface(const haptics::DeformableModel& model) {
+    const fem::SurfaceMesh& s = model.surface();
+    kernels::TriangleMesh mesh;
+    mesh.positions.reserve(3 * s.vertices.size());
+    for (const Eigen::Vector3f& v : s.vertices)
+        mesh.positions.insert(mesh.positions.end(), {v.x(), v.y(), v.z()});
+    mesh.indices.reserve(3 * s.triangles.size());
+    for (const auto& t : s.triangles) mesh.indices.insert(mesh.indices.end(), t.begin(), t.end());
+    auto scene = std::make_unique<kernels::EmbreeScene>(/*robust=*/true);
+    scene->addRigidMesh(mesh, kernels::kMaskSurface);
+    scene->commit();
+    return scene;
+}
+
 SkinPlan planSkin(const PalpateArgs& a, bool pressAxisGiven, const Input& in,
-                  const haptics::Scene& scene, const Eigen::AlignedBox3d& box) {
+                  const kernels::EmbreeScene& surfaces, const Eigen::AlignedBox3d& box) {
     SkinPlan plan;
     plan.press = parseAxis(pressAxisGiven ? a.pressAxis : "+y", "--press-axis");
-    if (a.followSkin == "auto") {
-        // A phantom's skin is the flat face of its box: its path stays as it was. The
-        // deformable body's surface moves, and its proxy does not slide on the scene's surfaces.
-        plan.follow = !in.phantom && !a.deformable;
-    } else {
-        plan.follow = a.followSkin == "on";
-    }
+    plan.follow = followsSkin(a, in);
     if (!plan.follow) return plan;
-    if (a.deformable) {
-        throw ValueError(
-            "--follow-skin on: expected a rigid scene (the skin is measured on the "
-            "surfaces the proxy slides on), found --deformable");
-    }
     // A phantom's rectangle stays its box's; so does the user's.
     if (in.phantom || (!a.centreMm.empty() && !a.extentMm.empty())) return plan;
     if (pressAxisGiven) {
-        plan.patch = haptics::findSkinPatch(scene.surfaces(), box, plan.press);
+        plan.patch = haptics::findSkinPatch(surfaces, box, plan.press);
     } else {
         // The sides across S/I: an axial scan's S/I ends cut through the body (flat tissue, not
         // skin; the head CT's inferior end is its broadest flat face).
-        plan.patch = haptics::findBestSkinPatch(scene.surfaces(), box, {}, haptics::kSidePressAxes);
+        plan.patch = haptics::findBestSkinPatch(surfaces, box, {}, haptics::kSidePressAxes);
         plan.press = plan.patch->press;
         plan.pressChosen = true;
     }
@@ -239,8 +248,8 @@ PathFrame pathFrame(const PalpateArgs& a, const Eigen::AlignedBox3d& box,
     return {centre, u, v, extentU, extentV};
 }
 
-void measureSkin(const PalpateArgs& a, const haptics::Scene& scene, const Eigen::AlignedBox3d& box,
-                 PathFrame& f, SkinPlan& plan) {
+void measureSkin(const PalpateArgs& a, const kernels::EmbreeScene& surfaces,
+                 const Eigen::AlignedBox3d& box, PathFrame& f, SkinPlan& plan) {
     if (!plan.follow) return;
     const Eigen::Vector3d& press = plan.press;
     const int pa = axisIndex(press);
@@ -263,8 +272,8 @@ void measureSkin(const PalpateArgs& a, const haptics::Scene& scene, const Eigen:
     s.smoothM = 2e-3;
     s.maxSlope = 1.0;
     try {
-        plan.field = std::make_shared<const haptics::SkinField>(
-            haptics::SkinField::measure(scene.surfaces(), s));
+        plan.field =
+            std::make_shared<const haptics::SkinField>(haptics::SkinField::measure(surfaces, s));
     } catch (const ValueError& e) {
         throw ValueError("--follow-skin: " + std::string(e.what()) +
                          " (move the path with --centre or --press-axis, or --follow-skin off)");

@@ -70,13 +70,15 @@ struct SkinPlan {
     std::shared_ptr<const haptics::SkinField> field;  ///< set by measureSkin()
 };
 
-/// Whether the path follows the skin (--follow-skin; auto: on a rigid scan, not on a phantom,
-/// whose flat skin keeps its results as they were), the press axis (--press-axis; on a scan
-/// followed on its skin without one, the side of the volume with the largest patch of skin
-/// facing it) and that patch.
+/// Whether the path follows the skin (--follow-skin; auto: on a scan, rigid or deformable, not
+/// on a phantom, whose flat skin keeps its results as they were), the press axis (--press-axis;
+/// on a scan followed on its skin without one, the side of the volume with the largest patch of
+/// skin facing it) and that patch, found on @p surfaces (the scan's iso-surface).
 /// @throw palp::ValueError naming --follow-skin or --press-axis when no skin faces the press.
 SkinPlan planSkin(const PalpateArgs& a, bool pressAxisGiven, const Input& in,
-                  const haptics::Scene& scene, const Eigen::AlignedBox3d& box);
+                  const kernels::EmbreeScene& surfaces, const Eigen::AlignedBox3d& box);
+/// Whether the path follows the skin (planSkin()'s rule, without the surfaces).
+bool followsSkin(const PalpateArgs& a, const Input& in);
 
 /// The frame of the path: on @p box's face against @p press, over the lateral box less 5 mm
 /// each side or over @p patch, unless --centre, --sweep-axis or --extent say otherwise.
@@ -84,12 +86,16 @@ PathFrame pathFrame(const PalpateArgs& a, const Eigen::AlignedBox3d& box,
                     const Eigen::Vector3d& press, const haptics::SkinPatch* patch = nullptr);
 
 /// Measures the skin under the path (frame @p f widened by what the path leaves it: the
-/// raster's turns, the circle's radius) along @p plan.press, once, off the servo thread; on
-/// return @p plan.field is set when @p plan.follow. With skin-following the frame's centre lies
-/// on the plane of the volume's face (its component along the press comes from there).
+/// raster's turns, the circle's radius) along @p plan.press on @p surfaces (a rigid scan's
+/// iso-surface; a deformable body's surface at rest), once, off the servo thread; on return
+/// @p plan.field is set when @p plan.follow. With skin-following the frame's centre lies on the
+/// plane of the volume's face (its component along the press comes from there).
 /// @throw palp::ValueError naming --follow-skin when no skin lies under the path.
-void measureSkin(const PalpateArgs& a, const haptics::Scene& scene, const Eigen::AlignedBox3d& box,
-                 PathFrame& f, SkinPlan& plan);
+void measureSkin(const PalpateArgs& a, const kernels::EmbreeScene& surfaces,
+                 const Eigen::AlignedBox3d& box, PathFrame& f, SkinPlan& plan);
+
+/// The surface of @p model at rest as an Embree scene (mask kMaskSurface), for measureSkin().
+std::unique_ptr<kernels::EmbreeScene> restSurface(const haptics::DeformableModel& model);
 
 /// The trajectory --trajectory names over @p f and the time it needs (s).
 struct PathPlan {
