@@ -242,6 +242,7 @@ int sweepCommand(const SweepArgs& a) {
     if (a.mpi) {
 #ifdef PALP_HAVE_MPI
         if (!a.shard.empty()) throw ValueError("--mpi and --shard exclude each other");
+        if (a.maxSamples >= 0) throw ValueError("--max-samples: not with --mpi (use --shard)");
         try {
             return mpiSweep(a, spec);
         } catch (const std::exception& e) {
