@@ -25,7 +25,7 @@ namespace palp::fem {
 struct StaggeredStability {
     double spectralRadius = 0.0;      ///< largest |eigenvalue| of the period map
     std::complex<double> dominant{};  ///< that eigenvalue
-    double growthPerPeriod = 0.0;     ///< power iteration: ||z_k+1|| / ||z_k|| at its end
+    double growthPerPeriod = 0.0;     ///< power iteration: mean ||z_k+1|| / ||z_k|| at its end
     bool dense = false;               ///< eigenvalues of the formed matrix (else Arnoldi's)
     int stateSize = 0;                ///< dimension of the period map
     int periodTicks = 0;              ///< ticks per secondary period
@@ -34,16 +34,18 @@ struct StaggeredStability {
     int borderDofs = 0;               ///< primary border dofs
 };
 
-/// The period map of the plain coupling (options.condensed is ignored: the analysis is of the
-/// plain coupling, with options.plainLead and interpolate) in synchronous mode for a
-/// displacement-driven contact at @p contactNodes, on the layout of options.primaryNodes seeds.
-/// Quasi-static secondaries are formed densely (state 2 |free P| + 2 |Gamma|) and their eigenvalues
-/// taken exactly when the state has at most @p denseLimit entries; dynamic secondaries (and larger
-/// states) take the largest Ritz value of @p arnoldiSteps Arnoldi steps on the matrix-free map.
-/// growthPerPeriod comes from @p powerPeriods periods of power iteration either way. Assembles
-/// and factorises the secondary system once: seconds on a 13^3 cube.
+/// The period map of the plain coupling in synchronous mode for a displacement-driven contact
+/// at @p contactNodes, on the layout of options.primaryNodes seeds (options.condensed, drive,
+/// threads, adaptivity and watched nodes are ignored; plainLead and interpolate shape Gamma).
+/// Quasi-static secondaries are formed densely (state 2 |free P| + 2 |Gamma|) and their
+/// eigenvalues taken exactly when the state has at most @p denseLimit entries; dynamic
+/// secondaries (and larger states) take the largest Ritz value of @p arnoldiSteps Arnoldi steps
+/// on the matrix-free map (within a few % of rho(Phi) near 1, where a Ritz value of the
+/// non-normal map can exceed it: compare growthPerPeriod). growthPerPeriod is the geometric mean
+/// growth over the last quarter of @p powerPeriods periods of power iteration. Assembles and
+/// factorises the secondary system once: about a second on a 13^3 cube, plus the eigenvalues.
 /// @throw palp::ValueError as AsyncRegions's constructor for bad options or contact nodes, or
-/// for a lod other than 1 with a dynamic secondary.
+/// for a singular secondary system.
 StaggeredStability staggeredStability(const FemModel& model, const Constraints& constraints,
                                       const std::vector<int>& contactNodes,
                                       const AsyncRegionsOptions& options, int denseLimit = 2500,
