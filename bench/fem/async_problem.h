@@ -27,6 +27,7 @@ struct Config {
     LinearSolverKind solver = LinearSolverKind::cholmod;
     Integrator integrator = Integrator::quasiStatic;
     bool condensed = true;
+    double lead = 0.5;  // --plain-lead: plainLead (negative: the thesis's interpolation)
     bool oncePerTick = false;
     bool fullField = false;
     int moveMs = 0;
@@ -123,12 +124,13 @@ inline Run reference(const Config& c, const Problem& p, bool growing) {
 }
 
 /// The secondary's options every run takes from the command line (lod, solver, integrator,
-/// condensed coupling, full field).
+/// condensed coupling, the plain coupling's lead, full field).
 inline void applySecondaryOptions(const Config& c, AsyncRegionsOptions& o) {
     o.lod = c.lod;
     o.secondarySolver = c.solver;
     o.secondaryIntegrator = c.integrator;
     o.condensed = c.condensed;
+    o.plainLead = c.lead;
     o.condensedOncePerTick = c.oncePerTick;
     o.secondaryFullField = c.fullField;
 }

@@ -9,9 +9,13 @@
 // rate a synchronous and a threaded (servo pinned to CPU 0 at 1 kHz wall clock, secondary on
 // CPU 1) run with the top face watched (--watch 0: none; then the Gamma-only direct solve).
 //
-// Usage: bench_async [table|interp|growing|lod|threaded|force] [--size N] [--seconds S]
+// stability: the plain coupling's period map (palp/fem/async_stability.h) per N and f, its
+// spectral radius beside the run's peak error or divergence (--seconds 0: the analysis alone).
+//
+// Usage: bench_async [table|interp|growing|lod|threaded|force|stability] [--size N] [--seconds S]
 //        [--amplitude M] [--frequency HZ] [--lod L] [--solver cholmod|pcg] [--n LIST]
-//        [--f LIST] [--integrator newmark|static] [--coupling plain|condensed]
+//        [--f LIST] [--integrator newmark|euler|static] [--coupling plain|condensed]
+//        [--plain-lead L]
 //        [--once-per-tick 0|1] [--full-field 0|1] [--move MS] [--force N] [--watch 0|1]
 //        [--global 0|1] [--sync 0|1] [--zone-max DOFS] [--contact slide|jump] [--filter-mm S]
 //        [--k N/m] [--damping-ratio R] [--lead MS]
@@ -39,6 +43,7 @@
 #include "async_problem.h"
 #include "bench_async_slide.h"
 #include "palp/base/thread.h"
+#include "palp/fem/async_stability.h"
 #include "palp/fem/explicit_solver.h"
 
 namespace {
@@ -53,6 +58,12 @@ double maxJump(const std::vector<double>& f) {
     for (std::size_t k = 2; k < f.size(); ++k)
         j = std::max(j, std::abs(f[k] - 2 * f[k - 1] + f[k - 2]));
     return j;
+}
+
+const char* integratorName(Integrator i) {
+    return i == Integrator::newmark         ? "Newmark"
+           : i == Integrator::backwardEuler ? "backward Euler"
+                                            : "quasi-static";
 }
 
 Run asyncRun(const Config& c, const Problem& p, AsyncRegionsOptions o, bool growing) {
@@ -87,9 +98,9 @@ void table(const Config& c) {
         "cube %d^3 (%d dofs), h 5 mm, E 5 kPa, nu 0.45, alpha %.0f/s; input: contact node "
         "pressed %.1f mm, raised cosine %.1f Hz, %.1f s; lod %d, %s, %s, %s coupling\n",
         c.size, p.model.dofCount(), c.alpha, c.amplitude * 1e3, c.frequency, c.seconds, c.lod,
-        c.solver == LinearSolverKind::cholmod ? "CHOLMOD" : "PCG",
-        c.integrator == Integrator::newmark ? "Newmark" : "quasi-static",
+        c.solver == LinearSolverKind::cholmod ? "CHOLMOD" : "PCG", integratorName(c.integrator),
         c.condensed ? "condensed" : "plain");
+    if (!c.condensed) std::printf("plain coupling's lead %.2f\n", c.lead);
     std::printf("%-24s %6s %10s %10s %8s %12s %10s %8s %8s\n", "", "N", "f (Hz)", "tick (ms)",
                 "gain", "solve (ms)", "peak (N)", "error", "rms err");
     std::printf("%-24s %6d %10s %10.4f %8s %12s %10.4f %8s %8s\n", "whole solution",
@@ -315,6 +326,42 @@ void forceDrive(const Config& c) {
     }
 }
 
+/// The plain coupling's period map (async_stability.h): its spectral radius per N and f beside
+/// the run's peak error (or its divergence) on the same problem.
+void stability(const Config& c) {
+    const Problem p(c);
+    const bool runs = c.seconds > 0.0;  // --seconds 0: the analysis alone
+    const Run ref = runs ? reference(c, p, false) : Run{};
+    std::printf(
+        "plain coupling (lead %.2f), cube %d^3, lod %d, %s secondary: spectral radius of the "
+        "period map against the run\n",
+        c.lead, c.size, c.lod, integratorName(c.integrator));
+    std::printf("%6s %8s %7s %9s %7s %7s %6s %10s %18s %10s %10s %8s\n", "N", "f (Hz)", "ticks",
+                "substeps", "free", "Gamma", "state", "rho", "dominant", "growth", "peak (N)",
+                "error");
+    for (int n : c.nodes) {
+        for (double f : c.rates) {
+            AsyncRegionsOptions o;
+            o.primaryNodes = n;
+            o.secondaryRate = f;
+            applySecondaryOptions(c, o);
+            const auto b = Clock::now();
+            const StaggeredStability s = staggeredStability(p.model, p.constraints, {p.contact}, o);
+            const double sec = std::chrono::duration<double>(Clock::now() - b).count();
+            o.condensed = false;
+            const Run r = runs ? asyncRun(c, p, o, false) : Run{{0.0}, {}, 0.0, n};
+            const bool diverged = runs && !(peak(r.force) < 100.0 * peak(ref.force));
+            std::printf(
+                "%6d %8.0f %7d %9d %7d %7d %6d %10.4f %8.4f%+8.4fi %10.4f %10.3g %7.1f%%%s "
+                "(%.2f s, %s)\n",
+                r.primaryNodes, f, s.periodTicks, s.substeps, s.freeDofs, s.gammaDofs, s.stateSize,
+                s.spectralRadius, s.dominant.real(), s.dominant.imag(), s.growthPerPeriod,
+                peak(r.force), runs ? 100.0 * relErr(peak(r.force), peak(ref.force)) : 0.0,
+                diverged ? " diverged" : "", sec, s.dense ? "dense" : "Arnoldi");
+        }
+    }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -340,7 +387,9 @@ int main(int argc, char** argv) {
         } else if (k == "--solver") {
             c.solver = v == "pcg" ? LinearSolverKind::pcg : LinearSolverKind::cholmod;
         } else if (k == "--integrator") {
-            c.integrator = v == "static" ? Integrator::quasiStatic : Integrator::newmark;
+            c.integrator = v == "static"  ? Integrator::quasiStatic
+                           : v == "euler" ? Integrator::backwardEuler
+                                          : Integrator::newmark;
         } else if (k == "--once-per-tick") {
             c.oncePerTick = v != "0";
         } else if (k == "--full-field") {
@@ -372,6 +421,8 @@ int main(int argc, char** argv) {
             c.dampingRatio = std::stod(v);
         } else if (k == "--lead") {
             c.leadMs = std::stod(v);
+        } else if (k == "--plain-lead") {
+            c.lead = std::stod(v);
         } else if (k == "--coupling") {
             c.condensed = v != "plain";
         } else if (k == "--n") {
@@ -398,6 +449,8 @@ int main(int argc, char** argv) {
         threaded(c);
     } else if (c.mode == "force") {
         forceDrive(c);
+    } else if (c.mode == "stability") {
+        stability(c);
     } else {
         std::fprintf(stderr, "bench_async: unknown mode %s\n", c.mode.c_str());
         return 2;
