@@ -133,6 +133,14 @@ wait_job() {  # waits until job $1 (all its array tasks) has left the queue
   fail "job $1 still queued after 60 s"
 }
 
+wait_records() {  # waits until jobcomp holds $1 task records (written as each task ends)
+  for _ in $(seq 100); do
+    [[ $(grep -c JobState= "$D/log/jobcomp.txt" 2> /dev/null || true) -ge $1 ]] && return 0
+    sleep 0.1
+  done
+  fail "jobcomp has fewer than $1 records"
+}
+
 # Job array of 3 tasks (one chunk of groups each); task 1 computes 2 samples and fails once.
 cat > "$D/task.sh" << EOF
 #!/bin/bash
@@ -148,6 +156,7 @@ EOF
 touch "$D/fail_once"
 JOB=$(sbatch --parsable --array=0-2 -n 1 -o "$D/out/a-%A_%a.out" "$D/task.sh") || fail "sbatch"
 wait_job "$JOB"
+wait_records 3
 grep -q "JobState=FAILED" "$D/log/jobcomp.txt" || fail "task 1 did not fail"
 [[ $(grep -c "JobState=COMPLETED" "$D/log/jobcomp.txt") -eq 2 ]] || fail "tasks 0 and 2 did not complete"
 "$PALP" -q sweep merge "$D/array" -o "$D/array/table.csv" 2> "$D/out/merge1.err" &&
@@ -158,6 +167,7 @@ before=$(ls "$D/array/shards" | grep -c '^shard-[0-9-]*\.csv$' | tr -d ' ')
 # Resubmit: tasks 0 and 2 find their shards, task 1 computes only its 7 missing samples.
 JOB2=$(sbatch --parsable --array=0-2 -n 1 -o "$D/out/b-%A_%a.out" "$D/task.sh") || fail "resubmit"
 wait_job "$JOB2"
+wait_records 6
 [[ $(grep -c "JobState=COMPLETED" "$D/log/jobcomp.txt") -eq 5 ]] || fail "resubmitted tasks failed"
 ls "$D/array/shards" | grep -q "shard-0000000011-0000000018.csv$" ||
   fail "the resume did not compute exactly the missing range: $(ls "$D/array/shards")"
