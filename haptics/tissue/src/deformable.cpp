@@ -55,6 +55,9 @@ void validateDeformableOptions(const DeformableOptions& o) {
         }
     };
     substeps("deformable solver", o.solver.safetyFactor, o.solver.maxSubsteps);
+    if (o.surfaceSweepAbove < 1) {
+        throwExpected("deformable surfaceSweepAbove", ">= 1", std::to_string(o.surfaceSweepAbove));
+    }
     if (!(o.recentreHysteresis >= 0 && o.recentreHysteresis < 1)) {
         throwExpected("deformable recentreHysteresis", "a value in [0, 1)",
                       formatValue(o.recentreHysteresis));
@@ -204,6 +207,14 @@ std::shared_ptr<DeformableModel> DeformableModel::fromVolume(
     return out;
 }
 
+std::shared_ptr<DeformableModel> DeformableModel::withOptions(
+    const DeformableOptions& options) const {
+    auto out = std::make_shared<DeformableModel>(mModel, mFixed, options);
+    out->mKept = mKept;
+    out->mDropped = mDropped;
+    return out;
+}
+
 DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
     : mModel(model ? std::move(model)
                    : throw ValueError("deformable body: expected a model, found a null pointer")),
@@ -253,9 +264,23 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
     mLoaded.resize(mModel->loadNodes().size());
     mWeights.resize(mModel->loadNodes().size());
     mLoadRest.reserve(3 * mModel->loadNodes().size());
+    const auto nodeCount = static_cast<std::size_t>(mModel->model().mesh().nodeCount());
+    mLoadIndex.assign(nodeCount, -1);
     for (const int n : mModel->loadNodes()) {
         const Eigen::Vector3d x = mModel->model().mesh().nodePosition(n);
+        mLoadIndex[static_cast<std::size_t>(n)] = static_cast<int>(mLoadRest.size() / 3);
         mLoadRest.insert(mLoadRest.end(), {x.x(), x.y(), x.z()});
+    }
+    if (mRegions &&
+        mModel->loadNodes().size() > static_cast<std::size_t>(options.surfaceSweepAbove)) {
+        // A slice a tick covers the surface once per secondary period.
+        const std::vector<int>& watch = mModel->watchNodes();
+        mWatchIndex.assign(nodeCount, -1);
+        for (std::size_t i = 0; i < watch.size(); ++i)
+            mWatchIndex[static_cast<std::size_t>(watch[i])] = static_cast<int>(i);
+        const double period = 1.0 / (options.regions.secondaryRate * options.regions.tickSeconds);
+        const auto ticks = static_cast<std::size_t>(std::max(1.0, std::floor(period)));
+        mSweepSlice = (watch.size() + ticks - 1) / ticks;
     }
 }
 
@@ -320,6 +345,10 @@ int DeformableBody::filterWeights(const Eigen::Vector3d& point, double& nearestD
     std::size_t nearestSlot = 0;
     double total = 0;
     const Eigen::VectorXd& u = displacement();
+    if (localFilter(point, best, nearest, nearestSlot, total)) {
+        nearestD2 = best;
+        return finishFilter(nearest, nearestSlot, total);
+    }
     for (std::size_t i = 0; i < nodes.size(); ++i) {
         // nodePosition(n), from contiguous rest positions (this loop runs every tick).
         const int n = nodes[i];
@@ -340,7 +369,12 @@ int DeformableBody::filterWeights(const Eigen::Vector3d& point, double& nearestD
         if (listed) ++mLoadedCount;
     }
     nearestD2 = best;
+    return finishFilter(nearest, nearestSlot, total);
+}
+
+int DeformableBody::finishFilter(int nearest, std::size_t nearestSlot, double total) noexcept {
     if (nearest < 0) return -1;
+    mFilterHint = nearest;
     if (nearestSlot >= mLoadedCount || !(total > 0)) {
         // Sigma 0, or every node farther than the cutoff (then none was listed): the nearest
         // node carries all of it.
@@ -538,6 +572,7 @@ unsigned DeformableBody::step(double dtSeconds) noexcept {
         }
         mLastSubsteps = r.substeps;
         flags = r.flags;
+        if (mSweepSlice > 0) return flags | sweepSurface();
         mRegions->watchedDisplacements(mWatched);
         const std::vector<int>& nodes = mModel->watchNodes();
         for (std::size_t i = 0; i < nodes.size(); ++i) mU.segment<3>(3 * nodes[i]) = mWatched[i];
@@ -567,25 +602,7 @@ unsigned DeformableBody::step(double dtSeconds) noexcept {
         mPositions[3 * i + 2] = static_cast<float>(mRest[3 * i + 2] + uz);
     }
     mMaxSurfaceDisplacement = std::sqrt(maxD2);
-    const auto refit = [&flags](kernels::RefitMesh& mesh, const std::vector<float>& x) {
-        switch (mesh.refit(std::span<const float>(x))) {
-            case kernels::RefitStatus::Ok:
-                break;
-            case kernels::RefitStatus::OutsideLimit:
-                flags |= kSurfaceOutsideBounds;
-                break;
-            case kernels::RefitStatus::Rejected:
-                flags |= kRefitFailed;
-                break;
-        }
-    };
-    refit(*mSurface, mPositions);
-    // Embedded meshes follow the trilinear interpolation of their cells' displacements.
-    for (std::size_t e = 0; e < mInclusions.size(); ++e) {
-        std::vector<float>& x = mInclusionPositions[e];
-        mModel->embedded()[e].mesh.update(u, std::span<float>(x));
-        refit(*mInclusions[e], x);
-    }
+    flags |= refitSurfaces();
     return flags;
 }
 

@@ -114,6 +114,13 @@ struct DeformableOptions {
     /// and loads outside its primary reach the tissue through the secondary, one to two
     /// secondary periods late.
     double recentreHysteresis = 0.25;
+    /// asyncRegions: a body with more free surface nodes than this (a patient's skin: 17,000 on
+    /// the head CT at 5 mm) refreshes its surface near the contact (the primary region, Gamma
+    /// and the loaded nodes) every tick and everywhere else in round-robin slices that cover it
+    /// once per secondary period: the far field, which only the secondary moves, then costs a
+    /// slice a tick instead of the whole skin (a surface then lags the secondary by at most one
+    /// period away from the contact). Smaller bodies refresh all of it every tick (>= 1).
+    int surfaceSweepAbove = 4096;
     /// asyncRegions: the free surface node nearest this point (m, world) is the initial region
     /// centre; NaN: the first free surface node (the first contact then asks for a move).
     Eigen::Vector3d regionsCentre =
@@ -168,6 +175,11 @@ class DeformableModel {
         const fem::ElasticMaterial& material, std::optional<fem::BoxFace> supportFace,
         const DeformableOptions& options = {},
         const std::function<bool(const Eigen::Vector3d&)>& fixedMask = {});
+
+    /// The same body (mesh, material, supports, pieces) with other @p options; set-up only,
+    /// before embedMesh() (embedded meshes are not carried over).
+    /// @throw palp::ValueError as the constructor.
+    std::shared_ptr<DeformableModel> withOptions(const DeformableOptions& options) const;
 
     /// Embeds @p rest (world metres; a tumour, cartilage: a dynamic inhomogeneity, docs/
     /// algorithms.md section 10) in the hex elements with trilinear weights (fem::EmbeddedMesh):
@@ -406,6 +418,20 @@ class DeformableBody {
     /// Fills mLoaded/mWeights (weights normalised to sum 1) with the filter around @p point;
     /// returns the nearest free surface node (-1 for none) and its squared distance.
     int filterWeights(const Eigen::Vector3d& point, double& nearestD2) noexcept;
+    /// filterWeights() over the load nodes of the lattice box around the contact's rest point
+    /// (from the last filter's nearest node's displacement); false when the box cannot be trusted
+    /// (no contact before, the nearest node found too far): then the caller scans every node.
+    bool localFilter(const Eigen::Vector3d& point, double& best, int& nearest,
+                     std::size_t& nearestSlot, double& total) noexcept;
+    /// Regions: the surface node @p n's displacement into mU and its vertex's position.
+    void refreshNode(int n) noexcept;
+    /// The rest of filterWeights(): normalisation, the nearest node's remainder.
+    int finishFilter(int nearest, std::size_t nearestSlot, double total) noexcept;
+    /// Regions on a big surface: the surface near the contact and a slice of the rest, then
+    /// refitSurfaces(); returns its flags.
+    unsigned sweepSurface() noexcept;
+    /// Refits the surface and the embedded meshes (from displacement()); returns the flags.
+    unsigned refitSurfaces() noexcept;
     /// Regions: asks for the centre to follow the contact node (with the hysteresis).
     void recentreRegions(const Eigen::Vector3d& point, double nearestD2) noexcept;
 
@@ -427,6 +453,12 @@ class DeformableBody {
     std::vector<int> mLoaded;       // nodes loaded by the last applyContactForce
     std::vector<double> mWeights;   // scratch, one per load node
     std::vector<double> mLoadRest;  // 3 per load node: its rest position (filterWeights)
+    std::vector<int> mLoadIndex;    // per lattice node: its index in loadNodes(), or -1
+    std::vector<int> mWatchIndex;   // per lattice node: its index in watchNodes(), or -1
+    int mFilterHint = -1;           // the last filter's nearest node: where the next one looks
+    std::size_t mSweepNext = 0;     // swept surface: the next watched node of the round robin
+    std::size_t mSweepSlice = 0;    // swept surface: watched nodes a tick (0: no sweep)
+    double mSweepMax2 = 0, mSweepMaxPrev2 = 0;  // swept surface: largest |u|^2 this and last sweep
     std::size_t mLoadedCount = 0;
     int mContactNode = -1;
     fem::CouplingSpring mSpring;  // active while a coupled contact holds (spans into mLoaded)

@@ -1,0 +1,137 @@
+// A deformable body's surface on a patient-sized skin (deformable.h): the filter's local
+// search and the swept refresh of the surface with asynchronous regions, and the refit.
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <span>
+
+#include "palp/haptics/tissue/deformable.h"
+
+namespace palp::haptics {
+
+bool DeformableBody::localFilter(const Eigen::Vector3d& point, double& best, int& nearest,
+                                 std::size_t& nearestSlot, double& total) noexcept {
+    const fem::HexMesh& mesh = mModel->model().mesh();
+    const double h = mesh.edge();
+    const double sigma = mModel->options().filterWidth;
+    const double cutoff = sigma > 0 ? mModel->options().filterCutoff * sigma : 0.0;
+    // The box: the filter's reach and two cells for the strain between the contact node and
+    // its neighbours, around where the contact is at rest.
+    const int reach = static_cast<int>(std::ceil(cutoff / h)) + 2;
+    const double boxNodes = std::pow(2.0 * reach + 1, 3);
+    if (mFilterHint < 0 || !(boxNodes < static_cast<double>(mModel->loadNodes().size())))
+        return false;
+    const Eigen::VectorXd& u = displacement();
+    const Eigen::Vector3d rest = point - u.segment<3>(3 * mFilterHint);
+    const auto& counts = mesh.nodeCounts();
+    std::array<int, 3> lo{}, hi{};
+    for (int a = 0; a < 3; ++a) {
+        const double t = (rest[a] - mesh.origin()[a]) / h;
+        if (!std::isfinite(t)) return false;
+        const auto c = static_cast<int>(
+            std::lround(std::clamp(t, -1.0, counts[static_cast<std::size_t>(a)] + 1.0)));
+        lo[static_cast<std::size_t>(a)] = std::max(0, c - reach);
+        hi[static_cast<std::size_t>(a)] =
+            std::min(counts[static_cast<std::size_t>(a)] - 1, c + reach);
+    }
+    const double cutoff2 = cutoff * cutoff;
+    const double inv2s2 = sigma > 0 ? 1.0 / (2 * sigma * sigma) : 0;
+    // Ascending node order, as the full scan: the same list, weights and sums.
+    for (int k = lo[2]; k <= hi[2]; ++k) {
+        for (int j = lo[1]; j <= hi[1]; ++j) {
+            for (int i = lo[0]; i <= hi[0]; ++i) {
+                const int n = mesh.node(i, j, k);
+                const int li = mLoadIndex[static_cast<std::size_t>(n)];
+                if (li < 0) continue;
+                const Eigen::Vector3d x =
+                    Eigen::Vector3d::Map(&mLoadRest[3 * static_cast<std::size_t>(li)]) +
+                    u.segment<3>(3 * n);
+                const double d2 = (x - point).squaredNorm();
+                const bool listed = sigma > 0 && d2 <= cutoff2;
+                if (listed) {
+                    const double w = std::exp(-d2 * inv2s2);
+                    mLoaded[mLoadedCount] = n;
+                    mWeights[mLoadedCount] = w;
+                    total += w;
+                }
+                if (d2 < best) {
+                    best = d2;
+                    nearest = n;
+                    nearestSlot = listed ? mLoadedCount : mModel->loadNodes().size();
+                }
+                if (listed) ++mLoadedCount;
+            }
+        }
+    }
+    // A contact farther than a cell from every node in the box has left it (a jump, a fold):
+    // the caller scans them all.
+    if (nearest >= 0 && best <= h * h) return true;
+    mLoadedCount = 0;
+    best = std::numeric_limits<double>::infinity();
+    nearest = -1;
+    nearestSlot = 0;
+    total = 0;
+    return false;
+}
+
+void DeformableBody::refreshNode(int n) noexcept {
+    const Eigen::Vector3d d = mRegions->nodeDisplacement(n);
+    mU.segment<3>(3 * n) = d;
+    mSweepMax2 = std::max(mSweepMax2, d.squaredNorm());
+    const int v = mModel->vertexOfNode(n);
+    if (v < 0) return;
+    const auto i = 3 * static_cast<std::size_t>(v);
+    for (std::size_t k = 0; k < 3; ++k)
+        mPositions[i + k] = static_cast<float>(mRest[i + k] + d[static_cast<Eigen::Index>(k)]);
+}
+
+unsigned DeformableBody::refitSurfaces() noexcept {
+    unsigned flags = 0;
+    const auto refit = [&flags](kernels::RefitMesh& mesh, const std::vector<float>& x) {
+        switch (mesh.refit(std::span<const float>(x))) {
+            case kernels::RefitStatus::Ok:
+                break;
+            case kernels::RefitStatus::OutsideLimit:
+                flags |= kSurfaceOutsideBounds;
+                break;
+            case kernels::RefitStatus::Rejected:
+                flags |= kRefitFailed;
+                break;
+        }
+    };
+    refit(*mSurface, mPositions);
+    // Embedded meshes follow the trilinear interpolation of their cells' displacements.
+    const Eigen::VectorXd& u = displacement();
+    for (std::size_t e = 0; e < mInclusions.size(); ++e) {
+        std::vector<float>& x = mInclusionPositions[e];
+        mModel->embedded()[e].mesh.update(u, std::span<float>(x));
+        refit(*mInclusions[e], x);
+    }
+    return flags;
+}
+
+unsigned DeformableBody::sweepSurface() noexcept {
+    // Near the contact every tick: the primary region, Gamma and the loaded nodes.
+    const auto near = [this](const std::vector<int>& nodes) {
+        for (const int n : nodes)
+            if (mWatchIndex[static_cast<std::size_t>(n)] >= 0) refreshNode(n);
+    };
+    near(mRegions->primaryNodes());
+    near(mRegions->secondaryBorderNodes());
+    for (std::size_t i = 0; i < mLoadedCount; ++i) refreshNode(mLoaded[i]);
+    // Elsewhere a slice of the round robin.
+    const std::vector<int>& watch = mModel->watchNodes();
+    for (std::size_t c = 0; c < mSweepSlice; ++c) {
+        refreshNode(watch[mSweepNext]);
+        if (++mSweepNext == watch.size()) {
+            mSweepNext = 0;
+            mSweepMaxPrev2 = mSweepMax2;
+            mSweepMax2 = 0;
+        }
+    }
+    mMaxSurfaceDisplacement = std::sqrt(std::max(mSweepMax2, mSweepMaxPrev2));
+    return refitSurfaces();
+}
+
+}  // namespace palp::haptics
