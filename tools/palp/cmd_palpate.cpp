@@ -1,6 +1,8 @@
 // palp palpate: palpate a scan or a thesis phantom with VC/AVC/AVCEC along a scripted path
 // (simulated hand and device), offline as fast as possible or on the real-time servo loop;
 // writes a CSV trace and a PNG map over the palpated plane.
+#include <sys/resource.h>
+
 #include <algorithm>
 #include <cctype>
 #include <chrono>
@@ -35,7 +37,9 @@
 #include "palp/volume/phantom.h"
 #include "palpate_felt.h"
 #include "palpate_options.h"
+#include "palpate_run.h"
 #include "palpate_setup.h"
+#include "progress.h"
 
 namespace palp::tool {
 
@@ -43,84 +47,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-
-// ---------------------------------------------------------------------------------------------
-// Run
-
-/// The snapshots of a run and, in real time, the servo's figures.
-struct RunResult {
-    std::vector<haptics::Snapshot> snaps;
-    double wallSeconds = 0;
-    std::string loopText;
-    json loopJson;
-    std::uint64_t traceDropped = 0;  // real time: ticks the trace ring could not hold
-};
-
-/// Runs @p session on its servo thread for @p ticks, draining every tick's snapshot.
-RunResult runRealtime(haptics::Session& session, std::uint64_t ticks) {
-    RunResult r;
-    std::vector<haptics::Snapshot>& snaps = r.snaps;
-    std::uint64_t& traceDropped = r.traceDropped;
-    const auto t0 = std::chrono::steady_clock::now();
-    snaps.reserve(static_cast<std::size_t>(ticks) + 16);
-    session.start();
-    // Drain the per-tick trace ring (one row per tick, in order) until the servo
-    // has run the asked-for ticks, then once more after stop() for the last ones.
-    haptics::Snapshot s;
-    const auto drain = [&] {
-        while (session.popTrace(s)) snaps.push_back(s);
-    };
-    while (session.latest().tick + 1 < ticks) {
-        drain();
-        std::this_thread::sleep_for(std::chrono::milliseconds(1));
-    }
-    session.stop();
-    drain();
-    traceDropped = session.traceDropped();
-    if (traceDropped > 0)
-        std::fprintf(stderr,
-                     "palp: warning: the trace ring dropped %llu snapshots (the "
-                     "reader fell behind); the trace, map and summary miss those "
-                     "ticks\n",
-                     static_cast<unsigned long long>(traceDropped));
-    r.wallSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    const haptics::ServoStats st = session.stats();
-    const haptics::RealtimeStatus& rs = session.realtime();
-    char b[512];
-    std::snprintf(b, sizeof b,
-                  "servo: %llu ticks, %llu missed, %llu skipped; wake latency "
-                  "p50 %.1f us p99 %.1f us max %.1f us; tick compute p50 %.1f us "
-                  "p99 %.1f us max %.1f us\nreal-time: %s",
-                  static_cast<unsigned long long>(st.ticks),
-                  static_cast<unsigned long long>(st.misses),
-                  static_cast<unsigned long long>(st.skipped), st.wakeLatency.p50 * 1e6,
-                  st.wakeLatency.p99 * 1e6, st.wakeLatency.max * 1e6, st.compute.p50 * 1e6,
-                  st.compute.p99 * 1e6, st.compute.max * 1e6, rs.message.c_str());
-    r.loopText = b;
-    r.loopJson = {{"ticks", st.ticks},
-                  {"misses", st.misses},
-                  {"skipped", st.skipped},
-                  {"wake_latency_us",
-                   {{"p50", st.wakeLatency.p50 * 1e6},
-                    {"p99", st.wakeLatency.p99 * 1e6},
-                    {"max", st.wakeLatency.max * 1e6}}},
-                  {"compute_us",
-                   {{"p50", st.compute.p50 * 1e6},
-                    {"p99", st.compute.p99 * 1e6},
-                    {"max", st.compute.max * 1e6}}},
-                  {"realtime", rs.message},
-                  {"trace_dropped", traceDropped}};
-    return r;
-}
-
-/// Steps @p session offline for @p ticks as fast as possible.
-RunResult runFast(haptics::Session& session, std::uint64_t ticks) {
-    RunResult r;
-    const auto t0 = std::chrono::steady_clock::now();
-    r.snaps = haptics::runOffline(session, ticks);
-    r.wallSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return r;
-}
 
 // ---------------------------------------------------------------------------------------------
 // Outputs
@@ -273,7 +199,28 @@ struct Report {
     std::string underlay, underlayUnits;  ///< the map's underlay ("": none) and its units
     double underlayLo = NAN, underlayHi = NAN;
     std::optional<haptics::MapLayout> figure;  ///< where the map lies in its figure
+    haptics::SolverChoice solver;              ///< deformable: the solver and why
+    double setupSeconds = 0;                   ///< deformable: voxelise to first layout, s
 };
+
+/// Peak resident memory of the process so far, MiB.
+double peakRssMiB() {
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return static_cast<double>(u.ru_maxrss) / 1024.0;  // KiB on Linux
+}
+
+/// Cells of the pieces in @p pieces.
+long pieceCells(const std::vector<fem::BodyPiece>& pieces) {
+    long cells = 0;
+    for (const fem::BodyPiece& p : pieces) cells += p.cells;
+    return cells;
+}
+
+/// Active nodes of @p mesh (those its elements use).
+int activeNodes(const fem::HexMesh& mesh) {
+    return static_cast<int>(std::count(mesh.nodeActive().begin(), mesh.nodeActive().end(), 1));
+}
 
 /// Share of the ticks from @p from (s) on whose proxy is on a surface.
 double contactFrom(const std::vector<haptics::Snapshot>& snaps, double from) {
@@ -364,17 +311,29 @@ void printJson(const PalpateArgs& a, const Report& r) {
     j["stiffness_max_npm"] = sum.maxStiffness;
     j["faulted_ticks"] = sum.faultedTicks;
     j["clamped_ticks"] = sum.clampedTicks;
+    j["interrupted"] = r.run.interrupted != 0;
     if (body) {
         const double maxDisp = maxDisplacement(r.run.snaps);
-        j["deformable"] = {{"nodes", body->model().mesh().nodeCount()},
-                           {"elements", body->model().mesh().elementCount()},
+        const fem::HexMesh& mesh = body->model().mesh();
+        const bool regions = body->options().solverKind == haptics::DeformableSolver::asyncRegions;
+        j["deformable"] = {{"nodes", activeNodes(mesh)},
+                           {"lattice_nodes", mesh.nodeCount()},
+                           {"elements", mesh.elementCount()},
                            {"surface_triangles", body->surface().triangles.size()},
                            {"fixed_nodes", body->fixedNodes().size()},
                            {"filter_mm", a.filterMm},
                            {"cell_mm", a.femCellMm},
                            {"young_kpa", a.youngKpa},
-                           {"solver", a.femSolver},
+                           {"solver", regions ? "regions" : "explicit"},
+                           {"solver_asked", a.femSolver},
+                           {"solver_reason", r.solver.reason},
+                           {"pieces_kept", body->keptPieces().size()},
+                           {"pieces_dropped", body->droppedPieces().size()},
+                           {"cells_dropped", pieceCells(body->droppedPieces())},
+                           {"setup_seconds", r.setupSeconds},
+                           {"peak_rss_mib", peakRssMiB()},
                            {"max_displacement_mm", maxDisp * 1e3}};
+        if (regions) j["deformable"]["lod"] = body->options().regions.lod;
     }
     if (!a.trace.empty()) j["trace"] = a.trace;
     if (!a.map.empty()) {
@@ -453,11 +412,20 @@ void printText(const PalpateArgs& a, const Report& r) {
         const double maxDisp = maxDisplacement(snaps);
         std::printf(
             "deformable: %d nodes, %d elements, %zu surface triangles, %zu fixed "
-            "nodes (support + bone), filter %.1f mm, E %.1f kPa, %s solver; largest "
-            "surface displacement %.2f mm\n",
-            body->model().mesh().nodeCount(), body->model().mesh().elementCount(),
+            "nodes (support + bone), filter %.1f mm, E %.1f kPa, %s; largest "
+            "surface displacement %.2f mm; set up in %.1f s, peak memory %.0f MiB\n",
+            activeNodes(body->model().mesh()), body->model().mesh().elementCount(),
             body->surface().triangles.size(), body->fixedNodes().size(), a.filterMm, a.youngKpa,
-            a.femSolver.c_str(), maxDisp * 1e3);
+            r.solver.reason.c_str(), maxDisp * 1e3, r.setupSeconds, peakRssMiB());
+        if (!body->droppedPieces().empty()) {
+            const fem::BodyPiece& p = body->droppedPieces().front();
+            std::printf(
+                "deformable: kept %zu piece(s) the supports hold; dropped %zu piece(s) nothing "
+                "holds (%ld cells; largest %d cells at (%.0f, %.0f, %.0f) mm)\n",
+                body->keptPieces().size(), body->droppedPieces().size(),
+                pieceCells(body->droppedPieces()), p.cells, 500 * (p.lo.x() + p.hi.x()),
+                500 * (p.lo.y() + p.hi.y()), 500 * (p.lo.z() + p.hi.z()));
+        }
     }
     const json felt =
         feltSummary(r.run.snaps, r.frame, std::max(4e-3, 2e-3 * a.spacingMm), r.pressedFrom);
@@ -489,11 +457,28 @@ void printText(const PalpateArgs& a, const Report& r) {
 }
 
 /// `palp palpate`: checks, set-up, run, outputs, report.
-int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
+int runPalpate(PalpateArgs a, const CheckedOptions& o) {
     const haptics::DeviceSpec* spec = checkPalpateOptions(a, o);
 
     // Volume and coupling.
     Input in = loadInput(a);
+    if (!in.phantom) {
+        // A scan without HU (an MR): its own skin and tissue threshold, no bone, no hard
+        // structure for the rays, where the user left the CT defaults.
+        const ScanDefaults d = scanDefaults(in.vol);
+        if (d.applies) {
+            if (!o.surfaceIso->count()) a.surfaceIso = d.threshold;
+            if (!o.tissueHu->count()) a.tissueHu = d.threshold;
+            if (!o.boneHu->count()) a.boneHu = std::numeric_limits<double>::infinity();
+            if (!o.threshold->count())
+                in.cp.firstHit.threshold = static_cast<float>(d.greatest) + 1;
+            if (!a.json && !globals().quiet)
+                std::printf("scan without HU (%s): skin and tissue above %.4g (Otsu), no bone\n",
+                            in.vol.info.modality.empty() ? "modality unknown"
+                                                         : in.vol.info.modality.c_str(),
+                            d.threshold);
+        }
+    }
     const volume::Volume& vol = in.vol;
     haptics::CouplingParams cp = couplingFromOptions(a, in.cp);
     haptics::validateCouplingParams(cp);
@@ -523,9 +508,12 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     const Eigen::Vector3d press = skin.press;
     PathFrame frame = pathFrame(a, box, press, skin.patch ? &*skin.patch : nullptr);
     std::shared_ptr<const haptics::DeformableModel> body;
+    haptics::SolverChoice solver;
+    // The body's set-up: voxelise, assemble, and (in the session) factorise and lay out.
+    const auto setupStart = std::chrono::steady_clock::now();
     if (a.deformable) {
         try {
-            body = makeBody(a, in, press, frame.centre, period);
+            body = makeBody(a, in, press, frame.centre, period, &solver);
         } catch (const ValueError& e) {
             // Say which options made the tissue (the library speaks of fields, not flags).
             throw ValueError(std::string(e.what()) + "\n(the tissue of --fem-cell-mm " +
@@ -578,10 +566,19 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
     haptics::validateSessionParams(sp);
     haptics::SimulatedDevice device(*spec, plan.traj, haptics::HandModel{}, period);
     haptics::Session session(scene, device, sp);
+    const double setupSeconds =
+        a.deformable
+            ? std::chrono::duration<double>(std::chrono::steady_clock::now() - setupStart).count()
+            : 0.0;
 
-    Report r{in.label,         spec, cp, kMaxAsked, frame, body, {}, {}, {}, NAN, NAN, skin,
-             plan.pressedFrom, 0,    {}, {},        NAN,   NAN,  {}};
+    Report r{in.label, spec,   cp,          kMaxAsked,        frame, body, {}, {},  {},
+             NAN,      NAN,    skin,        plan.pressedFrom, 0,     {},   {}, NAN, NAN,
+             {},       solver, setupSeconds};
     r.run = a.realtime ? runRealtime(session, ticks) : runFast(session, ticks);
+    if (r.run.snaps.empty()) {  // stopped before the first tick: nothing to write
+        std::fprintf(stderr, "palp palpate: interrupted before the first tick; nothing written\n");
+        return 128 + r.run.interrupted;
+    }
     r.sum = haptics::summarize(r.run.snaps);
     r.contactAfterApproach = contactFrom(r.run.snaps, plan.pressedFrom);
     r.budget = haptics::energyBudget(r.run.snaps, plan.approach);
@@ -602,6 +599,13 @@ int runPalpate(const PalpateArgs& a, const CheckedOptions& o) {
         printJson(a, r);
     } else if (!globals().quiet) {
         printText(a, r);
+    }
+    if (r.run.interrupted) {
+        std::fprintf(stderr,
+                     "palp palpate: interrupted after %zu of %llu ticks; the trace, map and "
+                     "summary cover those\n",
+                     r.run.snaps.size(), static_cast<unsigned long long>(ticks));
+        return 128 + r.run.interrupted;  // as a shell reports a process the signal stopped
     }
     return 0;
 }

@@ -73,11 +73,13 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
                         "the skull) or 'keep' (every cell above --tissue-hu)")
             ->check(CLI::IsMember({"drop", "keep"})),
         app->add_option("--fem-solver", a.femSolver,
-                        "deformable: 'explicit' (whole mesh every tick, default) or 'regions' "
-                        "(asynchronous regions: explicit primary around the contact, implicit "
-                        "secondary; threaded with --realtime, synchronous and deterministic "
-                        "with --fast)")
-            ->check(CLI::IsMember({"explicit", "regions"})),
+                        "deformable: 'auto' (default: the whole mesh where elements x substeps a "
+                        "tick is within 8,000, which makes the 1 kHz tick, else the regions; the "
+                        "report says which and why), 'explicit' (whole mesh every tick) or "
+                        "'regions' (asynchronous regions: explicit primary around the contact, "
+                        "implicit secondary; threaded with --realtime, synchronous and "
+                        "deterministic with --fast)")
+            ->check(CLI::IsMember({"auto", "explicit", "regions"})),
         app->add_option("--primary-nodes", a.primaryNodes,
                         "regions: seed nodes of the primary region (60)")
             ->check(integerIn(1, 100000)),
@@ -131,7 +133,8 @@ void addCouplingOptions(CLI::App* app, PalpateArgs& a) {
     app->add_option("--damping", a.damping, "Coupling damping b, N s/m (default 0)")
         ->check(within(bounds::kDamping));
     app->add_option("--surface-iso", a.surfaceIso,
-                    "Value of the surface the proxy slides on (default -500 HU)")
+                    "Value of the surface the proxy slides on (default -500 HU; a scan without HU: "
+                    "Otsu's threshold of its values)")
         ->check(within(bounds::kVolumeValue, {1, "HU"}));
     app->add_option("--mu-static", a.muStatic, "Static friction (default 0.5)")
         ->check(within(bounds::kFriction));
@@ -303,6 +306,10 @@ void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked
     addCouplingOptions(app, args);
     addPathOptions(app, args, checked);
     addRunOptions(app, args);
+    checked.surfaceIso = app->get_option("--surface-iso");
+    checked.tissueHu = app->get_option("--tissue-hu");
+    checked.boneHu = app->get_option("--bone-hu");
+    checked.threshold = app->get_option("--threshold");
 }
 
 const haptics::DeviceSpec* checkPalpateOptions(const PalpateArgs& args,

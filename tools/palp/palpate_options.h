@@ -69,7 +69,7 @@ struct PalpateArgs {
     double boneHu = 500;
     double tissueHu = -200;
     std::string insideBone = "drop";  ///< --inside-bone: drop or keep tissue enclosed by bone
-    std::string femSolver = "explicit";
+    std::string femSolver = "auto";
     int primaryNodes = 60;
     double secondaryHz = 100;
     int lod = 0;  ///< 0: haptics::autoRegionsLod (2 where the cell counts are even, else 1; 4 on
@@ -88,6 +88,8 @@ struct CheckedOptions {
     CLI::Option* seed = nullptr;
     std::vector<CLI::Option*> fem;
     CLI::Option* pressAxis = nullptr;  ///< given or left to palp (the skin's best side on a scan)
+    /// Given or left to palp (a scan without HU takes scanDefaults()).
+    CLI::Option *surfaceIso = nullptr, *tissueHu = nullptr, *boneHu = nullptr, *threshold = nullptr;
 };
 
 /// Registers every option of `palp palpate` on @p app, bound to @p args; @p checked receives the

@@ -1,6 +1,9 @@
 #include "palpate_setup.h"
 
+#include <openvdb/tools/ValueTransformer.h>
+
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <limits>
@@ -111,7 +114,8 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
 std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, const Input& in,
                                                          const Eigen::Vector3d& press,
                                                          const Eigen::Vector3d& pathCentre,
-                                                         double period) {
+                                                         double period,
+                                                         haptics::SolverChoice* choice) {
     requirePositive("--fem-cell-mm", a.femCellMm, "mm");
     requirePositive("--young-kpa", a.youngKpa, "kPa");
     haptics::DeformableSetup setup;  // the library's set-up, shared with the C API
@@ -127,8 +131,10 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
     setup.supportFace = haptics::faceOpposite(press);  // the face opposite the pressed one
     setup.options.filterWidth = a.filterMm * 1e-3;
     setup.setPeriod(period);
-    if (a.femSolver == "regions") {
-        setup.options.solverKind = haptics::DeformableSolver::asyncRegions;
+    setup.autoSolver = a.femSolver == "auto";
+    if (a.femSolver != "explicit") {  // the regions' options, used where they are chosen
+        if (a.femSolver == "regions")
+            setup.options.solverKind = haptics::DeformableSolver::asyncRegions;
         setup.options.regions.primaryNodes = a.primaryNodes;
         setup.options.regions.secondaryRate = a.secondaryHz;
         setup.options.regions.lod = a.lod;  // 0: haptics::autoRegionsLod
@@ -148,9 +154,46 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
             0.5 * (in.phantom->materials.softHu + in.phantom->materials.inclusionHu);
         setup.voxelize.youngsFromValue = [e, split](double hu) { return hu > split ? 8 * e : e; };
     }
-    auto model = haptics::makeDeformableModel(in.vol, setup);
+    auto model = haptics::makeDeformableModel(in.vol, setup, choice);
     if (tumour) model->embedMesh(volume::Phantom(*in.phantom).inclusionMesh());
     return model;
+}
+
+ScanDefaults scanDefaults(const volume::Volume& vol) {
+    ScanDefaults d;
+    if (vol.info.modality == "CT" || !vol.grid) return d;
+    const openvdb::math::MinMax<float> range = openvdb::tools::minMax(vol.grid->tree());
+    const double lo = range.min(), hi = range.max();
+    if (!(lo >= -100.0) || !(hi > lo)) return d;
+    std::array<double, 256> hist{};
+    const double scale = 255.0 / (hi - lo);
+    double count = 0;
+    for (auto it = vol.grid->cbeginValueOn(); it; ++it) {
+        const double weight = static_cast<double>(it.getVoxelCount());
+        hist[static_cast<std::size_t>(std::clamp((*it - lo) * scale, 0.0, 255.0))] += weight;
+        count += weight;
+    }
+    // Otsu: the split that maximises the between-class variance.
+    double total = 0;
+    for (std::size_t b = 0; b < hist.size(); ++b) total += static_cast<double>(b) * hist[b];
+    double below = 0, belowSum = 0, best = -1;
+    std::size_t split = 0;
+    for (std::size_t b = 0; b + 1 < hist.size(); ++b) {
+        below += hist[b];
+        belowSum += static_cast<double>(b) * hist[b];
+        const double above = count - below;
+        if (below <= 0 || above <= 0) continue;
+        const double m0 = belowSum / below, m1 = (total - belowSum) / above;
+        const double between = below * above * (m0 - m1) * (m0 - m1);
+        if (between > best) {
+            best = between;
+            split = b;
+        }
+    }
+    d.applies = true;
+    d.threshold = lo + (static_cast<double>(split) + 1.0) / scale;
+    d.greatest = hi;
+    return d;
 }
 
 Eigen::AlignedBox3d volumeBox(const volume::Volume& vol, const std::string& label) {

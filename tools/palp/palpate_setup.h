@@ -17,6 +17,7 @@
 #include "palp/haptics/rendering/coupling.h"
 #include "palp/haptics/scene.h"
 #include "palp/haptics/tissue/deformable.h"
+#include "palp/haptics/tissue/deformable_setup.h"
 #include "palp/volume/phantom.h"
 #include "palp/volume/volume.h"
 #include "palpate_options.h"
@@ -41,11 +42,26 @@ Input loadInput(const PalpateArgs& a);
 /// @throw palp::ValueError naming the option.
 haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::CouplingParams cp);
 
-/// The deformable body of --deformable, supported on the face opposite the pressed one.
+/// The deformable body of --deformable, supported on the face opposite the pressed one; the
+/// solver --fem-solver names (auto: haptics::chooseSolver) and why into @p choice.
 std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, const Input& in,
                                                          const Eigen::Vector3d& press,
                                                          const Eigen::Vector3d& pathCentre,
-                                                         double period);
+                                                         double period,
+                                                         haptics::SolverChoice* choice);
+
+/// The CT defaults (HU) a scan without Hounsfield units replaces: a scan that is not CT (its
+/// modality is not "CT" and no active value lies below -100, e.g. an MR, whose values start at
+/// 0) has no air at -1000 nor bone at +500. Its skin (--surface-iso) and tissue (--tissue-hu)
+/// are then Otsu's threshold of its active values (256 bins between their least and greatest),
+/// it has no bone (--bone-hu: none; a deformable body is fixed on the face opposite the press
+/// only) and no hard structure for the rays (--threshold above its greatest value).
+struct ScanDefaults {
+    bool applies = false;  ///< the scan has no HU
+    double threshold = 0;  ///< Otsu's threshold of its values
+    double greatest = 0;   ///< its greatest active value
+};
+ScanDefaults scanDefaults(const volume::Volume& vol);
 
 /// The box of the volume (m): its active voxels' centres grown by half a voxel.
 /// @throw palp::ValueError naming @p label when the volume has no active voxel.

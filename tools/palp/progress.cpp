@@ -2,6 +2,8 @@
 
 #include <unistd.h>
 
+#include <atomic>
+#include <csignal>
 #include <cstdio>
 
 #include "commands.h"
@@ -10,7 +12,33 @@ namespace palp::tool {
 
 namespace {
 bool gDrawn = false;
+volatile std::sig_atomic_t gSignal = 0;
+struct sigaction gOldInt {
+}, gOldTerm{};
+
+void onProgressInterrupt(int sig) {
+    gSignal = sig;
+    // A second Ctrl-C kills as it used to.
+    std::signal(sig, SIG_DFL);
 }
+}  // namespace
+
+InterruptGuard::InterruptGuard() {
+    gSignal = 0;
+    struct sigaction sa {};
+    sa.sa_handler = onProgressInterrupt;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGINT, &sa, &gOldInt);
+    sigaction(SIGTERM, &sa, &gOldTerm);
+}
+
+InterruptGuard::~InterruptGuard() {
+    sigaction(SIGINT, &gOldInt, nullptr);
+    sigaction(SIGTERM, &gOldTerm, nullptr);
+}
+
+bool InterruptGuard::interrupted() noexcept { return gSignal != 0; }
+int InterruptGuard::signal() noexcept { return gSignal; }
 
 palp::volume::ProgressFn progressLine(const std::string& label) {
     if (globals().quiet || !::isatty(STDERR_FILENO)) return {};

@@ -2,7 +2,10 @@
 
 #include "palp/haptics/tissue/deformable_setup.h"
 
+#include <cstdio>
+
 #include "palp/fem/async_regions.h"
+#include "palp/fem/explicit_solver.h"
 
 namespace palp::haptics {
 
@@ -42,19 +45,50 @@ fem::BoxFace faceOpposite(const Eigen::Vector3d& press) noexcept {
     return static_cast<fem::BoxFace>(2 * axis + (press[axis] > 0 ? 1 : 0));
 }
 
+SolverChoice chooseSolver(const fem::FemModel& model, const DeformableOptions& options) {
+    SolverChoice c;
+    c.budget = kWholeMeshElementSubsteps;
+    const double substeps =
+        fem::explicitSubstepsPerTick(model, options.solver.safetyFactor, options.tickSeconds);
+    const double elements = model.mesh().elementCount();
+    c.elementSubsteps = elements * substeps;
+    c.solver = c.elementSubsteps <= c.budget ? DeformableSolver::wholeMeshExplicit
+                                             : DeformableSolver::asyncRegions;
+    char line[256];
+    std::snprintf(line, sizeof line, "%s: %.0f elements x %.0f substeps a tick = %.0f, %s %.0f",
+                  c.solver == DeformableSolver::wholeMeshExplicit ? "whole mesh" : "regions",
+                  elements, substeps, c.elementSubsteps,
+                  c.solver == DeformableSolver::wholeMeshExplicit ? "within" : "over", c.budget);
+    c.reason = line;
+    return c;
+}
+
 std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volume,
-                                                     const DeformableSetup& setup) {
-    const bool autoLod = setup.options.solverKind == DeformableSolver::asyncRegions &&
-                         setup.options.regions.lod == 0;
+                                                     const DeformableSetup& setup,
+                                                     SolverChoice* choice) {
     DeformableOptions options = setup.options;
+    if (setup.autoSolver) options.solverKind = DeformableSolver::wholeMeshExplicit;
+    const bool autoLod = setup.options.regions.lod == 0;
     if (autoLod) options.regions.lod = 1;  // the lattice decides (below)
     auto model = DeformableModel::fromVolume(volume, setup.voxelize, setup.material,
                                              setup.supportFace, options);
-    if (autoLod) {
+    if (setup.autoSolver) {
+        const SolverChoice c = chooseSolver(model->model(), options);
+        if (choice) *choice = c;
+        if (c.solver == DeformableSolver::asyncRegions) {
+            options.solverKind = DeformableSolver::asyncRegions;
+            model = model->withOptions(options);
+        }
+    } else if (choice) {
+        choice->solver = options.solverKind;
+        choice->reason = options.solverKind == DeformableSolver::asyncRegions ? "regions: asked"
+                                                                              : "whole mesh: asked";
+    }
+    if (options.solverKind == DeformableSolver::asyncRegions && autoLod) {
         const int lod = autoRegionsLod(*model);
         if (lod != 1) {
             options.regions.lod = lod;
-            model = std::make_shared<DeformableModel>(model->model(), model->fixedNodes(), options);
+            model = model->withOptions(options);
         }
     }
     return model;

@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 #include <memory>
 #include <optional>
+#include <string>
 
 #include "palp/fem/hex_mesh.h"
 #include "palp/fem/material.h"
@@ -44,6 +45,9 @@ struct DeformableSetup {
     /// Filter, solver kind, regions. regions.lod 0 asks for autoRegionsLod(); the servo period
     /// goes in tickSeconds and regions.tickSeconds (setPeriod()).
     DeformableOptions options;
+    /// true: options.solverKind is chosen by chooseSolver() (`palp palpate --fem-solver auto`,
+    /// the default there): the whole mesh where it makes the tick, the regions otherwise.
+    bool autoSolver = false;
 
     /// Sets the period the sessions will step the body with, s (tickSeconds and, for the
     /// regions, regions.tickSeconds).
@@ -65,15 +69,36 @@ int autoRegionsLod(const fem::HexMesh& mesh) noexcept;
 /// @throw palp::ValueError as fem::AsyncRegions::slideZoneDofs.
 int autoRegionsLod(const DeformableModel& model);
 
+/// What chooseSolver() chose and why.
+struct SolverChoice {
+    DeformableSolver solver = DeformableSolver::wholeMeshExplicit;
+    /// Element updates one whole-mesh tick takes: elements x explicit substeps per tick.
+    double elementSubsteps = 0;
+    /// The most chooseSolver() gives the whole mesh (kWholeMeshElementSubsteps).
+    double budget = 0;
+    std::string reason;  ///< one line, e.g. "whole mesh: 4,000 elements x 2 substeps = 8,000 ..."
+};
+
+/// Element updates (elements x substeps) a whole-mesh explicit tick may take and still leave
+/// the servo its rays and proxy within 1 ms: 8,000 (~0.75 ms on a 2-core x86 VM at ~94 ns an
+/// element-substep; the head CT at 5 mm, 14,339 elements x 2 substeps, took 2.7 ms a tick).
+inline constexpr double kWholeMeshElementSubsteps = 8000;
+
+/// The whole-mesh explicit solver when elements x substeps per tick (at its safety factor and
+/// tickSeconds) is within kWholeMeshElementSubsteps, else the asynchronous regions.
+SolverChoice chooseSolver(const fem::FemModel& model, const DeformableOptions& options);
+
 /// The face opposite the one a press along @p press (any non-zero vector; its largest
 /// component's axis) goes into: the support of a body pressed from the other side.
 fem::BoxFace faceOpposite(const Eigen::Vector3d& press) noexcept;
 
-/// Builds the body of @p setup from @p volume (DeformableModel::fromVolume), with regions.lod 0
-/// resolved by autoRegionsLod().
+/// Builds the body of @p setup from @p volume (DeformableModel::fromVolume), with the solver
+/// chosen by chooseSolver() when setup.autoSolver (reported in @p choice when given) and
+/// regions.lod 0 resolved by autoRegionsLod().
 /// @throw palp::ValueError naming the field (voxelisation, material, options, a body too stiff
 /// for its period, no fixed node).
 std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volume,
-                                                     const DeformableSetup& setup);
+                                                     const DeformableSetup& setup,
+                                                     SolverChoice* choice = nullptr);
 
 }  // namespace palp::haptics

@@ -1,0 +1,31 @@
+#pragma once
+/// @file
+/// `palp palpate`'s run: offline as fast as possible or on the real-time servo loop, with a
+/// progress line on a terminal and a stop on Ctrl-C that keeps what ran.
+
+#include <cstdint>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "palp/haptics/session.h"
+
+namespace palp::tool {
+
+/// The snapshots of a run and, in real time, the servo's figures.
+struct RunResult {
+    std::vector<haptics::Snapshot> snaps;
+    double wallSeconds = 0;
+    std::string loopText;
+    nlohmann::json loopJson;
+    std::uint64_t traceDropped = 0;  // real time: ticks the trace ring could not hold
+    int interrupted = 0;             // the signal (Ctrl-C: SIGINT) that stopped the run early
+};
+
+/// Runs @p session on its servo thread for @p ticks (or until Ctrl-C), draining every tick's
+/// snapshot.
+RunResult runRealtime(haptics::Session& session, std::uint64_t ticks);
+/// Steps @p session offline for @p ticks (or until Ctrl-C).
+RunResult runFast(haptics::Session& session, std::uint64_t ticks);
+
+}  // namespace palp::tool
