@@ -410,25 +410,48 @@ RefitStatus RefitMesh::refit(std::span<const float> positions) noexcept {
         mLastRefitNodes = mNodes.size();
         return mLimit.contains(bounds()) ? RefitStatus::Ok : RefitStatus::OutsideLimit;
     }
-    // Vertices that drifted beyond the slack take their current position as their new base,
-    // and mark their leaves.
     mChanged.clear();
-    for (std::size_t v = 0; v < mVertexCount; ++v) {
-        float* b = &mBase[3 * v];
-        const float* p = &positions[3 * v];
-        if (std::abs(p[0] - b[0]) <= mSlack && std::abs(p[1] - b[1]) <= mSlack &&
-            std::abs(p[2] - b[2]) <= mSlack)
-            continue;
-        b[0] = p[0];
-        b[1] = p[1];
-        b[2] = p[2];
-        for (std::uint32_t j = mVertexLeafStart[v]; j < mVertexLeafStart[v + 1]; ++j) {
-            const std::uint32_t leaf = mVertexLeaves[j];
-            if (mChangedMark[leaf]) continue;
-            mChangedMark[leaf] = 1;
-            mChanged.push_back(leaf);
-        }
+    for (std::size_t v = 0; v < mVertexCount; ++v) markIfDrifted(v);
+    return refitMarked();
+}
+
+RefitStatus RefitMesh::refit(std::span<const float> positions,
+                             std::span<const std::uint32_t> moved) noexcept {
+    if (positions.size() != 3 * mVertexCount) return RefitStatus::Rejected;
+    for (const std::uint32_t v : moved) {
+        if (v >= mVertexCount) return RefitStatus::Rejected;
+        for (std::size_t k = 0; k < 3; ++k)
+            if (!std::isfinite(positions[3 * v + k])) return RefitStatus::Rejected;
     }
+    if (mSlack == 0) return refit(positions);
+    mChanged.clear();
+    for (const std::uint32_t v : moved) {
+        for (std::size_t k = 0; k < 3; ++k) mPositions[3 * v + k] = positions[3 * v + k];
+        markIfDrifted(v);
+    }
+    return refitMarked();
+}
+
+void RefitMesh::markIfDrifted(std::size_t v) noexcept {
+    // A vertex that drifted beyond the slack takes its current position as its new base, and
+    // marks its leaves.
+    float* b = &mBase[3 * v];
+    const float* p = &mPositions[3 * v];
+    if (std::abs(p[0] - b[0]) <= mSlack && std::abs(p[1] - b[1]) <= mSlack &&
+        std::abs(p[2] - b[2]) <= mSlack)
+        return;
+    b[0] = p[0];
+    b[1] = p[1];
+    b[2] = p[2];
+    for (std::uint32_t j = mVertexLeafStart[v]; j < mVertexLeafStart[v + 1]; ++j) {
+        const std::uint32_t leaf = mVertexLeaves[j];
+        if (mChangedMark[leaf]) continue;
+        mChangedMark[leaf] = 1;
+        mChanged.push_back(leaf);
+    }
+}
+
+RefitStatus RefitMesh::refitMarked() noexcept {
     // The leaves, then every ancestor once, children before parents (descending index: a
     // child follows its parent in the array).
     const std::size_t leaves = mChanged.size();

@@ -279,8 +279,12 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
         for (std::size_t i = 0; i < watch.size(); ++i)
             mWatchIndex[static_cast<std::size_t>(watch[i])] = static_cast<int>(i);
         const double period = 1.0 / (options.regions.secondaryRate * options.regions.tickSeconds);
-        const auto ticks = static_cast<std::size_t>(std::max(1.0, std::floor(period)));
+        const auto ticks =
+            static_cast<std::size_t>(std::max(1.0, std::floor(kSweepPeriods * period)));
         mSweepSlice = (watch.size() + ticks - 1) / ticks;
+        // The vertices a tick moves: the slice and the nodes near the contact (bounded by
+        // twice the surface; more falls back to a refit that sweeps every vertex).
+        mMoved.reserve(2 * mRest.size() / 3);
     }
 }
 

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <span>
 
@@ -81,15 +82,28 @@ void DeformableBody::refreshNode(int n) noexcept {
     mSweepMax2 = std::max(mSweepMax2, d.squaredNorm());
     const int v = mModel->vertexOfNode(n);
     if (v < 0) return;
+    if (mMoved.size() < mMoved.capacity()) {
+        mMoved.push_back(static_cast<std::uint32_t>(v));
+    } else {
+        mMovedOverflow = true;  // the refit sweeps every vertex instead
+    }
     const auto i = 3 * static_cast<std::size_t>(v);
     for (std::size_t k = 0; k < 3; ++k)
         mPositions[i + k] = static_cast<float>(mRest[i + k] + d[static_cast<Eigen::Index>(k)]);
 }
 
-unsigned DeformableBody::refitSurfaces() noexcept {
+unsigned DeformableBody::refitSurfaces(bool onlyMoved) noexcept {
     unsigned flags = 0;
-    const auto refit = [&flags](kernels::RefitMesh& mesh, const std::vector<float>& x) {
-        switch (mesh.refit(std::span<const float>(x))) {
+    const bool partial = onlyMoved && !mMovedOverflow;
+    const auto status = [&](kernels::RefitMesh& mesh, const std::vector<float>& x, bool surface) {
+        return partial && surface
+                   ? mesh.refit(std::span<const float>(x),
+                                std::span<const std::uint32_t>(mMoved.data(), mMoved.size()))
+                   : mesh.refit(std::span<const float>(x));
+    };
+    const auto refit = [&](kernels::RefitMesh& mesh, const std::vector<float>& x,
+                           bool surface = false) {
+        switch (status(mesh, x, surface)) {
             case kernels::RefitStatus::Ok:
                 break;
             case kernels::RefitStatus::OutsideLimit:
@@ -100,7 +114,9 @@ unsigned DeformableBody::refitSurfaces() noexcept {
                 break;
         }
     };
-    refit(*mSurface, mPositions);
+    refit(*mSurface, mPositions, true);
+    mMoved.clear();
+    mMovedOverflow = false;
     // Embedded meshes follow the trilinear interpolation of their cells' displacements.
     const Eigen::VectorXd& u = displacement();
     for (std::size_t e = 0; e < mInclusions.size(); ++e) {
@@ -131,7 +147,7 @@ unsigned DeformableBody::sweepSurface() noexcept {
         }
     }
     mMaxSurfaceDisplacement = std::sqrt(std::max(mSweepMax2, mSweepMaxPrev2));
-    return refitSurfaces();
+    return refitSurfaces(/*onlyMoved=*/true);
 }
 
 }  // namespace palp::haptics

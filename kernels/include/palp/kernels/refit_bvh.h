@@ -75,6 +75,13 @@ class RefitMesh {
     /// since their boxes were made, and their ancestors, are refitted: O(#V + changed nodes x
     /// depth) instead of O(#T).
     RefitStatus refit(std::span<const float> positions) noexcept;
+    /// refit() when only the vertices listed in @p moved changed since the last refit (the
+    /// others are promised unchanged): O(#moved + changed nodes x depth) with a slack, no sweep
+    /// over every vertex; a vertex may be listed more than once. Without a slack it refits every
+    /// node. Rejected (nothing changed) for a wrong size, an index out of range or a non-finite
+    /// coordinate of a listed vertex.
+    RefitStatus refit(std::span<const float> positions,
+                      std::span<const std::uint32_t> moved) noexcept;
 
     /// Boxes grown by @p slack metres (>= 0, finite; 0: exact boxes, the default): a vertex
     /// that stays within the slack (per axis) of the position its boxes were made from needs no
@@ -127,6 +134,10 @@ class RefitMesh {
     bool traverse(const std::array<float, 3>& org, const std::array<float, 3>& dir, float tnear,
                   float tfar, TriangleHit* hit) const noexcept;
     void refitNodes() noexcept;
+    /// With a slack: marks vertex @p v's leaves when it drifted beyond the slack from its base
+    /// (and moves the base); refitMarked() then refits the marked leaves and their ancestors.
+    void markIfDrifted(std::size_t v) noexcept;
+    RefitStatus refitMarked() noexcept;
     // Leaf box of node @p n from mBase (slack refits) grown by the slack.
     void refitLeafFromBase(Node& n) noexcept;
     void refitInner(std::size_t i) noexcept;

@@ -117,9 +117,10 @@ struct DeformableOptions {
     /// asyncRegions: a body with more free surface nodes than this (a patient's skin: 17,000 on
     /// the head CT at 5 mm) refreshes its surface near the contact (the primary region, Gamma
     /// and the loaded nodes) every tick and everywhere else in round-robin slices that cover it
-    /// once per secondary period: the far field, which only the secondary moves, then costs a
-    /// slice a tick instead of the whole skin (a surface then lags the secondary by at most one
-    /// period away from the contact). Smaller bodies refresh all of it every tick (>= 1).
+    /// once every kSweepPeriods secondary periods (40 ms at 100 Hz), and refits only the
+    /// vertices it moved: the far field, which only the secondary moves, then costs a slice a
+    /// tick instead of the whole skin (the surface away from the contact lags the secondary by
+    /// at most that long). Smaller bodies refresh all of it every tick (>= 1).
     int surfaceSweepAbove = 4096;
     /// asyncRegions: the free surface node nearest this point (m, world) is the initial region
     /// centre; NaN: the first free surface node (the first contact then asks for a move).
@@ -430,8 +431,11 @@ class DeformableBody {
     /// Regions on a big surface: the surface near the contact and a slice of the rest, then
     /// refitSurfaces(); returns its flags.
     unsigned sweepSurface() noexcept;
-    /// Refits the surface and the embedded meshes (from displacement()); returns the flags.
-    unsigned refitSurfaces() noexcept;
+    /// Refits the surface (@p onlyMoved: only the vertices refreshNode() listed since the last
+    /// refit) and the embedded meshes (from displacement()); returns the flags.
+    unsigned refitSurfaces(bool onlyMoved = false) noexcept;
+    /// Secondary periods one round of the swept surface takes.
+    static constexpr double kSweepPeriods = 4;
     /// Regions: asks for the centre to follow the contact node (with the hysteresis).
     void recentreRegions(const Eigen::Vector3d& point, double nearestD2) noexcept;
 
@@ -459,6 +463,8 @@ class DeformableBody {
     std::size_t mSweepNext = 0;     // swept surface: the next watched node of the round robin
     std::size_t mSweepSlice = 0;    // swept surface: watched nodes a tick (0: no sweep)
     double mSweepMax2 = 0, mSweepMaxPrev2 = 0;  // swept surface: largest |u|^2 this and last sweep
+    std::vector<std::uint32_t> mMoved;          // swept surface: vertices moved since the refit
+    bool mMovedOverflow = false;                // mMoved ran out of room: refit them all
     std::size_t mLoadedCount = 0;
     int mContactNode = -1;
     fem::CouplingSpring mSpring;  // active while a coupled contact holds (spans into mLoaded)
