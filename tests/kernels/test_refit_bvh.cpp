@@ -311,4 +311,53 @@ TEST(RefitMesh, SlackRefitIsExactForQueriesAndLocal) {
     for (std::size_t k = 0; k < 3; ++k) EXPECT_LE(loose.bounds().lo[k], fresh.bounds().lo[k]);
 }
 
+TEST(RefitMesh, RefitOfTheMovedVerticesEqualsTheFullRefit) {
+    const Shape s = shapes()[2];
+    const float slack = static_cast<float>(0.02 * s.size);
+    RefitMesh full(s.mesh), listed(s.mesh);
+    full.setRefitSlack(slack);
+    listed.setRefitSlack(slack);
+    std::mt19937 rng(7);
+    std::uniform_int_distribution<std::uint32_t> pick(
+        0, static_cast<std::uint32_t>(s.mesh.vertexCount() - 1));
+    std::uniform_real_distribution<float> move(-3 * slack, 3 * slack);
+    std::vector<float> x = s.mesh.positions;
+    RandomRays rays(13, s.centre, 4 * s.size, 1.2 * s.size);
+    for (int step = 0; step < 30; ++step) {
+        // A few vertices move (some twice, some listed twice), the others stay.
+        std::vector<std::uint32_t> moved;
+        for (int i = 0; i < 20; ++i) {
+            const std::uint32_t v = pick(rng);
+            for (std::size_t k = 0; k < 3; ++k) x[3 * v + k] += move(rng);
+            moved.push_back(v);
+            if (i % 7 == 0) moved.push_back(v);
+        }
+        ASSERT_EQ(full.refit(x), RefitStatus::Ok);
+        ASSERT_EQ(listed.refit(x, moved), RefitStatus::Ok);
+        EXPECT_EQ(listed.lastRefitNodes(), full.lastRefitNodes()) << "step " << step;
+        for (std::size_t k = 0; k < 3; ++k) {
+            EXPECT_EQ(listed.bounds().lo[k], full.bounds().lo[k]);
+            EXPECT_EQ(listed.bounds().hi[k], full.bounds().hi[k]);
+        }
+        for (int r = 0; r < 200; ++r) {
+            Vec3f o, d;
+            float tfar;
+            rays.next(o, d, tfar);
+            TriangleHit a, b;
+            const bool ha = listed.intersect(o, d, 0.0f, tfar, a);
+            ASSERT_EQ(ha, full.intersect(o, d, 0.0f, tfar, b)) << "step " << step << " ray " << r;
+            if (ha) {
+                EXPECT_EQ(a.primId, b.primId);
+            }
+        }
+    }
+    // A listed vertex out of range or not finite: rejected, nothing taken.
+    const std::vector<std::uint32_t> bad{static_cast<std::uint32_t>(s.mesh.vertexCount())};
+    EXPECT_EQ(listed.refit(x, bad), RefitStatus::Rejected);
+    std::vector<float> y = x;
+    y[3] = kNan;
+    const std::vector<std::uint32_t> one{1};
+    EXPECT_EQ(listed.refit(y, one), RefitStatus::Rejected);
+}
+
 }  // namespace
