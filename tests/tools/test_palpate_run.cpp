@@ -1,0 +1,88 @@
+// `palp palpate` as a long run: a progress line on a terminal and none in a pipe, Ctrl-C in the
+// middle of an offline run keeps a valid trace and summary of the ticks done, and the MR of the
+// shared data (no HU, no bone) palpates deformably.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "test_support.h"
+
+namespace {
+
+using palp::test::runCommand;
+
+nlohmann::json jsonOf(const std::string& output) {
+    const auto brace = output.find('{'), last = output.rfind('}');
+    if (brace == std::string::npos || last < brace) return nlohmann::json::object();
+    const auto j = nlohmann::json::parse(output.substr(brace, last - brace + 1), nullptr, false);
+    return j.is_discarded() ? nlohmann::json::object() : j;
+}
+
+TEST(PalpateRun, ProgressOnATerminalAndNotInAPipe) {
+    if (!palp::test::haveProgram("script")) GTEST_SKIP() << "script (util-linux) not installed";
+    const std::string cmd =
+        palp::test::palpTool().string() + " palpate --phantom bone --fast --seconds 2";
+    // script gives the command a pseudo-terminal.
+    const auto tty = runCommand("script -qec '" + cmd + "' /dev/null");
+    EXPECT_EQ(tty.exitCode, 0) << tty.output;
+    EXPECT_NE(tty.output.find("palp palpate: simulating"), std::string::npos) << tty.output;
+    const auto pipe = runCommand(cmd + " 2>&1 | cat");
+    EXPECT_EQ(pipe.exitCode, 0) << pipe.output;
+    EXPECT_EQ(pipe.output.find("simulating"), std::string::npos) << pipe.output;
+    EXPECT_NE(pipe.output.find("fast: 2000 ticks"), std::string::npos) << pipe.output;
+}
+
+TEST(PalpateRun, CtrlCKeepsAValidTraceAndSummaryOfTheTicksDone) {
+    palp::test::TempDir tmp;
+    const auto trace = tmp / "t.csv";
+    // The whole deformable raster takes minutes offline; SIGINT after 2 s.
+    const auto r =
+        runCommand("timeout --preserve-status -s INT 2 " + palp::test::palpTool().string() +
+                   " palpate --phantom bone --deformable --fast --json --trace " + trace.string() +
+                   " 2>" + (tmp / "err.txt").string());
+    EXPECT_EQ(r.exitCode, 130) << r.output;  // 128 + SIGINT
+    const nlohmann::json j = jsonOf(r.output);
+    ASSERT_TRUE(j.contains("ticks")) << r.output;
+    EXPECT_TRUE(j["interrupted"].get<bool>());
+    const auto ticks = j["ticks"].get<long>();
+    EXPECT_GT(ticks, 10);
+    EXPECT_LT(ticks, 40000);  // the path's 43,364 were not all run
+    // The trace holds a header and one whole row per tick done.
+    std::ifstream in(trace);
+    ASSERT_TRUE(in.good());
+    std::string line, header;
+    std::getline(in, header);
+    const auto columns = std::count(header.begin(), header.end(), ',');
+    long rows = 0;
+    while (std::getline(in, line)) {
+        EXPECT_EQ(std::count(line.begin(), line.end(), ','), columns) << "row " << rows;
+        ++rows;
+    }
+    EXPECT_EQ(rows, ticks);
+    EXPECT_NE(r.output.find("interrupted after " + std::to_string(ticks) + " of"),
+              std::string::npos)
+        << r.output;
+}
+
+TEST(PalpateRun, TheMrPalpatesDeformablyHeldOnTheFaceOppositeThePress) {
+    const auto mr = palp::test::dataPath("nifti-mr");
+    if (mr.empty()) GTEST_SKIP() << "no ../shared/data/nifti-mr";
+    const auto r = runCommand(palp::test::palpTool().string() + " palpate " +
+                              (mr / "anatomical.nii").string() +
+                              " --deformable --mode avcec --seconds 3 --json");
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    const nlohmann::json j = jsonOf(r.output);
+    ASSERT_TRUE(j.contains("deformable")) << r.output;
+    // No HU: Otsu's threshold found the head; no bone, so only the support face holds it.
+    EXPECT_GT(j["deformable"]["elements"].get<int>(), 500);
+    EXPECT_GE(j["deformable"]["pieces_kept"].get<int>(), 1);
+    EXPECT_GT(j["contact_fraction_after_approach"].get<double>(), 0.9);
+    EXPECT_GE(j["observer_energy_min_j"].get<double>(), 0.0);
+    EXPECT_LE(j["max_force_n"].get<double>(), 3.3 + 1e-9);
+    EXPECT_TRUE(j["skin"]["following"].get<bool>());
+}
+
+}  // namespace
