@@ -221,8 +221,18 @@ void bindSession(py::module_& m) {
             "make_deformable",
             [](Scene& scene, const volume::Volume& v, double elementSize, double tissue,
                double bone, double youngs, double poisson, double alpha,
-               std::optional<std::string> supportFace, double period, bool dropInsideBone) {
+               std::optional<std::string> supportFace, double period, bool dropInsideBone,
+               const std::string& solver) {
                 haptics::DeformableSetup s;
+                if (solver != "auto" && solver != "explicit" && solver != "regions")
+                    throw ValueError(
+                        "make_deformable solver: expected 'auto', 'explicit' or "
+                        "'regions', found '" +
+                        solver + "'");
+                s.autoSolver = solver == "auto";
+                if (solver == "regions")
+                    s.options.solverKind = haptics::DeformableSolver::asyncRegions;
+                s.options.regions.lod = 0;  // the lattice decides
                 s.voxelize.elementSize = elementSize;
                 s.voxelize.tissueThreshold = tissue;
                 s.voxelize.boneThreshold = bone;
@@ -241,8 +251,11 @@ void bindSession(py::module_& m) {
             py::arg("youngs_modulus") = 5e3, py::arg("poisson_ratio") = 0.45,
             py::arg("damping_alpha") = 60.0, py::arg("support_face") = py::none(),
             py::arg("period") = 1e-3, py::arg("drop_inside_bone") = true,
+            py::arg("solver") = "auto",
             "Makes the scene deformable (palp palpate --deformable's body): sessions made "
-            "afterwards build their own FEM body from it. bone_threshold inf: no bone.")
+            "afterwards build their own FEM body from it. bone_threshold inf: no bone. solver: "
+            "'auto' (the whole mesh where it makes the 1 kHz tick, else the asynchronous "
+            "regions, threaded: a patient's CT), 'explicit' or 'regions'.")
         .def("make_rigid", [](Scene& s) { s.setDeformable(nullptr); })
         .def_property_readonly("deformable",
                                [](const Scene& s) { return s.deformable() != nullptr; })

@@ -318,6 +318,31 @@ class Sessions(unittest.TestCase):
                                        params).surface())
 
 
+    def test_the_head_ct_is_deformable_on_the_regions(self):
+        # A patient's CT (the shared data's head, 1 mm voxels): make_deformable's 'auto' takes
+        # the regions (the whole mesh would miss the tick), and a session presses its skin.
+        data = os.environ.get("PALP_DATA_DIR", os.path.join(os.path.dirname(__file__),
+                                                            "..", "..", "..", "shared", "data"))
+        head = os.path.join(data, "ct-ge-head-tilt")
+        if not os.path.isdir(head):
+            self.skipTest("no shared data")
+        volume = palp.load(head, voxel_size=1e-3)
+        scene = palp.Scene.from_volume(volume)
+        with self.assertRaises(palp.ValueError):
+            scene.make_deformable(volume, solver="implicit")
+        scene.make_deformable(volume, solver="auto")
+        self.assertTrue(scene.deformable)
+        # Pressed from behind the head (-y) into its skin near y = 96 mm, then held.
+        device = palp.SimulatedDevice(palp.PressTrajectory(
+            start=(0.001, 0.105, 0.02), direction=(0, -1, 0), depth=0.015, press_seconds=0.3,
+            hold_seconds=0.5))
+        session = palp.Session(scene, device, vc_params())
+        trace = session.run(700)
+        self.assertTrue(np.all(np.isfinite(trace["force"])))
+        self.assertGreater(trace["force"][-1][1], 0.05)  # the skin pushes the hand back (+y)
+        self.assertGreater(trace["max_displacement"][-1], 1e-6)  # and is dented (scalp on bone)
+
+
 class RayBundle(unittest.TestCase):
     def test_bundle_geometry_for_viewers(self):
         c = palp.CouplingParams(mode="avcec", ring_count=6, ring_half_angle=0.2,
