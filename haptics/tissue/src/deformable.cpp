@@ -342,38 +342,37 @@ int DeformableBody::filterWeights(const Eigen::Vector3d& point, double& nearestD
     mLoadedCount = 0;
     const std::vector<int>& nodes = mModel->loadNodes();
     const double sigma = mModel->options().filterWidth;
-    const double cutoff2 = sigma > 0 ? std::pow(mModel->options().filterCutoff * sigma, 2) : 0;
-    const double inv2s2 = sigma > 0 ? 1.0 / (2 * sigma * sigma) : 0;
-    double best = std::numeric_limits<double>::infinity();
-    int nearest = -1;
-    std::size_t nearestSlot = 0;
-    double total = 0;
-    const Eigen::VectorXd& u = displacement();
-    if (localFilter(point, best, nearest, nearestSlot, total)) {
-        nearestD2 = best;
-        return finishFilter(nearest, nearestSlot, total);
+    FilterScan scan;
+    scan.point = point;
+    scan.gaussian = sigma > 0;
+    scan.cutoff2 = scan.gaussian ? std::pow(mModel->options().filterCutoff * sigma, 2) : 0;
+    scan.inv2s2 = scan.gaussian ? 1.0 / (2 * sigma * sigma) : 0;
+    scan.nearestSlot = nodes.size();
+    if (!localFilter(scan)) {
+        for (std::size_t i = 0; i < nodes.size(); ++i) scanFilterNode(scan, nodes[i], i);
     }
-    for (std::size_t i = 0; i < nodes.size(); ++i) {
-        // nodePosition(n), from contiguous rest positions (this loop runs every tick).
-        const int n = nodes[i];
-        const Eigen::Vector3d x = Eigen::Vector3d::Map(&mLoadRest[3 * i]) + u.segment<3>(3 * n);
-        const double d2 = (x - point).squaredNorm();
-        const bool listed = sigma > 0 && d2 <= cutoff2;
-        if (listed) {
-            const double w = std::exp(-d2 * inv2s2);
-            mLoaded[mLoadedCount] = n;
-            mWeights[mLoadedCount] = w;
-            total += w;
-        }
-        if (d2 < best) {
-            best = d2;
-            nearest = n;
-            nearestSlot = listed ? mLoadedCount : nodes.size();
-        }
-        if (listed) ++mLoadedCount;
+    nearestD2 = scan.best;
+    return finishFilter(scan.nearest, scan.nearestSlot, scan.total);
+}
+
+void DeformableBody::scanFilterNode(FilterScan& scan, int n, std::size_t li) noexcept {
+    // nodePosition(n), from contiguous rest positions (this runs every tick).
+    const Eigen::Vector3d x =
+        Eigen::Vector3d::Map(&mLoadRest[3 * li]) + displacement().segment<3>(3 * n);
+    const double d2 = (x - scan.point).squaredNorm();
+    const bool listed = scan.gaussian && d2 <= scan.cutoff2;
+    if (listed) {
+        const double w = std::exp(-d2 * scan.inv2s2);
+        mLoaded[mLoadedCount] = n;
+        mWeights[mLoadedCount] = w;
+        scan.total += w;
     }
-    nearestD2 = best;
-    return finishFilter(nearest, nearestSlot, total);
+    if (d2 < scan.best) {
+        scan.best = d2;
+        scan.nearest = n;
+        scan.nearestSlot = listed ? mLoadedCount : mModel->loadNodes().size();
+    }
+    if (listed) ++mLoadedCount;
 }
 
 int DeformableBody::finishFilter(int nearest, std::size_t nearestSlot, double total) noexcept {

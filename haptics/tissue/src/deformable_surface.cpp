@@ -11,20 +11,17 @@
 
 namespace palp::haptics {
 
-bool DeformableBody::localFilter(const Eigen::Vector3d& point, double& best, int& nearest,
-                                 std::size_t& nearestSlot, double& total) noexcept {
+bool DeformableBody::localFilter(FilterScan& scan) noexcept {
     const fem::HexMesh& mesh = mModel->model().mesh();
     const double h = mesh.edge();
-    const double sigma = mModel->options().filterWidth;
-    const double cutoff = sigma > 0 ? mModel->options().filterCutoff * sigma : 0.0;
+    const double cutoff = std::sqrt(scan.cutoff2);
     // The box: the filter's reach and two cells for the strain between the contact node and
     // its neighbours, around where the contact is at rest.
     const int reach = static_cast<int>(std::ceil(cutoff / h)) + 2;
     const double boxNodes = std::pow(2.0 * reach + 1, 3);
     if (mFilterHint < 0 || !(boxNodes < static_cast<double>(mModel->loadNodes().size())))
         return false;
-    const Eigen::VectorXd& u = displacement();
-    const Eigen::Vector3d rest = point - u.segment<3>(3 * mFilterHint);
+    const Eigen::Vector3d rest = scan.point - displacement().segment<3>(3 * mFilterHint);
     const auto& counts = mesh.nodeCounts();
     std::array<int, 3> lo{}, hi{};
     for (int a = 0; a < 3; ++a) {
@@ -36,43 +33,24 @@ bool DeformableBody::localFilter(const Eigen::Vector3d& point, double& best, int
         hi[static_cast<std::size_t>(a)] =
             std::min(counts[static_cast<std::size_t>(a)] - 1, c + reach);
     }
-    const double cutoff2 = cutoff * cutoff;
-    const double inv2s2 = sigma > 0 ? 1.0 / (2 * sigma * sigma) : 0;
     // Ascending node order, as the full scan: the same list, weights and sums.
     for (int k = lo[2]; k <= hi[2]; ++k) {
         for (int j = lo[1]; j <= hi[1]; ++j) {
             for (int i = lo[0]; i <= hi[0]; ++i) {
                 const int n = mesh.node(i, j, k);
                 const int li = mLoadIndex[static_cast<std::size_t>(n)];
-                if (li < 0) continue;
-                const Eigen::Vector3d x =
-                    Eigen::Vector3d::Map(&mLoadRest[3 * static_cast<std::size_t>(li)]) +
-                    u.segment<3>(3 * n);
-                const double d2 = (x - point).squaredNorm();
-                const bool listed = sigma > 0 && d2 <= cutoff2;
-                if (listed) {
-                    const double w = std::exp(-d2 * inv2s2);
-                    mLoaded[mLoadedCount] = n;
-                    mWeights[mLoadedCount] = w;
-                    total += w;
-                }
-                if (d2 < best) {
-                    best = d2;
-                    nearest = n;
-                    nearestSlot = listed ? mLoadedCount : mModel->loadNodes().size();
-                }
-                if (listed) ++mLoadedCount;
+                if (li >= 0) scanFilterNode(scan, n, static_cast<std::size_t>(li));
             }
         }
     }
     // A contact farther than a cell from every node in the box has left it (a jump, a fold):
     // the caller scans them all.
-    if (nearest >= 0 && best <= h * h) return true;
+    if (scan.nearest >= 0 && scan.best <= h * h) return true;
     mLoadedCount = 0;
-    best = std::numeric_limits<double>::infinity();
-    nearest = -1;
-    nearestSlot = 0;
-    total = 0;
+    scan.best = std::numeric_limits<double>::infinity();
+    scan.nearest = -1;
+    scan.nearestSlot = mModel->loadNodes().size();
+    scan.total = 0;
     return false;
 }
 

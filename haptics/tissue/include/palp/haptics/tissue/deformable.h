@@ -419,11 +419,23 @@ class DeformableBody {
     /// Fills mLoaded/mWeights (weights normalised to sum 1) with the filter around @p point;
     /// returns the nearest free surface node (-1 for none) and its squared distance.
     int filterWeights(const Eigen::Vector3d& point, double& nearestD2) noexcept;
+    /// One filterWeights() pass: the contact point, the filter's constants and what it found.
+    struct FilterScan {
+        Eigen::Vector3d point;
+        double cutoff2 = 0, inv2s2 = 0;
+        bool gaussian = false;  ///< sigma > 0: nodes within the cutoff are listed
+        double best = std::numeric_limits<double>::infinity();
+        int nearest = -1;
+        std::size_t nearestSlot = 0;
+        double total = 0;
+    };
+    /// Adds load node @p n (index @p li in loadNodes()) to @p scan: listed with its Gaussian
+    /// weight when within the cutoff, and the nearest so far. @par Real-time
+    void scanFilterNode(FilterScan& scan, int n, std::size_t li) noexcept;
     /// filterWeights() over the load nodes of the lattice box around the contact's rest point
     /// (from the last filter's nearest node's displacement); false when the box cannot be trusted
     /// (no contact before, the nearest node found too far): then the caller scans every node.
-    bool localFilter(const Eigen::Vector3d& point, double& best, int& nearest,
-                     std::size_t& nearestSlot, double& total) noexcept;
+    bool localFilter(FilterScan& scan) noexcept;
     /// Regions: the surface node @p n's displacement into mU and its vertex's position.
     void refreshNode(int n) noexcept;
     /// The rest of filterWeights(): normalisation, the nearest node's remainder.
