@@ -3,6 +3,7 @@
 
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <memory>
@@ -74,8 +75,9 @@ ph::DeformableSetup toSetup(const palp_deformable_options& c) {
                       std::to_string(inside));
     }
     const int solver = rawEnum(c.solver);
-    if (solver != PALP_FEM_WHOLE_MESH && solver != PALP_FEM_REGIONS) {
-        throwExpected(field("solver"), "PALP_FEM_WHOLE_MESH or PALP_FEM_REGIONS",
+    if (solver != PALP_FEM_WHOLE_MESH && solver != PALP_FEM_REGIONS && solver != PALP_FEM_AUTO) {
+        throwExpected(field("solver"),
+                      "PALP_FEM_WHOLE_MESH, PALP_FEM_REGIONS or PALP_FEM_AUTO (0..2)",
                       std::to_string(solver));
     }
     if (c.primary_nodes < 1 || c.primary_nodes > kMaxPrimaryNodes) {
@@ -111,12 +113,27 @@ ph::DeformableSetup toSetup(const palp_deformable_options& c) {
     s.setPeriod(c.period);
     s.options.solverKind = solver == PALP_FEM_REGIONS ? ph::DeformableSolver::asyncRegions
                                                       : ph::DeformableSolver::wholeMeshExplicit;
+    s.autoSolver = solver == PALP_FEM_AUTO;
     s.options.regions.primaryNodes = c.primary_nodes;
     s.options.regions.secondaryRate = c.secondary_rate;
     s.options.regions.lod = c.lod;
     s.options.regions.threaded = c.threaded != 0;
     if (!noCentre) s.options.regionsCentre = vec(c.regions_centre);
     return s;
+}
+
+/// What makeDeformableModel() reported of @p model's solver, as C.
+palp_solver_choice toC(const ph::SolverChoice& choice, bool chosen,
+                       const ph::DeformableModel& model) noexcept {
+    palp_solver_choice c{};
+    const bool regions = model.options().solverKind == ph::DeformableSolver::asyncRegions;
+    c.solver = regions ? PALP_FEM_REGIONS : PALP_FEM_WHOLE_MESH;
+    c.chosen = chosen ? 1 : 0;
+    c.element_substeps = chosen ? choice.elementSubsteps : 0;
+    c.budget = chosen ? choice.budget : 0;
+    c.lod = regions ? model.options().regions.lod : 0;
+    std::snprintf(c.reason, sizeof c.reason, "%s", choice.reason.c_str());
+    return c;
 }
 
 /// The scene's deformable model; PALP_ERROR_STATE (and nullptr) on a rigid scene.
@@ -164,9 +181,9 @@ void palp_deformable_options_default(palp_deformable_options* options) {
     c.filter_width = d.options.filterWidth;
     c.contact_damping_ratio = d.options.contactDampingRatio;
     c.period = d.options.tickSeconds;
-    c.solver = PALP_FEM_WHOLE_MESH;
-    c.primary_nodes = 60;    // palp palpate's: the regions' 30 left the contact's
-    c.secondary_rate = 100;  // neighbourhood in the secondary (bench/README.md)
+    c.solver = PALP_FEM_AUTO;  // palp palpate's and Python's: the regions on a patient's CT
+    c.primary_nodes = 60;      // palp palpate's: the regions' 30 left the contact's
+    c.secondary_rate = 100;    // neighbourhood in the secondary (bench/README.md)
     c.lod = 0;
     c.threaded = d.options.regions.threaded ? 1 : 0;
     for (double& x : c.regions_centre) x = std::numeric_limits<double>::quiet_NaN();
@@ -189,14 +206,18 @@ palp_status palp_scene_make_deformable(const palp_volume* volume, double hard_is
         so.surfaceIso = std::numeric_limits<double>::quiet_NaN();  // the body's surface
         so.hardIso = hard_iso;
         std::shared_ptr<ph::Scene> scene = ph::Scene::fromVolume(volume->volume, so);
+        ph::SolverChoice choice;
+        std::shared_ptr<ph::DeformableModel> model;
         try {
-            scene->setDeformable(ph::makeDeformableModel(volume->volume, setup));
+            model = ph::makeDeformableModel(volume->volume, setup, &choice);
         } catch (const palp::ValueError& e) {
             // The library names its own fields; say which call and struct made the body.
             throw palp::ValueError(std::string("palp_scene_make_deformable: ") + e.what() +
                                    " (from palp_deformable_options)");
         }
         auto handle = std::make_unique<palp_scene>();
+        handle->solver = toC(choice, setup.autoSolver, *model);
+        scene->setDeformable(std::move(model));
         handle->scene = std::move(scene);
         *out = handle.release();
         return PALP_OK;
@@ -205,6 +226,14 @@ palp_status palp_scene_make_deformable(const palp_volume* volume, double hard_is
 
 int palp_scene_is_deformable(const palp_scene* scene) {
     return scene && scene->scene->deformable() ? 1 : 0;
+}
+
+palp_status palp_scene_solver(const palp_scene* scene, palp_solver_choice* out) {
+    if (!scene) return nullArgument("palp_scene_solver", "scene");
+    if (!out) return nullArgument("palp_scene_solver", "out");
+    if (!modelOf(scene, "palp_scene_solver")) return PALP_ERROR_STATE;
+    *out = scene->solver;
+    return PALP_OK;
 }
 
 palp_status palp_scene_surface_size(const palp_scene* scene, size_t* vertex_count,

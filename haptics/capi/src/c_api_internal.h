@@ -35,6 +35,7 @@ struct palp_volume {
 struct palp_scene {
     std::atomic<int> refs{1};
     std::shared_ptr<const palp::haptics::Scene> scene;
+    palp_solver_choice solver{};  // deformable scenes: the solver and why (set at creation)
 };
 
 struct palp_session {

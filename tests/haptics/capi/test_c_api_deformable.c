@@ -200,6 +200,25 @@ static void test_refusals(void) {
     palp_volume_release(volume);
 }
 
+/* PALP_FEM_AUTO (the default) keeps the whole mesh on a phantom-sized body, and says why. */
+static void test_auto_keeps_the_whole_mesh(void) {
+    palp_volume* volume = NULL;
+    CHECK(palp_volume_make_phantom("bone", 0, NULL, 2e-3, &volume) == PALP_OK);
+    palp_deformable_options o;
+    palp_deformable_options_default(&o);
+    CHECK(o.solver == PALP_FEM_AUTO);
+    palp_scene* scene = NULL;
+    CHECK(palp_scene_make_deformable(volume, NAN, &o, &scene) == PALP_OK);
+    palp_solver_choice c;
+    CHECK(palp_scene_solver(scene, &c) == PALP_OK);
+    CHECK(c.solver == PALP_FEM_WHOLE_MESH && c.chosen == 1 && c.lod == 0);
+    CHECK(c.element_substeps > 0 && c.element_substeps <= c.budget);
+    CHECK(strncmp(c.reason, "whole mesh: ", 12) == 0 && strstr(c.reason, "within") != NULL);
+    printf("bone phantom, auto: %s\n", c.reason);
+    palp_scene_release(scene);
+    palp_volume_release(volume);
+}
+
 /* Live: the servo thread steps the tissue while this (viewer) thread reads snapshots and the
  * deformed surface; the ticks the surface shows only go forward and its values stay finite. */
 static void test_live_surface(void) {
@@ -239,6 +258,7 @@ static void test_live_surface(void) {
 
 int main(void) {
     test_refusals();
+    test_auto_keeps_the_whole_mesh();
 #if defined(__SANITIZE_THREAD__)
     /* Offline steps on this thread only: no thread of palp's to race. The release suite and the
      * AddressSanitizer run check its physics; under ThreadSanitizer its 2,000 steps as fast as

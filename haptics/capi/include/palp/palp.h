@@ -165,8 +165,13 @@ typedef enum palp_face {
 /** The FEM solver a deformable scene's sessions run every tick. */
 typedef enum palp_fem_solver {
     PALP_FEM_WHOLE_MESH = 0, /**< explicit, the whole mesh every tick (small bodies) */
-    PALP_FEM_REGIONS = 1     /**< asynchronous regions: an explicit primary region around the
+    PALP_FEM_REGIONS = 1,    /**< asynchronous regions: an explicit primary region around the
                                   contact every tick, an implicit secondary at secondary_rate */
+    PALP_FEM_AUTO = 2        /**< palp chooses once, when the scene is made (`palp palpate
+                                  --fem-solver auto`): the whole mesh where elements x explicit
+                                  substeps a tick is within its budget (8,000: it then makes the
+                                  1 kHz tick), the regions otherwise (a patient's CT); see
+                                  palp_scene_solver() for the choice and why */
 } palp_fem_solver;
 
 /** What happens to tissue enclosed by bone (the brain inside a skull). */
@@ -199,8 +204,10 @@ typedef struct palp_deformable_options {
     /** Servo period of the sessions that will use the scene, s (must equal their
      *  palp_session_params.period; default 1e-3). */
     double period;
-    palp_fem_solver solver; /**< default PALP_FEM_WHOLE_MESH */
-    /* PALP_FEM_REGIONS only (checked always): */
+    /** Default PALP_FEM_AUTO (as `palp palpate` and Python's Scene.make_deformable): the
+     *  whole mesh on the phantoms, the regions on a head CT. */
+    palp_fem_solver solver;
+    /* PALP_FEM_REGIONS (and PALP_FEM_AUTO when it takes the regions) only (checked always): */
     int primary_nodes;        /**< seed nodes of the primary region (1..100000; default 60) */
     double secondary_rate;    /**< secondary solves per second, Hz (1..1000; default 100) */
     int lod;                  /**< secondary level of detail 1, 2 or 4; 0 (default): 2 where it
@@ -232,6 +239,24 @@ palp_status palp_scene_make_deformable(const palp_volume* volume, double hard_is
 
 /** 1 for a deformable scene, 0 otherwise (also for NULL). */
 int palp_scene_is_deformable(const palp_scene* scene);
+
+/** The solver a deformable scene's sessions run, and why (palp_scene_solver()). */
+typedef struct palp_solver_choice {
+    palp_fem_solver solver; /**< PALP_FEM_WHOLE_MESH or PALP_FEM_REGIONS (never AUTO) */
+    int chosen;             /**< 1: PALP_FEM_AUTO chose it; 0: the options asked for it */
+    /** Element updates one whole-mesh tick would take: elements x explicit substeps a tick
+     *  (PALP_FEM_AUTO only; 0 when the solver was asked for). */
+    double element_substeps;
+    double budget; /**< the most PALP_FEM_AUTO gives the whole mesh (8,000; 0 when asked) */
+    int lod;       /**< the regions' secondary level of detail in force (1, 2 or 4; lod 0
+                        resolved); 0 for the whole mesh */
+    /** One line, e.g. "regions: 14339 elements x 2 substeps a tick = 28678, over 8000" or
+     *  "whole mesh: asked" (NUL-terminated; cut to fit). */
+    char reason[160];
+} palp_solver_choice;
+
+/** What solver @p scene's sessions run and why. PALP_ERROR_STATE on a rigid scene. */
+palp_status palp_scene_solver(const palp_scene* scene, palp_solver_choice* out);
 
 /** The deformable surface's size: vertices and triangles (either pointer may be NULL). The
  *  topology never changes. PALP_ERROR_STATE on a rigid scene. */
