@@ -14,6 +14,7 @@ void bindErrors(py::module_& m);       // module.cpp: palp exceptions as Python 
 void bindVolume(py::module_& m);       // volume.cpp: Volume, load, save, convert, phantom
 void bindNumpyVolume(py::module_& m);  // numpy_volume.cpp: to_numpy, from numpy arrays
 void bindParams(py::module_& m);       // params.cpp: coupling, proxy, session parameters
+void bindSkin(py::module_& m);         // skin.cpp: SkinPatch, SkinField (paths on the skin)
 void bindDevices(py::module_& m);      // devices.cpp: specs, trajectories, simulated, playback
 void bindSession(py::module_& m);      // session.cpp: Scene, Session, Snapshot, traces
 void bindMaps(py::module_& m);         // maps.cpp: MapPlane, Map, bin_trace, studies' tools

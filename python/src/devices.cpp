@@ -105,7 +105,12 @@ py::class_<T> trajectory(py::module_& m, const char* name, const char* doc) {
                 t.sample(time, p, v);
                 return py::make_tuple(p, v);
             },
-            py::arg("t"), "(position, velocity) of the target at time t, s");
+            py::arg("t"), "(position, velocity) of the target at time t, s")
+        .def_property(
+            "skin", [](const T& t) { return std::const_pointer_cast<haptics::SkinField>(t.skin); },
+            [](T& t, std::shared_ptr<haptics::SkinField> skin) { t.skin = std::move(skin); },
+            "The palp.SkinField the path is laid on (its points then lie on the field's "
+            "plane); None: the flat path.");
     return cls;
 }
 

@@ -71,6 +71,7 @@ PYBIND11_MODULE(_palp, m) {
     bindVolume(m);
     bindNumpyVolume(m);
     bindParams(m);
+    bindSkin(m);  // before the trajectories, whose skin is a SkinField
     bindDevices(m);
     bindSession(m);
     bindMaps(m);

@@ -243,8 +243,23 @@ void bindSession(py::module_& m) {
                 s.material.dampingAlpha = alpha;
                 if (supportFace) s.supportFace = parseFace(*supportFace);
                 s.setPeriod(period);
-                py::gil_scoped_release release;
-                scene.setDeformable(haptics::makeDeformableModel(v, s));
+                haptics::SolverChoice choice;
+                {
+                    py::gil_scoped_release release;
+                    auto model = haptics::makeDeformableModel(v, s, &choice);
+                    choice.solver = model->options().solverKind;
+                    s.options.regions.lod = model->options().regions.lod;
+                    scene.setDeformable(std::move(model));
+                }
+                const bool regions = choice.solver == haptics::DeformableSolver::asyncRegions;
+                py::dict out;
+                out["solver"] = regions ? "regions" : "explicit";
+                out["chosen"] = s.autoSolver;
+                out["element_substeps"] = choice.elementSubsteps;
+                out["budget"] = choice.budget;
+                out["lod"] = regions ? s.options.regions.lod : 0;
+                out["reason"] = choice.reason;
+                return out;
             },
             py::arg("volume"), py::kw_only(), py::arg("element_size") = 5e-3,
             py::arg("tissue_threshold") = -200.0, py::arg("bone_threshold") = 500.0,
@@ -255,7 +270,9 @@ void bindSession(py::module_& m) {
             "Makes the scene deformable (palp palpate --deformable's body): sessions made "
             "afterwards build their own FEM body from it. bone_threshold inf: no bone. solver: "
             "'auto' (the whole mesh where it makes the 1 kHz tick, else the asynchronous "
-            "regions, threaded: a patient's CT), 'explicit' or 'regions'.")
+            "regions, threaded: a patient's CT), 'explicit' or 'regions'. Returns the solver "
+            "that runs and why: {'solver': 'explicit'|'regions', 'chosen': auto chose it, "
+            "'element_substeps', 'budget' (auto only), 'lod', 'reason'}.")
         .def("make_rigid", [](Scene& s) { s.setDeformable(nullptr); })
         .def_property_readonly("deformable",
                                [](const Scene& s) { return s.deformable() != nullptr; })

@@ -343,6 +343,54 @@ class Sessions(unittest.TestCase):
         self.assertGreater(trace["max_displacement"][-1], 1e-6)  # and is dented (scalp on bone)
 
 
+class SkinPaths(unittest.TestCase):
+    def test_a_path_laid_on_the_head_cts_skin_touches_it(self):
+        # palp palpate's path on a scan from Python: the patch of skin facing a press axis
+        # across S/I, its height field, and a press laid on it that starts 5 mm outside the skin.
+        data = os.environ.get("PALP_DATA_DIR", os.path.join(os.path.dirname(__file__),
+                                                            "..", "..", "..", "shared", "data"))
+        head = os.path.join(data, "ct-ge-head-tilt")
+        if not os.path.isdir(head):
+            self.skipTest("no shared data")
+        volume = palp.load(head, voxel_size=1e-3)
+        scene = palp.Scene.from_volume(volume, surface_iso=-500)
+        with self.assertRaises(palp.ValueError) as e:
+            palp.find_skin_patch(scene, volume, press="up")
+        self.assertIn("press", str(e.exception))
+        self.assertIn("'up'", str(e.exception))
+        patch = palp.find_skin_patch(scene, volume)
+        press = np.asarray(patch.press)
+        self.assertEqual(float(np.abs(press).max()), 1.0)
+        self.assertEqual(float(press[2]), 0.0)  # across S/I
+        self.assertGreater(min(patch.extent_u, patch.extent_v), 0.01)
+        field = palp.SkinField.measure(scene, patch.centre, np.abs(patch.u), np.abs(patch.v),
+                                       press, patch.extent_u, patch.extent_v)
+        self.assertGreater(field.hit_fraction, 0.9)
+        # The skin lies where the field says: air 1 mm before it along the press, tissue after.
+        h = field.height(0.0, 0.0)
+        values, affine = volume.to_numpy()
+        skin = np.asarray(patch.centre) + h * press
+        self.assertLess(value_at(values, affine, skin - 1.5e-3 * press), -500)
+        self.assertGreater(value_at(values, affine, skin + 1.5e-3 * press), -500)
+        # A press laid on it starts 5 mm outside the skin wherever the skin is.
+        path = palp.PressTrajectory(start=np.asarray(patch.centre) - 5e-3 * press,
+                                    direction=press, depth=9e-3, press_seconds=0.3,
+                                    hold_seconds=0.3)
+        self.assertIsNone(path.skin)
+        path.skin = field
+        start, _ = path.sample(0.0)
+        np.testing.assert_allclose(start, skin - 5e-3 * press, atol=1e-9)
+        session = palp.Session(scene, palp.SimulatedDevice(path), vc_params())
+        trace = session.run(500)
+        touching = np.nonzero(np.asarray(trace["contact_count"]) > 0)[0]
+        self.assertGreater(len(touching), 100)
+        self.assertGreater(touching[0], 50)  # not before it reached the skin (~0.1 s)
+        f = trace["force"][-1]
+        self.assertLess(float(f @ press), -0.5)  # pushed back against the press, ~k x 4 mm
+        path.skin = None
+        self.assertIsNone(path.skin)
+
+
 class RayBundle(unittest.TestCase):
     def test_bundle_geometry_for_viewers(self):
         c = palp.CouplingParams(mode="avcec", ring_count=6, ring_half_angle=0.2,

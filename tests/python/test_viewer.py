@@ -12,6 +12,8 @@ Run by ctest with Debian's /usr/bin/python3, PYTHONPATH=<build>/python; without 
 re-runs itself under `xvfb-run -a`. Exit 77 (ctest: skipped) when python3-vtk9 or xvfb-run is
 missing (tools/test.sh checks both, so CI fails instead of skipping)."""
 
+import contextlib
+import io
 import json
 import os
 import shutil
@@ -240,6 +242,95 @@ class DeformableScene(ViewerTestCase):
         cell, sub, dist2 = reference(0), reference(0), reference(0.0)
         locator.FindClosestPoint(list(s.proxy), closest, cell, sub, dist2)
         self.assertLess(np.sqrt(dist2.get()), 1e-3)
+
+
+def head_ct():
+    """The shared head CT's DICOM folder, or None ($PALP_DATA_DIR, else ../shared/data next to
+    the repository, as test_palp.py)."""
+    data = os.environ.get("PALP_DATA_DIR", os.path.join(HERE, "..", "..", "..", "shared", "data"))
+    head = os.path.join(data, "ct-ge-head-tilt")
+    return head if os.path.isdir(head) else None
+
+
+class ScanDeformable(ViewerTestCase):
+    """A patient's CT in the viewer (issue 32 item 5): the shared head CT converted to a .vdb at
+    0.5 mm (`palp convert --voxel-size 0.5`), loaded with --volume's make_session, deformable
+    with solver auto (the regions on a head) and the default raster laid on its skin."""
+
+    @classmethod
+    def setUpClass(cls):
+        head = head_ct()
+        if head is None:
+            raise unittest.SkipTest("no shared data (ct-ge-head-tilt)")
+        cls.tmp = tempfile.TemporaryDirectory(prefix="palp_viewer_scan_")
+        cls.vdb = os.path.join(cls.tmp.name, "head.vdb")
+        viewer.palp.convert(head, cls.vdb, voxel_size=0.5e-3)
+        cls.live = viewer.make_session(volume_path=cls.vdb, deformable=True, path="raster")
+        cls.view = viewer.Viewer(cls.live, SIZE, offscreen=True)
+        cls.rest = numpy_support.vtk_to_numpy(cls.view.surface.GetPoints().GetData()).copy()
+        cls.frames = 0
+        cls.live.session.start()
+
+    def test_the_head_is_pressed_on_its_skin_and_dented(self):
+        self.assertEqual(self.live.solver["solver"], "regions")  # auto: over the whole mesh's
+        self.assertTrue(self.live.solver["chosen"])  # budget of element updates a tick
+        self.assertGreater(self.live.solver["element_substeps"], self.live.solver["budget"])
+        press = np.asarray(self.live.press)
+        self.assertAlmostEqual(float(np.abs(press).max()), 1.0)  # an axis across S/I
+        self.assertEqual(float(press[2]), 0.0)
+        # Frames until one shows the hand pressed into the skin, the skin dented (the raster
+        # starts pressed after its 0.3 s approach; the first drawn frame is the rest surface).
+        s, image, end = None, None, time.monotonic() + 30
+        while time.monotonic() < end:
+            s, image = self.frame()
+            if s.contact_count > 0 and s.max_displacement > 1e-3 and s.time > 0.5:
+                break
+            time.sleep(0.05)
+        self.assertGreater(s.contact_count, 0, f"no contact in any frame (last {s!r})")
+        self.assertFalse(s.faulted)
+        self.check_proxy(s, image)
+        # The tissue pushes the hand. Its direction is not asserted here: on a raster the
+        # friction drags the skin along the sweep (millimetres, mostly laterally) and the body's
+        # 5 mm cells make its skin a staircase, so the push is mostly lateral, against the
+        # sweep (test_c_api_head.c checks a straight press: back against the press).
+        f = np.asarray(s.force)
+        self.assertGreater(float(np.linalg.norm(f)), 0.05)
+        # The drawn surface is the body's deformed one: it moved from rest by millimetres, as
+        # far as the snapshot says give or take the ticks between the two reads, and its
+        # vertices near the proxy moved into the head along the press.
+        points = numpy_support.vtk_to_numpy(self.view.surface.GetPoints().GetData())
+        self.assertEqual(points.shape, self.rest.shape)
+        moved = np.linalg.norm(points - self.rest, axis=1)
+        self.assertGreater(float(moved.max()), 1e-3)
+        self.assertAlmostEqual(float(moved.max()), s.max_displacement, delta=2e-3)
+        near = np.linalg.norm(self.rest - np.asarray(s.proxy), axis=1) < 10e-3
+        self.assertGreater(int(near.sum()), 0)
+        print(f"\nhead CT in the viewer: frame {type(self).frames - 1}, t {s.time:.2f} s, "
+              f"contact {s.contact_count}, |F| {np.linalg.norm(f):.2f} N, F.press "
+              f"{f @ press:.3f} N, surface moved up to {1e3 * moved.max():.2f} mm (snapshot "
+              f"{1e3 * s.max_displacement:.2f} mm), near the proxy {1e3 * moved[near].max():.2f}"
+              f" mm ({1e3 * ((points - self.rest)[near] @ press).max():.2f} mm along the press)")
+        self.assertGreater(float(moved[near].max()), 0.5e-3)
+
+
+class ScanCommandLine(unittest.TestCase):
+    def test_bad_volume_options_name_the_flag(self):
+        for argv, flag in ((["--volume", "/nonexistent/head.vdb"], "--volume"),
+                           (["--press-axis", "+y"], "--press-axis"),
+                           (["--voxel-size", "-1"], "--voxel-size")):
+            err = io.StringIO()
+            with self.assertRaises(SystemExit) as e, contextlib.redirect_stderr(err):
+                viewer.main(argv + ["--offscreen", "/tmp/unused"])
+            self.assertEqual(e.exception.code, 2, argv)  # argparse's usage error
+            self.assertIn(f"error: {flag}: expected", err.getvalue())
+        # A file that is not a scan: palp's reader error, naming the file.
+        with tempfile.NamedTemporaryFile(suffix=".vdb") as f:
+            f.write(b"not a vdb")
+            f.flush()
+            with self.assertRaises(SystemExit) as e:
+                viewer.main(["--volume", f.name, "--offscreen", "/tmp/unused"])
+            self.assertIn(os.path.basename(f.name), str(e.exception.code))
+            self.assertTrue(str(e.exception.code).startswith("viewer: error: "))
 
 
 if __name__ == "__main__":

@@ -7,15 +7,25 @@ on the main thread redraws at display rate from the newest published snapshot
 (Session.latest()), ray bundle (Session.rays()) and, on a deformable scene, surface
 (Session.surface()); none of these calls waits for the servo thread.
 
-    /usr/bin/python3 tools/examples/viewer.py [--phantom avc|avcec|bone|stiffness|tumour]
+    palp-viewer [--phantom avc|avcec|bone|stiffness|tumour | --volume SCAN [--press-axis +y]]
         [--deformable] [--mode vc|avc|avcec] [--path raster|circle|press] [--log device.csv]
         [--offscreen OUT_DIR --frames N]
 
-By default a simulated hand rasters the phantom (no device needed). --offscreen renders N frames
+(installed as bin/palp-viewer; from the source tree: /usr/bin/python3 tools/examples/viewer.py)
+
+By default a simulated hand rasters the phantom (no device needed). --volume loads a scan instead
+(a .vdb from `palp convert`, a NIfTI, NRRD or MetaImage file, or a DICOM folder; CT values in HU:
+skin at -500, bone at 500) and lays the hand's path on its skin as `palp palpate` does: on the
+side across S/I with the most skin facing the press (or --press-axis), over that patch (40 mm at
+most a side), 4 mm below the skin. --deformable makes the tissue a FEM body (5 mm elements,
+solver auto: the whole mesh where it makes the 1 kHz tick, the threaded regions otherwise, as on
+a head CT), fixed on the face opposite the press (the phantoms: at y_max) and in bone, and draws
+its deformed surface. --offscreen renders N frames
 at --fps to OUT_DIR/frame_NNN.png with OUT_DIR/frames.json (each frame's snapshot and the
 proxy's pixel); VTK still needs an X display for that, e.g. `xvfb-run -a`.
-Needs Debian's python3-vtk9 and the palp module (PYTHONPATH=build/release/python; found there
-automatically when run from the source tree).
+Needs Debian's python3-vtk9 and the palp module (installed with palp next to this script's
+prefix, or PYTHONPATH=build/release/python; found there automatically when run from the source
+tree).
 """
 
 import argparse
@@ -28,12 +38,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
-try:
-    import palp
-except ModuleNotFoundError:  # run from the source tree: use the release build's module
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..",
-                                    "build", "release", "python"))
-    import palp
+def _import_palp():
+    """The palp module: on the path; else the one installed with this script (PREFIX/bin/..
+    -> PREFIX/lib/python3/dist-packages, the package's default, substituted at install); else
+    the release build's, when run from the source tree."""
+    try:
+        import palp
+        return palp
+    except ModuleNotFoundError:
+        pass
+    here = os.path.dirname(os.path.abspath(__file__))
+    python_dir = "@PALP_PYTHON_INSTALL_DIR@"  # the install writes its folder here
+    candidates = [os.path.join(here, "..", "..", "build", "release", "python")]
+    if not python_dir.startswith("@"):
+        candidates.insert(0, os.path.join(here, "..", python_dir))
+    for folder in candidates:
+        if os.path.isfile(os.path.join(folder, "palp", "__init__.py")):
+            sys.path.insert(0, os.path.normpath(folder))
+            import palp
+            return palp
+    sys.exit("viewer: the palp Python module was not found (looked on sys.path and in " +
+             ", ".join(os.path.normpath(c) for c in candidates) + "); set PYTHONPATH")
+
+
+palp = _import_palp()
 
 # VTK's modules one by one (a second faster to start than `import vtk`).
 import vtkmodules.vtkRenderingFreeType  # noqa: F401 (text)
@@ -69,11 +97,24 @@ def _rgb(c):
     return tuple(x / 255.0 for x in c)
 
 
-def iso_surfaces(volume, isos):
+DISPLAY_VOXELS = 4e6  # most voxels the drawn iso-surfaces are taken from
+
+
+def iso_surfaces(volume, isos, max_voxels=DISPLAY_VOXELS):
     """The volume's iso-surfaces at each of isos (volume units) in world coordinates (LPS m),
     from one numpy copy of the volume's active box (flying edges in index space, then the
-    affine)."""
+    affine). For display only: a volume of more than max_voxels voxels is sampled every s-th
+    voxel along each axis (s the least that brings it within; a head CT at 0.5 mm: s = 3,
+    about 250,000 triangles a surface instead of 2.2 million), so software OpenGL still draws
+    frames at display rate. The phantoms (at 1 mm) are taken whole."""
     values, affine = volume.to_numpy(pad=1)
+    stride = 1
+    while values.size / stride ** 3 > max_voxels:
+        stride += 1
+    if stride > 1:
+        values = np.ascontiguousarray(values[::stride, ::stride, ::stride])
+        affine = affine.copy()
+        affine[:3, :3] *= stride
     image = vtkImageData()
     image.SetDimensions(*values.shape)
     image.GetPointData().SetScalars(
@@ -139,6 +180,7 @@ class Viewer:
     def __init__(self, live, size=(800, 600), offscreen=False):
         self.session = live.session
         self.deformable = live.deformable
+        self.press = np.asarray(live.press, float)
         self.snapshot = None
         self._last = None  # (tick, wall time) of the previous update, for the servo rate
         self.servo_hz = float("nan")
@@ -267,17 +309,22 @@ class Viewer:
         self.surface.Modified()
 
     def _place_camera(self):
-        """Looks at the skin from the air side (palp's phantoms: surface y = 0 facing -y),
-        obliquely, with the air up on the screen."""
-        b = self.surface.GetBounds()
-        centre = np.array([(b[0] + b[1]) / 2, b[2], (b[4] + b[5]) / 2])
-        size = max(b[1] - b[0], b[5] - b[4])
-        view = np.array([0.3, -0.75, -0.6])
+        """Looks at the skin from the air side, against the press (palp's phantoms: surface
+        y = 0 facing -y, pressed along +y), obliquely, with the air up on the screen."""
+        b = np.array(self.surface.GetBounds()).reshape(3, 2)
+        axis = int(np.argmax(np.abs(self.press)))
+        sign = 1.0 if self.press[axis] > 0 else -1.0
+        e1, e2 = [a for a in range(3) if a != axis]  # the lateral axes (x, z for a press +y)
+        centre = b.mean(axis=1)
+        centre[axis] = b[axis, 0] if sign > 0 else b[axis, 1]  # the face the press enters
+        size = max(b[e1, 1] - b[e1, 0], b[e2, 1] - b[e2, 0])
+        view = np.zeros(3)
+        view[axis], view[e1], view[e2] = -0.75 * sign, 0.3, -0.6
         view /= np.linalg.norm(view)
         camera = self.scene_renderer.GetActiveCamera()
         camera.SetFocalPoint(*centre)
         camera.SetPosition(*(centre + 1.6 * size * view))
-        camera.SetViewUp(0.0, -1.0, 0.0)
+        camera.SetViewUp(*(-sign * np.eye(3)[axis]))
         camera.OrthogonalizeViewUp()
         camera.SetViewAngle(35.0)
         self.scene_renderer.ResetCameraClippingRange()
@@ -369,31 +416,100 @@ class Viewer:
 
 @dataclass
 class Live:
-    """What the viewer shows: a session (not started yet), the skin iso-surface (None on a deformable scene: the session's surface is drawn) and the
-    hard structures' iso-surface (bone, plates), both LPS m."""
+    """What the viewer shows: a session (not started yet), the skin iso-surface (None on a
+    deformable scene: the session's surface is drawn) and the hard structures' iso-surface
+    (bone, plates), both LPS m; the press axis (unit, into the body: the camera looks against
+    it) and, on a deformable scene, the solver that runs and why (Scene.make_deformable's)."""
     session: object
     skin: object
     hard: object
     deformable: bool
+    press: tuple = (0.0, 1.0, 0.0)
+    solver: dict = None
+
+
+PATH_DEPTH = 4e-3  # m below the skin: the simulated hand's press on every path
+PATH_EXTENT = 0.04  # m: the raster's side (at most, on a scan's patch of skin)
+
+
+def _axis_name(press):
+    a = int(np.argmax(np.abs(press)))
+    return ("+" if press[a] > 0 else "-") + "xyz"[a]
+
+
+def scan_path(scene, volume, path, press=None):
+    """A simulated hand's path on a scan's skin, as `palp palpate` lays it: the patch of skin
+    facing the press (palp.find_skin_patch: press None picks the side across S/I with the most),
+    the skin's height measured over it (palp.SkinField, on a deformable scene on the body at
+    rest) and the path laid on it, PATH_DEPTH below the skin. Returns (trajectory, patch)."""
+    patch = palp.find_skin_patch(scene, volume, press)
+    return skin_path(scene, patch, path), patch
+
+
+def skin_path(scene, patch, path):
+    """The trajectory path ('raster', 'circle' or 'press') over patch, laid on the skin of
+    scene (measured now: call it after make_deformable so a body follows its rest surface)."""
+    u, v, press = (np.abs(np.asarray(patch.u)), np.abs(np.asarray(patch.v)),
+                   np.asarray(patch.press, float))
+    extent_u, extent_v = min(PATH_EXTENT, patch.extent_u), min(PATH_EXTENT, patch.extent_v)
+    spacing, radius = 0.008, 0.015
+    # Room for what leaves the rectangle (the raster's turns, the circle) and the smoothing.
+    room_u = max(extent_u, 2 * radius) + 2 * spacing + 8e-3
+    room_v = max(extent_v, 2 * radius) + 2 * spacing + 8e-3
+    box_depth = 0.5  # m: rays long enough to cross any scan from its face
+    field = palp.SkinField.measure(scene, patch.centre, u, v, press, room_u, room_v,
+                                   ray_length=box_depth)
+    centre = np.asarray(patch.centre, float)
+    if path == "raster":
+        t = palp.RasterTrajectory(centre=centre, u=u, v=v, press_direction=press,
+                                  extent_u=extent_u, extent_v=extent_v, line_spacing=spacing,
+                                  speed=0.05, depth=PATH_DEPTH)
+    elif path == "circle":
+        t = palp.CircleTrajectory(centre=centre, u=u, v=v, press_direction=press, radius=radius,
+                                  frequency=0.5, depth=PATH_DEPTH)
+    else:
+        t = palp.PressTrajectory(start=centre - 5e-3 * press, direction=press,
+                                 depth=PATH_DEPTH + 5e-3, press_seconds=2, hold_seconds=2)
+    t.skin = field
+    return t
 
 
 def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=None,
-                 voxel_size=1e-3, surface_iso=-500.0, hard_iso=500.0):
-    """A phantom scene, a device (a simulated hand on path, or a CSV log) and a session on it
-    (not started)."""
-    volume = palp.phantom(phantom, voxel_size=voxel_size)
+                 voxel_size=None, surface_iso=-500.0, hard_iso=500.0, volume_path=None,
+                 press=None):
+    """A phantom (or, with volume_path, a scan) scene, a device (a simulated hand on path, or a
+    CSV log) and a session on it (not started). voxel_size: m (None: 1 mm for a phantom, the
+    file's own for a scan). press: a scan's press axis ('+y', ...; None: palp chooses)."""
+    if volume_path is not None:
+        volume = palp.load(volume_path, voxel_size=voxel_size)
+    else:
+        volume = palp.phantom(phantom, voxel_size=voxel_size or 1e-3)
     scene = palp.Scene.from_volume(volume, surface_iso=surface_iso, hard_iso=hard_iso)
+    patch = None
+    press_axis = (0.0, 1.0, 0.0)
+    if volume_path is not None:
+        # The patch on the iso-surface, before the body exists (palp palpate's order): the
+        # body's 5 mm cells are a staircase with no patch of skin facing anywhere.
+        patch = palp.find_skin_patch(scene, volume, press)
+        press_axis = tuple(float(x) for x in patch.press)
+    solver = None
     if deformable:
-        scene.make_deformable(volume, element_size=5e-3, support_face="y_max")
+        a = int(np.argmax(np.abs(press_axis)))
+        support = "xyz"[a] + ("_max" if press_axis[a] > 0 else "_min")  # opposite the press
+        solver = scene.make_deformable(volume, element_size=5e-3, support_face=support,
+                                       solver="auto")
     params = palp.SessionParams()
-    params.coupling = palp.scene_coupling_defaults(phantom)
+    params.coupling = (palp.scene_coupling_defaults(phantom) if volume_path is None else
+                       palp.scan_coupling_defaults())
     if mode:
         params.coupling.mode = mode
     if log:
         device = palp.PlaybackDevice(log)
+    elif patch is not None:
+        device = palp.SimulatedDevice(skin_path(scene, patch, path))
     else:
         trajectories = {
-            "raster": lambda: palp.RasterTrajectory(extent_u=0.04, extent_v=0.04,
+            "raster": lambda: palp.RasterTrajectory(extent_u=PATH_EXTENT, extent_v=PATH_EXTENT,
                                                     line_spacing=0.008, speed=0.05),
             "circle": lambda: palp.CircleTrajectory(radius=0.015, frequency=0.5),
             "press": lambda: palp.PressTrajectory(start=[0, -0.005, 0], direction=[0, 1, 0],
@@ -401,8 +517,11 @@ def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=
         }
         device = palp.SimulatedDevice(trajectories[path]())
     session = palp.Session(scene, device, params)
-    skin, hard = iso_surfaces(volume, [surface_iso, hard_iso])
-    return Live(session, None if deformable else skin, hard, deformable)
+    if deformable:  # the body's surface is drawn, not the skin's iso-surface
+        skin, hard = None, iso_surfaces(volume, [hard_iso])[0]
+    else:
+        skin, hard = iso_surfaces(volume, [surface_iso, hard_iso])
+    return Live(session, skin, hard, deformable, press_axis, solver)
 
 
 def frame_record(viewer, s):
@@ -410,6 +529,7 @@ def frame_record(viewer, s):
         "tick": int(s.tick), "time": float(s.time),
         "proxy": [float(x) for x in s.proxy], "probe": [float(x) for x in s.probe],
         "force": [float(x) for x in s.force], "rays": int(s.rays),
+        "contact_count": int(s.contact_count), "max_displacement": float(s.max_displacement),
         "proxy_pixel": [float(x) for x in viewer.to_display(s.proxy)[:2]],
     }
 
@@ -464,15 +584,23 @@ def main(argv=None):
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--phantom", default="avc",
                     choices=["avc", "avcec", "bone", "stiffness", "tumour"])
+    ap.add_argument("--volume", metavar="SCAN",
+                    help="a scan instead of a phantom: .vdb (palp convert), NIfTI, NRRD, "
+                         "MetaImage or a DICOM folder (CT, HU); the path is laid on its skin")
+    ap.add_argument("--press-axis", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
+                    help="--volume: the press axis into the body (default: the side across "
+                         "S/I with the most skin facing it)")
     ap.add_argument("--deformable", action="store_true",
-                    help="FEM body (5 mm elements, supported at y_max): draws its deformed "
-                         "surface")
+                    help="FEM body (5 mm elements, solver auto, supported on the face opposite "
+                         "the press and in bone): draws its deformed surface")
     ap.add_argument("--mode", choices=["vc", "avc", "avcec"],
                     help="coupling mode (default: the phantom's)")
     ap.add_argument("--path", default="raster", choices=["raster", "circle", "press"],
                     help="the simulated hand's path")
     ap.add_argument("--log", help="replay a device log (CSV) instead of a simulated hand")
-    ap.add_argument("--voxel-size", type=float, default=1e-3, help="phantom voxel size, m")
+    ap.add_argument("--voxel-size", type=float,
+                    help="voxel size, m (default: 1 mm for a phantom, the scan's own for "
+                         "--volume)")
     ap.add_argument("--fps", type=float, default=30.0, help="display rate, frames/s")
     ap.add_argument("--size", default="800x600", help="window size WxH, pixels")
     ap.add_argument("--offscreen", metavar="OUT_DIR",
@@ -488,7 +616,21 @@ def main(argv=None):
     if not os.environ.get("DISPLAY"):
         sys.exit("viewer: no X display (DISPLAY is unset); VTK renders through X even off-screen: "
                  "run under `xvfb-run -a`")
-    live = make_session(a.phantom, a.deformable, a.mode, a.path, a.log, a.voxel_size)
+    if a.press_axis and not a.volume:
+        ap.error("--press-axis: expected with --volume (a phantom is pressed along +y)")
+    if a.voxel_size is not None and not a.voxel_size > 0:
+        ap.error(f"--voxel-size: expected a size > 0 m, found {a.voxel_size}")
+    if a.volume and not os.path.exists(a.volume):
+        ap.error(f"--volume: expected a scan file or DICOM folder, found no '{a.volume}'")
+    try:
+        live = make_session(a.phantom, a.deformable, a.mode, a.path, a.log, a.voxel_size,
+                            volume_path=a.volume, press=a.press_axis)
+    except palp.Error as e:
+        sys.exit(f"viewer: error: {e}")
+    if a.volume:
+        print(f"viewer: {a.volume}: path on the skin, pressed along {_axis_name(live.press)}")
+    if live.solver:
+        print(f"viewer: deformable, {live.solver['reason']}")
     session = live.session
     viewer = Viewer(live, (width, height), offscreen=bool(a.offscreen))
     session.start()  # the 1 kHz servo thread (C++); VTK stays on this thread
