@@ -1,0 +1,243 @@
+// Error control of the asynchronous regions: the primary's cost, the set-up choice and the
+// run-time estimate (error_control.h).
+#include "palp/haptics/tissue/error_control.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <queue>
+
+#include "palp/base/error.h"
+#include "palp/fem/explicit_solver.h"
+
+namespace palp::haptics {
+
+namespace error_control_impl {
+
+std::size_t sz(int i) { return static_cast<std::size_t>(i); }
+
+/// The @p count seeds nearest @p contact: graph distance over lattice edges between active
+/// nodes, ties by Euclidean distance (the regions' own rule, fem/src/regions/layout_builder.cpp).
+std::vector<int> seeds(const fem::HexMesh& mesh, int contact, int count) {
+    const auto& nc = mesh.nodeCounts();
+    const auto& active = mesh.nodeActive();
+    std::vector<int> dist(sz(mesh.nodeCount()), -1);
+    std::vector<int> found{contact};
+    std::queue<int> frontier;
+    dist[sz(contact)] = 0;
+    frontier.push(contact);
+    const std::size_t want = sz(count);
+    int stopAt = -1;
+    while (!frontier.empty()) {
+        const int n = frontier.front();
+        if (found.size() >= want && stopAt < 0) stopAt = dist[sz(found[want - 1])];
+        if (stopAt >= 0 && dist[sz(n)] >= stopAt) break;
+        frontier.pop();
+        const auto ijk = mesh.nodeCoords(n);
+        for (int a = 0; a < 3; ++a) {
+            for (int s = -1; s <= 1; s += 2) {
+                std::array<int, 3> q = ijk;
+                q[sz(a)] += s;
+                if (q[sz(a)] < 0 || q[sz(a)] >= nc[sz(a)]) continue;
+                const int m = mesh.node(q[0], q[1], q[2]);
+                if (!active[sz(m)] || dist[sz(m)] >= 0) continue;
+                dist[sz(m)] = dist[sz(n)] + 1;
+                frontier.push(m);
+                found.push_back(m);
+            }
+        }
+    }
+    std::vector<std::pair<double, int>> order;
+    order.reserve(found.size());
+    const Eigen::Vector3d c = mesh.nodePosition(contact);
+    for (int n : found)
+        order.emplace_back(dist[sz(n)] * 1e6 + (mesh.nodePosition(n) - c).norm() / mesh.edge(), n);
+    const std::size_t keep = std::min(order.size(), want);
+    std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep),
+                      order.end());
+    std::vector<int> out(keep);
+    for (std::size_t i = 0; i < keep; ++i) out[i] = order[i].second;
+    return out;
+}
+
+std::string percent(double v) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.2f %%", v);
+    return buf;
+}
+
+}  // namespace error_control_impl
+
+using namespace error_control_impl;
+
+PrimaryCost primaryCost(const fem::FemModel& model, int contactNode, int lod, int primaryNodes,
+                        double safetyFactor, double tickSeconds) {
+    const fem::HexMesh& mesh = model.mesh();
+    if (contactNode < 0 || contactNode >= mesh.nodeCount() || !mesh.nodeActive()[sz(contactNode)])
+        throw ValueError("primaryCost: contact node " + std::to_string(contactNode) +
+                         " is not an active node of the mesh");
+    if (lod != 1 && lod != 2 && lod != 4)
+        throw ValueError("primaryCost: lod: expected 1, 2 or 4, found " + std::to_string(lod));
+    if (primaryNodes < 1)
+        throw ValueError("primaryCost: primaryNodes: expected >= 1, found " +
+                         std::to_string(primaryNodes));
+    const std::array<int, 3> cc = mesh.cellCounts();
+    std::vector<std::uint8_t> primary(sz(mesh.cellCount()), 0);
+    for (int s : seeds(mesh, contactNode, primaryNodes)) {
+        const auto ijk = mesh.nodeCoords(s);
+        for (int dk = -1; dk <= 0; ++dk) {
+            for (int dj = -1; dj <= 0; ++dj) {
+                for (int di = -1; di <= 0; ++di) {
+                    const int ci = ijk[0] + di, cj = ijk[1] + dj, ck = ijk[2] + dk;
+                    if (ci < 0 || cj < 0 || ck < 0 || ci >= cc[0] || cj >= cc[1] || ck >= cc[2])
+                        continue;
+                    if (!mesh.cellActive(mesh.cell(ci, cj, ck))) continue;
+                    const int bi = ci / lod * lod, bj = cj / lod * lod, bk = ck / lod * lod;
+                    for (int k = bk; k < std::min(bk + lod, cc[2]); ++k)
+                        for (int j = bj; j < std::min(bj + lod, cc[1]); ++j)
+                            for (int i = bi; i < std::min(bi + lod, cc[0]); ++i)
+                                primary[sz(mesh.cell(i, j, k))] = 1;
+                }
+            }
+        }
+    }
+    PrimaryCost cost;
+    for (int c = 0; c < mesh.cellCount(); ++c)
+        if (primary[sz(c)] && mesh.cellActive(c)) ++cost.cells;
+    cost.substeps = fem::explicitSubstepsPerTick(model, safetyFactor, tickSeconds);
+    return cost;
+}
+
+ErrorEstimate predictError(const ErrorTable& table, const ErrorPoint& conditions,
+                           const RegionsSetting& setting, bool worstInput) {
+    ErrorPoint x = conditions;
+    x[errorIndex(ErrorVar::lod)] = setting.lod;
+    x[errorIndex(ErrorVar::primary)] = setting.primaryNodes;
+    x[errorIndex(ErrorVar::rate)] = setting.secondaryRate;
+    if (!worstInput) return table.estimate(x);
+    const ErrorTable::Axis* s = table.axis(ErrorVar::strain);
+    const ErrorTable::Axis* f = table.axis(ErrorVar::frequency);
+    const std::vector<double> one{std::numeric_limits<double>::quiet_NaN()};
+    ErrorEstimate worst;
+    worst.percent = -1;
+    for (double sv : s ? s->values : one) {
+        for (double fv : f ? f->values : one) {
+            if (s) x[errorIndex(ErrorVar::strain)] = sv;
+            if (f) x[errorIndex(ErrorVar::frequency)] = fv;
+            const ErrorEstimate e = table.estimate(x);
+            if (!(e.percent <= worst.percent)) worst = e;
+        }
+    }
+    return worst;
+}
+
+ErrorControlChoice chooseRegionsSetting(const ErrorTable& table, const ErrorPoint& conditions,
+                                        int lod, const std::function<PrimaryCost(int)>& cost,
+                                        const ErrorControlOptions& o) {
+    if (!(std::isfinite(o.budgetPercent) && o.budgetPercent > 0))
+        throw ValueError("error budget: expected a positive percentage, found " +
+                         std::to_string(o.budgetPercent));
+    if (o.primaryCandidates.empty() || o.rateCandidates.empty())
+        throw ValueError("error control: expected at least one primary size and one rate");
+    std::vector<ErrorControlChoice> all;
+    for (int n : o.primaryCandidates) {
+        const PrimaryCost c = cost(n);
+        for (double r : o.rateCandidates) {
+            ErrorControlChoice e;
+            e.setting = {lod, n, r};
+            e.cost = c;
+            e.predicted = predictError(table, conditions, e.setting, o.worstInput);
+            e.meetsBudget = e.predicted.percent <= o.budgetPercent;
+            e.meetsTime = c.elementSubsteps() <= o.maxElementSubsteps;
+            all.push_back(e);
+        }
+    }
+    // Fewest element-substeps, then smallest predicted error, then the candidates' order.
+    auto cheaper = [](const ErrorControlChoice& a, const ErrorControlChoice& b) {
+        if (a.cost.elementSubsteps() != b.cost.elementSubsteps())
+            return a.cost.elementSubsteps() < b.cost.elementSubsteps();
+        return a.predicted.percent < b.predicted.percent;
+    };
+    const ErrorControlChoice* best = nullptr;
+    for (const auto& e : all)
+        if (e.meetsBudget && e.meetsTime && (!best || cheaper(e, *best))) best = &e;
+    std::string why;
+    if (best) {
+        why = "the cheapest within the budget";
+    } else {
+        for (const auto& e : all)
+            if (e.meetsTime && (!best || e.predicted.percent < best->predicted.percent)) best = &e;
+        why = "no setting meets the budget within the tick: the smallest predicted error";
+        if (!best) {
+            for (const auto& e : all)
+                if (!best || cheaper(e, *best)) best = &e;
+            why = "no setting fits the tick: the cheapest";
+        }
+    }
+    ErrorControlChoice out = *best;
+    out.candidates = static_cast<int>(all.size());
+    char buf[256];
+    std::snprintf(buf, sizeof buf,
+                  "primary %d seeds, secondary %g Hz at lod %d: predicted %s (budget %s%s), "
+                  "%d cells x %g substeps = %.0f of %.0f element-substeps; %s of %d",
+                  out.setting.primaryNodes, out.setting.secondaryRate, lod,
+                  percent(out.predicted.percent).c_str(), percent(o.budgetPercent).c_str(),
+                  out.predicted.inRange() ? "" : ", outside the sweep's ranges",
+                  out.cost.cells, out.cost.substeps, out.cost.elementSubsteps(),
+                  o.maxElementSubsteps, why.c_str(), out.candidates);
+    out.reason = buf;
+    return out;
+}
+
+ErrorMonitor::ErrorMonitor(const ErrorTable& table, const ErrorPoint& conditions,
+                           double referenceLength, double windowSeconds, double tickSeconds,
+                           double budgetPercent)
+    : mTable(&table),
+      mPoint(conditions),
+      mLength(referenceLength),
+      mWindow(windowSeconds),
+      mBudget(budgetPercent) {
+    if (!(std::isfinite(referenceLength) && referenceLength > 0))
+        throw ValueError("error monitor: reference length: expected > 0 m, found " +
+                         std::to_string(referenceLength));
+    if (!(std::isfinite(windowSeconds) && std::isfinite(tickSeconds) && tickSeconds > 0 &&
+          windowSeconds >= tickSeconds))
+        throw ValueError("error monitor: expected a tick > 0 s and a window of at least a tick");
+    mWindowTicks = static_cast<int>(std::lround(windowSeconds / tickSeconds));
+    mWindow = mWindowTicks * tickSeconds;
+}
+
+void ErrorMonitor::update(double d) noexcept {
+    if (std::isfinite(d)) {
+        if (mContactTicks == 0) mLo = mHi = d;
+        mLo = std::min(mLo, d);
+        mHi = std::max(mHi, d);
+        mMaxAbs = std::max(mMaxAbs, std::abs(d));
+        if (mHaveLast) mTravel += std::abs(d - mLast);
+        mLast = d;
+        mHaveLast = true;
+        ++mContactTicks;
+    } else {
+        mHaveLast = false;
+    }
+    if (++mTicks >= mWindowTicks) finishWindow();
+}
+
+void ErrorMonitor::finishWindow() noexcept {
+    if (mContactTicks > 0) {
+        mPoint[errorIndex(ErrorVar::strain)] = mMaxAbs / mLength;
+        const double span = mHi - mLo;
+        mPoint[errorIndex(ErrorVar::frequency)] =
+            span > 0 ? mTravel / (2 * span * mWindow) : 0.0;
+        mCurrent = mTable->estimate(mPoint);
+        if (mCurrent.percent == mCurrent.percent) {
+            ++mWindows;
+            if (mCurrent.percent > mBudget) ++mOver;
+            if (!(mCurrent.percent <= mMax)) mMax = mCurrent.percent;
+        }
+    }
+    mTicks = mContactTicks = 0;
+    mMaxAbs = mTravel = 0;
+}
+
+}  // namespace palp::haptics
