@@ -3,7 +3,8 @@
 # into a temporary prefix, checks the libraries' SONAMEs and RUNPATHs and the installed palp
 # tool, then builds and runs the consumers in tests/package against the prefix: both with
 # find_package(palp CONFIG) (CMAKE_PREFIX_PATH), the C one also with pkg-config
-# (PKG_CONFIG_PATH). Any failure fails the script. .ci/run calls it after tools/test.sh.
+# (PKG_CONFIG_PATH); with the Python module, imports it and runs the installed viewer
+# (bin/palp-viewer) off screen. Any failure fails the script. .ci/run calls it after tools/test.sh.
 #   bash tools/test_package.sh              the release build (build/release)
 #   PALP_BUILD_DIR=build/debug bash tools/test_package.sh
 #   PALP_KEEP_PREFIX=1 ...                  keep the temporary prefix (its path is printed)
@@ -112,5 +113,27 @@ assert libs == {sys.argv[2]}, libs
 assert palp.phantom("avc", voxel_size=2e-3).active_voxel_count == 62500
 ' "$pydir" "$haptics") || fail "python3: import palp from $pydir"
   echo "  python3: palp imported from $pydir, loading $haptics"
+
+  # The viewer as an installed user runs it: bin/palp-viewer from the prefix with a clean
+  # environment (no PYTHONPATH, no DISPLAY: it finds the installed module itself), off screen
+  # under xvfb-run for two frames of a phantom's live session.
+  viewer="$prefix/bin/palp-viewer"
+  [[ -x "$viewer" ]] || fail "bin/palp-viewer not installed as an executable"
+  command -v xvfb-run >/dev/null || fail "'xvfb-run' not installed (Debian: xvfb)"
+  (cd "$tmp" && env -u LD_LIBRARY_PATH -u PYTHONPATH /usr/bin/python3 -c 'import palp') \
+    2>/dev/null && fail "python3 imports palp without the prefix (the check below proves nothing)"
+  (cd "$tmp" && env -u LD_LIBRARY_PATH -u PYTHONPATH -u DISPLAY xvfb-run -a "$viewer" \
+    --phantom avc --offscreen "$tmp/viewer" --frames 2 --fps 10 --size 320x240) \
+    >"$tmp/viewer.log" 2>&1 || { cat "$tmp/viewer.log" >&2; fail "bin/palp-viewer --offscreen"; }
+  /usr/bin/python3 - "$tmp/viewer" <<'PY' || fail "bin/palp-viewer: frames.json or its PNGs"
+import json, os, sys
+frames = json.load(open(os.path.join(sys.argv[1], "frames.json")))["frames"]
+assert len(frames) == 2, frames
+assert frames[1]["tick"] > frames[0]["tick"] > 0, frames
+for f in frames:
+    png = open(os.path.join(sys.argv[1], f["png"]), "rb").read()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 1000, f["png"]
+PY
+  echo "  bin/palp-viewer: $(tail -n1 "$tmp/viewer.log")"
 fi
 echo "test_package: ok (prefix $prefix)"

@@ -64,7 +64,10 @@ def _import_palp():
 palp = _import_palp()
 
 # VTK's modules one by one (a second faster to start than `import vtk`).
-import vtkmodules.vtkRenderingFreeType  # noqa: F401 (text)
+try:
+    import vtkmodules.vtkRenderingFreeType  # noqa: F401 (text)
+except ModuleNotFoundError:
+    sys.exit("viewer: VTK's Python modules were not found (Debian: apt install python3-vtk9)")
 import vtkmodules.vtkRenderingOpenGL2  # noqa: F401 (the OpenGL implementations)
 from vtkmodules.util import numpy_support
 from vtkmodules.vtkCommonCore import VTK_ID_TYPE, vtkPoints, vtkUnsignedCharArray
