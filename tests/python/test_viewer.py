@@ -269,21 +269,49 @@ class ScanDeformable(ViewerTestCase):
         cls.view = viewer.Viewer(cls.live, SIZE, offscreen=True)
         cls.rest = numpy_support.vtk_to_numpy(cls.view.surface.GetPoints().GetData()).copy()
         cls.frames = 0
-        cls.live.session.start()
+
+    def test_command_line_on_the_head(self):
+        # What a user runs: --volume head.vdb --deformable off screen (before the live session
+        # below starts: the two machines' cores stay with one session at a time).
+        out = os.path.join(self.tmp.name, "cli")
+        with contextlib.redirect_stdout(io.StringIO()) as printed:
+            viewer.main(["--volume", self.vdb, "--deformable", "--offscreen", out, "--frames",
+                         "4", "--fps", "2", "--size", "320x240"])
+        self.assertIn("pressed along", printed.getvalue())
+        self.assertIn("deformable, regions: ", printed.getvalue())  # auto's choice and why
+        with open(os.path.join(out, "frames.json")) as f:
+            records = json.load(f)["frames"]
+        self.assertEqual(len(records), 4)
+        self.assertTrue(any(r["contact_count"] > 0 and r["max_displacement"] > 1e-3
+                            for r in records), records)
+        for r in records:
+            self.assertEqual(read_png(os.path.join(out, r["png"])).shape[:2], (240, 320))
 
     def test_the_head_is_pressed_on_its_skin_and_dented(self):
+        self.live.session.start()
         self.assertEqual(self.live.solver["solver"], "regions")  # auto: over the whole mesh's
         self.assertTrue(self.live.solver["chosen"])  # budget of element updates a tick
         self.assertGreater(self.live.solver["element_substeps"], self.live.solver["budget"])
         press = np.asarray(self.live.press)
         self.assertAlmostEqual(float(np.abs(press).max()), 1.0)  # an axis across S/I
         self.assertEqual(float(press[2]), 0.0)
-        # Frames until one shows the hand pressed into the skin, the skin dented (the raster
-        # starts pressed after its 0.3 s approach; the first drawn frame is the rest surface).
+        # Frames until one shows the hand pressed into the skin and the drawn surface dented
+        # near the proxy (the raster starts pressed after its 0.3 s approach; the first drawn
+        # frame is the rest surface). The body's surface is read a few ticks after the snapshot,
+        # so the snapshot's largest displacement is printed, not compared: on the head the
+        # raster's contact comes and goes and the tissue moves by millimetres in those ticks.
+        def drawn(s):
+            points = numpy_support.vtk_to_numpy(self.view.surface.GetPoints().GetData())
+            moved = np.linalg.norm(points - self.rest, axis=1)
+            near = np.linalg.norm(self.rest - np.asarray(s.proxy), axis=1) < 10e-3
+            return points, moved, near
+
         s, image, end = None, None, time.monotonic() + 30
         while time.monotonic() < end:
             s, image = self.frame()
-            if s.contact_count > 0 and s.max_displacement > 1e-3 and s.time > 0.5:
+            points, moved, near = drawn(s)
+            if (s.contact_count > 0 and np.linalg.norm(s.force) > 0.05 and near.any() and
+                    moved[near].max() > 0.5e-3):
                 break
             time.sleep(0.05)
         self.assertGreater(s.contact_count, 0, f"no contact in any frame (last {s!r})")
@@ -291,26 +319,22 @@ class ScanDeformable(ViewerTestCase):
         self.check_proxy(s, image)
         # The tissue pushes the hand. Its direction is not asserted here: on a raster the
         # friction drags the skin along the sweep (millimetres, mostly laterally) and the body's
-        # 5 mm cells make its skin a staircase, so the push is mostly lateral, against the
+        # 5 mm cells make its skin a staircase, so the push is often lateral, against the
         # sweep (test_c_api_head.c checks a straight press: back against the press).
         f = np.asarray(s.force)
         self.assertGreater(float(np.linalg.norm(f)), 0.05)
-        # The drawn surface is the body's deformed one: it moved from rest by millimetres, as
-        # far as the snapshot says give or take the ticks between the two reads, and its
-        # vertices near the proxy moved into the head along the press.
-        points = numpy_support.vtk_to_numpy(self.view.surface.GetPoints().GetData())
+        # The drawn surface is the body's deformed one: it moved from rest by millimetres, near
+        # the proxy too, and the rest of it stayed finite.
         self.assertEqual(points.shape, self.rest.shape)
-        moved = np.linalg.norm(points - self.rest, axis=1)
+        self.assertTrue(np.all(np.isfinite(points)))
         self.assertGreater(float(moved.max()), 1e-3)
-        self.assertAlmostEqual(float(moved.max()), s.max_displacement, delta=2e-3)
-        near = np.linalg.norm(self.rest - np.asarray(s.proxy), axis=1) < 10e-3
         self.assertGreater(int(near.sum()), 0)
+        self.assertGreater(float(moved[near].max()), 0.5e-3)
         print(f"\nhead CT in the viewer: frame {type(self).frames - 1}, t {s.time:.2f} s, "
               f"contact {s.contact_count}, |F| {np.linalg.norm(f):.2f} N, F.press "
-              f"{f @ press:.3f} N, surface moved up to {1e3 * moved.max():.2f} mm (snapshot "
-              f"{1e3 * s.max_displacement:.2f} mm), near the proxy {1e3 * moved[near].max():.2f}"
-              f" mm ({1e3 * ((points - self.rest)[near] @ press).max():.2f} mm along the press)")
-        self.assertGreater(float(moved[near].max()), 0.5e-3)
+              f"{f @ press:.3f} N, drawn surface moved up to {1e3 * moved.max():.2f} mm "
+              f"(snapshot {1e3 * s.max_displacement:.2f} mm), near the proxy "
+              f"{1e3 * moved[near].max():.2f} mm")
 
 
 class ScanCommandLine(unittest.TestCase):
