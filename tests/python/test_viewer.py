@@ -337,6 +337,28 @@ class ScanDeformable(ViewerTestCase):
               f"{1e3 * moved[near].max():.2f} mm")
 
 
+class ScanWithoutHu(unittest.TestCase):
+    def test_an_mr_gets_otsus_skin_and_its_path_touches_it(self):
+        # The shared MR (MetaImage, no HU): palp palpate's rule, Otsu's threshold of its active
+        # values for the skin and the tissue, no bone (`palp palpate mha.mha --deformable`
+        # reports --tissue-hu 1552.87), and the default raster laid on that skin touches it.
+        data = os.path.dirname(head_ct() or "")
+        mha = os.path.join(data, "mr-one-volume-many-formats", "mha.mha")
+        if not os.path.isfile(mha):
+            self.skipTest("no shared data (mr-one-volume-many-formats)")
+        levels = viewer.scan_thresholds(viewer.palp.load(mha))
+        self.assertTrue(levels.otsu)
+        self.assertAlmostEqual(levels.skin, 1552.87, delta=0.01)
+        self.assertEqual(levels.tissue, levels.skin)
+        self.assertIsNone(levels.hard)
+        live = viewer.make_session(volume_path=mha, path="raster")
+        self.assertEqual(live.hard.GetNumberOfPoints(), 0)  # nothing hard drawn
+        self.assertGreater(live.skin.GetNumberOfPoints(), 1000)
+        trace = live.session.run(2000)  # offline: 0.3 s approach, then the raster
+        contact = np.asarray(trace["contact_count"])[500:] > 0
+        self.assertGreater(contact.mean(), 0.9)
+
+
 class ScanCommandLine(unittest.TestCase):
     def test_bad_volume_options_name_the_flag(self):
         for argv, flag in ((["--volume", "/nonexistent/head.vdb"], "--volume"),

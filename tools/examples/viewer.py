@@ -429,6 +429,7 @@ class Live:
     deformable: bool
     press: tuple = (0.0, 1.0, 0.0)
     solver: dict = None
+    levels: object = None  # Thresholds: where the skin, tissue and hard structures are
 
 
 PATH_DEPTH = 4e-3  # m below the skin: the simulated hand's press on every path
@@ -477,16 +478,65 @@ def skin_path(scene, patch, path):
     return t
 
 
+@dataclass
+class Thresholds:
+    """Where a volume's skin, tissue and hard structures are (volume units; None: none)."""
+    skin: float = -500.0  # the skin iso-surface (the proxy's surface on a rigid scene)
+    tissue: float = -200.0  # a deformable body's cells are tissue above this
+    hard: float = 500.0  # bone and plates: drawn, hard meshes, a body's fixed nodes
+    otsu: bool = False  # from Otsu's threshold: a scan without HU
+
+
+def scan_thresholds(volume):
+    """CT in HU (-500, -200, 500), unless the scan has no HU (`palp palpate`'s rule: its modality
+    is not CT and no active value lies below -100, e.g. an MR): then its skin and tissue are
+    Otsu's threshold of its active values (256 bins between their least and greatest) and it
+    has no hard structure."""
+    if volume.info.get("modality") == "CT":
+        return Thresholds()
+    values, _ = volume.to_numpy()
+    active = values[values != volume.background].astype(np.float64)
+    if active.size == 0:
+        return Thresholds()
+    lo, hi = float(active.min()), float(active.max())
+    if not (lo >= -100.0 and hi > lo):
+        return Thresholds()
+    scale = 255.0 / (hi - lo)
+    hist = np.bincount(np.clip((active - lo) * scale, 0, 255).astype(int), minlength=256)
+    bins = np.arange(256, dtype=np.float64)
+    below = np.cumsum(hist)[:-1].astype(np.float64)
+    below_sum = np.cumsum(bins * hist)[:-1]
+    above = active.size - below
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = below * above * (below_sum / below -
+                                   (float(bins @ hist) - below_sum) / above) ** 2
+    between[(below <= 0) | (above <= 0)] = -1
+    split = int(np.argmax(between))
+    threshold = lo + (split + 1.0) / scale
+    return Thresholds(skin=threshold, tissue=threshold, hard=None, otsu=True)
+
+
 def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=None,
-                 voxel_size=None, surface_iso=-500.0, hard_iso=500.0, volume_path=None,
+                 voxel_size=None, surface_iso=None, hard_iso=None, volume_path=None,
                  press=None):
     """A phantom (or, with volume_path, a scan) scene, a device (a simulated hand on path, or a
     CSV log) and a session on it (not started). voxel_size: m (None: 1 mm for a phantom, the
-    file's own for a scan). press: a scan's press axis ('+y', ...; None: palp chooses)."""
+    file's own for a scan). surface_iso, hard_iso: volume units (None: -500 and 500 HU for a
+    phantom or a CT, scan_thresholds() for a scan without HU). press: a scan's press axis
+    ('+y', ...; None: palp chooses)."""
     if volume_path is not None:
         volume = palp.load(volume_path, voxel_size=voxel_size)
+        levels = scan_thresholds(volume)
     else:
         volume = palp.phantom(phantom, voxel_size=voxel_size or 1e-3)
+        levels = Thresholds()
+    if surface_iso is not None:
+        if levels.otsu:  # a scan without HU: its tissue starts at its skin
+            levels.tissue = surface_iso
+        levels.skin = surface_iso
+    if hard_iso is not None:
+        levels.hard = hard_iso
+    surface_iso, hard_iso = levels.skin, levels.hard
     scene = palp.Scene.from_volume(volume, surface_iso=surface_iso, hard_iso=hard_iso)
     patch = None
     press_axis = (0.0, 1.0, 0.0)
@@ -500,7 +550,8 @@ def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=
         a = int(np.argmax(np.abs(press_axis)))
         support = "xyz"[a] + ("_max" if press_axis[a] > 0 else "_min")  # opposite the press
         solver = scene.make_deformable(volume, element_size=5e-3, support_face=support,
-                                       solver="auto")
+                                       solver="auto", tissue_threshold=levels.tissue,
+                                       bone_threshold=math.inf if hard_iso is None else hard_iso)
     params = palp.SessionParams()
     params.coupling = (palp.scene_coupling_defaults(phantom) if volume_path is None else
                        palp.scan_coupling_defaults())
@@ -520,11 +571,11 @@ def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=
         }
         device = palp.SimulatedDevice(trajectories[path]())
     session = palp.Session(scene, device, params)
-    if deformable:  # the body's surface is drawn, not the skin's iso-surface
-        skin, hard = None, iso_surfaces(volume, [hard_iso])[0]
-    else:
-        skin, hard = iso_surfaces(volume, [surface_iso, hard_iso])
-    return Live(session, skin, hard, deformable, press_axis, solver)
+    isos = ([] if deformable else [surface_iso]) + ([] if hard_iso is None else [hard_iso])
+    surfaces = iso_surfaces(volume, isos)
+    skin = None if deformable else surfaces.pop(0)  # a body's own surface is drawn instead
+    hard = surfaces[0] if surfaces else vtkPolyData()  # none: a scan without HU
+    return Live(session, skin, hard, deformable, press_axis, solver, levels)
 
 
 def frame_record(viewer, s):
@@ -593,6 +644,12 @@ def main(argv=None):
     ap.add_argument("--press-axis", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
                     help="--volume: the press axis into the body (default: the side across "
                          "S/I with the most skin facing it)")
+    ap.add_argument("--surface-iso", type=float,
+                    help="the skin's value (default -500 HU; a scan without HU: Otsu's "
+                         "threshold)")
+    ap.add_argument("--hard-iso", type=float,
+                    help="bone and plates above this value (default 500 HU; a scan without "
+                         "HU: none)")
     ap.add_argument("--deformable", action="store_true",
                     help="FEM body (5 mm elements, solver auto, supported on the face opposite "
                          "the press and in bone): draws its deformed surface")
@@ -627,10 +684,14 @@ def main(argv=None):
         ap.error(f"--volume: expected a scan file or DICOM folder, found no '{a.volume}'")
     try:
         live = make_session(a.phantom, a.deformable, a.mode, a.path, a.log, a.voxel_size,
+                            surface_iso=a.surface_iso, hard_iso=a.hard_iso,
                             volume_path=a.volume, press=a.press_axis)
     except palp.Error as e:
         sys.exit(f"viewer: error: {e}")
     if a.volume:
+        if live.levels.otsu:
+            print(f"viewer: {a.volume}: no HU: skin and tissue above {live.levels.skin:.4g} "
+                  f"(Otsu), no bone")
         print(f"viewer: {a.volume}: path on the skin, pressed along {_axis_name(live.press)}")
     if live.solver:
         print(f"viewer: deformable, {live.solver['reason']}")
