@@ -14,8 +14,8 @@ on the main thread redraws at display rate from the newest published snapshot
 (installed as bin/palp-viewer; from the source tree: /usr/bin/python3 tools/examples/viewer.py)
 
 By default a simulated hand rasters the phantom (no device needed). --volume loads a scan instead
-(a .vdb from `palp convert`, a NIfTI, NRRD or MetaImage file, or a DICOM folder; CT values in HU:
-skin at -500, bone at 500) and lays the hand's path on its skin as `palp palpate` does: on the
+(a .vdb from `palp convert`, a NIfTI, NRRD or MetaImage file, or a DICOM folder; a CT in HU: skin
+at -500, bone at 500; a scan without HU such as an MR: Otsu's threshold, no bone) and lays the hand's path on its skin as `palp palpate` does: on the
 side across S/I with the most skin facing the press (or --press-axis), over that patch (40 mm at
 most a side), 4 mm below the skin. --deformable makes the tissue a FEM body (5 mm elements,
 solver auto: the whole mesh where it makes the 1 kHz tick, the threaded regions otherwise, as on
