@@ -1,9 +1,11 @@
 // palp errormap: partial rank correlations of a sweep table's variables with its force error,
-// with p-values and confidence intervals, and the error map's figures (docs/error_analysis.md).
+// with p-values and confidence intervals, and the error map's figures; with --table, the error
+// lookup table fitted to it (docs/error_analysis.md).
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -12,6 +14,7 @@
 #include "commands.h"
 #include "palp/base/atomic_file.h"
 #include "palp/base/error.h"
+#include "palp/studies/error_table_fit.h"
 #include "palp/studies/prcc.h"
 #include "palp/studies/sweep_plots.h"
 
@@ -30,6 +33,9 @@ struct ErrormapArgs {
     int maxLines = 2000;
     bool noPlots = false;
     std::vector<std::string> where;
+    std::string tableOut;                    ///< --table: the fitted error lookup table (JSON)
+    double quantile = 0.9;                   ///< --quantile
+    std::string tableResponse = "err_peak";  ///< --table-response
 };
 
 /// Keeps the rows of @p t where every "COLUMN=VALUE" of @p where holds (e.g. coupling=0).
@@ -63,8 +69,71 @@ void writeText(const fs::path& p, const std::string& what, const std::string& te
     writeFileAtomically(p, what, text.data(), text.size());
 }
 
+/// The sweep's sidecar (TABLE.json) as read, or an empty object without one.
+nlohmann::json sidecar(const std::string& table) {
+    fs::path p(table);
+    p.replace_extension(".json");
+    std::ifstream in(p);
+    if (!in) return nlohmann::json::object();
+    try {
+        return nlohmann::json::parse(in);
+    } catch (const nlohmann::json::parse_error& e) {
+        throw FormatError(p.string() + ": expected the sweep table's JSON sidecar, found " +
+                          e.what());
+    }
+}
+
+/// --table: fits the lookup table and writes it.
+void writeTable(const ErrormapArgs& a, const SweepTable& t) {
+    ErrorTableFitOptions o;
+    o.response = a.tableResponse;
+    o.quantile = a.quantile;
+    const nlohmann::json side = sidecar(a.table);
+    nlohmann::json prov;
+    for (const char* k : {"palp_version", "sweep", "design", "seed", "samples", "parameters"})
+        if (side.contains(k)) prov["sweep"][k] = side[k];
+    prov["table"] = fs::path(a.table).filename().string();
+    prov["where"] = a.where;
+    // The axes span the ranges file's [min, max] (the samples' extremes lie inside them).
+    const nlohmann::json vars = side.contains("parameters")
+                                    ? side["parameters"].value("variables", nlohmann::json())
+                                    : nlohmann::json();
+    o.axes = defaultErrorAxes(t, [&](ErrorVar v, double& lo, double& hi) {
+        const char* n = errorVarName(v);
+        if (!vars.is_object() || !vars.contains(n) || !vars[n].contains("min")) return false;
+        lo = vars[n]["min"].get<double>();
+        hi = vars[n]["max"].get<double>();
+        return true;
+    });
+    ErrorTableFitReport rep;
+    // The fit's provenance is completed after it (rows used, coverage).
+    ErrorTable table = fitErrorTable(t, o, prov.dump(), &rep);
+    prov["fit"] = {{"method",
+                    "per lod: log(max(error, floor)) as a sum of piecewise-linear functions "
+                    "of the other axes (penalised least squares), plus the quantile of the "
+                    "residuals"},
+                   {"floor_percent", o.floorPercent},
+                   {"smoothing", o.smoothing},
+                   {"rows_used", rep.rowsUsed},
+                   {"rows_non_finite", rep.rowsNonFinite},
+                   {"coverage", rep.coverage},
+                   {"median_estimate_over_error", rep.medianRatio}};
+    table.provenance = prov.dump();
+    const std::string text = table.toJson();
+    writeFileAtomically(a.tableOut, "error table", text.data(), text.size());
+    std::printf(
+        "error table %s: %s, %.0f %% quantile, %zu axes, %zu nodes, %d rows (%d non-finite "
+        "left out); %.1f %% of the rows at or below their estimate, median estimate / error "
+        "%.2f\n",
+        a.tableOut.c_str(), a.tableResponse.c_str(), 100 * a.quantile, table.axes().size(),
+        table.errorPercent().size(), rep.rowsUsed, rep.rowsNonFinite, 100 * rep.coverage,
+        rep.medianRatio);
+}
+
 int run(const ErrormapArgs& a) {
     const SweepTable t = filtered(readSweepTable(a.table), a.where);
+    if (!a.tableOut.empty()) writeTable(a, t);
+    if (a.out.empty()) return 0;
     int dropped = 0, used = 0;
     const auto prcc = sweepPrcc(t, a.response, a.level, &dropped, &used);
     const fs::path dir(a.out);
@@ -123,7 +192,7 @@ Command addErrormap(CLI::App& root) {
                             "Partial rank correlations of a sweep table with its error, and the "
                             "error map's plots (PNG, SVG, PDF)");
     app->add_option("table", args->table, "Sweep table (CSV with its .json sidecar)")->required();
-    app->add_option("-o,--out", args->out, "Output directory")->required();
+    app->add_option("-o,--out", args->out, "Output directory (PRCC and plots)");
     app->add_option("--response", args->response, "Error column: err_rms, err_peak or err_max")
         ->capture_default_str();
     app->add_option("--level", args->level, "Confidence level of the intervals")
@@ -135,7 +204,22 @@ Command addErrormap(CLI::App& root) {
     app->add_flag("--no-plots", args->noPlots, "Only the tables");
     app->add_option("--where", args->where,
                     "Analyse only the rows where COLUMN=VALUE (repeatable; e.g. coupling=0)");
-    return {app, [args]() -> int { return run(*args); }};
+    app->add_option("--table", args->tableOut,
+                    "Fit the error lookup table to the (filtered) rows and write it here (JSON; "
+                    "palp palpate --error-budget reads such a table)");
+    app->add_option("--quantile", args->quantile,
+                    "--table: the quantile of the error the table's nodes hold")
+        ->check(CLI::Range(0.5, 0.999))
+        ->capture_default_str();
+    app->add_option("--table-response", args->tableResponse,
+                    "--table: the error column fitted (err_peak, err_rms or err_max)")
+        ->check(CLI::IsMember({"err_peak", "err_rms", "err_max"}))
+        ->capture_default_str();
+    return {app, [args]() -> int {
+                if (args->out.empty() && args->tableOut.empty())
+                    throw ValueError("errormap: expected -o DIR, --table FILE or both");
+                return run(*args);
+            }};
 }
 
 }  // namespace palp::tool

@@ -182,9 +182,9 @@ ErrorControlChoice chooseRegionsSetting(const ErrorTable& table, const ErrorPoin
                   "%d cells x %g substeps = %.0f of %.0f element-substeps; %s of %d",
                   out.setting.primaryNodes, out.setting.secondaryRate, lod,
                   percent(out.predicted.percent).c_str(), percent(o.budgetPercent).c_str(),
-                  out.predicted.inRange() ? "" : ", outside the sweep's ranges",
-                  out.cost.cells, out.cost.substeps, out.cost.elementSubsteps(),
-                  o.maxElementSubsteps, why.c_str(), out.candidates);
+                  out.predicted.inRange() ? "" : ", outside the sweep's ranges", out.cost.cells,
+                  out.cost.substeps, out.cost.elementSubsteps(), o.maxElementSubsteps, why.c_str(),
+                  out.candidates);
     out.reason = buf;
     return out;
 }
@@ -227,8 +227,7 @@ void ErrorMonitor::finishWindow() noexcept {
     if (mContactTicks > 0) {
         mPoint[errorIndex(ErrorVar::strain)] = mMaxAbs / mLength;
         const double span = mHi - mLo;
-        mPoint[errorIndex(ErrorVar::frequency)] =
-            span > 0 ? mTravel / (2 * span * mWindow) : 0.0;
+        mPoint[errorIndex(ErrorVar::frequency)] = span > 0 ? mTravel / (2 * span * mWindow) : 0.0;
         mCurrent = mTable->estimate(mPoint);
         if (mCurrent.percent == mCurrent.percent) {
             ++mWindows;

@@ -77,8 +77,7 @@ ErrorTable::ErrorTable(std::vector<Axis> axes, std::vector<double> errorPercent,
                    std::string(errorVarName(ax.var)) + " again");
         seen |= bit;
         if (ax.values.size() < 2)
-            refuse(source, at + ".values", "at least 2 values",
-                   std::to_string(ax.values.size()));
+            refuse(source, at + ".values", "at least 2 values", std::to_string(ax.values.size()));
         for (std::size_t i = 0; i < ax.values.size(); ++i) {
             const std::string vi = at + ".values[" + std::to_string(i) + "]";
             if (!std::isfinite(ax.values[i]))
@@ -94,8 +93,8 @@ ErrorTable::ErrorTable(std::vector<Axis> axes, std::vector<double> errorPercent,
                std::to_string(mValues.size()));
     for (std::size_t i = 0; i < mValues.size(); ++i) {
         if (!(std::isfinite(mValues[i]) && mValues[i] >= 0))
-            refuse(source, "error_percent[" + std::to_string(i) + "]",
-                   "a finite percentage >= 0", number(mValues[i]));
+            refuse(source, "error_percent[" + std::to_string(i) + "]", "a finite percentage >= 0",
+                   number(mValues[i]));
     }
     mStride.assign(mAxes.size(), 1);
     for (std::size_t a = mAxes.size() - 1; a > 0; --a)
@@ -158,8 +157,8 @@ ErrorTable ErrorTable::parse(const std::string& text, const std::string& source)
     if (!ja.is_array()) malformed(source, "axes", "an array", describe(ja));
     for (std::size_t a = 0; a < ja.size(); ++a) {
         const std::string at = "axes[" + std::to_string(a) + "].";
-        if (!ja[a].is_object()) malformed(source, at.substr(0, at.size() - 1), "an object",
-                                          describe(ja[a]));
+        if (!ja[a].is_object())
+            malformed(source, at.substr(0, at.size() - 1), "an object", describe(ja[a]));
         const Json& name = field(ja[a], "name", source, at);
         if (!name.is_string()) malformed(source, at + "name", "a string", describe(name));
         Axis axis;

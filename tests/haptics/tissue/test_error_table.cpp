@@ -101,8 +101,7 @@ TEST(ErrorTable, RefusesBadTablesNamingFileAndField) {
     const std::string axes = R"([{"name": "lod", "values": [2, 4]},
                                  {"name": "primary", "values": [5, 20, 60]}])";
     EXPECT_NO_THROW(ErrorTable::parse(tableJson(axes, "[1, 2, 3, 4, 5, 6]"), "t.json"));
-    expectRefused("{\"palp_error_table\": 1, \"axes\": " + axes + "}", "error_percent",
-                  "a field");
+    expectRefused("{\"palp_error_table\": 1, \"axes\": " + axes + "}", "error_percent", "a field");
     expectRefused(tableJson(axes, "[1, 2, 3, 4, 5]"), "error_percent", "6 values");
     expectRefused(tableJson(R"([{"name": "primary", "values": [5, 60, 20]}])", "[1, 2, 3]"),
                   "axes[0].values[2]", "increasing");
@@ -111,7 +110,9 @@ TEST(ErrorTable, RefusesBadTablesNamingFileAndField) {
     expectRefused(tableJson(R"([{"name": "stiffness", "values": [1, 2]}])", "[1, 2]"),
                   "axes[0].name", "one of");
     expectRefused(tableJson(R"([{"name": "lod", "values": [2, 4]}, {"name": "lod", "values": [1,
-                  2]}])", "[1, 2, 3, 4]"), "axes[1].name", "once");
+                  2]}])",
+                            "[1, 2, 3, 4]"),
+                  "axes[1].name", "once");
     // JSON has no NaN: a string "NaN" is not a number, 1e999 overflows to infinity.
     expectRefused(tableJson(axes, R"([1, 2, "NaN", 4, 5, 6])"), "error_percent[2]", "a number");
     expectRefused(tableJson(axes, "[1, 2, 3, 1e999, 5, 6]"), "(file)", "1e999");

@@ -23,9 +23,9 @@ namespace palp::haptics {
 
 /// The regions' adaptivity the controller chooses (AsyncRegionsOptions' fields of that name).
 struct RegionsSetting {
-    int lod = 2;                  ///< secondary level of detail (kept as given: see chooser)
-    int primaryNodes = 60;        ///< seed nodes of the primary region
-    double secondaryRate = 100;   ///< secondary rate, Hz
+    int lod = 2;                 ///< secondary level of detail (kept as given: see chooser)
+    int primaryNodes = 60;       ///< seed nodes of the primary region
+    double secondaryRate = 100;  ///< secondary rate, Hz
 };
 
 /// What the primary costs a servo tick: its cells times the explicit substeps a tick takes.
@@ -53,7 +53,7 @@ struct ErrorControlOptions {
     /// kWholeMeshElementSubsteps, ~0.75 ms of the 1 ms tick at ~94 ns an element-substep).
     double maxElementSubsteps = 8000;
     std::vector<int> primaryCandidates = {5, 10, 15, 20, 30, 40, 60};  ///< seed counts
-    std::vector<double> rateCandidates = {25, 50, 100, 200, 500};       ///< Hz
+    std::vector<double> rateCandidates = {25, 50, 100, 200, 500};      ///< Hz
     /// Input axes (strain, frequency) taken at their worst node instead of the given value:
     /// the input a live session will see is not known at set-up.
     bool worstInput = true;
