@@ -5,7 +5,9 @@
  * simulated VC hand, offline (palp_session_step, the regions synchronous: deterministic).
  * Physics: the force pushes the hand back, against the press; the skin under the proxy is
  * dented along the press; no solver flag, fault or clamp on any tick; the two scenes give the
- * same force at every tick. Bad input is refused naming the field (a solver out of range).
+ * same force at every tick. Then live, as a viewer runs it: the default options (AUTO, the
+ * regions threaded) on the servo thread. Bad input is refused naming the field (a solver out of
+ * range).
  *
  * The data folder: $PALP_DATA_DIR, else the build's default (tests/CMakeLists.txt); exit 77
  * (ctest: skipped) when the head CT is not there. */
@@ -37,12 +39,12 @@ static double dot3(const double a[3], const double b[3]) {
 }
 static double norm3(const double v[3]) { return sqrt(dot3(v, v)); }
 
-static palp_scene* make_scene(const palp_volume* volume, palp_fem_solver solver) {
+static palp_scene* make_scene(const palp_volume* volume, palp_fem_solver solver, int threaded) {
     palp_deformable_options o;
     palp_deformable_options_default(&o);
     o.solver = solver;
     o.support_face = PALP_FACE_Y_MIN; /* the face opposite the press, as palp palpate */
-    o.threaded = 0;                   /* deterministic offline steps */
+    o.threaded = threaded;            /* 0: deterministic offline steps */
     o.regions_centre[0] = kStart[0];  /* the region starts under the path */
     o.regions_centre[1] = 0.096;
     o.regions_centre[2] = kStart[2];
@@ -99,8 +101,8 @@ static void test_refusals(const palp_volume* volume) {
 }
 
 static void test_press_into_the_skin(const palp_volume* volume) {
-    palp_scene* regions = make_scene(volume, PALP_FEM_REGIONS);
-    palp_scene* chosen = make_scene(volume, PALP_FEM_AUTO);
+    palp_scene* regions = make_scene(volume, PALP_FEM_REGIONS, 0);
+    palp_scene* chosen = make_scene(volume, PALP_FEM_AUTO, 0);
     if (!regions || !chosen) return;
 
     /* What runs and why: asked for, and chosen by AUTO (the head is over the whole mesh's
@@ -201,6 +203,47 @@ static void test_press_into_the_skin(const palp_volume* volume) {
     free(now);
 }
 
+/* Live, as a viewer runs it: the default options (AUTO, threaded regions) on the servo thread
+ * while this thread reads snapshots and the deformed surface; the press reaches the skin, the
+ * force stays finite and unfaulted, and the surface the viewer reads moves. */
+static void test_live(const palp_volume* volume) {
+    palp_scene* scene = make_scene(volume, PALP_FEM_AUTO, 1);
+    if (!scene) return;
+    size_t nv = 0;
+    CHECK(palp_scene_surface_size(scene, &nv, NULL) == PALP_OK);
+    float* rest = malloc(3 * nv * sizeof *rest);
+    float* now = malloc(3 * nv * sizeof *now);
+    if (!rest || !now) abort();
+    CHECK(palp_scene_surface_topology(scene, NULL, 0, rest, nv) == PALP_OK);
+    palp_session* session = make_session(scene);
+    if (!session) return;
+    CHECK(palp_session_start(session) == PALP_OK);
+    palp_snapshot s;
+    int contact = 0, bad = 0;
+    double moved = 0;
+    do {
+        CHECK(palp_session_latest(session, &s) == PALP_OK);
+        contact += s.contact_count > 0;
+        bad += s.faulted != 0 || !isfinite(norm3(s.force));
+        uint64_t tick = 0;
+        CHECK(palp_session_latest_surface(session, now, nv, &tick) == PALP_OK);
+        for (size_t i = 0; i < 3 * nv; ++i) {
+            const double d = fabs((double)now[i] - rest[i]);
+            bad += !isfinite(d);
+            moved = d > moved ? d : moved;
+        }
+    } while (s.tick < 700);
+    CHECK(palp_session_stop(session) == PALP_OK);
+    CHECK(contact > 0 && bad == 0 && s.faults == 0);
+    CHECK(moved > 0.2e-3);
+    printf("head CT live (threaded regions): %d reads in contact, surface moved up to %.2f mm\n",
+           contact, 1e3 * moved);
+    palp_session_release(session);
+    palp_scene_release(scene);
+    free(rest);
+    free(now);
+}
+
 int main(void) {
     const char* env = getenv("PALP_DATA_DIR");
     const char* data = env && *env ? env : PALP_DEFAULT_DATA_DIR;
@@ -217,6 +260,7 @@ int main(void) {
     if (!volume) return 1;
     test_refusals(volume);
     test_press_into_the_skin(volume);
+    test_live(volume);
     palp_volume_release(volume);
     if (gFailures) fprintf(stderr, "%d check(s) failed\n", gFailures);
     return gFailures ? 1 : 0;
