@@ -441,18 +441,11 @@ def _axis_name(press):
     return ("+" if press[a] > 0 else "-") + "xyz"[a]
 
 
-def scan_path(scene, volume, path, press=None):
-    """A simulated hand's path on a scan's skin, as `palp palpate` lays it: the patch of skin
-    facing the press (palp.find_skin_patch: press None picks the side across S/I with the most),
-    the skin's height measured over it (palp.SkinField, on a deformable scene on the body at
-    rest) and the path laid on it, PATH_DEPTH below the skin. Returns (trajectory, patch)."""
-    patch = palp.find_skin_patch(scene, volume, press)
-    return skin_path(scene, patch, path), patch
-
-
 def skin_path(scene, patch, path):
-    """The trajectory path ('raster', 'circle' or 'press') over patch, laid on the skin of
-    scene (measured now: call it after make_deformable so a body follows its rest surface)."""
+    """A simulated hand's path on a scan's skin, as `palp palpate` lays it: the trajectory path
+    ('raster', 'circle' or 'press') over patch (palp.find_skin_patch), laid on the skin's height
+    measured over it (palp.SkinField; call it after make_deformable so that a body's path
+    follows the body at rest), PATH_DEPTH below the skin."""
     u, v, press = (np.abs(np.asarray(patch.u)), np.abs(np.asarray(patch.v)),
                    np.asarray(patch.press, float))
     extent_u, extent_v = min(PATH_EXTENT, patch.extent_u), min(PATH_EXTENT, patch.extent_v)
