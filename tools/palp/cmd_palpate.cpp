@@ -35,6 +35,7 @@
 #include "palp/studies/trace_csv.h"
 #include "palp/volume/load.h"
 #include "palp/volume/phantom.h"
+#include "palpate_error.h"
 #include "palpate_felt.h"
 #include "palpate_options.h"
 #include "palpate_run.h"
@@ -201,6 +202,7 @@ struct Report {
     std::optional<haptics::MapLayout> figure;  ///< where the map lies in its figure
     haptics::SolverChoice solver;              ///< deformable: the solver and why
     double setupSeconds = 0;                   ///< deformable: voxelise to first layout, s
+    ErrorBudgetReport error{};                 ///< --error-budget: the choice and the estimate
 };
 
 /// Peak resident memory of the process so far, MiB.
@@ -335,6 +337,7 @@ void printJson(const PalpateArgs& a, const Report& r) {
                            {"max_displacement_mm", maxDisp * 1e3}};
         if (regions) j["deformable"]["lod"] = body->options().regions.lod;
     }
+    if (body) j["error_budget"] = errorBudgetJson(r.error);
     if (!a.trace.empty()) j["trace"] = a.trace;
     if (!a.map.empty()) {
         j["map"] = a.map;
@@ -426,6 +429,7 @@ void printText(const PalpateArgs& a, const Report& r) {
                 pieceCells(body->droppedPieces()), p.cells, 500 * (p.lo.x() + p.hi.x()),
                 500 * (p.lo.y() + p.hi.y()), 500 * (p.lo.z() + p.hi.z()));
         }
+        printErrorBudget(r.error);
     }
     const json felt =
         feltSummary(r.run.snaps, r.frame, std::max(4e-3, 2e-3 * a.spacingMm), r.pressedFrom);
@@ -582,6 +586,7 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
     r.sum = haptics::summarize(r.run.snaps);
     r.contactAfterApproach = contactFrom(r.run.snaps, plan.pressedFrom);
     r.budget = haptics::energyBudget(r.run.snaps, plan.approach);
+    r.error = errorBudgetReport(a, body.get(), r.run.snaps, press, period);
     // The map's title: what was palpated, how, along which path.
     const std::string title = (in.phantom ? in.label : fs::path(in.label).filename().string()) +
                               ": " + haptics::couplingModeName(cp.mode) + "/" +

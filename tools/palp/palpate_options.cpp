@@ -9,6 +9,7 @@
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/kernels/ray_bundle.h"
+#include "palpate_error.h"
 
 namespace palp::tool {
 
@@ -90,6 +91,13 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
                         "are even, else 1; 4 where lod 2 would leave the zone a sliding contact "
                         "needs over its cap and 4 divides them: the bone phantom at 2.5 mm)")
             ->check(CLI::IsMember({1, 2, 4}))};
+    // Not one of o.fem: accepted anywhere, it acts only on a body on the regions.
+    app->add_option("--error-budget", a.errorBudget,
+                    "regions: largest contact-force error, percent, the primary size and "
+                    "secondary rate are chosen for from palp's error table (default 5.23: the "
+                    "stiffness JND for normal pressure); 'off' keeps --primary-nodes and "
+                    "--secondary-hz")
+        ->check(errorBudgetCheck());
 }
 
 /// Coupling: mode, ray source and its parameters, stiffness, friction, passivity.

@@ -74,6 +74,9 @@ struct PalpateArgs {
     double secondaryHz = 100;
     int lod = 0;  ///< 0: haptics::autoRegionsLod (2 where the cell counts are even, else 1; 4 on
                   ///< large faces)
+    /// --error-budget: "off" or a percentage (palpate_error.h); default the normal-pressure
+    /// stiffness JND (haptics::kNormalPressureJndPercent).
+    std::string errorBudget = "5.23";
 };
 
 /// The options checked against the scene: each scene option belongs to one phantom (or any), the

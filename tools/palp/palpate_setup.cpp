@@ -15,6 +15,7 @@
 #include "palp/haptics/tissue/deformable_setup.h"
 #include "palp/studies/offline_run.h"
 #include "palp/volume/load.h"
+#include "palpate_error.h"
 
 namespace palp::tool {
 
@@ -155,6 +156,7 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
         setup.voxelize.youngsFromValue = [e, split](double hu) { return hu > split ? 8 * e : e; };
     }
     auto model = haptics::makeDeformableModel(in.vol, setup, choice);
+    model = applyErrorBudget(a, std::move(model));  // --error-budget: primary size and rate
     if (tumour) model->embedMesh(volume::Phantom(*in.phantom).inclusionMesh());
     return model;
 }

@@ -152,10 +152,13 @@ ErrorControlChoice chooseRegionsSetting(const ErrorTable& table, const ErrorPoin
             all.push_back(e);
         }
     }
-    // Fewest element-substeps, then smallest predicted error, then the candidates' order.
+    // Fewest element-substeps (the servo tick), then the lowest rate (the secondary's
+    // solves), then the smallest predicted error, then the candidates' order.
     auto cheaper = [](const ErrorControlChoice& a, const ErrorControlChoice& b) {
         if (a.cost.elementSubsteps() != b.cost.elementSubsteps())
             return a.cost.elementSubsteps() < b.cost.elementSubsteps();
+        if (a.setting.secondaryRate != b.setting.secondaryRate)
+            return a.setting.secondaryRate < b.setting.secondaryRate;
         return a.predicted.percent < b.predicted.percent;
     };
     const ErrorControlChoice* best = nullptr;
@@ -167,7 +170,7 @@ ErrorControlChoice chooseRegionsSetting(const ErrorTable& table, const ErrorPoin
     } else {
         for (const auto& e : all)
             if (e.meetsTime && (!best || e.predicted.percent < best->predicted.percent)) best = &e;
-        why = "no setting meets the budget within the tick: the smallest predicted error";
+        why = "no setting meets the budget: the smallest predicted error within the tick";
         if (!best) {
             for (const auto& e : all)
                 if (!best || cheaper(e, *best)) best = &e;

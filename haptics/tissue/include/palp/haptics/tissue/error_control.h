@@ -80,9 +80,10 @@ ErrorEstimate predictError(const ErrorTable& table, const ErrorPoint& conditions
 /// layout's: the slide zone and the coarse space depend on it, so it is not the controller's
 /// to change) under the material and input @p conditions: among the candidates whose primary
 /// cost (@p cost, per seed count) is within maxElementSubsteps and whose predicted error is
-/// within budgetPercent, the one with the fewest element-substeps, then the smallest predicted
-/// error. When none meets the budget within the time: the smallest predicted error that fits
-/// the time (meetsBudget false); when none fits the time: the cheapest (meetsTime false).
+/// within budgetPercent, the one with the fewest element-substeps, then the lowest secondary
+/// rate (fewer secondary solves), then the smallest predicted error. When none meets the budget
+/// within the time: the smallest predicted error that fits the time (meetsBudget false); when none
+/// fits the time: the cheapest (meetsTime false).
 /// @throw palp::ValueError for a budget that is not a positive finite number, or no candidate.
 ErrorControlChoice chooseRegionsSetting(const ErrorTable& table, const ErrorPoint& conditions,
                                         int lod, const std::function<PrimaryCost(int)>& cost,
