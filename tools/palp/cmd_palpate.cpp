@@ -517,7 +517,16 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
     const auto setupStart = std::chrono::steady_clock::now();
     if (a.deformable) {
         try {
-            body = makeBody(a, in, press, frame.centre, period, &solver);
+            // The skin under the path (with room for the raster's turns and the filter) is
+            // what the regions' contact slides over; a phantom's is its lattice face.
+            std::optional<haptics::SlidePatch> slide;
+            if (skin.follow && !in.phantom) {
+                const double margin = 2 * a.spacingMm * 1e-3 + 8e-3 + 2 * a.filterMm * 1e-3;
+                slide = haptics::SlidePatch{
+                    frame.centre,          frame.u, frame.v, press, frame.extentU + margin,
+                    frame.extentV + margin};
+            }
+            body = makeBody(a, in, press, frame.centre, period, &solver, slide ? &*slide : nullptr);
         } catch (const ValueError& e) {
             // Say which options made the tissue (the library speaks of fields, not flags).
             throw ValueError(std::string(e.what()) + "\n(the tissue of --fem-cell-mm " +

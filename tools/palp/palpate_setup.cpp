@@ -116,7 +116,8 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
                                                          const Eigen::Vector3d& press,
                                                          const Eigen::Vector3d& pathCentre,
                                                          double period,
-                                                         haptics::SolverChoice* choice) {
+                                                         haptics::SolverChoice* choice,
+                                                         const haptics::SlidePatch* slide) {
     requirePositive("--fem-cell-mm", a.femCellMm, "mm");
     requirePositive("--young-kpa", a.youngKpa, "kPa");
     haptics::DeformableSetup setup;  // the library's set-up, shared with the C API
@@ -145,6 +146,8 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
         // The regions start under the path, on the pressed face: that face is the one the
         // contact slides on without a factorisation (AsyncRegionsOptions::slideNodes).
         setup.options.regionsCentre = pathCentre;
+        // On a scan's curved skin, the skin under the path is what the contact slides over.
+        if (slide) setup.slidePatch = *slide;
     }
     const bool tumour = in.phantom && in.phantom->scene == volume::PhantomScene::Tumour;
     if (tumour) {

@@ -44,11 +44,10 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
 
 /// The deformable body of --deformable, supported on the face opposite the pressed one; the
 /// solver --fem-solver names (auto: haptics::chooseSolver) and why into @p choice.
-std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, const Input& in,
-                                                         const Eigen::Vector3d& press,
-                                                         const Eigen::Vector3d& pathCentre,
-                                                         double period,
-                                                         haptics::SolverChoice* choice);
+std::shared_ptr<const haptics::DeformableModel> makeBody(
+    const PalpateArgs& a, const Input& in, const Eigen::Vector3d& press,
+    const Eigen::Vector3d& pathCentre, double period, haptics::SolverChoice* choice,
+    const haptics::SlidePatch* slide = nullptr);
 
 /// The CT defaults (HU) a scan without Hounsfield units replaces: a scan that is not CT (its
 /// modality is not "CT" and no active value lies below -100, e.g. an MR, whose values start at

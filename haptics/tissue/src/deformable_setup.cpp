@@ -2,8 +2,13 @@
 
 #include "palp/haptics/tissue/deformable_setup.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <limits>
+#include <string>
 
+#include "palp/base/error.h"
 #include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 
@@ -63,6 +68,58 @@ SolverChoice chooseSolver(const fem::FemModel& model, const DeformableOptions& o
     return c;
 }
 
+std::vector<int> skinNodesUnder(const DeformableModel& model, const SlidePatch& patch) {
+    const auto unit = [](const Eigen::Vector3d& a) { return std::abs(a.norm() - 1.0) <= 1e-6; };
+    if (!patch.centre.allFinite() || !patch.u.allFinite() || !patch.v.allFinite() ||
+        !patch.press.allFinite() || !unit(patch.u) || !unit(patch.v) || !unit(patch.press) ||
+        std::abs(patch.u.dot(patch.v)) > 1e-6 || std::abs(patch.u.dot(patch.press)) > 1e-6 ||
+        std::abs(patch.v.dot(patch.press)) > 1e-6)
+        throw ValueError(
+            "deformable slidePatch: expected finite unit axes u, v and press, orthogonal to each "
+            "other, found u (" +
+            std::to_string(patch.u.x()) + ", " + std::to_string(patch.u.y()) + ", " +
+            std::to_string(patch.u.z()) + "), v (" + std::to_string(patch.v.x()) + ", " +
+            std::to_string(patch.v.y()) + ", " + std::to_string(patch.v.z()) + "), press (" +
+            std::to_string(patch.press.x()) + ", " + std::to_string(patch.press.y()) + ", " +
+            std::to_string(patch.press.z()) + ")");
+    if (!(patch.extentU > 0 && patch.extentV > 0 && std::isfinite(patch.extentU) &&
+          std::isfinite(patch.extentV)))
+        throw ValueError("deformable slidePatch: expected positive finite extents, found " +
+                         std::to_string(patch.extentU) + " x " + std::to_string(patch.extentV) +
+                         " m");
+    const fem::HexMesh& mesh = model.model().mesh();
+    const double edge = mesh.edge();
+    const int nu = std::max(1, static_cast<int>(std::ceil(patch.extentU / edge)));
+    const int nv = std::max(1, static_cast<int>(std::ceil(patch.extentV / edge)));
+    // Per element-sized column of the rectangle: the frontmost candidate's depth along the press.
+    std::vector<double> front(static_cast<std::size_t>(nu) * static_cast<std::size_t>(nv),
+                              std::numeric_limits<double>::infinity());
+    struct Candidate {
+        int node;
+        std::size_t column;
+        double depth;
+    };
+    std::vector<Candidate> inside;
+    for (const int n : model.loadNodes()) {
+        const Eigen::Vector3d r = mesh.nodePosition(n) - patch.centre;
+        const double a = r.dot(patch.u) + 0.5 * patch.extentU;
+        const double b = r.dot(patch.v) + 0.5 * patch.extentV;
+        if (!(a >= 0 && a <= patch.extentU && b >= 0 && b <= patch.extentV)) continue;
+        const int i = std::min(nu - 1, static_cast<int>(a / edge));
+        const int j = std::min(nv - 1, static_cast<int>(b / edge));
+        const std::size_t column = static_cast<std::size_t>(i) * static_cast<std::size_t>(nv) +
+                                   static_cast<std::size_t>(j);
+        const double depth = r.dot(patch.press);
+        front[column] = std::min(front[column], depth);
+        inside.push_back({n, column, depth});
+    }
+    std::vector<int> out;
+    for (const Candidate& c : inside)
+        if (c.depth <= front[c.column] + 1.5 * edge) out.push_back(c.node);
+    std::sort(out.begin(), out.end());
+    return out;
+}
+
 std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volume,
                                                      const DeformableSetup& setup,
                                                      SolverChoice* choice) {
@@ -83,6 +140,10 @@ std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volum
         choice->solver = options.solverKind;
         choice->reason = options.solverKind == DeformableSolver::asyncRegions ? "regions: asked"
                                                                               : "whole mesh: asked";
+    }
+    if (options.solverKind == DeformableSolver::asyncRegions && setup.slidePatch) {
+        options.regions.slideNodes = skinNodesUnder(*model, *setup.slidePatch);
+        model = model->withOptions(options);
     }
     if (options.solverKind == DeformableSolver::asyncRegions && autoLod) {
         const int lod = autoRegionsLod(*model);

@@ -6,6 +6,8 @@
 
 #include <cmath>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include "deformable_fixtures.h"
 #include "palp/fem/components.h"
@@ -109,6 +111,54 @@ TEST(DeformablePieces, RegionsOnTheShellAgreeWithTheWholeMesh) {
     // mesh's, and of the quasi-static solve.
     EXPECT_NEAR(ua, ub, 0.05 * ub);
     EXPECT_NEAR(ua, ref[3 * node + 1], 0.05 * ref[3 * node + 1]);
+}
+
+TEST(DeformablePieces, TheSkinUnderAPatchIsTheLayerThePressMeetsFirst) {
+    // On a curved body the regions' slide zone comes from the skin under the path: the free
+    // surface nodes in the rectangle that the press meets first, not the surfaces behind them.
+    const volume::Volume scan = piecesScan();
+    DeformableSetup setup = piecesSetup(DeformableSolver::asyncRegions);
+    const SlidePatch patch{mm(30, 5, 30),
+                           Eigen::Vector3d::UnitX(),
+                           Eigen::Vector3d::UnitZ(),
+                           Eigen::Vector3d::UnitY(),
+                           40e-3,
+                           40e-3};
+    setup.slidePatch = patch;
+    const auto model = makeDeformableModel(scan, setup);
+    const std::vector<int> skin = skinNodesUnder(*model, patch);
+    EXPECT_EQ(model->options().regions.slideNodes, skin);
+    const fem::HexMesh& mesh = model->model().mesh();
+    int top = 0;
+    for (const int n : skin) {
+        const Eigen::Vector3d p = mesh.nodePosition(n);
+        // In the rectangle, and on the shell's top (nodes lie on voxel corners: y 4.5 mm) or
+        // its one-cell-thin ceiling (9.5 mm) right behind it; never the slab's far face
+        // (49.5 mm) nor a wall's inside.
+        EXPECT_GE(p.x(), 10e-3 - 1e-9);
+        EXPECT_LE(p.x(), 50e-3 + 1e-9);
+        EXPECT_GE(p.z(), 10e-3 - 1e-9);
+        EXPECT_LE(p.z(), 50e-3 + 1e-9);
+        EXPECT_LE(p.y(), 10e-3 + 1e-9) << "node " << n;
+        if (std::abs(p.y() - 4.5e-3) < 1e-9) ++top;
+    }
+    EXPECT_EQ(top, 8 * 8);  // every top node in the square x, z 10..50 mm: 14.5..49.5 mm
+    // A patch that is not a frame, or has no area, is refused naming the field.
+    SlidePatch skew = patch;
+    skew.v = Eigen::Vector3d(0.0, 0.6, 0.8);
+    EXPECT_THROW(
+        {
+            try {
+                skinNodesUnder(*model, skew);
+            } catch (const ValueError& e) {
+                EXPECT_NE(std::string(e.what()).find("slidePatch"), std::string::npos);
+                throw;
+            }
+        },
+        ValueError);
+    SlidePatch flat = patch;
+    flat.extentV = 0;
+    EXPECT_THROW(skinNodesUnder(*model, flat), ValueError);
 }
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "palp/fem/hex_mesh.h"
 #include "palp/fem/material.h"
@@ -17,6 +18,27 @@
 #include "palp/volume/volume.h"
 
 namespace palp::haptics {
+
+/// The skin a contact will slide over: a rectangle across the press (centre, unit axes u and
+/// v, full extents, metres) seen along @p press (into the body). On a patient's curved skin the
+/// regions' default slide zone (the lattice face of the regions centre, a phantom's flat skin)
+/// is empty; this patch gives the regions the nodes the contact will reach
+/// (fem::AsyncRegionsOptions::slideNodes), so that every move of the contact over it is laid
+/// out from the whole body's factor instead of a factorisation of its own (seconds).
+struct SlidePatch {
+    Eigen::Vector3d centre{Eigen::Vector3d::Zero()};
+    Eigen::Vector3d u{Eigen::Vector3d::UnitX()}, v{Eigen::Vector3d::UnitZ()};
+    Eigen::Vector3d press{Eigen::Vector3d::UnitY()};
+    double extentU = 0, extentV = 0;
+};
+
+/// The skin of @p model under @p patch: its free surface nodes (loadNodes()) whose rest
+/// positions lie in the rectangle and within 1.5 element edges (along the press) of the
+/// frontmost such node of their element-sized column, i.e. the skin the press meets first and
+/// not a surface behind it (the far side of a head, a cavity's wall). Sorted.
+/// @throw palp::ValueError for a non-finite patch, axes that are not unit and orthogonal to
+/// each other and to the press, or extents not positive.
+std::vector<int> skinNodesUnder(const DeformableModel& model, const SlidePatch& patch);
 
 /// Everything that makes a deformable body from a scan (defaults: `palp palpate
 /// --deformable`'s: 5 mm cells, tissue above -200, bone above 500 fixed, tissue enclosed by
@@ -48,6 +70,9 @@ struct DeformableSetup {
     /// true: options.solverKind is chosen by chooseSolver() (`palp palpate --fem-solver auto`,
     /// the default there): the whole mesh where it makes the tick, the regions otherwise.
     bool autoSolver = false;
+    /// With the regions: the skin the contact will slide over (skinNodesUnder() becomes
+    /// options.regions.slideNodes, before the lod is chosen). Unset: the regions' default.
+    std::optional<SlidePatch> slidePatch;
 
     /// Sets the period the sessions will step the body with, s (tickSeconds and, for the
     /// regions, regions.tickSeconds).
