@@ -35,7 +35,7 @@
 #include "palp/studies/trace_csv.h"
 #include "palp/volume/load.h"
 #include "palp/volume/phantom.h"
-#include "palpate_error.h"
+#include "palpate/error_budget.h"
 #include "palpate_felt.h"
 #include "palpate_options.h"
 #include "palpate_run.h"

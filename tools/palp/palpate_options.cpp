@@ -9,7 +9,7 @@
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/kernels/ray_bundle.h"
-#include "palpate_error.h"
+#include "palpate/error_budget.h"
 
 namespace palp::tool {
 

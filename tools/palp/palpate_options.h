@@ -74,7 +74,7 @@ struct PalpateArgs {
     double secondaryHz = 100;
     int lod = 0;  ///< 0: haptics::autoRegionsLod (2 where the cell counts are even, else 1; 4 on
                   ///< large faces)
-    /// --error-budget: "off" or a percentage (palpate_error.h); default the normal-pressure
+    /// --error-budget: "off" or a percentage (palpate/error_budget.h); default the normal-pressure
     /// stiffness JND (haptics::kNormalPressureJndPercent).
     std::string errorBudget = "5.23";
 };

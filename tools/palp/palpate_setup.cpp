@@ -15,7 +15,7 @@
 #include "palp/haptics/tissue/deformable_setup.h"
 #include "palp/studies/offline_run.h"
 #include "palp/volume/load.h"
-#include "palpate_error.h"
+#include "palpate/error_budget.h"
 
 namespace palp::tool {
 

@@ -9,6 +9,7 @@
 
 #include "palp/base/error.h"
 #include "palp/fem/explicit_solver.h"
+#include "palp/haptics/tissue/deformable.h"
 
 namespace palp::haptics {
 
@@ -190,6 +191,46 @@ ErrorControlChoice chooseRegionsSetting(const ErrorTable& table, const ErrorPoin
                   out.candidates);
     out.reason = buf;
     return out;
+}
+
+ErrorPoint errorConditions(const DeformableModel& model) {
+    ErrorPoint x;
+    x.fill(std::numeric_limits<double>::quiet_NaN());
+    const fem::ElasticMaterial& m = model.model().material();
+    x[errorIndex(ErrorVar::youngs)] = m.youngsModulus;
+    x[errorIndex(ErrorVar::poisson)] = m.poissonRatio;
+    x[errorIndex(ErrorVar::density)] = m.density;
+    x[errorIndex(ErrorVar::damping)] = m.dampingAlpha;
+    const fem::AsyncRegionsOptions& r = model.options().regions;
+    x[errorIndex(ErrorVar::lod)] = r.lod;
+    x[errorIndex(ErrorVar::primary)] = r.primaryNodes;
+    x[errorIndex(ErrorVar::rate)] = r.secondaryRate;
+    return x;
+}
+
+ErrorEstimate estimateBodyError(const DeformableModel& model, double strain, double frequencyHz) {
+    if (model.options().solverKind != DeformableSolver::asyncRegions) {
+        ErrorEstimate none;
+        none.percent = 0;
+        return none;
+    }
+    const ErrorTable& table = ErrorTable::builtIn();
+    ErrorPoint x = errorConditions(model);
+    const std::vector<double> given{0.0};
+    const ErrorTable::Axis* sa = table.axis(ErrorVar::strain);
+    const ErrorTable::Axis* fa = table.axis(ErrorVar::frequency);
+    const bool worstS = std::isnan(strain) && sa, worstF = std::isnan(frequencyHz) && fa;
+    ErrorEstimate worst;
+    worst.percent = -1;
+    for (double s : worstS ? sa->values : given) {
+        for (double f : worstF ? fa->values : given) {
+            x[errorIndex(ErrorVar::strain)] = worstS ? s : strain;
+            x[errorIndex(ErrorVar::frequency)] = worstF ? f : frequencyHz;
+            const ErrorEstimate e = table.estimate(x);
+            if (!(e.percent <= worst.percent)) worst = e;
+        }
+    }
+    return worst;
 }
 
 ErrorMonitor::ErrorMonitor(const ErrorTable& table, const ErrorPoint& conditions,

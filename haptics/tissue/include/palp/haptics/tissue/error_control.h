@@ -21,6 +21,8 @@
 
 namespace palp::haptics {
 
+class DeformableModel;
+
 /// The regions' adaptivity the controller chooses (AsyncRegionsOptions' fields of that name).
 struct RegionsSetting {
     int lod = 2;                 ///< secondary level of detail (kept as given: see chooser)
@@ -88,6 +90,16 @@ ErrorEstimate predictError(const ErrorTable& table, const ErrorPoint& conditions
 ErrorControlChoice chooseRegionsSetting(const ErrorTable& table, const ErrorPoint& conditions,
                                         int lod, const std::function<PrimaryCost(int)>& cost,
                                         const ErrorControlOptions& options = {});
+
+/// The material (E, nu, density, mass damping) and the regions' setting (lod, primary size,
+/// secondary rate) of @p model as an ErrorPoint; strain and frequency NaN.
+ErrorPoint errorConditions(const DeformableModel& model);
+
+/// The error ErrorTable::builtIn() predicts for @p model's body on the regions at an input of
+/// @p strain (contact displacement amplitude / the body's thickness along the press) and
+/// @p frequencyHz; NaN for either: the worst over the table's nodes of that axis. A body on
+/// the whole mesh has no regions' error: percent 0, in range.
+ErrorEstimate estimateBodyError(const DeformableModel& model, double strain, double frequencyHz);
 
 /// The run-time estimate: the input's strain amplitude and frequency from the contact's
 /// displacement (one sample a tick), looked up in the table at the end of every window.

@@ -14,10 +14,10 @@
 #include <string>
 #include <vector>
 
+#include "../palpate_options.h"
 #include "palp/haptics/session.h"
 #include "palp/haptics/tissue/deformable.h"
 #include "palp/haptics/tissue/error_control.h"
-#include "palpate_options.h"
 
 namespace palp::tool {
 
@@ -25,9 +25,6 @@ namespace palp::tool {
 CLI::Validator errorBudgetCheck();
 /// --error-budget's percentage; NaN for "off". @throw palp::ValueError naming the option.
 double errorBudgetPercent(const std::string& text);
-
-/// The material and the setting of @p model as an ErrorPoint (strain and frequency NaN).
-haptics::ErrorPoint errorConditions(const haptics::DeformableModel& model);
 
 /// The controller's choice for @p model (on the regions) at @p budgetPercent: its lod, the
 /// primary's cost around regionsCentreNode() at its tick, the worst input, secondary rates from

@@ -1,4 +1,4 @@
-#include "palpate_error.h"
+#include "error_budget.h"
 
 #include <cmath>
 #include <cstdio>
@@ -58,23 +58,6 @@ double errorBudgetPercent(const std::string& text) {
     return v;
 }
 
-haptics::ErrorPoint errorConditions(const haptics::DeformableModel& model) {
-    using haptics::errorIndex;
-    using haptics::ErrorVar;
-    haptics::ErrorPoint x;
-    x.fill(std::numeric_limits<double>::quiet_NaN());
-    const fem::ElasticMaterial& m = model.model().material();
-    x[errorIndex(ErrorVar::youngs)] = m.youngsModulus;
-    x[errorIndex(ErrorVar::poisson)] = m.poissonRatio;
-    x[errorIndex(ErrorVar::density)] = m.density;
-    x[errorIndex(ErrorVar::damping)] = m.dampingAlpha;
-    const fem::AsyncRegionsOptions& r = model.options().regions;
-    x[errorIndex(ErrorVar::lod)] = r.lod;
-    x[errorIndex(ErrorVar::primary)] = r.primaryNodes;
-    x[errorIndex(ErrorVar::rate)] = r.secondaryRate;
-    return x;
-}
-
 haptics::ErrorControlChoice chooseForBody(const haptics::DeformableModel& model,
                                           double budgetPercent, double minRateHz) {
     const fem::AsyncRegionsOptions& r = model.options().regions;
@@ -91,8 +74,8 @@ haptics::ErrorControlChoice chooseForBody(const haptics::DeformableModel& model,
     const auto cost = [&](int n) {
         return haptics::primaryCost(model.model(), centre, r.lod, n, r.safetyFactor, r.tickSeconds);
     };
-    return haptics::chooseRegionsSetting(haptics::ErrorTable::builtIn(), errorConditions(model),
-                                         r.lod, cost, o);
+    return haptics::chooseRegionsSetting(haptics::ErrorTable::builtIn(),
+                                         haptics::errorConditions(model), r.lod, cost, o);
 }
 
 std::shared_ptr<haptics::DeformableModel> applyErrorBudget(
@@ -133,8 +116,8 @@ ErrorBudgetReport errorBudgetReport(const PalpateArgs& a, const haptics::Deforma
     press.cwiseAbs().maxCoeff(&axis);
     const double length = (mesh.nodeCounts()[static_cast<std::size_t>(axis)] - 1) * mesh.edge();
     r.referenceLengthMm = length * 1e3;
-    haptics::ErrorMonitor m(haptics::ErrorTable::builtIn(), errorConditions(*model), length,
-                            kWindowSeconds, periodSeconds, budget);
+    haptics::ErrorMonitor m(haptics::ErrorTable::builtIn(), haptics::errorConditions(*model),
+                            length, kWindowSeconds, periodSeconds, budget);
     for (const haptics::Snapshot& s : snaps)
         m.update(s.contactCount > 0 ? s.maxDisplacement : std::numeric_limits<double>::quiet_NaN());
     r.windows = m.windows();
