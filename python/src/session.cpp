@@ -9,6 +9,7 @@
 
 #include <array>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -18,6 +19,7 @@
 #include "palp/base/error.h"
 #include "palp/haptics/devices/watchdog_device.h"
 #include "palp/haptics/tissue/deformable_setup.h"
+#include "palp/haptics/tissue/error_control.h"
 #include "palp/kernels/ray_bundle.h"
 #include "palp/studies/offline_run.h"
 #include "python_device.h"
@@ -273,6 +275,26 @@ void bindSession(py::module_& m) {
             "regions, threaded: a patient's CT), 'explicit' or 'regions'. Returns the solver "
             "that runs and why: {'solver': 'explicit'|'regions', 'chosen': auto chose it, "
             "'element_substeps', 'budget' (auto only), 'lod', 'reason'}.")
+        .def(
+            "error_estimate",
+            [](const Scene& scene, std::optional<double> strain, std::optional<double> frequency) {
+                if (!scene.deformable())
+                    throw ValueError(
+                        "error_estimate: expected a deformable scene, found a rigid one");
+                const double nan = std::numeric_limits<double>::quiet_NaN();
+                const haptics::ErrorEstimate e = haptics::estimateBodyError(
+                    *scene.deformable(), strain.value_or(nan), frequency.value_or(nan));
+                py::dict out;
+                out["percent"] = e.percent;
+                out["in_range"] = e.inRange();
+                return out;
+            },
+            py::kw_only(), py::arg("strain") = py::none(), py::arg("frequency") = py::none(),
+            "The contact-force error (percent) palp's error table predicts for the deformable "
+            "body's regions at an input of strain (contact displacement amplitude / the body's "
+            "thickness along the press) and frequency (Hz); None: the worst the table holds "
+            "over it. 0 on the whole mesh. {'percent', 'in_range' (no coordinate clamped to the "
+            "sweep's ranges)} (docs/error_analysis.md).")
         .def("make_rigid", [](Scene& s) { s.setDeformable(nullptr); })
         .def_property_readonly("deformable",
                                [](const Scene& s) { return s.deformable() != nullptr; })

@@ -318,6 +318,22 @@ class Sessions(unittest.TestCase):
                                        params).surface())
 
 
+    def test_error_estimate_of_the_regions(self):
+        # palp's error table for the body's regions: the worst input over the table is at least
+        # the error at a given input; 0 on the whole mesh; a rigid scene is refused.
+        scene = palp.Scene.from_volume(avc_volume())
+        with self.assertRaises(palp.ValueError):
+            scene.error_estimate()
+        scene.make_deformable(avc_volume(), support_face="y_max", solver="regions")
+        given = scene.error_estimate(strain=0.05, frequency=4.0)
+        worst = scene.error_estimate()
+        self.assertGreater(given["percent"], 0.0)
+        self.assertLess(given["percent"], 100.0)
+        self.assertGreaterEqual(worst["percent"], given["percent"])
+        self.assertTrue(given["in_range"])  # damping (60 1/s, above the sweep's) is no axis
+        scene.make_deformable(avc_volume(), support_face="y_max", solver="explicit")
+        self.assertEqual(scene.error_estimate(strain=0.05, frequency=4.0)["percent"], 0.0)
+
     def test_the_head_ct_is_deformable_on_the_regions(self):
         # A patient's CT (the shared data's head, 1 mm voxels): make_deformable's 'auto' takes
         # the regions (the whole mesh would miss the tick), and a session presses its skin.

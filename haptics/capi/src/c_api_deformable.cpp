@@ -14,6 +14,7 @@
 #include "palp/base/validate.h"
 #include "palp/haptics/scene.h"
 #include "palp/haptics/tissue/deformable_setup.h"
+#include "palp/haptics/tissue/error_control.h"
 
 namespace ph = palp::haptics;
 
@@ -234,6 +235,27 @@ palp_status palp_scene_solver(const palp_scene* scene, palp_solver_choice* out) 
     if (!modelOf(scene, "palp_scene_solver")) return PALP_ERROR_STATE;
     *out = scene->solver;
     return PALP_OK;
+}
+
+palp_status palp_scene_error_estimate(const palp_scene* scene, double strain, double frequency,
+                                      palp_error_estimate* out) {
+    if (!scene) return nullArgument("palp_scene_error_estimate", "scene");
+    if (!out) return nullArgument("palp_scene_error_estimate", "out");
+    const ph::DeformableModel* m = modelOf(scene, "palp_scene_error_estimate");
+    if (!m) return PALP_ERROR_STATE;
+    return guarded([&] {
+        const std::pair<const char*, double> inputs[] = {{"strain", strain},
+                                                         {"frequency", frequency}};
+        for (const auto& [name, v] : inputs) {
+            if (!std::isnan(v) && !(std::isfinite(v) && v >= 0))
+                palp::throwExpected(std::string("palp_scene_error_estimate: ") + name,
+                                    "a finite value >= 0 or NAN", std::to_string(v));
+        }
+        const ph::ErrorEstimate e = ph::estimateBodyError(*m, strain, frequency);
+        out->percent = e.percent;
+        out->in_range = e.inRange() ? 1 : 0;
+        return PALP_OK;
+    });
 }
 
 palp_status palp_scene_surface_size(const palp_scene* scene, size_t* vertex_count,

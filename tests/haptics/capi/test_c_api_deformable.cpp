@@ -17,6 +17,7 @@
 #include "palp/haptics/scene.h"
 #include "palp/haptics/session.h"
 #include "palp/haptics/tissue/deformable_setup.h"
+#include "palp/haptics/tissue/error_table.h"
 #include "palp/palp.h"
 #include "palp/volume/phantom.h"
 
@@ -346,4 +347,58 @@ TEST(CApiDeformableInsideBone, KeepAndDropReachTheBody) {
     EXPECT_EQ(insideCount(PALP_INSIDE_BONE_KEEP), 0);
     EXPECT_GT(insideCount(PALP_INSIDE_BONE_DROP), 10);
     palp_volume_release(volume);
+}
+
+// palp_scene_error_estimate: the built-in error table at the body's material and regions and
+// the input given (the worst over an input left NAN); 0 on the whole mesh.
+TEST_F(CApiDeformable, ErrorEstimateIsTheTablesForTheBody) {
+    auto scene = [&](palp_fem_solver solver, int seeds) {
+        palp_deformable_options o;
+        palp_deformable_options_default(&o);
+        o.solver = solver;
+        o.threaded = 0;
+        o.primary_nodes = seeds;
+        palp_scene* s = nullptr;
+        EXPECT_EQ(palp_scene_make_deformable(sVolume, NAN, &o, &s), PALP_OK) << palp_last_error();
+        return s;
+    };
+    palp_scene* regions = scene(PALP_FEM_REGIONS, 60);
+    palp_solver_choice choice{};
+    ASSERT_EQ(palp_scene_solver(regions, &choice), PALP_OK);
+    palp_error_estimate e{};
+    ASSERT_EQ(palp_scene_error_estimate(regions, 0.05, 4, &e), PALP_OK) << palp_last_error();
+    // The same lookup in C++: the defaults' material (5 kPa, 0.45, 1000 kg/m^3, 60 1/s), the
+    // regions' lod, 60 seeds, 100 Hz.
+    palp::haptics::ErrorPoint x{};
+    using palp::haptics::errorIndex;
+    using palp::haptics::ErrorVar;
+    x[errorIndex(ErrorVar::youngs)] = 5e3;
+    x[errorIndex(ErrorVar::poisson)] = 0.45;
+    x[errorIndex(ErrorVar::density)] = 1000;
+    x[errorIndex(ErrorVar::damping)] = 60;
+    x[errorIndex(ErrorVar::lod)] = choice.lod;
+    x[errorIndex(ErrorVar::primary)] = 60;
+    x[errorIndex(ErrorVar::rate)] = 100;
+    x[errorIndex(ErrorVar::strain)] = 0.05;
+    x[errorIndex(ErrorVar::frequency)] = 4;
+    const palp::haptics::ErrorEstimate want = palp::haptics::ErrorTable::builtIn().estimate(x);
+    EXPECT_DOUBLE_EQ(e.percent, want.percent);
+    EXPECT_GT(e.percent, 0);
+    EXPECT_EQ(e.in_range, 1);  // damping is no axis of the table: 60 1/s is not flagged
+    palp_error_estimate worst{};
+    ASSERT_EQ(palp_scene_error_estimate(regions, NAN, NAN, &worst), PALP_OK);
+    EXPECT_GE(worst.percent, e.percent);
+    palp_scene* few = scene(PALP_FEM_REGIONS, 5);
+    palp_error_estimate small{};
+    ASSERT_EQ(palp_scene_error_estimate(few, 0.05, 4, &small), PALP_OK);
+    EXPECT_GT(small.percent, e.percent);  // a smaller primary, a larger error
+    palp_scene* whole = scene(PALP_FEM_WHOLE_MESH, 60);
+    ASSERT_EQ(palp_scene_error_estimate(whole, 0.05, 4, &e), PALP_OK);
+    EXPECT_EQ(e.percent, 0);
+    EXPECT_EQ(palp_scene_error_estimate(regions, -1, 4, &e), PALP_ERROR_INVALID_ARGUMENT);
+    EXPECT_NE(std::string(palp_last_error()).find("strain"), std::string::npos);
+    EXPECT_EQ(palp_scene_error_estimate(regions, 0.05, 4, nullptr), PALP_ERROR_INVALID_ARGUMENT);
+    palp_scene_release(whole);
+    palp_scene_release(few);
+    palp_scene_release(regions);
 }

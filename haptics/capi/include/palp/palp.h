@@ -258,6 +258,24 @@ typedef struct palp_solver_choice {
 /** What solver @p scene's sessions run and why. PALP_ERROR_STATE on a rigid scene. */
 palp_status palp_scene_solver(const palp_scene* scene, palp_solver_choice* out);
 
+/** The contact-force error palp's error table predicts for a deformable scene's regions
+ *  (docs/error_analysis.md, "Lookup table and control"). */
+typedef struct palp_error_estimate {
+    /** Relative error of the contact force, percent: the table's 95th percentile of the error
+     *  sweep's peak-force error at the body's material, regions (lod, primary size, secondary
+     *  rate) and the input; 0 for a body on the whole mesh. */
+    double percent;
+    int in_range; /**< 1: every coordinate inside the sweep's ranges; 0: some clamped to them */
+} palp_error_estimate;
+
+/** The error predicted for @p scene's regions at an input of @p strain (the contact's
+ *  displacement amplitude over the body's thickness along the press) and @p frequency (Hz);
+ *  NAN for either: the worst the table holds over it (what `palp palpate --error-budget`
+ *  chooses for). PALP_ERROR_STATE on a rigid scene; PALP_ERROR_INVALID_ARGUMENT for an
+ *  infinite or negative strain or frequency. */
+palp_status palp_scene_error_estimate(const palp_scene* scene, double strain, double frequency,
+                                      palp_error_estimate* out);
+
 /** The deformable surface's size: vertices and triangles (either pointer may be NULL). The
  *  topology never changes. PALP_ERROR_STATE on a rigid scene. */
 palp_status palp_scene_surface_size(const palp_scene* scene, size_t* vertex_count,
