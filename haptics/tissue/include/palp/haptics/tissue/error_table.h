@@ -49,8 +49,8 @@ constexpr std::size_t errorIndex(ErrorVar v) noexcept { return static_cast<std::
 /// values of variables that are not axes of the table are ignored.
 using ErrorPoint = std::array<double, kErrorVarCount>;
 
-/// The stiffness JND for continuous pressure along the normal, percent (docs/ALGORITHMS.md
-/// section 8, thesis paper III): the default error budget.
+/// The stiffness JND for continuous pressure along the normal, percent (thesis paper III;
+/// docs/algorithms.md, "Stiffness JNDs by way of touching"): the default error budget.
 inline constexpr double kNormalPressureJndPercent = 5.23;
 
 /// What a lookup gives.
