@@ -202,6 +202,14 @@ TEST(ErrorControl, ChoosesTheCheapestSettingWithinTheBudget) {
     EXPECT_FALSE(c.meetsTime);
     o.budgetPercent = -1;
     EXPECT_THROW(chooseRegionsSetting(t, x, 2, cost, o), ValueError);
+    // Out of reach, with a rate that barely matters: not the faster secondary for 1 % less.
+    const ErrorTable flat(axes, {12, 11.9, 6, 5.95, 2, 1.98});
+    o.budgetPercent = 1;
+    o.maxElementSubsteps = 8000;
+    c = chooseRegionsSetting(flat, x, 2, cost, o);
+    EXPECT_EQ(c.setting.primaryNodes, 60);
+    EXPECT_EQ(c.setting.secondaryRate, 25);
+    EXPECT_FALSE(c.meetsBudget);
 }
 
 // The monitor reads a raised-cosine press's amplitude and frequency from its displacement.

@@ -84,8 +84,8 @@ ErrorEstimate predictError(const ErrorTable& table, const ErrorPoint& conditions
 /// cost (@p cost, per seed count) is within maxElementSubsteps and whose predicted error is
 /// within budgetPercent, the one with the fewest element-substeps, then the lowest secondary
 /// rate (fewer secondary solves), then the smallest predicted error. When none meets the budget
-/// within the time: the smallest predicted error that fits the time (meetsBudget false); when none
-/// fits the time: the cheapest (meetsTime false).
+/// within the time: the cheapest of those within 5 % of the smallest predicted error that fits the
+/// time (meetsBudget false); when none fits the time: the cheapest (meetsTime false).
 /// @throw palp::ValueError for a budget that is not a positive finite number, or no candidate.
 ErrorControlChoice chooseRegionsSetting(const ErrorTable& table, const ErrorPoint& conditions,
                                         int lod, const std::function<PrimaryCost(int)>& cost,
