@@ -126,6 +126,7 @@ ErrorBudgetReport errorBudgetReport(const PalpateArgs& a, const haptics::Deforma
     r.lastPercent = m.current().percent;
     r.strain = m.strain();
     r.frequencyHz = m.frequency();
+    r.lastInRange = m.current().inRange();
     return r;
 }
 
@@ -157,6 +158,7 @@ nlohmann::json errorBudgetJson(const ErrorBudgetReport& r) {
                 {"last_percent", num(r.lastPercent)},
                 {"last_strain", num(r.strain)},
                 {"last_frequency_hz", num(r.frequencyHz)},
+                {"last_in_sweep_ranges", r.lastInRange},
                 {"reference_length_mm", r.referenceLengthMm}};
     return j;
 }
@@ -171,9 +173,10 @@ void printErrorBudget(const ErrorBudgetReport& r) {
                 r.choice.reason.c_str(), r.askedPrimary, r.askedRate);
     if (r.windows > 0)
         std::printf(
-            "error estimate over the run: max %.2f %%, last %.2f %% (strain %.3f, %.1f Hz); "
+            "error estimate over the run: max %.2f %%, last %.2f %% (strain %.3f, %.1f Hz%s); "
             "%d of %d windows of 0.25 s over the budget\n",
-            r.maxPercent, r.lastPercent, r.strain, r.frequencyHz, r.windowsOver, r.windows);
+            r.maxPercent, r.lastPercent, r.strain, r.frequencyHz,
+            r.lastInRange ? "" : ", outside the sweep's ranges: clamped", r.windowsOver, r.windows);
     else
         std::printf("error estimate over the run: no window with contact\n");
 }

@@ -50,7 +50,8 @@ struct ErrorBudgetReport {
     double maxPercent = 0;   ///< the run's largest estimate (NaN: no window with contact)
     double lastPercent = 0;  ///< the last window's
     double strain = 0, frequencyHz = 0;  ///< the last window's input
-    std::string note;                    ///< why it does not apply
+    bool lastInRange = false;  ///< the last window's input inside the sweep's ranges (not clamped)
+    std::string note;          ///< why it does not apply
 };
 
 /// The report of a run on @p model (null: no deformable body): the set-up choice again
