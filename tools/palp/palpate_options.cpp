@@ -98,6 +98,10 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
                     "stiffness JND for normal pressure); 'off' keeps --primary-nodes and "
                     "--secondary-hz")
         ->check(errorBudgetCheck());
+    app->add_option("--error-table", a.errorTable,
+                    "regions: the error table --error-budget reads (a file `palp errormap "
+                    "--table` wrote; default: the one palp ships)")
+        ->check(CLI::ExistingFile);
 }
 
 /// Coupling: mode, ray source and its parameters, stiffness, friction, passivity.

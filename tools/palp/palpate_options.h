@@ -77,6 +77,7 @@ struct PalpateArgs {
     /// --error-budget: "off" or a percentage (palpate/error_budget.h); default the normal-pressure
     /// stiffness JND (haptics::kNormalPressureJndPercent).
     std::string errorBudget = "5.23";
+    std::string errorTable;  ///< --error-table: a table file; empty: the built-in one
 };
 
 /// The options checked against the scene: each scene option belongs to one phantom (or any), the

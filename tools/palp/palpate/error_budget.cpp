@@ -58,7 +58,30 @@ double errorBudgetPercent(const std::string& text) {
     return v;
 }
 
-haptics::ErrorControlChoice chooseForBody(const haptics::DeformableModel& model,
+std::shared_ptr<const haptics::ErrorTable> errorTableOf(const PalpateArgs& a) {
+    if (a.errorTable.empty())
+        return std::shared_ptr<const haptics::ErrorTable>(&haptics::ErrorTable::builtIn(),
+                                                          [](const haptics::ErrorTable*) {});
+    try {
+        auto t =
+            std::make_shared<const haptics::ErrorTable>(haptics::ErrorTable::load(a.errorTable));
+        if (t->coupling != 1)
+            throw ValueError(a.errorTable +
+                             ": coupling: expected 1 (the condensed coupling the regions run), "
+                             "found " +
+                             std::to_string(t->coupling));
+        return t;
+    } catch (const IoError& e) {
+        throw IoError(std::string("--error-table: ") + e.what());
+    } catch (const FormatError& e) {
+        throw FormatError(std::string("--error-table: ") + e.what());
+    } catch (const ValueError& e) {
+        throw ValueError(std::string("--error-table: ") + e.what());
+    }
+}
+
+haptics::ErrorControlChoice chooseForBody(const haptics::ErrorTable& table,
+                                          const haptics::DeformableModel& model,
                                           double budgetPercent, double minRateHz) {
     const fem::AsyncRegionsOptions& r = model.options().regions;
     const int centre = model.regionsCentreNode();
@@ -74,15 +97,15 @@ haptics::ErrorControlChoice chooseForBody(const haptics::DeformableModel& model,
     const auto cost = [&](int n) {
         return haptics::primaryCost(model.model(), centre, r.lod, n, r.safetyFactor, r.tickSeconds);
     };
-    return haptics::chooseRegionsSetting(haptics::ErrorTable::builtIn(),
-                                         haptics::errorConditions(model), r.lod, cost, o);
+    return haptics::chooseRegionsSetting(table, haptics::errorConditions(model), r.lod, cost, o);
 }
 
 std::shared_ptr<haptics::DeformableModel> applyErrorBudget(
     const PalpateArgs& a, std::shared_ptr<haptics::DeformableModel> model) {
     const double budget = errorBudgetPercent(a.errorBudget);
     if (std::isnan(budget) || !onRegions(*model)) return model;
-    const haptics::ErrorControlChoice c = chooseForBody(*model, budget, a.secondaryHz);
+    const haptics::ErrorControlChoice c =
+        chooseForBody(*errorTableOf(a), *model, budget, a.secondaryHz);
     haptics::DeformableOptions o = model->options();
     if (o.regions.primaryNodes == c.setting.primaryNodes &&
         o.regions.secondaryRate == c.setting.secondaryRate)
@@ -110,14 +133,16 @@ ErrorBudgetReport errorBudgetReport(const PalpateArgs& a, const haptics::Deforma
     }
     r.applies = true;
     // The body was built with the choice (applyErrorBudget); choosing again gives it back.
-    r.choice = chooseForBody(*model, budget, a.secondaryHz);
+    const auto table = errorTableOf(a);
+    r.table = a.errorTable.empty() ? "built-in" : a.errorTable;
+    r.choice = chooseForBody(*table, *model, budget, a.secondaryHz);
     const fem::HexMesh& mesh = model->model().mesh();
     Eigen::Index axis = 0;
     press.cwiseAbs().maxCoeff(&axis);
     const double length = (mesh.nodeCounts()[static_cast<std::size_t>(axis)] - 1) * mesh.edge();
     r.referenceLengthMm = length * 1e3;
-    haptics::ErrorMonitor m(haptics::ErrorTable::builtIn(), haptics::errorConditions(*model),
-                            length, kWindowSeconds, periodSeconds, budget);
+    haptics::ErrorMonitor m(*table, haptics::errorConditions(*model), length, kWindowSeconds,
+                            periodSeconds, budget);
     for (const haptics::Snapshot& s : snaps)
         m.update(s.contactCount > 0 ? s.maxDisplacement : std::numeric_limits<double>::quiet_NaN());
     r.windows = m.windows();
@@ -141,6 +166,7 @@ nlohmann::json errorBudgetJson(const ErrorBudgetReport& r) {
     const haptics::ErrorControlChoice& c = r.choice;
     auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); };
     j["budget_percent"] = r.budgetPercent;
+    j["table"] = r.table;
     j["asked"] = {{"primary_nodes", r.askedPrimary}, {"secondary_hz", r.askedRate}};
     j["chosen"] = {{"primary_nodes", c.setting.primaryNodes},
                    {"secondary_hz", c.setting.secondaryRate},

@@ -26,10 +26,16 @@ CLI::Validator errorBudgetCheck();
 /// --error-budget's percentage; NaN for "off". @throw palp::ValueError naming the option.
 double errorBudgetPercent(const std::string& text);
 
+/// The table --error-table names (a file `palp errormap --table` wrote), or palp's built-in
+/// one when it is empty. @throw palp::Error naming --error-table and the file's field; a table
+/// of the plain coupling is refused (the regions run the condensed one).
+std::shared_ptr<const haptics::ErrorTable> errorTableOf(const PalpateArgs& a);
+
 /// The controller's choice for @p model (on the regions) at @p budgetPercent: its lod, the
 /// primary's cost around regionsCentreNode() at its tick, the worst input, secondary rates from
 /// @p minRateHz (--secondary-hz) up.
-haptics::ErrorControlChoice chooseForBody(const haptics::DeformableModel& model,
+haptics::ErrorControlChoice chooseForBody(const haptics::ErrorTable& table,
+                                          const haptics::DeformableModel& model,
                                           double budgetPercent, double minRateHz);
 
 /// @p model with the primary size and secondary rate chooseForBody() picks, when the body is
@@ -52,6 +58,7 @@ struct ErrorBudgetReport {
     double strain = 0, frequencyHz = 0;  ///< the last window's input
     bool lastInRange = false;  ///< the last window's input inside the sweep's ranges (not clamped)
     std::string note;          ///< why it does not apply
+    std::string table;         ///< --error-table's file, or "built-in"
 };
 
 /// The report of a run on @p model (null: no deformable body): the set-up choice again
