@@ -99,8 +99,19 @@ struct WatertightRay {
             float tn = (lo[i] - org[i]) * invDir[i];
             float tf = (hi[i] - org[i]) * invDir[i];
             if (tn > tf) std::swap(tn, tf);
-            tn -= std::abs(tn) * kBoxSlack;  // an infinite slab turns NaN here: ignored below
-            tf += std::abs(tf) * kBoxSlack;
+            // A zero direction component with the origin outside the slab: both distances are
+            // +inf (or -inf) and the ray never enters it. The slack below would turn them NaN
+            // (inf - inf) and let every such box pass: an axis-aligned ray then walked most of
+            // the tree (1.5 ms a query on the head CT's 35,440 triangles).
+            if (tn == std::numeric_limits<float>::infinity() ||
+                tf == -std::numeric_limits<float>::infinity())
+                return false;
+            // Slack on finite distances only; a NaN one (the origin on a flat box's plane) is
+            // ignored below, which keeps the test conservative.
+            if (std::abs(tn) < std::numeric_limits<float>::infinity())
+                tn -= std::abs(tn) * kBoxSlack;
+            if (std::abs(tf) < std::numeric_limits<float>::infinity())
+                tf += std::abs(tf) * kBoxSlack;
             t0 = tn > t0 ? tn : t0;
             t1 = tf < t1 ? tf : t1;
             if (t0 > t1) return false;
@@ -500,7 +511,7 @@ bool RefitMesh::traverse(const std::array<float, 3>& org, const std::array<float
         const Node& n = mNodes[node];
         if (n.count & kInner) {
             const std::uint32_t left = node + 1, right = n.first;
-            float tl, tr;
+            float tl = 0.0f, tr = 0.0f;
             const bool hl = ray.hitsBox(mNodes[left].lo, mNodes[left].hi, tnear, best, tl);
             const bool hr = ray.hitsBox(mNodes[right].lo, mNodes[right].hi, tnear, best, tr);
             if (hl && hr) {
