@@ -34,7 +34,7 @@ struct ErrormapArgs {
     bool noPlots = false;
     std::vector<std::string> where;
     std::string tableOut;                    ///< --table: the fitted error lookup table (JSON)
-    double quantile = 0.9;                   ///< --quantile
+    double quantile = 0.95;                  ///< --quantile
     std::string tableResponse = "err_peak";  ///< --table-response
 };
 

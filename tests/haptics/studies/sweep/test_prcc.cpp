@@ -1,6 +1,6 @@
 // Partial rank correlations (palp/studies/prcc.h) against two independent computations on the
 // same CSV: OpenTURNS' CorrelationAnalysis.computePRCC() and numpy/scipy (prcc_oracle.py), to
-// 1e-9; and `palp errormap` writing its tables and figures.
+// 1e-9; and `palp errormap` writing its tables and figures and fitting the lookup table.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -161,6 +161,39 @@ TEST(Prcc, ErrormapWritesTablesAndFigures) {
                                             (d / "m2").string() + " --response err 2>&1");
     EXPECT_EQ(bad.exitCode, 1);
     EXPECT_NE(bad.output.find("--response"), std::string::npos) << bad.output;
+}
+
+// `palp errormap --table`: the lookup table fitted to the rows, its provenance and coverage;
+// without -o only the table; with neither, a refusal.
+TEST(Prcc, ErrormapFitsTheLookupTable) {
+    TempDir d;
+    writeTable(d / "table.csv", 600);
+    const std::string table = (d / "t.json").string();
+    const auto r = palp::test::runCommand(palp::test::palpTool().string() + " errormap " +
+                                          (d / "table.csv").string() + " --table " + table +
+                                          " --table-response err_rms 2>&1");
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    EXPECT_NE(r.output.find("598 rows (2 non-finite left out)"), std::string::npos) << r.output;
+    std::ifstream in(table);
+    const nlohmann::json j = nlohmann::json::parse(in);
+    EXPECT_EQ(j["palp_error_table"], 1);
+    EXPECT_EQ(j["response"], "err_rms");
+    EXPECT_DOUBLE_EQ(j["quantile"].get<double>(), 0.95);
+    EXPECT_EQ(j["axes"][0]["name"], "lod");
+    EXPECT_EQ(j["axes"][0]["values"], nlohmann::json({2, 4}));
+    EXPECT_EQ(j["axes"][1]["name"], "primary");
+    EXPECT_EQ(j["provenance"]["fit"]["rows_used"], 598);
+    EXPECT_EQ(j["provenance"]["fit"]["rows_non_finite"], 2);
+    // The 95th percentile of the residuals per lod: about 95 % of the rows at or below.
+    EXPECT_NEAR(j["provenance"]["fit"]["coverage"].get<double>(), 0.95, 0.01);
+    std::size_t nodes = 1;
+    for (const auto& a : j["axes"]) nodes *= a["values"].size();
+    EXPECT_EQ(j["error_percent"].size(), nodes);
+    EXPECT_FALSE(fs::exists(d / "map"));
+    const auto none = palp::test::runCommand(palp::test::palpTool().string() + " errormap " +
+                                             (d / "table.csv").string() + " 2>&1");
+    EXPECT_EQ(none.exitCode, 1);
+    EXPECT_NE(none.output.find("-o DIR, --table FILE"), std::string::npos) << none.output;
 }
 
 TEST(Prcc, SweepCommandRefusesBadRangesBeforeWritingAnything) {
