@@ -9,7 +9,7 @@
 ///
 /// File format (JSON, `"palp_error_table": 1`):
 /// ```
-/// {"palp_error_table": 1, "response": "err_peak", "quantile": 0.9, "coupling": 1,
+/// {"palp_error_table": 1, "response": "err_peak", "quantile": 0.95, "coupling": 1,
 ///  "axes": [{"name": "lod", "values": [2, 4]}, {"name": "primary", "values": [5, 10, ...]}, ...],
 ///  "error_percent": [...],         // one per grid node, row-major (the last axis fastest)
 ///  "provenance": {...}}            // the sweep's id, seed, samples, ranges, palp version, fit
@@ -111,7 +111,7 @@ class ErrorTable {
     /// The sweep response the table was fitted to (`err_peak`, `err_rms` or `err_max`).
     std::string response = "err_peak";
     /// The quantile of the response the nodes hold (the fit's), in (0, 1).
-    double quantile = 0.9;
+    double quantile = 0.95;
     /// The coupling the sweep ran (1: condensed, 0: plain).
     int coupling = 1;
     /// The provenance object as canonical JSON (`{}` when none).
