@@ -123,7 +123,9 @@ const Snapshot& Session::step() noexcept {
         m.stepIndex = 0;
         m.resyncSteps = false;
     }
+    m.offlineStep = true;
     m.tick(m.stepOrigin + static_cast<double>(m.stepIndex++) * m.period);
+    m.offlineStep = false;
     m.stepSnapshot = m.current;
     return m.stepSnapshot;
 }

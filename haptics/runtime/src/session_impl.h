@@ -196,6 +196,7 @@ struct Session::Impl {
     double stepOrigin = 0;
     std::uint64_t stepIndex = 0;
     bool resyncSteps = false;  // a real-time run happened since: move stepOrigin past it
+    bool offlineStep = false;  // the tick running is step()'s (publishes the surface always)
 };
 
 }  // namespace palp::haptics

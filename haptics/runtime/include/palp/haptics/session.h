@@ -169,6 +169,9 @@ struct Command {
 ///      be the viewer); send() from one producer thread. The servo thread owns everything else.
 /// @par Real-time  A tick (step() or the servo thread's) is noexcept and allocation-free (on a
 ///      deformable scene except Embree's refit, which calls operator new a few times).
+/// Live, a deformable scene's surface goes to the viewer every this many ticks.
+inline constexpr std::uint64_t kSurfaceFrameTicks = 8;
+
 class Session final : public ServoTask {
   public:
     /// @p scene must be committed; @p device must outlive the session.
@@ -204,10 +207,12 @@ class Session final : public ServoTask {
     /// Viewer (the thread that calls latest()): the newest tick's ray bundle (origins,
     /// directions, L_max; count 0 in VC or without contact distance), for drawing.
     const kernels::RayBundle& latestRays() noexcept;
-    /// Viewer (the thread that calls latest()): the newest tick's deformed surface (vertex
+    /// Viewer (the thread that calls latest()): the newest published deformed surface (vertex
     /// positions in the order of DeformableModel::surface().vertices, whose triangles are
     /// fixed; its tick is the Snapshot's it was published with); nullptr on a rigid scene.
-    /// Frames are preallocated: publishing one costs the servo thread O(#V), no allocation.
+    /// Published after every step() and, on the servo thread, every kSurfaceFrameTicks-th
+    /// tick (125 frames a second at 1 kHz: more than a display draws). Frames are
+    /// preallocated: publishing one costs the servo thread O(#V), no allocation.
     const SurfaceFrame* latestSurface() noexcept;
 
     ServoStats stats() const noexcept;
