@@ -17,6 +17,7 @@
 
 #include "bindings.h"
 #include "palp/base/error.h"
+#include "palp/haptics/devices/skin_patch.h"
 #include "palp/haptics/devices/watchdog_device.h"
 #include "palp/haptics/tissue/deformable_setup.h"
 #include "palp/haptics/tissue/error_control.h"
@@ -224,7 +225,8 @@ void bindSession(py::module_& m) {
             [](Scene& scene, const volume::Volume& v, double elementSize, double tissue,
                double bone, double youngs, double poisson, double alpha,
                std::optional<std::string> supportFace, double period, bool dropInsideBone,
-               const std::string& solver) {
+               const std::string& solver, std::optional<Eigen::Vector3d> regionsCentre,
+               std::optional<haptics::SkinPatch> slidePatch) {
                 haptics::DeformableSetup s;
                 if (solver != "auto" && solver != "explicit" && solver != "regions")
                     throw ValueError(
@@ -245,6 +247,12 @@ void bindSession(py::module_& m) {
                 s.material.dampingAlpha = alpha;
                 if (supportFace) s.supportFace = parseFace(*supportFace);
                 s.setPeriod(period);
+                if (regionsCentre) s.options.regionsCentre = *regionsCentre;
+                if (slidePatch) {
+                    s.slidePatch = haptics::SlidePatch{slidePatch->centre,  slidePatch->u,
+                                                       slidePatch->v,       slidePatch->press,
+                                                       slidePatch->extentU, slidePatch->extentV};
+                }
                 haptics::SolverChoice choice;
                 {
                     py::gil_scoped_release release;
@@ -268,11 +276,16 @@ void bindSession(py::module_& m) {
             py::arg("youngs_modulus") = 5e3, py::arg("poisson_ratio") = 0.45,
             py::arg("damping_alpha") = 60.0, py::arg("support_face") = py::none(),
             py::arg("period") = 1e-3, py::arg("drop_inside_bone") = true,
-            py::arg("solver") = "auto",
+            py::arg("solver") = "auto", py::arg("regions_centre") = py::none(),
+            py::arg("slide_patch") = py::none(),
             "Makes the scene deformable (palp palpate --deformable's body): sessions made "
             "afterwards build their own FEM body from it. bone_threshold inf: no bone. solver: "
             "'auto' (the whole mesh where it makes the 1 kHz tick, else the asynchronous "
-            "regions, threaded: a patient's CT), 'explicit' or 'regions'. Returns the solver "
+            "regions, threaded: a patient's CT), 'explicit' or 'regions'. With the regions: "
+            "regions_centre (m; the free surface node nearest it starts the primary region: "
+            "where the hand will press) and slide_patch (a SkinPatch, find_skin_patch(): the "
+            "skin under it is what the contact slides over without a factorisation per move, "
+            "as palp palpate lays it under its path on a scan). Returns the solver "
             "that runs and why: {'solver': 'explicit'|'regions', 'chosen': auto chose it, "
             "'element_substeps', 'budget' (auto only), 'lod', 'reason'}.")
         .def(

@@ -346,7 +346,15 @@ class Sessions(unittest.TestCase):
         scene = palp.Scene.from_volume(volume)
         with self.assertRaises(palp.ValueError):
             scene.make_deformable(volume, solver="implicit")
-        scene.make_deformable(volume, solver="auto")
+        # The regions start where the hand will press and slide over the skin facing it (as
+        # palp palpate lays them under its path): without them the first contact waits for a
+        # layout factorised on its own (seconds), while the offline steps run on.
+        patch = palp.find_skin_patch(scene, volume, press="-y")
+        with self.assertRaises(TypeError):
+            scene.make_deformable(volume, slide_patch=(0, 0, 0))
+        chosen = scene.make_deformable(volume, solver="auto", regions_centre=(0.001, 0.096, 0.02),
+                                       slide_patch=patch)
+        self.assertEqual(chosen["solver"], "regions")
         self.assertTrue(scene.deformable)
         # Pressed from behind the head (-y) into its skin near y = 96 mm, then held.
         device = palp.SimulatedDevice(palp.PressTrajectory(
