@@ -335,7 +335,12 @@ void printJson(const PalpateArgs& a, const Report& r) {
                            {"setup_seconds", r.setupSeconds},
                            {"peak_rss_mib", peakRssMiB()},
                            {"max_displacement_mm", maxDisp * 1e3}};
-        if (regions) j["deformable"]["lod"] = body->options().regions.lod;
+        if (regions) {
+            j["deformable"]["lod"] = body->options().regions.lod;
+            // The skin the contact slides over without a factorisation per move (0: the
+            // lattice face of the regions centre, a phantom's).
+            j["deformable"]["slide_nodes"] = body->options().regions.slideNodes.size();
+        }
     }
     if (body) j["error_budget"] = errorBudgetJson(r.error);
     if (!a.trace.empty()) j["trace"] = a.trace;
