@@ -542,9 +542,14 @@ def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=
     if deformable:
         a = int(np.argmax(np.abs(press_axis)))
         support = "xyz"[a] + ("_max" if press_axis[a] > 0 else "_min")  # opposite the press
+        # On a scan the regions start under the path and slide over the skin of its patch
+        # (palp palpate's choice): every move of the contact then comes from the body's factor.
+        where = {} if patch is None else {"regions_centre": tuple(patch.centre),
+                                          "slide_patch": patch}
         solver = scene.make_deformable(volume, element_size=5e-3, support_face=support,
                                        solver="auto", tissue_threshold=levels.tissue,
-                                       bone_threshold=math.inf if hard_iso is None else hard_iso)
+                                       bone_threshold=math.inf if hard_iso is None else hard_iso,
+                                       **where)
     params = palp.SessionParams()
     params.coupling = (palp.scene_coupling_defaults(phantom) if volume_path is None else
                        palp.scan_coupling_defaults())
