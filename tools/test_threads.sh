@@ -12,7 +12,8 @@ if [ "$#" -gt 0 ]; then
   targets=("$@")
 else
   targets=(test_base test_servo_loop test_session test_c_api test_c_api_deformable_c test_haptics test_async_regions test_async_force
-           test_async_spring test_deformable_async test_ray_batch test_udp_device test_c_api_udp_c
+           test_async_spring test_deformable_async test_deformable_head test_ray_batch test_udp_device
+           test_c_api_udp_c
            test_volume_lazy_load test_volume_lazy_formats)
 fi
 cmake --preset tsan >/dev/null
@@ -27,7 +28,8 @@ export TSAN_OPTIONS="suppressions=$PWD/tools/tsan.supp halt_on_error=1 second_de
 # on the test's thread, and took most of the executable's 150 s under TSan; the release suite
 # runs them) and the spring's threaded tick. The lazy loads decode slices on TBB workers (DICOM
 # through GDCM, one reader per file; NIfTI, NRRD and MetaImage by pread or from the kept stored
-# bytes) while the resampler fills the grid.
+# bytes) while the resampler fills the grid. test_deformable_head: the shared head CT on the
+# threaded regions (the servo's ticks against the secondary and layout threads).
 declare -A filter=([test_deformable_async]='DeformableAsync.TicksAllocateNothing:DeformableAsync.RejectsBadOptions*'
                    [test_async_spring]='AsyncSpring.Threaded*'
                    [test_async_force]='AsyncForce.StalledSecondary*:AsyncForce.TicksAllocateNothing'
