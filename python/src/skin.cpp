@@ -16,6 +16,7 @@
 #include "palp/haptics/devices/skin_patch.h"
 #include "palp/haptics/scene.h"
 #include "palp/haptics/tissue/deformable.h"
+#include "palp/haptics/tissue/deformable_setup.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/volume/volume.h"
 
@@ -31,16 +32,7 @@ const kernels::EmbreeScene& pathSurfaces(const haptics::Scene& scene,
                                          std::unique_ptr<kernels::EmbreeScene>& keep) {
     const auto& body = scene.deformable();
     if (!body) return scene.surfaces();
-    const fem::SurfaceMesh& s = body->surface();
-    kernels::TriangleMesh mesh;
-    mesh.positions.reserve(3 * s.vertices.size());
-    for (const Eigen::Vector3f& v : s.vertices)
-        mesh.positions.insert(mesh.positions.end(), {v.x(), v.y(), v.z()});
-    mesh.indices.reserve(3 * s.triangles.size());
-    for (const auto& t : s.triangles) mesh.indices.insert(mesh.indices.end(), t.begin(), t.end());
-    keep = std::make_unique<kernels::EmbreeScene>(/*robust=*/true);
-    keep->addRigidMesh(mesh, kernels::kMaskSurface);
-    keep->commit();
+    keep = haptics::restSurfaceScene(*body);
     return *keep;
 }
 

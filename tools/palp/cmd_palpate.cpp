@@ -545,7 +545,7 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
         scene->setDeformable(body);
     }
     if (body && skin.follow) {
-        measureSkin(a, *restSurface(*body), box, frame, skin);
+        measureSkin(a, *haptics::restSurfaceScene(*body), box, frame, skin);
     } else {
         measureSkin(a, scene->surfaces(), box, frame, skin);
     }

@@ -215,20 +215,6 @@ bool followsSkin(const PalpateArgs& a, const Input& in) {
     return a.followSkin == "auto" ? !in.phantom : a.followSkin == "on";
 }
 
-std::unique_ptr<kernels::EmbreeScene> restSurface(const haptics::DeformableModel& model) {
-    const fem::SurfaceMesh& s = model.surface();
-    kernels::TriangleMesh mesh;
-    mesh.positions.reserve(3 * s.vertices.size());
-    for (const Eigen::Vector3f& v : s.vertices)
-        mesh.positions.insert(mesh.positions.end(), {v.x(), v.y(), v.z()});
-    mesh.indices.reserve(3 * s.triangles.size());
-    for (const auto& t : s.triangles) mesh.indices.insert(mesh.indices.end(), t.begin(), t.end());
-    auto scene = std::make_unique<kernels::EmbreeScene>(/*robust=*/true);
-    scene->addRigidMesh(mesh, kernels::kMaskSurface);
-    scene->commit();
-    return scene;
-}
-
 SkinPlan planSkin(const PalpateArgs& a, bool pressAxisGiven, const Input& in,
                   const kernels::EmbreeScene& surfaces, const Eigen::AlignedBox3d& box) {
     SkinPlan plan;

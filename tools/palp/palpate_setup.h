@@ -109,9 +109,6 @@ PathFrame pathFrame(const PalpateArgs& a, const Eigen::AlignedBox3d& box,
 void measureSkin(const PalpateArgs& a, const kernels::EmbreeScene& surfaces,
                  const Eigen::AlignedBox3d& box, PathFrame& f, SkinPlan& plan);
 
-/// The surface of @p model at rest as an Embree scene (mask kMaskSurface), for measureSkin().
-std::unique_ptr<kernels::EmbreeScene> restSurface(const haptics::DeformableModel& model);
-
 /// The trajectory --trajectory names over @p f and the time it needs (s).
 struct PathPlan {
     haptics::Trajectory traj;

@@ -176,13 +176,17 @@ bool LayoutBuilder::buildGlobal(const std::vector<std::uint8_t>& primaryCell, La
 
 std::vector<int> LayoutBuilder::seedOrder(const AsyncSetup& setup, const std::vector<int>& contact,
                                           int count, std::vector<int>* distance) {
+    return primarySeedOrder(setup.model.mesh(), contact, count, distance);
+}
+
+std::vector<int> primarySeedOrder(const HexMesh& mesh, const std::vector<int>& contact, int count,
+                                  std::vector<int>* distance) {
     // Graph distance over lattice edges between active nodes (BFS from all contact nodes), ties
     // broken by Euclidean distance. The BFS discovers nodes in graph-distance order, so once
     // count nodes are found (the last at distance D), every node of distance below D is found
     // and those of distance D are found by expanding the nodes below D only: the first count
     // of the whole body's order lie among the nodes found (each layout build searched and
     // sorted all 35,301 nodes of the bone phantom's 2.5 mm body before).
-    const HexMesh& mesh = setup.model.mesh();
     const auto& nc = mesh.nodeCounts();
     const int nodes = mesh.nodeCount();
     const auto& active = mesh.nodeActive();
@@ -241,9 +245,12 @@ std::vector<int> LayoutBuilder::seedOrder(const AsyncSetup& setup, const std::ve
 
 std::vector<std::uint8_t> LayoutBuilder::primaryCells(const std::vector<int>& order,
                                                       int seedCount) const {
+    return primaryCellsOf(mSetup.model.mesh(), order, seedCount, mSetup.lod);
+}
+
+std::vector<std::uint8_t> primaryCellsOf(const HexMesh& mesh, const std::vector<int>& order,
+                                         int seedCount, int lod) {
     // Cells touching a seed, widened to whole coarse cells.
-    const HexMesh& mesh = mSetup.model.mesh();
-    const int lod = mSetup.lod;
     const std::size_t seeds = std::min(order.size(), sz(seedCount));
     const std::array<int, 3> cc = mesh.cellCounts();
     std::vector<std::uint8_t> primaryCell(sz(mesh.cellCount()), 0);
@@ -257,9 +264,9 @@ std::vector<std::uint8_t> LayoutBuilder::primaryCells(const std::vector<int>& or
                         continue;
                     if (!mesh.cellActive(mesh.cell(ci, cj, ck))) continue;
                     const int bi = ci / lod * lod, bj = cj / lod * lod, bk = ck / lod * lod;
-                    for (int k = bk; k < bk + lod; ++k) {
-                        for (int j = bj; j < bj + lod; ++j) {
-                            for (int i = bi; i < bi + lod; ++i) {
+                    for (int k = bk; k < std::min(bk + lod, cc[2]); ++k) {
+                        for (int j = bj; j < std::min(bj + lod, cc[1]); ++j) {
+                            for (int i = bi; i < std::min(bi + lod, cc[0]); ++i) {
                                 primaryCell[sz(mesh.cell(i, j, k))] = 1;
                             }
                         }
@@ -269,6 +276,18 @@ std::vector<std::uint8_t> LayoutBuilder::primaryCells(const std::vector<int>& or
         }
     }
     return primaryCell;
+}
+
+std::vector<std::uint8_t> primaryRegionCells(const HexMesh& mesh,
+                                             const std::vector<int>& contactNodes, int seeds,
+                                             int lod) {
+    for (int n : contactNodes)
+        if (n < 0 || n >= mesh.nodeCount() || !mesh.nodeActive()[sz(n)])
+            throw ValueError("primaryRegionCells: contact node " + std::to_string(n) +
+                             " is not an active node of the mesh");
+    if (lod < 1)
+        throw ValueError("primaryRegionCells: lod: expected >= 1, found " + std::to_string(lod));
+    return primaryCellsOf(mesh, primarySeedOrder(mesh, contactNodes, seeds), seeds, lod);
 }
 
 std::vector<std::uint8_t> LayoutBuilder::classifyNodes(const std::vector<std::uint8_t>& primaryCell,

@@ -15,6 +15,16 @@
 
 namespace palp::fem {
 
+/// The @p count active nodes nearest @p contactNodes in graph distance over lattice edges
+/// (ties by Euclidean distance), nearest first, with their distances in @p distance when given
+/// (LayoutBuilder::seedOrder on @p mesh).
+std::vector<int> primarySeedOrder(const HexMesh& mesh, const std::vector<int>& contactNodes,
+                                  int count, std::vector<int>* distance = nullptr);
+/// The cells touching the first @p seedCount nodes of @p order, widened to whole coarse cells
+/// of @p lod fine cells a side: a mask over the mesh's cells.
+std::vector<std::uint8_t> primaryCellsOf(const HexMesh& mesh, const std::vector<int>& order,
+                                         int seedCount, int lod);
+
 /// Prepares layouts off the servo path: in the constructor, on the builder thread (threaded
 /// contact changes) or at a synchronous period boundary. Seconds for large meshes.
 /// @par Threading  After construction every member is const and reads only immutable data (the

@@ -68,6 +68,20 @@ SolverChoice chooseSolver(const fem::FemModel& model, const DeformableOptions& o
     return c;
 }
 
+std::unique_ptr<kernels::EmbreeScene> restSurfaceScene(const DeformableModel& model) {
+    const fem::SurfaceMesh& s = model.surface();
+    kernels::TriangleMesh mesh;
+    mesh.positions.reserve(3 * s.vertices.size());
+    for (const Eigen::Vector3f& v : s.vertices)
+        mesh.positions.insert(mesh.positions.end(), {v.x(), v.y(), v.z()});
+    mesh.indices.reserve(3 * s.triangles.size());
+    for (const auto& t : s.triangles) mesh.indices.insert(mesh.indices.end(), t.begin(), t.end());
+    auto scene = std::make_unique<kernels::EmbreeScene>(/*robust=*/true);
+    scene->addRigidMesh(mesh, kernels::kMaskSurface);
+    scene->commit();
+    return scene;
+}
+
 std::vector<int> skinNodesUnder(const DeformableModel& model, const SlidePatch& patch) {
     const auto unit = [](const Eigen::Vector3d& a) { return std::abs(a.norm() - 1.0) <= 1e-6; };
     if (!patch.centre.allFinite() || !patch.u.allFinite() || !patch.v.allFinite() ||

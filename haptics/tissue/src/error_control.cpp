@@ -5,9 +5,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <queue>
 
 #include "palp/base/error.h"
+#include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/haptics/tissue/deformable.h"
 
@@ -16,50 +16,6 @@ namespace palp::haptics {
 namespace error_control_impl {
 
 std::size_t sz(int i) { return static_cast<std::size_t>(i); }
-
-/// The @p count seeds nearest @p contact: graph distance over lattice edges between active
-/// nodes, ties by Euclidean distance (the regions' own rule, fem/src/regions/layout_builder.cpp).
-std::vector<int> seeds(const fem::HexMesh& mesh, int contact, int count) {
-    const auto& nc = mesh.nodeCounts();
-    const auto& active = mesh.nodeActive();
-    std::vector<int> dist(sz(mesh.nodeCount()), -1);
-    std::vector<int> found{contact};
-    std::queue<int> frontier;
-    dist[sz(contact)] = 0;
-    frontier.push(contact);
-    const std::size_t want = sz(count);
-    int stopAt = -1;
-    while (!frontier.empty()) {
-        const int n = frontier.front();
-        if (found.size() >= want && stopAt < 0) stopAt = dist[sz(found[want - 1])];
-        if (stopAt >= 0 && dist[sz(n)] >= stopAt) break;
-        frontier.pop();
-        const auto ijk = mesh.nodeCoords(n);
-        for (int a = 0; a < 3; ++a) {
-            for (int s = -1; s <= 1; s += 2) {
-                std::array<int, 3> q = ijk;
-                q[sz(a)] += s;
-                if (q[sz(a)] < 0 || q[sz(a)] >= nc[sz(a)]) continue;
-                const int m = mesh.node(q[0], q[1], q[2]);
-                if (!active[sz(m)] || dist[sz(m)] >= 0) continue;
-                dist[sz(m)] = dist[sz(n)] + 1;
-                frontier.push(m);
-                found.push_back(m);
-            }
-        }
-    }
-    std::vector<std::pair<double, int>> order;
-    order.reserve(found.size());
-    const Eigen::Vector3d c = mesh.nodePosition(contact);
-    for (int n : found)
-        order.emplace_back(dist[sz(n)] * 1e6 + (mesh.nodePosition(n) - c).norm() / mesh.edge(), n);
-    const std::size_t keep = std::min(order.size(), want);
-    std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(keep),
-                      order.end());
-    std::vector<int> out(keep);
-    for (std::size_t i = 0; i < keep; ++i) out[i] = order[i].second;
-    return out;
-}
 
 std::string percent(double v) {
     char buf[32];
@@ -82,26 +38,9 @@ PrimaryCost primaryCost(const fem::FemModel& model, int contactNode, int lod, in
     if (primaryNodes < 1)
         throw ValueError("primaryCost: primaryNodes: expected >= 1, found " +
                          std::to_string(primaryNodes));
-    const std::array<int, 3> cc = mesh.cellCounts();
-    std::vector<std::uint8_t> primary(sz(mesh.cellCount()), 0);
-    for (int s : seeds(mesh, contactNode, primaryNodes)) {
-        const auto ijk = mesh.nodeCoords(s);
-        for (int dk = -1; dk <= 0; ++dk) {
-            for (int dj = -1; dj <= 0; ++dj) {
-                for (int di = -1; di <= 0; ++di) {
-                    const int ci = ijk[0] + di, cj = ijk[1] + dj, ck = ijk[2] + dk;
-                    if (ci < 0 || cj < 0 || ck < 0 || ci >= cc[0] || cj >= cc[1] || ck >= cc[2])
-                        continue;
-                    if (!mesh.cellActive(mesh.cell(ci, cj, ck))) continue;
-                    const int bi = ci / lod * lod, bj = cj / lod * lod, bk = ck / lod * lod;
-                    for (int k = bk; k < std::min(bk + lod, cc[2]); ++k)
-                        for (int j = bj; j < std::min(bj + lod, cc[1]); ++j)
-                            for (int i = bi; i < std::min(bi + lod, cc[0]); ++i)
-                                primary[sz(mesh.cell(i, j, k))] = 1;
-                }
-            }
-        }
-    }
+    // The layouts' own primary (fem::primaryRegionCells), counted without building one.
+    const std::vector<std::uint8_t> primary =
+        fem::primaryRegionCells(mesh, {contactNode}, primaryNodes, lod);
     PrimaryCost cost;
     for (int c = 0; c < mesh.cellCount(); ++c)
         if (primary[sz(c)] && mesh.cellActive(c)) ++cost.cells;

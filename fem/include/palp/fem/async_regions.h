@@ -262,6 +262,16 @@ struct AsyncSecondaryStats {
     double lastPrepareSeconds = 0.0;    ///< wall time of the last preparation
 };
 
+/// The cells of the primary region a layout around @p contactNodes with @p seeds seed nodes
+/// takes at level of detail @p lod (the seeds: the active nodes nearest the contact in graph
+/// distance, ties by Euclidean distance; the cells touching them, widened to whole coarse
+/// cells), as a mask over @p mesh's cells: the layouts' own rule, so that a primary's cost is
+/// known without building it.
+/// @throw palp::ValueError for a contact node that is not an active node, or lod < 1.
+std::vector<std::uint8_t> primaryRegionCells(const HexMesh& mesh,
+                                             const std::vector<int>& contactNodes, int seeds,
+                                             int lod);
+
 /// Primary region (explicit, every tick) coupled to a secondary region (implicit, f_s).
 /// Displacement drive: the contact nodes are driven by a prescribed displacement (the same for
 /// all of them); the contact force is their reaction, as ExplicitSolver::reactionSum() gives it.

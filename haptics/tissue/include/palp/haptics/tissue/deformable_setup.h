@@ -15,6 +15,7 @@
 #include "palp/fem/material.h"
 #include "palp/fem/voxelize.h"
 #include "palp/haptics/tissue/deformable.h"
+#include "palp/kernels/embree_scene.h"
 #include "palp/volume/volume.h"
 
 namespace palp::haptics {
@@ -39,6 +40,11 @@ struct SlidePatch {
 /// @throw palp::ValueError for a non-finite patch, axes that are not unit and orthogonal to
 /// each other and to the press, or extents not positive.
 std::vector<int> skinNodesUnder(const DeformableModel& model, const SlidePatch& patch);
+
+/// @p model's boundary surface at rest as a committed scene (kMaskSurface, robust): the surface
+/// its proxy meets before anything moves, on which a path is laid (the skin's patch and heights).
+/// @throw palp::Error from Embree.
+std::unique_ptr<kernels::EmbreeScene> restSurfaceScene(const DeformableModel& model);
 
 /// Everything that makes a deformable body from a scan (defaults: `palp palpate
 /// --deformable`'s: 5 mm cells, tissue above -200, bone above 500 fixed, tissue enclosed by
