@@ -11,34 +11,11 @@
 set -euo pipefail
 
 PALP=$(readlink -f "${1:?usage: test_slurm_sweep.sh PATH/TO/palp}")
-for prog in /usr/sbin/munged /usr/sbin/slurmctld /usr/sbin/slurmd sbatch srun squeue scontrol \
-    mpirun; do
-  command -v "$prog" > /dev/null || { echo "FAIL: $prog not found (tools/setup.sh installs" \
-    "slurm-wlm, munge and openmpi-bin)"; exit 1; }
-done
-[[ $(id -u) -eq 0 ]] || { echo "FAIL: the one-node Slurm needs root (munged runs as munge)"; exit 1; }
+HERE=$(dirname "$(readlink -f "$0")")
+# shellcheck source=one_node_slurm.sh
+source "$HERE/one_node_slurm.sh"
+slurm_check_tools
 
-D=$(mktemp -d /tmp/palp-slurm.XXXXXX)
-chmod 0755 "$D"
-MUNGED_PID="" CTLD_PID="" SLURMD_PID=""
-
-stop_all() {
-  set +e
-  if [[ -n $CTLD_PID ]]; then
-    scancel --user=root > /dev/null 2>&1
-    scontrol shutdown > /dev/null 2>&1
-    for _ in $(seq 50); do
-      kill -0 "$CTLD_PID" 2> /dev/null || kill -0 "$SLURMD_PID" 2> /dev/null || break
-      sleep 0.1
-    done
-  fi
-  for pid in $SLURMD_PID $CTLD_PID; do kill -0 "$pid" 2> /dev/null && kill "$pid"; done
-  if [[ -n $MUNGED_PID ]]; then
-    /usr/sbin/munged --stop --socket="$D/munge/socket" > /dev/null 2>&1 ||
-      kill "$MUNGED_PID" 2> /dev/null
-  fi
-  rm -rf "$D"
-}
 fail() {
   echo "FAIL: $*"
   for f in "$D"/log/*.log "$D"/out/*; do
@@ -46,69 +23,9 @@ fail() {
   done
   exit 1
 }
-trap stop_all EXIT
+trap slurm_down EXIT
 trap 'exit 130' INT TERM
-
-# munged on its own socket and files, as the munge user (it refuses root).
-install -d -o munge -g munge -m 0755 "$D/munge"
-KEY=/etc/munge/munge.key
-if [[ ! -r $KEY ]]; then
-  KEY=$D/munge/munge.key
-  head -c 1024 /dev/urandom > "$KEY"
-  chown munge:munge "$KEY"
-  chmod 0400 "$KEY"
-fi
-runuser -u munge -- /usr/sbin/munged --socket="$D/munge/socket" --pid-file="$D/munge/pid" \
-  --log-file="$D/munge/log" --seed-file="$D/munge/seed" --key-file="$KEY" ||
-  fail "munged did not start"
-MUNGED_PID=$(cat "$D/munge/pid")
-munge -n --socket="$D/munge/socket" | unmunge --socket="$D/munge/socket" > /dev/null ||
-  fail "munge round trip"
-
-# Ports of their own (another one-node Slurm may run on the machine).
-PORT=$((20000 + $$ % 20000))
-mkdir -p "$D/state" "$D/spool" "$D/log" "$D/out"
-cat > "$D/slurm.conf" << EOF
-ClusterName=palp
-SlurmctldHost=localhost
-SlurmctldPort=$PORT
-SlurmdPort=$((PORT + 1))
-SlurmUser=root
-SlurmdUser=root
-AuthType=auth/munge
-AuthInfo=socket=$D/munge/socket
-CredType=cred/munge
-StateSaveLocation=$D/state
-SlurmdSpoolDir=$D/spool
-SlurmctldPidFile=$D/slurmctld.pid
-SlurmdPidFile=$D/slurmd.pid
-SlurmctldLogFile=$D/log/slurmctld.log
-SlurmdLogFile=$D/log/slurmd.log
-ProctrackType=proctrack/linuxproc
-TaskPlugin=task/none
-SelectType=select/cons_tres
-SelectTypeParameters=CR_Core
-MpiDefault=pmix
-ReturnToService=2
-NodeName=localhost NodeAddr=127.0.0.1 CPUs=2 Sockets=1 CoresPerSocket=2 ThreadsPerCore=1 RealMemory=2000 State=UNKNOWN
-PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP
-SchedulerParameters=batch_sched_delay=0,sched_min_interval=0
-JobCompType=jobcomp/filetxt
-JobCompLoc=$D/log/jobcomp.txt
-EOF
-export SLURM_CONF=$D/slurm.conf
-/usr/sbin/slurmctld || fail "slurmctld did not start"
-for _ in $(seq 50); do [[ -s $D/slurmctld.pid ]] && break; sleep 0.1; done
-CTLD_PID=$(cat "$D/slurmctld.pid")
-/usr/sbin/slurmd -N localhost || fail "slurmd did not start"
-for _ in $(seq 50); do [[ -s $D/slurmd.pid ]] && break; sleep 0.1; done
-SLURMD_PID=$(cat "$D/slurmd.pid")
-for _ in $(seq 100); do
-  [[ $(sinfo -h -n localhost -o %T 2> /dev/null) == idle ]] && break
-  sleep 0.1
-done
-[[ $(sinfo -h -n localhost -o %T) == idle ]] || fail "the node did not come up"
-echo "slurm up (ctld $CTLD_PID, slurmd $SLURMD_PID)"
+slurm_up 2
 
 # The sweep: a 7^3 cube, 20 ms per sample, 30 samples in groups of 3.
 cat > "$D/ranges.json" << 'EOF'
@@ -124,14 +41,6 @@ EOF
 SWEEP=(sweep "$D/ranges.json" --samples 30 --seed 17)
 "$PALP" -q "${SWEEP[@]}" -o "$D/one" || fail "one-process sweep"
 [[ -s $D/one/table.csv ]] || fail "no one-process table"
-
-wait_job() {  # waits until job $1 (all its array tasks) has left the queue
-  for _ in $(seq 600); do
-    [[ -z $(squeue -h -j "$1" 2> /dev/null) ]] && return 0
-    sleep 0.1
-  done
-  fail "job $1 still queued after 60 s"
-}
 
 wait_records() {  # waits until jobcomp holds $1 task records (written as each task ends)
   for _ in $(seq 100); do
@@ -155,7 +64,7 @@ exec "$PALP" -q ${SWEEP[*]} -o $D/array --shard \$SLURM_ARRAY_TASK_ID/\$SLURM_AR
 EOF
 touch "$D/fail_once"
 JOB=$(sbatch --parsable --array=0-2 -n 1 -o "$D/out/a-%A_%a.out" "$D/task.sh") || fail "sbatch"
-wait_job "$JOB"
+slurm_wait_job "$JOB"
 wait_records 3
 grep -q "JobState=FAILED" "$D/log/jobcomp.txt" || fail "task 1 did not fail"
 [[ $(grep -c "JobState=COMPLETED" "$D/log/jobcomp.txt") -eq 2 ]] || fail "tasks 0 and 2 did not complete"
@@ -166,7 +75,7 @@ grep -q "in no shard" "$D/out/merge1.err" || fail "merge of a gap: $(cat "$D/out
 before=$(ls "$D/array/shards" | grep -c '^shard-[0-9-]*\.csv$' | tr -d ' ')
 # Resubmit: tasks 0 and 2 find their shards, task 1 computes only its 7 missing samples.
 JOB2=$(sbatch --parsable --array=0-2 -n 1 -o "$D/out/b-%A_%a.out" "$D/task.sh") || fail "resubmit"
-wait_job "$JOB2"
+slurm_wait_job "$JOB2"
 wait_records 6
 [[ $(grep -c "JobState=COMPLETED" "$D/log/jobcomp.txt") -eq 5 ]] || fail "resubmitted tasks failed"
 ls "$D/array/shards" | grep -q "shard-0000000011-0000000018.csv$" ||
