@@ -96,6 +96,14 @@ ph::WatchdogParams toWatchdog(double timeout, double grace, double resume, const
     return w;
 }
 
+ph::FaultParams faultsLike(const ph::WatchdogParams& w) noexcept {
+    ph::FaultParams f;
+    f.graceSeconds = w.graceSeconds;
+    f.timeoutSeconds = w.timeoutSeconds;
+    f.resumeSeconds = w.resumeSeconds;
+    return f;
+}
+
 void fromSpec(const ph::DeviceSpec& s, palp_device_spec& c) noexcept {
     c.max_force = s.maxForceN;
     c.max_continuous_force = s.maxContinuousForceN;
@@ -156,7 +164,8 @@ palp_status palp_session_create_host(palp_scene* scene, const palp_session_param
         const ph::WatchdogParams watch =
             toWatchdog(device->watchdog_timeout, device->watchdog_grace, device->watchdog_resume,
                        "palp_device_callbacks");
-        const ph::SessionParams sp = toSession(*params);
+        ph::SessionParams sp = toSession(*params);
+        sp.faults = faultsLike(watch);  // the session's fault ramp as the watchdog's
         checkScenePeriod(*scene, params->period, "palp_session_create_host");
         handle->params = *params;
         handle->params.device = handle->deviceName.c_str();

@@ -137,5 +137,8 @@ haptics::DeviceSpec toSpec(const palp_device_spec& c, std::string_view name, con
 /// @throw palp::ValueError naming "<owner>.watchdog_timeout/_grace/_resume".
 haptics::WatchdogParams toWatchdog(double timeout, double grace, double resume, const char* owner);
 void fromSpec(const haptics::DeviceSpec& s, palp_device_spec& c) noexcept;
+/// The session's fault ramp with the device watchdog's times (so a bad sample ramps alike in
+/// both; the force-step limit keeps its default).
+haptics::FaultParams faultsLike(const haptics::WatchdogParams& w) noexcept;
 
 }  // namespace palp::capi

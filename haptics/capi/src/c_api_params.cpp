@@ -483,7 +483,28 @@ void toC(const ph::Snapshot& s, palp_snapshot& c) noexcept {
     c.device_force_scale = s.deviceForceScale;
     c.watchdog_trips = s.watchdogTrips;
     c.passivity_cut = s.passivityCut;
+    c.fault_flags = s.faultFlags;
+    c.stale_ticks = s.faultCounts.stale;
+    c.non_finite_samples = s.faultCounts.nonFinite;
+    c.out_of_range_samples = s.faultCounts.outOfRange;
+    c.too_fast_samples = s.faultCounts.tooFast;
+    c.non_finite_forces = s.faultCounts.forceNonFinite;
+    c.force_jumps = s.faultCounts.forceJump;
+    c.fault_trips = s.faultTrips;
 }
+
+namespace {
+constexpr bool sameBit(palp_fault c, ph::DeviceFault f) noexcept {
+    return static_cast<std::uint32_t>(c) == static_cast<std::uint32_t>(f);
+}
+}  // namespace
+static_assert(sameBit(PALP_FAULT_STALE, ph::kFaultStale) &&
+                  sameBit(PALP_FAULT_NON_FINITE, ph::kFaultNonFinite) &&
+                  sameBit(PALP_FAULT_OUT_OF_RANGE, ph::kFaultOutOfRange) &&
+                  sameBit(PALP_FAULT_TOO_FAST, ph::kFaultTooFast) &&
+                  sameBit(PALP_FAULT_FORCE_NON_FINITE, ph::kFaultForceNonFinite) &&
+                  sameBit(PALP_FAULT_FORCE_JUMP, ph::kFaultForceJump),
+              "palp.h's PALP_FAULT_* bits are DeviceFault's");
 
 palp_latency toC(const ph::LatencySummary& l) noexcept {
     palp_latency c;

@@ -99,9 +99,9 @@ palp_status palp_session_step(palp_session* session, uint32_t ticks, palp_snapsh
                     "palp_session_step: expected a stopped session, found its servo thread "
                     "running (call palp_session_stop first)");
     }
-    const ph::Snapshot* s = nullptr;
+    const ph::Snapshot* s = &session->session->newest();  // ticks 0: the newest as it is
     for (uint32_t i = 0; i < ticks; ++i) s = &session->session->step();
-    if (last && s) toC(*s, *last);
+    if (last) toC(*s, *last);
     return PALP_OK;
 }
 

@@ -68,7 +68,8 @@ palp_status palp_session_create_udp(palp_scene* scene, const palp_session_params
                                  device->watchdog_resume, kOwner);
         dp.maxDrain = device->max_drain;
         dp.receiveBufferBytes = device->receive_buffer_bytes;
-        const ph::SessionParams sp = toSession(*params);
+        ph::SessionParams sp = toSession(*params);
+        sp.faults = faultsLike(dp.watchdog);  // the session's fault ramp as the watchdog's
         dp.periodSeconds = sp.servo.periodSeconds;
         checkScenePeriod(*scene, params->period, "palp_session_create_udp");
         std::unique_ptr<ph::UdpDevice> udp;

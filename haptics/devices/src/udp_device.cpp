@@ -6,6 +6,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <charconv>
 #include <cstring>
@@ -240,14 +241,41 @@ DeviceHealth UdpDevice::health() const noexcept {
     h.stale = true;
     h.forceScale = 0;
     h.staleTicks = mWaitingReads;
+    h.faults = kFaultStale;
     return h;
 }
 
+void UdpDevice::reportFaults(std::uint32_t faults, double forceScale) noexcept {
+    mReported = true;
+    mReportedFaults = faults;
+    mReportedScale = forceScale;
+}
+
+namespace {
+/// ForceFlag bits of DeviceFault bits (kFaultStale travels as kForceStale from health()).
+std::uint32_t forceFlags(std::uint32_t faults) noexcept {
+    std::uint32_t f = 0;
+    if (faults & kFaultNonFinite) f |= bridge::kForceNonFiniteState;
+    if (faults & kFaultOutOfRange) f |= bridge::kForceOutOfRangeState;
+    if (faults & kFaultTooFast) f |= bridge::kForceTooFastState;
+    if (faults & kFaultForceNonFinite) f |= bridge::kForceNonFiniteForce;
+    if (faults & kFaultForceJump) f |= bridge::kForceJump;
+    return f;
+}
+}  // namespace
+
 void UdpDevice::write(const Eigen::Vector3d& forceN) noexcept {
     const std::uint64_t tick = mWrites++;
+    const bool reported = mReported;
+    mReported = false;
     if (!mHasState) return;
-    const DeviceHealth h = mWatchdog.health();
+    DeviceHealth h = mWatchdog.health();
+    if (reported) {
+        h.forceScale = std::min(h.forceScale, mReportedScale);
+        h.faults |= mReportedFaults;
+    }
     bridge::ForceMessage m;
+    m.flags = forceFlags(h.faults);
     const double limit = h.forceScale * mSpec.maxForceN;
     m.force = clampForce(forceN, limit);
     m.sequence = ++mSendSequence;

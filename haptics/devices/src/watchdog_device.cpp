@@ -12,6 +12,8 @@ namespace palp::haptics {
 
 namespace {
 constexpr double kMaxWatchdogSeconds = 10.0;
+constexpr double kMaxMarginMeters = 10.0;
+constexpr double kMaxSpeedLimit = 1000.0;  // m/s
 }  // namespace
 
 void validateWatchdogParams(const WatchdogParams& params) {
@@ -27,43 +29,66 @@ void validateWatchdogParams(const WatchdogParams& params) {
                       formatValue(params.graceSeconds));
     }
     requireInRange("watchdog resumeSeconds", params.resumeSeconds, 0.0, kMaxWatchdogSeconds, "s");
+    requireInRange("watchdog workspaceMarginMeters", params.workspaceMarginMeters, 0.0,
+                   kMaxMarginMeters, "m");
+    requireInRange("watchdog maxSpeedMps", params.maxSpeedMps, 0.0, kMaxSpeedLimit, "m/s");
+    if (!(params.maxSpeedMps > 0)) {
+        throwExpected("watchdog maxSpeedMps", "a speed > 0 m/s", formatValue(params.maxSpeedMps));
+    }
 }
 
 WatchdogDevice::WatchdogDevice(Device& inner, const WatchdogParams& params, double periodSeconds)
     : mInner(inner), mParams(params), mPeriod(periodSeconds) {
     validateWatchdogParams(params);
     requireWithin("watchdog period", periodSeconds, bounds::kPeriod);
-    mResumeStep = params.resumeSeconds > 0 ? periodSeconds / params.resumeSeconds : 1.0;
+    mRamp =
+        FaultRamp(params.graceSeconds, params.timeoutSeconds, params.resumeSeconds, periodSeconds);
+    const WorkspaceBox& box = inner.spec().workspace;
+    if ((box.size().array() > 0).all() && box.min.allFinite() && box.max.allFinite()) {
+        const Eigen::Vector3d margin = Eigen::Vector3d::Constant(params.workspaceMarginMeters);
+        mRange = WorkspaceBox{box.min - margin, box.max + margin};
+    } else {
+        mRange = WorkspaceBox{Eigen::Vector3d::Constant(bounds::kPosition.min),
+                              Eigen::Vector3d::Constant(bounds::kPosition.max)};
+    }
+}
+
+std::uint32_t WatchdogDevice::judge(const DeviceState& s) const noexcept {
+    if (!(s.position.allFinite() && s.velocity.allFinite() && std::isfinite(s.timestampSeconds)))
+        return kFaultNonFinite;
+    std::uint32_t bad = 0;
+    if (!mRange.contains(s.position)) bad |= kFaultOutOfRange;
+    // Reads since the last good sample, this one included, plus one of slack.
+    const double reach = mParams.maxSpeedMps * mPeriod * static_cast<double>(mReadsSinceGood + 1);
+    if (s.velocity.norm() > mParams.maxSpeedMps ||
+        (mHaveSample && (s.position - mLast.position).norm() > reach))
+        bad |= kFaultTooFast;
+    return bad;
 }
 
 DeviceState WatchdogDevice::read() noexcept {
     const DeviceState s = mInner.read();
-    const bool finite =
-        s.position.allFinite() && s.velocity.allFinite() && std::isfinite(s.timestampSeconds);
-    const bool fresh = finite && (!mHaveSample || s.sequence != mLast.sequence ||
-                                  s.timestampSeconds != mLast.timestampSeconds);
+    ++mReadsSinceGood;
+    const std::uint32_t bad = judge(s);
+    const bool fresh = bad == 0 && (!mHaveSample || s.sequence != mLast.sequence ||
+                                    s.timestampSeconds != mLast.timestampSeconds);
     DeviceHealth& h = mHealth;
     if (fresh) {
         mLast = s;
         mHaveSample = true;
+        mReadsSinceGood = 0;
         h.stale = false;
         h.staleTicks = 0;
-        h.forceScale = std::min(1.0, h.forceScale + mResumeStep);
+        h.faults = 0;
+        h.forceScale = mRamp.good();
         return s;
     }
+    h.faults = bad != 0 ? bad : static_cast<std::uint32_t>(kFaultStale);
     h.stale = true;
-    ++h.staleTicks;
-    const double staleSeconds = static_cast<double>(h.staleTicks) * mPeriod;
-    double allowed = 1.0;
-    if (staleSeconds >= mParams.timeoutSeconds) {
-        allowed = 0.0;
-    } else if (staleSeconds > mParams.graceSeconds) {
-        allowed = (mParams.timeoutSeconds - staleSeconds) /
-                  (mParams.timeoutSeconds - mParams.graceSeconds);
-    }
-    if (h.forceScale > 0 && allowed <= 0) ++h.trips;
-    h.forceScale = std::min(h.forceScale, allowed);
-    if (!finite || !mHaveSample) return s;  // Session's guard flags a bad sample
+    h.forceScale = mRamp.bad();
+    h.staleTicks = mRamp.badTicks();
+    h.trips = mRamp.trips();
+    if (bad != 0 || !mHaveSample) return s;  // the caller refuses a bad sample (Session)
     DeviceState held = mLast;
     held.velocity.setZero();
     return held;

@@ -16,6 +16,7 @@ namespace palp::haptics {
 namespace {
 
 constexpr std::uint32_t kMaxTraceCapacity = 1u << 24;  // 16 M snapshots (a few GB): a typo guard
+constexpr double kMaxFaultSeconds = 10.0;              // as a WatchdogDevice's times
 
 bool sourceHasData(const Scene& scene, RaySource source) noexcept {
     switch (source) {
@@ -61,6 +62,21 @@ void validateSessionParams(const SessionParams& params) {
     }
     requireWithin("session startupThresholdN", params.startupThresholdN, bounds::kPositiveForce);
     requireWithin("session crossFadeSeconds", params.crossFadeSeconds, bounds::kDuration);
+    const FaultParams& f = params.faults;
+    requireInRange("session faults.timeoutSeconds", f.timeoutSeconds, 0.0, kMaxFaultSeconds, "s");
+    if (!(f.timeoutSeconds > 0)) {
+        throwExpected("session faults.timeoutSeconds", "a time > 0 s",
+                      formatValue(f.timeoutSeconds));
+    }
+    requireInRange("session faults.graceSeconds", f.graceSeconds, 0.0, kMaxFaultSeconds, "s");
+    if (!(f.graceSeconds < f.timeoutSeconds)) {
+        throwExpected("session faults.graceSeconds",
+                      "less than faults.timeoutSeconds (" + formatValue(f.timeoutSeconds) + " s)",
+                      formatValue(f.graceSeconds));
+    }
+    requireInRange("session faults.resumeSeconds", f.resumeSeconds, 0.0, kMaxFaultSeconds, "s");
+    requireWithin("session faults.maxForceStepN (0: half the device's maxForceN)", f.maxForceStepN,
+                  bounds::kForce);
     if (params.traceCapacity > kMaxTraceCapacity) {
         throwExpected("session traceCapacity", "<= " + std::to_string(kMaxTraceCapacity),
                       std::to_string(params.traceCapacity));
@@ -128,6 +144,10 @@ const Snapshot& Session::step() noexcept {
     m.offlineStep = false;
     m.stepSnapshot = m.current;
     return m.stepSnapshot;
+}
+
+const Snapshot& Session::newest() const noexcept {
+    return mImpl->loop.running() ? mImpl->stepSnapshot : mImpl->current;
 }
 
 const Snapshot& Session::latest() noexcept { return mImpl->snapshots.read().value; }

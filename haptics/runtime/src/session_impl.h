@@ -15,6 +15,7 @@
 
 #include "palp/base/nothrow_slot.h"
 #include "palp/base/spsc_queue.h"
+#include "palp/haptics/devices/fault_ramp.h"
 #include "palp/haptics/rendering/passivity.h"
 #include "palp/haptics/rendering/safety.h"
 #include "palp/haptics/session.h"
@@ -83,6 +84,10 @@ struct Session::Impl {
                                             : std::numeric_limits<double>::infinity(),
                     spec.maxForceN > 0 ? spec.maxForceN : std::numeric_limits<double>::infinity()),
           gate(p.startupThresholdN, p.startupQuietTicks),
+          faultRamp(p.faults.graceSeconds, p.faults.timeoutSeconds, p.faults.resumeSeconds,
+                    p.servo.periodSeconds),
+          maxForceStep(p.faults.maxForceStepN > 0 ? p.faults.maxForceStepN
+                                                  : 0.5 * deviceIn.spec().maxForceN),
           trace(p.traceCapacity),
           loop(p.servo) {
         limited.fill(stiffnessLimited);
@@ -105,13 +110,17 @@ struct Session::Impl {
         Eigen::Vector3d handVelocity;
         Eigen::Vector3d probe;          ///< world, m
         Eigen::Vector3d probeVelocity;  ///< world, m/s
-        bool ok = false;                ///< the device's position and velocity are finite
+        /// kBadSampleFaults bits the session found itself (non-finite, beyond its bound)
+        std::uint32_t faults = 0;
+        bool ok = false;  ///< usable: no bad-sample bit, the session's or the device's
     };
     /// What the force chain sends (stage 3 of a tick).
     struct SentForce {
-        Eigen::Vector3d force;  ///< world frame, N; always finite
-        bool faulted = false;   ///< the coupling's force (or the sample) was not finite
-        bool clamped = false;   ///< maxForceN cut the force (before or after the damping)
+        Eigen::Vector3d force;     ///< world frame, N; always finite
+        bool faulted = false;      ///< the coupling's force (or the sample) was not finite
+        bool clamped = false;      ///< maxForceN cut the force (before or after the damping)
+        std::uint32_t faults = 0;  ///< kFaultForceNonFinite, kFaultForceJump
+        double scale = 1;          ///< the factor applied: device's and session's ramp, smaller
     };
 
     // The tick's stages, in order; all run on the servo thread (or step()'s), noexcept,
@@ -124,7 +133,9 @@ struct Session::Impl {
     bool rejectUphillMove(const ProxyState& before, const ProxyState& after,
                           const HandSample& hand) noexcept;
     SentForce forceChain(const Eigen::Vector3d& couplingForce, const Eigen::Vector3d& handVelocity,
-                         double deviceScale) noexcept;
+                         double deviceScale, bool sampleRefused) noexcept;
+    Eigen::Vector3d limitStep(const Eigen::Vector3d& force, SentForce& out) noexcept;
+    void countFaults(std::uint32_t faults) noexcept;
     Eigen::Vector3d worldToDevice(const Eigen::Vector3d& force) const noexcept {
         return workspace.rotation.transpose() * force;  // rotated back, not scaled
     }
@@ -165,6 +176,10 @@ struct Session::Impl {
     PassivityController passivity;
     ForceGuard guard;
     StartupGate gate;
+    FaultRamp faultRamp;  // the session's own: refused samples, bad forces (FaultParams)
+    double maxForceStep;  // N per tick (FaultParams::maxForceStepN or half maxForceN)
+    Eigen::Vector3d lastStepped{Eigen::Vector3d::Zero()};  // the force after the step limit
+    FaultCounts faultCounts;
     DeviceHealth health;     // the device's report on this tick's sample
     bool started = false;    // the first good sample has been seen
     bool freeProxy = false;  // the probe started inside: the proxy follows it until outside

@@ -2,6 +2,7 @@
 // cross-fade, the force chain, deformable tissue, publishing the snapshot, rays and trace, the
 // proxy carried with a deformed surface). Everything here is noexcept, allocation-free,
 // lock-free and bounded. Set-up and the other threads' side are in session.cpp.
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
@@ -160,8 +161,10 @@ void Session::Impl::drainCommands() noexcept {
 }
 
 void Session::Impl::tick(double timeSeconds) noexcept {
-    const HandSample hand = deviceToWorld(device.read());
+    HandSample hand = deviceToWorld(device.read());
     health = device.health();  // a watchdog's verdict on this sample (WatchdogDevice)
+    // A sample the device's watchdog marks bad is refused exactly as one the session finds bad.
+    hand.ok = hand.ok && (health.faults & kBadSampleFaults) == 0;
     drainCommands();
     if (body) {
         // Deformable tissue: the rays leave in the material frame of the element the proxy
@@ -184,7 +187,11 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
     }
-    const SentForce sent = forceChain(force, hand.handVelocity, health.forceScale);
+    const SentForce sent = forceChain(force, hand.handVelocity, health.forceScale, !hand.ok);
+    const std::uint32_t faults = (health.faults & kAllFaults) | hand.faults | sent.faults;
+    countFaults(faults);
+    current.faultFlags = faults;
+    device.reportFaults(faults, sent.scale);
     device.write(worldToDevice(sent.force));
     Eigen::Vector3d tissueForce = Eigen::Vector3d::Zero();
     const bool anchored = contactTissue(*ps, sent.force, tissueForce);
@@ -200,10 +207,14 @@ Session::Impl::HandSample Session::Impl::deviceToWorld(const DeviceState& state)
     h.probeVelocity = workspace.scale * h.handVelocity;
     // A sample that is not finite, or that puts the probe absurdly far away (a device driver's
     // garbage, a runaway host model), is a bad sample: no ray is cast from it (Embree asserts on
-    // such rays) and the last good force is held, as for NaN.
-    h.ok = h.probe.allFinite() && h.probeVelocity.allFinite() &&
-           h.probe.cwiseAbs().maxCoeff() <= kMaxProbeCoordinate &&
-           h.probeVelocity.cwiseAbs().maxCoeff() <= kMaxProbeSpeed;
+    // such rays) and the last good force is held, then ramped to zero, as for NaN.
+    if (!(h.probe.allFinite() && h.probeVelocity.allFinite())) {
+        h.faults = kFaultNonFinite;
+    } else {
+        if (h.probe.cwiseAbs().maxCoeff() > kMaxProbeCoordinate) h.faults |= kFaultOutOfRange;
+        if (h.probeVelocity.cwiseAbs().maxCoeff() > kMaxProbeSpeed) h.faults |= kFaultTooFast;
+    }
+    h.ok = h.faults == 0;
     return h;
 }
 
@@ -279,22 +290,54 @@ void Session::Impl::coupleWithFade(const ProxyState& ps, const HandSample& hand)
     lastStepStiffness = std::isfinite(blended.stepStiffness) ? blended.stepStiffness : 0.0;
 }
 
-// Stage 3, the force chain: guard, clamp, gate, passivity (and clamp again).
+// Stage 3, the force chain: guard, clamp, gate, step limit, the fault ramps' scale, passivity
+// (and clamp again).
 Session::Impl::SentForce Session::Impl::forceChain(const Eigen::Vector3d& couplingForce,
                                                    const Eigen::Vector3d& handVelocity,
-                                                   double deviceScale) noexcept {
+                                                   double deviceScale,
+                                                   bool sampleRefused) noexcept {
     SentForce out;
     out.faulted = !couplingForce.allFinite();
+    // A refused sample's NaN is the session's own doing; only a computed force is a force fault.
+    if (out.faulted && !sampleRefused) out.faults |= kFaultForceNonFinite;
     const Eigen::Vector3d force = guard.filter(couplingForce);
     out.clamped = force.norm() > spec.maxForceN;
-    // A device watchdog's scale (1 for a device with fresh samples) before the observer books it.
-    Eigen::Vector3d sent = gate.filter(clampForce(force, spec.maxForceN)) * deviceScale;
-    // The observer books the force that is actually sent (after guard, clamp and gate: always
-    // finite); the controller's damping and force cut are applied before it clamps to the
-    // device's maxForceN again and books the result, so W is the energy exchanged with the hand.
-    sent = passivity.update(sent, handVelocity);
-    out.force = sent;
+    const Eigen::Vector3d stepped = limitStep(gate.filter(clampForce(force, spec.maxForceN)), out);
+    // A tick with a refused sample, a non-finite force or a limited step counts as missing for
+    // the session's ramp, exactly as a missing sample does for a device's watchdog.
+    const bool bad = sampleRefused || out.faults != 0;
+    const double own = bad ? faultRamp.bad() : faultRamp.good();
+    out.scale = std::min(deviceScale, own);
+    // The observer books the force that is actually sent (after guard, clamp, gate and the
+    // ramps: always finite); the controller's damping and force cut are applied before it clamps
+    // to the device's maxForceN again and books the result, so W is the energy exchanged with
+    // the hand.
+    out.force = passivity.update(stepped * out.scale, handVelocity);
     return out;
+}
+
+// The force may change by at most maxForceStep per tick (a drop to exactly zero, a cut, always
+// passes); a larger change is limited and flagged.
+Eigen::Vector3d Session::Impl::limitStep(const Eigen::Vector3d& force, SentForce& out) noexcept {
+    const Eigen::Vector3d change = force - lastStepped;
+    const double n = change.norm();
+    if (n > maxForceStep && !(force.array() == 0.0).all()) {
+        lastStepped += change * (maxForceStep / n);
+        out.faults |= kFaultForceJump;
+    } else {
+        lastStepped = force;
+    }
+    return lastStepped;
+}
+
+void Session::Impl::countFaults(std::uint32_t faults) noexcept {
+    FaultCounts& c = faultCounts;
+    c.stale += (faults & kFaultStale) ? 1 : 0;
+    c.nonFinite += (faults & kFaultNonFinite) ? 1 : 0;
+    c.outOfRange += (faults & kFaultOutOfRange) ? 1 : 0;
+    c.tooFast += (faults & kFaultTooFast) ? 1 : 0;
+    c.forceNonFinite += (faults & kFaultForceNonFinite) ? 1 : 0;
+    c.forceJump += (faults & kFaultForceJump) ? 1 : 0;
 }
 
 // Stage 5, deformable tissue (nothing on a rigid scene): the reaction of the force on the hand
@@ -353,8 +396,10 @@ void Session::Impl::publish(double timeSeconds, const ProxyState& ps, const Sent
     s.faults = guard.faultCount();
     s.tissueForce = tissueForce;
     s.deviceStale = health.stale;
-    s.deviceForceScale = health.forceScale;
+    s.deviceForceScale = sent.scale;
     s.watchdogTrips = health.trips;
+    s.faultCounts = faultCounts;
+    s.faultTrips = faultRamp.trips();  // s.faultFlags was set by tick()
 
     snapshots.back().value = s;
     snapshots.publish();

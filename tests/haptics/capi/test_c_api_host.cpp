@@ -1,13 +1,18 @@
 // Host devices through the C API, the numbers: a host device that wraps a SimulatedDevice gives
 // the simulated session's forces tick for tick (AVCEC on the AVC phantom); the watchdog's scale
 // law on WatchdogDevice alone; a press whose hand moves deeper during an outage resumes without
-// a jump; NaN samples are guarded and then cut; a host session's ticks allocate nothing.
+// a jump; NaN samples are guarded and then cut, and so are samples 20 km or 1e300 m away (they
+// used to hold the last force for as long as they lasted); palp_session_step with 0 ticks
+// writes the newest tick as it is; a host session's ticks allocate nothing.
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <thread>
 
 #include "alloc_counter.h"
 #include "palp/base/error.h"
@@ -39,6 +44,7 @@ struct Bridge {
     std::uint64_t sequence = 0;
     bool silent = false;
     bool nan = false;
+    int absurd = 0;  // 1: x = 20 km, 2: y = 1e300 m (finite, far beyond any device)
 };
 
 int bridgeRead(void* user, palp_device_state* s) {
@@ -49,6 +55,8 @@ int bridgeRead(void* user, palp_device_state* s) {
         s->position[i] = b->nan ? std::numeric_limits<double>::quiet_NaN() : d.position[i];
         s->velocity[i] = d.velocity[i];
     }
+    if (b->absurd == 1) s->position[0] = 2e4;
+    if (b->absurd == 2) s->position[1] = 1e300;
     s->buttons = d.buttons;
     s->sequence = ++b->sequence;
     s->timestamp = d.timestampSeconds;
@@ -235,6 +243,98 @@ TEST(CApiHost, NanSamplesAreGuardedThenCut) {
     EXPECT_EQ(snap.faults, 10u);
 }
 
+// The absurd samples from a host, and NaN: flagged on the first faulty tick (fault_flags
+// and its count), the held force whole for the 2 ms grace and zero from the 10th tick (the
+// watchdog's 10 ms timeout), finite and bounded; back without a jump once the samples are good.
+TEST(CApiHost, AbsurdSamplesAreFlaggedAndCutWithinTheTimeout) {
+    SceneHandle s;
+    palp_session_params params;
+    palp_session_params_default(&params);
+    params.mode = PALP_MODE_VC;
+    for (int kind = 0; kind < 3; ++kind) {
+        SCOPED_TRACE(kind == 0 ? "NaN" : kind == 1 ? "x 20 km" : "y 1e300 m");
+        HostSession host(s.scene, params, pressPath());
+        ASSERT_NE(host.session, nullptr);
+        palp_snapshot snap;
+        ASSERT_EQ(palp_session_step(host.session, 400, &snap), PALP_OK);
+        const double held = norm3(snap.force);
+        ASSERT_GT(held, 0.3);
+        host.bridge.nan = kind == 0;
+        host.bridge.absurd = kind;
+        const unsigned bit = kind == 0 ? PALP_FAULT_NON_FINITE : PALP_FAULT_OUT_OF_RANGE;
+        int toZero = -1;
+        for (int n = 1; n <= 30; ++n) {
+            ASSERT_EQ(palp_session_step(host.session, 1, &snap), PALP_OK);
+            EXPECT_TRUE(snap.fault_flags & bit) << n;  // on the very tick
+            EXPECT_EQ(snap.faulted, 1);
+            EXPECT_LE(norm3(snap.force), held * (1 + 1e-12));
+            if (n <= 2) {
+                EXPECT_NEAR(norm3(snap.force), held, 1e-12) << n;
+            }
+            if (toZero < 0 && norm3(snap.force) == 0.0) toZero = n;
+        }
+        EXPECT_EQ(toZero, 10);
+        EXPECT_EQ(kind == 0 ? snap.non_finite_samples : snap.out_of_range_samples, 30u);
+        EXPECT_EQ(snap.watchdog_trips, 1u);
+        EXPECT_EQ(snap.fault_trips, 1u);
+        EXPECT_EQ(snap.device_force_scale, 0.0);
+        host.bridge.nan = false;
+        host.bridge.absurd = 0;
+        double last = 0, maxStep = 0;
+        for (int k = 1; k <= 60; ++k) {
+            ASSERT_EQ(palp_session_step(host.session, 1, &snap), PALP_OK);
+            EXPECT_EQ(snap.fault_flags, 0u) << k;
+            maxStep = std::max(maxStep, std::abs(norm3(snap.force) - last));
+            last = norm3(snap.force);
+        }
+        EXPECT_EQ(snap.device_force_scale, 1.0);
+        EXPECT_LT(maxStep, 0.04 * held + 0.01);  // 1/50 of the force a tick, plus the press
+    }
+}
+
+// palp_session_step(s, 0, &last) writes the newest tick as it is: the zero state before any
+// tick (as palp_session_latest gives then), the last step's after steps, the servo thread's
+// last tick after a real-time run; it runs nothing.
+TEST(CApiHost, StepWithZeroTicksWritesTheNewestTick) {
+    SceneHandle s;
+    palp_session_params params;
+    palp_session_params_default(&params);
+    params.mode = PALP_MODE_VC;
+    params.servo_priority = 0;
+    HostSession host(s.scene, params, pressPath());
+    ASSERT_NE(host.session, nullptr);
+    palp_snapshot a, b;
+    std::memset(&b, 0xab, sizeof b);
+    ASSERT_EQ(palp_session_step(host.session, 0, &b), PALP_OK);
+    EXPECT_EQ(b.tick, 0u);
+    EXPECT_EQ(b.time, 0.0);
+    EXPECT_EQ(norm3(b.force), 0.0);
+    EXPECT_EQ(b.device_force_scale, 1.0);
+    EXPECT_EQ(b.fault_flags, 0u);
+    EXPECT_EQ(host.bridge.sequence, 0u);  // nothing ran: no read
+    ASSERT_EQ(palp_session_step(host.session, 0, nullptr), PALP_OK);
+    ASSERT_EQ(palp_session_step(host.session, 437, &a), PALP_OK);
+    std::memset(&b, 0xab, sizeof b);
+    ASSERT_EQ(palp_session_step(host.session, 0, &b), PALP_OK);
+    EXPECT_EQ(b.tick, a.tick);
+    EXPECT_EQ(b.tick, 436u);
+    EXPECT_EQ(b.time, a.time);
+    for (int i = 0; i < 3; ++i) EXPECT_EQ(b.force[i], a.force[i]);
+    EXPECT_GT(norm3(b.force), 0.3);
+    EXPECT_EQ(host.bridge.sequence, 437u);
+    // After a real-time run: its last tick, the one palp_session_latest gives.
+    ASSERT_EQ(palp_session_start(host.session), PALP_OK);
+    for (int i = 0; i < 1000 && palp_session_latest(host.session, &a) == PALP_OK && a.tick < 480;
+         ++i)
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    ASSERT_EQ(palp_session_stop(host.session), PALP_OK);
+    ASSERT_EQ(palp_session_latest(host.session, &a), PALP_OK);
+    ASSERT_EQ(palp_session_step(host.session, 0, &b), PALP_OK);
+    EXPECT_GE(b.tick, 480u);
+    EXPECT_EQ(b.tick, a.tick);
+    for (int i = 0; i < 3; ++i) EXPECT_EQ(b.force[i], a.force[i]);
+}
+
 TEST(CApiHost, TicksAllocateNothing) {
     SceneHandle s;
     palp_session_params params;
@@ -248,8 +348,13 @@ TEST(CApiHost, TicksAllocateNothing) {
     host.bridge.silent = true;
     ASSERT_EQ(palp_session_step(host.session, 30, &snap), PALP_OK);  // a trip
     host.bridge.silent = false;
-    ASSERT_EQ(palp_session_step(host.session, 100, &snap), PALP_OK);  // and back
+    ASSERT_EQ(palp_session_step(host.session, 60, &snap), PALP_OK);  // and back
+    host.bridge.absurd = 1;
+    ASSERT_EQ(palp_session_step(host.session, 30, &snap), PALP_OK);  // refused, a trip
+    host.bridge.absurd = 0;
+    ASSERT_EQ(palp_session_step(host.session, 60, &snap), PALP_OK);  // and back
     EXPECT_EQ(palp::test::allocationCount() - before, 0u);
-    EXPECT_EQ(snap.watchdog_trips, 1u);
+    EXPECT_EQ(snap.watchdog_trips, 2u);
+    EXPECT_EQ(snap.out_of_range_samples, 30u);
     EXPECT_GT(norm3(snap.force), 0.1);
 }

@@ -391,6 +391,18 @@ typedef struct palp_trajectory {
 /** Fills @p trajectory with the defaults of @p kind (palp/haptics/devices/trajectory.h). */
 palp_status palp_trajectory_default(palp_trajectory_kind kind, palp_trajectory* trajectory);
 
+/** Bits of palp_snapshot.fault_flags: what went wrong in a tick (docs/architecture.md,
+ *  "Faults"). A refused sample (NON_FINITE, OUT_OF_RANGE, TOO_FAST) holds the last good force,
+ *  then ramps it to zero by the watchdog's timeout, as a missing sample does. */
+typedef enum palp_fault {
+    PALP_FAULT_STALE = 1,             /**< no new sample (a repeated one, or none) */
+    PALP_FAULT_NON_FINITE = 2,        /**< NaN or infinite position, velocity or time */
+    PALP_FAULT_OUT_OF_RANGE = 4,      /**< outside spec's workspace + 0.1 m, or 10 km away */
+    PALP_FAULT_TOO_FAST = 8,          /**< over 10 m/s, or a jump from the last good sample */
+    PALP_FAULT_FORCE_NON_FINITE = 16, /**< the computed force was not finite (last good held) */
+    PALP_FAULT_FORCE_JUMP = 32        /**< the force stepped by more than max_force / 2 (limited) */
+} palp_fault;
+
 /** One tick's state (world frame, SI units). */
 typedef struct palp_snapshot {
     uint64_t tick;
@@ -410,7 +422,7 @@ typedef struct palp_snapshot {
     int rays;               /**< rays cast this tick */
     int sticking, gate_open, faulted, clamped, fading;
     palp_coupling_mode mode;
-    uint64_t faults; /**< ticks so far whose force was non-finite (last good held) */
+    uint64_t faults; /**< ticks so far whose force was non-finite or sample refused (held) */
     /** 1: the coupling in force asked for more stiffness than the device renders stably and
      *  k_max (and k_s if above it) were lowered to the device's maximum stiffness. */
     int stiffness_limited;
@@ -420,11 +432,16 @@ typedef struct palp_snapshot {
     double max_displacement; /**< largest surface displacement after the step, m */
     uint32_t fem_flags;      /**< solver flags of the step (0: a clean step) */
     /* Host and remote devices' watchdog (palp_session_create_host, palp_session_create_udp;
-     * 0 / 1 / 0 for simulated devices): */
-    int device_stale;          /**< 1: this tick's read_state brought no fresh sample */
+     * 0 / 0 for simulated devices): */
+    int device_stale;          /**< 1: this tick brought no fresh, good sample */
     double device_force_scale; /**< factor the force was scaled by (1: whole, 0: cut) */
     uint64_t watchdog_trips;   /**< outages so far whose force reached zero */
     double passivity_cut;      /**< passivity controller: force cut along the velocity, N */
+    uint32_t fault_flags;      /**< this tick's PALP_FAULT_* bits (any device), on the very tick */
+    /** Ticks so far with PALP_FAULT_STALE, _NON_FINITE, _OUT_OF_RANGE, _TOO_FAST,
+     *  _FORCE_NON_FINITE, _FORCE_JUMP; the session's own fault ramp's trips to zero force. */
+    uint64_t stale_ticks, non_finite_samples, out_of_range_samples, too_fast_samples;
+    uint64_t non_finite_forces, force_jumps, fault_trips;
 } palp_snapshot;
 
 typedef struct palp_latency {
@@ -476,7 +493,8 @@ typedef struct palp_device_spec {
     double max_damping;          /**< highest stable damping, N s/m (0..1e4; 0: no limit); with
                                       the period it bounds the stiffness too (k < 1.8 b / T)
                                       and caps the passivity controller's damping */
-    double workspace_min[3];     /**< device frame, m (informative) */
+    double workspace_min[3];     /**< device frame, m: samples outside it + 0.1 m are refused
+                                      (no volume, e.g. all 0: outside +-10 m) */
     double workspace_max[3];     /**< device frame, m (>= workspace_min) */
 } palp_device_spec;
 
@@ -507,9 +525,8 @@ typedef void (*palp_device_write_fn)(void* user, const double force[3]);
  *  ramps linearly to zero, reached at watchdog_timeout (a trip: palp_snapshot.watchdog_trips);
  *  once new samples arrive it climbs back to whole over watchdog_resume seconds, so a hand
  *  that moved during the outage is not kicked. While samples are missing the probe holds the
- *  last sample's position with zero velocity. A sample with a NaN or infinite position or
- *  velocity counts as missing and is guarded like any device's (the last good force is held,
- *  palp_snapshot.faulted), until the watchdog cuts it. */
+ *  last sample's position with zero velocity. A bad sample (palp_fault) counts as missing too and
+ *  is refused (the last good force is held, palp_snapshot.faulted) until the ramp cuts it. */
 typedef struct palp_device_callbacks {
     palp_device_read_fn read_state;   /**< required */
     palp_device_write_fn write_force; /**< NULL: forces are not sent (a tracker) */
@@ -633,7 +650,9 @@ palp_status palp_session_stop(palp_session* session);
 /** 1 while the servo thread runs, 0 otherwise (also for NULL). */
 int palp_session_running(const palp_session* session);
 /** Runs @p ticks ticks on the calling thread as fast as possible (offline; time advances by
- *  the period per tick) and copies the last one's state into @p last (may be NULL).
+ *  the period per tick) and copies the last one's state into @p last (may be NULL). With
+ *  @p ticks 0 nothing runs and @p last gets the newest tick as it is (the servo thread's last
+ *  after a run; before any tick what palp_session_latest gives: zeros, device_force_scale 1).
  *  PALP_ERROR_STATE while the servo thread runs. */
 palp_status palp_session_step(palp_session* session, uint32_t ticks, palp_snapshot* last);
 

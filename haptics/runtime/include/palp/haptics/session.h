@@ -33,6 +33,21 @@ struct WorkspaceTransform {
     Eigen::Vector3d offset{Eigen::Vector3d::Zero()};
 };
 
+/// How a session treats the faults it finds itself, on any device: a sample it refuses
+/// (non-finite, or beyond palp's world bound) and a force that is not finite or would jump
+/// (DeviceFault). Each such tick counts as missing for a FaultRamp with these times, as a
+/// WatchdogDevice counts missing samples (docs/architecture.md, "Faults").
+struct FaultParams {
+    double graceSeconds = 2e-3;     ///< s: the force stays whole this long (0 <= g < timeout)
+    double timeoutSeconds = 10e-3;  ///< s: zero force after this long (0 < t <= 10)
+    double resumeSeconds = 50e-3;   ///< s: time for the force to climb back (0..10)
+    /// Largest change of the force (before the ramps' scale) in one tick, N; a larger change is
+    /// limited to it (kFaultForceJump), except a drop to exactly zero (a cut is always allowed).
+    /// 0: half the device's maxForceN (a step no stable rendering makes: on a 3D Systems Touch
+    /// X at its highest stiffness a 3.9 N step in 1 ms needs a hand at 2.7 m/s).
+    double maxForceStepN = 0;
+};
+
 struct SessionParams {
     ProxyParams proxy;
     CouplingParams coupling;
@@ -45,10 +60,21 @@ struct SessionParams {
     /// Snapshots kept for popTrace() (every tick's, in order; rounded up to a power of two;
     /// 0: no trace). When the reader falls behind, new snapshots are dropped and counted.
     std::uint32_t traceCapacity = 0;
+    FaultParams faults;  ///< the session's own fault ramp and force-step limit
 };
 
 /// @throw palp::ValueError naming the field (through the parts' validators too).
 void validateSessionParams(const SessionParams& params);
+
+/// Ticks so far with each fault (DeviceFault), counted by the session.
+struct FaultCounts {
+    std::uint64_t stale = 0;           ///< kFaultStale: no new sample
+    std::uint64_t nonFinite = 0;       ///< kFaultNonFinite samples
+    std::uint64_t outOfRange = 0;      ///< kFaultOutOfRange samples
+    std::uint64_t tooFast = 0;         ///< kFaultTooFast samples
+    std::uint64_t forceNonFinite = 0;  ///< kFaultForceNonFinite ticks
+    std::uint64_t forceJump = 0;       ///< kFaultForceJump ticks
+};
 
 /// One tick's state, published lock-free for viewers and traces. Plain data.
 struct Snapshot {
@@ -74,15 +100,24 @@ struct Snapshot {
     /// baseStiffness above the device's limit (limitStiffnessToDevice) and renders the lowered
     /// one.
     bool stiffnessLimited = false;
-    bool fading = false;       ///< a SetCoupling cross-fade is running
-    double fadeWeight = 1;     ///< weight of the newest coupling params (0..1)
-    std::uint64_t faults = 0;  ///< ticks so far whose force was non-finite (held last good)
-    /// The device's watchdog (WatchdogDevice; always false / 1 / 0 for other devices): this
-    /// tick brought no fresh sample; the factor the force was scaled by (0: cut); outages so
-    /// far whose force reached zero.
+    bool fading = false;    ///< a SetCoupling cross-fade is running
+    double fadeWeight = 1;  ///< weight of the newest coupling params (0..1)
+    /// Ticks so far whose force was non-finite or whose sample was refused (the last good force
+    /// held; `faulted` marks such a tick).
+    std::uint64_t faults = 0;
+    /// The device's watchdog (WatchdogDevice; always false / 0 for other devices): this tick
+    /// brought no fresh, good sample (deviceStale); outages so far whose force reached zero
+    /// (watchdogTrips). deviceForceScale: the factor the force was scaled by this tick (0:
+    /// cut), the device watchdog's and the session's fault ramp (FaultParams), the smaller.
     bool deviceStale = false;
     double deviceForceScale = 1;
     std::uint64_t watchdogTrips = 0;
+    /// This tick's DeviceFault bits: the device's (stale, a bad sample) and the session's (a
+    /// sample it refused, a non-finite force, a force step limited). Set on the very tick the
+    /// fault happens.
+    std::uint32_t faultFlags = 0;
+    FaultCounts faultCounts;       ///< ticks so far with each fault
+    std::uint64_t faultTrips = 0;  ///< outages of the session's fault ramp that reached zero
     // Deformable scenes only (zero / -1 otherwise).
     /// Mean force on the tissue over this tick's FEM step, N: the coupling spring's, solved with
     /// the tissue (-force in a steady contact; it leads -force by the spring's change within the
@@ -129,12 +164,20 @@ struct Command {
 /// energy are blended linearly over crossFadeSeconds (a SetCoupling that arrives during a fade
 /// waits for it to end; the newest waiting one wins); ForceGuard (a non-finite force or device
 /// sample holds the last good force and flags the tick); clampForce to the device's maxForceN;
-/// StartupGate; the device's Device::health().forceScale (a WatchdogDevice's cut, 1 otherwise);
+/// StartupGate; the force-step limit (FaultParams::maxForceStepN); the smaller of the device's
+/// Device::health().forceScale (a WatchdogDevice's cut, 1 otherwise) and the session's own
+/// fault ramp (FaultParams: ticks with a refused sample, a non-finite force or a limited step
+/// count as missing);
 /// the passivity observer (and controller when enabled) books that force, the one
 /// actually sent, against the device velocity in the device's scale, so W is the energy
 /// exchanged with the hand (the controller's damping is added and clamped again); the force is
 /// rotated back (F_device = R^T F_world, not scaled) and written;
+/// the tick's faults go to Device::reportFaults() and the force is written;
 /// the Snapshot is published (latest()), queued for popTrace() and the bundle for latestRays().
+/// A sample is refused (no proxy move, no ray; the last good force is held, then ramped) when
+/// it is not finite, when a coordinate of the probe lies beyond 10 km or a velocity component
+/// beyond 10 km/s (palp's own bound, for any device), or when the device's health() marks it
+/// bad (a WatchdogDevice's workspace and speed checks).
 /// A probe that starts inside a closed surface (ray parity) is not trapped by it: the proxy
 /// follows the probe freely until the probe is outside.
 ///
@@ -187,6 +230,10 @@ class Session final : public ServoTask {
     /// One tick on the calling thread; time advances by T per step. While the servo thread
     /// runs it does nothing and returns the last step()'s snapshot.
     const Snapshot& step() noexcept;
+    /// Controlling thread, while stopped: the newest tick's snapshot (the servo thread's last
+    /// after a run, step()'s after a step; a default Snapshot before any tick). While the servo
+    /// thread runs: the last step()'s.
+    const Snapshot& newest() const noexcept;
 
     /// Viewer: the newest published snapshot.
     const Snapshot& latest() noexcept;

@@ -35,10 +35,16 @@ inline constexpr std::size_t kMaxDatagram = 128;
 
 /// Bits of ForceMessage::flags.
 enum ForceFlag : std::uint32_t {
-    kForceStale = 1u << 0,    ///< no fresh state reached palp for this tick (watchdog)
-    kForceScaled = 1u << 1,   ///< the watchdog scaled the force below 1 (forceScale < 1)
-    kForceCut = 1u << 2,      ///< the watchdog cut the force to zero
+    kForceStale = 1u << 0,    ///< no fresh, good state reached palp for this tick (watchdog)
+    kForceScaled = 1u << 1,   ///< a fault ramp scaled the force below 1 (forceScale < 1)
+    kForceCut = 1u << 2,      ///< a fault ramp cut the force to zero (forceScale 0)
     kForceClamped = 1u << 3,  ///< the device clamped the force to forceScale x maxForceN
+    /// This tick's state was refused (its force is the last good one, then ramped to zero):
+    kForceNonFiniteState = 1u << 4,   ///< a NaN or infinite position, velocity or time
+    kForceOutOfRangeState = 1u << 5,  ///< a position outside the device's workspace (+ margin)
+    kForceTooFastState = 1u << 6,     ///< a speed or a jump since the last good state no hand makes
+    kForceNonFiniteForce = 1u << 7,   ///< palp's force was not finite (the last good one held)
+    kForceJump = 1u << 8,             ///< palp's force would have jumped (limited to a step)
 };
 
 /// Remote device -> palp: one sample of the device, in the device frame.
@@ -62,7 +68,9 @@ struct ForceMessage {
     /// sender's timeNs echoed, so the remote side measures the round trip on its own clock.
     std::uint64_t stateSequence = 0;
     std::uint64_t stateTimeNs = 0;
-    double forceScale = 1;    ///< the watchdog's factor (0..1) applied to this force
+    /// The factor (0..1) applied to this force: the watchdog's and the session's fault ramp
+    /// (the smaller).
+    double forceScale = 1;
     std::uint32_t flags = 0;  ///< ForceFlag bits
 };
 

@@ -21,13 +21,36 @@ struct DeviceState {
     std::uint64_t sequence = 0;
 };
 
+/// What can be wrong in one servo tick, as bits (Snapshot::faultFlags, palp_snapshot.fault_flags,
+/// the bridge's ForceMessage flags carry them too). The sample faults are judged by
+/// WatchdogDevice (all four) and by Session for every device (non-finite, and out of range
+/// against palp's world bound); the force faults by Session. docs/architecture.md, "Faults",
+/// lists what the loop does for each and what the host sees.
+enum DeviceFault : std::uint32_t {
+    kFaultStale = 1u << 0,       ///< no new sample: a repeated one, or the device did not answer
+    kFaultNonFinite = 1u << 1,   ///< NaN or infinite position, velocity or time
+    kFaultOutOfRange = 1u << 2,  ///< position outside the stated bound (the device's workspace)
+    kFaultTooFast = 1u << 3,     ///< a speed or a jump since the last good sample no hand makes
+    kFaultForceNonFinite = 1u << 4,  ///< the rendered force was NaN or infinite (last good held)
+    kFaultForceJump = 1u << 5,       ///< the force would have jumped (limited to a step per tick)
+};
+/// The sample faults that make a sample unusable (its force is held, then ramped to zero).
+inline constexpr std::uint32_t kBadSampleFaults =
+    kFaultNonFinite | kFaultOutOfRange | kFaultTooFast;
+/// Every DeviceFault bit.
+inline constexpr std::uint32_t kAllFaults =
+    kBadSampleFaults | kFaultStale | kFaultForceNonFinite | kFaultForceJump;
+
 /// What a device reports about its own samples after read() (Session copies it into every
 /// Snapshot). A plain device is always healthy; WatchdogDevice fills it.
 struct DeviceHealth {
-    bool stale = false;            ///< this tick's read() brought no fresh sample
+    bool stale = false;            ///< this tick's read() brought no fresh, good sample
     double forceScale = 1.0;       ///< factor (0..1) the force must be scaled by this tick
-    std::uint64_t staleTicks = 0;  ///< consecutive reads without a fresh sample
-    std::uint64_t trips = 0;       ///< times the force reached zero for want of samples
+    std::uint64_t staleTicks = 0;  ///< consecutive reads without a fresh, good sample
+    std::uint64_t trips = 0;       ///< times the force reached zero for want of good samples
+    /// DeviceFault bits of this read's sample (kFaultStale and kBadSampleFaults only): a sample
+    /// with a kBadSampleFaults bit is returned by read() as it came, for the caller to refuse.
+    std::uint32_t faults = 0;
 };
 
 /// Axis-aligned workspace box in the device frame, m.
@@ -111,6 +134,15 @@ class Device {
     /// whose forceScale is below 1 expects the force written this tick to be scaled by it
     /// (Session does so before its passivity observer books the force).
     virtual DeviceHealth health() const noexcept { return {}; }
+
+    /// Called by Session each tick just before write(): the tick's DeviceFault bits (the
+    /// device's and the session's) and the factor (0..1) the force about to be written was
+    /// scaled by. Default: ignored. A device that tells its far end about faults (UdpDevice's
+    /// Force flags) keeps them for the next write().
+    virtual void reportFaults(std::uint32_t faults, double forceScale) noexcept {
+        static_cast<void>(faults);
+        static_cast<void>(forceScale);
+    }
 };
 
 }  // namespace palp::haptics

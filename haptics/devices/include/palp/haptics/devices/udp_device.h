@@ -87,8 +87,10 @@ struct UdpDeviceCounters {
 /// write() sends one ForceMessage (sendto with MSG_DONTWAIT; a full socket drops it, counted)
 /// with the force clamped to forceScale x maxForceN, the tick (the number of write() calls
 /// before this one: Snapshot::tick when the device serves one session from its first tick), the
-/// newest state's sequence and time echoed, the watchdog's scale and ForceFlag bits. Before any
-/// state has arrived nothing is sent (there is nobody to send to).
+/// newest state's sequence and time echoed, the scale and ForceFlag bits: the watchdog's, and
+/// the session's when it called reportFaults() before this write() (Session does every tick:
+/// the scale is then the smaller, the fault bits of both are set). Before any state has arrived
+/// nothing is sent (there is nobody to send to).
 ///
 /// @par Threading  read(), write(), health() and latestState() from the servo thread only;
 ///      publishedState() from one viewer thread; counters(), port() and address() from any.
@@ -113,6 +115,8 @@ class UdpDevice final : public Device {
     const DeviceSpec& spec() const noexcept override { return mSpec; }
     /// The watchdog's; before the first state: stale, force scale 0 (no force is rendered).
     DeviceHealth health() const noexcept override;
+    /// Kept for the next write()'s Force flags and scale.
+    void reportFaults(std::uint32_t faults, double forceScale) noexcept override;
 
     /// The bound port (the one the system chose for port 0).
     std::uint16_t port() const noexcept { return mPort; }
@@ -161,6 +165,9 @@ class UdpDevice final : public Device {
     std::uint64_t mWrites = 0;
     std::uint64_t mWaitingReads = 0;  // reads before the first state
     std::uint64_t mSendSequence = 0;
+    bool mReported = false;  // reportFaults() since the last write()
+    std::uint32_t mReportedFaults = 0;
+    double mReportedScale = 1;
     TripleBuffer<NothrowSlot<bridge::StateMessage>> mPublished;  // servo -> viewer
     // Counts: written by the servo thread (relaxed), read by any.
     struct AtomicCounters {
