@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -65,6 +66,28 @@ TEST(PalpateRun, CtrlCKeepsAValidTraceAndSummaryOfTheTicksDone) {
     EXPECT_NE(r.output.find("interrupted after " + std::to_string(ticks) + " of"),
               std::string::npos)
         << r.output;
+}
+
+// --seconds under --realtime is wall-clock time: the deformable bone phantom's servo loop may
+// not keep up on a small machine (it then skips deadlines), and the run still stops after the
+// 0.4 s asked for, not after 400 ticks; the ticks run plus the deadlines skipped cover that time.
+TEST(PalpateRun, RealtimeSecondsAreWallClockSeconds) {
+    const auto r = runCommand(palp::test::palpTool().string() +
+                              " palpate --phantom bone --deformable --realtime --seconds 0.4 --json"
+                              " 2>/dev/null");
+    EXPECT_EQ(r.exitCode, 0) << r.output;
+    const nlohmann::json j = jsonOf(r.output);
+    ASSERT_TRUE(j.contains("servo")) << r.output;
+    const double wall = j["wall_seconds"].get<double>();
+    const auto ticks = j["servo"]["ticks"].get<std::uint64_t>();
+    const auto skipped = j["servo"]["skipped"].get<std::uint64_t>();
+    std::printf("realtime --seconds 0.4: %.3f s wall, %llu ticks, %llu deadlines skipped\n", wall,
+                static_cast<unsigned long long>(ticks), static_cast<unsigned long long>(skipped));
+    EXPECT_GE(wall, 0.4);
+    EXPECT_LT(wall, 0.4 + 1.0);  // the drain's 1 ms polls and stop(): well under a second
+    // Periods elapsed: ticks + skipped deadlines, about 400 (+ the last tick's overrun).
+    EXPECT_LE(ticks + skipped, 400u + 50u);
+    EXPECT_GE(ticks + skipped, 350u);
 }
 
 TEST(PalpateRun, TheMrPalpatesDeformablyHeldOnTheFaceOppositeThePress) {

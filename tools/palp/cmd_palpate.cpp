@@ -592,7 +592,8 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
     Report r{in.label, spec,   cp,          kMaxAsked,        frame, body, {}, {},  {},
              NAN,      NAN,    skin,        plan.pressedFrom, 0,     {},   {}, NAN, NAN,
              {},       solver, setupSeconds};
-    r.run = a.realtime ? runRealtime(session, ticks) : runFast(session, ticks);
+    // --seconds under --realtime is wall-clock time (the path's ticks otherwise).
+    r.run = a.realtime ? runRealtime(session, ticks, a.seconds) : runFast(session, ticks);
     if (r.run.snaps.empty()) {  // stopped before the first tick: nothing to write
         std::fprintf(stderr, "palp palpate: interrupted before the first tick; nothing written\n");
         return 128 + r.run.interrupted;

@@ -212,8 +212,9 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
     auto* fast = app->add_flag("--fast", a.fast, "Step offline as fast as possible (default)");
     rt->excludes(fast);
     app->add_option("--seconds", a.seconds,
-                    "Simulated (or, with --realtime, wall-clock) time, s (default: until the "
-                    "path is done)")
+                    "Run this long, s: simulated time offline; with --realtime wall-clock "
+                    "seconds (an overloaded servo loop that skips ticks still stops on time) "
+                    "(default: until the path is done)")
         ->check(within(bounds::kPositiveDuration));
     app->add_option("--trace", a.trace, "Write a CSV trace of every tick");
     app->add_option("--map", a.map,

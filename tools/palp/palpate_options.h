@@ -47,7 +47,7 @@ struct PalpateArgs {
     double holdSeconds = 0.5;
     bool realtime = false;
     bool fast = false;
-    double seconds = 0;
+    double seconds = 0;  // offline: simulated s; --realtime: wall-clock s (0: the path's length)
     std::string trace;
     std::string map;
     std::string mapQuantity = "stiffness";

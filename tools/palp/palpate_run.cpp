@@ -2,6 +2,7 @@
 
 #include "palpate_run.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <thread>
@@ -12,8 +13,7 @@ namespace palp::tool {
 
 using nlohmann::json;
 
-/// Runs @p session on its servo thread for @p ticks, draining every tick's snapshot.
-RunResult runRealtime(haptics::Session& session, std::uint64_t ticks) {
+RunResult runRealtime(haptics::Session& session, std::uint64_t ticks, double wallSeconds) {
     RunResult r;
     std::vector<haptics::Snapshot>& snaps = r.snaps;
     std::uint64_t& traceDropped = r.traceDropped;
@@ -28,10 +28,19 @@ RunResult runRealtime(haptics::Session& session, std::uint64_t ticks) {
     };
     const InterruptGuard guard;
     const palp::volume::ProgressFn progress = progressLine("palp palpate: real time");
-    while (session.latest().tick + 1 < ticks && !InterruptGuard::interrupted()) {
+    const auto started = std::chrono::steady_clock::now();
+    const auto wall = [&] {
+        return std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+    };
+    // Wall-clock seconds when asked for, else the path's ticks.
+    const auto fraction = [&] {
+        return wallSeconds > 0
+                   ? wall() / wallSeconds
+                   : static_cast<double>(session.latest().tick + 1) / static_cast<double>(ticks);
+    };
+    while (fraction() < 1.0 && !InterruptGuard::interrupted()) {
         drain();
-        if (progress)
-            progress(static_cast<double>(session.latest().tick + 1) / static_cast<double>(ticks));
+        if (progress) progress(std::min(fraction(), 1.0));
         std::this_thread::sleep_for(std::chrono::milliseconds(1));
     }
     session.stop();

@@ -22,9 +22,12 @@ struct RunResult {
     int interrupted = 0;             // the signal (Ctrl-C: SIGINT) that stopped the run early
 };
 
-/// Runs @p session on its servo thread for @p ticks (or until Ctrl-C), draining every tick's
-/// snapshot.
-RunResult runRealtime(haptics::Session& session, std::uint64_t ticks);
+/// Runs @p session on its servo thread (or until Ctrl-C), draining every tick's snapshot: for
+/// @p wallSeconds of wall-clock time from the start when it is > 0 (`--seconds` under
+/// `--realtime`: an overloaded loop that skips deadlines runs fewer ticks, never longer), else
+/// until @p ticks ticks have run (the simulated hand's path is done: its time is counted in
+/// ticks).
+RunResult runRealtime(haptics::Session& session, std::uint64_t ticks, double wallSeconds = 0);
 /// Steps @p session offline for @p ticks (or until Ctrl-C).
 RunResult runFast(haptics::Session& session, std::uint64_t ticks);
 
