@@ -69,6 +69,10 @@ py::dict forceDict(const bridge::ForceMessage& f) {
     d["flags"] = f.flags;
     d["stale"] = (f.flags & bridge::kForceStale) != 0;
     d["cut"] = (f.flags & bridge::kForceCut) != 0;
+    // The state was refused (non-finite, out of range, too fast) or palp's force was faulted.
+    d["fault"] = (f.flags & (bridge::kForceNonFiniteState | bridge::kForceOutOfRangeState |
+                             bridge::kForceTooFastState | bridge::kForceNonFiniteForce |
+                             bridge::kForceJump)) != 0;
     return d;
 }
 

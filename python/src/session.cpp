@@ -142,6 +142,7 @@ py::dict traceColumns(const std::vector<Snapshot>& trace) {
     col("fade_weight", &Snapshot::fadeWeight);
     col("device_stale", &Snapshot::deviceStale);
     col("device_force_scale", &Snapshot::deviceForceScale);
+    col("fault_flags", &Snapshot::faultFlags);
     col("max_displacement", &Snapshot::maxDisplacement);
     col("contact_node", &Snapshot::contactNode);
     py::array_t<std::uint8_t> mode(n);
@@ -346,6 +347,24 @@ void bindSession(py::module_& m) {
         .def_readonly("device_stale", &Snapshot::deviceStale)
         .def_readonly("device_force_scale", &Snapshot::deviceForceScale)
         .def_readonly("watchdog_trips", &Snapshot::watchdogTrips)
+        .def_readonly("fault_flags", &Snapshot::faultFlags,
+                      "This tick's fault bits (1 stale, 2 non-finite, 4 out of range, 8 too fast, "
+                      "16 non-finite force, 32 force jump)")
+        .def_property_readonly(
+            "fault_counts",
+            [](const Snapshot& s) {
+                const haptics::FaultCounts& c = s.faultCounts;
+                py::dict d;
+                d["stale"] = c.stale;
+                d["non_finite"] = c.nonFinite;
+                d["out_of_range"] = c.outOfRange;
+                d["too_fast"] = c.tooFast;
+                d["force_non_finite"] = c.forceNonFinite;
+                d["force_jump"] = c.forceJump;
+                return d;
+            },
+            "Ticks so far with each fault, as a dict")
+        .def_readonly("fault_trips", &Snapshot::faultTrips)
         .def_readonly("contact_node", &Snapshot::contactNode)
         .def_readonly("max_displacement", &Snapshot::maxDisplacement)
         .def("__repr__", [](const Snapshot& s) {

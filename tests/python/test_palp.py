@@ -262,6 +262,43 @@ class Sessions(unittest.TestCase):
         self.assertEqual(np.linalg.norm(t["force"][-1]), 0.0)
         self.assertEqual(session.step().watchdog_trips, 2)
 
+    def test_absurd_samples_are_flagged_and_cut_within_the_timeout(self):
+        # A Python device (no watchdog) whose samples jump 20 km away: flagged on the very tick
+        # (fault bit 4, out of range), the held force zero on the 10th tick, back at 1/50 a tick.
+        class Hand:
+            def __init__(self):
+                self.inner = palp.SimulatedDevice(press())
+                self.far = False
+
+            def read(self):
+                position, velocity, buttons = self.inner.read()
+                if self.far:
+                    position = np.array([2e4, position[1], position[2]])
+                return position, velocity
+
+            def write(self, force):
+                self.inner.write(force)
+
+        hand = Hand()
+        session = palp.Session(avc_scene(), hand, vc_params())
+        held = np.linalg.norm(session.run(800)["force"][-1])
+        self.assertGreater(held, 0.2)
+        hand.far = True
+        t = session.run(12)
+        self.assertTrue(((t["fault_flags"] & 4) != 0).all())
+        forces = np.linalg.norm(t["force"], axis=1)
+        np.testing.assert_allclose(forces[:2], held, rtol=1e-9)  # the 2 ms grace
+        self.assertGreater(forces[8], 0.0)
+        self.assertEqual(forces[9], 0.0)  # zero on the 10th faulty tick (10 ms)
+        last = session.step()
+        self.assertEqual(last.fault_counts["out_of_range"], 13)
+        self.assertEqual(last.fault_trips, 1)
+        hand.far = False
+        t = session.run(60)
+        self.assertFalse(t["fault_flags"].any())
+        steps = np.abs(np.diff(np.linalg.norm(t["force"], axis=1)))
+        self.assertLess(steps.max(), held / 50 + 0.01)
+
     def test_playback_replays_the_recorded_probe(self):
         session = palp.Session(avc_scene(), palp.SimulatedDevice(press()), vc_params())
         ref = session.run(400)

@@ -1,19 +1,22 @@
 // `palp serve --igtl-port` read by a client built on libopenigtlink while `palp bridge-sim`
-// presses the avc phantom: TRANSFORM ProxyToRAS and DeviceToRAS and SENSOR Force (3 values, N)
-// arrive in that order each frame; the poses are RAS millimetres of the session's LPS metres
-// (the proxy rests on the skin at LPS y = 0, so RAS y = 0; the pressed device lies deeper, RAS
-// y < 0), the force of each frame is VC's k (proxy - device) of the same frame, and the device's
-// orientation is the one the hand sends, in RAS axes. serve's UDP and TCP ports are the
-// system's choice (port 0), read back from its stderr lines.
+// presses the avc phantom: TRANSFORM ProxyToRAS and DeviceToRAS, SENSOR Force (3 values, N) and
+// STATUS Safety (the faults since the last frame: none but stale ticks here) arrive in that
+// order each frame; the poses are RAS millimetres of the session's LPS metres (the proxy rests
+// on the skin at LPS y = 0, so RAS y = 0; the pressed device lies deeper, RAS y < 0), the force
+// of each frame is VC's k (proxy - device) of the same frame, and the device's orientation is
+// the one the hand sends, in RAS axes. serve's UDP and TCP ports are the system's choice (port
+// 0), read back from its stderr lines.
 #include <gtest/gtest.h>
 #include <igtlClientSocket.h>
 #include <igtlMath.h>
 #include <igtlMessageHeader.h>
 #include <igtlSensorMessage.h>
+#include <igtlStatusMessage.h>
 #include <igtlTransformMessage.h>
 
 #include <Eigen/Core>
 #include <chrono>
+#include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -80,7 +83,7 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
     if (!connected) tools.join();
     ASSERT_TRUE(connected) << run.output;
     socket->SetReceiveTimeout(3000);
-    int frames = 0, pressed = 0, exact = 0, order = 0;
+    int frames = 0, pressed = 0, exact = 0, order = 0, statuses = 0, cut = 0, ok = 0;
     Frame f;
     for (;;) {
         igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
@@ -108,6 +111,31 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
                 f.deviceRotation = rotation(t);
                 order = 2;
             }
+        } else if (type == "STATUS") {
+            // STATUS Safety closes each frame: the faults since the last frame.
+            EXPECT_EQ(name, "Safety");
+            EXPECT_EQ(order, 3);
+            auto st = igtl::StatusMessage::New();
+            st->SetMessageHeader(header);
+            st->AllocatePack();
+            socket->Receive(st->GetPackBodyPointer(), st->GetPackBodySize());
+            ASSERT_TRUE(st->Unpack(1) & igtl::MessageHeader::UNPACK_BODY);
+            const int code = st->GetCode();
+            const auto bits = static_cast<std::uint64_t>(st->GetSubCode());
+            EXPECT_TRUE(code == igtl::StatusMessage::STATUS_OK ||
+                        code == igtl::StatusMessage::STATUS_UNKNOWN_ERROR ||
+                        code == igtl::StatusMessage::STATUS_DISABLED)
+                << code;
+            EXPECT_EQ(bits & ~std::uint64_t{63}, 0u);  // DeviceFault bits only
+            if (code == igtl::StatusMessage::STATUS_OK) {
+                EXPECT_EQ(bits, 0u);
+            }
+            // The press's states are good: stale ticks at most (before and after the hand).
+            EXPECT_EQ(bits & ~std::uint64_t{1}, 0u) << st->GetStatusString();
+            if (code == igtl::StatusMessage::STATUS_DISABLED) ++cut;
+            if (code == igtl::StatusMessage::STATUS_OK) ++ok;
+            ++statuses;
+            order = 0;
         } else {
             ASSERT_EQ(type, "SENSOR");
             EXPECT_EQ(name, "Force");
@@ -119,7 +147,7 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
             ASSERT_TRUE(s->Unpack(1) & igtl::MessageHeader::UNPACK_BODY);
             ASSERT_EQ(s->GetLength(), 3u);
             f.force = {s->GetValue(0), s->GetValue(1), s->GetValue(2)};
-            order = 0;
+            order = 3;
             ++frames;
             // Pressed frames: the device below the skin (RAS y < -0.5 mm) with the gate open.
             if (f.device.y() < -0.5 && f.force.norm() > 0.05) {
@@ -144,7 +172,8 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
         }
     }
     tools.join();
-    std::printf("igtl: %d frames, %d pressed, %d with the whole force\n", frames, pressed, exact);
+    std::printf("igtl: %d frames, %d pressed, %d with the whole force; status: %d ok, %d cut\n",
+                frames, pressed, exact, ok, cut);
     EXPECT_EQ(run.exitCode, 0) << run.output;
     std::ifstream in(tmp / "serve.json");
     const std::string json((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -152,6 +181,8 @@ TEST(Igtl, ServeStreamsProxyDeviceAndForceInRas) {
     EXPECT_GT(frames, 50);                                                 // 2.5 s at 50 Hz
     EXPECT_GT(pressed, 10);
     EXPECT_GT(exact, pressed / 2);
+    EXPECT_GE(statuses, frames - 1);  // one per frame (the last may have been cut off)
+    EXPECT_GT(ok, 0);                 // during the press
 }
 
 }  // namespace

@@ -62,6 +62,14 @@ TEST(Serve, BridgeSimPressIsFeltAndEveryStateCounted) {
     EXPECT_EQ(d["ignored"].get<std::uint64_t>(), 0u);
     EXPECT_GE(serve["watchdog"]["trips"].get<std::uint64_t>(), 1u);  // the hand stopped
     EXPECT_TRUE(serve["watchdog"]["stale_at_end"].get<bool>());
+    // The faults (docs/architecture.md, "Faults"): stale ticks before the first state and after
+    // the hand stopped; the hand's states are all good, and so are the forces.
+    const auto& faults = serve["faults"];
+    ASSERT_TRUE(faults.is_object()) << serve.dump();
+    EXPECT_GT(faults["stale_ticks"].get<std::uint64_t>(), 0u);
+    for (const char* none : {"non_finite_states", "out_of_range_states", "too_fast_states",
+                             "non_finite_forces", "force_jumps", "session_trips"})
+        EXPECT_EQ(faults[none].get<std::uint64_t>(), 0u) << none;
     EXPECT_GT(sim["forces_received"].get<std::uint64_t>(), sent * 9 / 10);
     EXPECT_EQ(sim["forces_lost"].get<std::uint64_t>(), 0u);
     // The hand's target rests 3 mm under the skin (from 4 mm above, 7 mm deep); hand spring

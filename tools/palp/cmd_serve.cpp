@@ -104,6 +104,20 @@ json loopJson(const haptics::ServoStats& st, const haptics::RealtimeStatus& rs) 
             {"realtime", rs.message}};
 }
 
+/// Ticks with each fault (DeviceFault; docs/architecture.md, "Faults"), the session's fault
+/// ramp's trips and the ticks with any fault among those the trace held.
+json faultsJson(const haptics::Snapshot& last, std::uint64_t faultTicks) {
+    const haptics::FaultCounts& c = last.faultCounts;
+    return {{"stale_ticks", c.stale},
+            {"non_finite_states", c.nonFinite},
+            {"out_of_range_states", c.outOfRange},
+            {"too_fast_states", c.tooFast},
+            {"non_finite_forces", c.forceNonFinite},
+            {"force_jumps", c.forceJump},
+            {"session_trips", last.faultTrips},
+            {"traced_ticks_with_a_fault", faultTicks}};
+}
+
 int runServe(ServeArgs& a) {
     const PalpateArgs& pa = a.scene;
     if (pa.file.empty() == pa.phantom.empty()) {
@@ -214,7 +228,7 @@ int runServe(ServeArgs& a) {
     const auto t0 = std::chrono::steady_clock::now();
     session.start();
     // The trace ring is drained here (never by the servo thread) for the summary's figures.
-    std::uint64_t ticks = 0, contact = 0, faulted = 0, clamped = 0;
+    std::uint64_t ticks = 0, contact = 0, faulted = 0, clamped = 0, faultTicks = 0;
     double maxForce = 0;
     haptics::Snapshot s;
     const auto drain = [&] {
@@ -223,6 +237,7 @@ int runServe(ServeArgs& a) {
             contact += s.contactCount > 0 ? 1 : 0;
             faulted += s.faulted ? 1 : 0;
             clamped += s.clamped ? 1 : 0;
+            faultTicks += s.faultFlags != 0 ? 1 : 0;
             maxForce = std::max(maxForce, s.force.norm());
         }
     };
@@ -264,6 +279,7 @@ int runServe(ServeArgs& a) {
                      {"grace_ms", a.graceMs},
                      {"trips", last.watchdogTrips},
                      {"stale_at_end", last.deviceStale}};
+    j["faults"] = faultsJson(last, faultTicks);
     j["servo"] = loopJson(session.stats(), session.realtime());
     if (!igtlJson.is_null()) j["igtl"] = igtlJson;
     j["trace"] = {{"ticks", ticks},
@@ -279,12 +295,17 @@ int runServe(ServeArgs& a) {
         const haptics::UdpDeviceCounters c = device.counters();
         std::printf(
             "palp serve: %.1f s, %llu ticks; %llu states received (%llu lost, %llu late, %llu "
-            "ignored), %llu forces sent; watchdog trips %llu; max force %.3f N\n",
+            "ignored), %llu forces sent; watchdog trips %llu; last good force held %llu ticks "
+            "(states non-finite %llu, out of range %llu, too fast %llu); max force %.3f N\n",
             wall, static_cast<unsigned long long>(ticks),
             static_cast<unsigned long long>(c.received), static_cast<unsigned long long>(c.lost),
             static_cast<unsigned long long>(c.late), static_cast<unsigned long long>(c.ignored()),
             static_cast<unsigned long long>(c.sent),
-            static_cast<unsigned long long>(last.watchdogTrips), maxForce);
+            static_cast<unsigned long long>(last.watchdogTrips),
+            static_cast<unsigned long long>(last.faults),
+            static_cast<unsigned long long>(last.faultCounts.nonFinite),
+            static_cast<unsigned long long>(last.faultCounts.outOfRange),
+            static_cast<unsigned long long>(last.faultCounts.tooFast), maxForce);
     }
     return 0;
 }

@@ -4,11 +4,14 @@
 #include <igtlMath.h>
 #include <igtlSensorMessage.h>
 #include <igtlServerSocket.h>
+#include <igtlStatusMessage.h>
 #include <igtlTransformMessage.h>
 #include <igtlUnit.h>
 #include <igtl_unit.h>
 
+#include <array>
 #include <chrono>
+#include <cstdint>
 #include <string>
 #include <utility>
 
@@ -64,6 +67,49 @@ igtl::SensorMessage::Pointer force(const Eigen::Vector3d& lpsN, igtl::TimeStamp:
     return msg;
 }
 
+/// The sum of the fault counts, one per DeviceFault bit in bit order.
+std::array<std::uint64_t, 6> faultCounts(const haptics::Snapshot& s) {
+    const haptics::FaultCounts& c = s.faultCounts;
+    return {c.stale, c.nonFinite, c.outOfRange, c.tooFast, c.forceNonFinite, c.forceJump};
+}
+
+/// STATUS `Safety`: the faults of the ticks since the last frame (a fault that lasted one tick
+/// between two frames shows too) and the force's scale. Code: 1 OK (no fault, whole force),
+/// 2 UNKNOWN_ERROR (a fault, or a force scaled down), 15 DISABLED (force cut to zero); subcode:
+/// the DeviceFault bits; error name: the first fault's name; status: counts and scale.
+igtl::StatusMessage::Pointer safety(const haptics::Snapshot& s, std::uint32_t sinceLast,
+                                    igtl::TimeStamp::Pointer& ts) {
+    static constexpr std::array<const char*, 6> kNames = {
+        "stale", "non-finite", "out-of-range", "too-fast", "force-non-finite", "force-jump"};
+    const std::uint32_t bits = sinceLast | s.faultFlags;
+    const char* first = "";
+    std::string text;
+    for (std::size_t i = 0; i < kNames.size(); ++i) {
+        if (!(bits & (1u << i))) continue;
+        if (!*first) first = kNames[i];
+        text += std::string(text.empty() ? "" : ", ") + kNames[i];
+    }
+    const haptics::FaultCounts& c = s.faultCounts;
+    text += std::string(text.empty() ? "no fault" : "") + "; force scale " +
+            std::to_string(s.deviceForceScale) + "; ticks stale " + std::to_string(c.stale) +
+            ", non-finite " + std::to_string(c.nonFinite) + ", out of range " +
+            std::to_string(c.outOfRange) + ", too fast " + std::to_string(c.tooFast) +
+            ", force non-finite " + std::to_string(c.forceNonFinite) + ", force jump " +
+            std::to_string(c.forceJump) + "; trips " +
+            std::to_string(s.watchdogTrips + s.faultTrips);
+    auto msg = igtl::StatusMessage::New();
+    msg->SetDeviceName("Safety");
+    msg->SetCode(s.deviceForceScale <= 0                 ? igtl::StatusMessage::STATUS_DISABLED
+                 : (bits != 0 || s.deviceForceScale < 1) ? igtl::StatusMessage::STATUS_UNKNOWN_ERROR
+                                                         : igtl::StatusMessage::STATUS_OK);
+    msg->SetSubCode(static_cast<igtlInt64>(bits));
+    msg->SetErrorName(bits ? first : "");
+    msg->SetStatusString(text.c_str());
+    msg->SetTimeStamp(ts);
+    msg->Pack();
+    return msg;
+}
+
 }  // namespace
 
 IgtlStream::IgtlStream(haptics::Session& session, int port, double rateHz,
@@ -104,6 +150,7 @@ void IgtlStream::serve() {
         std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / mRate));
     igtl::ClientSocket::Pointer client;
     auto next = Clock::now();
+    std::array<std::uint64_t, 6> counted{};  // the fault counts of the last frame sent
     while (!mStop.load()) {
         if (!client || !client->GetConnected()) {
             client = mServer->socket->WaitForConnection(100);  // ms; then look at mStop again
@@ -122,9 +169,16 @@ void IgtlStream::serve() {
         const auto proxy = transform("ProxyToRAS", s.proxy, rotation, ts);
         const auto device = transform("DeviceToRAS", s.probe, rotation, ts);
         const auto f = force(s.force, ts);
+        const std::array<std::uint64_t, 6> counts = faultCounts(s);
+        std::uint32_t since = 0;
+        for (std::size_t i = 0; i < counts.size(); ++i)
+            if (counts[i] > counted[i]) since |= 1u << i;
+        counted = counts;
+        const auto status = safety(s, since, ts);
         const bool ok = client->Send(proxy->GetPackPointer(), proxy->GetPackSize()) &&
                         client->Send(device->GetPackPointer(), device->GetPackSize()) &&
-                        client->Send(f->GetPackPointer(), f->GetPackSize());
+                        client->Send(f->GetPackPointer(), f->GetPackSize()) &&
+                        client->Send(status->GetPackPointer(), status->GetPackSize());
         if (!ok) {
             client->CloseSocket();
             client = nullptr;

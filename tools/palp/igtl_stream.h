@@ -3,8 +3,10 @@
 /// `palp serve --igtl-port`: an OpenIGTLink v2 server (libopenigtlink) that streams a running
 /// session at display rate for 3D Slicer (OpenIGTLinkIF) or MITK: TRANSFORM `ProxyToRAS` and
 /// `DeviceToRAS` (translation in RAS millimetres; rotation: the device's orientation in the
-/// world, in RAS axes) and SENSOR `Force` (3 values, newtons, RAS axes). palp's world is LPS
-/// metres; RAS = (-x, -y, z).
+/// world, in RAS axes), SENSOR `Force` (3 values, newtons, RAS axes) and STATUS `Safety` (the
+/// faults since the last frame: code 1 OK, 2 a fault or a scaled force, 15 force cut; subcode the
+/// DeviceFault bits; docs/architecture.md, "Faults"). palp's world is LPS metres; RAS = (-x,
+/// -y, z).
 /// Built only when CMake finds OpenIGTLink (PALP_HAVE_OPENIGTLINK).
 
 #include <Eigen/Core>
