@@ -268,8 +268,9 @@ int sweepCommand(const SweepArgs& a) {
         const auto [i, n] = parseShard(a.shard);
         want = shardRange(spec, i, n);
     }
-    const std::int64_t chunk = a.chunkGroups > 0 ? a.chunkGroups * spec.groupSize()
-                                                 : std::max<std::int64_t>(1, want.size());
+    // Chunks of about a quarter of the range (whole groups) unless --chunk says: a task that
+    // dies (a Slurm time limit, a node lost) then costs at most its unfinished chunk.
+    const std::int64_t chunk = chunkOf(spec, a, 1, want.size());
     const auto work = chunks(todo(dir, spec, want, a.resume), chunk);
     std::int64_t pending = 0;
     for (const auto& w : work) pending += w.size();
@@ -322,7 +323,8 @@ Command addSweep(CLI::App& root) {
                   "Compute only the samples no intact shard in the directory holds");
     app->add_flag("--mpi", args->mpi, "Under mpirun / srun: rank 0 hands chunks to every rank");
     app->add_option("--chunk", args->chunkGroups,
-                    "Groups (of adaptivity_per_reference samples) per shard file")
+                    "Groups (of adaptivity_per_reference samples) per shard file (default: about a "
+                    "quarter of the process's range, or of a rank's share under --mpi)")
         ->check(CLI::Range(1, 1000000000));
     app->add_option("--max-samples", args->maxSamples,
                     "Compute at most this many samples, then stop (exit 3; --resume continues)")
