@@ -66,12 +66,15 @@ struct PySession {
 
 std::unique_ptr<PySession> makeSession(std::shared_ptr<Scene> scene, py::object device,
                                        std::optional<haptics::SessionParams> params,
-                                       const std::string& spec, bool watchdog) {
+                                       const std::string& spec, bool watchdog, int servoCpu,
+                                       int servoPriority) {
     if (!scene) throw ValueError("scene: expected a palp.Scene, found None");
     auto p = std::make_unique<PySession>();
     p->scene = std::move(scene);
     p->deviceObject = device;
-    const haptics::SessionParams sp = params.value_or(haptics::SessionParams{});
+    haptics::SessionParams sp = params.value_or(haptics::SessionParams{});
+    sp.servo.cpu = servoCpu;  // checked by Session (validateServoConfig), naming the field
+    sp.servo.priority = servoPriority;
     Device* inner = nullptr;
     if (py::isinstance<Device>(device)) {
         inner = device.cast<Device*>();
@@ -378,10 +381,12 @@ void bindSession(py::module_& m) {
         "PlaybackDevice) or any Python object with read() -> (position, velocity[, buttons[, "
         "timestamp[, sequence]]]) and write(force). Step it offline with step() / run(n); "
         "start() runs palp's own devices on the 1 kHz servo thread (never a Python device: the "
-        "servo thread must not call into Python).")
+        "servo thread must not call into Python), pinned to servo_cpu (-1: the last CPU) at "
+        "SCHED_FIFO servo_priority (0: normal priority); a loop that misses more than half its "
+        "deadlines over 0.5 s drops the priority and renders no force (stats()['overloaded']).")
         .def(py::init(&makeSession), py::arg("scene"), py::arg("device"),
              py::arg("params") = py::none(), py::kw_only(), py::arg("spec") = "3D Systems Touch",
-             py::arg("watchdog") = false)
+             py::arg("watchdog") = false, py::arg("servo_cpu") = -1, py::arg("servo_priority") = 80)
         .def(
             "step",
             [](PySession& p) {
@@ -408,6 +413,24 @@ void bindSession(py::module_& m) {
             "Runs on the servo thread (palp's own devices only).")
         .def("stop", [](PySession& p) { p.s().stop(); })
         .def_property_readonly("running", [](PySession& p) { return p.s().running(); })
+        .def(
+            "stats",
+            [](PySession& p) {
+                const haptics::ServoStats st = p.s().stats();
+                py::dict d;
+                d["ticks"] = st.ticks;
+                d["misses"] = st.misses;
+                d["skipped"] = st.skipped;
+                d["compute_p99"] = st.compute.p99;
+                d["overloaded"] = st.overloaded;
+                d["fifo_dropped"] = st.fifoDropped;
+                d["overloaded_at"] = st.overloadedAtSeconds;
+                d["realtime"] = p.s().realtime().message;
+                return d;
+            },
+            "The servo loop's figures as a dict: ticks, misses, skipped, compute_p99 (s), "
+            "overloaded (the overrun budget was exceeded: SCHED_FIFO dropped, fifo_dropped, and "
+            "no force rendered from overloaded_at s on), realtime (what the OS granted).")
         .def(
             "latest", [](PySession& p) { return Snapshot(p.s().latest()); },
             "The newest published snapshot (viewer thread).")

@@ -90,6 +90,41 @@ TEST(PalpateRun, RealtimeSecondsAreWallClockSeconds) {
     EXPECT_GE(ticks + skipped, 350u);
 }
 
+// The overrun budget on a loop that cannot keep up (the deformable bone phantom's 5 ms ticks
+// here): it gives up within the 0.5 s window plus a tick, with more than half of that window's
+// deadlines missed, drops SCHED_FIFO where it was granted and says so; shedding its work, it then
+// keeps up (hundreds of ticks in the remaining 0.7 s). On a machine fast enough not to be
+// overloaded, no window missed more than half: nor did the whole run. --servo-cpu pins the loop.
+TEST(PalpateRun, AnOverloadedRealtimeRunGivesUpItsPriorityAndSaysSo) {
+    const auto r = runCommand(palp::test::palpTool().string() +
+                              " palpate --phantom bone --deformable --realtime --seconds 1.2 "
+                              "--servo-cpu 0 --servo-priority 10 --json 2>&1");
+    EXPECT_EQ(r.exitCode, 0) << r.output;
+    const nlohmann::json j = jsonOf(r.output);
+    ASSERT_TRUE(j.contains("servo")) << r.output;
+    const auto& s = j["servo"];
+    const double ticks = s["ticks"].get<double>(), skipped = s["skipped"].get<double>();
+    const bool overloaded = s["overloaded"].get<bool>();
+    const std::string rt = s["realtime"].get<std::string>();
+    std::printf(
+        "realtime 1.2 s: %.0f ticks, %.0f skipped, overloaded %d at %.3f s (%.0f %% of "
+        "that window missed), fifo dropped %d; %s\n",
+        ticks, skipped, overloaded ? 1 : 0, s["overloaded_at_s"].get<double>(),
+        100 * s["overloaded_missed_fraction"].get<double>(), s["fifo_dropped"].get<bool>() ? 1 : 0,
+        rt.c_str());
+    EXPECT_NE(rt.find("pinned to CPU 0"), std::string::npos) << rt;
+    if (overloaded) {
+        EXPECT_GE(s["overloaded_at_s"].get<double>(), 0.5);
+        EXPECT_LE(s["overloaded_at_s"].get<double>(), 0.5 + 0.1);  // the window + a 5 ms tick
+        EXPECT_GT(s["overloaded_missed_fraction"].get<double>(), 0.5);
+        EXPECT_EQ(s["fifo_dropped"].get<bool>(), rt.find("SCHED_FIFO 10;") != std::string::npos);
+        EXPECT_NE(r.output.find("palp: warning: the servo loop missed"), std::string::npos);
+        EXPECT_GT(ticks, 300);  // the shed loop keeps up for the remaining 0.7 s
+    } else {
+        EXPECT_LE(skipped / (ticks + skipped), 0.55);
+    }
+}
+
 TEST(PalpateRun, TheMrPalpatesDeformablyHeldOnTheFaceOppositeThePress) {
     const auto mr = palp::test::dataPath("nifti-mr");
     if (mr.empty()) GTEST_SKIP() << "no ../shared/data/nifti-mr";

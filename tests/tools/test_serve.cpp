@@ -79,6 +79,27 @@ TEST(Serve, BridgeSimPressIsFeltAndEveryStateCounted) {
                 1e-9);
 }
 
+// --servo-cpu and --no-realtime-priority reach the servo thread (its report says so), and the
+// summary carries the overrun budget's verdict (a VC phantom keeps up: not overloaded).
+TEST(Serve, ServoCpuAndPriorityAreTheOnesAskedFor) {
+    const auto r = runCommand(palp::test::palpTool().string() +
+                              " serve --phantom avc --mode vc --listen 127.0.0.1:0 --seconds 0.3 "
+                              "--servo-cpu 0 --no-realtime-priority --json 2>/dev/null");
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    const auto brace = r.output.find('{');
+    ASSERT_NE(brace, std::string::npos) << r.output;
+    const auto j = nlohmann::json::parse(r.output.substr(brace), nullptr, false);
+    ASSERT_FALSE(j.is_discarded()) << r.output;
+    const std::string rt = j["servo"]["realtime"].get<std::string>();
+    EXPECT_NE(rt.find("pinned to CPU 0"), std::string::npos) << rt;
+    EXPECT_NE(rt.find("SCHED_OTHER"), std::string::npos) << rt;
+    EXPECT_FALSE(j["servo"]["overloaded"].get<bool>());
+    const auto both = runCommand(palp::test::palpTool().string() +
+                                 " serve --phantom avc --servo-priority 10 --no-realtime-priority");
+    EXPECT_NE(both.exitCode, 0);
+    EXPECT_NE(both.output.find("excludes"), std::string::npos) << both.output;
+}
+
 TEST(Serve, BadListenAddressIsRefusedByName) {
     const auto r = runCommand(palp::test::palpTool().string() +
                               " serve --phantom avc --listen localhost7405 --seconds 1");

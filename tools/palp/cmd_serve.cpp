@@ -45,6 +45,9 @@ struct ServeArgs {
     int igtlPort = -1;  ///< -1: no OpenIGTLink stream; 0: any free TCP port
     double igtlRateHz = 30;
     bool json = false;
+    int servoCpu = -1;
+    int servoPriority = 80;
+    bool noRealtimePriority = false;
 };
 
 std::atomic<bool> gInterrupted{false};
@@ -101,6 +104,10 @@ json loopJson(const haptics::ServoStats& st, const haptics::RealtimeStatus& rs) 
             {"skipped", st.skipped},
             {"wake_latency_us", us(st.wakeLatency)},
             {"compute_us", us(st.compute)},
+            {"overloaded", st.overloaded},
+            {"fifo_dropped", st.fifoDropped},
+            {"overloaded_at_s", st.overloadedAtSeconds},
+            {"overloaded_missed_fraction", st.missedFraction},
             {"realtime", rs.message}};
 }
 
@@ -192,6 +199,8 @@ int runServe(ServeArgs& a) {
         std::isfinite(pa.muDynamic) ? pa.muDynamic : std::min(0.3, pa.muStatic);
     sp.passivityControl = pa.passivityControl;
     sp.servo.periodSeconds = period;
+    sp.servo.cpu = a.servoCpu;
+    sp.servo.priority = a.noRealtimePriority ? 0 : a.servoPriority;
     sp.workspace.scale = a.scale;
     if (a.offsetMm.size() == 3)
         sp.workspace.offset = Eigen::Vector3d(a.offsetMm[0], a.offsetMm[1], a.offsetMm[2]) * 1e-3;
@@ -370,6 +379,7 @@ Command addServe(CLI::App& root) {
         ->check(integerIn(0, 65535));
     app->add_option("--igtl-rate", a.igtlRateHz, "OpenIGTLink frames per second (default 30)")
         ->check(within({0, 200, "Hz", true}));
+    addServoOptions(app, a.servoCpu, a.servoPriority, a.noRealtimePriority);
     app->add_flag("--json", a.json, "Print the summary as JSON");
     return {app, [args]() -> int { return runServe(*args); }};
 }

@@ -205,6 +205,25 @@ void addPathOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
         ->check(within(bounds::kDuration));
 }
 
+}  // namespace
+
+void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority) {
+    app->add_option("--servo-cpu", cpu,
+                    "CPU to pin the servo thread to (default -1: the last one the process may "
+                    "use)")
+        ->check(integerIn(-1, 65535));
+    auto* prio = app->add_option("--servo-priority", priority,
+                                 "The servo thread's SCHED_FIFO priority 1..99, 0 for none "
+                                 "(default 80; a loop that misses more than half its deadlines "
+                                 "over 0.5 s drops it and renders no force, reported)")
+                     ->check(integerIn(0, 99));
+    app->add_flag("--no-realtime-priority", noRealtimePriority,
+                  "Run the servo thread at normal priority (as --servo-priority 0)")
+        ->excludes(prio);
+}
+
+namespace {
+
 /// How to run, what to write, the device.
 void addRunOptions(CLI::App* app, PalpateArgs& a) {
     auto* rt =
@@ -216,6 +235,7 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
                     "seconds (an overloaded servo loop that skips ticks still stops on time) "
                     "(default: until the path is done)")
         ->check(within(bounds::kPositiveDuration));
+    addServoOptions(app, a.servoCpu, a.servoPriority, a.noRealtimePriority);
     app->add_option("--trace", a.trace, "Write a CSV trace of every tick");
     app->add_option("--map", a.map,
                     "Write a map over the palpated plane as a figure with axes in mm, patient "

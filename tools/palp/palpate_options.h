@@ -48,6 +48,9 @@ struct PalpateArgs {
     bool realtime = false;
     bool fast = false;
     double seconds = 0;  // offline: simulated s; --realtime: wall-clock s (0: the path's length)
+    int servoCpu = -1;   // --servo-cpu: the servo thread's CPU (-1: the last allowed)
+    int servoPriority = 80;           // --servo-priority: SCHED_FIFO 1..99 (0: none)
+    bool noRealtimePriority = false;  // --no-realtime-priority: SCHED_OTHER (priority 0)
     std::string trace;
     std::string map;
     std::string mapQuantity = "stiffness";
@@ -100,6 +103,11 @@ struct CheckedOptions {
 /// options checkPalpateOptions() checks against the scene. @p args and @p checked must outlive
 /// the parse.
 void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked);
+
+/// Registers --servo-cpu, --servo-priority and --no-realtime-priority (palpate and serve), bound
+/// to @p cpu, @p priority and @p noRealtimePriority; the servo thread's priority is then
+/// `noRealtimePriority ? 0 : priority`.
+void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority);
 
 /// Checks a FILE or a phantom, scene options only with their phantom, FEM options only with
 /// --deformable, the device class, output directories existing, usable depth, spacing and time;

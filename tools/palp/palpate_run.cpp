@@ -79,8 +79,20 @@ RunResult runRealtime(haptics::Session& session, std::uint64_t ticks, double wal
                    {{"p50", st.compute.p50 * 1e6},
                     {"p99", st.compute.p99 * 1e6},
                     {"max", st.compute.max * 1e6}}},
+                  {"overloaded", st.overloaded},
+                  {"fifo_dropped", st.fifoDropped},
+                  {"overloaded_at_s", st.overloadedAtSeconds},
+                  {"overloaded_missed_fraction", st.missedFraction},
                   {"realtime", rs.message},
                   {"trace_dropped", traceDropped}};
+    if (st.overloaded) {
+        std::fprintf(stderr,
+                     "palp: warning: the servo loop missed %.0f %% of its deadlines over 0.5 s and "
+                     "gave up at %.2f s: %s, no force rendered from then on (a lighter scene, "
+                     "or --servo-cpu on an idle CPU)\n",
+                     100 * st.missedFraction, st.overloadedAtSeconds,
+                     st.fifoDropped ? "SCHED_FIFO dropped" : "it had no SCHED_FIFO");
+    }
     return r;
 }
 

@@ -490,6 +490,7 @@ void toC(const ph::Snapshot& s, palp_snapshot& c) noexcept {
     c.too_fast_samples = s.faultCounts.tooFast;
     c.non_finite_forces = s.faultCounts.forceNonFinite;
     c.force_jumps = s.faultCounts.forceJump;
+    c.overload_ticks = s.faultCounts.overload;
     c.fault_trips = s.faultTrips;
 }
 
@@ -503,7 +504,8 @@ static_assert(sameBit(PALP_FAULT_STALE, ph::kFaultStale) &&
                   sameBit(PALP_FAULT_OUT_OF_RANGE, ph::kFaultOutOfRange) &&
                   sameBit(PALP_FAULT_TOO_FAST, ph::kFaultTooFast) &&
                   sameBit(PALP_FAULT_FORCE_NON_FINITE, ph::kFaultForceNonFinite) &&
-                  sameBit(PALP_FAULT_FORCE_JUMP, ph::kFaultForceJump),
+                  sameBit(PALP_FAULT_FORCE_JUMP, ph::kFaultForceJump) &&
+                  sameBit(PALP_FAULT_OVERLOAD, ph::kFaultOverload),
               "palp.h's PALP_FAULT_* bits are DeviceFault's");
 
 palp_latency toC(const ph::LatencySummary& l) noexcept {

@@ -204,6 +204,9 @@ palp_status palp_session_stats(const palp_session* session, palp_loop_stats* out
     out->misses = s.misses;
     out->skipped = s.skipped;
     out->trace_dropped = session->session->traceDropped();
+    out->overloaded = s.overloaded ? 1 : 0;
+    out->fifo_dropped = s.fifoDropped ? 1 : 0;
+    out->overloaded_at = s.overloadedAtSeconds;
     return PALP_OK;
 }
 

@@ -260,6 +260,7 @@ std::uint32_t forceFlags(std::uint32_t faults) noexcept {
     if (faults & kFaultTooFast) f |= bridge::kForceTooFastState;
     if (faults & kFaultForceNonFinite) f |= bridge::kForceNonFiniteForce;
     if (faults & kFaultForceJump) f |= bridge::kForceJump;
+    if (faults & kFaultOverload) f |= bridge::kForceOverload;
     return f;
 }
 }  // namespace

@@ -1,5 +1,7 @@
 #include "palp/haptics/servo_loop.h"
 
+#include <pthread.h>
+#include <sched.h>
 #include <sys/mman.h>
 #include <sys/prctl.h>
 #include <time.h>
@@ -65,6 +67,11 @@ void validateServoConfig(const ServoConfig& c) {
     if (c.cpu < -1 || c.cpu > 65535)
         throw ValueError("servo config: cpu must be -1 (last allowed CPU) or 0..65535, found " +
                          std::to_string(c.cpu));
+    requireInRange("servo config overrunWindowSeconds (0: no budget)", c.overrunWindowSeconds, 0.0,
+                   60.0, "s");
+    if (!(c.overrunFraction > 0 && c.overrunFraction <= 1))
+        throwExpected("servo config overrunFraction", "a fraction in (0, 1]",
+                      formatValue(c.overrunFraction));
     if (!std::isfinite(c.spinSeconds) || c.spinSeconds < 0 || c.spinSeconds >= c.periodSeconds)
         throw ValueError("servo config: spinSeconds must be in [0, periodSeconds = " +
                          microseconds(c.periodSeconds) + "), found " + formatValue(c.spinSeconds) +
@@ -185,6 +192,10 @@ ServoStats ServoLoop::stats() const noexcept {
     s.wakeLatency = summarise(mWake);
     s.periodError = summarise(mPeriodError);
     s.compute = summarise(mCompute);
+    s.overloaded = mOverloaded.load(std::memory_order_acquire);
+    s.fifoDropped = mFifoDropped.load(std::memory_order_relaxed);
+    s.overloadedAtSeconds = mOverloadedAt.load(std::memory_order_relaxed);
+    s.missedFraction = mMissedFraction.load(std::memory_order_relaxed);
     return s;
 }
 
@@ -195,6 +206,23 @@ void ServoLoop::resetStats() noexcept {
     mTicks.store(0, std::memory_order_relaxed);
     mMisses.store(0, std::memory_order_relaxed);
     mSkipped.store(0, std::memory_order_relaxed);
+}
+
+void ServoLoop::overload(std::int64_t atNs, double missedFraction, ServoTask& task) noexcept {
+    // The task first (it stops rendering force while it still runs at its priority), then
+    // SCHED_OTHER for this thread (one system call; nothing to allocate): a loop that cannot keep
+    // up must not starve its CPU.
+    task.overloaded();
+    bool dropped = false;
+    if (mStatus.fifo) {
+        sched_param param{};
+        param.sched_priority = 0;
+        dropped = pthread_setschedparam(pthread_self(), SCHED_OTHER, &param) == 0;
+    }
+    mFifoDropped.store(dropped, std::memory_order_relaxed);
+    mOverloadedAt.store(static_cast<double>(atNs) * 1e-9, std::memory_order_relaxed);
+    mMissedFraction.store(missedFraction, std::memory_order_relaxed);
+    mOverloaded.store(true, std::memory_order_release);
 }
 
 void ServoLoop::setUpThread() noexcept {
@@ -266,6 +294,8 @@ void ServoLoop::setUpThread() noexcept {
 }
 
 void ServoLoop::run(ServoTask* task) noexcept {
+    mOverloaded.store(false, std::memory_order_relaxed);
+    mFifoDropped.store(false, std::memory_order_relaxed);
     setUpThread();
     const bool abort = mConfig.requireRealtime && mStatus.failed;
     if (!abort) mRunning.store(true, std::memory_order_release);
@@ -280,6 +310,11 @@ void ServoLoop::run(ServoTask* task) noexcept {
     std::int64_t deadline = startNs;
     std::int64_t previousWake = 0;
     std::uint64_t index = 0;
+    // The overrun budget's window: its start, and the deadlines missed in it.
+    const std::int64_t windowNs = std::llround(mConfig.overrunWindowSeconds * 1e9);
+    std::int64_t windowStart = startNs;
+    std::uint64_t windowMissed = 0;
+    bool overloadedRun = false;
     while (!mStop.load(std::memory_order_relaxed)) {
         if (spinNs > 0) {
             sleepUntilNs(deadline - spinNs);
@@ -313,6 +348,19 @@ void ServoLoop::run(ServoTask* task) noexcept {
             const std::int64_t passed = (end - deadline) / periodNs + 1;
             mSkipped.fetch_add(static_cast<std::uint64_t>(passed), std::memory_order_relaxed);
             deadline += passed * periodNs;
+            windowMissed += static_cast<std::uint64_t>(passed);  // the deadlines skipped
+        }
+        if (windowNs > 0 && !overloadedRun && end - windowStart >= windowNs) {
+            // The deadlines the window held, and the share of them skipped.
+            const double periods =
+                static_cast<double>(end - windowStart) / static_cast<double>(periodNs);
+            const double missed = static_cast<double>(windowMissed) / std::max(periods, 1.0);
+            if (missed > mConfig.overrunFraction) {
+                overloadedRun = true;
+                overload(end - startNs, missed, *task);
+            }
+            windowStart = end;
+            windowMissed = 0;
         }
         previousWake = wake;
         ++index;

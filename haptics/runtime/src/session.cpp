@@ -121,6 +121,7 @@ void Session::start() {
     // gate again so that a restart cannot kick (the servo thread is not running here, and
     // ServoLoop::start() orders this write before its first tick).
     mImpl->gate.reset();
+    mImpl->overloaded = false;  // a new run gets a new overrun budget
     mImpl->loop.start(*this);
 }
 
@@ -207,6 +208,8 @@ const DeviceSpec& Session::deviceSpec() const noexcept { return mImpl->spec; }
 const DeformableBody* Session::deformable() const noexcept { return mImpl->body.get(); }
 
 std::size_t Session::hitFieldCount() const noexcept { return mImpl->fields.byThreshold.size(); }
+
+void Session::overloaded() noexcept { mImpl->overloaded = true; }  // on the servo thread
 
 void Session::tick(const TickInfo& info) noexcept {
     mImpl->tick(mImpl->timeBase + info.timeSeconds);

@@ -170,11 +170,20 @@ void Session::Impl::tick(double timeSeconds) noexcept {
         // Deformable tissue: the rays leave in the material frame of the element the proxy
         // was anchored on last tick (identity in free space).
         const Eigen::Matrix3d frame = body->anchorRotation();
-        for (Coupling& c : couplings) c.setMaterialFrame(frame);
+        for (Coupling& c : couplings) {
+            c.setMaterialFrame(frame);
+            c.beginTick(period);  // k's filter against the tissue-proxy loop
+        }
     }
     const ProxyState* ps = &proxy.state();
     Eigen::Vector3d force;
-    if (hand.ok) {
+    if (overloaded) {
+        // The loop overran its budget: shed everything (no proxy, rays or FEM); the last good
+        // force is held (not a fault of the force: faulted stays clear) and ramped to zero.
+        hand.faults |= kFaultOverload;
+        force = guard.lastGood();
+        blended.rays = 0;  // none cast (the snapshot keeps the last coupling's other figures)
+    } else if (hand.ok) {
         const ProxyState before = proxy.state();
         lastProbeVelocity = hand.probeVelocity;
         ps = &moveProxy(hand.probe);
@@ -187,16 +196,17 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
     }
-    const SentForce sent = forceChain(force, hand.handVelocity, health.forceScale, !hand.ok);
+    const SentForce sent =
+        forceChain(force, hand.handVelocity, health.forceScale, !hand.ok || overloaded);
     const std::uint32_t faults = (health.faults & kAllFaults) | hand.faults | sent.faults;
     countFaults(faults);
     current.faultFlags = faults;
     device.reportFaults(faults, sent.scale);
     device.write(worldToDevice(sent.force));
     Eigen::Vector3d tissueForce = Eigen::Vector3d::Zero();
-    const bool anchored = contactTissue(*ps, sent.force, tissueForce);
+    const bool anchored = !overloaded && contactTissue(*ps, sent.force, tissueForce);
     publish(timeSeconds, *ps, sent, tissueForce);
-    followSurface(anchored);
+    if (!overloaded) followSurface(anchored);
 }
 
 // Stage 1, device -> world: world = offset + scale * R * device.
@@ -338,6 +348,7 @@ void Session::Impl::countFaults(std::uint32_t faults) noexcept {
     c.tooFast += (faults & kFaultTooFast) ? 1 : 0;
     c.forceNonFinite += (faults & kFaultForceNonFinite) ? 1 : 0;
     c.forceJump += (faults & kFaultForceJump) ? 1 : 0;
+    c.overload += (faults & kFaultOverload) ? 1 : 0;
 }
 
 // Stage 5, deformable tissue (nothing on a rigid scene): the reaction of the force on the hand

@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <sched.h>
 #include <time.h>
 
 #include <algorithm>
@@ -7,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <random>
 #include <string>
 #include <thread>
@@ -14,6 +16,7 @@
 
 #include "alloc_counter.h"
 #include "palp/base/error.h"
+#include "palp/base/thread.h"
 #include "palp/haptics/servo_loop.h"
 
 namespace palp::haptics {
@@ -331,6 +334,126 @@ TEST(ServoLoop, OverrunSkipsPassedDeadlinesWithoutABurst) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// The overrun budget
+
+/// Busy-waits @p seconds (a tick that cannot keep up).
+void spin(double seconds) noexcept {
+    const double until = monotonicSeconds() + seconds;
+    while (monotonicSeconds() < until) {
+    }
+}
+
+/// Each tick spins for mBusy s; records the policy it runs under after the loop called
+/// overloaded(), and counts those calls.
+class HogTask final : public ServoTask {
+  public:
+    explicit HogTask(double busySeconds) : mBusy(busySeconds) {}
+    void tick(const TickInfo&) noexcept override {
+        if (mFirst.load(std::memory_order_relaxed) == 0)
+            mFirst.store(monotonicSeconds(), std::memory_order_relaxed);
+        if (mOverloads.load(std::memory_order_relaxed) > 0)
+            mPolicyAfter.store(sched_getscheduler(0), std::memory_order_relaxed);
+        spin(mBusy);
+    }
+    void overloaded() noexcept override {
+        mOverloads.fetch_add(1, std::memory_order_relaxed);
+        mAt.store(monotonicSeconds(), std::memory_order_relaxed);
+    }
+    double mBusy;
+    std::atomic<int> mOverloads{0};
+    std::atomic<int> mPolicyAfter{-1};
+    std::atomic<double> mAt{0};     // when overloaded() came, s
+    std::atomic<double> mFirst{0};  // when the first tick began, s
+    /// From the first tick to overloaded(), s: a loop starved before its first tick (another
+    /// test's SCHED_FIFO thread on its CPU) is measured from when it could start.
+    double secondsToOverload() const { return mAt.load() - mFirst.load(); }
+};
+
+// A loop whose ticks take 3 ms at a 1 ms period misses 3 deadlines in 4: past the default budget
+// (half of the deadlines over 0.5 s), so it is overloaded within the first window plus a tick,
+// tells the task once and drops SCHED_FIFO where it had it.
+TEST(ServoLoop, AnOverloadedLoopDropsRealtimePriorityAndTellsTheTask) {
+    ServoConfig config;
+    config.priority = 10;  // SCHED_FIFO where this process may (reported otherwise)
+    config.cpu = 0;        // not the last CPU, where the next test and other servos spin
+    ServoLoop loop(config);
+    HogTask task(3e-3);
+    const double t0 = monotonicSeconds();
+    loop.start(task);
+    ASSERT_TRUE(waitFor([&] { return loop.stats().overloaded; }, 5.0));
+    const double seen = monotonicSeconds() - t0;
+    ASSERT_TRUE(waitFor([&] { return task.mPolicyAfter.load() >= 0; }, 5.0));
+    loop.stop();
+    const ServoStats s = loop.stats();
+    std::printf(
+        "overloaded %.3f s after the first tick (seen after %.3f s), missed %.2f of the "
+        "window, %s\n",
+        task.secondsToOverload(), seen, s.missedFraction, loop.realtime().message.c_str());
+    EXPECT_EQ(task.mOverloads.load(), 1);
+    EXPECT_GE(s.overloadedAtSeconds, 0.5);
+    EXPECT_LE(task.secondsToOverload(), 0.5 + 0.05);  // the window plus a 3 ms tick (and slack)
+    EXPECT_NEAR(s.missedFraction, 0.75, 0.1);         // 3 deadlines of every 4
+    EXPECT_EQ(s.fifoDropped, loop.realtime().fifo);
+    EXPECT_EQ(task.mPolicyAfter.load(), SCHED_OTHER);
+    // A loop that keeps up is never overloaded (SCHED_FIFO 30: above the other tests' hogs).
+    config.priority = 30;
+    ServoLoop light(config);
+    HogTask easy(50e-6);
+    light.start(easy);
+    std::this_thread::sleep_for(std::chrono::milliseconds(1200));
+    light.stop();
+    EXPECT_FALSE(light.stats().overloaded);
+    EXPECT_EQ(easy.mOverloads.load(), 0);
+}
+
+// The case: a SCHED_FIFO servo that spins flat out on its CPU starves a lower SCHED_FIFO
+// thread pinned to the same CPU until its budget runs out (0.5 s), then drops to SCHED_OTHER
+// and the other thread runs again. Needs SCHED_FIFO (skipped where it is refused).
+TEST(ServoLoop, AnotherFifoThreadOnTheSameCpuRunsOnceTheLoopGivesUp) {
+    ServoConfig config;
+    config.priority = 20;
+    ServoLoop loop(config);
+    HogTask task(20e-3);  // every tick 20 periods late: the CPU held without a pause
+    loop.start(task);
+    if (!loop.realtime().fifo) {
+        loop.stop();
+        GTEST_SKIP() << "SCHED_FIFO refused here: " << loop.realtime().message;
+    }
+    const int cpu = loop.realtime().cpu;
+    std::atomic<bool> stop{false};
+    std::atomic<std::uint64_t> count{0};
+    std::atomic<int> fifo{-1};
+    std::thread other([&] {
+        pinCurrentThread(cpu);
+        fifo = setCurrentThreadFifo(10);
+        while (!stop.load(std::memory_order_relaxed)) count.fetch_add(1, std::memory_order_relaxed);
+    });
+    // While the loop holds the CPU (from 0.1 to 0.3 s) and for 200 ms after it gave up.
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    const std::uint64_t c0 = count.load();
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    const std::uint64_t during = count.load() - c0;
+    const bool early = loop.stats().overloaded;
+    ASSERT_TRUE(waitFor([&] { return loop.stats().overloaded; }, 5.0));
+    const std::uint64_t atDrop = count.load();
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    const std::uint64_t after = count.load() - atDrop;
+    stop = true;
+    other.join();
+    loop.stop();
+    std::printf(
+        "overloaded after %.3f s; the other FIFO thread counted %llu in 200 ms while the "
+        "loop held the CPU, %llu in the 200 ms after it gave up\n",
+        loop.stats().overloadedAtSeconds, static_cast<unsigned long long>(during),
+        static_cast<unsigned long long>(after));
+    EXPECT_EQ(fifo.load(), 0);
+    EXPECT_FALSE(early);
+    EXPECT_TRUE(loop.stats().fifoDropped);
+    EXPECT_LE(task.secondsToOverload(), 0.5 + 0.05);
+    EXPECT_GT(after, 4 * during + 1000);  // starved, then running again
+}
+
+// ---------------------------------------------------------------------------------------------
 // Configuration and real-time requirements
 
 TEST(ServoLoop, RequireRealtimeWithAnImpossibleCpuThrowsNamingIt) {
@@ -396,6 +519,16 @@ TEST(ServoConfig, ValidationNamesTheField) {
     c = {};
     c.spinSeconds = 0.5e-3;
     EXPECT_NO_THROW(validateServoConfig(c));
+    for (double w : {-1.0, 61.0, std::nan("")}) {
+        c = {};
+        c.overrunWindowSeconds = w;
+        expectValueErrorNaming(c, "overrunWindowSeconds");
+    }
+    for (double f : {0.0, 1.5, std::nan("")}) {
+        c = {};
+        c.overrunFraction = f;
+        expectValueErrorNaming(c, "overrunFraction");
+    }
 }
 
 }  // namespace

@@ -11,10 +11,12 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <thread>
 
 #include "alloc_counter.h"
 #include "palp/base/error.h"
@@ -236,6 +238,44 @@ TEST_F(SessionTest, FaultyTicksAllocateNothing) {
         EXPECT_EQ(test::allocationCount() - before, 0u) << c.name;
         EXPECT_EQ(session.newest().watchdogTrips, 1u) << c.name;
     }
+}
+
+// The loop's overrun budget exceeded (ServoLoop calls Session::overloaded() on the servo thread;
+// here between offline steps): from the next tick no force is rendered (the held force ramped to
+// zero by the 10th tick, kFaultOverload on every tick, not a force fault), no ray is cast, and a
+// new run renders again.
+TEST_F(SessionTest, AnOverloadedSessionRampsItsForceToZeroAndShedsItsWork) {
+    PathDevice dev(
+        {{0, at(0.0, -0.003, 0.0)}, {0.3, at(0.0, 0.002, 0.0)}, {9.0, at(0.0, 0.002, 0.0)}});
+    SessionParams p = params(CouplingMode::AVCEC);
+    p.servo.priority = 0;
+    Session session(sScene, dev, p);
+    Snapshot s;
+    for (int i = 0; i < 500; ++i) s = session.step();
+    const Eigen::Vector3d held = s.force;
+    ASSERT_GT(held.norm(), 0.3);
+    ASSERT_GT(s.rays, 0);
+    session.overloaded();
+    int toZero = -1;
+    for (int n = 1; n <= 30; ++n) {
+        s = session.step();
+        expectSafe(s, touchX());
+        EXPECT_TRUE(s.faultFlags & kFaultOverload) << n;
+        EXPECT_FALSE(s.faulted);
+        EXPECT_EQ(s.rays, 0);
+        EXPECT_LE((s.force - allowed(n) * held).norm(), 1e-12) << n;
+        if (toZero < 0 && s.force.norm() == 0) toZero = n;
+    }
+    EXPECT_EQ(toZero, 10);
+    EXPECT_EQ(s.faultCounts.overload, 30u);
+    EXPECT_EQ(s.faults, 0u);
+    EXPECT_EQ(s.faultTrips, 1u);
+    session.start();  // a new run: a new budget
+    std::this_thread::sleep_for(std::chrono::milliseconds(30));
+    session.stop();
+    s = session.step();
+    EXPECT_EQ(s.faultFlags & kFaultOverload, 0u);
+    EXPECT_GT(s.rays, 0);
 }
 
 TEST_F(SessionTest, BadFaultParamsAreRefusedNamingTheField) {

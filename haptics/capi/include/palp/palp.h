@@ -349,8 +349,8 @@ typedef struct palp_session_params {
     double ring_weight_sigma;
 } palp_session_params;
 
-/** Fills @p params with palp's defaults (AVCEC, volume first-hit at 300 HU, k_s 300 N/m,
- *  3D Systems Touch X, 1 kHz, identity workspace). */
+/** Fills @p params with palp's defaults (AVCEC, volume first-hit 300 HU, k_s 300 N/m, Touch X,
+ *  1 kHz, identity workspace). */
 void palp_session_params_default(palp_session_params* params);
 
 typedef enum palp_trajectory_kind {
@@ -391,16 +391,15 @@ typedef struct palp_trajectory {
 /** Fills @p trajectory with the defaults of @p kind (palp/haptics/devices/trajectory.h). */
 palp_status palp_trajectory_default(palp_trajectory_kind kind, palp_trajectory* trajectory);
 
-/** Bits of palp_snapshot.fault_flags: what went wrong in a tick (docs/architecture.md,
- *  "Faults"). A refused sample (NON_FINITE, OUT_OF_RANGE, TOO_FAST) holds the last good force,
- *  then ramps it to zero by the watchdog's timeout, as a missing sample does. */
+/** Bits of palp_snapshot.fault_flags: what went wrong in a tick (docs/architecture.md). */
 typedef enum palp_fault {
     PALP_FAULT_STALE = 1,             /**< no new sample (a repeated one, or none) */
     PALP_FAULT_NON_FINITE = 2,        /**< NaN or infinite position, velocity or time */
     PALP_FAULT_OUT_OF_RANGE = 4,      /**< outside spec's workspace + 0.1 m, or 10 km away */
     PALP_FAULT_TOO_FAST = 8,          /**< over 10 m/s, or a jump from the last good sample */
     PALP_FAULT_FORCE_NON_FINITE = 16, /**< the computed force was not finite (last good held) */
-    PALP_FAULT_FORCE_JUMP = 32        /**< the force stepped by more than max_force / 2 (limited) */
+    PALP_FAULT_FORCE_JUMP = 32,       /**< the force stepped by more than max_force / 2 (limited) */
+    PALP_FAULT_OVERLOAD = 64 /**< the servo loop overran its budget: no force till restart */
 } palp_fault;
 
 /** One tick's state (world frame, SI units). */
@@ -439,9 +438,9 @@ typedef struct palp_snapshot {
     double passivity_cut;      /**< passivity controller: force cut along the velocity, N */
     uint32_t fault_flags;      /**< this tick's PALP_FAULT_* bits (any device), on the very tick */
     /** Ticks so far with PALP_FAULT_STALE, _NON_FINITE, _OUT_OF_RANGE, _TOO_FAST,
-     *  _FORCE_NON_FINITE, _FORCE_JUMP; the session's own fault ramp's trips to zero force. */
+     *  _FORCE_NON_FINITE, _FORCE_JUMP, _OVERLOAD; the session's own ramp's trips to zero force. */
     uint64_t stale_ticks, non_finite_samples, out_of_range_samples, too_fast_samples;
-    uint64_t non_finite_forces, force_jumps, fault_trips;
+    uint64_t non_finite_forces, force_jumps, overload_ticks, fault_trips;
 } palp_snapshot;
 
 typedef struct palp_latency {
@@ -454,7 +453,9 @@ typedef struct palp_loop_stats {
     palp_latency period_error; /**< |actual period - T| */
     palp_latency compute;      /**< time in one tick */
     uint64_t ticks, misses, skipped;
-    uint64_t trace_dropped; /**< snapshots lost because the trace was not read in time */
+    uint64_t trace_dropped;       /**< snapshots lost because the trace was not read in time */
+    int overloaded, fifo_dropped; /**< over 0.5 s, > half the deadlines missed; FIFO dropped */
+    double overloaded_at;         /**< when, s: no force from then until restarted */
 } palp_loop_stats;
 
 typedef struct palp_realtime {
@@ -662,9 +663,8 @@ palp_status palp_session_latest(palp_session* session, palp_snapshot* out);
  *  m; in the order of palp_scene_surface_topology's vertices) into @p vertices, whose
  *  @p vertex_capacity (in vertices) must hold them all; @p tick (may be NULL) receives the
  *  palp_snapshot.tick it belongs to (the rest surface with tick 0 before the first tick).
- *  Never blocks the servo thread (frames preallocated at creation, exchanged through a
- *  lock-free triple buffer). Call it from the viewer thread. PALP_ERROR_STATE on a rigid
- *  scene's session. */
+ *  Never blocks the servo thread (frames preallocated, a lock-free triple buffer). Call it from
+ *  the viewer thread. PALP_ERROR_STATE on a rigid scene's session. */
 palp_status palp_session_latest_surface(palp_session* session, float* vertices,
                                         size_t vertex_capacity, uint64_t* tick);
 /** Viewer: the oldest unread tick of the trace; *got = 0 when none is queued. */

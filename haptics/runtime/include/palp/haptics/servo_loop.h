@@ -25,6 +25,10 @@ class ServoTask {
   public:
     virtual ~ServoTask() = default;
     virtual void tick(const TickInfo& info) noexcept = 0;
+    /// Called once per run, on the servo thread between two ticks, when the loop has exceeded
+    /// its overrun budget (ServoConfig::overrunWindowSeconds): the task should stop rendering
+    /// force and shed the work it can (Session does both). Default: nothing.
+    virtual void overloaded() noexcept {}
 };
 
 struct ServoConfig {
@@ -34,6 +38,14 @@ struct ServoConfig {
     bool requireRealtime = false;  ///< start() throws when pinning or SCHED_FIFO fails
     double spinSeconds = 0;        ///< busy-wait this long before each deadline (0: sleep only)
     bool lockMemory = false;       ///< mlockall(MCL_CURRENT | MCL_FUTURE) at start (reported)
+    /// The overrun budget: when, over a window of this long, more than overrunFraction of the
+    /// window's deadlines were missed (ticks that ended late plus the deadlines they skipped),
+    /// the loop is overloaded: it calls ServoTask::overloaded() once, then drops SCHED_FIFO for
+    /// SCHED_OTHER (so a loop that cannot keep up never holds its CPU at real-time priority for
+    /// longer than the window plus one tick; ServoStats::overloaded says when). s, 0 .. 60; 0: no
+    /// budget.
+    double overrunWindowSeconds = 0.5;
+    double overrunFraction = 0.5;  ///< (0, 1]
 };
 
 /// @throw palp::ValueError naming the field.
@@ -85,6 +97,12 @@ struct ServoStats {
     std::uint64_t ticks = 0;
     std::uint64_t misses = 0;   ///< ticks whose tick() ended after the next deadline
     std::uint64_t skipped = 0;  ///< deadlines dropped to catch up after an overrun
+    /// The overrun budget was exceeded (ServoConfig::overrunWindowSeconds): the loop dropped
+    /// SCHED_FIFO (fifoDropped: it had it) and told the task, which stopped rendering force.
+    bool overloaded = false;
+    bool fifoDropped = false;
+    double overloadedAtSeconds = 0;  ///< when, since the first deadline, s
+    double missedFraction = 0;       ///< of the window that exceeded the budget
 };
 
 /// Runs a ServoTask on its own thread.
@@ -116,6 +134,8 @@ class ServoLoop {
   private:
     void run(ServoTask* task) noexcept;
     void setUpThread() noexcept;  // affinity, policy, mlockall: fills mStatus
+    // The overrun budget is exceeded: SCHED_OTHER, report, tell the task (servo thread).
+    void overload(std::int64_t atNs, double missedFraction, ServoTask& task) noexcept;
     ServoConfig mConfig;
     RealtimeStatus mStatus;
     std::thread mThread;
@@ -123,6 +143,9 @@ class ServoLoop {
     std::atomic<bool> mReady{false};  // set (release) by the thread once mStatus is final
     LatencyHistogram mWake, mPeriodError, mCompute;
     std::atomic<std::uint64_t> mTicks{0}, mMisses{0}, mSkipped{0};
+    // The overrun budget's verdict (servo thread writes, any thread reads).
+    std::atomic<bool> mOverloaded{false}, mFifoDropped{false};
+    std::atomic<double> mOverloadedAt{0}, mMissedFraction{0};
 };
 
 }  // namespace palp::haptics

@@ -74,6 +74,7 @@ struct FaultCounts {
     std::uint64_t tooFast = 0;         ///< kFaultTooFast samples
     std::uint64_t forceNonFinite = 0;  ///< kFaultForceNonFinite ticks
     std::uint64_t forceJump = 0;       ///< kFaultForceJump ticks
+    std::uint64_t overload = 0;        ///< kFaultOverload ticks
 };
 
 /// One tick's state, published lock-free for viewers and traces. Plain data.
@@ -277,6 +278,12 @@ class Session final : public ServoTask {
     std::size_t hitFieldCount() const noexcept;
 
     void tick(const TickInfo& info) noexcept override;
+    /// The servo loop exceeded its overrun budget (ServoConfig::overrunWindowSeconds; it has
+    /// dropped SCHED_FIFO): from the next tick until the next start() the session renders no
+    /// force (held, then ramped to zero as for a refused sample; kFaultOverload on every tick)
+    /// and sheds its work (no proxy, no rays, no FEM step): the tick only reads the device,
+    /// writes the ramped force and publishes. stats().overloaded says when.
+    void overloaded() noexcept override;
 
   private:
     struct Impl;

@@ -45,6 +45,7 @@ enum ForceFlag : std::uint32_t {
     kForceTooFastState = 1u << 6,     ///< a speed or a jump since the last good state no hand makes
     kForceNonFiniteForce = 1u << 7,   ///< palp's force was not finite (the last good one held)
     kForceJump = 1u << 8,             ///< palp's force would have jumped (limited to a step)
+    kForceOverload = 1u << 9,  ///< palp's servo loop overran its budget: no force until restarted
 };
 
 /// Remote device -> palp: one sample of the device, in the device frame.

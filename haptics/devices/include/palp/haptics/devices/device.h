@@ -33,13 +33,16 @@ enum DeviceFault : std::uint32_t {
     kFaultTooFast = 1u << 3,     ///< a speed or a jump since the last good sample no hand makes
     kFaultForceNonFinite = 1u << 4,  ///< the rendered force was NaN or infinite (last good held)
     kFaultForceJump = 1u << 5,       ///< the force would have jumped (limited to a step per tick)
+    /// The servo loop exceeded its overrun budget (ServoConfig): the session renders no force
+    /// (ramped to zero) and sheds its work until it is restarted.
+    kFaultOverload = 1u << 6,
 };
 /// The sample faults that make a sample unusable (its force is held, then ramped to zero).
 inline constexpr std::uint32_t kBadSampleFaults =
     kFaultNonFinite | kFaultOutOfRange | kFaultTooFast;
 /// Every DeviceFault bit.
 inline constexpr std::uint32_t kAllFaults =
-    kBadSampleFaults | kFaultStale | kFaultForceNonFinite | kFaultForceJump;
+    kBadSampleFaults | kFaultStale | kFaultForceNonFinite | kFaultForceJump | kFaultOverload;
 
 /// What a device reports about its own samples after read() (Session copies it into every
 /// Snapshot). A plain device is always healthy; WatchdogDevice fills it.
