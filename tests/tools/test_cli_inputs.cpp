@@ -217,7 +217,9 @@ TEST(CliInputs, PalpateRefusesEveryBadNumberNamingTheOption) {
                              {"--mu-static", {"0"}},
                              {"--mu-dynamic", {"0"}},
                              {"--centre", {"-1", "0"}},
-                             {"--hold", {"0"}}});
+                             {"--hold", {"0"}},
+                             {"--servo-cpu", {"-1", "0"}},
+                             {"--servo-priority", {"0"}}});
     // --device, --press-axis and the like are text refused when empty; the phantom is the
     // base's own choice (testing it empty would also drop the scene the others need).
     checkEveryOption("palpate", baseFor, ok, {"--phantom"});
