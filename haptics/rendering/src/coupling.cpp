@@ -61,6 +61,10 @@ void validateCouplingParams(const CouplingParams& p) {
                       formatValue(p.maxStiffness));
     requireWithin("coupling damping", p.damping, bounds::kDamping);
     requireWithin("coupling minDistance", p.minDistance, bounds::kSpacing);
+    if (!(std::isfinite(p.stiffnessTimeConstant) && p.stiffnessTimeConstant >= 0 &&
+          p.stiffnessTimeConstant <= 1))
+        throwExpected("coupling stiffnessTimeConstant", "a time in [0, 1] s",
+                      formatValue(p.stiffnessTimeConstant));
     if (p.source == RaySource::Mesh && p.hardMask == 0)
         throw ValueError(
             "coupling hardMask: expected at least one mask bit for the Mesh source, "
@@ -115,12 +119,26 @@ bool Coupling::sourceAvailable() const noexcept {
     return false;
 }
 
+void Coupling::beginTick(double dtSeconds) noexcept {
+    const double tau = mParams.stiffnessTimeConstant;
+    mTicking = tau > 0 && std::isfinite(dtSeconds) && dtSeconds > 0;
+    mKGain = mTicking ? -std::expm1(-dtSeconds / tau) : 1.0;
+    mKStart = mKLast;
+    mKStartValid = mKLastValid;
+}
+
+double Coupling::filtered(double kRays) const noexcept {
+    if (!mTicking || !mKStartValid || !std::isfinite(kRays)) return kRays;
+    return mKStart + mKGain * (kRays - mKStart);
+}
+
 void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
                        const Eigen::Vector3d& proxyVelocity, const Eigen::Vector3d& probeVelocity,
                        const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2,
                        CouplingOutput& out) noexcept {
     out = CouplingOutput{};
     const CouplingParams& p = mParams;
+    mKLastValid = false;  // until this call computes a k (no contact restarts the filter)
     if (!finite3(proxy) || !finite3(probe) || !finite3(proxyVelocity) || !finite3(probeVelocity) ||
         !finite3(tangent1) || !finite3(tangent2))
         return;
@@ -158,10 +176,13 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
 
     out.rays = n;
     out.rayLength = centreLength;
-    out.stiffness = kernels::lowPass(mBundle, perRay);
+    const double kRays = kernels::lowPass(mBundle, perRay);
+    out.stiffness = filtered(kRays);
+    mKLast = out.stiffness;
+    mKLastValid = std::isfinite(mKLast);
     out.force = -out.stiffness * D * d + dampingForce;
     out.energy = 0.5 * out.stiffness * D * D;
-    out.stepStiffness = out.stiffness;
+    out.stepStiffness = std::max(out.stiffness, kRays);
     if (!ec) return;
 
     // E = 1/2 k D^2: the probe gradient adds -1/2 D (g1 e1 + g2 e2), the proxy gradient
@@ -176,7 +197,9 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
         out.proxyForce = mFrame * out.proxyForce;
     }
     out.force += out.energyForce;
-    out.stepStiffness = out.stiffness + tangentialCurvature(mBundle, k, D, out);
+    // The proxy's step is bounded by the rays' k as well as the filtered one (the field it
+    // moves in is the rays').
+    out.stepStiffness = std::max(out.stiffness, kRays) + tangentialCurvature(mBundle, k, D, out);
 }
 
 void Coupling::traceStiffness(kernels::RayBundle& bundle, int n,
@@ -295,8 +318,8 @@ double Coupling::storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3
         double centreLength = 0;
         const int n = 1 + mProbeBundle.ringCount;
         traceStiffness(mProbeBundle, n, perRay, centreLength);
-        k = kernels::lowPass(mProbeBundle,
-                             std::span<const double>(perRay.data(), static_cast<std::size_t>(n)));
+        k = filtered(kernels::lowPass(
+            mProbeBundle, std::span<const double>(perRay.data(), static_cast<std::size_t>(n))));
     }
     return 0.5 * k * D * D;
 }

@@ -48,6 +48,14 @@ struct CouplingParams {
     double maxStiffness = 2400;     ///< k_max, N/m: k is always clamped here
     double damping = 0;             ///< b, N s/m, on v_py - v_pb
     double minDistance = 1e-6;      ///< eps, m: no ray and no force below this D
+    /// tau, s: on deformable tissue (a session that starts each tick with
+    /// Coupling::beginTick()), k is low-passed over ticks, k_n = k_(n-1) + (1 - e^(-dt/tau))
+    /// (k_rays - k_(n-1)). The tissue carries the proxy, so k (a function of where the proxy
+    /// sits) and the force that moves the tissue form a loop; with bone under a thin scalp it
+    /// alternated every tick (300 / 1,020 N/m, 0.35 / 2.3 N on the head CT). 5 ms passes what
+    /// a hand feels of k (a bone edge crossed at 100 mm/s: 0.5 mm). 0: none. Rigid scenes
+    /// (no beginTick()) use k_rays.
+    double stiffnessTimeConstant = 5e-3;
 };
 
 /// @throw palp::ValueError naming the field (non-finite or non-positive stiffness, lengths,
@@ -140,9 +148,10 @@ class Coupling {
                  CouplingOutput& out) noexcept;
 
     /// The stored energy 1/2 k D^2 the coupling would have with the proxy at @p proxy and the
-    /// probe at @p probe (k low-passed over the centre and ring rays, as compute() does; only
-    /// those rays are cast). 0 when D < minDistance or an input is not finite. Does not
-    /// change bundle(). Used by the session to accept only AVCEC proxy moves that lower E.
+    /// probe at @p probe (k low-passed over the centre and ring rays, as compute() does, and
+    /// through this tick's stiffness filter; only those rays are cast). 0 when D < minDistance or
+    /// an input is not finite. Does not change bundle(). Used by the session to accept only AVCEC
+    /// proxy moves that lower E.
     double storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3d& probe,
                         const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2) noexcept;
 
@@ -173,6 +182,14 @@ class Coupling {
         mFramed = !currentFromRest.isIdentity(0.0);
     }
 
+    /// Starts a servo tick of period @p dtSeconds for the stiffness filter
+    /// (CouplingParams::stiffnessTimeConstant): compute() and storedEnergy() until the next
+    /// call filter from the k of the last compute() before it, so a tick that computes twice
+    /// (an AVCEC move undone) advances the filter once. Never called (rigid scenes): k is
+    /// unfiltered. A compute() without contact (D below minDistance, a non-finite input)
+    /// restarts the filter from the next k_rays. @par Real-time
+    void beginTick(double dtSeconds) noexcept;
+
     /// The last bundle cast (for viewers: the rays of this tick).
     const kernels::RayBundle& bundle() const noexcept { return mBundle; }
 
@@ -187,6 +204,8 @@ class Coupling {
     const kernels::RayBundle& restBundle(const kernels::RayBundle& bundle, int n) noexcept;
     /// The current length of ray @p r whose rest trace stopped at rest distance @p tRest.
     double currentLength(const kernels::RayBundle& bundle, int r, double tRest) const noexcept;
+    /// k_rays through the stiffness filter of this tick (beginTick); k_rays when it is off.
+    double filtered(double kRays) const noexcept;
 
     const kernels::VolumeView* mVolume;
     const kernels::EmbreeScene* mMeshes;
@@ -201,6 +220,10 @@ class Coupling {
     kernels::BundleHits mHits;
     kernels::BundleHits mMovingHits;
     kernels::BundleAccumulation mAccum;
+    // The stiffness filter (beginTick): the k this tick filters from, its gain, and the last
+    // compute()'s k (the next tick's start). Valid flags: a filter started and a k to start from.
+    double mKStart = 0, mKGain = 1, mKLast = 0;
+    bool mTicking = false, mKStartValid = false, mKLastValid = false;
 };
 
 }  // namespace palp::haptics
