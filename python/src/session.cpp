@@ -382,8 +382,9 @@ void bindSession(py::module_& m) {
         "timestamp[, sequence]]]) and write(force). Step it offline with step() / run(n); "
         "start() runs palp's own devices on the 1 kHz servo thread (never a Python device: the "
         "servo thread must not call into Python), pinned to servo_cpu (-1: the last CPU) at "
-        "SCHED_FIFO servo_priority (0: normal priority); a loop that misses more than half its "
-        "deadlines over 0.5 s drops the priority and renders no force (stats()['overloaded']).")
+        "SCHED_FIFO servo_priority (0: normal priority); a SCHED_FIFO loop that misses more than "
+        "half its deadlines in two windows of 0.4 s drops the priority and renders no force "
+        "(stats()['overloaded']).")
         .def(py::init(&makeSession), py::arg("scene"), py::arg("device"),
              py::arg("params") = py::none(), py::kw_only(), py::arg("spec") = "3D Systems Touch",
              py::arg("watchdog") = false, py::arg("servo_cpu") = -1, py::arg("servo_priority") = 80)

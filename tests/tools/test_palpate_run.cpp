@@ -91,13 +91,13 @@ TEST(PalpateRun, RealtimeSecondsAreWallClockSeconds) {
 }
 
 // The overrun budget on a loop that cannot keep up (the deformable bone phantom's 5 ms ticks
-// here): it gives up within the 0.5 s window plus a tick, with more than half of that window's
+// here): it gives up within two 0.4 s windows plus a tick, with more than half of each window's
 // deadlines missed, drops SCHED_FIFO where it was granted and says so; shedding its work, it then
 // keeps up (hundreds of ticks in the remaining 0.7 s). On a machine fast enough not to be
 // overloaded, no window missed more than half: nor did the whole run. --servo-cpu pins the loop.
 TEST(PalpateRun, AnOverloadedRealtimeRunGivesUpItsPriorityAndSaysSo) {
     const auto r = runCommand(palp::test::palpTool().string() +
-                              " palpate --phantom bone --deformable --realtime --seconds 1.2 "
+                              " palpate --phantom bone --deformable --realtime --seconds 1.5 "
                               "--servo-cpu 0 --servo-priority 10 --json 2>&1");
     EXPECT_EQ(r.exitCode, 0) << r.output;
     const nlohmann::json j = jsonOf(r.output);
@@ -107,20 +107,24 @@ TEST(PalpateRun, AnOverloadedRealtimeRunGivesUpItsPriorityAndSaysSo) {
     const bool overloaded = s["overloaded"].get<bool>();
     const std::string rt = s["realtime"].get<std::string>();
     std::printf(
-        "realtime 1.2 s: %.0f ticks, %.0f skipped, overloaded %d at %.3f s (%.0f %% of "
+        "realtime 1.5 s: %.0f ticks, %.0f skipped, overloaded %d at %.3f s (%.0f %% of "
         "that window missed), fifo dropped %d; %s\n",
         ticks, skipped, overloaded ? 1 : 0, s["overloaded_at_s"].get<double>(),
         100 * s["overloaded_missed_fraction"].get<double>(), s["fifo_dropped"].get<bool>() ? 1 : 0,
         rt.c_str());
     EXPECT_NE(rt.find("pinned to CPU 0"), std::string::npos) << rt;
+    const bool fifo = rt.find("SCHED_FIFO 10;") != std::string::npos;
+    if (!fifo) {
+        EXPECT_FALSE(overloaded);  // a SCHED_OTHER loop has no budget
+    }
     if (overloaded) {
-        EXPECT_GE(s["overloaded_at_s"].get<double>(), 0.5);
-        EXPECT_LE(s["overloaded_at_s"].get<double>(), 0.5 + 0.1);  // the window + a 5 ms tick
+        EXPECT_GE(s["overloaded_at_s"].get<double>(), 0.8);
+        EXPECT_LE(s["overloaded_at_s"].get<double>(), 0.8 + 0.1);  // two windows + a 5 ms tick
         EXPECT_GT(s["overloaded_missed_fraction"].get<double>(), 0.5);
-        EXPECT_EQ(s["fifo_dropped"].get<bool>(), rt.find("SCHED_FIFO 10;") != std::string::npos);
+        EXPECT_TRUE(s["fifo_dropped"].get<bool>());
         EXPECT_NE(r.output.find("palp: warning: the servo loop missed"), std::string::npos);
-        EXPECT_GT(ticks, 300);  // the shed loop keeps up for the remaining 0.7 s
-    } else {
+        EXPECT_GT(ticks, 400);  // the shed loop keeps up for the remaining 0.7 s
+    } else if (fifo) {
         EXPECT_LE(skipped / (ticks + skipped), 0.55);
     }
 }

@@ -215,7 +215,7 @@ void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePri
     auto* prio = app->add_option("--servo-priority", priority,
                                  "The servo thread's SCHED_FIFO priority 1..99, 0 for none "
                                  "(default 80; a loop that misses more than half its deadlines "
-                                 "over 0.5 s drops it and renders no force, reported)")
+                                 "in two windows of 0.4 s drops it and renders no force, reported)")
                      ->check(integerIn(0, 99));
     app->add_flag("--no-realtime-priority", noRealtimePriority,
                   "Run the servo thread at normal priority (as --servo-priority 0)")

@@ -87,7 +87,7 @@ RunResult runRealtime(haptics::Session& session, std::uint64_t ticks, double wal
                   {"trace_dropped", traceDropped}};
     if (st.overloaded) {
         std::fprintf(stderr,
-                     "palp: warning: the servo loop missed %.0f %% of its deadlines over 0.5 s and "
+                     "palp: warning: the servo loop missed %.0f %% of its deadlines over 0.8 s and "
                      "gave up at %.2f s: %s, no force rendered from then on (a lighter scene, "
                      "or --servo-cpu on an idle CPU)\n",
                      100 * st.missedFraction, st.overloadedAtSeconds,

@@ -69,6 +69,9 @@ void validateServoConfig(const ServoConfig& c) {
                          std::to_string(c.cpu));
     requireInRange("servo config overrunWindowSeconds (0: no budget)", c.overrunWindowSeconds, 0.0,
                    60.0, "s");
+    if (c.overrunWindows < 1 || c.overrunWindows > 100)
+        throw ValueError("servo config: overrunWindows must be 1..100, found " +
+                         std::to_string(c.overrunWindows));
     if (!(c.overrunFraction > 0 && c.overrunFraction <= 1))
         throwExpected("servo config overrunFraction", "a fraction in (0, 1]",
                       formatValue(c.overrunFraction));
@@ -314,6 +317,7 @@ void ServoLoop::run(ServoTask* task) noexcept {
     const std::int64_t windowNs = std::llround(mConfig.overrunWindowSeconds * 1e9);
     std::int64_t windowStart = startNs;
     std::uint64_t windowMissed = 0;
+    int windowsOver = 0;  // consecutive windows over the budget
     bool overloadedRun = false;
     while (!mStop.load(std::memory_order_relaxed)) {
         if (spinNs > 0) {
@@ -350,12 +354,15 @@ void ServoLoop::run(ServoTask* task) noexcept {
             deadline += passed * periodNs;
             windowMissed += static_cast<std::uint64_t>(passed);  // the deadlines skipped
         }
-        if (windowNs > 0 && !overloadedRun && end - windowStart >= windowNs) {
+        // Only a SCHED_FIFO loop can starve its CPU; a SCHED_OTHER one shares it with the rest of
+        // the machine, whose load its misses mostly measure.
+        if (windowNs > 0 && mStatus.fifo && !overloadedRun && end - windowStart >= windowNs) {
             // The deadlines the window held, and the share of them skipped.
             const double periods =
                 static_cast<double>(end - windowStart) / static_cast<double>(periodNs);
             const double missed = static_cast<double>(windowMissed) / std::max(periods, 1.0);
-            if (missed > mConfig.overrunFraction) {
+            windowsOver = missed > mConfig.overrunFraction ? windowsOver + 1 : 0;
+            if (windowsOver >= mConfig.overrunWindows) {
                 overloadedRun = true;
                 overload(end - startNs, missed, *task);
             }

@@ -454,7 +454,7 @@ typedef struct palp_loop_stats {
     palp_latency compute;      /**< time in one tick */
     uint64_t ticks, misses, skipped;
     uint64_t trace_dropped;       /**< snapshots lost because the trace was not read in time */
-    int overloaded, fifo_dropped; /**< over 0.5 s, > half the deadlines missed; FIFO dropped */
+    int overloaded, fifo_dropped; /**< 2 x 0.4 s with > half the deadlines missed; FIFO dropped */
     double overloaded_at;         /**< when, s: no force from then until restarted */
 } palp_loop_stats;
 

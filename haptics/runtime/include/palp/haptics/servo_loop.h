@@ -38,13 +38,17 @@ struct ServoConfig {
     bool requireRealtime = false;  ///< start() throws when pinning or SCHED_FIFO fails
     double spinSeconds = 0;        ///< busy-wait this long before each deadline (0: sleep only)
     bool lockMemory = false;       ///< mlockall(MCL_CURRENT | MCL_FUTURE) at start (reported)
-    /// The overrun budget: when, over a window of this long, more than overrunFraction of the
-    /// window's deadlines were missed (ticks that ended late plus the deadlines they skipped),
-    /// the loop is overloaded: it calls ServoTask::overloaded() once, then drops SCHED_FIFO for
-    /// SCHED_OTHER (so a loop that cannot keep up never holds its CPU at real-time priority for
-    /// longer than the window plus one tick; ServoStats::overloaded says when). s, 0 .. 60; 0: no
-    /// budget.
-    double overrunWindowSeconds = 0.5;
+    /// The overrun budget of a loop that got SCHED_FIFO (a SCHED_OTHER loop cannot starve its
+    /// CPU: the scheduler shares it; its misses are not counted): when, in overrunWindows
+    /// consecutive windows of this long, more than
+    /// overrunFraction of each window's deadlines were missed (ticks that ended late plus the
+    /// deadlines they skipped), the loop is overloaded: it calls ServoTask::overloaded() once,
+    /// then drops SCHED_FIFO for SCHED_OTHER, so a loop that cannot keep up never holds its CPU
+    /// at real-time priority for longer than overrunWindows windows plus one tick (0.8 s plus a
+    /// tick by default; two windows, so that a slow start, a deformable body's first ticks, is
+    /// not taken for an overload); ServoStats::overloaded says when. s, 0 .. 60; 0: no budget.
+    double overrunWindowSeconds = 0.4;
+    int overrunWindows = 2;        ///< consecutive windows over the budget (1 .. 100)
     double overrunFraction = 0.5;  ///< (0, 1]
 };
 
@@ -102,7 +106,7 @@ struct ServoStats {
     bool overloaded = false;
     bool fifoDropped = false;
     double overloadedAtSeconds = 0;  ///< when, since the first deadline, s
-    double missedFraction = 0;       ///< of the window that exceeded the budget
+    double missedFraction = 0;       ///< of the last window that exceeded the budget
 };
 
 /// Runs a ServoTask on its own thread.
