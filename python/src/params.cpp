@@ -66,6 +66,8 @@ void bindParams(py::module_& m) {
         .def_readwrite("max_stiffness", &CouplingParams::maxStiffness, "k_max, N/m")
         .def_readwrite("damping", &CouplingParams::damping, "b, N s/m")
         .def_readwrite("min_distance", &CouplingParams::minDistance, "eps, m")
+        .def_readwrite("stiffness_time_constant", &CouplingParams::stiffnessTimeConstant,
+                       "tau, s: k low-passed over ticks on deformable tissue (0: none)")
         .def_readwrite("hard_mask", &CouplingParams::hardMask, "mesh source targets (bits)");
     using kernels::AccumulateParams;
     using kernels::BundleParams;

@@ -352,6 +352,10 @@ class Sessions(unittest.TestCase):
         bad = palp.CouplingParams(mode="vc", base_stiffness=-1)
         with self.assertRaises(palp.ValueError):
             session.set_coupling(bad)
+        # k's filter over ticks on deformable tissue: 5 ms by default, refused past 1 s.
+        self.assertAlmostEqual(palp.CouplingParams().stiffness_time_constant, 0.005)
+        with self.assertRaises(palp.ValueError):
+            session.set_coupling(palp.CouplingParams(mode="avcec", stiffness_time_constant=2.0))
 
     def test_deformable_press_dents_the_tissue(self):
         scene = palp.Scene.from_volume(avc_volume())
