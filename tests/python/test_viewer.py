@@ -94,7 +94,11 @@ class ViewerTestCase(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.tmp = tempfile.TemporaryDirectory(prefix="palp_viewer_")
-        cls.live = viewer.make_session("avc", deformable=cls.deformable, path="raster")
+        # The deformable phantom on the whole mesh takes ~5 ms a tick on AVX2 machines (its
+        # element kernel is far slower there than on AVX-512), so at SCHED_FIFO its servo gives
+        # up after 0.8 s (the overrun budget); at normal priority it runs slower and dents.
+        cls.live = viewer.make_session("avc", deformable=cls.deformable, path="raster",
+                                       servo_priority=0 if cls.deformable else 80)
         cls.view = viewer.Viewer(cls.live, SIZE, offscreen=cls.offscreen)
         cls.frames = 0
         cls.live.session.start()

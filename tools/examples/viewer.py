@@ -511,7 +511,7 @@ def scan_thresholds(volume):
 
 def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=None,
                  voxel_size=None, surface_iso=None, hard_iso=None, volume_path=None,
-                 press=None):
+                 press=None, servo_priority=80):
     """A phantom (or, with volume_path, a scan) scene, a device (a simulated hand on path, or a
     CSV log) and a session on it (not started). voxel_size: m (None: 1 mm for a phantom, the
     file's own for a scan). surface_iso, hard_iso: volume units (None: -500 and 500 HU for a
@@ -568,7 +568,9 @@ def make_session(phantom="avc", deformable=False, mode=None, path="raster", log=
                                                   depth=0.01, press_seconds=2, hold_seconds=2),
         }
         device = palp.SimulatedDevice(trajectories[path]())
-    session = palp.Session(scene, device, params)
+    # servo_priority: SCHED_FIFO priority of the servo thread (0: normal priority, where a
+    # session that cannot keep 1 kHz runs slower instead of giving up its force).
+    session = palp.Session(scene, device, params, servo_priority=servo_priority)
     isos = ([] if deformable else [surface_iso]) + ([] if hard_iso is None else [hard_iso])
     surfaces = iso_surfaces(volume, isos)
     skin = None if deformable else surfaces.pop(0)  # a body's own surface is drawn instead
