@@ -94,9 +94,10 @@ class ViewerTestCase(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.tmp = tempfile.TemporaryDirectory(prefix="palp_viewer_")
-        # The deformable phantom on the whole mesh takes ~5 ms a tick on AVX2 machines (its
-        # element kernel is far slower there than on AVX-512), so at SCHED_FIFO its servo gives
-        # up after 0.8 s (the overrun budget); at normal priority it runs slower and dents.
+        # The deformable phantom on the whole mesh takes about a whole millisecond of CPU a
+        # tick on a 2-vCPU AVX2 VM (0.9 ms), so at SCHED_FIFO beside the renderer its servo can
+        # overrun and give up after 0.8 s (the overrun budget); at normal priority it runs
+        # slower and dents.
         cls.live = viewer.make_session("avc", deformable=cls.deformable, path="raster",
                                        servo_priority=0 if cls.deformable else 80)
         cls.view = viewer.Viewer(cls.live, SIZE, offscreen=cls.offscreen)
