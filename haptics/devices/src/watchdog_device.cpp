@@ -2,33 +2,39 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
+#include "palp/haptics/devices/fault_ramp.h"
 #include "palp/haptics/rendering/safety.h"
 
 namespace palp::haptics {
 
 namespace {
-constexpr double kMaxWatchdogSeconds = 10.0;
 constexpr double kMaxMarginMeters = 10.0;
 constexpr double kMaxSpeedLimit = 1000.0;  // m/s
 }  // namespace
 
+void validateFaultRampTimes(std::string_view prefix, double graceSeconds, double timeoutSeconds,
+                            double resumeSeconds) {
+    const std::string p(prefix);
+    requireInRange(p + "timeoutSeconds", timeoutSeconds, 0.0, kMaxFaultRampSeconds, "s");
+    if (!(timeoutSeconds > 0))
+        throwExpected(p + "timeoutSeconds", "a time > 0 s", formatValue(timeoutSeconds));
+    requireInRange(p + "graceSeconds", graceSeconds, 0.0, kMaxFaultRampSeconds, "s");
+    if (!(graceSeconds < timeoutSeconds)) {
+        throwExpected(p + "graceSeconds",
+                      "less than " + p + "timeoutSeconds (" + formatValue(timeoutSeconds) + " s)",
+                      formatValue(graceSeconds));
+    }
+    requireInRange(p + "resumeSeconds", resumeSeconds, 0.0, kMaxFaultRampSeconds, "s");
+}
+
 void validateWatchdogParams(const WatchdogParams& params) {
-    requireInRange("watchdog timeoutSeconds", params.timeoutSeconds, 0.0, kMaxWatchdogSeconds, "s");
-    if (!(params.timeoutSeconds > 0)) {
-        throwExpected("watchdog timeoutSeconds", "a time > 0 s",
-                      formatValue(params.timeoutSeconds));
-    }
-    requireInRange("watchdog graceSeconds", params.graceSeconds, 0.0, kMaxWatchdogSeconds, "s");
-    if (!(params.graceSeconds < params.timeoutSeconds)) {
-        throwExpected("watchdog graceSeconds",
-                      "less than timeoutSeconds (" + formatValue(params.timeoutSeconds) + " s)",
-                      formatValue(params.graceSeconds));
-    }
-    requireInRange("watchdog resumeSeconds", params.resumeSeconds, 0.0, kMaxWatchdogSeconds, "s");
+    validateFaultRampTimes("watchdog ", params.graceSeconds, params.timeoutSeconds,
+                           params.resumeSeconds);
     requireInRange("watchdog workspaceMarginMeters", params.workspaceMarginMeters, 0.0,
                    kMaxMarginMeters, "m");
     requireInRange("watchdog maxSpeedMps", params.maxSpeedMps, 0.0, kMaxSpeedLimit, "m/s");

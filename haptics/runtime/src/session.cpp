@@ -10,13 +10,13 @@
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
+#include "palp/haptics/devices/fault_ramp.h"
 #include "session_impl.h"
 
 namespace palp::haptics {
 namespace {
 
 constexpr std::uint32_t kMaxTraceCapacity = 1u << 24;  // 16 M snapshots (a few GB): a typo guard
-constexpr double kMaxFaultSeconds = 10.0;              // as a WatchdogDevice's times
 
 bool sourceHasData(const Scene& scene, RaySource source) noexcept {
     switch (source) {
@@ -63,18 +63,7 @@ void validateSessionParams(const SessionParams& params) {
     requireWithin("session startupThresholdN", params.startupThresholdN, bounds::kPositiveForce);
     requireWithin("session crossFadeSeconds", params.crossFadeSeconds, bounds::kDuration);
     const FaultParams& f = params.faults;
-    requireInRange("session faults.timeoutSeconds", f.timeoutSeconds, 0.0, kMaxFaultSeconds, "s");
-    if (!(f.timeoutSeconds > 0)) {
-        throwExpected("session faults.timeoutSeconds", "a time > 0 s",
-                      formatValue(f.timeoutSeconds));
-    }
-    requireInRange("session faults.graceSeconds", f.graceSeconds, 0.0, kMaxFaultSeconds, "s");
-    if (!(f.graceSeconds < f.timeoutSeconds)) {
-        throwExpected("session faults.graceSeconds",
-                      "less than faults.timeoutSeconds (" + formatValue(f.timeoutSeconds) + " s)",
-                      formatValue(f.graceSeconds));
-    }
-    requireInRange("session faults.resumeSeconds", f.resumeSeconds, 0.0, kMaxFaultSeconds, "s");
+    validateFaultRampTimes("session faults.", f.graceSeconds, f.timeoutSeconds, f.resumeSeconds);
     requireWithin("session faults.maxForceStepN (0: half the device's maxForceN)", f.maxForceStepN,
                   bounds::kForce);
     if (params.traceCapacity > kMaxTraceCapacity) {

@@ -7,8 +7,19 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <string_view>
 
 namespace palp::haptics {
+
+/// Longest grace, timeout or resume time a FaultRamp's owner accepts, s.
+inline constexpr double kMaxFaultRampSeconds = 10.0;
+
+/// The set-up check of a FaultRamp's times, shared by its owners (WatchdogParams, the session's
+/// FaultParams): 0 < timeout, 0 <= grace < timeout, 0 <= resume, each at most
+/// kMaxFaultRampSeconds. @p prefix names the owner's fields, e.g. "watchdog " or "session
+/// faults.". @throw palp::ValueError naming the field, e.g. `watchdog graceSeconds`.
+void validateFaultRampTimes(std::string_view prefix, double graceSeconds, double timeoutSeconds,
+                            double resumeSeconds);
 
 /// Times are counted in ticks of one period, so offline steps and real-time ticks behave alike.
 ///
@@ -23,7 +34,7 @@ class FaultRamp {
   public:
     FaultRamp() = default;
     /// @param graceSeconds, timeoutSeconds, resumeSeconds  checked by the owner
-    ///        (0 <= grace < timeout, resume >= 0; validateWatchdogParams)
+    ///        (validateFaultRampTimes)
     /// @param periodSeconds  one tick, s (> 0)
     FaultRamp(double graceSeconds, double timeoutSeconds, double resumeSeconds,
               double periodSeconds) noexcept
