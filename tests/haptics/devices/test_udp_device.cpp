@@ -26,6 +26,7 @@
 #include "palp/haptics/session.h"
 #include "palp/volume/phantom.h"
 #include "session_fixtures.h"
+#include "udp_fixtures.h"
 
 namespace palp::haptics {
 namespace {
@@ -33,17 +34,13 @@ namespace {
 using fixtures::kT;
 using fixtures::touchX;
 
-constexpr double kStiffness = 300;  // N/m, VC
-constexpr double kDepth = 3e-3;     // m below the surface y = 0 at the hold
+using udp_fixtures::address;
+using udp_fixtures::kDepth;
+using udp_fixtures::kStiffness;
+using udp_fixtures::pressState;
 
-class UdpDeviceTest : public ::testing::Test {
+class UdpDeviceTest : public udp_fixtures::UdpSceneTest {
   protected:
-    static void SetUpTestSuite() { fixtures::buildAvcScene(sVolume, sScene); }
-    static void TearDownTestSuite() {
-        sScene.reset();
-        delete sVolume;
-        sVolume = nullptr;
-    }
     static SessionParams params() {
         SessionParams p;
         p.coupling.mode = CouplingMode::VC;
@@ -54,32 +51,7 @@ class UdpDeviceTest : public ::testing::Test {
         p.proxy.dynamicFriction = 0;
         return p;
     }
-    static UdpDeviceParams deviceParams() {
-        UdpDeviceParams p;
-        p.listen = "127.0.0.1:0";
-        return p;
-    }
-    static volume::Volume* sVolume;
-    static std::shared_ptr<Scene> sScene;
 };
-volume::Volume* UdpDeviceTest::sVolume = nullptr;
-std::shared_ptr<Scene> UdpDeviceTest::sScene;
-
-/// The remote hand's press: from 4 mm above the surface down to kDepth below it in 0.3 s, then
-/// held (kinematic: the force does not move it). Sample @p i is at i kT.
-bridge::StateMessage pressState(std::uint64_t i) {
-    const double t = static_cast<double>(i) * kT;
-    const double y0 = -4e-3, y1 = kDepth, t1 = 0.3;
-    bridge::StateMessage m;
-    m.sequence = i + 1;
-    m.timeNs = i * 1000000ull + 5;
-    const double y = t < t1 ? y0 + (y1 - y0) * t / t1 : y1;
-    m.position = {0.004, y, 0.003};
-    m.velocity = {0, t < t1 ? (y1 - y0) / t1 : 0.0, 0};
-    return m;
-}
-
-std::string address(const UdpDevice& d) { return "127.0.0.1:" + std::to_string(d.port()); }
 
 /// Reads @p device until @p done() holds (datagrams on loopback arrive within microseconds;
 /// this waits for them without assuming it), at most ~1 s.

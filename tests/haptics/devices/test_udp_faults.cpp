@@ -19,6 +19,7 @@
 #include "palp/haptics/devices/udp_device.h"
 #include "palp/haptics/session.h"
 #include "session_fixtures.h"
+#include "udp_fixtures.h"
 
 namespace palp::haptics {
 namespace {
@@ -26,32 +27,11 @@ namespace {
 using fixtures::kT;
 using fixtures::touchX;
 
-constexpr double kStiffness = 300;  // N/m, VC
-constexpr double kDepth = 3e-3;     // m below the surface y = 0 at the hold
+using udp_fixtures::kDepth;
+using udp_fixtures::kStiffness;
+using udp_fixtures::pressState;
 
-class UdpFaultsTest : public ::testing::Test {
-  protected:
-    static void SetUpTestSuite() { fixtures::buildAvcScene(sVolume, sScene); }
-    static void TearDownTestSuite() {
-        sScene.reset();
-        delete sVolume;
-        sVolume = nullptr;
-    }
-    inline static volume::Volume* sVolume = nullptr;
-    inline static std::shared_ptr<Scene> sScene;
-};
-
-/// The remote hand's press: from 4 mm above the surface to kDepth below it in 0.3 s, then held.
-bridge::StateMessage pressState(std::uint64_t i) {
-    const double t = static_cast<double>(i) * kT;
-    const double y0 = -4e-3, y1 = kDepth, t1 = 0.3;
-    bridge::StateMessage m;
-    m.sequence = i + 1;
-    m.timeNs = i * 1000000ull + 5;
-    m.position = {0.004, t < t1 ? y0 + (y1 - y0) * t / t1 : y1, 0.003};
-    m.velocity = {0, t < t1 ? (y1 - y0) / t1 : 0.0, 0};
-    return m;
-}
+class UdpFaultsTest : public udp_fixtures::UdpSceneTest {};
 
 enum class Bad { NaN, Far, Huge, Velocity, Jump, Duplicate };
 
@@ -104,10 +84,8 @@ TEST_F(UdpFaultsTest, BadStatesAreFlaggedInTheForcesAndCutWithinTheTimeout) {
     constexpr std::uint64_t kPressed = 450;
     for (const BadCase& c : kBad) {
         SCOPED_TRACE(c.name);
-        UdpDeviceParams dp;
-        dp.listen = "127.0.0.1:0";
-        UdpDevice device(touchX(), dp);
-        UdpBridgeClient client("127.0.0.1:" + std::to_string(device.port()));
+        UdpDevice device(touchX(), deviceParams());
+        UdpBridgeClient client(udp_fixtures::address(device));
         SessionParams sp;
         sp.coupling.mode = CouplingMode::VC;
         sp.coupling.baseStiffness = kStiffness;
