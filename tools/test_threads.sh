@@ -24,13 +24,13 @@ export TSAN_OPTIONS="suppressions=$PWD/tools/tsan.supp halt_on_error=1 second_de
 # accuracy tests and the benchmark harness are not built here. Only the threaded cases of the
 # asynchronous regions run (the synchronous accuracy cases build a global secondary each, 12
 # minutes of test_async_force under TSan; the release suite runs them), the deformable regions
-# session on threaded regions and its refusals (its synchronous physics cases step both regions
-# on the test's thread, and took most of the executable's 150 s under TSan; the release suite
-# runs them) and the spring's threaded tick. The lazy loads decode slices on TBB workers (DICOM
+# session on threaded regions, its refusals and its set-up under allocation failure (its
+# synchronous physics cases step both regions on the test's thread, and took most of the
+# executable's 150 s under TSan; the release suite runs them) and the spring's threaded tick. The lazy loads decode slices on TBB workers (DICOM
 # through GDCM, one reader per file; NIfTI, NRRD and MetaImage by pread or from the kept stored
 # bytes) while the resampler fills the grid. test_deformable_head: the shared head CT on the
 # threaded regions (the servo's ticks against the secondary and layout threads).
-declare -A filter=([test_deformable_async]='DeformableAsync.TicksAllocateNothing:DeformableAsync.RejectsBadOptions*'
+declare -A filter=([test_deformable_async]='DeformableAsync.TicksAllocateNothing:DeformableAsync.RejectsBadOptions*:DeformableAsync.AnAllocationFailure*'
                    [test_async_spring]='AsyncSpring.Threaded*'
                    [test_async_force]='AsyncForce.StalledSecondary*:AsyncForce.TicksAllocateNothing'
                    [test_async_regions]='AsyncRegions.StalledSecondary*:AsyncRegions.Threaded*:AsyncRegions.RejectsBadInput')

@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <new>
 #include <string>
 #include <thread>
 
@@ -225,6 +226,69 @@ TEST_F(SessionTest, AForceThatWouldJumpIsLimitedAndFlagged) {
     EXPECT_EQ(session.newest().faultTrips, 0u);
     EXPECT_NEAR(previous, 300 * 0.009, 0.3);  // k x 9 mm, recovered
     EXPECT_EQ(session.newest().deviceForceScale, 1.0);
+}
+
+// Allocation failure at set-up (issue 38 item 4): a Session built while the host's thread runs
+// out of memory at its k-th allocation, for k across everything a construction takes, throws
+// std::bad_alloc (no half-built session that looks usable; under the sanitizer build nothing
+// leaks); so does start() when the servo thread cannot be made, leaving the session stopped
+// and steppable. The next Session builds, runs and renders the press.
+TEST_F(SessionTest, AnAllocationFailureAtSetUpThrowsAndLeavesNothingHalfBuilt) {
+    const auto device = [] {
+        return PathDevice(
+            {{0, at(0.0, -0.003, 0.0)}, {0.3, at(0.0, 0.002, 0.0)}, {2.0, at(0.0, 0.002, 0.0)}});
+    };
+    SessionParams p = params(CouplingMode::AVCEC);
+    p.servo.priority = 0;
+    PathDevice dev = device();
+    const std::uint64_t before = test::threadAllocationCount();
+    std::uint64_t total = 0;
+    std::uint64_t atEnd = 0;
+    {
+        Session probe(sScene, dev, p);
+        total = test::threadAllocationCount() - before;  // the construction's own
+        atEnd = test::threadAllocationCount();
+    }
+    // Destruction allocates nothing (an allocation in a noexcept destructor that fails ends
+    // the process).
+    EXPECT_EQ(test::threadAllocationCount() - atEnd, 0u);
+    ASSERT_GT(total, 10u);
+    const std::uint64_t step = std::max<std::uint64_t>(1, total / 150);
+    int thrown = 0;
+    for (std::uint64_t k = 1; k <= total; k += step) {
+        const std::uint64_t failedBefore = test::threadFailedAllocations();
+        test::failThreadAllocationsFrom(k);
+        try {
+            Session s(sScene, dev, p);
+            test::failThreadAllocationsFrom(0);
+            // Built: only right when no throwing allocation was made to fail (the last ones
+            // may be nothrow, e.g. a sort's buffer, which falls back without one).
+            EXPECT_EQ(test::threadFailedAllocations(), failedBefore)
+                << "a failed allocation was swallowed (from " << k << " of " << total << ")";
+        } catch (const std::bad_alloc&) {
+            test::failThreadAllocationsFrom(0);
+            ++thrown;
+        }
+    }
+    EXPECT_GT(thrown, 0);
+    // start(): the servo thread's own allocations are its thread's; the host's fail.
+    PathDevice dev2 = device();
+    Session session(sScene, dev2, p);
+    test::failThreadAllocationsFrom(1);
+    try {
+        session.start();
+        test::failThreadAllocationsFrom(0);
+        session.stop();
+        ADD_FAILURE() << "start() made its thread without allocating";
+    } catch (const std::bad_alloc&) {
+        test::failThreadAllocationsFrom(0);
+    }
+    EXPECT_FALSE(session.running());
+    Snapshot s;
+    for (int i = 0; i < 500; ++i) s = session.step();
+    expectSafe(s, touchX());
+    EXPECT_GT(s.force.norm(), 0.3);
+    EXPECT_EQ(s.faultFlags, 0u);
 }
 
 TEST_F(SessionTest, FaultyTicksAllocateNothing) {

@@ -4,11 +4,13 @@
 // allocations, bad options.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
 #include <iostream>
 #include <limits>
+#include <new>
 #include <random>
 #include <string>
 #include <thread>
@@ -317,6 +319,50 @@ TEST(DeformableAsync, TicksAllocateNothing) {
     EXPECT_EQ(test::threadAllocationCount() - before, 0u);
     EXPECT_GT(contact, 300);
     regions->setSecondaryStalledForTest(false);
+}
+
+// Allocation failure at set-up on threaded regions (issue 38 item 4): the per-session body
+// starts the secondary's threads while it is built, so a failure on the host's thread after
+// they started must stop and join them on the way out (a joinable std::thread destroyed would
+// end the process). For 12 k across a whole construction: std::bad_alloc, no thread left
+// running; then a Session builds and presses.
+TEST(DeformableAsync, AnAllocationFailureAtSetUpStopsTheRegionsThreads) {
+    auto model = asyncCube(3e-3, /*threaded=*/true);
+    auto scene = deformableScene(model);
+    PathDevice device({{0.0, mm(0, -5, 0)}, {0.3, mm(0, 2, 0)}, {1.0, mm(0, 2, 0)}});
+    const std::uint64_t before = test::threadAllocationCount();
+    std::uint64_t total = 0;
+    {
+        Session probe(scene, device, vcParams(kAsyncK));
+        total = test::threadAllocationCount() - before;  // the construction's own
+    }
+    ASSERT_GT(total, 10u);
+    const std::uint64_t step = std::max<std::uint64_t>(1, total / 12);
+    int thrown = 0;
+    for (std::uint64_t k = 1; k <= total; k += step) {
+        const std::uint64_t failedBefore = test::threadFailedAllocations();
+        test::failThreadAllocationsFrom(k);
+        try {
+            Session s(scene, device, vcParams(kAsyncK));
+            test::failThreadAllocationsFrom(0);
+            // Built: only right when no throwing allocation was made to fail (the last ones
+            // may be nothrow, e.g. a sort's buffer, which falls back without one).
+            EXPECT_EQ(test::threadFailedAllocations(), failedBefore)
+                << "a failed allocation was swallowed (from " << k << " of " << total << ")";
+        } catch (const std::bad_alloc&) {
+            test::failThreadAllocationsFrom(0);
+            ++thrown;
+        }
+    }
+    EXPECT_GT(thrown, 0);
+    Session session(scene, device, vcParams(kAsyncK));
+    Snapshot s;
+    for (int i = 0; i < 600; ++i) {
+        s = session.step();
+        std::this_thread::sleep_for(std::chrono::microseconds(100));
+    }
+    EXPECT_TRUE(s.force.allFinite());
+    EXPECT_GT(s.contactCount, 0);
 }
 
 // (6) The regions' lod follows the zone a sliding contact needs. On the bone phantom's body at
