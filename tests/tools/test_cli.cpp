@@ -40,6 +40,25 @@ TEST(Cli, UnwritableOutputDirectoryIsRefusedBeforeWork) {
     EXPECT_NE(r.output.find("dir.vdb"), std::string::npos) << r.output;
 }
 
+// A press reaches the surface only after the session's start-up gate (50 quiet ticks) has
+// opened: a press that started 5 mm out met the surface 27 ms in at 300 mm/s (45 ms at the
+// default 100 mm/s on the head CT), the gate stayed shut under the force it then felt, and the
+// whole press rendered 0 N. Now it starts 0.15 s of its speed out: the force is k x depth less
+// the hand's give, and the report says when the target reached the surface.
+TEST(Cli, PalpatePressStartsFarEnoughOutForTheStartupGate) {
+    const auto r = runCommand(palp::test::palpTool().string() +
+                              " palpate --phantom avc --fast --trajectory press --depth 3"
+                              " --k-base 800 --speed 300 --json");
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    const auto brace = r.output.find('{');
+    ASSERT_NE(brace, std::string::npos) << r.output;
+    const auto j = nlohmann::json::parse(r.output.substr(brace), nullptr, false);
+    ASSERT_FALSE(j.is_discarded()) << r.output;
+    EXPECT_GT(j["max_force_n"].get<double>(), 1.5);  // ~800 N/m x 3 mm, less the give
+    EXPECT_LE(j["max_force_n"].get<double>(), 3.3);  // the Touch's maximum
+    EXPECT_GT(j["path_pressed_from_s"].get<double>(), 0.05);  // after the gate's 50 ms
+}
+
 // `palp palpate --deformable` presses the bone phantom with the same coupling on the whole-mesh
 // explicit solver and on the asynchronous regions (synchronous, as --fast runs them): the press
 // does not move the contact, so both solve the same tissue and must feel the same.

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <limits>
+#include <numbers>
 
 #include "commands.h"
 #include "palp/base/error.h"
@@ -368,11 +369,19 @@ PathPlan trajectoryFromOptions(const PalpateArgs& a, const PathFrame& f,
         approach = c.approachSeconds + c.rampSeconds;
         pressedFrom = c.approachSeconds;
     } else {
+        // The hand starts outside the surface, far enough that the session's start-up gate
+        // (50 quiet ticks) has opened before it meets the skin: 5 mm, or 0.15 s at its speed
+        // when that is longer. From 5 mm at 100 mm/s it met the skin 45 ms in, the gate never
+        // opened under the force it then felt, and a press on the head CT rendered nothing.
+        const double out = std::max(5e-3, 0.15 * speed * 1e-3);
         haptics::PressTrajectory p;
         p.direction = press;
-        p.start = f.centre - 5e-3 * press;  // start 5 mm outside the surface
-        p.depthM = depth + 5e-3;
-        p.pressSeconds = (depth + 5e-3) / (speed * 1e-3);
+        p.start = f.centre - out * press;
+        p.depthM = depth + out;
+        p.pressSeconds = (depth + out) / (speed * 1e-3);
+        // When the target reaches the surface on the press's cosine profile.
+        approach = pressedFrom =
+            p.pressSeconds * std::acos(1 - 2 * out / (depth + out)) / std::numbers::pi;
         p.holdSeconds = a.holdSeconds;
         p.skin = skin;
         traj = p;
