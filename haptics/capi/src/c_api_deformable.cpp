@@ -183,9 +183,9 @@ void palp_deformable_options_default(palp_deformable_options* options) {
     c.contact_damping_ratio = d.options.contactDampingRatio;
     c.period = d.options.tickSeconds;
     c.solver = PALP_FEM_AUTO;  // palp palpate's and Python's: the regions on a patient's CT
-    c.primary_nodes = 60;      // palp palpate's: the regions' 30 left the contact's
-    c.secondary_rate = 100;    // neighbourhood in the secondary (bench/README.md)
-    c.lod = 0;
+    c.primary_nodes = d.options.regions.primaryNodes;  // palp palpate's (DeformableSetup)
+    c.secondary_rate = d.options.regions.secondaryRate;
+    c.lod = d.options.regions.lod;
     c.threaded = d.options.regions.threaded ? 1 : 0;
     for (double& x : c.regions_centre) x = std::numeric_limits<double>::quiet_NaN();
     c.inside_bone = d.voxelize.insideBone == palp::fem::InsideBone::drop ? PALP_INSIDE_BONE_DROP

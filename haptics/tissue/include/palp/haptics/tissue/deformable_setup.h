@@ -71,8 +71,18 @@ struct DeformableSetup {
     /// (and then the scan must have some).
     std::optional<fem::BoxFace> supportFace;
     /// Filter, solver kind, regions. regions.lod 0 asks for autoRegionsLod(); the servo period
-    /// goes in tickSeconds and regions.tickSeconds (setPeriod()).
-    DeformableOptions options;
+    /// goes in tickSeconds and regions.tickSeconds (setPeriod()). The regions as `palp palpate`
+    /// and the C API run them: 60 seeds, the secondary at 100 Hz, the lod from the lattice (the
+    /// regions' own 30 seeds at 50 Hz and lod 1 left the contact's neighbourhood in the
+    /// secondary: on the bone phantom's circle, live, 9-41 ticks a 10 s window at the 3.3 N
+    /// clamp where `palp palpate` had none).
+    DeformableOptions options = [] {
+        DeformableOptions o;
+        o.regions.primaryNodes = 60;
+        o.regions.secondaryRate = 100;
+        o.regions.lod = 0;
+        return o;
+    }();
     /// true: options.solverKind is chosen by chooseSolver() (`palp palpate --fem-solver auto`,
     /// the default there): the whole mesh where it makes the tick, the regions otherwise.
     bool autoSolver = false;
