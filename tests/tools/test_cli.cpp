@@ -54,8 +54,8 @@ TEST(Cli, PalpatePressStartsFarEnoughOutForTheStartupGate) {
     ASSERT_NE(brace, std::string::npos) << r.output;
     const auto j = nlohmann::json::parse(r.output.substr(brace), nullptr, false);
     ASSERT_FALSE(j.is_discarded()) << r.output;
-    EXPECT_GT(j["max_force_n"].get<double>(), 1.5);  // ~800 N/m x 3 mm, less the give
-    EXPECT_LE(j["max_force_n"].get<double>(), 3.3);  // the Touch's maximum
+    EXPECT_GT(j["max_force_n"].get<double>(), 1.5);           // ~800 N/m x 3 mm, less the give
+    EXPECT_LE(j["max_force_n"].get<double>(), 3.3);           // the Touch's maximum
     EXPECT_GT(j["path_pressed_from_s"].get<double>(), 0.05);  // after the gate's 50 ms
 }
 
