@@ -5,8 +5,10 @@
 #include <gdcmAttribute.h>
 #include <gdcmImageWriter.h>
 #include <gdcmMediaStorage.h>
+#include <gdcmReader.h>
 #include <gdcmTrace.h>
 #include <gdcmUIDGenerator.h>
+#include <gdcmWriter.h>
 #include <gtest/gtest.h>
 #include <nifti2_io.h>
 
@@ -93,16 +95,26 @@ std::string num(double v) {
     return buf;
 }
 
-/// Writes time point @p t of the known volume as one MOSAIC file; the CSA normal is the
-/// plane's normal times @p sign (Siemens stores descending slices with the normal reversed).
-void writeMosaic(const Known& known, const fs::path& file, int t, double sign,
-                 const std::string& seriesUid, int imagesInMosaic = Known::kSlices) {
-    constexpr int cols = Known::kCols * Known::kGrid, rows = Known::kRows * Known::kGrid;
-    std::vector<std::int16_t> pixels(cols * rows, 0);
-    for (int k = 0; k < Known::kSlices; ++k) {
-        const int c0 = (k % Known::kGrid) * Known::kCols, r0 = (k / Known::kGrid) * Known::kRows;
-        for (int r = 0; r < Known::kRows; ++r)
-            for (int c = 0; c < Known::kCols; ++c)
+/// How a mosaic file is laid out and stored.
+struct MosaicSpec {
+    int tileCols = Known::kCols, tileRows = Known::kRows, slices = Known::kSlices,
+        grid = Known::kGrid;
+    int imagesInMosaic = Known::kSlices;  ///< the value of (0019,100A)
+    bool csaCount = true;                 ///< the CSA header also holds NumberOfImagesInMosaic
+    gdcm::TransferSyntax::TSType syntax = gdcm::TransferSyntax::ExplicitVRLittleEndian;
+};
+
+/// Writes time point @p t of the known geometry as one MOSAIC file of layout @p spec, tile k
+/// holding Known::value(c, r, k, t); the CSA normal is the plane's normal times @p sign (Siemens
+/// stores descending slices with the normal reversed).
+void writeMosaicFile(const Known& known, const MosaicSpec& spec, const fs::path& file, int t,
+                     double sign, const std::string& seriesUid) {
+    const int cols = spec.tileCols * spec.grid, rows = spec.tileRows * spec.grid;
+    std::vector<std::int16_t> pixels(static_cast<std::size_t>(cols * rows), 0);
+    for (int k = 0; k < spec.slices; ++k) {
+        const int c0 = (k % spec.grid) * spec.tileCols, r0 = (k / spec.grid) * spec.tileRows;
+        for (int r = 0; r < spec.tileRows; ++r)
+            for (int c = 0; c < spec.tileCols; ++c)
                 pixels[static_cast<std::size_t>((r0 + r) * cols + c0 + c)] =
                     Known::value(c, r, k, t);
     }
@@ -110,8 +122,8 @@ void writeMosaic(const Known& known, const fs::path& file, int t, double sign,
     gdcm::ImageWriter writer;
     gdcm::Image& image = writer.GetImage();
     image.SetNumberOfDimensions(2);
-    image.SetDimension(0, cols);
-    image.SetDimension(1, rows);
+    image.SetDimension(0, static_cast<unsigned>(cols));
+    image.SetDimension(1, static_cast<unsigned>(rows));
     image.SetPixelFormat(gdcm::PixelFormat(gdcm::PixelFormat::INT16));
     image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
     const Eigen::Vector3d u = known.rowCosine(), v = known.columnCosine();
@@ -123,8 +135,8 @@ void writeMosaic(const Known& known, const fs::path& file, int t, double sign,
     // Image Position (Patient) of a mosaic: the corner of a tile-sized image centred on the
     // whole mosaic, i.e. the first slice's corner moved back by half the extra columns and rows.
     const Eigen::Vector3d ipp = known.firstMm -
-                                u * Known::kColSpacing * (cols - Known::kCols) / 2.0 -
-                                v * Known::kRowSpacing * (rows - Known::kRows) / 2.0;
+                                u * Known::kColSpacing * (cols - spec.tileCols) / 2.0 -
+                                v * Known::kRowSpacing * (rows - spec.tileRows) / 2.0;
     const double origin[3] = {ipp.x(), ipp.y(), ipp.z()};
     image.SetOrigin(origin);
     image.SetOrigin(2, ipp.z());  // a 2D gdcm::Image keeps two components of the array
@@ -132,8 +144,9 @@ void writeMosaic(const Known& known, const fs::path& file, int t, double sign,
     pd.SetByteValue(reinterpret_cast<const char*>(pixels.data()),
                     static_cast<std::uint32_t>(pixels.size() * 2));
     image.SetDataElement(pd);
+    image.SetTransferSyntax(spec.syntax);
     gdcm::File& f = writer.GetFile();
-    f.GetHeader().SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
+    f.GetHeader().SetDataSetTransferSyntax(spec.syntax);
     gdcm::DataSet& ds = f.GetDataSet();
     setText(ds, 0x0008, 0x0016, gdcm::VR::UI,
             gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage));
@@ -154,20 +167,30 @@ void writeMosaic(const Known& known, const fs::path& file, int t, double sign,
     setText(ds, 0x0019, 0x0010, gdcm::VR::LO, "SIEMENS MR HEADER");
     gdcm::DataElement count(gdcm::Tag(0x0019, 0x100a));
     count.SetVR(gdcm::VR::US);
-    const auto n = static_cast<std::uint16_t>(imagesInMosaic);
+    const auto n = static_cast<std::uint16_t>(spec.imagesInMosaic);
     count.SetByteValue(reinterpret_cast<const char*>(&n), 2);
     ds.Replace(count);
     setText(ds, 0x0029, 0x0010, gdcm::VR::LO, "SIEMENS CSA HEADER");
     const Eigen::Vector3d sn = sign * known.normal();
-    const std::string csa =
-        csaHeader({{"NumberOfImagesInMosaic", {std::to_string(Known::kSlices)}},
-                   {"SliceNormalVector", {num(sn.x()), num(sn.y()), num(sn.z())}}});
+    std::vector<std::pair<std::string, std::vector<std::string>>> csaTags;
+    if (spec.csaCount)
+        csaTags.push_back({"NumberOfImagesInMosaic", {std::to_string(spec.imagesInMosaic)}});
+    csaTags.push_back({"SliceNormalVector", {num(sn.x()), num(sn.y()), num(sn.z())}});
+    const std::string csa = csaHeader(csaTags);
     gdcm::DataElement csaElement(gdcm::Tag(0x0029, 0x1010));
     csaElement.SetVR(gdcm::VR::OB);
     csaElement.SetByteValue(csa.data(), static_cast<std::uint32_t>(csa.size()));
     ds.Replace(csaElement);
     writer.SetFileName(file.c_str());
     ASSERT_TRUE(writer.Write());
+}
+
+/// Writes time point @p t of the known volume as one MOSAIC file (7 slices of 6x5 in a 3x3 grid).
+void writeMosaic(const Known& known, const fs::path& file, int t, double sign,
+                 const std::string& seriesUid, int imagesInMosaic = Known::kSlices) {
+    MosaicSpec spec;
+    spec.imagesInMosaic = imagesInMosaic;
+    writeMosaicFile(known, spec, file, t, sign, seriesUid);
 }
 
 void expectKnownSlices(const Known& known, const SliceStack& st, int t, double sign) {
@@ -227,6 +250,84 @@ TEST(DicomMosaic, SliceCountThatDoesNotTileIsRefused) {
         [&] { palp::volume::readStack({tmp / "m.dcm"}, {}); },
         {(tmp / "m.dcm").string() + ": expected a mosaic of 4x4 equal tiles for 10 slices",
          "18x15"});
+}
+
+// Number Of Images In Mosaic (0019,100A) is US: 51 slices are the bytes 33 00, and 0x33 is the
+// digit '3'. Read as text (the old reader tried text first and trimmed the NUL), 51 slices became
+// 3 tiles of an 8x8 grid, a 344x344x3 grid of the public Siemens mosaic, without a word. The
+// layout here is that file's (51 slices in 8x8 tiles; the CSA header without a count, so the tag
+// alone decides), with small tiles; once as explicit VR (US declared) and once as implicit VR
+// little endian (no VR in the file: the count's known VR and its 2-byte length decide).
+TEST(DicomMosaic, CountWhoseLowByteIsAnAsciiDigitIsReadAsUs) {
+    const Known known;
+    TempDir tmp;
+    MosaicSpec spec;
+    spec.tileCols = 3;
+    spec.tileRows = 2;
+    spec.slices = spec.imagesInMosaic = 51;
+    spec.grid = 8;
+    spec.csaCount = false;
+    for (const auto syntax : {gdcm::TransferSyntax::ExplicitVRLittleEndian,
+                              gdcm::TransferSyntax::ImplicitVRLittleEndian}) {
+        const bool implicit = syntax == gdcm::TransferSyntax::ImplicitVRLittleEndian;
+        SCOPED_TRACE(implicit ? "implicit VR" : "explicit VR");
+        spec.syntax = syntax;
+        const fs::path dir = tmp / (implicit ? "implicit" : "explicit");
+        fs::create_directories(dir);
+        writeMosaicFile(
+            known, spec, dir / "m.dcm", 0, 1.0,
+            implicit ? "1.2.826.0.1.3680043.2.1125.7.6" : "1.2.826.0.1.3680043.2.1125.7.5");
+        const auto series = palp::volume::scanDicom({dir});
+        ASSERT_EQ(series.size(), 1u);
+        EXPECT_EQ(series[0].positionCount, 51);
+        const SliceStack st = palp::volume::readStack({dir}, {});
+        ASSERT_EQ(st.slices.size(), 51u);
+        EXPECT_EQ(st.info.originalDims, (std::array<std::int64_t, 3>{3, 2, 51}));
+        for (int k = 0; k < 51; ++k) {
+            const auto& sl = st.slices[static_cast<std::size_t>(k)];
+            ASSERT_EQ(sl.cols, 3);
+            ASSERT_EQ(sl.rows, 2);
+            for (int r = 0; r < 2; ++r) {
+                for (int c = 0; c < 3; ++c) {
+                    const Eigen::Vector3d p = sl.position + c * sl.colStep + r * sl.rowStep;
+                    EXPECT_LT((p * 1e3 - known.worldMm(c, r, k, 1.0)).norm(), 1e-6)
+                        << "slice " << k << " pixel " << c << "," << r;
+                    EXPECT_EQ(sl.values[static_cast<std::size_t>(r * 3 + c)],
+                              Known::value(c, r, k, 0));
+                }
+            }
+        }
+        // The last slice lies 50 spacings along the normal from the first: 165 mm.
+        EXPECT_NEAR((st.slices.back().position - st.slices.front().position).norm() * 1e3,
+                    50 * Known::kSliceSpacing, 1e-6);
+    }
+}
+
+TEST(DicomMosaic, CountTagAndCsaHeaderThatDisagreeAreRefused) {
+    const Known known;
+    TempDir tmp;
+    MosaicSpec spec;
+    spec.imagesInMosaic = 7;
+    writeMosaicFile(known, spec, tmp / "m.dcm", 0, 1.0, "1.2.826.0.1.3680043.2.1125.7.7");
+    // The CSA header says 7 too: readable. Now the tag says 9 (still a 3x3 grid).
+    ASSERT_EQ(palp::volume::readStack({tmp / "m.dcm"}, {}).slices.size(), 7u);
+    gdcm::Reader reader;
+    reader.SetFileName((tmp / "m.dcm").c_str());
+    ASSERT_TRUE(reader.Read());
+    gdcm::DataElement count(gdcm::Tag(0x0019, 0x100a));
+    count.SetVR(gdcm::VR::US);
+    const std::uint16_t nine = 9;
+    count.SetByteValue(reinterpret_cast<const char*>(&nine), 2);
+    reader.GetFile().GetDataSet().Replace(count);
+    gdcm::Writer writer;
+    writer.SetFile(reader.GetFile());
+    writer.SetFileName((tmp / "n.dcm").c_str());
+    ASSERT_TRUE(writer.Write());
+    expectThrowWith<palp::FormatError>(
+        [&] { palp::volume::readStack({tmp / "n.dcm"}, {}); },
+        {(tmp / "n.dcm").string() + ": expected Number Of Images In Mosaic (0019,100A) and the "
+                                    "CSA image header's NumberOfImagesInMosaic to agree, found 9 "
+                                    "and 7"});
 }
 
 /// Converts one mosaic (CSA normal times @p sign) with dcm2niix and palp; every palp pixel centre

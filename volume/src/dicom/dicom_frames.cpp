@@ -7,9 +7,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
+#include <cstdio>
 #include <set>
 
+#include "dicom/dicom_element.h"
 #include "palp/base/error.h"
 
 namespace palp::volume::dicom {
@@ -25,26 +26,24 @@ const gdcm::Tag kPlaneOrientationSequence(0x0020, 0x9116);
 const gdcm::Tag kValueTransformSequence(0x0028, 0x9145);
 
 /// The value of @p t in @p ds as palp keeps values: trimmed text, or for UL values (binary in
-/// the file) the decimal numbers separated by '\'.
+/// the file, read by their VR: see numbersOf) the decimal numbers separated by '\'.
 std::optional<std::string> elementValue(const gdcm::DataSet& ds, const gdcm::Tag& t, bool ul) {
     if (!ds.FindDataElement(t)) return std::nullopt;
     const gdcm::DataElement& de = ds.GetDataElement(t);
-    const gdcm::ByteValue* bv = de.GetByteValue();
-    if (!bv || !bv->GetPointer() || bv->GetLength() == 0) return std::nullopt;
-    const std::string raw(bv->GetPointer(), bv->GetLength());
-    const gdcm::VR vr = de.GetVR();
-    if (ul && (vr == gdcm::VR::UL || vr == gdcm::VR::INVALID || vr == gdcm::VR::UN)) {
-        if (raw.size() % 4 != 0) return std::nullopt;
+    if (ul) {
+        const ElementNumbers n = numbersOf(de, gdcm::VR::UL);
+        if (n.values.empty()) return std::nullopt;
         std::string out;
-        for (std::size_t at = 0; at < raw.size(); at += 4) {
-            std::uint32_t v = 0;
-            std::memcpy(&v, raw.data() + at, 4);  // little endian, as palp reads DICOM
-            if (at) out += '\\';
-            out += std::to_string(v);
+        for (const double v : n.values) {
+            char buf[32];
+            std::snprintf(buf, sizeof buf, "%.10g", v);
+            out += (out.empty() ? "" : "\\") + std::string(buf);
         }
         return out;
     }
-    std::string s = trim(raw);
+    const gdcm::ByteValue* bv = de.GetByteValue();
+    if (!bv || !bv->GetPointer() || bv->GetLength() == 0) return std::nullopt;
+    std::string s = trim(std::string(bv->GetPointer(), bv->GetLength()));
     if (s.empty()) return std::nullopt;
     return s;
 }

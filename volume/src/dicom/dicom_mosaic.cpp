@@ -7,9 +7,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <set>
 
+#include "dicom/dicom_element.h"
 #include "dicom/dicom_pixels.h"
 #include "palp/base/error.h"
 
@@ -17,46 +19,42 @@ namespace palp::volume::dicom {
 
 namespace {
 
-const gdcm::Tag kMrHeaderCreator(0x0019, 0x0010);
-const gdcm::Tag kImagesInMosaic(0x0019, 0x100A);
-const gdcm::Tag kCsaCreator(0x0029, 0x0010);
-const gdcm::Tag kCsaImageHeader(0x0029, 0x1010);
-
-/// The raw bytes of @p tag in @p ds; empty when absent.
-std::string rawValue(const gdcm::DataSet& ds, const gdcm::Tag& tag) {
-    if (!ds.FindDataElement(tag)) return {};
-    const gdcm::ByteValue* bv = ds.GetDataElement(tag).GetByteValue();
-    if (!bv || !bv->GetPointer()) return {};
-    return std::string(bv->GetPointer(), bv->GetLength());
-}
-
-/// Whether the private block of @p creatorTag is @p expected, or has no creator at all (some
-/// anonymisers drop creators but keep the elements, as dcm2niix accepts).
-bool creatorIs(const gdcm::DataSet& ds, const gdcm::Tag& creatorTag, const char* expected) {
-    if (!ds.FindDataElement(creatorTag)) return true;
-    return trim(rawValue(ds, creatorTag)) == expected;
-}
-
 std::int32_t i32(const std::string& b, std::size_t at) {
     std::int32_t v = 0;
     std::memcpy(&v, b.data() + at, 4);
     return v;
 }
 
-/// Number Of Images In Mosaic (0019,100A): US (binary) in the Siemens files, text where a
-/// converter rewrote it; 0 when absent or unreadable.
-int imagesInMosaicTag(const gdcm::DataSet& ds) {
-    if (!creatorIs(ds, kMrHeaderCreator, "SIEMENS MR HEADER")) return 0;
-    const std::string v = rawValue(ds, kImagesInMosaic);
-    const std::string t = trim(v);
-    if (!t.empty() && std::all_of(t.begin(), t.end(), [](char c) { return c >= '0' && c <= '9'; }))
-        return t.size() < 6 ? std::stoi(t) : 0;
-    if (v.size() == 2) {
-        std::uint16_t n = 0;
-        std::memcpy(&n, v.data(), 2);  // little endian, as every Siemens MOSAIC is stored
-        return n;
+/// Number Of Images In Mosaic (0019,xx0A) of the "SIEMENS MR HEADER" block, read by its VR (US
+/// in Siemens files: bytes 33 00 are 51, not the text "3"; see numbersOf); 0 when absent or
+/// unusable, and then @p problem says what a present value held.
+int imagesInMosaicTag(const gdcm::DataSet& ds, std::string& problem) {
+    const auto tag = privateTag(ds, 0x0019, 0x0A, "SIEMENS MR HEADER");
+    if (!tag || !ds.FindDataElement(*tag)) return 0;
+    const ElementNumbers n = numbersOf(ds, *tag, gdcm::VR::US);
+    if (n.values.size() == 1 && n.values[0] >= 1 && n.values[0] <= 10000 &&
+        n.values[0] == std::floor(n.values[0])) {
+        return static_cast<int>(n.values[0]);
     }
+    std::string found = n.problem;
+    if (found.empty()) {
+        for (const double v : n.values) {
+            char buf[32];
+            std::snprintf(buf, sizeof buf, "%.10g", v);
+            found += (found.empty() ? "" : "\\") + std::string(buf);
+        }
+        found = "'" + found + "'";
+    }
+    problem = "; Number Of Images In Mosaic " + tagText(*tag) +
+              " held no count of 1 to 10000 but " + found;
     return 0;
+}
+
+/// The CSA Image Header (0029,xx10) of the "SIEMENS CSA HEADER" block (binary); empty when
+/// absent.
+std::string csaImageHeader(const gdcm::DataSet& ds) {
+    const auto tag = privateTag(ds, 0x0029, 0x10, "SIEMENS CSA HEADER");
+    return tag ? rawBytes(ds, *tag) : std::string();
 }
 
 }  // namespace
@@ -105,21 +103,28 @@ bool isMosaic(const Header& h) {
 
 MosaicLayout mosaicLayout(const Header& h, const gdcm::DataSet& ds) {
     const std::string file = h.path.string();
-    const std::string csa = creatorIs(ds, kCsaCreator, "SIEMENS CSA HEADER")
-                                ? rawValue(ds, kCsaImageHeader)
-                                : std::string();
+    const std::string csa = csaImageHeader(ds);
     MosaicLayout m;
-    m.slices = imagesInMosaicTag(ds);
-    if (m.slices < 1) {
-        const auto items = csaItems(csa, "NumberOfImagesInMosaic");
-        const auto n = items.empty() ? std::nullopt : parseNumber(items.front());
-        if (n && *n >= 1 && *n <= 10000) m.slices = static_cast<int>(std::lround(*n));
+    std::string problem;
+    m.slices = imagesInMosaicTag(ds, problem);
+    const auto items = csaItems(csa, "NumberOfImagesInMosaic");
+    const auto csaCount = items.empty() ? std::nullopt : parseNumber(items.front());
+    if (csaCount && *csaCount >= 1 && *csaCount <= 10000) {
+        const int n = static_cast<int>(std::lround(*csaCount));
+        if (m.slices >= 1 && m.slices != n) {
+            throw FormatError(file +
+                              ": expected Number Of Images In Mosaic (0019,100A) and the CSA "
+                              "image header's NumberOfImagesInMosaic to agree, found " +
+                              std::to_string(m.slices) + " and " + std::to_string(n));
+        }
+        m.slices = n;
     }
     if (m.slices < 1) {
         throw FormatError(file +
                           ": expected Number Of Images In Mosaic (0019,100A) or the CSA image "
                           "header's NumberOfImagesInMosaic for an Image Type MOSAIC image, found "
-                          "neither");
+                          "neither" +
+                          problem);
     }
     m.grid = 1;
     while (m.grid * m.grid < m.slices) ++m.grid;
