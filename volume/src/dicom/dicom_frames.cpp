@@ -203,7 +203,7 @@ std::vector<std::vector<const Header*>> framePositions(const std::string& name,
     const Eigen::Vector3d normal = g0.rowCosine.cross(g0.columnCosine).normalized();
     const double tolMm = 0.02 * std::min(g0.rowSpacing, g0.columnSpacing);
     std::vector<std::vector<const Header*>> positions = groupPositions(frames, normal, tolMm);
-    const TimeOrder order(frames);
+    const TimeOrder order(frames, positions);
     for (auto& grp : positions) {
         order.sort(grp);
         for (std::size_t i = 1; i < grp.size(); ++i) {

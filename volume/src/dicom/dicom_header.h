@@ -25,6 +25,8 @@ inline const gdcm::Tag kSeriesDescription(0x0008, 0x103e);
 inline const gdcm::Tag kSliceThickness(0x0018, 0x0050);
 inline const gdcm::Tag kSpacingBetweenSlices(0x0018, 0x0088);
 inline const gdcm::Tag kGantryTilt(0x0018, 0x1120);
+inline const gdcm::Tag kDiffusionBValue(0x0018, 0x9087);               // FD, s/mm^2
+inline const gdcm::Tag kDiffusionGradientOrientation(0x0018, 0x9089);  // FD x3
 inline const gdcm::Tag kSeriesUid(0x0020, 0x000e);
 inline const gdcm::Tag kAcquisitionNumber(0x0020, 0x0012);
 inline const gdcm::Tag kInstanceNumber(0x0020, 0x0013);

@@ -197,12 +197,12 @@ LazySliceStack openDicom(const std::vector<fs::path>& inputs, const ReadOptions&
     const int timePointCount = static_cast<int>(positions.front().size());
     const int timePoint = detail::chooseTimePoint(timePointCount, options, name);
 
-    const TimeOrder order(images);
+    const TimeOrder order(images, positions);
+    for (auto& grp : positions) order.sort(grp);
+    checkDiffusionPerTimePoint(name, positions, order);
     std::vector<const Header*> chosen;
-    for (auto& grp : positions) {
-        order.sort(grp);
+    for (const auto& grp : positions)
         chosen.push_back(grp[static_cast<std::size_t>(std::max(timePoint, 0))]);
-    }
 
     if (isMosaic(first)) {
         return {readMosaicSeries(images, chosen, name, series.uid, inputs, options, timePoint,

@@ -91,7 +91,8 @@ Scan scanHeaders(const std::vector<fs::path>& inputs) {
                               kBitsAllocated,     kRescaleIntercept,
                               kRescaleSlope,      kImageType,
                               kSliceThickness,    kSpacingBetweenSlices,
-                              kSopInstanceUid,    kNumberOfTemporalPositions};
+                              kSopInstanceUid,    kNumberOfTemporalPositions,
+                              kDiffusionBValue,   kDiffusionGradientOrientation};
     // Only DICOM Part 10 files ("DICM" at byte 128) are read, and only those whose structure is
     // complete reach GDCM.
     std::vector<std::string> complete;

@@ -2,6 +2,8 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <map>
 
 #include "palp/base/error.h"
@@ -83,7 +85,8 @@ std::vector<std::vector<const Header*>> positionGroups(const std::string& name,
     return positions;
 }
 
-TimeOrder::TimeOrder(const std::vector<const Header*>& images) {
+TimeOrder::TimeOrder(const std::vector<const Header*>& images,
+                     const std::vector<std::vector<const Header*>>& positions) {
     bool first = true;
     for (const Header* h : images) {
         useTemporalIndex = useTemporalIndex && h->number(kTemporalPositionIndex).has_value();
@@ -114,6 +117,15 @@ TimeOrder::TimeOrder(const std::vector<const Header*>& images) {
     useTemporalIndex = useTemporalIndex && varies(kTemporalPositionIndex);
     useFrameTime = useFrameTime && varies(kFrameAcquisitionDateTime);
     useDimensionIndex = useDimensionIndex && varies(kDimensionIndexValues);
+    instanceDecides =
+        useInstance &&
+        std::all_of(positions.begin(), positions.end(), [](const std::vector<const Header*>& grp) {
+            std::vector<double> n;
+            for (const Header* h : grp) n.push_back(*h->number(kInstanceNumber));
+            std::sort(n.begin(), n.end());
+            return std::adjacent_find(n.begin(), n.end()) == n.end();
+        });
+    if (instanceDecides) useAcqNumber = useAcqTime = useContentTime = false;
 }
 
 std::vector<double> TimeOrder::key(const Header& h) const {
@@ -161,6 +173,64 @@ void TimeOrder::sort(std::vector<const Header*>& images) const {
         return a.second->frame < b.second->frame;
     });
     for (std::size_t i = 0; i < images.size(); ++i) images[i] = keyed[i].second;
+}
+
+namespace {
+
+std::string numberText(double v) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.6g", v);
+    return buf;
+}
+
+}  // namespace
+
+void checkDiffusionPerTimePoint(const std::string& name,
+                                const std::vector<std::vector<const Header*>>& positions,
+                                const TimeOrder& order) {
+    const auto all = [&](const gdcm::Tag& t, std::size_t count) {
+        for (const auto& grp : positions) {
+            for (const Header* h : grp) {
+                const std::string* v = h->get(t);
+                const auto n = v ? parseNumbers(*v) : std::nullopt;
+                if (!n || n->size() != count) return false;
+            }
+        }
+        return !positions.empty();
+    };
+    if (!all(kDiffusionBValue, 1)) return;
+    const bool gradients = all(kDiffusionGradientOrientation, 3);
+    const std::size_t timePoints = positions.front().size();
+    for (std::size_t t = 0; t < timePoints; ++t) {
+        const Header* ref = nullptr;
+        for (const auto& grp : positions) {
+            if (t >= grp.size()) continue;
+            const Header* h = grp[t];
+            if (!ref) {
+                ref = h;
+                continue;
+            }
+            const double b0 = *ref->number(kDiffusionBValue), b = *h->number(kDiffusionBValue);
+            bool same = std::abs(b - b0) <= 1e-3;
+            if (same && gradients) {
+                const auto g0 = *parseNumbers(ref->text(kDiffusionGradientOrientation));
+                const auto g = *parseNumbers(h->text(kDiffusionGradientOrientation));
+                for (std::size_t i = 0; i < 3; ++i) same = same && std::abs(g[i] - g0[i]) <= 1e-4;
+            }
+            if (same) continue;
+            const auto weighting = [&](const Header& x) {
+                std::string w = "b = " + numberText(*x.number(kDiffusionBValue)) + " s/mm^2";
+                if (gradients) w += ", gradient (" + x.text(kDiffusionGradientOrientation) + ")";
+                return w;
+            };
+            throw ValueError(name + ": expected one diffusion weighting per time point, found " +
+                             weighting(*ref) + " in " + ref->label() + " and " + weighting(*h) +
+                             " in " + h->label() + " at time point " + std::to_string(t) +
+                             " (images ordered by " + order.describe(*h) +
+                             "); the order of the images in time cannot be told from their "
+                             "keys");
+        }
+    }
 }
 
 void checkMemory(const std::string& name, int cols, int rows, std::size_t slices,

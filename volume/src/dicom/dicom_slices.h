@@ -35,17 +35,27 @@ void checkSameCount(const std::string& name,
 
 /// Orders the images of one position in time. Frames of enhanced files first by their own
 /// Temporal Position Index (0020,9128), Frame Acquisition DateTime (0018,9074) and Dimension
-/// Index Values (0020,9157); then, for every image, TemporalPositionIdentifier, AcquisitionNumber,
-/// AcquisitionTime (or ContentTime), InstanceNumber; then file name and frame. A key is used
-/// only when every image of the series has it, so the comparison stays a strict weak order; a
-/// frame-level key only when its value varies over the series.
+/// Index Values (0020,9157); then, for every image, TemporalPositionIdentifier (0020,0100); then
+/// InstanceNumber (0020,0013) where no two images of one position share one (as dcm2niix orders
+/// classic files: the scanner numbers images in acquisition order); only where instance numbers
+/// repeat at a position (they restart with each acquisition) AcquisitionNumber, AcquisitionTime
+/// (or ContentTime), InstanceNumber. Then file name and frame. AcquisitionNumber is not trusted
+/// before the instance number because it need not be constant over a volume: a Philips classic
+/// DTI series numbers the images of one b = 0 volume 19 and 22, and ordering by it put 10 of 82
+/// positions' b = 1000 images into volume 0. A key is used only when every image of the series
+/// has it, so the comparison stays a strict weak order; a frame-level key only when its value
+/// varies over the series. checkDiffusionPerTimePoint() refuses what the order cannot fix.
 struct TimeOrder {
     bool useTemporalIndex = true, useFrameTime = true, useDimensionIndex = true;
     bool useTemporal = true, useAcqNumber = true, useAcqTime = true, useContentTime = true,
          useInstance = true;
+    /// Instance numbers are unique at every position: they alone order it after the keys above.
+    bool instanceDecides = false;
     std::size_t dimensionCount = 0;
 
-    explicit TimeOrder(const std::vector<const Header*>& images);
+    /// The order of @p images, grouped by position in @p positions (groupPositions()).
+    TimeOrder(const std::vector<const Header*>& images,
+              const std::vector<std::vector<const Header*>>& positions);
 
     /// The time key of @p h (the keys in use, in order).
     std::vector<double> key(const Header& h) const;
@@ -60,6 +70,16 @@ struct TimeOrder {
     /// Sorts @p images (of one position) in time; ties by file name, then frame.
     void sort(std::vector<const Header*>& images) const;
 };
+
+/// Checks that each time point of @p positions (each group in time order) holds one diffusion
+/// weighting: where every image has Diffusion b-value (0018,9087), all the images of a time point
+/// must have the same b-value (1e-3 s/mm^2), and where every image also has Diffusion Gradient
+/// Orientation (0018,9089), the same orientation (1e-4). A volume that mixes them would be a
+/// silently wrong image.
+/// @throw ValueError naming @p name, the time point, the two images and their values.
+void checkDiffusionPerTimePoint(const std::string& name,
+                                const std::vector<std::vector<const Header*>>& positions,
+                                const TimeOrder& order);
 
 /// Refuses @p slices slices of @p cols x @p rows floats when they exceed @p limit bytes.
 /// @throw ValueError naming @p name.

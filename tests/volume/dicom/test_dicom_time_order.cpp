@@ -1,0 +1,214 @@
+// The time order of a classic (one image per file) 4D series: which image of each slice position
+// belongs to which time point. Series made at test time in the layout of a Philips classic DTI
+// export (a b = 0 and a b = 1000 volume, Instance Numbers in acquisition order, Acquisition
+// Number not constant over a volume), of a series whose instance numbers restart with each
+// acquisition, and of one whose keys cannot tell the order at all.
+#include <gdcmImageWriter.h>
+#include <gdcmMediaStorage.h>
+#include <gdcmTrace.h>
+#include <gdcmUIDGenerator.h>
+#include <gtest/gtest.h>
+
+#include <cstdint>
+#include <cstdio>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "palp/base/error.h"
+#include "palp/volume/dicom.h"
+#include "palp/volume/load.h"
+#include "test_support.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using palp::test::expectThrowWith;
+using palp::test::TempDir;
+using palp::volume::SliceStack;
+
+constexpr int kCols = 4, kRows = 3, kPositions = 12;
+constexpr double kPixelMm = 2.0, kGapMm = 3.0;
+
+/// The stored value of pixel (c, r) at position k of time point t: b = 0 images are bright,
+/// diffusion-weighted ones dark, as in a DTI series.
+std::int16_t value(int c, int r, int k, int t) {
+    return static_cast<std::int16_t>((t == 0 ? 2000 : 300) + 10 * k + 4 * r + c);
+}
+
+/// The tags of one image that decide its time point.
+struct ImageKeys {
+    int instance = 1;
+    int acquisition = 1;
+    double bValue = 0;
+    double gradient[3] = {0, 0, 0};
+};
+
+void setText(gdcm::DataSet& ds, std::uint16_t g, std::uint16_t e, gdcm::VR vr, std::string v) {
+    if (v.size() % 2) v.push_back(vr == gdcm::VR::UI ? '\0' : ' ');
+    gdcm::DataElement de(gdcm::Tag(g, e));
+    de.SetVR(vr);
+    de.SetByteValue(v.data(), static_cast<std::uint32_t>(v.size()));
+    ds.Replace(de);
+}
+
+void setDoubles(gdcm::DataSet& ds, std::uint16_t g, std::uint16_t e, const std::vector<double>& v) {
+    gdcm::DataElement de(gdcm::Tag(g, e));
+    de.SetVR(gdcm::VR::FD);
+    de.SetByteValue(reinterpret_cast<const char*>(v.data()),
+                    static_cast<std::uint32_t>(v.size() * sizeof(double)));
+    ds.Replace(de);
+}
+
+/// Writes the image of position @p k, time point @p t, an axial 4x3 slice k x 3 mm up, with the
+/// time keys @p keys (explicit VR little endian, as the Philips files are).
+void writeImage(const fs::path& file, int k, int t, const ImageKeys& keys,
+                const std::string& seriesUid) {
+    std::vector<std::int16_t> pixels(kCols * kRows);
+    for (int r = 0; r < kRows; ++r)
+        for (int c = 0; c < kCols; ++c)
+            pixels[static_cast<std::size_t>(r * kCols + c)] = value(c, r, k, t);
+    gdcm::Trace::WarningOff();
+    gdcm::ImageWriter writer;
+    gdcm::Image& image = writer.GetImage();
+    image.SetNumberOfDimensions(2);
+    image.SetDimension(0, kCols);
+    image.SetDimension(1, kRows);
+    image.SetPixelFormat(gdcm::PixelFormat(gdcm::PixelFormat::INT16));
+    image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
+    const double dir[6] = {1, 0, 0, 0, 1, 0};
+    image.SetDirectionCosines(dir);
+    const double spacing[3] = {kPixelMm, kPixelMm, kGapMm};
+    image.SetSpacing(spacing);
+    const double origin[3] = {-3.0, -2.0, kGapMm * k};
+    image.SetOrigin(origin);
+    image.SetOrigin(2, kGapMm * k);
+    gdcm::DataElement pd(gdcm::Tag(0x7fe0, 0x0010));
+    pd.SetByteValue(reinterpret_cast<const char*>(pixels.data()),
+                    static_cast<std::uint32_t>(pixels.size() * 2));
+    image.SetDataElement(pd);
+    gdcm::File& f = writer.GetFile();
+    f.GetHeader().SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
+    gdcm::DataSet& ds = f.GetDataSet();
+    setText(ds, 0x0008, 0x0016, gdcm::VR::UI,
+            gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage));
+    gdcm::UIDGenerator gen;
+    setText(ds, 0x0008, 0x0018, gdcm::VR::UI, gen.Generate());
+    setText(ds, 0x0008, 0x0008, gdcm::VR::CS, "ORIGINAL\\PRIMARY\\M_SE\\M\\SE");
+    setText(ds, 0x0008, 0x0060, gdcm::VR::CS, "MR");
+    setText(ds, 0x0008, 0x0070, gdcm::VR::LO, "Philips Medical Systems");
+    // One acquisition time for the whole series, as these exports give it: no help either.
+    setText(ds, 0x0008, 0x0032, gdcm::VR::TM, "101530.12");
+    setText(ds, 0x0008, 0x103e, gdcm::VR::LO, "DTI_low_iso");
+    setText(ds, 0x0018, 0x0050, gdcm::VR::DS, "3");
+    setText(ds, 0x0020, 0x000d, gdcm::VR::UI, seriesUid + ".1");
+    setText(ds, 0x0020, 0x000e, gdcm::VR::UI, seriesUid);
+    setText(ds, 0x0020, 0x0011, gdcm::VR::IS, "1001");
+    setText(ds, 0x0020, 0x0012, gdcm::VR::IS, std::to_string(keys.acquisition));
+    setText(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(keys.instance));
+    setText(ds, 0x0020, 0x0100, gdcm::VR::IS, "1");  // Temporal Position Identifier
+    setDoubles(ds, 0x0018, 0x9087, {keys.bValue});
+    setDoubles(ds, 0x0018, 0x9089, {keys.gradient[0], keys.gradient[1], keys.gradient[2]});
+    writer.SetFileName(file.c_str());
+    ASSERT_TRUE(writer.Write());
+}
+
+/// Writes a series of kPositions positions x 2 time points into @p dir, the keys of each image
+/// from @p keysOf(k, t); files named by a number that follows neither position nor time.
+void writeSeries(const fs::path& dir, const std::string& uid,
+                 const std::function<ImageKeys(int k, int t)>& keysOf) {
+    fs::create_directories(dir);
+    for (int k = 0; k < kPositions; ++k) {
+        for (int t = 0; t < 2; ++t) {
+            char name[32];
+            std::snprintf(name, sizeof name, "IM_%04d", (k * 7 + t * 13) % 97);
+            writeImage(dir / name, k, t, keysOf(k, t), uid);
+        }
+    }
+}
+
+/// Every slice of time point @p t holds that time point's values, at its position.
+void expectTimePoint(const fs::path& dir, int t) {
+    palp::volume::LoadOptions opt;
+    opt.timePoint = t;
+    const SliceStack st = palp::volume::readStack({dir}, opt);
+    ASSERT_EQ(st.slices.size(), static_cast<std::size_t>(kPositions));
+    EXPECT_EQ(st.info.timePoint, t);
+    EXPECT_EQ(st.info.timePointCount, 2);
+    int wrong = 0;
+    for (int k = 0; k < kPositions; ++k) {
+        const auto& s = st.slices[static_cast<std::size_t>(k)];
+        EXPECT_NEAR(s.position.z() * 1e3, kGapMm * k, 1e-9);
+        bool ok = true;
+        for (int r = 0; r < kRows; ++r)
+            for (int c = 0; c < kCols; ++c)
+                ok = ok && s.values[static_cast<std::size_t>(r * kCols + c)] == value(c, r, k, t);
+        if (!ok) ++wrong;
+    }
+    EXPECT_EQ(wrong, 0) << "positions of time point " << t << " holding another time point";
+}
+
+/// Philips classic DTI: instance numbers in acquisition order (the two images of a position
+/// next to each other), Acquisition Number 19 for most images but 22 for the b = 0 images of
+/// every fourth position. Ordered by Acquisition Number first (the old rule), those positions
+/// put their b = 1000 image into time point 0: 3 of 12 positions wrong, exit 0.
+ImageKeys philipsDti(int k, int t) {
+    ImageKeys keys;
+    keys.instance = 2 * k + t + 1;
+    keys.acquisition = t == 0 && k % 4 == 1 ? 22 : 19;
+    keys.bValue = t == 0 ? 0 : 1000;
+    if (t == 1) {
+        keys.gradient[0] = 0.6;
+        keys.gradient[1] = 0.8;
+    }
+    return keys;
+}
+
+TEST(DicomTimeOrder, VaryingAcquisitionNumberDoesNotMixDiffusionVolumes) {
+    TempDir tmp;
+    writeSeries(tmp / "dti", "1.2.826.0.1.3680043.2.1125.37.1", philipsDti);
+    const auto series = palp::volume::scanDicom({tmp / "dti"});
+    ASSERT_EQ(series.size(), 1u);
+    EXPECT_EQ(series[0].positionCount, kPositions);
+    EXPECT_EQ(series[0].timePointCount, 2);
+    expectTimePoint(tmp / "dti", 0);
+    expectTimePoint(tmp / "dti", 1);
+}
+
+TEST(DicomTimeOrder, InstanceNumbersRestartingPerAcquisitionOrderedByAcquisitionNumber) {
+    // Each volume its own acquisition whose instance numbers restart at 1: Instance Number
+    // repeats at every position, so Acquisition Number orders the time points.
+    TempDir tmp;
+    writeSeries(tmp / "s", "1.2.826.0.1.3680043.2.1125.37.2", [](int k, int t) {
+        ImageKeys keys = philipsDti(k, t);
+        keys.instance = k + 1;
+        keys.acquisition = t + 1;
+        return keys;
+    });
+    expectTimePoint(tmp / "s", 0);
+    expectTimePoint(tmp / "s", 1);
+}
+
+TEST(DicomTimeOrder, TimePointThatWouldMixDiffusionWeightingsIsRefused) {
+    // At position 5 the b = 1000 image has the smaller instance number (and the smaller
+    // acquisition number): no key orders it after the b = 0 image. Reading time point 0 would
+    // give a volume with one diffusion-weighted slice; it is refused, naming both images.
+    TempDir tmp;
+    writeSeries(tmp / "s", "1.2.826.0.1.3680043.2.1125.37.3", [](int k, int t) {
+        ImageKeys keys = philipsDti(k, t);
+        if (k == 5) keys.instance = 2 * k + (1 - t) + 1;
+        return keys;
+    });
+    for (const int t : {0, 1}) {
+        palp::volume::LoadOptions opt;
+        opt.timePoint = t;
+        expectThrowWith<palp::ValueError>(
+            [&] { palp::volume::readStack({tmp / "s"}, opt); },
+            {"expected one diffusion weighting per time point, found b = 0 s/mm^2, gradient "
+             "(0\\0\\0) in ",
+             "and b = 1000 s/mm^2, gradient (0.6\\0.8\\0) in ", "at time point 0",
+             "(images ordered by Temporal Position Identifier 1, Instance Number 11)"});
+    }
+}
+
+}  // namespace
