@@ -7,11 +7,16 @@
 #include <gdcmReader.h>
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <string>
 #include <vector>
@@ -175,6 +180,144 @@ TEST(DicomSyntax, DamagedJpeg2000IsRefusedWhereGdcmDecodesIt) {
              "1.2.840.10008.1.2.4.90 (JPEG 2000 Image Compression (Lossless Only))",
              "found a damaged code-block (OpenJPEG: PTERM check failure"});
     }
+}
+
+/// What @p fn writes to the process's stderr (libjpeg's warnings go there through fprintf).
+std::string capturedStderr(const std::function<void()>& fn) {
+    std::fflush(stderr);
+    char path[] = "/tmp/palp_stderr_XXXXXX";
+    const int fd = mkstemp(path);
+    if (fd < 0) {
+        fn();
+        return {};
+    }
+    const int saved = dup(2);
+    dup2(fd, 2);
+    fn();
+    std::fflush(stderr);
+    dup2(saved, 2);
+    close(saved);
+    close(fd);
+    const std::string text = readBytes(path);
+    std::remove(path);
+    return text;
+}
+
+/// Two 160x128 slices with texture (a smooth pattern plus deterministic noise, so that the
+/// lossless JPEG stream is tens of KiB), written by palp's DICOM writer into @p dir.
+void writeTexturedSeries(const fs::path& dir) {
+    SliceStack stack;
+    std::uint32_t seed = 12345;
+    for (int k = 0; k < 2; ++k) {
+        Slice s;
+        s.cols = 160;
+        s.rows = 128;
+        s.colStep = Eigen::Vector3d(0.8e-3, 0, 0);
+        s.rowStep = Eigen::Vector3d(0, 0.8e-3, 0);
+        s.position = Eigen::Vector3d(0, 0, 2e-3 * k);
+        s.source = "slice";
+        for (int r = 0; r < s.rows; ++r) {
+            for (int c = 0; c < s.cols; ++c) {
+                seed = seed * 1664525u + 1013904223u;
+                const double smooth = 400 * std::sin(0.07 * c + k) * std::cos(0.05 * r);
+                s.values.push_back(static_cast<float>(std::lround(smooth) + (seed >> 24) % 40));
+            }
+        }
+        stack.slices.push_back(s);
+    }
+    palp::volume::writeDicomSeries(stack, dir);
+}
+
+TEST(DicomSyntax, DamagedLosslessJpegIsRefusedWhereGdcmDecodesIt) {
+    if (!palp::test::haveProgram("gdcmconv"))
+        GTEST_SKIP() << "gdcmconv (libgdcm-tools) not installed";
+    TempDir tmp;
+    writeTexturedSeries(tmp / "plain");
+    fs::create_directories(tmp / "jpeg");
+    std::vector<fs::path> names;
+    for (const auto& e : fs::directory_iterator(tmp / "plain"))
+        names.push_back(e.path().filename());
+    std::sort(names.begin(), names.end());
+    ASSERT_EQ(names.size(), 2u);
+    for (const auto& n : names) {
+        // --jpeg: JPEG Lossless, Non-Hierarchical, First-Order Prediction (process 14, SV1).
+        const auto r = palp::test::runCommand("gdcmconv --jpeg '" + (tmp / "plain" / n).string() +
+                                              "' '" + (tmp / "jpeg" / n).string() + "'");
+        ASSERT_EQ(r.exitCode, 0) << r.output;
+    }
+    const SliceStack plain = palp::volume::readStack({tmp / "plain"}, {});
+    const SliceStack intact = palp::volume::readStack({tmp / "jpeg"}, {});
+    ASSERT_EQ(intact.slices.size(), 2u);
+    for (std::size_t k = 0; k < 2; ++k) EXPECT_EQ(intact.slices[k].values, plain.slices[k].values);
+
+    const fs::path file = tmp / "jpeg" / names[1];
+    const std::string bytes = readBytes(file);
+    const std::size_t sos = bytes.find("\xFF\xDA");
+    const std::size_t eoi = bytes.rfind("\xFF\xD9");
+    ASSERT_NE(sos, std::string::npos);
+    ASSERT_NE(eoi, std::string::npos);
+    ASSERT_GT(eoi - sos, std::size_t{16384}) << "the stream should span several 4 KiB blocks";
+    std::vector<char> good;
+    ASSERT_TRUE(gdcmDecodes(file, good));
+    const std::vector<std::string> refusal = {
+        file.string() +
+            ": expected intact lossless JPEG pixel data (transfer syntax "
+            "1.2.840.10008.1.2.4.70 (",
+        "), found ", " in frame 1 of 1"};
+    // One byte inverted at 41 places spread over the entropy-coded data. Where GDCM decodes the
+    // file and its libjpeg says "Corrupt JPEG data" on stderr (the case: other pixels,
+    // exit 0), palp must refuse it; where libjpeg says nothing, palp finds most changes too.
+    int warnedOnly = 0, refused = 0, tried = 0;
+    for (int k = 0; k < 41; ++k) {
+        std::string damaged = bytes;
+        const std::size_t pos = sos + 16 + (eoi - sos - 20) * static_cast<std::size_t>(k) / 41;
+        damaged[pos] = static_cast<char>(~damaged[pos]);
+        palp::test::writeFile(file, damaged);
+        std::vector<char> bad;
+        bool decoded = false;
+        const std::string stderrText = capturedStderr([&] { decoded = gdcmDecodes(file, bad); });
+        bool threw = false;
+        try {
+            palp::volume::readStack({file}, {});
+        } catch (const palp::FormatError& e) {
+            threw = true;
+            // Where GDCM fails the stream itself (two libjpeg warnings) palp's walk names the
+            // damage too; the message is GDCM's failure only if the walk finds nothing.
+            const std::string msg = e.what();
+            if (decoded || msg.find("cannot be decoded") == std::string::npos) {
+                for (const auto& part : refusal)
+                    EXPECT_NE(msg.find(part), std::string::npos) << msg;
+            }
+        }
+        ++tried;
+        refused += threw ? 1 : 0;
+        if (decoded && stderrText.find("Corrupt JPEG data") != std::string::npos) {
+            ++warnedOnly;
+            EXPECT_NE(bad, good) << "the change at byte " << pos << " changed no pixel";
+            EXPECT_TRUE(threw) << "libjpeg warned (" << stderrText << ") at byte " << pos
+                               << ", palp read the file";
+            if (warnedOnly == 1) {
+                // load() (as palp convert) refuses it too, whichever slice it decodes first.
+                expectThrowWith<palp::FormatError>([&] { palp::volume::load({tmp / "jpeg"}, {}); },
+                                                   refusal);
+            }
+        }
+    }
+    EXPECT_GE(warnedOnly, 3) << "too few changes that GDCM decodes with a libjpeg warning";
+    EXPECT_GE(refused, warnedOnly);
+    std::printf(
+        "lossless JPEG: %d of %d single-byte inversions refused; GDCM decoded %d of them "
+        "with only a libjpeg warning\n",
+        refused, tried, warnedOnly);
+    // A byte changed every 4 KiB of the file (libjpeg: "bad Huffman code", GDCM decodes).
+    std::string damaged = bytes;
+    for (std::size_t pos = sos + 4096; pos < eoi; pos += 4096)
+        damaged[pos] = static_cast<char>(damaged[pos] ^ 0x5A);
+    palp::test::writeFile(file, damaged);
+    expectThrowWith<palp::FormatError>([&] { palp::volume::readStack({file}, {}); }, refusal);
+    // The intact file reads again.
+    palp::test::writeFile(file, bytes);
+    EXPECT_EQ(palp::volume::readStack({file}, {}).slices[0].values, plain.slices[1].values);
 }
 
 /// A copy of @p from with Gantry/Detector Tilt (0018,1120) set to @p value.

@@ -11,6 +11,7 @@
 #include <type_traits>
 
 #include "dicom/dicom_j2k.h"
+#include "dicom/dicom_jpeg.h"
 #include "formats/raw_data.h"
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
@@ -30,9 +31,11 @@ std::string transferSyntaxOf(const gdcm::Pixmap& image) {
     return describeTransferSyntax(uid ? uid : "");
 }
 
-/// Refuses lossless JPEG 2000 pixel data that GDCM decoded but that is damaged (see
-/// checkLosslessJpeg2000); each frame's codestream starts a fragment with SOC and SIZ.
-void checkJpeg2000Frames(const std::string& file, const gdcm::Pixmap& image) {
+/// Refuses damaged pixel data that GDCM decoded without complaint: @p check (returning what is
+/// wrong, or nothing) is applied to each frame's codestream, a frame starting with a fragment
+/// whose first bytes are @p start; @p what names the codestreams ("JPEG 2000").
+void checkFrames(const std::string& file, const gdcm::Pixmap& image, const std::string& start,
+                 std::string (*check)(const unsigned char*, std::size_t), const char* what) {
     const gdcm::SequenceOfFragments* fragments = image.GetDataElement().GetSequenceOfFragments();
     if (!fragments) return;
     std::vector<unsigned char> bytes;
@@ -42,20 +45,18 @@ void checkJpeg2000Frames(const std::string& file, const gdcm::Pixmap& image) {
         if (!bv || !bv->GetPointer()) continue;
         const auto* p = reinterpret_cast<const unsigned char*>(bv->GetPointer());
         const std::size_t n = bv->GetLength();
-        if (n >= 4 && p[0] == 0xFF && p[1] == 0x4F && p[2] == 0xFF && p[3] == 0x51)
+        if (n >= start.size() && std::memcmp(p, start.data(), start.size()) == 0)
             starts.push_back(bytes.size());
         bytes.insert(bytes.end(), p, p + n);
     }
     if (starts.empty() || starts.front() != 0) starts.insert(starts.begin(), 0);
     starts.push_back(bytes.size());
     for (std::size_t k = 0; k + 1 < starts.size(); ++k) {
-        const std::string problem =
-            checkLosslessJpeg2000(bytes.data() + starts[k], starts[k + 1] - starts[k]);
+        const std::string problem = check(bytes.data() + starts[k], starts[k + 1] - starts[k]);
         if (problem.empty()) continue;
-        throw FormatError(
-            file + ": expected intact JPEG 2000 pixel data (transfer syntax " +
-            transferSyntaxOf(image) + "), found " + problem +
-            (starts.size() > 2 ? " in frame " + std::to_string(k + 1) : std::string()));
+        throw FormatError(file + ": expected intact " + what + " pixel data (transfer syntax " +
+                          transferSyntaxOf(image) + "), found " + problem + " in frame " +
+                          std::to_string(k + 1) + " of " + std::to_string(starts.size() - 1));
     }
 }
 
@@ -277,14 +278,20 @@ void decodeFile(const Header& h, int frames, gdcm::ImageReader& reader, std::vec
             std::to_string(length) + " bytes");
     }
     buffer.resize(length);
+    const char* uid = gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax());
     if (!image.GetBuffer(buffer.data())) {
+        // Say what is wrong where palp can tell (GDCM fails a JPEG stream after two warnings).
+        if (uid && isLosslessJpeg(uid))
+            checkFrames(file, image, "\xFF\xD8", checkLosslessJpeg, "lossless JPEG");
         throw FormatError(file + ": expected complete pixel data of " +
                           pixelDescription(cols, rows, pf.GetBitsAllocated()) +
                           " (transfer syntax " + transferSyntaxOf(image) +
                           "), found a truncated file or data that cannot be decoded");
     }
-    const char* uid = gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax());
-    if (uid && isLosslessJpeg2000(uid)) checkJpeg2000Frames(file, image);
+    if (uid && isLosslessJpeg2000(uid))
+        checkFrames(file, image, "\xFF\x4F\xFF\x51", checkLosslessJpeg2000, "JPEG 2000");
+    if (uid && isLosslessJpeg(uid))
+        checkFrames(file, image, "\xFF\xD8", checkLosslessJpeg, "lossless JPEG");
 }
 
 double checkedSlope(const std::string& file, const std::optional<double>& slope,
