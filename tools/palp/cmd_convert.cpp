@@ -10,6 +10,7 @@
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
 #include "palp/volume/load.h"
+#include "palp/volume/resample.h"
 #include "progress.h"
 #include "volume_flags.h"
 
@@ -52,9 +53,9 @@ Command addConvert(CLI::App& root) {
     app->add_option("--series", args->series, "DICOM SeriesInstanceUID to convert");
     app->add_option("--volume", args->volume, "0-based time point of a 4D series or file")
         ->check(integerIn(0, 1000000));
-    app->add_option(
-           "--background", args->background,
-           "Values below this become inactive background (default -900 for CT, 0 otherwise)")
+    app->add_option("--background", args->background,
+                    "Values below this become inactive background (default -900 for CT, none "
+                    "otherwise); the values lost to it are counted")
         ->check(within(bounds::kVolumeValue));
     app->add_option("--crop", args->cropMm, "World box in mm (LPS): xmin,ymin,zmin,xmax,ymax,zmax")
         ->delimiter(',')
@@ -117,6 +118,19 @@ Command addConvert(CLI::App& root) {
                     static_cast<unsigned long long>(vol.grid->activeVoxelCount()),
                     b.min().x() * 1e3, b.min().y() * 1e3, b.min().z() * 1e3, b.max().x() * 1e3,
                     b.max().y() * 1e3, b.max().z() * 1e3);
+                // Every value the background threshold took away is counted (issue 37: MR
+                // field maps and phase images lost their negative values without a word).
+                if (vol.info.backgroundThreshold <= volume::kNoBackgroundThreshold) {
+                    std::printf(
+                        "palp convert: no background threshold: no source value deactivated\n");
+                } else {
+                    std::printf(
+                        "palp convert: background threshold %.6g: %llu source values below it "
+                        "now read as the background %.6g\n",
+                        static_cast<double>(vol.info.backgroundThreshold),
+                        static_cast<unsigned long long>(vol.info.valuesBelowThreshold),
+                        static_cast<double>(vol.grid->background()));
+                }
             }
             return 0;
         }};

@@ -1,5 +1,6 @@
 #include "palp/volume/volume.h"
 
+#include <algorithm>
 #include <mutex>
 
 namespace palp::volume {
@@ -46,6 +47,8 @@ void writeInfo(const VolumeInfo& info, openvdb::GridBase& grid) {
     grid.insertMeta("palp:time_point", openvdb::Int32Metadata(info.timePoint));
     grid.insertMeta("palp:time_point_count", openvdb::Int32Metadata(info.timePointCount));
     grid.insertMeta("palp:background_threshold", openvdb::FloatMetadata(info.backgroundThreshold));
+    grid.insertMeta("palp:values_below_threshold",
+                    openvdb::Int64Metadata(static_cast<std::int64_t>(info.valuesBelowThreshold)));
 }
 
 VolumeInfo readInfo(const openvdb::GridBase& grid) {
@@ -67,6 +70,8 @@ VolumeInfo readInfo(const openvdb::GridBase& grid) {
     info.timePoint = metaOr(grid, "palp:time_point", -1);
     info.timePointCount = metaOr(grid, "palp:time_point_count", 1);
     info.backgroundThreshold = metaOr(grid, "palp:background_threshold", -900.0f);
+    info.valuesBelowThreshold = static_cast<std::uint64_t>(
+        std::max<std::int64_t>(0, metaOr(grid, "palp:values_below_threshold", std::int64_t{0})));
     return info;
 }
 

@@ -2,6 +2,7 @@
 #include <openvdb/tools/GridTransformer.h>
 
 #include <cmath>
+#include <cstdint>
 #include <memory>
 
 #include "palp/base/bounds.h"
@@ -15,12 +16,18 @@ namespace palp::volume {
 
 namespace {
 
-/// Makes active values below @p threshold, or equal to the background, inactive.
-void deactivateBelow(openvdb::FloatGrid& grid, float threshold) {
+/// Makes active values below @p threshold, or equal to the background, inactive; returns how
+/// many below the threshold were not the background (values the grid no longer holds).
+std::uint64_t deactivateBelow(openvdb::FloatGrid& grid, float threshold) {
     const float background = grid.background();
+    std::uint64_t lost = 0;
     for (auto it = grid.beginValueOn(); it; ++it) {
-        if (*it < threshold || *it == background) it.setValueOff();
+        if (*it < threshold || *it == background) {
+            lost += *it == background ? 0 : 1;
+            it.setValueOff();
+        }
     }
+    return lost;
 }
 
 Volume regridChecked(const Volume& source, const ResampleOptions& options) {
@@ -45,7 +52,7 @@ Volume regridChecked(const Volume& source, const ResampleOptions& options) {
     }
     Volume out{target, source.info};
     if (options.backgroundThreshold) {
-        deactivateBelow(*target, *options.backgroundThreshold);
+        out.info.valuesBelowThreshold += deactivateBelow(*target, *options.backgroundThreshold);
         out.info.backgroundThreshold = *options.backgroundThreshold;
     }
     writeInfo(out.info, *target);

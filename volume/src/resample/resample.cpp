@@ -5,6 +5,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <exception>
 #include <limits>
@@ -217,23 +218,32 @@ void checkResampleOptions(const ResampleOptions& options) {
 }
 
 float defaultBackgroundThreshold(const VolumeInfo& info) {
-    return info.modality == "CT" ? -900.0f : 0.0f;
+    return info.modality == "CT" ? -900.0f : kNoBackgroundThreshold;
 }
 
 float backgroundValueFor(const VolumeInfo& info, float threshold) {
     const float preferred = info.modality == "CT" ? -1000.0f : 0.0f;
-    return std::min(preferred, threshold);
+    return threshold <= kNoBackgroundThreshold ? preferred : std::min(preferred, threshold);
 }
 
 namespace {
+
+/// The values of @p s below @p threshold other than @p background: values the grid loses.
+std::uint64_t countBelow(const Slice& s, float threshold, float background) {
+    std::uint64_t n = 0;
+    for (const float v : s.values) n += v < threshold && v != background ? 1 : 0;
+    return n;
+}
 
 /// Decodes the slices of a lazy stack as fillTree's window asks, checks them, and releases
 /// those it has passed.
 class LazyWindow {
   public:
-    LazyWindow(LazySliceStack& lazy, SliceSampler& sampler)
+    LazyWindow(LazySliceStack& lazy, SliceSampler& sampler, float threshold, float background)
         : mLazy(lazy),
           mSampler(sampler),
+          mThreshold(threshold),
+          mBackground(background),
           mResident(sampler.sliceCount(), 0),
           mDecoded(sampler.sliceCount(), 0) {}
 
@@ -300,6 +310,8 @@ class LazyWindow {
                     } catch (const ValueError& e) {
                         throw FormatError(e.what());  // the file is at fault
                     }
+                    // A slice is decoded again when the band comes back to it: count it once.
+                    if (!mDecoded[k]) mBelow += countBelow(s, mThreshold, mBackground);
                     if (thenRelease) {
                         std::vector<float>().swap(s.values);
                     } else {
@@ -319,8 +331,15 @@ class LazyWindow {
         }
     }
 
+  public:
+    /// Source values below the threshold (not the background) in the slices decoded so far.
+    std::uint64_t below() const { return mBelow; }
+
+  private:
     LazySliceStack& mLazy;
     SliceSampler& mSampler;
+    float mThreshold, mBackground;
+    std::atomic<std::uint64_t> mBelow{0};
     std::vector<char> mResident, mDecoded;   // by sorted slice
     std::vector<std::vector<float>> mSpare;  // buffers of released slices
     std::size_t mReleased = 0;
@@ -349,21 +368,32 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
 
     SliceSampler sampler(stack, g, voxel, threshold, resident);
     const FillContext ctx{sampler, g, lat, threshold, background, referenceOnly, scalarRows};
+    std::uint64_t below = 0;
     if (resident) {
         fillTree(ctx, options.progress, grid->tree());
+        std::vector<std::uint64_t> perSlice(stack.slices.size(), 0);
+        palp::parallelForEach(
+            std::size_t{0}, perSlice.size(),
+            [&](std::size_t k) {
+                perSlice[k] = countBelow(stack.slices[k], threshold, background);
+            },
+            std::size_t{1});
+        below = std::accumulate(perSlice.begin(), perSlice.end(), std::uint64_t{0});
     } else {
-        LazyWindow window(*lazy, sampler);
+        LazyWindow window(*lazy, sampler, threshold, background);
         fillTree(ctx, options.progress, grid->tree(),
                  [&](std::size_t releaseBelow, std::size_t lo, std::size_t hi) {
                      window(releaseBelow, lo, hi);
                  });
         window.finish();
+        below = window.below();
     }
 
     Volume out;
     out.grid = grid;
     out.info = stack.info;
     out.info.backgroundThreshold = threshold;
+    out.info.valuesBelowThreshold = below;
     out.info.minSliceGap = spacing.minGap;
     out.info.maxSliceGap = spacing.maxGap;
     out.info.originalSpacing = {g.u.norm(), g.v.norm(), spacing.medianGap};

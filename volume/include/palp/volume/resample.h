@@ -24,7 +24,10 @@ struct ResampleOptions {
     /// Output voxel edge in metres; default: the finest input spacing (smallest of the in-plane
     /// steps and the smallest slice gap).
     std::optional<double> voxelSize;
-    /// Values below this become inactive background; default -900 for CT, 0 for anything else.
+    /// Values below this become inactive background; default -900 for CT, none
+    /// (kNoBackgroundThreshold) for anything else, so that no MR value (a field map's or a phase
+    /// image's negative values) is lost. The source values below it are counted
+    /// (VolumeInfo::valuesBelowThreshold).
     std::optional<float> backgroundThreshold;
     /// Keep only voxels inside this world box.
     std::optional<WorldBox> crop;
@@ -40,10 +43,17 @@ struct ResampleOptions {
 /// @throw ValueError `resample: <field>: expected ..., found ...`.
 void checkResampleOptions(const ResampleOptions& options);
 
+/// The threshold that deactivates no value: the lowest volume value palp accepts
+/// (bounds::kVolumeValue), so no value is below it.
+inline constexpr float kNoBackgroundThreshold = -1e9f;
+
 /// Background value written for inactive voxels: -1000 for CT (air), otherwise 0; never above
-/// the threshold.
+/// the threshold, unless there is none (kNoBackgroundThreshold): then only voxels equal to the
+/// background (an MR's zeros) are inactive, and they read back as what they were.
 float backgroundValueFor(const VolumeInfo& info, float threshold);
-/// Default threshold: -900 HU for CT, 0 otherwise.
+/// Default threshold: -900 HU for CT, none (kNoBackgroundThreshold) otherwise. Until issue 37 it
+/// was 0 for MR, which deactivated every negative value: a field map in Hz kept 28,515 of
+/// 141,900 voxels and phase images lost half their range, without a word.
 float defaultBackgroundThreshold(const VolumeInfo& info);
 
 /// Resamples @p stack. Each output voxel centre p is located between the two slices that

@@ -33,6 +33,10 @@ struct VolumeInfo {
     int timePoint = -1;           ///< 0-based volume index chosen from a 4D source, -1 for 3D
     int timePointCount = 1;       ///< number of volumes in the source
     float backgroundThreshold = -900;  ///< values below this became inactive background
+    /// Source values (pixels of the slices read) below backgroundThreshold, other than the
+    /// background value itself: values the grid no longer holds (they read as the background).
+    /// Counted by resample() of slices; 0 for volumes made otherwise.
+    std::uint64_t valuesBelowThreshold = 0;
 };
 
 /// A scan as a sparse grid. `grid` is named "scan"; its transform maps index space to world
