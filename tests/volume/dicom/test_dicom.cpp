@@ -331,17 +331,29 @@ TEST(DicomRead, FourDimensionalSeriesMatchesDcm2niix) {
         EXPECT_GT(other.mismatches, 1000u) << "t=" << t;
     }
 
-    // One image missing: the time point count is no longer consistent, refused by name.
+    // The last image missing (an acquisition stopped early): without a time point the count
+    // is no longer consistent, refused by name; time point 0 is whole (one Acquisition Time for
+    // the series, instance numbers volume after volume: 1-15 before 16-30) and reads exactly;
+    // time point 9 lacks a position and is refused (issue 37).
     TempDir tmp;
     const std::vector<fs::path> files = dicomFiles(dicomDir);
     ASSERT_EQ(files.size(), 150u);
     for (std::size_t i = 0; i + 1 < files.size(); ++i)
         copyFile(files[i], tmp / files[i].filename());
-    opt.timePoint = 0;
     expectThrowWith<palp::ValueError>(
-        [&] { palp::volume::readStack({tmp.path()}, opt); },
+        [&] { palp::volume::readStack({tmp.path()}, {}); },
         {tmp.path().string(), "expected the same number of images at every slice position",
          "found 9"});
+    opt.timePoint = 0;
+    const SliceStack first = palp::volume::readStack({tmp.path()}, opt);
+    const VolumeMatch m = matchReference(first, ref, 0);
+    EXPECT_EQ(m.compared, 64u * 64u * 15u);
+    EXPECT_EQ(m.mismatches, 0u);
+    opt.timePoint = 9;
+    expectThrowWith<palp::ValueError>([&] { palp::volume::readStack({tmp.path()}, opt); },
+                                      {tmp.path().string(),
+                                       "expected time point 9 at every slice position, found 9 "
+                                       "images at that of "});
 }
 
 void copyFile(const fs::path& from, const fs::path& to) {

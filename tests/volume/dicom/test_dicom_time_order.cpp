@@ -33,7 +33,7 @@ constexpr double kPixelMm = 2.0, kGapMm = 3.0;
 /// The stored value of pixel (c, r) at position k of time point t: b = 0 images are bright,
 /// diffusion-weighted ones dark, as in a DTI series.
 std::int16_t value(int c, int r, int k, int t) {
-    return static_cast<std::int16_t>((t == 0 ? 2000 : 300) + 10 * k + 4 * r + c);
+    return static_cast<std::int16_t>((t == 0 ? 2000 : 300 * t) + 10 * k + 4 * r + c);
 }
 
 /// The tags of one image that decide its time point.
@@ -42,6 +42,7 @@ struct ImageKeys {
     int acquisition = 1;
     double bValue = 0;
     double gradient[3] = {0, 0, 0};
+    std::string acquisitionTime = "101530.12";  // one for the whole series, as Philips gives it
 };
 
 void setText(gdcm::DataSet& ds, std::uint16_t g, std::uint16_t e, gdcm::VR vr, std::string v) {
@@ -97,8 +98,7 @@ void writeImage(const fs::path& file, int k, int t, const ImageKeys& keys,
     setText(ds, 0x0008, 0x0008, gdcm::VR::CS, "ORIGINAL\\PRIMARY\\M_SE\\M\\SE");
     setText(ds, 0x0008, 0x0060, gdcm::VR::CS, "MR");
     setText(ds, 0x0008, 0x0070, gdcm::VR::LO, "Philips Medical Systems");
-    // One acquisition time for the whole series, as these exports give it: no help either.
-    setText(ds, 0x0008, 0x0032, gdcm::VR::TM, "101530.12");
+    setText(ds, 0x0008, 0x0032, gdcm::VR::TM, keys.acquisitionTime);
     setText(ds, 0x0008, 0x103e, gdcm::VR::LO, "DTI_low_iso");
     setText(ds, 0x0018, 0x0050, gdcm::VR::DS, "3");
     setText(ds, 0x0020, 0x000d, gdcm::VR::UI, seriesUid + ".1");
@@ -116,25 +116,27 @@ void writeImage(const fs::path& file, int k, int t, const ImageKeys& keys,
 /// Writes a series of kPositions positions x 2 time points into @p dir, the keys of each image
 /// from @p keysOf(k, t); files named by a number that follows neither position nor time.
 void writeSeries(const fs::path& dir, const std::string& uid,
-                 const std::function<ImageKeys(int k, int t)>& keysOf) {
+                 const std::function<ImageKeys(int k, int t)>& keysOf, int timePoints = 2,
+                 const std::function<bool(int k, int t)>& present = {}) {
     fs::create_directories(dir);
     for (int k = 0; k < kPositions; ++k) {
-        for (int t = 0; t < 2; ++t) {
+        for (int t = 0; t < timePoints; ++t) {
+            if (present && !present(k, t)) continue;
             char name[32];
-            std::snprintf(name, sizeof name, "IM_%04d", (k * 7 + t * 13) % 97);
+            std::snprintf(name, sizeof name, "IM_%04d", (k * 7 + t * 13) % 97 + 100 * t);
             writeImage(dir / name, k, t, keysOf(k, t), uid);
         }
     }
 }
 
 /// Every slice of time point @p t holds that time point's values, at its position.
-void expectTimePoint(const fs::path& dir, int t) {
+void expectTimePoint(const fs::path& dir, int t, int timePoints = 2) {
     palp::volume::LoadOptions opt;
     opt.timePoint = t;
     const SliceStack st = palp::volume::readStack({dir}, opt);
     ASSERT_EQ(st.slices.size(), static_cast<std::size_t>(kPositions));
     EXPECT_EQ(st.info.timePoint, t);
-    EXPECT_EQ(st.info.timePointCount, 2);
+    EXPECT_EQ(st.info.timePointCount, timePoints);
     int wrong = 0;
     for (int k = 0; k < kPositions; ++k) {
         const auto& s = st.slices[static_cast<std::size_t>(k)];
@@ -209,6 +211,58 @@ TEST(DicomTimeOrder, TimePointThatWouldMixDiffusionWeightingsIsRefused) {
              "and b = 1000 s/mm^2, gradient (0.6\\0.8\\0) in ", "at time point 0",
              "(images ordered by Temporal Position Identifier 1, Instance Number 11)"});
     }
+}
+
+/// A GE-like 4D series of 3 time points (instance numbers volume after volume, one Acquisition
+/// Number, each image its own acquisition time, 0.5 s apart within a volume, 10 s between
+/// volumes); @p present says which images exist.
+void writeTimedSeries(const fs::path& dir, const std::string& uid,
+                      const std::function<bool(int k, int t)>& present) {
+    writeSeries(
+        dir, uid,
+        [](int k, int t) {
+            ImageKeys keys;
+            keys.instance = t * kPositions + k + 1;
+            char time[32];
+            std::snprintf(time, sizeof time, "1015%05.2f", 10.0 * t + 0.5 * k);
+            keys.acquisitionTime = time;
+            return keys;
+        },
+        3, present);
+}
+
+TEST(DicomTimeOrder, SeriesStoppedEarlyConvertsItsCompleteTimePoints) {
+    // The third volume holds only 10 of 12 positions: time points 0 and 1 are whole.
+    TempDir tmp;
+    writeTimedSeries(tmp / "s", "1.2.826.0.1.3680043.2.1125.37.4",
+                     [](int k, int t) { return t < 2 || k < 10; });
+    expectTimePoint(tmp / "s", 0, 3);
+    expectTimePoint(tmp / "s", 1, 3);
+    palp::volume::LoadOptions opt;
+    opt.timePoint = 2;
+    expectThrowWith<palp::ValueError>(
+        [&] { palp::volume::readStack({tmp / "s"}, opt); },
+        {"expected time point 2 at every slice position, found 2 images at that of ",
+         "(the series is incomplete)"});
+    // Without a time point the series is refused as before, naming the odd position.
+    expectThrowWith<palp::ValueError>(
+        [&] { palp::volume::readStack({tmp / "s"}, {}); },
+        {"expected the same number of images at every slice position (3 at 10 of 12 "
+         "positions), found 2"});
+}
+
+TEST(DicomTimeOrder, SeriesMissingAnImageWithinIsRefusedWhereItMatters) {
+    // Position 5 lacks its image of time point 1: its rank-1 image is time point 2's.
+    TempDir tmp;
+    writeTimedSeries(tmp / "s", "1.2.826.0.1.3680043.2.1125.37.5",
+                     [](int k, int t) { return !(k == 5 && t == 1); });
+    expectTimePoint(tmp / "s", 0, 3);  // the images before the gap are whole
+    palp::volume::LoadOptions opt;
+    opt.timePoint = 1;
+    expectThrowWith<palp::ValueError>(
+        [&] { palp::volume::readStack({tmp / "s"}, opt); },
+        {"expected the images of time point 1 acquired before those of time point 2",
+         "an image is missing within the series, or the tags cannot tell"});
 }
 
 }  // namespace

@@ -4,6 +4,7 @@
 // multi-frame files (dicom_frames), one or several per series.
 #include <gdcmImageReader.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <deque>
 #include <exception>
@@ -193,12 +194,26 @@ LazySliceStack openDicom(const std::vector<fs::path>& inputs, const ReadOptions&
     const Header& first = *images.front();
     const FileGeometry firstGeometry = geometryOf(first);
     for (const Header* h : images) geometryOf(*h);  // every file must carry its geometry
-    std::vector<std::vector<const Header*>> positions = positionGroups(name, images, firstGeometry);
-    const int timePointCount = static_cast<int>(positions.front().size());
+    const Eigen::Vector3d normal =
+        firstGeometry.rowCosine.cross(firstGeometry.columnCosine).normalized();
+    std::vector<std::vector<const Header*>> positions = groupPositions(
+        images, normal, 0.02 * std::min(firstGeometry.rowSpacing, firstGeometry.columnSpacing));
+    std::size_t fewest = positions.front().size(), most = fewest;
+    for (const auto& grp : positions) {
+        fewest = std::min(fewest, grp.size());
+        most = std::max(most, grp.size());
+    }
+    // A series whose positions hold different numbers of images is refused, unless a time point
+    // was asked for that every position holds and the acquisition times show whole (a 4D
+    // acquisition stopped early: its first volumes are complete).
+    const bool partial = fewest != most;
+    if (partial && (!options.timePoint || most < 2)) checkSameCount(name, positions, normal);
+    const int timePointCount = static_cast<int>(most);
     const int timePoint = detail::chooseTimePoint(timePointCount, options, name);
 
     const TimeOrder order(images, positions);
     for (auto& grp : positions) order.sort(grp);
+    if (partial) checkPartialTimePoint(name, positions, static_cast<std::size_t>(timePoint));
     checkDiffusionPerTimePoint(name, positions, order);
     std::vector<const Header*> chosen;
     for (const auto& grp : positions)

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <utility>
 
 #include "palp/base/error.h"
 
@@ -73,16 +74,6 @@ void checkSameCount(const std::string& name,
                          std::to_string(grp.size()) + at + " (e.g. " + grp.front()->label() +
                          "); the series is incomplete or mixes acquisitions");
     }
-}
-
-std::vector<std::vector<const Header*>> positionGroups(const std::string& name,
-                                                       const std::vector<const Header*>& images,
-                                                       const FileGeometry& first) {
-    const Eigen::Vector3d normal = first.rowCosine.cross(first.columnCosine).normalized();
-    const double tolMm = 0.02 * std::min(first.rowSpacing, first.columnSpacing);
-    std::vector<std::vector<const Header*>> positions = groupPositions(images, normal, tolMm);
-    checkSameCount(name, positions, normal);
-    return positions;
 }
 
 TimeOrder::TimeOrder(const std::vector<const Header*>& images,
@@ -200,7 +191,8 @@ void checkDiffusionPerTimePoint(const std::string& name,
     };
     if (!all(kDiffusionBValue, 1)) return;
     const bool gradients = all(kDiffusionGradientOrientation, 3);
-    const std::size_t timePoints = positions.front().size();
+    std::size_t timePoints = 0;
+    for (const auto& grp : positions) timePoints = std::max(timePoints, grp.size());
     for (std::size_t t = 0; t < timePoints; ++t) {
         const Header* ref = nullptr;
         for (const auto& grp : positions) {
@@ -229,6 +221,61 @@ void checkDiffusionPerTimePoint(const std::string& name,
                              " (images ordered by " + order.describe(*h) +
                              "); the order of the images in time cannot be told from their "
                              "keys");
+        }
+    }
+}
+
+void checkPartialTimePoint(const std::string& name,
+                           const std::vector<std::vector<const Header*>>& positions,
+                           std::size_t t) {
+    const auto timeOf = [](const Header& h) {
+        const auto a = parseTime(h.text(kAcquisitionTime));
+        return a ? a : parseTime(h.text(kContentTime));
+    };
+    bool allTimes = true, allInstances = true;
+    for (const auto& grp : positions) {
+        if (grp.size() <= t) {
+            throw ValueError(name + ": expected time point " + std::to_string(t) +
+                             " at every slice position, found " + std::to_string(grp.size()) +
+                             " images at that of " + grp.front()->label() +
+                             " (the series is incomplete)");
+        }
+        for (const Header* h : grp) {
+            allTimes = allTimes && timeOf(*h).has_value();
+            allInstances = allInstances && h->number(kInstanceNumber).has_value();
+        }
+    }
+    if (!allTimes && !allInstances) {
+        throw ValueError(name +
+                         ": expected Acquisition Time (0008,0032), Content Time (0008,0033) or "
+                         "Instance Number (0020,0013) in every image of a series whose slice "
+                         "positions hold different numbers of images, to tell its complete time "
+                         "points, found neither in all");
+    }
+    // When each image was acquired, as far as the tags tell: its time, then its instance number
+    // (GE gives a whole series one Acquisition Time and numbers volume after volume).
+    const auto when = [&](const Header& h) {
+        return std::make_pair(allTimes ? *timeOf(h) : 0.0,
+                              allInstances ? *h.number(kInstanceNumber) : 0.0);
+    };
+    // The latest image of rank k must precede the earliest of rank k + 1, for k = t - 1 and t.
+    for (std::size_t k = t > 0 ? t - 1 : 0; k <= t; ++k) {
+        const Header *latest = nullptr, *earliest = nullptr;
+        for (const auto& grp : positions) {
+            if (!latest || when(*grp[k]) > when(*latest)) latest = grp[k];
+            if (grp.size() > k + 1 && (!earliest || when(*grp[k + 1]) < when(*earliest)))
+                earliest = grp[k + 1];
+        }
+        if (earliest && !(when(*latest) < when(*earliest))) {
+            throw ValueError(name + ": expected the images of time point " + std::to_string(k) +
+                             " acquired before those of time point " + std::to_string(k + 1) +
+                             " (by acquisition time, then instance number) in a series whose "
+                             "slice positions hold different numbers of images, found " +
+                             latest->label() + " (time point " + std::to_string(k) +
+                             ") not before " + earliest->label() + " (time point " +
+                             std::to_string(k + 1) +
+                             "); an image is missing within the series, or the tags cannot "
+                             "tell");
         }
     }
 }

@@ -21,12 +21,6 @@ double positionTolerance(const Header& h);
 std::vector<std::vector<const Header*>> groupPositions(const std::vector<const Header*>& images,
                                                        const Eigen::Vector3d& n, double tolMm);
 
-/// Groups @p images by position and checks that every position holds the same number.
-/// @throw ValueError naming @p name when the counts differ.
-std::vector<std::vector<const Header*>> positionGroups(const std::string& name,
-                                                       const std::vector<const Header*>& images,
-                                                       const FileGeometry& first);
-
 /// Checks that every group of @p positions (along @p normal) holds as many images as the first.
 /// @throw ValueError naming @p name, the position and an image there when the counts differ.
 void checkSameCount(const std::string& name,
@@ -80,6 +74,19 @@ struct TimeOrder {
 void checkDiffusionPerTimePoint(const std::string& name,
                                 const std::vector<std::vector<const Header*>>& positions,
                                 const TimeOrder& order);
+
+/// Checks that time point @p t of a series whose positions hold different numbers of images
+/// (@p positions, each in time order; a 4D acquisition stopped early or missing files) is
+/// nevertheless whole: every position holds an image at rank @p t, and when each image was
+/// acquired (its acquisition, else content, time, then its instance number, as far as every
+/// image has them) tells the time points apart around it: the rank t - 1 images all precede the
+/// rank t images, which all precede the rank t + 1 images. A position that lost an earlier image
+/// would put a later time point's image at rank t, acquired after a rank t + 1 image of another
+/// position.
+/// @throw ValueError naming @p name: a position without rank t, images with neither key, or
+///        keys that do not separate the ranks (naming the two images).
+void checkPartialTimePoint(const std::string& name,
+                           const std::vector<std::vector<const Header*>>& positions, std::size_t t);
 
 /// Refuses @p slices slices of @p cols x @p rows floats when they exceed @p limit bytes.
 /// @throw ValueError naming @p name.
