@@ -55,7 +55,7 @@ Command addConvert(CLI::App& root) {
         ->check(integerIn(0, 1000000));
     app->add_option("--background", args->background,
                     "Values below this become inactive background (default -900 for CT, none "
-                    "otherwise); the values lost to it are counted")
+                    "for MR, 0 otherwise); the values lost to it are counted")
         ->check(within(bounds::kVolumeValue));
     app->add_option("--crop", args->cropMm, "World box in mm (LPS): xmin,ymin,zmin,xmax,ymax,zmax")
         ->delimiter(',')

@@ -23,7 +23,7 @@ std::uint64_t deactivateBelow(openvdb::FloatGrid& grid, float threshold) {
     std::uint64_t lost = 0;
     for (auto it = grid.beginValueOn(); it; ++it) {
         if (*it < threshold || *it == background) {
-            lost += *it == background ? 0 : 1;
+            lost += *it == background ? 0u : 1u;
             it.setValueOff();
         }
     }

@@ -218,7 +218,10 @@ void checkResampleOptions(const ResampleOptions& options) {
 }
 
 float defaultBackgroundThreshold(const VolumeInfo& info) {
-    return info.modality == "CT" ? -900.0f : kNoBackgroundThreshold;
+    if (info.modality == "CT") return -900.0f;
+    // MR values may be signed (field maps, phase): none is cut. A source that does not say what
+    // it is (NIfTI, NRRD, MetaImage, arrays) keeps 0, and what it loses is counted.
+    return info.modality == "MR" ? kNoBackgroundThreshold : 0.0f;
 }
 
 float backgroundValueFor(const VolumeInfo& info, float threshold) {

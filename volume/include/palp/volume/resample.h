@@ -25,9 +25,9 @@ struct ResampleOptions {
     /// steps and the smallest slice gap).
     std::optional<double> voxelSize;
     /// Values below this become inactive background; default -900 for CT, none
-    /// (kNoBackgroundThreshold) for anything else, so that no MR value (a field map's or a phase
-    /// image's negative values) is lost. The source values below it are counted
-    /// (VolumeInfo::valuesBelowThreshold).
+    /// (kNoBackgroundThreshold) for MR, so that no MR value (a field map's or a phase image's
+    /// negative values) is lost, and 0 for a source of unknown modality. The source values below
+    /// it are counted (VolumeInfo::valuesBelowThreshold).
     std::optional<float> backgroundThreshold;
     /// Keep only voxels inside this world box.
     std::optional<WorldBox> crop;
@@ -51,9 +51,11 @@ inline constexpr float kNoBackgroundThreshold = -1e9f;
 /// the threshold, unless there is none (kNoBackgroundThreshold): then only voxels equal to the
 /// background (an MR's zeros) are inactive, and they read back as what they were.
 float backgroundValueFor(const VolumeInfo& info, float threshold);
-/// Default threshold: -900 HU for CT, none (kNoBackgroundThreshold) otherwise. Until issue 37 it
-/// was 0 for MR, which deactivated every negative value: a field map in Hz kept 28,515 of
-/// 141,900 voxels and phase images lost half their range, without a word.
+/// Default threshold: -900 HU for CT, none (kNoBackgroundThreshold) for MR, 0 otherwise (a
+/// NIfTI, NRRD or MetaImage file or an array does not say its modality; the values it loses are
+/// counted). Until issue 37 it was 0 for MR too, which deactivated every negative value: a field
+/// map in Hz kept 28,515 of 141,900 voxels and phase images lost half their range, without a
+/// word.
 float defaultBackgroundThreshold(const VolumeInfo& info);
 
 /// Resamples @p stack. Each output voxel centre p is located between the two slices that
