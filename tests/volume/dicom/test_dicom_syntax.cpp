@@ -320,6 +320,45 @@ TEST(DicomSyntax, DamagedLosslessJpegIsRefusedWhereGdcmDecodesIt) {
     EXPECT_EQ(palp::volume::readStack({file}, {}).slices[0].values, plain.slices[1].values);
 }
 
+TEST(DicomSyntax, ZeroedTailOfEncapsulatedPixelDataIsNamedAsSuch) {
+    // A copy that stopped part way and was padded with zeros to its size: the encapsulated pixel
+    // data's items give way to zeros. Reported before issue 37 as "expected a complete DICOM
+    // header, found an invalid value representation".
+    if (!palp::test::haveProgram("gdcmconv"))
+        GTEST_SKIP() << "gdcmconv (libgdcm-tools) not installed";
+    TempDir tmp;
+    writeTexturedSeries(tmp / "plain");
+    std::vector<fs::path> names;
+    for (const auto& e : fs::directory_iterator(tmp / "plain")) names.push_back(e.path());
+    std::sort(names.begin(), names.end());
+    const fs::path file = tmp / "z.dcm";
+    const auto r = palp::test::runCommand("gdcmconv --jpeg '" + names[0].string() + "' '" +
+                                          file.string() + "'");
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    std::string bytes = readBytes(file);
+    const std::size_t sos = bytes.find("\xFF\xDA");
+    ASSERT_NE(sos, std::string::npos);
+    const std::size_t from = sos + (bytes.size() - sos) / 2;
+    std::fill(bytes.begin() + static_cast<std::ptrdiff_t>(from), bytes.end(), '\0');
+    palp::test::writeFile(file, bytes);
+    try {
+        palp::volume::readStack({file}, {});
+        ADD_FAILURE() << "expected a refusal";
+    } catch (const palp::FormatError& e) {
+        const std::string msg = e.what();
+        EXPECT_NE(msg.find(file.string() +
+                           ": expected complete pixel data of 160x128x16 bits, found zero bytes "
+                           "from here to the end of the file where pixel data fragments were "
+                           "expected at byte "),
+                  std::string::npos)
+            << msg;
+        EXPECT_NE(msg.find("(the end of the file is zeroed: an incomplete copy)"),
+                  std::string::npos)
+            << msg;
+        EXPECT_EQ(msg.find("DICOM header"), std::string::npos) << msg;
+    }
+}
+
 /// A copy of @p from with Gantry/Detector Tilt (0018,1120) set to @p value.
 void writeWithTilt(const fs::path& from, const fs::path& to, const std::string& value) {
     gdcm::Reader reader;

@@ -94,6 +94,26 @@ Walk walkFile(const fs::path& path) {
         };
         const std::uint32_t group = u16(h), element = u16(h + 2);
         const std::uint64_t start = pos;
+        if (pixelData && depth == 0 && group != 0xFFFE) {
+            // Encapsulated pixel data holds only items and their delimiter: anything else is
+            // damage to the pixel data, not to the header. A copy cut short and padded with
+            // zeros (a failed transfer) leaves zeros to the end of the file.
+            w.inPixelData = true;
+            w.notAnItem = true;
+            bool zeros = true;
+            unsigned char chunk[4096];
+            for (std::uint64_t at = pos; zeros && at < size; at += sizeof chunk) {
+                const auto n =
+                    static_cast<std::size_t>(std::min<std::uint64_t>(sizeof chunk, size - at));
+                if (!readAt(at, chunk, n)) break;
+                zeros = std::all_of(chunk, chunk + n, [](unsigned char c) { return c == 0; });
+            }
+            w.zeroedTail = zeros;
+            return fail(zeros ? "zero bytes from here to the end of the file where pixel data "
+                                "fragments were expected"
+                              : "bytes that are no pixel data fragment item",
+                        start);
+        }
         std::uint32_t length = 0;
         char vr[2] = {0, 0};
         if (group == 0xFFFE) {  // item and delimiters: no VR
@@ -203,7 +223,9 @@ Walk walkFile(const fs::path& path) {
         throw FormatError(file.string() + ": expected complete pixel data of " +
                           std::to_string(w.cols) + "x" + std::to_string(w.rows) + "x" +
                           std::to_string(w.bitsAllocated) + " bits, found " + w.problem +
-                          " (the file is truncated)");
+                          (w.zeroedTail  ? " (the end of the file is zeroed: an incomplete copy)"
+                           : w.notAnItem ? " (the pixel data is damaged)"
+                                         : " (the file is truncated)"));
     }
     throw FormatError(file.string() + ": expected a complete DICOM header, found " + w.problem +
                       (w.seriesUid.empty()

@@ -16,6 +16,8 @@ struct Walk {
     bool inPixelData = false;    // the damage lies in the Pixel Data value
     bool noPixelData = false;    // an image file that ends cleanly before Pixel Data
     bool pixelDataFits = false;  // the walk reached the end of the top-level Pixel Data value
+    bool notAnItem = false;      // encapsulated pixel data holds something other than an item
+    bool zeroedTail = false;     // ... which is zero bytes to the end of the file
     std::string problem;         // what is wrong, for messages
     std::string seriesUid;       // (0020,000e) when it was reached
     std::string transferSyntax;  // (0002,0010) as the file meta information gives it
