@@ -33,8 +33,9 @@ def volume_from_numpy(array, affine, frame="LPS", units="m", voxel_size=None,
 
     affine: 4x4 index-to-world in frame 'LPS' (palp's, DICOM's) or 'RAS' (NIfTI's, Slicer's),
     units 'm' or 'mm'. modality 'CT' makes values below -900 (or background_threshold)
-    inactive background of -1000 HU, like a CT read from a file; otherwise the threshold
-    defaults to 0. The voxels are resampled onto isotropic voxels of voxel_size metres
+    inactive background of -1000 HU, like a CT read from a file; 'MR' has no threshold (every
+    value kept, signed field maps and phase images included); otherwise the threshold defaults
+    to 0. The voxels are resampled onto isotropic voxels of voxel_size metres
     (default: the finest axis spacing), checked like a file reader's input (palp.ValueError
     naming the value).
 

@@ -13,6 +13,7 @@
 #include "palp/base/parallel.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
+#include "palp/volume/resample.h"
 #include "volume_flags.h"
 
 namespace palp::tool {
@@ -125,8 +126,13 @@ void printVolume(const json& j) {
                     s["min"].get<double>(), s["max"].get<double>(), s["mean"].get<double>(),
                     s["stddev"].get<double>());
     }
-    std::printf("  background      %.6g (values below %.6g are inactive)\n",
-                j["background_value"].get<double>(), j["background_threshold"].get<double>());
+    if (j["background_threshold"].get<double>() <= volume::kNoBackgroundThreshold) {
+        std::printf("  background      %.6g (no threshold: every value is kept)\n",
+                    j["background_value"].get<double>());
+    } else {
+        std::printf("  background      %.6g (values below %.6g are inactive)\n",
+                    j["background_value"].get<double>(), j["background_threshold"].get<double>());
+    }
     const auto& m = j["metadata"];
     for (auto it = m.begin(); it != m.end(); ++it) {
         std::printf("  %-15s %s\n", it.key().c_str(), it.value().dump().c_str());
