@@ -233,9 +233,8 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
         setup.autoSolver = o.femSolver == "auto";
         if (o.femSolver == "regions") setup.options.solverKind = DeformableSolver::asyncRegions;
         setup.setPeriod(kPeriod);
-        // The regions start under the path, as `palp palpate` places them: left at its default
-        // (the first free surface node) the slide zone missed the circle and 9-41 ticks a 10 s
-        // window reached the 3.3 N clamp.
+        // The regions start under the path, as `palp palpate` places them (their default is
+        // the first free surface node, away from the circle).
         setup.options.regionsCentre = circle().centre;
         SolverChoice choice;
         scene->setDeformable(makeDeformableModel(vol, setup, &choice));
