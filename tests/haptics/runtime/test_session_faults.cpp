@@ -20,6 +20,7 @@
 #include <thread>
 
 #include "alloc_counter.h"
+#include "alloc_failure.h"
 #include "palp/base/error.h"
 #include "palp/haptics/devices/watchdog_device.h"
 #include "palp/haptics/session.h"
@@ -253,23 +254,8 @@ TEST_F(SessionTest, AnAllocationFailureAtSetUpThrowsAndLeavesNothingHalfBuilt) {
     // the process).
     EXPECT_EQ(test::threadAllocationCount() - atEnd, 0u);
     ASSERT_GT(total, 10u);
-    const std::uint64_t step = std::max<std::uint64_t>(1, total / 150);
-    int thrown = 0;
-    for (std::uint64_t k = 1; k <= total; k += step) {
-        const std::uint64_t failedBefore = test::threadFailedAllocations();
-        test::failThreadAllocationsFrom(k);
-        try {
-            Session s(sScene, dev, p);
-            test::failThreadAllocationsFrom(0);
-            // Built: only right when no throwing allocation was made to fail (the last ones
-            // may be nothrow, e.g. a sort's buffer, which falls back without one).
-            EXPECT_EQ(test::threadFailedAllocations(), failedBefore)
-                << "a failed allocation was swallowed (from " << k << " of " << total << ")";
-        } catch (const std::bad_alloc&) {
-            test::failThreadAllocationsFrom(0);
-            ++thrown;
-        }
-    }
+    const int thrown =
+        test::buildUnderEachAllocationFailure(total, 150, [&] { Session s(sScene, dev, p); });
     EXPECT_GT(thrown, 0);
     // start(): the servo thread's own allocations are its thread's; the host's fail.
     PathDevice dev2 = device();

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
+#include "alloc_failure.h"
 #include "deformable_fixtures.h"
 #include "palp/base/error.h"
 #include "palp/fem/async_regions.h"
@@ -342,23 +343,8 @@ TEST(DeformableAsync, AnAllocationFailureAtSetUpStopsTheRegionsThreads) {
 #else
     constexpr std::uint64_t kPoints = 12;
 #endif
-    const std::uint64_t step = std::max<std::uint64_t>(1, total / kPoints);
-    int thrown = 0;
-    for (std::uint64_t k = 1; k <= total; k += step) {
-        const std::uint64_t failedBefore = test::threadFailedAllocations();
-        test::failThreadAllocationsFrom(k);
-        try {
-            Session s(scene, device, vcParams(kAsyncK));
-            test::failThreadAllocationsFrom(0);
-            // Built: only right when no throwing allocation was made to fail (the last ones
-            // may be nothrow, e.g. a sort's buffer, which falls back without one).
-            EXPECT_EQ(test::threadFailedAllocations(), failedBefore)
-                << "a failed allocation was swallowed (from " << k << " of " << total << ")";
-        } catch (const std::bad_alloc&) {
-            test::failThreadAllocationsFrom(0);
-            ++thrown;
-        }
-    }
+    const int thrown = test::buildUnderEachAllocationFailure(
+        total, kPoints, [&] { Session s(scene, device, vcParams(kAsyncK)); });
     EXPECT_GT(thrown, 0);
     Session session(scene, device, vcParams(kAsyncK));
     Snapshot s;
