@@ -352,7 +352,7 @@ void bindSession(py::module_& m) {
         .def_readonly("watchdog_trips", &Snapshot::watchdogTrips)
         .def_readonly("fault_flags", &Snapshot::faultFlags,
                       "This tick's fault bits (1 stale, 2 non-finite, 4 out of range, 8 too fast, "
-                      "16 non-finite force, 32 force jump)")
+                      "16 non-finite force, 32 force jump, 64 overload, 128 shed)")
         .def_property_readonly(
             "fault_counts",
             [](const Snapshot& s) {
@@ -364,6 +364,8 @@ void bindSession(py::module_& m) {
                 d["too_fast"] = c.tooFast;
                 d["force_non_finite"] = c.forceNonFinite;
                 d["force_jump"] = c.forceJump;
+                d["overload"] = c.overload;
+                d["shed"] = c.shed;
                 return d;
             },
             "Ticks so far with each fault, as a dict")
@@ -426,12 +428,18 @@ void bindSession(py::module_& m) {
                 d["overloaded"] = st.overloaded;
                 d["fifo_dropped"] = st.fifoDropped;
                 d["overloaded_at"] = st.overloadedAtSeconds;
+                d["shedding"] = st.shedding;
+                d["sheds"] = st.sheds;
+                d["restores"] = st.restores;
+                d["shed_at"] = st.shedAtSeconds;
                 d["realtime"] = p.s().realtime().message;
                 return d;
             },
             "The servo loop's figures as a dict: ticks, misses, skipped, compute_p99 (s), "
             "overloaded (the overrun budget was exceeded: SCHED_FIFO dropped, fifo_dropped, and "
-            "no force rendered from overloaded_at s on), realtime (what the OS granted).")
+            "no force rendered from overloaded_at s on), shedding / sheds / restores / shed_at "
+            "(after one window over the budget the session shed work: VC in place of AVC/AVCEC, "
+            "tissue frozen; restored after 10 s of calm), realtime (what the OS granted).")
         .def(
             "latest", [](PySession& p) { return Snapshot(p.s().latest()); },
             "The newest published snapshot (viewer thread).")

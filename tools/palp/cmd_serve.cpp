@@ -108,6 +108,10 @@ json loopJson(const haptics::ServoStats& st, const haptics::RealtimeStatus& rs) 
             {"fifo_dropped", st.fifoDropped},
             {"overloaded_at_s", st.overloadedAtSeconds},
             {"overloaded_missed_fraction", st.missedFraction},
+                  {"shedding", st.shedding},
+                  {"sheds", st.sheds},
+                  {"restores", st.restores},
+                  {"shed_at_s", st.shedAtSeconds},
             {"realtime", rs.message}};
 }
 
@@ -121,6 +125,8 @@ json faultsJson(const haptics::Snapshot& last, std::uint64_t faultTicks) {
             {"too_fast_states", c.tooFast},
             {"non_finite_forces", c.forceNonFinite},
             {"force_jumps", c.forceJump},
+            {"overload_ticks", c.overload},
+            {"shed_ticks", c.shed},
             {"session_trips", last.faultTrips},
             {"traced_ticks_with_a_fault", faultTicks}};
 }

@@ -68,9 +68,10 @@ igtl::SensorMessage::Pointer force(const Eigen::Vector3d& lpsN, igtl::TimeStamp:
 }
 
 /// The sum of the fault counts, one per DeviceFault bit in bit order.
-std::array<std::uint64_t, 6> faultCounts(const haptics::Snapshot& s) {
+std::array<std::uint64_t, 8> faultCounts(const haptics::Snapshot& s) {
     const haptics::FaultCounts& c = s.faultCounts;
-    return {c.stale, c.nonFinite, c.outOfRange, c.tooFast, c.forceNonFinite, c.forceJump};
+    return {c.stale,          c.nonFinite, c.outOfRange, c.tooFast,
+            c.forceNonFinite, c.forceJump, c.overload,   c.shed};
 }
 
 /// STATUS `Safety`: the faults of the ticks since the last frame (a fault that lasted one tick
@@ -79,8 +80,9 @@ std::array<std::uint64_t, 6> faultCounts(const haptics::Snapshot& s) {
 /// the DeviceFault bits; error name: the first fault's name; status: counts and scale.
 igtl::StatusMessage::Pointer safety(const haptics::Snapshot& s, std::uint32_t sinceLast,
                                     igtl::TimeStamp::Pointer& ts) {
-    static constexpr std::array<const char*, 6> kNames = {
-        "stale", "non-finite", "out-of-range", "too-fast", "force-non-finite", "force-jump"};
+    static constexpr std::array<const char*, 8> kNames = {
+        "stale",      "non-finite", "out-of-range", "too-fast", "force-non-finite",
+        "force-jump", "overload",   "shed"};
     const std::uint32_t bits = sinceLast | s.faultFlags;
     const char* first = "";
     std::string text;
@@ -95,7 +97,8 @@ igtl::StatusMessage::Pointer safety(const haptics::Snapshot& s, std::uint32_t si
             ", non-finite " + std::to_string(c.nonFinite) + ", out of range " +
             std::to_string(c.outOfRange) + ", too fast " + std::to_string(c.tooFast) +
             ", force non-finite " + std::to_string(c.forceNonFinite) + ", force jump " +
-            std::to_string(c.forceJump) + "; trips " +
+            std::to_string(c.forceJump) + ", overload " + std::to_string(c.overload) + ", shed " +
+            std::to_string(c.shed) + "; trips " +
             std::to_string(s.watchdogTrips + s.faultTrips);
     auto msg = igtl::StatusMessage::New();
     msg->SetDeviceName("Safety");
@@ -150,7 +153,7 @@ void IgtlStream::serve() {
         std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / mRate));
     igtl::ClientSocket::Pointer client;
     auto next = Clock::now();
-    std::array<std::uint64_t, 6> counted{};  // the fault counts of the last frame sent
+    std::array<std::uint64_t, 8> counted{};  // the fault counts of the last frame sent
     while (!mStop.load()) {
         if (!client || !client->GetConnected()) {
             client = mServer->socket->WaitForConnection(100);  // ms; then look at mStop again
@@ -169,7 +172,7 @@ void IgtlStream::serve() {
         const auto proxy = transform("ProxyToRAS", s.proxy, rotation, ts);
         const auto device = transform("DeviceToRAS", s.probe, rotation, ts);
         const auto f = force(s.force, ts);
-        const std::array<std::uint64_t, 6> counts = faultCounts(s);
+        const std::array<std::uint64_t, 8> counts = faultCounts(s);
         std::uint32_t since = 0;
         for (std::size_t i = 0; i < counts.size(); ++i)
             if (counts[i] > counted[i]) since |= 1u << i;

@@ -83,8 +83,19 @@ RunResult runRealtime(haptics::Session& session, std::uint64_t ticks, double wal
                   {"fifo_dropped", st.fifoDropped},
                   {"overloaded_at_s", st.overloadedAtSeconds},
                   {"overloaded_missed_fraction", st.missedFraction},
+                  {"shedding", st.shedding},
+                  {"sheds", st.sheds},
+                  {"restores", st.restores},
+                  {"shed_at_s", st.shedAtSeconds},
                   {"realtime", rs.message},
                   {"trace_dropped", traceDropped}};
+    if (st.sheds > 0 && !st.overloaded) {
+        std::fprintf(stderr,
+                     "palp: warning: the servo loop fell behind and shed work %llu time(s) (the "
+                     "last at %.2f s: VC in place of AVC/AVCEC, deformable tissue frozen)%s\n",
+                     static_cast<unsigned long long>(st.sheds), st.shedAtSeconds,
+                     st.shedding ? "; still shed at the end" : "; restored since");
+    }
     if (st.overloaded) {
         std::fprintf(stderr,
                      "palp: warning: the servo loop missed %.0f %% of its deadlines over 0.8 s and "

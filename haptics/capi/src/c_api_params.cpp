@@ -505,7 +505,8 @@ static_assert(sameBit(PALP_FAULT_STALE, ph::kFaultStale) &&
                   sameBit(PALP_FAULT_TOO_FAST, ph::kFaultTooFast) &&
                   sameBit(PALP_FAULT_FORCE_NON_FINITE, ph::kFaultForceNonFinite) &&
                   sameBit(PALP_FAULT_FORCE_JUMP, ph::kFaultForceJump) &&
-                  sameBit(PALP_FAULT_OVERLOAD, ph::kFaultOverload),
+                  sameBit(PALP_FAULT_OVERLOAD, ph::kFaultOverload) &&
+                  sameBit(PALP_FAULT_SHED, ph::kFaultShed),
               "palp.h's PALP_FAULT_* bits are DeviceFault's");
 
 palp_latency toC(const ph::LatencySummary& l) noexcept {

@@ -207,6 +207,10 @@ palp_status palp_session_stats(const palp_session* session, palp_loop_stats* out
     out->overloaded = s.overloaded ? 1 : 0;
     out->fifo_dropped = s.fifoDropped ? 1 : 0;
     out->overloaded_at = s.overloadedAtSeconds;
+    out->shedding = s.shedding ? 1 : 0;
+    out->sheds = s.sheds;
+    out->restores = s.restores;
+    out->shed_at = s.shedAtSeconds;
     return PALP_OK;
 }
 

@@ -261,6 +261,7 @@ std::uint32_t forceFlags(std::uint32_t faults) noexcept {
     if (faults & kFaultForceNonFinite) f |= bridge::kForceNonFiniteForce;
     if (faults & kFaultForceJump) f |= bridge::kForceJump;
     if (faults & kFaultOverload) f |= bridge::kForceOverload;
+    if (faults & kFaultShed) f |= bridge::kForceShed;
     return f;
 }
 }  // namespace

@@ -75,6 +75,8 @@ void validateServoConfig(const ServoConfig& c) {
     if (!(c.overrunFraction > 0 && c.overrunFraction <= 1))
         throwExpected("servo config overrunFraction", "a fraction in (0, 1]",
                       formatValue(c.overrunFraction));
+    requireInRange("servo config shedRestoreSeconds (0: never)", c.shedRestoreSeconds, 0.0,
+                   3600.0, "s");
     if (!std::isfinite(c.spinSeconds) || c.spinSeconds < 0 || c.spinSeconds >= c.periodSeconds)
         throw ValueError("servo config: spinSeconds must be in [0, periodSeconds = " +
                          microseconds(c.periodSeconds) + "), found " + formatValue(c.spinSeconds) +
@@ -199,6 +201,10 @@ ServoStats ServoLoop::stats() const noexcept {
     s.fifoDropped = mFifoDropped.load(std::memory_order_relaxed);
     s.overloadedAtSeconds = mOverloadedAt.load(std::memory_order_relaxed);
     s.missedFraction = mMissedFraction.load(std::memory_order_relaxed);
+    s.shedding = mShedding.load(std::memory_order_relaxed);
+    s.sheds = mSheds.load(std::memory_order_relaxed);
+    s.restores = mRestores.load(std::memory_order_relaxed);
+    s.shedAtSeconds = mShedAt.load(std::memory_order_relaxed);
     return s;
 }
 
@@ -299,6 +305,10 @@ void ServoLoop::setUpThread() noexcept {
 void ServoLoop::run(ServoTask* task) noexcept {
     mOverloaded.store(false, std::memory_order_relaxed);
     mFifoDropped.store(false, std::memory_order_relaxed);
+    mShedding.store(false, std::memory_order_relaxed);
+    mSheds.store(0, std::memory_order_relaxed);
+    mRestores.store(0, std::memory_order_relaxed);
+    mShedAt.store(0, std::memory_order_relaxed);
     setUpThread();
     const bool abort = mConfig.requireRealtime && mStatus.failed;
     if (!abort) mRunning.store(true, std::memory_order_release);
@@ -319,6 +329,11 @@ void ServoLoop::run(ServoTask* task) noexcept {
     std::uint64_t windowMissed = 0;
     int windowsOver = 0;  // consecutive windows over the budget
     bool overloadedRun = false;
+    // Shedding: whether the task has shed, and how long it has been calm since (windows that
+    // missed at most a quarter of the budget's fraction).
+    const std::int64_t restoreNs = std::llround(mConfig.shedRestoreSeconds * 1e9);
+    bool shedding = false;
+    std::int64_t calmNs = 0;
     while (!mStop.load(std::memory_order_relaxed)) {
         if (spinNs > 0) {
             sleepUntilNs(deadline - spinNs);
@@ -365,6 +380,24 @@ void ServoLoop::run(ServoTask* task) noexcept {
             if (windowsOver >= mConfig.overrunWindows) {
                 overloadedRun = true;
                 overload(end - startNs, missed, *task);
+            } else if (windowsOver > 0 && !shedding) {
+                // The budget is not spent yet: shed what can be shed, keep rendering.
+                if (task->shed()) {
+                    shedding = true;
+                    calmNs = 0;
+                    mShedAt.store(static_cast<double>(end - startNs) * 1e-9,
+                                  std::memory_order_relaxed);
+                    mSheds.fetch_add(1, std::memory_order_relaxed);
+                    mShedding.store(true, std::memory_order_relaxed);
+                }
+            } else if (shedding && restoreNs > 0) {
+                calmNs = missed <= 0.25 * mConfig.overrunFraction ? calmNs + (end - windowStart) : 0;
+                if (calmNs >= restoreNs) {
+                    task->restore();
+                    shedding = false;
+                    mRestores.fetch_add(1, std::memory_order_relaxed);
+                    mShedding.store(false, std::memory_order_relaxed);
+                }
             }
             windowStart = end;
             windowMissed = 0;

@@ -111,6 +111,7 @@ void Session::start() {
     // ServoLoop::start() orders this write before its first tick).
     mImpl->gate.reset();
     mImpl->overloaded = false;  // a new run gets a new overrun budget
+    mImpl->restore();           // and its work back (the servo thread is not running here)
     mImpl->loop.start(*this);
 }
 
@@ -199,6 +200,10 @@ const DeformableBody* Session::deformable() const noexcept { return mImpl->body.
 std::size_t Session::hitFieldCount() const noexcept { return mImpl->fields.byThreshold.size(); }
 
 void Session::overloaded() noexcept { mImpl->overloaded = true; }  // on the servo thread
+
+bool Session::shed() noexcept { return mImpl->shed(); }  // on the servo thread
+
+void Session::restore() noexcept { mImpl->restore(); }  // on the servo thread
 
 void Session::tick(const TickInfo& info) noexcept {
     mImpl->tick(mImpl->timeBase + info.timeSeconds);

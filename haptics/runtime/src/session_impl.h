@@ -146,6 +146,11 @@ struct Session::Impl {
     void followSurface(bool anchored) noexcept;
 
     void setCoupling(const CouplingParams& params, bool stiffnessLimited) noexcept;
+    // A coupling asked for (a command): VC in its place while shedding (the rest kept for
+    // restore()), as asked otherwise.
+    void requestCoupling(const CouplingParams& params, bool stiffnessLimited) noexcept;
+    bool shed() noexcept;
+    void restore() noexcept;
     void startFade(const CouplingParams& params, bool stiffnessLimited) noexcept;
     // The time of the tick after the newest one (0 before any), s.
     double nextTime() const noexcept { return ticks == 0 ? 0.0 : current.timeSeconds + period; }
@@ -183,6 +188,10 @@ struct Session::Impl {
     DeviceHealth health;      // the device's report on this tick's sample
     bool started = false;     // the first good sample has been seen
     bool overloaded = false;  // the loop's overrun budget was exceeded (until start())
+    bool shedding = false;    // the loop shed work (Session::shed) until restore() or start()
+    bool shedCoupling = false;     // shedding put VC in place of wanted (an AVC/AVCEC coupling)
+    CouplingParams wanted;         // the coupling to restore (the newest asked for)
+    bool wantedLimited = false;
     bool freeProxy = false;   // the probe started inside: the proxy follows it until outside
     Eigen::Vector3d lastProxyForce{Eigen::Vector3d::Zero()};
     double lastStiffness = 0;

@@ -135,15 +135,49 @@ void Session::Impl::setCoupling(const CouplingParams& params, bool stiffnessLimi
     }
 }
 
+void Session::Impl::requestCoupling(const CouplingParams& params,
+                                    bool stiffnessLimited) noexcept {
+    shedCoupling = shedding && params.mode != CouplingMode::VC;
+    if (!shedCoupling) {
+        setCoupling(params, stiffnessLimited);
+        return;
+    }
+    wanted = params;
+    wantedLimited = stiffnessLimited;
+    CouplingParams vc = params;
+    vc.mode = CouplingMode::VC;
+    setCoupling(vc, stiffnessLimited);
+}
+
+bool Session::Impl::shed() noexcept {
+    if (overloaded || shedding) return false;
+    // The newest coupling asked for: one waiting for a fade to end, else the active one.
+    const auto a = static_cast<std::size_t>(active);
+    const CouplingParams now = hasPending ? pending : couplings[a].params();
+    const bool nowLimited = hasPending ? pendingLimited : limited[a];
+    shedding = now.mode != CouplingMode::VC || body != nullptr;
+    if (shedding) requestCoupling(now, nowLimited);
+    return shedding;
+}
+
+void Session::Impl::restore() noexcept {
+    if (!shedding) return;
+    shedding = false;
+    if (shedCoupling) {
+        shedCoupling = false;
+        setCoupling(wanted, wantedLimited);
+    }
+}
+
 void Session::Impl::drainCommands() noexcept {
     // Bounded: at most the queue's capacity per tick (the producer cannot outrun a drain).
     for (std::size_t i = 0; i < commands.capacity() && commands.tryPop(command); ++i) {
         switch (command.kind) {
             case Command::Kind::SetCoupling:
-                setCoupling(command.coupling, command.stiffnessLimited);
+                requestCoupling(command.coupling, command.stiffnessLimited);
                 break;
             case Command::Kind::SetAll:
-                setCoupling(command.coupling, command.stiffnessLimited);
+                requestCoupling(command.coupling, command.stiffnessLimited);
                 proxy.setParams(command.proxy);
                 passivity.setEnabled(command.flag);
                 break;
@@ -196,6 +230,7 @@ void Session::Impl::tick(double timeSeconds) noexcept {
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
     }
+    if (shedding && !overloaded) hand.faults |= kFaultShed;
     const SentForce sent =
         forceChain(force, hand.handVelocity, health.forceScale, !hand.ok || overloaded);
     const std::uint32_t faults = (health.faults & kAllFaults) | hand.faults | sent.faults;
@@ -349,6 +384,7 @@ void Session::Impl::countFaults(std::uint32_t faults) noexcept {
     c.forceNonFinite += (faults & kFaultForceNonFinite) ? 1 : 0;
     c.forceJump += (faults & kFaultForceJump) ? 1 : 0;
     c.overload += (faults & kFaultOverload) ? 1 : 0;
+    c.shed += (faults & kFaultShed) ? 1 : 0;
 }
 
 // Stage 5, deformable tissue (nothing on a rigid scene): the reaction of the force on the hand
@@ -357,6 +393,13 @@ void Session::Impl::countFaults(std::uint32_t faults) noexcept {
 bool Session::Impl::contactTissue(const ProxyState& ps, const Eigen::Vector3d& sent,
                                   Eigen::Vector3d& tissueForce) noexcept {
     if (!body) return false;
+    if (shedding) {
+        // Shed: the tissue keeps its shape (no load, no step); the proxy rests on it as on a
+        // rigid surface. The snapshot shows no contact on the tissue.
+        current.femFlags = 0;
+        current.contactNode = -1;
+        return false;
+    }
     bool anchored = false;
     if (ps.contactCount > 0 && sent.allFinite()) {
         // Implicit coupling: the reaction of the force sent acts now, and the coupling

@@ -15,6 +15,7 @@
 #include <cstdio>
 #include <map>
 #include <memory>
+#include <random>
 #include <string>
 #include <thread>
 #include <vector>
@@ -409,6 +410,73 @@ TEST_F(UdpDeviceTest, TenThousandLossyCyclesAreCountedExactly) {
         static_cast<unsigned long long>(c.late), static_cast<unsigned long long>(stale),
         static_cast<unsigned long long>(scaled), roundTripUs[kCycles / 2],
         roundTripUs[kCycles * 99 / 100]);
+}
+
+// A link that delays (issue 38's fault injection): every State reaches palp 0 to 4 ticks after
+// it was sent (seeded; the first at once), so some ticks get none and others several, and a
+// State delayed longer than a later one arrives after it. Over 5,000 lockstep cycles every
+// Force is its tick's snapshot force; the counters are exactly those of the delivery order
+// (modelled here: a State newer than all before is received and counts the sequence numbers
+// it skipped as lost, an older one is late); no gap between fresh States reaches the watchdog's
+// timeout (no cut, no trip) and every force is finite and within the device's maximum.
+TEST_F(UdpDeviceTest, JitteredDelaysOfUpToFourTicksAreCountedExactly) {
+    UdpDevice device(touchX(), deviceParams());
+    UdpBridgeClient client(address(device));
+    Session session(sScene, device, params());
+    constexpr std::uint64_t kCycles = 5000;
+    constexpr int kMaxDelay = 4;
+    std::mt19937 rng(38);
+    std::uniform_int_distribution<int> delay(0, kMaxDelay);
+    std::vector<std::vector<std::uint64_t>> due(kCycles + kMaxDelay + 1);  // sent at cycle c
+    for (std::uint64_t i = 0; i < kCycles; ++i)
+        due[i + static_cast<std::uint64_t>(i == 0 ? 0 : delay(rng))].push_back(i);
+    std::uint64_t newest = 0, received = 0, late = 0, lost = 0;  // the model of the receiver
+    std::uint64_t matched = 0, cut = 0, scaled = 0;
+    double maxForce = 0, lastWholeY = 0;  // the force of the last fresh, whole tick
+    for (std::uint64_t i = 0; i < kCycles; ++i) {
+        for (const std::uint64_t j : due[i]) {
+            ASSERT_TRUE(client.send(pressState(j)));
+            const std::uint64_t sequence = pressState(j).sequence;
+            if (sequence <= newest) {
+                ++late;
+            } else {
+                if (newest > 0) lost += sequence - newest - 1;
+                newest = sequence;
+                ++received;
+            }
+        }
+        const Snapshot& s = session.step();
+        bridge::ForceMessage f;
+        ASSERT_TRUE(client.receive(f, 1.0)) << "cycle " << i;
+        ASSERT_EQ(f.tick, s.tick);
+        ASSERT_TRUE(s.force.allFinite()) << "cycle " << i;
+        if (f.force == s.force && f.forceScale == s.deviceForceScale) ++matched;
+        if (f.forceScale <= 0) ++cut;
+        if (f.forceScale < 1) ++scaled;
+        maxForce = std::max(maxForce, s.force.norm());
+        if (f.forceScale == 1 && !(f.flags & bridge::kForceStale)) lastWholeY = s.force.y();
+    }
+    readUntil(device, [&] { return device.counters().received == received; });
+    const UdpDeviceCounters c = device.counters();
+    EXPECT_EQ(matched, kCycles);
+    EXPECT_EQ(c.received, received);
+    EXPECT_EQ(c.late, late);
+    EXPECT_EQ(c.lost, lost);
+    EXPECT_EQ(c.restarts, 0u);
+    EXPECT_EQ(c.ignored(), 0u);
+    EXPECT_GT(late, 100u);  // the script reorders: about a third of the States come late
+    EXPECT_EQ(cut, 0u);
+    EXPECT_EQ(session.latest().watchdogTrips, 0u);
+    EXPECT_LE(maxForce, touchX().maxForceN);
+    // The press is held at the end: k x depth, as over a clean link.
+    EXPECT_NEAR(lastWholeY, -kStiffness * kDepth, kStiffness * 0.5e-3);
+    std::printf(
+        "jittered link: %llu cycles, %llu received, %llu late, %llu lost (counted %llu, %llu, "
+        "%llu), %llu ticks scaled, none cut\n",
+        static_cast<unsigned long long>(kCycles), static_cast<unsigned long long>(received),
+        static_cast<unsigned long long>(late), static_cast<unsigned long long>(lost),
+        static_cast<unsigned long long>(c.received), static_cast<unsigned long long>(c.late),
+        static_cast<unsigned long long>(c.lost), static_cast<unsigned long long>(scaled));
 }
 
 // A 1 kHz live run: the session on its servo thread, the remote hand on another thread sending

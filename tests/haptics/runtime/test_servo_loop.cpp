@@ -459,6 +459,94 @@ TEST(ServoLoop, AnotherFifoThreadOnTheSameCpuRunsOnceTheLoopGivesUp) {
     EXPECT_GT(after, 4 * during + 1000);  // starved, then running again
 }
 
+/// Each tick spins mSlow s, or mFast s once the task has shed (when shedding helps); restore()
+/// makes it slow again. Records when the calls came (s, monotonic).
+class SheddingTask final : public ServoTask {
+  public:
+    SheddingTask(double slow, double fast) : mSlow(slow), mFast(fast) {}
+    void tick(const TickInfo&) noexcept override {
+        if (mFirst.load(std::memory_order_relaxed) == 0)
+            mFirst.store(monotonicSeconds(), std::memory_order_relaxed);
+        spin(mShed.load(std::memory_order_relaxed) ? mFast : mSlow);
+    }
+    bool shed() noexcept override {
+        const int n = mSheds.fetch_add(1, std::memory_order_relaxed);
+        if (n < 2) mShedAt[static_cast<std::size_t>(n)].store(monotonicSeconds());
+        mShed.store(true, std::memory_order_relaxed);
+        return true;
+    }
+    void restore() noexcept override {
+        if (mRestores.fetch_add(1, std::memory_order_relaxed) == 0)
+            mRestoreAt.store(monotonicSeconds());
+        mShed.store(false, std::memory_order_relaxed);
+    }
+    void overloaded() noexcept override {
+        mOverloads.fetch_add(1, std::memory_order_relaxed);
+        mOverloadAt.store(monotonicSeconds());
+    }
+    double mSlow, mFast;
+    std::atomic<bool> mShed{false};
+    std::atomic<int> mSheds{0}, mRestores{0}, mOverloads{0};
+    std::array<std::atomic<double>, 2> mShedAt{};
+    std::atomic<double> mRestoreAt{0}, mOverloadAt{0}, mFirst{0};
+};
+
+// Shedding before giving up (issue 38): ticks of 3 ms at 1 kHz that take 0.1 ms once the task
+// has shed. After the first 0.4 s window over the budget the loop asks the task to shed, once;
+// the light ticks then keep their deadlines, so the loop is never overloaded and keeps
+// SCHED_FIFO. After shedRestoreSeconds (0.8 s here) of calm windows it gives the work back, the
+// ticks are slow again, and it sheds again within a window. A task whose shedding does not help
+// (its ticks stay slow) is overloaded within the bound of one that cannot shed: 0.8 s plus a
+// tick. Needs SCHED_FIFO (skipped where it is refused).
+TEST(ServoLoop, ALoopThatFallsBehindShedsFirstAndRestoresWhenCalm) {
+    ServoConfig config;
+    config.priority = 10;
+    config.cpu = 0;  // not the last CPU, where other servos spin
+    config.shedRestoreSeconds = 0.8;
+    ServoLoop loop(config);
+    SheddingTask task(3e-3, 0.1e-3);
+    loop.start(task);
+    if (!loop.realtime().fifo) {
+        loop.stop();
+        GTEST_SKIP() << "SCHED_FIFO refused here: " << loop.realtime().message;
+    }
+    ASSERT_TRUE(waitFor([&] { return task.mSheds.load() >= 2; }, 10.0));
+    loop.stop();
+    const ServoStats s = loop.stats();
+    const double first = task.mFirst.load(), shed1 = task.mShedAt[0].load(),
+                 restored = task.mRestoreAt.load(), shed2 = task.mShedAt[1].load();
+    std::printf("shed %.3f s after the first tick, restored %.3f s later, shed again %.3f s "
+                "after that; %llu sheds, %llu restores, overloaded %d\n",
+                shed1 - first, restored - shed1, shed2 - restored,
+                static_cast<unsigned long long>(s.sheds),
+                static_cast<unsigned long long>(s.restores), s.overloaded ? 1 : 0);
+    EXPECT_FALSE(s.overloaded);
+    EXPECT_EQ(task.mOverloads.load(), 0);
+    EXPECT_FALSE(s.fifoDropped);
+    EXPECT_EQ(s.sheds, static_cast<std::uint64_t>(task.mSheds.load()));
+    EXPECT_EQ(s.restores, static_cast<std::uint64_t>(task.mRestores.load()));
+    EXPECT_GE(s.restores, 1u);
+    EXPECT_LE(shed1 - first, 0.4 + 0.05);  // one window (and slack)
+    // Restored after the calm windows: at least 0.8 s, at most one window more (the shed
+    // window's own remainder is not calm).
+    EXPECT_GE(restored - shed1, 0.8 - 0.01);
+    EXPECT_LE(restored - shed1, 0.8 + 0.4 + 0.05);
+    EXPECT_LE(shed2 - restored, 2 * 0.4 + 0.05);  // the next window over the budget
+    EXPECT_GT(s.shedAtSeconds, 0.0);
+
+    // Shedding that does not help: the same bound as a task that cannot shed.
+    ServoLoop stuck(config);
+    SheddingTask slow(3e-3, 3e-3);
+    stuck.start(slow);
+    ASSERT_TRUE(waitFor([&] { return stuck.stats().overloaded; }, 5.0));
+    stuck.stop();
+    EXPECT_EQ(slow.mSheds.load(), 1);
+    EXPECT_EQ(slow.mOverloads.load(), 1);
+    EXPECT_LE(slow.mOverloadAt.load() - slow.mFirst.load(), 0.8 + 0.05);
+    EXPECT_TRUE(stuck.stats().fifoDropped);
+    EXPECT_TRUE(stuck.stats().shedding);  // shed, then overloaded: never restored
+}
+
 // ---------------------------------------------------------------------------------------------
 // Configuration and real-time requirements
 

@@ -328,6 +328,63 @@ TEST_F(SessionTest, AnOverloadedSessionRampsItsForceToZeroAndShedsItsWork) {
     EXPECT_GT(s.rays, 0);
 }
 
+// Shedding (issue 38; ServoLoop calls Session::shed() on the servo thread after a window over
+// its budget, here between offline steps): AVCEC gives way to VC (no ray bundle, cross-faded:
+// no force step beyond the fade's), kFaultShed on every tick and nothing else, the press still
+// rendered; a coupling asked for meanwhile waits (VC in its place); restore() brings the newest
+// asked for back with its rays; a session with nothing to shed (VC, rigid) says so.
+TEST_F(SessionTest, ASheddingSessionRendersVcAndRestoresTheNewestCoupling) {
+    PathDevice dev(
+        {{0, at(0.0, -0.003, 0.0)}, {0.3, at(0.0, 0.002, 0.0)}, {9.0, at(0.0, 0.002, 0.0)}});
+    SessionParams p = params(CouplingMode::AVCEC);
+    p.servo.priority = 0;
+    Session session(sScene, dev, p);
+    Snapshot s;
+    for (int i = 0; i < 500; ++i) s = session.step();
+    ASSERT_GT(s.rays, 0);
+    ASSERT_GT(s.force.norm(), 0.3);
+    ASSERT_TRUE(session.shed());
+    EXPECT_FALSE(session.shed());  // once
+    double largestStep = 0;
+    for (int n = 1; n <= 300; ++n) {
+        const Eigen::Vector3d before = s.force;
+        s = session.step();
+        expectSafe(s, touchX());
+        EXPECT_EQ(s.faultFlags, static_cast<std::uint32_t>(kFaultShed)) << n;
+        EXPECT_FALSE(s.faulted);
+        EXPECT_GT(s.force.norm(), 0.3) << n;
+        largestStep = std::max(largestStep, (s.force - before).norm());
+    }
+    EXPECT_EQ(s.mode, CouplingMode::VC);
+    EXPECT_EQ(s.rays, 0);
+    EXPECT_EQ(s.faultCounts.shed, 300u);
+    EXPECT_EQ(s.faults, 0u);
+    EXPECT_EQ(s.faultTrips, 0u);
+    EXPECT_LT(largestStep, 0.5 * s.force.norm());  // cross-faded, not switched
+    // A coupling asked for while shed is kept for the restore; VC renders meanwhile.
+    Command c;
+    c.kind = Command::Kind::SetCoupling;
+    c.coupling = params(CouplingMode::AVC).coupling;
+    ASSERT_TRUE(session.send(c));
+    for (int n = 0; n < 100; ++n) s = session.step();
+    EXPECT_EQ(s.mode, CouplingMode::VC);
+    EXPECT_EQ(s.rays, 0);
+    // Restored after the fade under way (each coupling change cross-fades over 200 ticks).
+    session.restore();
+    for (int n = 0; n < 400; ++n) s = session.step();
+    EXPECT_FALSE(s.fading);
+    EXPECT_EQ(s.faultFlags, 0u);
+    EXPECT_EQ(s.mode, CouplingMode::AVC);
+    EXPECT_GT(s.rays, 0);
+    EXPECT_EQ(s.faultCounts.shed, 400u);
+    // Nothing to shed: VC on a rigid scene.
+    PathDevice still({{0, at(0.0, -0.003, 0.0)}});
+    Session vc(sScene, still, params(CouplingMode::VC));
+    vc.step();
+    EXPECT_FALSE(vc.shed());
+    EXPECT_EQ(vc.step().faultFlags, 0u);
+}
+
 TEST_F(SessionTest, BadFaultParamsAreRefusedNamingTheField) {
     const auto refused = [&](const SessionParams& p, const std::string& field) {
         try {

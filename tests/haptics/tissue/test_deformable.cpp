@@ -327,6 +327,43 @@ TEST(DeformableBody, BoneNodesStayFixed) {
 
 // (5) A hard, deep press with a stiff coupling: the force is finite and within the device's
 // maximum at every tick, and a tick (proxy, coupling, FEM step, refit) allocates nothing.
+// Shedding on deformable tissue (issue 38; Session::shed() as the servo loop calls it after a
+// window over its budget): the tissue is frozen in its dent (no FEM step, no load on it: its
+// displacement stays bit for bit), the proxy rests on the frozen surface and the held press
+// keeps its force (the VC spring: the same to 1 %), kFaultShed on every tick; restore() steps
+// the tissue again from there and the press settles back on the same equilibrium.
+TEST(DeformableSession, ShedFreezesTheTissueAndRestoreStepsItAgain) {
+    auto model = cube(3e-3);
+    auto scene = deformableScene(model);
+    PathDevice device({{0.0, mm(0, -5, 0)}, {0.6, mm(0, 4, 0)}, {4.0, mm(0, 4, 0)}});
+    Session session(scene, device, vcParams(100));
+    Snapshot s;
+    for (int i = 0; i < 1500; ++i) s = session.step();
+    ASSERT_GT(s.contactCount, 0);
+    ASSERT_GT(s.maxDisplacement, 1e-3);
+    const Eigen::Vector3d held = s.force;
+    const double dent = s.maxDisplacement;
+    const Eigen::VectorXd frozen = session.deformable()->displacement();
+    ASSERT_TRUE(session.shed());  // VC already: the tissue is what is shed
+    for (int i = 0; i < 300; ++i) {
+        s = session.step();
+        ASSERT_TRUE(s.force.allFinite());
+        EXPECT_EQ(s.faultFlags, static_cast<std::uint32_t>(kFaultShed)) << i;
+        EXPECT_EQ(s.tissueForce.norm(), 0.0) << i;
+        EXPECT_EQ(s.femFlags, 0u);
+        EXPECT_GT(s.contactCount, 0) << i;
+        EXPECT_NEAR((s.force - held).norm(), 0.0, 0.01 * held.norm()) << i;
+    }
+    EXPECT_EQ(s.maxDisplacement, dent);
+    EXPECT_EQ((session.deformable()->displacement() - frozen).cwiseAbs().maxCoeff(), 0.0);
+    session.restore();
+    for (int i = 0; i < 500; ++i) s = session.step();
+    EXPECT_EQ(s.faultFlags, 0u);
+    EXPECT_GT(s.tissueForce.norm(), 0.0);
+    EXPECT_NEAR((s.force - held).norm(), 0.0, 0.01 * held.norm());
+    EXPECT_EQ(s.faultCounts.shed, 300u);
+}
+
 TEST(DeformableSession, SafeAndAllocationFreeTicks) {
     auto model = cube(6e-3);  // the wider filter keeps k = 300 N/m stable
     auto scene = deformableScene(model);

@@ -399,7 +399,9 @@ typedef enum palp_fault {
     PALP_FAULT_TOO_FAST = 8,          /**< over 10 m/s, or a jump from the last good sample */
     PALP_FAULT_FORCE_NON_FINITE = 16, /**< the computed force was not finite (last good held) */
     PALP_FAULT_FORCE_JUMP = 32,       /**< the force stepped by more than max_force / 2 (limited) */
-    PALP_FAULT_OVERLOAD = 64 /**< the servo loop overran its budget: no force till restart */
+    PALP_FAULT_OVERLOAD = 64, /**< the servo loop overran its budget: no force till restart */
+    PALP_FAULT_SHED = 128     /**< the servo loop shed work to keep up (VC, tissue frozen):
+                                   the force is still rendered (palp_loop_stats.shedding) */
 } palp_fault;
 
 /** One tick's state (world frame, SI units). */
@@ -456,6 +458,12 @@ typedef struct palp_loop_stats {
     uint64_t trace_dropped;       /**< snapshots lost because the trace was not read in time */
     int overloaded, fifo_dropped; /**< 2 x 0.4 s with > half the deadlines missed; FIFO dropped */
     double overloaded_at;         /**< when, s: no force from then until restarted */
+    /** 1: after one 0.4 s window with > half the deadlines missed the session shed work (VC in
+     *  place of AVC/AVCEC, deformable tissue frozen) and still renders; restored after 10 s of
+     *  calm windows. sheds / restores: counts this run; shed_at: the last shed, s. */
+    int shedding;
+    uint64_t sheds, restores;
+    double shed_at;
 } palp_loop_stats;
 
 typedef struct palp_realtime {

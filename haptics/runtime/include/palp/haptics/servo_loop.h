@@ -25,6 +25,17 @@ class ServoTask {
   public:
     virtual ~ServoTask() = default;
     virtual void tick(const TickInfo& info) noexcept = 0;
+    /// Called on the servo thread between two ticks when a window of the overrun budget was
+    /// over it but the budget is not yet spent (the first of ServoConfig::overrunWindows): the
+    /// task sheds the work it can shed and keeps rendering (Session: VC coupling instead of
+    /// AVC/AVCEC's ray bundles, the deformable tissue frozen). Returns false when it has nothing
+    /// to shed. If the next windows are still over the budget, overloaded() follows as before.
+    /// Default: false.
+    virtual bool shed() noexcept { return false; }
+    /// Called on the servo thread when a loop that shed has kept ServoConfig::shedRestoreSeconds
+    /// of windows well inside the budget: the task takes back what shed() dropped. Default:
+    /// nothing.
+    virtual void restore() noexcept {}
     /// Called once per run, on the servo thread between two ticks, when the loop has exceeded
     /// its overrun budget (ServoConfig::overrunWindowSeconds): the task should stop rendering
     /// force and shed the work it can (Session does both). Default: nothing.
@@ -47,9 +58,17 @@ struct ServoConfig {
     /// at real-time priority for longer than overrunWindows windows plus one tick (0.8 s plus a
     /// tick by default; two windows, so that a slow start, a deformable body's first ticks, is
     /// not taken for an overload); ServoStats::overloaded says when. s, 0 .. 60; 0: no budget.
+    /// Before it gives up, the loop sheds: after the first window over the budget (of
+    /// overrunWindows >= 2) it calls ServoTask::shed() once; the task keeps rendering with less
+    /// work. A window under the budget then clears the count as before; a window over it still
+    /// counts, so the bound above holds whether or not shedding helped.
     double overrunWindowSeconds = 0.4;
     int overrunWindows = 2;        ///< consecutive windows over the budget (1 .. 100)
     double overrunFraction = 0.5;  ///< (0, 1]
+    /// A loop that shed gives the task its work back (ServoTask::restore()) once every window
+    /// of this long has missed at most a quarter of overrunFraction of its deadlines; it may
+    /// shed again later. s, 0 .. 3600; 0: never restore (shed until the next start()).
+    double shedRestoreSeconds = 10;
 };
 
 /// @throw palp::ValueError naming the field.
@@ -107,6 +126,11 @@ struct ServoStats {
     bool fifoDropped = false;
     double overloadedAtSeconds = 0;  ///< when, since the first deadline, s
     double missedFraction = 0;       ///< of the last window that exceeded the budget
+    /// The task has shed work (ServoTask::shed() returned true) and not yet been restored.
+    bool shedding = false;
+    std::uint64_t sheds = 0;     ///< shed() calls that shed something, this run
+    std::uint64_t restores = 0;  ///< restore() calls, this run
+    double shedAtSeconds = 0;    ///< the last shed, since the first deadline, s
 };
 
 /// Runs a ServoTask on its own thread.
@@ -150,6 +174,9 @@ class ServoLoop {
     // The overrun budget's verdict (servo thread writes, any thread reads).
     std::atomic<bool> mOverloaded{false}, mFifoDropped{false};
     std::atomic<double> mOverloadedAt{0}, mMissedFraction{0};
+    std::atomic<bool> mShedding{false};
+    std::atomic<std::uint64_t> mSheds{0}, mRestores{0};
+    std::atomic<double> mShedAt{0};
 };
 
 }  // namespace palp::haptics

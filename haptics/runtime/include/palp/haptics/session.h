@@ -75,6 +75,7 @@ struct FaultCounts {
     std::uint64_t forceNonFinite = 0;  ///< kFaultForceNonFinite ticks
     std::uint64_t forceJump = 0;       ///< kFaultForceJump ticks
     std::uint64_t overload = 0;        ///< kFaultOverload ticks
+    std::uint64_t shed = 0;            ///< kFaultShed ticks (work shed, force still rendered)
 };
 
 /// One tick's state, published lock-free for viewers and traces. Plain data.
@@ -278,6 +279,16 @@ class Session final : public ServoTask {
     std::size_t hitFieldCount() const noexcept;
 
     void tick(const TickInfo& info) noexcept override;
+    /// The loop's first window over its overrun budget (ServoLoop; on the servo thread, or
+    /// between offline steps): from the next tick the session renders with less work: an AVC
+    /// or AVCEC coupling gives way to VC with the same parameters (no ray bundle; cross-faded
+    /// as any coupling change), and deformable tissue is frozen in its current shape (no FEM
+    /// step; the proxy stays on the frozen surface). kFaultShed on every tick until restore()
+    /// or the next start(). A coupling set meanwhile is kept and applied (as VC) then. Returns
+    /// false when there is nothing to shed (VC on a rigid scene) or the loop is overloaded.
+    bool shed() noexcept override;
+    /// Takes back what shed() dropped: the coupling asked for last (cross-faded) and the FEM.
+    void restore() noexcept override;
     /// The servo loop exceeded its overrun budget (ServoConfig::overrunWindowSeconds; it has
     /// dropped SCHED_FIFO): from the next tick until the next start() the session renders no
     /// force (held, then ramped to zero as for a refused sample; kFaultOverload on every tick)

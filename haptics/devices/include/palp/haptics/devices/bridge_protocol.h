@@ -46,6 +46,9 @@ enum ForceFlag : std::uint32_t {
     kForceNonFiniteForce = 1u << 7,   ///< palp's force was not finite (the last good one held)
     kForceJump = 1u << 8,             ///< palp's force would have jumped (limited to a step)
     kForceOverload = 1u << 9,  ///< palp's servo loop overran its budget: no force until restarted
+    /// palp's servo loop shed work to keep its deadlines (VC coupling, tissue frozen): the force
+    /// is still rendered, with less detail.
+    kForceShed = 1u << 10,
 };
 
 /// Remote device -> palp: one sample of the device, in the device frame.

@@ -36,13 +36,18 @@ enum DeviceFault : std::uint32_t {
     /// The servo loop exceeded its overrun budget (ServoConfig): the session renders no force
     /// (ramped to zero) and sheds its work until it is restarted.
     kFaultOverload = 1u << 6,
+    /// The servo loop shed work to keep its deadlines (ServoTask::shed: VC coupling instead of
+    /// AVC/AVCEC, deformable tissue frozen): the force is still rendered, with less detail,
+    /// until the loop restores the work or gives up (kFaultOverload).
+    kFaultShed = 1u << 7,
 };
 /// The sample faults that make a sample unusable (its force is held, then ramped to zero).
 inline constexpr std::uint32_t kBadSampleFaults =
     kFaultNonFinite | kFaultOutOfRange | kFaultTooFast;
 /// Every DeviceFault bit.
 inline constexpr std::uint32_t kAllFaults =
-    kBadSampleFaults | kFaultStale | kFaultForceNonFinite | kFaultForceJump | kFaultOverload;
+    kBadSampleFaults | kFaultStale | kFaultForceNonFinite | kFaultForceJump | kFaultOverload |
+    kFaultShed;
 
 /// What a device reports about its own samples after read() (Session copies it into every
 /// Snapshot). A plain device is always healthy; WatchdogDevice fills it.
