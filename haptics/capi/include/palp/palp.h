@@ -72,8 +72,7 @@ typedef void (*palp_error_callback)(void* user, palp_status status, const char* 
 /** Sets (or with NULL clears) the process-wide error callback. */
 void palp_set_error_callback(palp_error_callback callback, void* user);
 
-/* ---------------------------------------------------------------------------------------- */
-/* Volumes                                                                                  */
+/* ---- Volumes --------------------------------------------------------------------------- */
 
 /** Loads a scan: a DICOM directory or file, NIfTI, NRRD, MetaImage or a palp .vdb.
  *  @p voxel_size: isotropic voxel edge of the resampled grid, m (0: the format's default,
@@ -133,8 +132,7 @@ palp_status palp_volume_geometry(const palp_volume* volume, double* voxel_size,
 palp_volume* palp_volume_retain(palp_volume* volume);
 void palp_volume_release(palp_volume* volume);
 
-/* ---------------------------------------------------------------------------------------- */
-/* Scenes                                                                                   */
+/* ---- Scenes ---------------------------------------------------------------------------- */
 
 /** A scene from a volume: the volume for the volume ray sources, the iso-surface at
  *  @p surface_iso (volume units, e.g. -500 HU for skin) as the surface the proxy slides on, and
@@ -148,8 +146,7 @@ palp_status palp_scene_create_empty(palp_scene** out);
 palp_scene* palp_scene_retain(palp_scene* scene);
 void palp_scene_release(palp_scene* scene);
 
-/* ---------------------------------------------------------------------------------------- */
-/* Deformable scenes                                                                        */
+/* ---- Deformable scenes ----------------------------------------------------------------- */
 
 /** A face of the tissue's hexahedral lattice (its world box), whose nodes are fixed. */
 typedef enum palp_face {
@@ -290,8 +287,7 @@ palp_status palp_scene_surface_topology(const palp_scene* scene, uint32_t* trian
                                         size_t triangle_capacity, float* rest_vertices,
                                         size_t vertex_capacity);
 
-/* ---------------------------------------------------------------------------------------- */
-/* Sessions                                                                                 */
+/* ---- Sessions -------------------------------------------------------------------------- */
 
 typedef enum palp_coupling_mode {
     PALP_MODE_VC = 0,   /**< plain virtual coupling, k = stiffness */
@@ -400,8 +396,7 @@ typedef enum palp_fault {
     PALP_FAULT_FORCE_NON_FINITE = 16, /**< the computed force was not finite (last good held) */
     PALP_FAULT_FORCE_JUMP = 32,       /**< the force stepped by more than max_force / 2 (limited) */
     PALP_FAULT_OVERLOAD = 64, /**< the servo loop overran its budget: no force till restart */
-    PALP_FAULT_SHED = 128     /**< the servo loop shed work to keep up (VC, tissue frozen):
-                                   the force is still rendered (palp_loop_stats.shedding) */
+    PALP_FAULT_SHED = 128     /**< the loop shed work (VC, tissue frozen); force still rendered */
 } palp_fault;
 
 /** One tick's state (world frame, SI units). */
@@ -458,9 +453,8 @@ typedef struct palp_loop_stats {
     uint64_t trace_dropped;       /**< snapshots lost because the trace was not read in time */
     int overloaded, fifo_dropped; /**< 2 x 0.4 s with > half the deadlines missed; FIFO dropped */
     double overloaded_at;         /**< when, s: no force from then until restarted */
-    /** 1: after one 0.4 s window with > half the deadlines missed the session shed work (VC in
-     *  place of AVC/AVCEC, deformable tissue frozen) and still renders; restored after 10 s of
-     *  calm windows. sheds / restores: counts this run; shed_at: the last shed, s. */
+    /** 1: one 0.4 s window over budget: work shed (VC for AVC/AVCEC, tissue frozen), force still
+     *  rendered, restored after 10 s of calm; counts this run; shed_at: the last shed, s */
     int shedding;
     uint64_t sheds, restores;
     double shed_at;
@@ -478,8 +472,7 @@ typedef struct palp_realtime {
 palp_status palp_session_create_simulated(palp_scene* scene, const palp_session_params* params,
                                           const palp_trajectory* trajectory, palp_session** out);
 
-/* ---------------------------------------------------------------------------------------- */
-/* Host devices                                                                             */
+/* ---- Host devices ---------------------------------------------------------------------- */
 
 /** One sample of a host's device, in the device frame (world = workspace transform of it). */
 typedef struct palp_device_state {
@@ -562,8 +555,7 @@ void palp_device_callbacks_default(palp_device_callbacks* callbacks);
 palp_status palp_session_create_host(palp_scene* scene, const palp_session_params* params,
                                      const palp_device_callbacks* device, palp_session** out);
 
-/* ---------------------------------------------------------------------------------------- */
-/* Remote devices: the device bridge over UDP (docs/device_bridge.md)                       */
+/* ---- Remote devices: the device bridge over UDP (docs/device_bridge.md) ---------------- */
 
 /** How a remote device's session listens and when its force is cut. Start from
  *  palp_udp_device_params_default(). The remote program sends bridge State datagrams to
