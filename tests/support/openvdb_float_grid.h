@@ -8,7 +8,8 @@
 
 #include <openvdb/openvdb.h>
 
-extern template class openvdb::v10_0::tree::InternalNode<openvdb::v10_0::tree::LeafNode<float, 3>, 4>;
+extern template class openvdb::v10_0::tree::InternalNode<openvdb::v10_0::tree::LeafNode<float, 3>,
+                                                         4>;
 extern template class openvdb::v10_0::tree::InternalNode<
     openvdb::v10_0::tree::InternalNode<openvdb::v10_0::tree::LeafNode<float, 3>, 4>, 5>;
 extern template class openvdb::v10_0::tree::Tree<openvdb::FloatTree::RootNodeType>;

@@ -108,10 +108,10 @@ json loopJson(const haptics::ServoStats& st, const haptics::RealtimeStatus& rs) 
             {"fifo_dropped", st.fifoDropped},
             {"overloaded_at_s", st.overloadedAtSeconds},
             {"overloaded_missed_fraction", st.missedFraction},
-                  {"shedding", st.shedding},
-                  {"sheds", st.sheds},
-                  {"restores", st.restores},
-                  {"shed_at_s", st.shedAtSeconds},
+            {"shedding", st.shedding},
+            {"sheds", st.sheds},
+            {"restores", st.restores},
+            {"shed_at_s", st.shedAtSeconds},
             {"realtime", rs.message}};
 }
 

@@ -98,8 +98,7 @@ igtl::StatusMessage::Pointer safety(const haptics::Snapshot& s, std::uint32_t si
             std::to_string(c.outOfRange) + ", too fast " + std::to_string(c.tooFast) +
             ", force non-finite " + std::to_string(c.forceNonFinite) + ", force jump " +
             std::to_string(c.forceJump) + ", overload " + std::to_string(c.overload) + ", shed " +
-            std::to_string(c.shed) + "; trips " +
-            std::to_string(s.watchdogTrips + s.faultTrips);
+            std::to_string(c.shed) + "; trips " + std::to_string(s.watchdogTrips + s.faultTrips);
     auto msg = igtl::StatusMessage::New();
     msg->SetDeviceName("Safety");
     msg->SetCode(s.deviceForceScale <= 0                 ? igtl::StatusMessage::STATUS_DISABLED

@@ -75,8 +75,8 @@ void validateServoConfig(const ServoConfig& c) {
     if (!(c.overrunFraction > 0 && c.overrunFraction <= 1))
         throwExpected("servo config overrunFraction", "a fraction in (0, 1]",
                       formatValue(c.overrunFraction));
-    requireInRange("servo config shedRestoreSeconds (0: never)", c.shedRestoreSeconds, 0.0,
-                   3600.0, "s");
+    requireInRange("servo config shedRestoreSeconds (0: never)", c.shedRestoreSeconds, 0.0, 3600.0,
+                   "s");
     if (!std::isfinite(c.spinSeconds) || c.spinSeconds < 0 || c.spinSeconds >= c.periodSeconds)
         throw ValueError("servo config: spinSeconds must be in [0, periodSeconds = " +
                          microseconds(c.periodSeconds) + "), found " + formatValue(c.spinSeconds) +
@@ -391,7 +391,8 @@ void ServoLoop::run(ServoTask* task) noexcept {
                     mShedding.store(true, std::memory_order_relaxed);
                 }
             } else if (shedding && restoreNs > 0) {
-                calmNs = missed <= 0.25 * mConfig.overrunFraction ? calmNs + (end - windowStart) : 0;
+                calmNs =
+                    missed <= 0.25 * mConfig.overrunFraction ? calmNs + (end - windowStart) : 0;
                 if (calmNs >= restoreNs) {
                     task->restore();
                     shedding = false;

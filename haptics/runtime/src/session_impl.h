@@ -185,14 +185,14 @@ struct Session::Impl {
     double maxForceStep;  // N per tick (FaultParams::maxForceStepN or half maxForceN)
     Eigen::Vector3d lastStepped{Eigen::Vector3d::Zero()};  // the force after the step limit
     FaultCounts faultCounts;
-    DeviceHealth health;      // the device's report on this tick's sample
-    bool started = false;     // the first good sample has been seen
-    bool overloaded = false;  // the loop's overrun budget was exceeded (until start())
-    bool shedding = false;    // the loop shed work (Session::shed) until restore() or start()
-    bool shedCoupling = false;     // shedding put VC in place of wanted (an AVC/AVCEC coupling)
-    CouplingParams wanted;         // the coupling to restore (the newest asked for)
+    DeviceHealth health;        // the device's report on this tick's sample
+    bool started = false;       // the first good sample has been seen
+    bool overloaded = false;    // the loop's overrun budget was exceeded (until start())
+    bool shedding = false;      // the loop shed work (Session::shed) until restore() or start()
+    bool shedCoupling = false;  // shedding put VC in place of wanted (an AVC/AVCEC coupling)
+    CouplingParams wanted;      // the coupling to restore (the newest asked for)
     bool wantedLimited = false;
-    bool freeProxy = false;   // the probe started inside: the proxy follows it until outside
+    bool freeProxy = false;  // the probe started inside: the proxy follows it until outside
     Eigen::Vector3d lastProxyForce{Eigen::Vector3d::Zero()};
     double lastStiffness = 0;
     double lastStepStiffness = 0;

@@ -135,8 +135,7 @@ void Session::Impl::setCoupling(const CouplingParams& params, bool stiffnessLimi
     }
 }
 
-void Session::Impl::requestCoupling(const CouplingParams& params,
-                                    bool stiffnessLimited) noexcept {
+void Session::Impl::requestCoupling(const CouplingParams& params, bool stiffnessLimited) noexcept {
     shedCoupling = shedding && params.mode != CouplingMode::VC;
     if (!shedCoupling) {
         setCoupling(params, stiffnessLimited);

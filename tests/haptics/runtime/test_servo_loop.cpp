@@ -515,11 +515,11 @@ TEST(ServoLoop, ALoopThatFallsBehindShedsFirstAndRestoresWhenCalm) {
     const ServoStats s = loop.stats();
     const double first = task.mFirst.load(), shed1 = task.mShedAt[0].load(),
                  restored = task.mRestoreAt.load(), shed2 = task.mShedAt[1].load();
-    std::printf("shed %.3f s after the first tick, restored %.3f s later, shed again %.3f s "
-                "after that; %llu sheds, %llu restores, overloaded %d\n",
-                shed1 - first, restored - shed1, shed2 - restored,
-                static_cast<unsigned long long>(s.sheds),
-                static_cast<unsigned long long>(s.restores), s.overloaded ? 1 : 0);
+    std::printf(
+        "shed %.3f s after the first tick, restored %.3f s later, shed again %.3f s "
+        "after that; %llu sheds, %llu restores, overloaded %d\n",
+        shed1 - first, restored - shed1, shed2 - restored, static_cast<unsigned long long>(s.sheds),
+        static_cast<unsigned long long>(s.restores), s.overloaded ? 1 : 0);
     EXPECT_FALSE(s.overloaded);
     EXPECT_EQ(task.mOverloads.load(), 0);
     EXPECT_FALSE(s.fifoDropped);

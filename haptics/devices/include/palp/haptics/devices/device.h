@@ -45,9 +45,8 @@ enum DeviceFault : std::uint32_t {
 inline constexpr std::uint32_t kBadSampleFaults =
     kFaultNonFinite | kFaultOutOfRange | kFaultTooFast;
 /// Every DeviceFault bit.
-inline constexpr std::uint32_t kAllFaults =
-    kBadSampleFaults | kFaultStale | kFaultForceNonFinite | kFaultForceJump | kFaultOverload |
-    kFaultShed;
+inline constexpr std::uint32_t kAllFaults = kBadSampleFaults | kFaultStale | kFaultForceNonFinite |
+                                            kFaultForceJump | kFaultOverload | kFaultShed;
 
 /// What a device reports about its own samples after read() (Session copies it into every
 /// Snapshot). A plain device is always healthy; WatchdogDevice fills it.
