@@ -15,6 +15,7 @@
 //   bench_soak [--scene rigid|deformable|udp|all] [--seconds S] [--window W] [--check]
 //              [--servo-cpu N] [--servo-priority P] [--fem-solver auto|explicit|regions]
 //              [--json FILE]
+#include <malloc.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -192,6 +193,19 @@ double residentMiB() {
     return static_cast<double>(resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / 1048576.0;
 }
 
+/// glibc's view of the heap (all arenas): the bytes the program holds (in use, small and mmapped
+/// blocks) and the bytes the allocator holds for it (arenas and mmapped blocks). A leak raises
+/// the first; fragmentation raises the second and the resident set with the first flat. Each
+/// window reports the lowest of each, sampled with the resident set.
+struct HeapUse {
+    double inUseMiB = 0, heldMiB = 0;
+};
+HeapUse heapUse() {
+    const struct mallinfo2 m = mallinfo2();
+    return {static_cast<double>(m.uordblks + m.hblkhd) / 1048576.0,
+            static_cast<double>(m.arena + m.hblkhd) / 1048576.0};
+}
+
 const DeviceSpec& touch() { return *findDeviceSpec("3D Systems Touch"); }
 
 /// A circle of 15 mm radius at 0.5 Hz on the bone phantom's skin (y = 0, pressed along +y),
@@ -266,9 +280,9 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
                        {"pinned", session.realtime().pinned},
                        {"cpu", session.realtime().cpu}};
 
-    std::printf("%-10s %7s %9s %9s %8s %7s %7s %9s %9s %9s %9s %7s %8s %7s\n", name.c_str(), "t s",
-                "RSS low", "RSS high", "ticks", "misses", "skips", "cmp p50", "cmp p99", "cmp max",
-                "per p99", "allocs", "max F N", "clamped");
+    std::printf("%-10s %7s %9s %9s %9s %9s %8s %7s %7s %9s %9s %9s %9s %7s %8s %7s\n", name.c_str(),
+                "t s", "RSS low", "RSS high", "heap use", "heap held", "ticks", "misses", "skips",
+                "cmp p50", "cmp p99", "cmp max", "per p99", "allocs", "max F N", "clamped");
     json windows = json::array();
     auto lastCompute = probe.compute.copy();
     auto lastPeriod = probe.period.copy();
@@ -286,12 +300,16 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
         const auto end = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                      std::chrono::duration<double>(w * o.window));
         double peak = residentMiB(), trough = peak;
+        HeapUse heap = heapUse();  // the window's lowest of each
         while (std::chrono::steady_clock::now() < end) {
             std::this_thread::sleep_until(
                 std::min(end, std::chrono::steady_clock::now() + std::chrono::milliseconds(100)));
             const double r = residentMiB();
             peak = std::max(peak, r);
             trough = std::min(trough, r);
+            const HeapUse h = heapUse();
+            heap.inUseMiB = std::min(heap.inUseMiB, h.inUseMiB);
+            heap.heldMiB = std::min(heap.heldMiB, h.heldMiB);
         }
         troughs.push_back(trough);
         const auto compute = probe.compute.copy();
@@ -304,6 +322,8 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
         json row{{"t_s", w * o.window},
                  {"rss_trough_mib", trough},
                  {"rss_peak_mib", peak},
+                 {"heap_in_use_mib", heap.inUseMiB},
+                 {"heap_held_mib", heap.heldMiB},
                  {"ticks", st.ticks - lastTicks},
                  {"misses", st.misses - lastMisses},
                  {"skipped", st.skipped - lastSkipped},
@@ -315,8 +335,11 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
                  {"max_force_n", probe.maxForce.load()},
                  {"clamped_ticks", clamped - lastClamped}};
         std::printf(
-            "%-10s %7.0f %9.2f %9.2f %8llu %7llu %7llu %9.3f %9.3f %9.3f %9.3f %7llu %8.3f %7llu\n",
-            "", w * o.window, trough, peak, static_cast<unsigned long long>(st.ticks - lastTicks),
+            "%-10s %7.0f %9.2f %9.2f %9.2f %9.2f %8llu %7llu %7llu %9.3f %9.3f %9.3f %9.3f %7llu "
+            "%8.3f "
+            "%7llu\n",
+            "", w * o.window, trough, peak, heap.inUseMiB, heap.heldMiB,
+            static_cast<unsigned long long>(st.ticks - lastTicks),
             static_cast<unsigned long long>(st.misses - lastMisses),
             static_cast<unsigned long long>(st.skipped - lastSkipped), quantileMs(dc, 0.5),
             quantileMs(dc, 0.99), quantileMs(dc, 1.0), quantileMs(dp, 0.99),
