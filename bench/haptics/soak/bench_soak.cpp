@@ -280,13 +280,15 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
                        {"pinned", session.realtime().pinned},
                        {"cpu", session.realtime().cpu}};
 
-    std::printf("%-10s %7s %9s %9s %9s %9s %8s %7s %7s %9s %9s %9s %9s %7s %8s %7s\n", name.c_str(),
-                "t s", "RSS low", "RSS high", "heap use", "heap held", "ticks", "misses", "skips",
-                "cmp p50", "cmp p99", "cmp max", "per p99", "allocs", "max F N", "clamped");
+    std::printf("%-10s %7s %9s %9s %9s %9s %8s %7s %7s %9s %9s %9s %9s %7s %8s %7s %6s\n",
+                name.c_str(), "t s", "RSS low", "RSS high", "heap use", "heap held", "ticks",
+                "misses", "skips", "cmp p50", "cmp p99", "cmp max", "per p99", "allocs", "max F N",
+                "clamped", "sheds");
     json windows = json::array();
     auto lastCompute = probe.compute.copy();
     auto lastPeriod = probe.period.copy();
-    std::uint64_t lastAllocs = 0, lastTicks = 0, lastMisses = 0, lastSkipped = 0, lastClamped = 0;
+    std::uint64_t lastAllocs = 0, lastTicks = 0, lastMisses = 0, lastSkipped = 0, lastClamped = 0,
+                  lastSheds = 0, lastRestores = 0;
     const auto start = std::chrono::steady_clock::now();
     const int nWindows = std::max(1, static_cast<int>(std::lround(o.seconds / o.window)));
     // The resident set is sampled every 100 ms and each window keeps its trough and its peak:
@@ -333,18 +335,20 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
                  {"period_error_p99_ms", quantileMs(dp, 0.99)},
                  {"servo_allocations", allocs - lastAllocs},
                  {"max_force_n", probe.maxForce.load()},
-                 {"clamped_ticks", clamped - lastClamped}};
+                 {"clamped_ticks", clamped - lastClamped},
+                 {"sheds", st.sheds - lastSheds},
+                 {"restores", st.restores - lastRestores}};
         std::printf(
             "%-10s %7.0f %9.2f %9.2f %9.2f %9.2f %8llu %7llu %7llu %9.3f %9.3f %9.3f %9.3f %7llu "
-            "%8.3f "
-            "%7llu\n",
+            "%8.3f %7llu %6llu\n",
             "", w * o.window, trough, peak, heap.inUseMiB, heap.heldMiB,
             static_cast<unsigned long long>(st.ticks - lastTicks),
             static_cast<unsigned long long>(st.misses - lastMisses),
             static_cast<unsigned long long>(st.skipped - lastSkipped), quantileMs(dc, 0.5),
             quantileMs(dc, 0.99), quantileMs(dc, 1.0), quantileMs(dp, 0.99),
             static_cast<unsigned long long>(allocs - lastAllocs), probe.maxForce.load(),
-            static_cast<unsigned long long>(clamped - lastClamped));
+            static_cast<unsigned long long>(clamped - lastClamped),
+            static_cast<unsigned long long>(st.sheds - lastSheds));
         std::fflush(stdout);
         if (w > 1 && allocs != lastAllocs) allocFree = false;
         windows.push_back(row);
@@ -355,6 +359,8 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
         lastMisses = st.misses;
         lastSkipped = st.skipped;
         lastClamped = clamped;
+        lastSheds = st.sheds;
+        lastRestores = st.restores;
     }
     session.stop();
     const ServoStats st = session.stats();
@@ -366,6 +372,8 @@ json runScene(const std::string& name, const Options& o, bool& ok) {
     out["non_finite_forces"] = probe.nonFinite.load();
     out["max_force_n"] = probe.maxForce.load();
     out["clamped_ticks"] = probe.clamped.load();
+    out["sheds"] = st.sheds;
+    out["restores"] = st.restores;
     out["fault_counts"] = {{"stale", last.faultCounts.stale},
                            {"non_finite", last.faultCounts.nonFinite},
                            {"out_of_range", last.faultCounts.outOfRange},
