@@ -1,8 +1,9 @@
 # The installable package (issue 15 item 4): `cmake --install` puts the public headers, the
 # module libraries, the palp tool, a CMake package (find_package(palp CONFIG): palp::base,
 # palp::kernels, palp::volume, palp::fem, the haptics rooms palp::tissue, palp::rendering,
-# palp::devices, palp::haptics (the servo runtime), palp::studies and palp::capi, and the umbrella
-# palp::palp) and a pkg-config file for the C API (palp.pc: -lpalp_capi) under the prefix.
+# palp::devices, palp::haptics (the servo runtime), palp::studies, palp::capi and
+# palp::perception, and the umbrella palp::palp) and a pkg-config file for the C API (palp.pc:
+# -lpalp_capi) under the prefix.
 #
 # The modules are shared libraries (palp_add_module), versioned here. Their private
 # dependencies (Embree, GDCM, OpenJPEG, nifticlib, assimp, libpng, cairo, CHOLMOD) stay behind
@@ -26,7 +27,7 @@ endif()
 # CMake's absolute build RUNPATHs; as in every CMake project that installs, they end in ':' (room
 # for the in-place rewrite at install), an empty entry the loader reads as the current directory.
 file(RELATIVE_PATH palp_bin_to_lib /${CMAKE_INSTALL_BINDIR} /${CMAKE_INSTALL_LIBDIR})
-set(palp_modules base kernels volume fem tissue rendering devices haptics studies capi)
+set(palp_modules base kernels volume fem tissue rendering devices haptics studies capi perception)
 set(palp_export_targets)
 foreach(module ${palp_modules})
   set_target_properties(palp_${module} PROPERTIES
@@ -39,8 +40,8 @@ endforeach()
 # palp::palp: every module, for programs that do not care which one they use.
 add_library(palp_umbrella INTERFACE)
 set_target_properties(palp_umbrella PROPERTIES EXPORT_NAME palp)
-target_link_libraries(palp_umbrella INTERFACE palp_capi palp_studies palp_haptics palp_devices
-  palp_rendering palp_tissue palp_fem palp_volume palp_kernels palp_base)
+target_link_libraries(palp_umbrella INTERFACE palp_capi palp_studies palp_perception palp_haptics
+  palp_devices palp_rendering palp_tissue palp_fem palp_volume palp_kernels palp_base)
 list(APPEND palp_export_targets palp_umbrella)
 
 install(TARGETS ${palp_export_targets} EXPORT palpTargets
@@ -48,7 +49,7 @@ install(TARGETS ${palp_export_targets} EXPORT palpTargets
   ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
   RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
 foreach(dir kernels/base kernels volume fem haptics/tissue haptics/rendering haptics/devices
-    haptics/runtime haptics/studies haptics/capi)
+    haptics/runtime haptics/studies haptics/capi haptics/perception)
   install(DIRECTORY ${PROJECT_SOURCE_DIR}/${dir}/include/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}
     FILES_MATCHING PATTERN "*.h")
 endforeach()

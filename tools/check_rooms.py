@@ -29,6 +29,7 @@ ROOMS = {
     'runtime': ('haptics/runtime/', r'palp/haptics/[a-z_]+\.h$'),
     'studies': ('haptics/studies/', r'palp/studies/'),
     'capi': ('haptics/capi/', r'palp/palp\.h$'),
+    'perception': ('haptics/perception/', r'palp/perception/'),
 }
 # What each room may include besides itself: the rooms below it that it builds on.
 BELOW = {
@@ -40,8 +41,11 @@ BELOW = {
     'rendering': ['base', 'kernels', 'volume', 'fem', 'tissue'],
     'devices': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering'],
     'runtime': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering', 'devices'],
-    'studies': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering', 'devices', 'runtime'],
+    'studies': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering', 'devices', 'runtime',
+                'perception'],
     'capi': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering', 'devices', 'runtime'],
+    # Psychophysics beside the haptics rooms: maths on numbers, no session or device.
+    'perception': ['base'],
 }
 MAX_SOURCES = 20
 MAX_LINES = 700

@@ -35,7 +35,7 @@ libdir="$(dirname "$(find "$prefix" -name palp.pc -path '*/pkgconfig/*' | head -
 libdir="$(cd "$libdir" && pwd)"
 
 # Every module: a versioned file, its SONAME, the development symlink, RUNPATH $ORIGIN.
-for m in base kernels volume fem tissue rendering devices haptics studies capi; do
+for m in base kernels volume fem tissue rendering devices haptics studies capi perception; do
   lib="$libdir/libpalp_$m.so.$version"
   [[ -f "$lib" && ! -L "$lib" ]] || fail "$lib missing"
   [[ "$(readlink "$libdir/libpalp_$m.so")" == "libpalp_$m.so.$soversion" ]] ||
@@ -48,7 +48,8 @@ for m in base kernels volume fem tissue rendering devices haptics studies capi; 
 done
 for h in palp/palp.h palp/haptics/session.h palp/haptics/devices/device.h \
   palp/haptics/rendering/coupling.h palp/haptics/tissue/deformable.h palp/studies/scalar_map.h \
-  palp/volume/volume.h palp/fem/fem_model.h palp/kernels/volume_ray.h palp/base/error.h; do
+  palp/volume/volume.h palp/fem/fem_model.h palp/kernels/volume_ray.h palp/base/error.h \
+  palp/perception/quest.h; do
   [[ -f "$prefix/include/$h" ]] || fail "header $h not installed"
 done
 
