@@ -26,6 +26,9 @@ PACKAGES=(
   # error-analysis sweeps (palp sweep / errormap): Philox streams, MPI, a one-node Slurm for the
   # cluster test, and the OpenTURNS / scipy oracles of the partial rank correlations
   librandom123-dev libopenmpi-dev openmpi-bin slurm-wlm munge python3-openturns python3-scipy
+  # perception studies (haptics/perception): QUEST against Psychtoolbox's Quest*.m under Octave,
+  # psychometric fits against psignifit 2.5.6 and R's psyphy
+  octave psychtoolbox-3-common psignifit r-cran-psyphy
   # fuzzing (clang's libFuzzer)
   clang libfuzzer-14-dev libclang-rt-14-dev
 )

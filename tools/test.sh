@@ -8,9 +8,12 @@ preset="${PALP_PRESET:-release}"
 bash tools/setup.sh
 # Tests skip an oracle that is missing (so the suite still runs elsewhere); here, where setup.sh
 # installed them, a missing oracle is an error rather than a silent skip.
-for tool in ccx dcm2niix gdcmconv gdcmdump unzip xvfb-run; do
+for tool in ccx dcm2niix gdcmconv gdcmdump unzip xvfb-run octave-cli psignifit Rscript; do
   command -v "$tool" >/dev/null || { echo "test.sh: oracle '$tool' missing after setup"; exit 1; }
 done
+[ -f /usr/share/psychtoolbox-3/Quest/QuestCreate.m ] ||
+  { echo "test.sh: psychtoolbox-3-common (Quest) missing after setup"; exit 1; }
+Rscript -e 'library(psyphy)' >/dev/null 2>&1 || { echo "test.sh: r-cran-psyphy missing after setup"; exit 1; }
 /usr/bin/python3 -c "import nibabel" || { echo "test.sh: python3-nibabel missing after setup"; exit 1; }
 /usr/bin/python3 -c "import vtkmodules.vtkRenderingOpenGL2" ||
   { echo "test.sh: python3-vtk9 missing after setup"; exit 1; }
