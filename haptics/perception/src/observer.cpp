@@ -92,8 +92,10 @@ double peakNormalisedGradient(const FeltProfile& profile) {
     if (x.size() < 2)
         throwExpected("felt profile positionM", "at least 2 samples", std::to_string(x.size()));
     for (std::size_t i = 0; i < x.size(); ++i) {
-        requireFinite(indexed("felt profile positionM", i), x[i], "m");
-        requireNonNegative(indexed("felt profile stiffnessNpm", i), k[i], "N/m");
+        // The names are built only for a message: a trial may feel thousands of samples.
+        if (!std::isfinite(x[i])) requireFinite(indexed("felt profile positionM", i), x[i], "m");
+        if (!(k[i] >= 0 && std::isfinite(k[i])))
+            requireNonNegative(indexed("felt profile stiffnessNpm", i), k[i], "N/m");
         if (i > 0 && !(x[i] > x[i - 1]))
             throwExpected(indexed("felt profile positionM", i),
                           "a position > the one before, " + formatValue(x[i - 1]) + " m",
