@@ -61,6 +61,8 @@ struct AsyncRegions::Impl {
     std::vector<std::unique_ptr<Layout>> layouts;  // one, or one per adaptive size
     int current = 0;
     std::uint64_t ticks = 0;
+    std::uint64_t lastSolutionTick = 0;       // threaded: the tick the newest solution entered at
+    std::uint64_t staleTicks = 0;             // kAsyncSecondaryStaleSeconds in ticks
     std::unique_ptr<SecondaryThread> thread;  // threaded mode
 };
 
@@ -71,7 +73,9 @@ AsyncRegions::Impl::Impl(const FemModel& model, const Constraints& constraints,
       arena(options.secondaryThreads),
       primary(setup, constraints, contactNodes),
       secondary(setup),
-      exchange(model.dofCount(), 3 * options.watchNodes.size()) {
+      exchange(model.dofCount(), 3 * options.watchNodes.size()),
+      staleTicks(static_cast<std::uint64_t>(
+          std::ceil(kAsyncSecondaryStaleSeconds / setup.options.tickSeconds))) {
     // Layouts: one, or adaptiveLevels sizes from primaryNodes to maxPrimaryNodes.
     const AsyncRegionsOptions& o = setup.options;
     const int levels = setup.adaptive ? o.adaptiveLevels : 1;
@@ -129,7 +133,11 @@ AsyncTickResult AsyncRegions::Impl::advance(const Eigen::Vector3d& contactDispla
                                             std::span<const NodalLoad> loads,
                                             const CouplingSpring* spring) noexcept {
     AsyncTickResult result;
-    if (setup.options.threaded) exchangeWithSecondary(result);
+    if (setup.options.threaded) {
+        exchangeWithSecondary(result);
+        if (result.secondaryUpdated) lastSolutionTick = ticks;
+        if (ticks - lastSolutionTick > staleTicks) result.flags |= kAsyncSecondaryStale;
+    }
     if (setup.forceDrive) primary.takeLoads(layout(), loads, result);
     const std::vector<int>& contactDofs = layout().contactDofs;
     Eigen::Vector3d target = contactDisplacement;

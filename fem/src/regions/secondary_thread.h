@@ -76,6 +76,8 @@ class SecondaryThread {
     void startBuild(int want, bool prefetch);
     bool offerCached(int want);
     int latticeStep(int from, int to) const;
+    // Gives the heap's free pages back to the system (glibc), at most once a second.
+    void trimHeap();
     void track(int want);
     int ahead(int want) const;
     double distance2(int a, int b) const;
@@ -103,7 +105,8 @@ class SecondaryThread {
     // one is offered at once with only its entry state added.
     std::vector<std::unique_ptr<Layout>> mCache;
     std::vector<int> mFailed;  // nodes whose build failed (not prefetched again)
-    int mLastStep = 0;         // one lattice edge along the last contact change (prefetched first)
+    std::chrono::steady_clock::time_point mLastTrim{};  // trimHeap()'s last trim
+    int mLastStep = 0;  // one lattice edge along the last contact change (prefetched first)
     // The requested nodes of late (a ring), for building ahead of a sliding contact, and the
     // recent build time (moving average, seconds).
     struct TrackPoint {

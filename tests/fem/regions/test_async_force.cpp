@@ -468,8 +468,14 @@ TEST(AsyncForce, StalledSecondaryStaysFiniteAndBounded) {
     o.secondaryRate = 200.0;
     o.watchNodes = {p.top(1, 1)};
     AsyncRegions a(p.model, p.constraints, {p.contact}, o);
+    int sinceSolution = 0;  // ticks since the last one a solution entered at
+    const auto tick = [&] {
+        const AsyncTickResult r = a.tick(loads);
+        sinceSolution = r.secondaryUpdated ? 0 : sinceSolution + 1;
+        return r;
+    };
     for (int t = 1; t <= 100; ++t) {
-        a.tick(loads);
+        tick();
         std::this_thread::sleep_for(std::chrono::microseconds(200));
     }
     a.setSecondaryStalledForTest(true);
@@ -484,23 +490,37 @@ TEST(AsyncForce, StalledSecondaryStaysFiniteAndBounded) {
         quiet = now == solves ? quiet + 1 : 0;
         solves = now;
     }
-    a.tick(loads);
-    a.tick(loads);
+    tick();
+    tick();
     const auto usedAtStall = a.secondaryStats().used;
+    const int sinceAtStall = sinceSolution;
     double worst = 0.0;
+    int flagged = 0, firstFlagged = -1;
     for (int t = 0; t < 1500; ++t) {
-        const AsyncTickResult r = a.tick(loads);
+        const AsyncTickResult r = tick();
         ASSERT_TRUE(r.contactDisplacement.allFinite());
         EXPECT_FALSE(r.secondaryUpdated);
         worst = std::max(worst, r.contactDisplacement.norm());
         ASSERT_TRUE(a.nodeDisplacement(p.top(1, 1)).allFinite());
+        if (r.flags & kAsyncSecondaryStale) {
+            ++flagged;
+            if (firstFlagged < 0) firstFlagged = t;
+        }
     }
     EXPECT_EQ(a.secondaryStats().used, usedAtStall);
     EXPECT_LT(worst, 3.0 * refContact);
+    // Flagged stale on the first tick more than 0.5 s of ticks (500) after the last solution,
+    // and on every tick from then on.
+    EXPECT_EQ(firstFlagged, 500 - sinceAtStall);
+    EXPECT_EQ(flagged, 1500 - firstFlagged);
     a.setSecondaryStalledForTest(false);
     bool resumed = false;
     for (int t = 0; t < 2000 && !resumed; ++t) {
-        resumed = a.tick(loads).secondaryUpdated;
+        const AsyncTickResult r = a.tick(loads);
+        resumed = r.secondaryUpdated;
+        if (resumed) {
+            EXPECT_EQ(r.flags & kAsyncSecondaryStale, 0u);  // cleared by the solution
+        }
         std::this_thread::sleep_for(std::chrono::microseconds(200));
     }
     EXPECT_TRUE(resumed);

@@ -166,6 +166,13 @@ struct NodalLoad {
 /// Flag of tick(): loads beyond maxLoads, on inactive or out-of-range nodes, or with non-finite
 /// components were refused (the tick ran with the others). Outside the StepFlag bits.
 constexpr unsigned kAsyncLoadsRefused = 1u << 12;
+/// Flag of tick(), threaded mode: no secondary solution has entered for more than
+/// kAsyncSecondaryStaleSeconds of ticks (a secondary thread stalled, dead, or far behind): the
+/// primary runs on the last border data it has, which keeps its force finite and bounded; the
+/// next solution clears it.
+constexpr unsigned kAsyncSecondaryStale = 1u << 13;
+/// Ticks' time without a secondary solution after which tick() flags kAsyncSecondaryStale, s.
+constexpr double kAsyncSecondaryStaleSeconds = 0.5;
 
 /// Options of AsyncRegions.
 struct AsyncRegionsOptions {
