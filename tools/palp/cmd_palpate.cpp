@@ -18,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "batch_heap.h"
 #include "commands.h"
 #include "palp/base/bounds.h"
 #include "palp/base/error.h"
@@ -468,6 +469,7 @@ void printText(const PalpateArgs& a, const Report& r) {
 /// `palp palpate`: checks, set-up, run, outputs, report.
 int runPalpate(PalpateArgs a, const CheckedOptions& o) {
     const haptics::DeviceSpec* spec = checkPalpateOptions(a, o);
+    liveHeap();
 
     // Volume and coupling.
     Input in = loadInput(a);

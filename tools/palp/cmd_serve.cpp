@@ -14,6 +14,7 @@
 #include <thread>
 #include <vector>
 
+#include "batch_heap.h"
 #include "commands.h"
 #include "option_checks.h"
 #include "palp/base/bounds.h"
@@ -132,6 +133,7 @@ json faultsJson(const haptics::Snapshot& last, std::uint64_t faultTicks) {
 }
 
 int runServe(ServeArgs& a) {
+    liveHeap();
     const PalpateArgs& pa = a.scene;
     if (pa.file.empty() == pa.phantom.empty()) {
         throw ValueError("serve: expected a FILE or --phantom SCENE, found " +
