@@ -9,6 +9,9 @@ seconds="${1:-3600}"
 out="${2:-soak.json}"
 shift $(($# > 2 ? 2 : $#))
 exe=build/release/bench/haptics/bench_soak
+# One glibc arena, as palp palpate and palp serve set for themselves (tools/palp/batch_heap.h,
+# liveHeap): with glibc's default the regions' resident set creeps up as layouts come and go.
+export MALLOC_ARENA_MAX="${MALLOC_ARENA_MAX:-1}"
 [ -x "$exe" ] || cmake --build --preset release --target bench_soak
 taskset -c 0 bash -c 'while :; do :; done' &
 load=$!
