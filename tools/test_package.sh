@@ -59,7 +59,10 @@ for m in tissue rendering devices haptics; do
   drawing="$(env -u LD_LIBRARY_PATH ldd "$libdir/libpalp_$m.so.$version" | grep -E 'libpng|libcairo' || true)"
   [[ -z "$drawing" ]] || fail "libpalp_$m loads a drawing library: $drawing"
 done
-env -u LD_LIBRARY_PATH ldd "$libdir/libpalp_studies.so.$version" | grep -q libcairo ||
+# (ldd's output first, then grep: with pipefail, `ldd | grep -q` fails whenever grep's early exit
+# makes ldd die of SIGPIPE, as it did on a loaded machine.)
+studies_libs="$(env -u LD_LIBRARY_PATH ldd "$libdir/libpalp_studies.so.$version")"
+grep -q libcairo <<<"$studies_libs" ||
   fail "libpalp_studies does not load libcairo (the check above would prove nothing)"
 echo "  libpalp_{tissue,rendering,devices,haptics}: no libpng, no libcairo (libpalp_studies has them)"
 
@@ -82,7 +85,8 @@ cmake -S tests/package -B "$tmp/consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release \
   { cat "$tmp/configure.log" >&2; fail "configuring tests/package with find_package(palp CONFIG)"; }
 cmake --build "$tmp/consumer" >"$tmp/build.log" 2>&1 ||
   { cat "$tmp/build.log" >&2; fail "building tests/package"; }
-env -u LD_LIBRARY_PATH ldd "$tmp/consumer/consumer_c" | grep -q "libpalp_capi.so.$soversion" ||
+consumer_libs="$(env -u LD_LIBRARY_PATH ldd "$tmp/consumer/consumer_c")"
+grep -q "libpalp_capi.so.$soversion" <<<"$consumer_libs" ||
   fail "consumer_c does not load libpalp_capi"
 for exe in consumer_c consumer_cpp; do
   [[ "$(loaded_haptics "$tmp/consumer/$exe")" == "$haptics" ]] ||
