@@ -14,7 +14,8 @@ namespace palp::tool {
 namespace {
 
 /// glibc arenas of a live session: 1 kept the regions' resident set flat over a 7-minute soak
-/// where glibc's default (8 per core) let it creep 2.5 % in 17 minutes (bench_soak).
+/// where glibc's default (8 a core) let it creep 3 % in 17 minutes and 2 arenas 3.5 % in 5
+/// (bench_soak on the bone phantom's regions).
 constexpr int kLiveArenas = 1;
 
 /// The grid's leaves (2 KB each, hundreds of MB) are faulted in page by page: with 4 KB pages
