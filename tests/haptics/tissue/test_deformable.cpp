@@ -325,8 +325,6 @@ TEST(DeformableBody, BoneNodesStayFixed) {
     }
 }
 
-// (5) A hard, deep press with a stiff coupling: the force is finite and within the device's
-// maximum at every tick, and a tick (proxy, coupling, FEM step, refit) allocates nothing.
 // Shedding on deformable tissue (issue 38; Session::shed() as the servo loop calls it after a
 // window over its budget): the tissue is frozen in its dent (no FEM step, no load on it: its
 // displacement stays bit for bit), the proxy rests on the frozen surface and the held press
@@ -364,6 +362,8 @@ TEST(DeformableSession, ShedFreezesTheTissueAndRestoreStepsItAgain) {
     EXPECT_EQ(s.faultCounts.shed, 300u);
 }
 
+// (5) A hard, deep press with a stiff coupling: the force is finite and within the device's
+// maximum at every tick, and a tick (proxy, coupling, FEM step, refit) allocates nothing.
 TEST(DeformableSession, SafeAndAllocationFreeTicks) {
     auto model = cube(6e-3);  // the wider filter keeps k = 300 N/m stable
     auto scene = deformableScene(model);
