@@ -2,7 +2,8 @@
 // AVC phantom (surface y = 0, VC, k 300 N/m). The forces that come back over UDP are the
 // snapshots' forces tick for tick (offline lockstep and a 1 kHz live run); a held press feels
 // k x depth; a sender that stops gets zero force within the watchdog's timeout; malformed,
-// foreign, late and excess datagrams are ignored and counted (and 10,000 lossy cycles exactly);
+// foreign, late and excess datagrams are ignored and counted (10,000 lossy cycles and 5,000
+// jittered, reordering ones exactly);
 // read() and write() allocate nothing; addresses that do not parse or bind are refused naming the
 // address.
 #include <gtest/gtest.h>
