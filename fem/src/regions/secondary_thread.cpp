@@ -44,6 +44,19 @@ SecondaryThread::~SecondaryThread() {
 void SecondaryThread::run() {
     nameCurrentThread("palp-secondary");
     if (mSetup.options.secondaryCpu >= 0) pinCurrentThread(mSetup.options.secondaryCpu);
+    // One builder for the regions' life, started here so it inherits this thread's CPU and
+    // priority: a sliding contact needs its next layout within a node's travel (~100 ms), and at
+    // nice 10 a 40 ms build took over a second on a core shared with other work. One thread,
+    // not one per build: glibc gives each new thread an arena of its own choosing, and layouts
+    // (megabytes each, built and freed as the contact moves) spread over several arenas kept the
+    // resident set creeping up for an hour (bench/README.md, "Soak").
+    try {
+        mBuilderThread = std::thread([this] { buildLoop(); });
+    } catch (...) {
+        // No thread to spare: no layout is built, so the regions keep the layout in use (the
+        // servo's contact changes are refused as a failed build would be).
+        mBuildState.store(kFailed, std::memory_order_release);
+    }
     arenaExecute(mArena, [this] {
         while (!mStop.load(std::memory_order_acquire)) {
             if (Layout* old = mChannel.retired.exchange(nullptr, std::memory_order_acq_rel)) {
@@ -75,8 +88,40 @@ void SecondaryThread::run() {
             if (in.generation != mSec->generation) continue;  // from before the last swap
             solveSnapshot(in);
         }
-        if (mBuilderThread.joinable()) mBuilderThread.join();
     });
+    if (mBuilderThread.joinable()) {
+        {
+            std::lock_guard<std::mutex> lock(mBuildMutex);
+            mBuilderStop = true;
+        }
+        mBuildWake.notify_one();
+        mBuilderThread.join();  // after the build in progress, if any
+    }
+}
+
+void SecondaryThread::buildLoop() {
+    nameCurrentThread("palp-layout");
+    for (;;) {
+        BuildRequest r;
+        {
+            std::unique_lock<std::mutex> lock(mBuildMutex);
+            mBuildWake.wait(lock, [this] { return mPosted || mBuilderStop; });
+            if (mBuilderStop) return;
+            r = mRequest;
+            mPosted = false;
+        }
+        try {
+            // A prefetch never factorises: that would hold the builder for seconds while the
+            // contact moves on to a node whose layout is milliseconds.
+            mBuilt = mBuilder.buildPrepared(r.node, r.seeds, r.prefetch);
+            const double delay = mBuildDelay.load(std::memory_order_acquire);
+            if (delay > 0) std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+            mBuildState.store(kBuilt, std::memory_order_release);
+        } catch (...) {
+            mBuilt.reset();
+            mBuildState.store(kFailed, std::memory_order_release);
+        }
+    }
 }
 
 void SecondaryThread::trimHeap() {
@@ -115,7 +160,7 @@ bool SecondaryThread::collectBuild() {
     // A finished build: add the entry state from the latest solution and offer it to the servo.
     const int state = mBuildState.load(std::memory_order_acquire);
     if (state != kBuilt && state != kFailed) return false;
-    mBuilderThread.join();
+    if (!mBuilderThread.joinable()) return false;  // no builder: kFailed for good, nothing built
     mBuildState.store(kIdle, std::memory_order_relaxed);
     const int want = mChannel.requested.load(std::memory_order_acquire);
     if (state == kBuilt && mBuilt == nullptr) {
@@ -292,23 +337,12 @@ void SecondaryThread::startBuild(int want, bool prefetch) {
     mBuilding = want;
     mBuildBegin = std::chrono::steady_clock::now();
     mBuildState.store(kBuilding, std::memory_order_relaxed);
-    const int seeds = mSec->seeds;
-    mBuilderThread = std::thread([this, want, seeds, prefetch] {
-        // The secondary's CPU and priority: a sliding contact needs its next layout within a
-        // node's travel (~100 ms). At nice 10 a 40 ms build took over a second on a core
-        // shared with other work, and the contact left the primary.
-        nameCurrentThread("palp-layout");
-        try {
-            // A prefetch never factorises: that would hold the builder for seconds while the
-            // contact moves on to a node whose layout is milliseconds.
-            mBuilt = mBuilder.buildPrepared(want, seeds, prefetch);
-            const double delay = mBuildDelay.load(std::memory_order_acquire);
-            if (delay > 0) std::this_thread::sleep_for(std::chrono::duration<double>(delay));
-            mBuildState.store(kBuilt, std::memory_order_release);
-        } catch (...) {
-            mBuildState.store(kFailed, std::memory_order_release);
-        }
-    });
+    {
+        std::lock_guard<std::mutex> lock(mBuildMutex);
+        mRequest = BuildRequest{want, mSec->seeds, prefetch};
+        mPosted = true;
+    }
+    mBuildWake.notify_one();
 }
 
 void SecondaryThread::solveSnapshot(const BorderPacket& in) {

@@ -8,7 +8,9 @@
 #include <array>
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <memory>
+#include <mutex>
 #include <thread>
 #include <vector>
 
@@ -43,9 +45,10 @@ struct LayoutChannel {
 
 /// Runs the secondary region on its own thread (pinned per options, named "palp-secondary"),
 /// inside the secondary's task_arena: reads border snapshots, solves, publishes results, and
-/// prepares layouts for contact changes (a builder thread, same CPU and priority, builds and
-/// factorises while this thread keeps solving; this thread then adds the entry state from its
-/// latest solution and offers the layout to the servo).
+/// prepares layouts for contact changes (a builder thread, started by it and so on the same CPU
+/// and priority, living as long as it, builds and factorises while this thread keeps solving;
+/// this thread then adds the entry state from its latest solution and offers the layout to the
+/// servo).
 /// @par Threading  Constructed and destroyed by the servo's owner (the destructor stops and joins
 /// the thread). The thread owns the SecondaryRegion and the secondary work state of the layout in
 /// use; with the servo it shares only the two triple buffers of @p exchange, the LayoutChannel and
@@ -72,6 +75,8 @@ class SecondaryThread {
     enum BuildState : int { kIdle, kBuilding, kBuilt, kFailed };
 
     void run();
+    // The builder thread: waits for a posted request, builds it, publishes mBuildState.
+    void buildLoop();
     bool collectBuild();
     void startBuild(int want, bool prefetch);
     bool offerCached(int want);
@@ -117,7 +122,16 @@ class SecondaryThread {
     std::array<TrackPoint, kTrack> mTrack{};
     std::size_t mTrackCount = 0;
     double mBuildSeconds = 0;
-    std::thread mBuilderThread;
+    // The request posted to the builder (under mBuildMutex; mPosted until it takes it).
+    struct BuildRequest {
+        int node = -1, seeds = 0;
+        bool prefetch = false;
+    };
+    std::mutex mBuildMutex;
+    std::condition_variable mBuildWake;
+    BuildRequest mRequest;
+    bool mPosted = false, mBuilderStop = false;
+    std::thread mBuilderThread;  // started by run(), joined at its end
     std::atomic<bool> mStop{false}, mStalled{false};
     std::atomic<double> mBuildDelay{0.0};
     std::thread mWorker;  // last: started when everything above is set
