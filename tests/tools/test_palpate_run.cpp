@@ -90,43 +90,49 @@ TEST(PalpateRun, RealtimeSecondsAreWallClockSeconds) {
     EXPECT_GE(ticks + skipped, 350u);
 }
 
-// The overrun budget on a loop that cannot keep up (the deformable bone phantom's 5 ms ticks
-// here): it gives up within two 0.4 s windows plus a tick, with more than half of each window's
-// deadlines missed, drops SCHED_FIFO where it was granted and says so; shedding its work, it then
-// keeps up (hundreds of ticks in the remaining 0.7 s). On a machine fast enough not to be
-// overloaded, no window missed more than half: nor did the whole run. --servo-cpu pins the loop.
-TEST(PalpateRun, AnOverloadedRealtimeRunGivesUpItsPriorityAndSaysSo) {
+// The overrun budget on a live run that cannot keep up: the bone phantom's whole mesh at 2.5 mm
+// cells (32,000 elements, about 12 ms a tick on a 2-vCPU EPYC, so over ten times too slow on any
+// machine of today). At SCHED_FIFO the first 0.4 s window misses more than half its deadlines, so
+// the loop sheds (VC in place of AVCEC, the tissue frozen in its dent), says so, and then keeps up
+// for the rest of the run without giving up its priority; the force stays finite and bounded. A
+// SCHED_OTHER loop (FIFO refused) has no budget: it neither sheds nor gives up. --servo-cpu pins
+// the loop.
+TEST(PalpateRun, AnOverloadedRealtimeRunShedsItsWorkKeepsUpAndSaysSo) {
     const auto r = runCommand(palp::test::palpTool().string() +
-                              " palpate --phantom bone --deformable --realtime --seconds 1.5 "
-                              "--servo-cpu 0 --servo-priority 10 --json 2>&1");
+                              " palpate --phantom bone --deformable --fem-solver explicit "
+                              "--fem-cell-mm 2.5 --realtime --seconds 1.5 --servo-cpu 0 "
+                              "--servo-priority 10 --json 2>&1");
     EXPECT_EQ(r.exitCode, 0) << r.output;
     const nlohmann::json j = jsonOf(r.output);
     ASSERT_TRUE(j.contains("servo")) << r.output;
     const auto& s = j["servo"];
     const double ticks = s["ticks"].get<double>(), skipped = s["skipped"].get<double>();
-    const bool overloaded = s["overloaded"].get<bool>();
     const std::string rt = s["realtime"].get<std::string>();
     std::printf(
-        "realtime 1.5 s: %.0f ticks, %.0f skipped, overloaded %d at %.3f s (%.0f %% of "
-        "that window missed), fifo dropped %d; %s\n",
-        ticks, skipped, overloaded ? 1 : 0, s["overloaded_at_s"].get<double>(),
-        100 * s["overloaded_missed_fraction"].get<double>(), s["fifo_dropped"].get<bool>() ? 1 : 0,
-        rt.c_str());
+        "realtime 1.5 s: %.0f ticks, %.0f skipped, %d shed at %.3f s, shedding %d, "
+        "overloaded %d; %s\n",
+        ticks, skipped, s["sheds"].get<int>(), s["shed_at_s"].get<double>(),
+        s["shedding"].get<bool>() ? 1 : 0, s["overloaded"].get<bool>() ? 1 : 0, rt.c_str());
     EXPECT_NE(rt.find("pinned to CPU 0"), std::string::npos) << rt;
-    const bool fifo = rt.find("SCHED_FIFO 10;") != std::string::npos;
-    if (!fifo) {
-        EXPECT_FALSE(overloaded);  // a SCHED_OTHER loop has no budget
+    EXPECT_LE(j["max_force_n"].get<double>(), 3.3 + 1e-9);
+    EXPECT_FALSE(s["overloaded"].get<bool>());
+    EXPECT_FALSE(s["fifo_dropped"].get<bool>());
+    if (rt.find("SCHED_FIFO 10;") == std::string::npos) {
+        EXPECT_EQ(s["sheds"].get<int>(), 0);  // a SCHED_OTHER loop has no budget
+        return;
     }
-    if (overloaded) {
-        EXPECT_GE(s["overloaded_at_s"].get<double>(), 0.8);
-        EXPECT_LE(s["overloaded_at_s"].get<double>(), 0.8 + 0.1);  // two windows + a 5 ms tick
-        EXPECT_GT(s["overloaded_missed_fraction"].get<double>(), 0.5);
-        EXPECT_TRUE(s["fifo_dropped"].get<bool>());
-        EXPECT_NE(r.output.find("palp: warning: the servo loop missed"), std::string::npos);
-        EXPECT_GT(ticks, 400);  // the shed loop keeps up for the remaining 0.7 s
-    } else if (fifo) {
-        EXPECT_LE(skipped / (ticks + skipped), 0.55);
-    }
+    EXPECT_EQ(s["sheds"].get<int>(), 1);
+    EXPECT_TRUE(s["shedding"].get<bool>());  // restoring takes 10 s of calm windows
+    EXPECT_EQ(s["restores"].get<int>(), 0);
+    // At the end of the first window, plus the ~12 ms tick that crossed it.
+    EXPECT_GE(s["shed_at_s"].get<double>(), 0.4);
+    EXPECT_LE(s["shed_at_s"].get<double>(), 0.4 + 0.1);
+    EXPECT_NE(r.output.find("palp: warning: the servo loop fell behind and shed work 1 time(s)"),
+              std::string::npos)
+        << r.output;
+    // Shed, the loop keeps up: most of the last 1.1 s of deadlines are ticks (un-shed, at 12 ms a
+    // tick, it would run under 100 in the whole run).
+    EXPECT_GT(ticks, 600);
 }
 
 TEST(PalpateRun, TheMrPalpatesDeformablyHeldOnTheFaceOppositeThePress) {
