@@ -10,10 +10,11 @@ namespace palp::tool {
 void batchHeap();
 
 /// Sets glibc's heap for a live session (palpate, serve): one arena, so that the memory the
-/// asynchronous regions' layouts free (each built on a new builder thread) is reused rather than
-/// kept across per-thread arenas: with glibc's default the resident set crept up over an hour
-/// while the heap in use stayed flat (bench/README.md, "Soak"). Call it first, before any thread
-/// starts. The servo thread never allocates, so its ticks never wait for the arena's lock.
+/// asynchronous regions' layouts free (built on the builder thread, completed and freed on the
+/// secondary thread) is reused rather than kept across per-thread arenas: with glibc's default
+/// the resident set crept up over an hour while the heap in use stayed flat (bench/README.md,
+/// "Soak"). Call it first, before any thread starts. The servo thread never allocates, so its
+/// ticks never wait for the arena's lock.
 void liveHeap();
 
 }  // namespace palp::tool
