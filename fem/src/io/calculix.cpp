@@ -101,6 +101,10 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
         }
         requireInRange("CalculiX export step.hhtAlpha", step.hhtAlpha, -1.0 / 3.0, 0.0);
     }
+    if (!(step.staticIncrement > 0.0 && step.staticIncrement <= 1.0)) {
+        throwExpected("CalculiX export step.staticIncrement", "a fraction in (0, 1]",
+                      formatValue(step.staticIncrement));
+    }
     if (step.printEvery < 1) {
         throwExpected("CalculiX export step.printEvery", ">= 1", std::to_string(step.printEvery));
     }
@@ -119,6 +123,7 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
         if (mesh.cellActive(c)) groups[mesh.cellYoungs()[static_cast<std::size_t>(c)]].push_back(c);
     }
     const ElasticMaterial& mat = model.material();
+    const bool neoHookean = mat.law == MaterialLaw::neoHookean;
     int g = 0;
     for (const auto& [e, cells] : groups) {
         ++g;
@@ -129,9 +134,16 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
             for (int a : kCcxOrder) out << ", " << nodes[static_cast<std::size_t>(a)] + 1;
             out << "\n";
         }
-        out << "*MATERIAL, NAME=M" << g << "\n*ELASTIC\n"
-            << num(e) << ", " << num(mat.poissonRatio) << "\n*DENSITY\n"
-            << num(mat.density) << "\n";
+        out << "*MATERIAL, NAME=M" << g << "\n";
+        if (neoHookean) {
+            // W = C10 (I1bar - 3) + (J - 1)^2 / D1 with the cell's small-strain mu and K.
+            const double mu = e / (2.0 * (1.0 + mat.poissonRatio));
+            const double bulk = e / (3.0 * (1.0 - 2.0 * mat.poissonRatio));
+            out << "*HYPERELASTIC, NEO HOOKE\n" << num(0.5 * mu) << ", " << num(2.0 / bulk) << "\n";
+        } else {
+            out << "*ELASTIC\n" << num(e) << ", " << num(mat.poissonRatio) << "\n";
+        }
+        out << "*DENSITY\n" << num(mat.density) << "\n";
         if (mat.dampingAlpha > 0.0 || mat.dampingBeta > 0.0) {
             out << "*DAMPING, ALPHA=" << num(mat.dampingAlpha) << ", BETA=" << num(mat.dampingBeta)
                 << "\n";
@@ -139,12 +151,16 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
         out << "*SOLID SECTION, ELSET=E" << g << ", MATERIAL=M" << g << "\n";
     }
     out << "*STEP";
+    if (neoHookean) out << ", NLGEOM";
+    if (!step.dynamic && step.staticIncrement < 1.0) out << ", INC=10000";
     if (step.dynamic)
         out << ", INC=" << static_cast<long>(step.totalTime / step.timeIncrement + 10);
     out << "\n";
     if (step.dynamic) {
         out << "*DYNAMIC, DIRECT, ALPHA=" << num(step.hhtAlpha) << "\n"
             << num(step.timeIncrement) << ", " << num(step.totalTime) << "\n";
+    } else if (step.staticIncrement < 1.0) {
+        out << "*STATIC\n" << num(step.staticIncrement) << ", 1\n";
     } else {
         out << "*STATIC\n";
     }
@@ -162,7 +178,8 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
         anyLoad = true;
         out << d / 3 + 1 << ", " << d % 3 + 1 << ", " << num(nodalForce[d]) << "\n";
     }
-    out << "*NODE PRINT, NSET=Nall, FREQUENCY=" << step.printEvery << "\nU\n*END STEP\n";
+    out << "*NODE PRINT, NSET=Nall, FREQUENCY=" << step.printEvery << "\nU"
+        << (step.printReactions ? ", RF" : "") << "\n*END STEP\n";
     out.close();
     if (!out) throw IoError(inpPath.string() + ": expected a complete write, found an error");
     file.commit();
@@ -175,7 +192,14 @@ CalculixResults readCalculixDat(const std::filesystem::path& datPath, int dofCou
     CalculixResults res;
     std::string line;
     bool inBlock = false;
+    Eigen::VectorXd* block = nullptr;
     while (std::getline(in, line)) {
+        if (line.find("forces (fx,fy,fz)") != std::string::npos) {
+            res.reactions.push_back(Eigen::VectorXd::Zero(dofCount));
+            block = &res.reactions.back();
+            inBlock = true;
+            continue;
+        }
         if (line.find("displacements (vx,vy,vz)") != std::string::npos) {
             const auto pos = line.find("time");
             if (pos == std::string::npos) {
@@ -186,6 +210,7 @@ CalculixResults readCalculixDat(const std::filesystem::path& datPath, int dofCou
             }
             res.times.push_back(std::stod(line.substr(pos + 4)));
             res.displacements.push_back(Eigen::VectorXd::Zero(dofCount));
+            block = &res.displacements.back();
             inBlock = true;
             continue;
         }
@@ -203,7 +228,7 @@ CalculixResults readCalculixDat(const std::filesystem::path& datPath, int dofCou
               << "], found " << node;
             throw FormatError(m.str());
         }
-        for (int c = 0; c < 3; ++c) res.displacements.back()[3 * (node - 1) + c] = v[c];
+        for (int c = 0; c < 3; ++c) (*block)[3 * (node - 1) + c] = v[c];
     }
     if (res.times.empty()) {
         throw FormatError(datPath.string() + ": expected displacement blocks, found none");

@@ -142,7 +142,12 @@ ExplicitSolver::ExplicitSolver(const FemModel& model, const Constraints& constra
                       "a count in [1, " + std::to_string(kMaxExplicitSubsteps) + "]",
                       std::to_string(options.maxSubsteps));
     }
-    mStableDt = options.safetyFactor * model.criticalTimeStep();
+    if (model.material().law == MaterialLaw::neoHookean) {
+        mTled = std::make_unique<TledForces>(model, options.tled);
+        mStableDt = options.safetyFactor * mTled->criticalTimeStep(mTled->restFrequencyBound());
+    } else {
+        mStableDt = options.safetyFactor * model.criticalTimeStep();
+    }
     if (!(mStableDt > 0.0) || !std::isfinite(mStableDt)) {
         throwExpected("explicit solver critical time step", "a finite step > 0 s",
                       formatValue(mStableDt) + " s");
@@ -210,10 +215,18 @@ StepResult ExplicitSolver::advance(double dtSeconds, const CouplingSpring* sprin
     }
     if (spring && !spring->active()) spring = nullptr;
     // The spring raises the highest frequency: the substep shrinks with it.
-    const double stableDt =
-        spring ? mOptions.safetyFactor *
-                     criticalTimeStepWith(mModel, springFrequencySquared(mModel, *spring))
-               : mStableDt;
+    double stableDt = mStableDt;
+    if (mTled) {
+        // The current state's stiffness sets the substep of this step.
+        const double w = mTled->frequencyBound(mU.data());
+        mStableDt = mOptions.safetyFactor * mTled->criticalTimeStep(w);
+        stableDt = spring ? mOptions.safetyFactor *
+                                mTled->criticalTimeStep(w, springFrequencySquared(mModel, *spring))
+                          : mStableDt;
+    } else if (spring) {
+        stableDt = mOptions.safetyFactor *
+                   criticalTimeStepWith(mModel, springFrequencySquared(mModel, *spring));
+    }
     double want = std::ceil(dtSeconds / stableDt);
     if (!(want >= 1.0)) want = std::numeric_limits<double>::infinity();  // NaN: a massless node
     int substeps = want > static_cast<double>(mOptions.maxSubsteps) ? mOptions.maxSubsteps
@@ -255,7 +268,14 @@ StepResult ExplicitSolver::advance(double dtSeconds, const CouplingSpring* sprin
             for (int d = 0; d < dofs; ++d) mWork[d] = mU[d] + b * (mU[d] - mUPrev[d]);
             operand = mWork.data();
         }
-        if constexpr (kParallel) {
+        if (mTled) {
+            if constexpr (kParallel) {
+                mTled->internalForcesParallel(operand, mInternal.data());
+            } else {
+                mInternal.setZero();
+                mTled->addInternalForces(operand, mInternal.data());
+            }
+        } else if constexpr (kParallel) {
             mModel.stiffnessTimesParallel(operand, mInternal.data());
         } else {
             mInternal.setZero();
@@ -384,6 +404,7 @@ double ExplicitSolver::kineticEnergy() const {
 
 double ExplicitSolver::strainEnergy() const noexcept {
     mEnergyWork = 0.5 * (mU + mUPrev);
+    if (mTled) return mTled->strainEnergy(mEnergyWork.data());
     mEnergyForce.setZero();
     mModel.addStiffnessTimes(mEnergyWork.data(), mEnergyForce.data());
     return 0.5 * mEnergyWork.dot(mEnergyForce);

@@ -35,6 +35,11 @@ ImplicitSolver::ImplicitSolver(const FemModel& model, const Constraints& constra
         throwExpected("implicit solver constraints", std::to_string(n) + " dofs",
                       std::to_string(constraints.dofCount()));
     }
+    if (model.material().law != MaterialLaw::linear) {
+        throwExpected("implicit solver material law",
+                      "linear (the neo-Hookean law runs in the explicit solver only)",
+                      "neo-Hookean");
+    }
     mK = model.assembleStiffness();
     const Eigen::VectorXd& mass = model.lumpedMass();
     std::vector<int> freeIndex(static_cast<std::size_t>(n), -1);

@@ -35,31 +35,42 @@ struct CalculixStep {
     double totalTime = 1.0;      ///< seconds
     double hhtAlpha = 0.0;       ///< *DYNAMIC ALPHA in [-1/3, 0]; 0 = average acceleration
     int printEvery = 1;          ///< *NODE PRINT FREQUENCY (increments)
+    /// Initial increment of a *STATIC step as a fraction of its unit step time, in (0, 1]:
+    /// below 1 ccx applies the load in automatic increments (what a large-strain neo-Hookean
+    /// step needs to converge).
+    double staticIncrement = 1.0;
+    bool printReactions = false;  ///< also print the nodal reaction forces (RF)
 };
 
 /// Writes mesh (active nodes, active cells as C3D8; palp node n is CalculiX node n+1, cell c is
-/// element c+1), one *MATERIAL per distinct Young's modulus (*ELASTIC, *DENSITY, *DAMPING with
-/// the Rayleigh coefficients when non-zero), *BOUNDARY for every constrained dof with its value,
-/// *CLOAD for every non-zero entry of @p nodalForce (newtons, #dofs) and the step with
-/// *NODE PRINT of U for all nodes. Units are SI throughout; every number is written by
-/// calculixNumber(). The file is written to a temporary beside @p inpPath and renamed into place
-/// when complete, so a refusal or a failed write leaves no file.
+/// element c+1), one *MATERIAL per distinct Young's modulus (*ELASTIC, or for a neo-Hookean
+/// material *HYPERELASTIC, NEO HOOKE with C10 = mu / 2 and D1 = 2 / K and the step with NLGEOM;
+/// *DENSITY, *DAMPING with the Rayleigh coefficients when non-zero), *BOUNDARY for every
+/// constrained dof with its value, *CLOAD for every non-zero entry of @p nodalForce (newtons,
+/// #dofs) and the step with *NODE PRINT of U (and RF when step.printReactions) for all nodes. Units
+/// are SI throughout; every number is written by calculixNumber(). The file is written to a
+/// temporary beside @p inpPath and renamed into place when complete, so a refusal or a failed write
+/// leaves no file.
 /// @throw palp::ValueError on size mismatch, a non-finite node position, cell modulus,
 /// constrained value or force (the message names the dof), a time increment or total time
-/// outside (0, 3600] s, more than 1e7 increments, hhtAlpha outside [-1/3, 0] or printEvery < 1;
+/// outside (0, 3600] s, more than 1e7 increments, hhtAlpha outside [-1/3, 0], printEvery < 1
+/// or staticIncrement outside (0, 1];
 /// palp::IoError when the file cannot be written.
 void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& model,
                         const Constraints& constraints, const Eigen::VectorXd& nodalForce,
                         const CalculixStep& step);
 
-/// Displacements printed by ccx: one block per printed time.
+/// Displacements (and reactions) printed by ccx: one block per printed time.
 struct CalculixResults {
     std::vector<double> times;                   ///< seconds
     std::vector<Eigen::VectorXd> displacements;  ///< #dofs each, metres (0 where not printed)
+    /// Nodal reaction forces per printed time when printed (RF), #dofs each, newtons.
+    std::vector<Eigen::VectorXd> reactions;
 };
 
-/// Reads the "displacements (vx,vy,vz)" blocks of a ccx `.dat` file for a model of
-/// @p dofCount dofs. @throw palp::IoError when unreadable, palp::FormatError on bad content.
+/// Reads the "displacements (vx,vy,vz)" blocks (and the "forces (fx,fy,fz)" ones, into
+/// reactions) of a ccx `.dat` file for a model of @p dofCount dofs. @throw palp::IoError when
+/// unreadable, palp::FormatError on bad content.
 CalculixResults readCalculixDat(const std::filesystem::path& datPath, int dofCount);
 
 }  // namespace palp::fem

@@ -4,12 +4,14 @@
 /// automatic substepping below the stable step, a real-time single-thread variant and a TBB one.
 
 #include <Eigen/Core>
+#include <memory>
 #include <string_view>
 #include <vector>
 
 #include "palp/fem/constraints.h"
 #include "palp/fem/coupling_spring.h"
 #include "palp/fem/fem_model.h"
+#include "palp/fem/tled.h"
 
 namespace palp::fem {
 
@@ -38,6 +40,9 @@ struct ExplicitOptions {
     double safetyFactor = 0.9;  ///< substep = safetyFactor * model.criticalTimeStep(), in (0, 1]
     /// Bound on substeps per step() call (keeps a tick bounded), in [1, kMaxExplicitSubsteps].
     int maxSubsteps = 4096;
+    /// The TLED element of a neo-Hookean model (material law MaterialLaw::neoHookean); unused
+    /// for a linear one.
+    TledOptions tled;
 };
 
 /// Central-difference substeps that one step of @p tickSeconds takes on @p model with substeps
@@ -67,6 +72,11 @@ void requireExplicitSubsteps(const FemModel& model, double safetyFactor, int max
 /// Constrained dofs follow their prescribed values, interpolated linearly across the substeps of
 /// one step() call.
 ///
+/// With a neo-Hookean material (MaterialLaw::neoHookean) `K u~` is the TLED internal force
+/// f_int(u~) (palp/fem/tled.h, options.tled), and each step() chooses its substep from the
+/// current state (TledForces::frequencyBound of u(n)): compression stiffens the tissue and
+/// shortens the substep; more than maxSubsteps is capped and flagged as for a linear model.
+///
 /// @par Threading  One thread drives a solver; the model must outlive it and is only read.
 class ExplicitSolver {
   public:
@@ -76,7 +86,9 @@ class ExplicitSolver {
     ExplicitSolver(const FemModel& model, const Constraints& constraints,
                    const ExplicitOptions& options = {});
 
-    /// Largest substep used, seconds: safetyFactor * model.criticalTimeStep().
+    /// Largest substep used, seconds: safetyFactor * model.criticalTimeStep(); for a
+    /// neo-Hookean model that of the state at the last step() (at construction: the rest
+    /// state's, safetyFactor * TledForces::criticalTimeStep(restFrequencyBound())).
     double stableTimeStep() const { return mStableDt; }
 
     /// Advances by @p dtSeconds, split into ceil(dt / stableTimeStep()) equal substeps. When that
@@ -107,7 +119,7 @@ class ExplicitSolver {
 
     /// Displacement at the current time, metres (#dofs).
     const Eigen::VectorXd& displacement() const { return mU; }
-    /// Internal force K u~ of the last substep, newtons (#dofs).
+    /// Internal force K u~ (neo-Hookean: f_int(u~)) of the last substep, newtons (#dofs).
     const Eigen::VectorXd& internalForce() const { return mInternal; }
     /// Reaction at constrained dof @p dof, newtons: internal minus external force of the last
     /// substep (inertia of the constrained node itself is not included).
@@ -118,12 +130,15 @@ class ExplicitSolver {
     /// Kinetic energy `v^T M v / 2` with the half-step velocity v(n-1/2), joules.
     double kineticEnergy() const;
     /// Strain energy at the same instant as kineticEnergy(): `w^T K w / 2`,
-    /// w = (u(n) + u(n-1)) / 2, joules. @par Real-time
+    /// w = (u(n) + u(n-1)) / 2, joules (neo-Hookean: TledForces::strainEnergy(w)).
+    /// @par Real-time
     double strainEnergy() const noexcept;
     /// Simulated time since construction, seconds.
     double time() const { return mTime; }
     /// Substep length of the last step, seconds (0 before the first).
     double lastSubstep() const { return mDt; }
+    /// The TLED element of a neo-Hookean model, nullptr for a linear one.
+    const TledForces* tled() const { return mTled.get(); }
 
   private:
     template <bool kParallel>
@@ -133,6 +148,7 @@ class ExplicitSolver {
 
     const FemModel& mModel;
     ExplicitOptions mOptions;
+    std::unique_ptr<TledForces> mTled;  // neo-Hookean models only
     double mStableDt = 0.0;
     double mDt = 0.0;  // current substep, seconds
     double mTime = 0.0;

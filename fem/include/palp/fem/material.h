@@ -1,18 +1,30 @@
 #pragma once
 /// @file
-/// Isotropic linear elastic material and Rayleigh damping for palp's hexahedral FEM.
+/// Isotropic elastic material (linear, or neo-Hookean at large strain) and Rayleigh damping for
+/// palp's hexahedral FEM.
 
 #include <Eigen/Core>
 
 namespace palp::fem {
 
-/// Isotropic linear elastic material with density and Rayleigh damping `C = alpha M + beta K`.
+/// The constitutive law of an ElasticMaterial.
+enum class MaterialLaw {
+    /// Small-strain linear elasticity (every solver).
+    linear,
+    /// Compressible neo-Hookean at large strain with the same small-strain E and nu, run by
+    /// total Lagrangian explicit dynamics (palp/fem/tled.h): the whole-mesh ExplicitSolver only;
+    /// the implicit solver and the asynchronous regions refuse it.
+    neoHookean,
+};
+
+/// Isotropic elastic material with density and Rayleigh damping `C = alpha M + beta K`.
 struct ElasticMaterial {
     double youngsModulus = 5.0e3;  ///< E, pascals, [1, 1e12]; a per-element field may scale it
     double poissonRatio = 0.45;    ///< nu, dimensionless, in (-1, 0.5)
     double density = 1.0e3;        ///< rho, kg/m^3, [1, 1e5]
     double dampingAlpha = 0.0;     ///< mass-proportional Rayleigh coefficient, 1/s, [0, 1e4]
     double dampingBeta = 0.0;      ///< stiffness-proportional Rayleigh coefficient, s, [0, 1]
+    MaterialLaw law = MaterialLaw::linear;  ///< constitutive law
 
     /// Lame's first parameter lambda, pascals.
     double lambda() const;
