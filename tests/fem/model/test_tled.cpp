@@ -1,0 +1,373 @@
+// TLED (palp/fem/tled.h): the neo-Hookean stress against closed forms, the element's forces
+// under rigid motion, rotation and small strain, the explicit solver's neo-Hookean path.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <iostream>
+#include <new>
+#include <random>
+#include <vector>
+
+#include "palp/base/error.h"
+#include "palp/fem/explicit_solver.h"
+#include "palp/fem/implicit_solver.h"
+#include "palp/fem/tled.h"
+#include "tled_fixtures.h"
+
+// A counting global operator new: the neo-Hookean step must not allocate.
+namespace {
+std::atomic<bool> gCountAllocations{false};
+std::atomic<long> gAllocations{0};
+}  // namespace
+
+void* operator new(std::size_t size) {
+    if (gCountAllocations.load(std::memory_order_relaxed)) gAllocations.fetch_add(1);
+    if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
+    throw std::bad_alloc();
+}
+// GCC 12 flags free() of operator new's pointer, which is exactly what this pair is.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+#pragma GCC diagnostic pop
+
+namespace palp::fem {
+namespace {
+
+constexpr double kE = test::kTledE, kNu = test::kTledNu;
+using test::neoHookeanTissue;
+
+/// Principal first Piola stress of the compressible neo-Hookean at stretches (l1, l2, l3):
+/// Cauchy `sigma_i = mu J^(-5/3) (l_i^2 - I1 / 3) + K (J - 1)`, `P_i = J sigma_i / l_i`.
+Eigen::Vector3d principalPiola(const Eigen::Vector3d& l, double mu, double bulk) {
+    const double j = l.prod(), i1 = l.squaredNorm();
+    Eigen::Vector3d p;
+    for (int i = 0; i < 3; ++i) {
+        const double sigma =
+            mu * std::pow(j, -5.0 / 3.0) * (l[i] * l[i] - i1 / 3.0) + bulk * (j - 1.0);
+        p[i] = j * sigma / l[i];
+    }
+    return p;
+}
+
+/// The lateral stretch of uniaxial stress at axial stretch @p l (P_xx = 0), by bisection.
+double lateralStretch(double l, double mu, double bulk) {
+    double a = 0.5, b = 2.0;
+    for (int i = 0; i < 200; ++i) {
+        const double m = 0.5 * (a + b);
+        const double pa = principalPiola({a, a, l}, mu, bulk)[0];
+        const double pm = principalPiola({m, m, l}, mu, bulk)[0];
+        (pa * pm <= 0.0 ? b : a) = m;
+    }
+    return 0.5 * (a + b);
+}
+
+/// Displacement of every node of @p mesh under the map x = f(X).
+template <class Map>
+Eigen::VectorXd displacementOf(const HexMesh& mesh, Map map) {
+    Eigen::VectorXd u = Eigen::VectorXd::Zero(mesh.dofCount());
+    for (int n = 0; n < mesh.nodeCount(); ++n) {
+        const Eigen::Vector3d x = mesh.nodePosition(n);
+        u.segment<3>(3 * n) = map(x) - x;
+    }
+    return u;
+}
+
+Eigen::VectorXd internalForces(const TledForces& t, const Eigen::VectorXd& u) {
+    Eigen::VectorXd f = Eigen::VectorXd::Zero(u.size());
+    t.addInternalForces(u.data(), f.data());
+    return f;
+}
+
+constexpr TledIntegration kBoth[] = {TledIntegration::onePointHourglass,
+                                     TledIntegration::gauss2x2x2};
+
+TEST(NeoHookean, UniaxialFirstPiolaEqualsTheClosedFormAt10To30PerCent) {
+    const NeoHookean law = NeoHookean::fromYoungs(kE, kNu);
+    EXPECT_DOUBLE_EQ(law.c10(), 0.5 * kE / (2.0 * (1.0 + kNu)));
+    EXPECT_DOUBLE_EQ(law.d1(), 2.0 * 3.0 * (1.0 - 2.0 * kNu) / kE);
+    // The CalculiX reactions on a 1 cm^2 face, N, at 10 / 20 / 30 %.
+    const double ccx[3] = {0.11180, 0.25526, 0.44926};
+    for (int s = 0; s < 3; ++s) {
+        const double l = 1.0 - 0.1 * (s + 1);
+        const double lt = lateralStretch(l, law.mu, law.bulk);
+        const Eigen::Matrix3d f = Eigen::Vector3d(lt, lt, l).asDiagonal();
+        const Eigen::Matrix3d p = law.firstPiola(f);
+        const Eigen::Vector3d closed = principalPiola({lt, lt, l}, law.mu, law.bulk);
+        for (int i = 0; i < 3; ++i) {
+            EXPECT_NEAR(p(i, i), closed[i], 1e-10 * std::abs(closed[2])) << "strain " << s;
+            for (int j = 0; j < 3; ++j) {
+                if (j != i) {
+                    EXPECT_EQ(p(i, j), 0.0);
+                }
+            }
+        }
+        EXPECT_LT((f * law.secondPiola(f) - p).norm(), 1e-10 * p.norm()) << "P = F S";
+        EXPECT_NEAR(-p(2, 2) * 1e-4, ccx[s], 5e-6) << "reaction on 1 cm^2 at " << 10 * (s + 1);
+        std::cout << "[ uniaxial " << 10 * (s + 1) << " % ] lateral stretch " << lt << ", P_zz "
+                  << p(2, 2) << " Pa, reaction " << -p(2, 2) * 1e-4 << " N\n";
+    }
+    // Uniaxial strain (no lateral stretch) too: a different closed-form state.
+    for (const double l : {0.9, 0.8, 0.7}) {
+        const Eigen::Matrix3d f = Eigen::Vector3d(1.0, 1.0, l).asDiagonal();
+        const Eigen::Vector3d closed = principalPiola({1.0, 1.0, l}, law.mu, law.bulk);
+        EXPECT_NEAR(law.firstPiola(f)(2, 2), closed[2], 1e-10 * std::abs(closed[2]));
+        EXPECT_NEAR(law.firstPiola(f)(0, 0), closed[0], 1e-10 * std::abs(closed[2]));
+    }
+}
+
+TEST(Tled, HomogeneousCompressionForcesAreThoseOfTheClosedFormStress) {
+    // A 3^3-cell cube deformed by x = diag(lt, lt, l) X: every interior node is in equilibrium
+    // and the top face carries P_zz times its area, in both integrations (the deformation is
+    // affine, so the hourglass springs are idle).
+    const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(0.01), {4, 4, 4}, kE);
+    const FemModel model(mesh, neoHookeanTissue());
+    const NeoHookean law = NeoHookean::fromYoungs(kE, kNu);
+    for (const TledIntegration integration : kBoth) {
+        const TledForces tled(model, {integration, 0.1});
+        for (int s = 1; s <= 3; ++s) {
+            const double l = 1.0 - 0.1 * s, lt = lateralStretch(l, law.mu, law.bulk);
+            const Eigen::VectorXd u = displacementOf(mesh, [&](const Eigen::Vector3d& x) {
+                return Eigen::Vector3d(lt * x.x(), lt * x.y(), l * x.z()).eval();
+            });
+            const Eigen::VectorXd f = internalForces(tled, u);
+            double top = 0.0, interior = 0.0, side = 0.0;
+            for (int n : mesh.faceNodes(BoxFace::zMax)) top += f[3 * n + 2];
+            for (int k = 1; k < 3; ++k) {
+                for (int j = 1; j < 3; ++j) {
+                    for (int i = 1; i < 3; ++i)
+                        interior = std::max(interior, f.segment<3>(3 * mesh.node(i, j, k)).norm());
+                }
+            }
+            for (int n : mesh.faceNodes(BoxFace::xMax)) side += f[3 * n];
+            const double pzz = principalPiola({lt, lt, l}, law.mu, law.bulk)[2];
+            EXPECT_NEAR(top, pzz * 1e-4, 1e-10 * std::abs(pzz) * 1e-4) << s;
+            EXPECT_LT(interior, 1e-10 * std::abs(pzz) * 1e-4);
+            EXPECT_LT(std::abs(side), 1e-10 * std::abs(pzz) * 1e-4) << "uniaxial stress";
+        }
+    }
+}
+
+TEST(Tled, RigidMotionGivesNoForceAndTheForcesAreObjective) {
+    const double h = 1e-3;
+    const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(3 * h), {4, 4, 4}, kE,
+                                      Eigen::Vector3d(-0.002, 0.001, 0.0005));
+    const FemModel model(mesh, neoHookeanTissue());
+    const Eigen::Matrix3d q =
+        Eigen::AngleAxisd(0.5 * M_PI, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+    const Eigen::Vector3d t(0.004, -0.003, 0.002);
+    std::mt19937 rng(36);
+    std::uniform_real_distribution<double> unit(-1.0, 1.0);
+    // A random deformed state: 15 % affine strain plus 0.1 h random nodal jitter.
+    Eigen::Matrix3d a;
+    for (int i = 0; i < 9; ++i) a(i) = 0.15 * unit(rng);
+    Eigen::VectorXd u =
+        displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (x + a * x).eval(); });
+    for (int d = 0; d < u.size(); ++d) u[d] += 0.1 * h * unit(rng);
+    for (const TledIntegration integration : kBoth) {
+        const TledForces tled(model, {integration, 0.1});
+        const Eigen::VectorXd rigid =
+            displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (q * x + t).eval(); });
+        const double rigidForce = internalForces(tled, rigid).cwiseAbs().maxCoeff();
+        EXPECT_LT(rigidForce, 1e-12 * kE * h * h);
+        // x' = Q x + t of the deformed state: the forces turn with it.
+        const Eigen::VectorXd f = internalForces(tled, u);
+        Eigen::VectorXd uRot(u.size());
+        for (int n = 0; n < mesh.nodeCount(); ++n) {
+            const Eigen::Vector3d x = mesh.nodePosition(n) + u.segment<3>(3 * n);
+            uRot.segment<3>(3 * n) = q * x + t - mesh.nodePosition(n);
+        }
+        const Eigen::VectorXd fRot = internalForces(tled, uRot);
+        double worst = 0.0;
+        for (int n = 0; n < mesh.nodeCount(); ++n)
+            worst = std::max(worst, (fRot.segment<3>(3 * n) - q * f.segment<3>(3 * n)).norm());
+        const double scale = f.cwiseAbs().maxCoeff();
+        std::cout << "[ TLED rigid/objectivity, "
+                  << (integration == TledIntegration::gauss2x2x2 ? "2x2x2" : "1-point+hourglass")
+                  << " ] rigid force " << rigidForce / (kE * h * h) << " E h^2, |f(Qx) - Q f(x)| "
+                  << worst / scale << " of max |f|\n";
+        EXPECT_GT(scale, 1e-3 * kE * h * h) << "a deformed state";
+        EXPECT_LT(worst, 1e-12 * scale);
+        // The energy is invariant too.
+        EXPECT_NEAR(tled.strainEnergy(uRot.data()), tled.strainEnergy(u.data()),
+                    1e-12 * tled.strainEnergy(u.data()));
+    }
+}
+
+TEST(Tled, SmallStrainForcesEqualTheLinearElementsToSecondOrder) {
+    const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(0.01), {5, 5, 5}, kE);
+    const FemModel model(mesh, neoHookeanTissue());
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> unit(-1.0, 1.0);
+    Eigen::VectorXd random(mesh.dofCount());
+    for (int d = 0; d < random.size(); ++d) random[d] = unit(rng);
+    Eigen::Matrix3d a;
+    for (int i = 0; i < 9; ++i) a(i) = unit(rng);
+    const Eigen::VectorXd affine =
+        displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (x + a * x).eval(); });
+    // 2x2x2 on any field (its tangent at rest is the linear C3D8's); the one-point element on
+    // an affine field (the hourglass springs are idle and one point integrates it exactly).
+    struct Case {
+        TledIntegration integration;
+        const Eigen::VectorXd* shape;
+        double perStrain;  // displacement scale per unit strain
+    };
+    const Case cases[] = {{TledIntegration::gauss2x2x2, &random, mesh.edge()},
+                          {TledIntegration::onePointHourglass, &affine, 1.0},
+                          {TledIntegration::gauss2x2x2, &affine, 1.0}};
+    for (const Case& c : cases) {
+        const TledForces tled(model, {c.integration, 0.1});
+        double previous = 0.0;
+        for (const double strain : {1e-2, 1e-3, 1e-4, 1e-5}) {
+            const Eigen::VectorXd u = strain * c.perStrain * *c.shape;
+            Eigen::VectorXd linear = Eigen::VectorXd::Zero(u.size());
+            model.addStiffnessTimes(u.data(), linear.data());
+            const double rel = (internalForces(tled, u) - linear).norm() / linear.norm();
+            std::cout << "[ TLED vs linear ] strain " << strain << ": relative difference " << rel
+                      << "\n";
+            if (previous > 0.0) {
+                // O(strain^2) in the force: the relative difference falls 10x per 10x.
+                EXPECT_NEAR(rel / previous, 0.1, 0.02) << "strain " << strain;
+            }
+            EXPECT_LT(rel, 3.0 * strain);
+            previous = rel;
+        }
+    }
+}
+
+TEST(Tled, RestFrequencyBoundIsTheLinearOneAndCompressionRaisesIt) {
+    const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(0.01), {5, 5, 5}, kE);
+    const FemModel model(mesh, neoHookeanTissue());
+    const TledForces full(model, {TledIntegration::gauss2x2x2, 0.1});
+    const TledForces one(model, {TledIntegration::onePointHourglass, 0.1});
+    const Eigen::VectorXd rest = Eigen::VectorXd::Zero(mesh.dofCount());
+    EXPECT_DOUBLE_EQ(full.frequencyBound(rest.data()), model.maxFrequencyBound());
+    EXPECT_DOUBLE_EQ(one.frequencyBound(rest.data()), one.restFrequencyBound());
+    std::cout << "[ TLED rest frequency bound ] 1-point+hourglass "
+              << one.restFrequencyBound() / model.maxFrequencyBound() << " x the 2x2x2 one\n";
+    EXPECT_LE(one.restFrequencyBound(), 1.000001 * model.maxFrequencyBound());
+    EXPECT_GT(one.restFrequencyBound(), 0.5 * model.maxFrequencyBound());
+    double previous = model.maxFrequencyBound();
+    for (const double l : {0.9, 0.8, 0.7, 0.5}) {
+        const Eigen::VectorXd u = displacementOf(mesh, [&](const Eigen::Vector3d& x) {
+            return Eigen::Vector3d(x.x(), x.y(), l * x.z()).eval();
+        });
+        const double w = full.frequencyBound(u.data());
+        std::cout << "[ TLED frequency bound ] stretch " << l << ": "
+                  << w / model.maxFrequencyBound() << " x the rest bound\n";
+        EXPECT_GT(w, previous);
+        previous = w;
+    }
+}
+
+TEST(Tled, ExplicitSolverRunsTheRollerCubeToTheClosedForm) {
+    const NeoHookean law = NeoHookean::fromYoungs(kE, kNu);
+    for (const TledIntegration integration : kBoth) {
+        for (int s = 1; s <= 3; ++s) {
+            const double l = 1.0 - 0.1 * s;
+            const double closed = -1e-4 * principalPiola({lateralStretch(l, law.mu, law.bulk),
+                                                          lateralStretch(l, law.mu, law.bulk), l},
+                                                         law.mu, law.bulk)[2];
+            StepResult last;
+            const HexMesh mesh = test::tledCube();
+            const FemModel model(mesh, test::neoHookeanTissue(600.0));
+            const double r =
+                test::settledTopReaction(model, test::plateConstraints(mesh, test::Plates::rollers),
+                                         0.1 * s, integration, &last);
+            std::cout << "[ TLED roller cube ] " << 10 * s << " %: reaction " << r
+                      << " N, closed form " << closed << " N (" << 100 * (r / closed - 1) << " %), "
+                      << last.substeps << " substeps per 1 ms\n";
+            EXPECT_EQ(last.flags, kStepOk);
+            EXPECT_NEAR(r, closed, 1e-4 * closed);
+        }
+    }
+}
+
+TEST(Tled, OnePointAndFullIntegrationConvergeUnderRefinement) {
+    // The bonded cube at 20 %: 2x2x2 (C3D8) locks at nu 0.45 and is stiffer on a coarse mesh
+    // than one point with hourglass control; refining the mesh closes the gap.
+    double gap[2] = {};
+    for (int level = 0; level < 2; ++level) {
+        const HexMesh mesh = test::tledCube(4 << level);
+        const FemModel model(mesh, test::neoHookeanTissue(600.0));
+        const Constraints c = test::plateConstraints(mesh, test::Plates::bonded);
+        StepResult a, b;
+        const double one =
+            test::settledTopReaction(model, c, 0.2, TledIntegration::onePointHourglass, &a);
+        const double full =
+            test::settledTopReaction(model, c, 0.2, TledIntegration::gauss2x2x2, &b);
+        EXPECT_EQ(a.flags | b.flags, kStepOk);
+        gap[level] = full / one - 1.0;
+        std::cout << "[ TLED bonded cube 20 %, " << (4 << level) << "^3 cells ] 2x2x2 " << full
+                  << " N, 1-point+hourglass " << one << " N (2x2x2 " << 100 * gap[level]
+                  << " % stiffer)\n";
+    }
+    EXPECT_GT(gap[0], 0.0);
+    EXPECT_LT(std::abs(gap[1]), 0.7 * std::abs(gap[0]));
+}
+
+TEST(Tled, NeoHookeanStepAllocatesNothingAndShortensItsSubstepUnderCompression) {
+    const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(0.01), {5, 5, 5}, kE);
+    const FemModel model(mesh, neoHookeanTissue(600.0));
+    Constraints c(mesh.dofCount());
+    c.fixNodes(mesh.faceNodes(BoxFace::zMin));
+    const std::vector<int> top = mesh.faceNodes(BoxFace::zMax);
+    c.fixNodes(top, 4u);
+    ExplicitSolver s(model, c);
+    ASSERT_NE(s.tled(), nullptr);
+    const double restDt = s.stableTimeStep();
+    auto press = [&](ExplicitSolver& solver, int i) {
+        for (int n : top)
+            solver.setPrescribed(3 * n + 2, -0.004 * std::min(1.0, static_cast<double>(i) / 50));
+    };
+    gAllocations = 0;
+    gCountAllocations = true;
+    StepResult r;
+    for (int i = 1; i <= 100; ++i) {
+        press(s, i);
+        r = s.step(1e-3);
+    }
+    (void)s.strainEnergy();
+    gCountAllocations = false;
+    EXPECT_EQ(gAllocations.load(), 0);
+    EXPECT_EQ(r.flags, kStepOk);
+    std::cout << "[ TLED substep ] rest " << restDt << " s, at 40 % compression "
+              << s.stableTimeStep() << " s\n";
+    EXPECT_LT(s.stableTimeStep(), restDt);
+    // The parallel step gives the serial one's state (the same sums in another order).
+    ExplicitSolver p(model, c);
+    ExplicitSolver q(model, c);
+    for (int i = 1; i <= 20; ++i) {
+        press(p, i);
+        press(q, i);
+        p.step(1e-3);
+        q.stepParallel(1e-3);
+    }
+    EXPECT_LT((p.displacement() - q.displacement()).cwiseAbs().maxCoeff(),
+              1e-12 * p.displacement().cwiseAbs().maxCoeff());
+}
+
+TEST(Tled, LinearMaterialStepIsUnchangedAndOtherSolversRefuseNeoHookean) {
+    const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(0.01), {5, 5, 5}, kE);
+    ElasticMaterial linear = neoHookeanTissue(50.0);
+    linear.law = MaterialLaw::linear;
+    const FemModel model(mesh, linear);
+    Constraints c(mesh.dofCount());
+    c.fixNodes(mesh.faceNodes(BoxFace::zMin));
+    ExplicitSolver s(model, c);
+    EXPECT_EQ(s.tled(), nullptr);
+    EXPECT_EQ(s.stableTimeStep(), 0.9 * model.criticalTimeStep());
+    const FemModel nh(mesh, neoHookeanTissue());
+    EXPECT_THROW(ImplicitSolver(nh, c, {Integrator::quasiStatic, LinearSolverKind::cholmod}),
+                 ValueError);
+    ExplicitOptions o;
+    o.tled.hourglassKappa = 2.0;
+    EXPECT_THROW(ExplicitSolver(nh, c, o), ValueError);
+}
+
+}  // namespace
+}  // namespace palp::fem
