@@ -7,6 +7,7 @@
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/implicit_solver.h"
+#include "palp/fem/tled.h"
 
 namespace {
 
@@ -92,6 +93,28 @@ void BM_StiffnessOperator(benchmark::State& state) {
     setLabel(state, model);
 }
 
+/// The TLED internal force alone (neo-Hookean, palp/fem/tled.h) on the same cube, one thread:
+/// f = f_int(u) (zeroing f included) of a random 1 % strain state; arg 1: 0 one point with
+/// hourglass control, 1 2x2x2 Gauss. Compare with BM_StiffnessOperator/13/0 per element.
+void BM_TledForces(benchmark::State& state) {
+    ElasticMaterial m = tissue();
+    m.law = MaterialLaw::neoHookean;
+    const FemModel model(cube(static_cast<int>(state.range(0)), false), m);
+    const TledForces tled(model, {state.range(1) != 0 ? TledIntegration::gauss2x2x2
+                                                      : TledIntegration::onePointHourglass,
+                                  0.1});
+    std::mt19937 rng(2);
+    std::uniform_real_distribution<double> jitter(-5e-5, 5e-5);  // 1 % of the 5 mm cells
+    Eigen::VectorXd u(model.dofCount()), f = Eigen::VectorXd::Zero(model.dofCount());
+    for (int d = 0; d < u.size(); ++d) u[d] = jitter(rng);
+    for (auto _ : state) {
+        f.setZero();
+        tled.addInternalForces(u.data(), f.data());
+        benchmark::DoNotOptimize(f.data());
+    }
+    setLabel(state, model);
+}
+
 void BM_ExplicitStepTbb(benchmark::State& state) {
     const FemModel model(cube(static_cast<int>(state.range(0)), state.range(1) != 0), tissue());
     ExplicitSolver s(model, bottom(model.mesh()));
@@ -152,6 +175,7 @@ BENCHMARK(BM_ExplicitStep)
     ->Args({33, 1})
     ->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_StiffnessOperator)->Args({13, 0})->Args({13, 1})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_TledForces)->Args({13, 0})->Args({13, 1})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ExplicitStepTbb)->Args({13, 0})->Args({33, 0})->Unit(benchmark::kMicrosecond);
 // Args: nodes per edge, solver (0 LDLT, 1 CHOLMOD, 2 PCG).
 BENCHMARK(BM_ImplicitStep)
