@@ -9,9 +9,11 @@
 #include <iostream>
 #include <new>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "palp/base/error.h"
+#include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/implicit_solver.h"
 #include "palp/fem/tled.h"
@@ -351,6 +353,27 @@ TEST(Tled, NeoHookeanStepAllocatesNothingAndShortensItsSubstepUnderCompression) 
               1e-12 * p.displacement().cwiseAbs().maxCoeff());
 }
 
+TEST(Tled, TooFewSubstepsAreCappedAndFlaggedAsForALinearModel) {
+    // maxSubsteps 2 against a 2 ms tick (about 10 rest substeps): each step takes 2 substeps of
+    // the current stable step, advances less time than asked and says so, and stays finite.
+    const HexMesh mesh = test::tledCube();
+    const FemModel model(mesh, neoHookeanTissue(600.0));
+    const Constraints c = test::plateConstraints(mesh, test::Plates::bonded);
+    ExplicitOptions o;
+    o.maxSubsteps = 2;
+    ExplicitSolver s(model, c, o);
+    const std::vector<int> top = mesh.faceNodes(BoxFace::zMax);
+    for (int i = 1; i <= 200; ++i) {
+        for (int n : top) s.setPrescribed(3 * n + 2, -0.003 * std::min(1.0, i / 100.0));
+        const StepResult r = s.step(2e-3);
+        ASSERT_EQ(r.flags, kStepSubstepLimit) << "step " << i;
+        ASSERT_EQ(r.substeps, 2);
+        ASSERT_LE(r.advancedSeconds, 2.0 * s.stableTimeStep() * (1 + 1e-12));
+    }
+    EXPECT_TRUE(s.displacement().allFinite());
+    EXPECT_GT(s.displacement().cwiseAbs().maxCoeff(), 1e-3);
+}
+
 TEST(Tled, LinearMaterialStepIsUnchangedAndOtherSolversRefuseNeoHookean) {
     const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(0.01), {5, 5, 5}, kE);
     ElasticMaterial linear = neoHookeanTissue(50.0);
@@ -364,6 +387,12 @@ TEST(Tled, LinearMaterialStepIsUnchangedAndOtherSolversRefuseNeoHookean) {
     const FemModel nh(mesh, neoHookeanTissue());
     EXPECT_THROW(ImplicitSolver(nh, c, {Integrator::quasiStatic, LinearSolverKind::cholmod}),
                  ValueError);
+    try {
+        AsyncRegions regions(nh, c, {mesh.node(2, 2, 4)});
+        ADD_FAILURE() << "the regions accepted a neo-Hookean material";
+    } catch (const ValueError& e) {
+        EXPECT_NE(std::string(e.what()).find("material law"), std::string::npos) << e.what();
+    }
     ExplicitOptions o;
     o.tled.hourglassKappa = 2.0;
     EXPECT_THROW(ExplicitSolver(nh, c, o), ValueError);
