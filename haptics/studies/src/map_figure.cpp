@@ -199,7 +199,14 @@ MapLayout layoutMapFigure(const ScalarMap& map, const MapFigure& figure, double 
                      u.brightLow ? light : dark,
                      u.brightLow ? dark : light};
         l.underBar = ub;
-        barTicks(l, ub, l.underLo, l.underHi, "underlay", u.quantity + " (" + u.units + ")", k);
+        // A range under a millimetre reads in micrometres: the demo's skin lies 22-33 um under
+        // the plane (the iso-surface between the air and fat voxels), which as "0.024 mm" reads
+        // like metres mislabelled.
+        const double reach = std::max(std::abs(l.underLo), std::abs(l.underHi));
+        const bool micro = u.units == "mm" && reach < 1;
+        const double scale = micro ? 1e3 : 1.0;
+        barTicks(l, ub, l.underLo * scale, l.underHi * scale, "underlay",
+                 u.quantity + " (" + (micro ? std::string("\u00b5m") : u.units) + ")", k);
     }
     return l;
 }

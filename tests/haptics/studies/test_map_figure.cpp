@@ -218,6 +218,47 @@ volume::Volume tiltedSkin() {
     return vol;
 }
 
+// The demo's underlay: a skin 22.5-32.8 um under the map's plane (the iso-surface between the
+// air and the fat voxels of a phantom converted at 0.5 mm). Its bar once read "0.024 ... 0.032"
+// against "skin depth (mm)", which reads as metres labelled mm; a sub-millimetre range now reads
+// in micrometres, and each tick's number is the underlay's value (in the label's unit) at the
+// tick's height on the bar. A millimetre range stays in mm.
+TEST(MapUnderlay, TheUnderlayBarsNumbersAndUnitAgree) {
+    const MapPlane plane = testPlane();
+    for (const double lo : {0.0225, 5.0}) {
+        const double span = lo < 1 ? 0.0103 : 10.0;
+        ScalarMap depth(plane);
+        for (int c = 0; c < depth.cols(); ++c)
+            for (int r = 0; r < depth.rows(); ++r)
+                depth.set(c, r, lo + span * c / (depth.cols() - 1));
+        MapFigure fig;
+        fig.underlay.emplace(plane);
+        fig.underlay->map = depth;  // skin depth, mm (skinDepthMap's unit)
+        const MapLayout l = layoutMapFigure(ScalarMap(plane), fig, 1.0);
+        ASSERT_TRUE(l.underBar.has_value());
+        const bool micro = lo < 1;
+        const double perUnit = micro ? 1e-3 : 1.0;  // mm per unit of the label
+        int ticks = 0;
+        for (const FigureText& t : l.texts) {
+            if (t.cls == "underlay") {
+                EXPECT_EQ(t.body, micro ? "skin depth (\u00b5m)" : "skin depth (mm)");
+            }
+            if (t.cls != "underlay-tick") continue;
+            ++ticks;
+            const double v = std::stod(t.body) * perUnit;  // mm
+            EXPECT_GE(v, l.underLo - 1e-9) << t.body;
+            EXPECT_LE(v, l.underHi + 1e-9) << t.body;
+            // Ticks are placed at y = bar bottom - (v - lo) / (hi - lo) * height (+4 baseline).
+            const FigureBar& b = *l.underBar;
+            const double y = b.y + b.h - (v - l.underLo) / (l.underHi - l.underLo) * b.h + 4;
+            EXPECT_NEAR(t.y, y, 1e-6 * b.h) << t.body;
+        }
+        EXPECT_GE(ticks, 3) << lo;
+        EXPECT_NEAR(l.underLo, lo, 1e-12);
+        EXPECT_NEAR(l.underHi, lo + span, 1e-12);
+    }
+}
+
 TEST(MapUnderlay, SkinDepthAndMipOfATiltedSkinAndItsGreyUnderTheMap) {
     const volume::Volume vol = tiltedSkin();
     auto scene = Scene::fromVolume(vol);

@@ -27,6 +27,7 @@ struct MapUnderlay {
     explicit MapUnderlay(const MapPlane& plane) : map(plane) {}
     ScalarMap map;                        ///< NaN pixels are drawn in the background colour
     std::string quantity = "skin depth";  ///< its bar's label
+    /// The map's unit; "mm" whose range stays under 1 mm is labelled and ticked in micrometres.
     std::string units = "mm";
     double lo = std::numeric_limits<double>::quiet_NaN();  ///< NaN: the underlay's min
     double hi = std::numeric_limits<double>::quiet_NaN();  ///< NaN: its max
