@@ -25,7 +25,8 @@ int main(int argc, char** argv) {
     std::vector<palp::tool::Command> commands{
         palp::tool::addConvert(app),   palp::tool::addInfo(app),    palp::tool::addPhantom(app),
         palp::tool::addBench(app),     palp::tool::addPalpate(app), palp::tool::addServe(app),
-        palp::tool::addBridgeSim(app), palp::tool::addSweep(app),   palp::tool::addErrormap(app)};
+        palp::tool::addBridgeSim(app), palp::tool::addSweep(app),   palp::tool::addErrormap(app),
+        palp::tool::addStudy(app)};
     palp::tool::refuseEmptyValues(app);
     try {
         app.parse(argc, argv);

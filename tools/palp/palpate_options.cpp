@@ -159,8 +159,12 @@ void addCouplingOptions(CLI::App* app, PalpateArgs& a) {
 
 /// The scripted path of the simulated hand.
 void addPathOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
-    app->add_option("--trajectory", a.trajectory, "Path: raster, sweep, circle or press")
-        ->check(CLI::IsMember({"raster", "sweep", "circle", "press"}));
+    app->add_option("--trajectory", a.trajectory,
+                    "Path: raster, sweep, circle or press; or a touch mode of thesis paper III "
+                    "over --phantom stiffness (continuous-pressure, discontinuous-pressure, "
+                    "lateral-sweep: docs/studies.md)")
+        ->check(CLI::IsMember({"raster", "sweep", "circle", "press", "continuous-pressure",
+                               "discontinuous-pressure", "lateral-sweep"}));
     app->add_option("--centre", a.centreMm,
                     "Centre x,y,z of the path on the surface, mm (default: the middle of the "
                     "patch of skin facing the press on a scan, else of the volume's lateral box, "

@@ -15,6 +15,7 @@
 #include "palp/haptics/rendering/coupling_defaults.h"
 #include "palp/haptics/tissue/deformable_setup.h"
 #include "palp/studies/offline_run.h"
+#include "palp/studies/touch_modes.h"
 #include "palp/volume/load.h"
 #include "palpate/error_budget.h"
 
@@ -325,6 +326,22 @@ PathPlan trajectoryFromOptions(const PalpateArgs& a, const PathFrame& f,
     double speed = a.speedMmps;
     if (!std::isfinite(speed)) speed = tk == "sweep" ? 50 : 100;
     requirePositive("--speed", speed, "mm/s");
+    if (haptics::isTouchModeName(tk)) {
+        // Paper III's touch modes run over the stiffness phantom's boxes, in its frame.
+        if (a.phantom != "stiffness")
+            throw ValueError(
+                "--trajectory " + tk +
+                ": expected --phantom stiffness (the touch "
+                "modes run over its DP, CP and CL boxes), found " +
+                (a.phantom.empty() ? std::string("a FILE") : "--phantom " + a.phantom));
+        const haptics::TouchMode mode = haptics::parseTouchMode("--trajectory", tk);
+        haptics::TouchParams tp;
+        tp.depthM = depth;
+        if (std::isfinite(a.speedMmps)) tp.speedMps = a.speedMmps * 1e-3;
+        tp.holdSeconds = a.holdSeconds;
+        const haptics::TouchPath path = haptics::touchPath(mode, tp);
+        return {path.trajectory, path.seconds, path.pressedFrom, path.pressedFrom};
+    }
     if (tk == "raster") {
         haptics::RasterTrajectory r;
         r.centre = f.centre;
