@@ -18,7 +18,7 @@ using cairo_pages::text;
 
 constexpr double kPanelW = 330, kPanelH = 270;
 constexpr double kLeft = 58, kRight = 14, kTop = 46, kBottom = 48;
-constexpr double kYLo = 0.4, kYHi = 1.0;
+constexpr double kYLo = 0.0, kYHi = 1.0;  // the whole range: blocks of few trials fall below 0.5
 
 double niceStep(double span) {
     const double raw = span / 5;

@@ -221,7 +221,9 @@ TEST(StudyRunner, ObserversWithPaperIIIWeberFractionsRankTheTouchModesAsTheThesi
     constexpr int kParticipants = 12;
     for (int p = 0; p < kParticipants; ++p) {
         StudyRunner runner(spec, p);
-        const fs::path log = d / ("p" + std::to_string(p) + ".csv");
+        char name[32];  // (not "p" + to_string: GCC 12 -O3 warns falsely on that concatenation)
+        std::snprintf(name, sizeof name, "p%d.csv", p);
+        const fs::path log = d / name;
         StudyLog l = StudyLog::create(log, runner.logHeader());
         runStudyTrials(runner, simulatedResponder(stimuli), l);
         StudyLogHeader h;
