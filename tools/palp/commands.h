@@ -32,7 +32,7 @@ Command addBridgeSim(CLI::App& root);
 Command addSweep(CLI::App& root);
 /// `palp errormap`: partial rank correlations and plots of a sweep table (cmd_errormap.cpp).
 Command addErrormap(CLI::App& root);
-/// `palp study`: a 2IFC stiffness study, simulated or with a person (cmd_study.cpp).
+/// `palp study`: a 2IFC stiffness study, simulated or with a person (study/cmd_study.cpp).
 Command addStudy(CLI::App& root);
 
 /// Unit axis from "+y", "-x", "y", ...; @throw palp::ValueError naming @p option and the text.

@@ -12,8 +12,8 @@
 #include <string>
 #include <vector>
 
-#include "commands.h"
-#include "option_checks.h"
+#include "../commands.h"
+#include "../option_checks.h"
 #include "palp/base/error.h"
 #include "palp/studies/psychometric_plot.h"
 #include "palp/studies/study_runner.h"
