@@ -5,7 +5,9 @@
 /// surface at y = 0, depth +y):
 ///
 /// * continuous pressure: one slow press along the normal into the CP box (harder below a
-///   depth), so the stiffness felt changes during one continuous contact;
+///   depth: paper III's stiffness that changes during one continuous contact; the scene's AVC
+///   coupling renders it by the distance from the surface to that layer, which the press does
+///   not change, so the hand feels one stiffness: docs/studies.md);
 /// * discontinuous pressure: a press on the DP box (uniformly harder): in a two-interval study
 ///   each interval is one press on one object, lifted in between, so the two objects are
 ///   compared by touching them separately (paper III's "two objects");
