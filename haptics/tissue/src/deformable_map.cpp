@@ -68,36 +68,78 @@ Eigen::Vector3d DeformableBody::restFromCurrent(const Eigen::Vector3d& current) 
     return rest;
 }
 
-Eigen::Matrix3d DeformableBody::anchorRotation() const noexcept {
-    if (mAnchorTri < 0) return Eigen::Matrix3d::Identity();
-    const fem::SurfaceMesh& surface = mModel->surface();
-    const auto& t = surface.triangles[static_cast<std::size_t>(mAnchorTri)];
-    Eigen::Matrix3d rest, now;  // columns: edge 1, edge 2, unit normal
-    Eigen::Vector3d r[3], c[3];
-    for (std::size_t k = 0; k < 3; ++k) {
-        const std::size_t v = t[k];
-        r[k] = surface.vertices[v].cast<double>();
-        c[k] = Eigen::Vector3d(mPositions[3 * v], mPositions[3 * v + 1], mPositions[3 * v + 2]);
-    }
-    rest.col(0) = r[1] - r[0];
-    rest.col(1) = r[2] - r[0];
-    now.col(0) = c[1] - c[0];
-    now.col(1) = c[2] - c[0];
-    const Eigen::Vector3d nr = rest.col(0).cross(rest.col(1)), nc = now.col(0).cross(now.col(1));
-    const double lr = nr.norm(), lc = nc.norm();
-    if (!(lr > 0) || !(lc > 0) || !std::isfinite(lr) || !std::isfinite(lc))
-        return Eigen::Matrix3d::Identity();
-    rest.col(2) = nr / lr;
-    now.col(2) = nc / lc;
-    // F rest = now; its polar factor (nearest rotation) from the SVD F = U S V^T: R = U V^T,
-    // with the sign of the smallest singular direction flipped should F reflect (it cannot
-    // for a triangle that keeps its orientation, but a crushed one could).
-    const Eigen::Matrix3d F = now * rest.inverse();
-    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
+namespace {
+
+/// The proper rotation nearest @p m (its polar factor, from the SVD m = U S V^T: U V^T with the
+/// smallest singular direction flipped should that reflect); the identity when @p m is not
+/// finite or is degenerate.
+Eigen::Matrix3d nearestRotation(const Eigen::Matrix3d& m) noexcept {
+    if (!m.allFinite()) return Eigen::Matrix3d::Identity();
+    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(m, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    if (!(svd.singularValues()[1] > 0)) return Eigen::Matrix3d::Identity();
     Eigen::Matrix3d U = svd.matrixU();
     if ((U * svd.matrixV().transpose()).determinant() < 0) U.col(2) = -U.col(2);
     const Eigen::Matrix3d R = U * svd.matrixV().transpose();
     return R.allFinite() ? R : Eigen::Matrix3d::Identity().eval();
+}
+
+/// Surface vertex @p v's rotation from rest to now: the rotation that best takes its one-ring's
+/// rest edges and its rest normal to the current ones (least squares, as-rigid-as-possible's
+/// local step: the polar factor of sum e e_rest^T plus the normals' term, weighted by the
+/// ring's mean squared edge length so that a flat ring's side is fixed by the normal).
+Eigen::Matrix3d vertexRotation(const DeformableModel& model, const std::vector<float>& now,
+                               std::size_t v) noexcept {
+    const fem::SurfaceMesh& surface = model.surface();
+    const auto rest = [&](std::size_t i) { return surface.vertices[i].cast<double>(); };
+    const auto current = [&](std::size_t i) {
+        return Eigen::Vector3d(now[3 * i], now[3 * i + 1], now[3 * i + 2]);
+    };
+    const Eigen::Vector3d r0 = rest(v), c0 = current(v);
+    Eigen::Matrix3d cross = Eigen::Matrix3d::Zero();  // sum of current x rest^T
+    Eigen::Vector3d nRest = Eigen::Vector3d::Zero(), nNow = Eigen::Vector3d::Zero();
+    double edges2 = 0;
+    int edges = 0;
+    const std::vector<int>& start = model.triangleStart();
+    const std::vector<int>& tris = model.vertexTriangles();
+    for (int i = start[v]; i < start[v + 1]; ++i) {
+        const auto& t =
+            surface.triangles[static_cast<std::size_t>(tris[static_cast<std::size_t>(i)])];
+        for (std::size_t k = 0; k < 3; ++k) {
+            const std::size_t u = t[k];
+            if (u == v) continue;
+            const Eigen::Vector3d er = rest(u) - r0;
+            cross += (current(u) - c0) * er.transpose();
+            edges2 += er.squaredNorm();
+            ++edges;
+        }
+        nRest += (rest(t[1]) - rest(t[0])).cross(rest(t[2]) - rest(t[0]));
+        nNow += (current(t[1]) - current(t[0])).cross(current(t[2]) - current(t[0]));
+    }
+    const double lr = nRest.norm(), lc = nNow.norm();
+    if (edges == 0 || !(lr > 0) || !(lc > 0)) return Eigen::Matrix3d::Identity();
+    cross += (edges2 / edges) * (nNow / lc) * (nRest / lr).transpose();
+    return nearestRotation(cross);
+}
+
+}  // namespace
+
+Eigen::Matrix3d DeformableBody::anchorRotation() const noexcept {
+    if (mAnchorTri < 0) return Eigen::Matrix3d::Identity();
+    const auto& t = mModel->surface().triangles[static_cast<std::size_t>(mAnchorTri)];
+    // The vertices' rotations blended with the anchor's barycentric weights (clamped to the
+    // triangle), then the nearest rotation: continuous across the triangle's edges and
+    // vertices, where a per-triangle frame jumped.
+    std::array<double, 3> w{};
+    double sum = 0;
+    for (std::size_t k = 0; k < 3; ++k) {
+        w[k] = std::isfinite(mAnchorBary[k]) ? std::max(mAnchorBary[k], 0.0) : 0.0;
+        sum += w[k];
+    }
+    if (!(sum > 0)) w = {1.0 / 3, 1.0 / 3, 1.0 / 3};
+    Eigen::Matrix3d blend = Eigen::Matrix3d::Zero();
+    for (std::size_t k = 0; k < 3; ++k)
+        if (w[k] > 0) blend += w[k] * vertexRotation(*mModel, mPositions, t[k]);
+    return nearestRotation(blend);
 }
 
 }  // namespace palp::haptics

@@ -160,11 +160,14 @@ TEST(DeformableMap, VolumeRaysFindTheInclusionWhereTheTissueCarriedIt) {
     EXPECT_GT(std::abs(now.unmapped - now.mesh), 0.8 * topDown);
 }
 
-// The material frame at the contact: anchorRotation() of the triangle the proxy is anchored on
-// (found here independently from the rest surface and the nodes' positions) takes its rest
-// normal exactly to its current one, is a proper rotation, and turns a coupling's rays so that
-// a probe pressed along the tilted element's normal casts them along the rest normal.
-TEST(DeformableMap, AnchorRotationIsTheContactElementsMaterialFrame) {
+// The material frame at the contact: anchorRotation() is a proper rotation that takes the rest
+// normal to within a few degrees of the current normal of the triangle the proxy is anchored on
+// (found here independently from the rest surface and the nodes' positions; the frame blends
+// the vertices' rotations, so it follows the smooth surface rather than the facet), turns as
+// the anchor slides continuously across the facets' edges (a per-facet frame jumped there by
+// the facets' relative tilt), and turns a coupling's rays so that a probe pressed along the
+// frame's normal casts them along the rest normal.
+TEST(DeformableMap, AnchorRotationIsTheContactsMaterialFrame) {
     TumourPhantom ph;
     DeformableBody body(ph.model);
     press(body, 0.1, 600);
@@ -177,46 +180,100 @@ TEST(DeformableMap, AnchorRotationIsTheContactElementsMaterialFrame) {
     EXPECT_LT((R.transpose() * R - Eigen::Matrix3d::Identity()).norm(), 1e-12);
     EXPECT_NEAR(R.determinant(), 1.0, 1e-12);
 
-    // The rest triangle under the point (top face, y = 0) and its current outward normal.
+    // The top-face (y = 0) triangle under a rest point: its current outward normal, and the
+    // smooth normal there (its vertices' area-weighted normals blended with the point's
+    // barycentric weights), found from the rest surface and the nodes' positions.
     const DeformableModel& model = *ph.model;
     const fem::SurfaceMesh& surface = model.surface();
-    Eigen::Vector3d nNow = Eigen::Vector3d::Zero();
-    for (const auto& t : surface.triangles) {
-        std::array<Eigen::Vector3d, 3> r, c;
-        bool top = true;
-        for (std::size_t k = 0; k < 3; ++k) {
-            r[k] = surface.vertices[t[k]].cast<double>();
-            c[k] = body.nodePosition(surface.vertexNode[t[k]]);
-            top = top && std::abs(r[k].y()) < 1e-9;
+    const auto current = [&](std::uint32_t v) { return body.nodePosition(surface.vertexNode[v]); };
+    const auto vertexNormal = [&](std::uint32_t v) {
+        Eigen::Vector3d n = Eigen::Vector3d::Zero();
+        for (const auto& t : surface.triangles)
+            if (t[0] == v || t[1] == v || t[2] == v)
+                n += (current(t[1]) - current(t[0])).cross(current(t[2]) - current(t[0]));
+        return n;
+    };
+    struct Normals {
+        Eigen::Vector3d facet = Eigen::Vector3d::Zero(), smooth = Eigen::Vector3d::Zero();
+    };
+    const auto normalsUnder = [&](const Eigen::Vector3d& at) {
+        Normals found;
+        for (const auto& t : surface.triangles) {
+            std::array<Eigen::Vector3d, 3> r;
+            bool top = true;
+            for (std::size_t k = 0; k < 3; ++k) {
+                r[k] = surface.vertices[t[k]].cast<double>();
+                top = top && std::abs(r[k].y()) < 1e-9;
+            }
+            if (!top) continue;
+            // Barycentric coordinates in the x-z plane.
+            const Eigen::Vector2d a(r[0].x(), r[0].z()), b(r[1].x(), r[1].z()),
+                cc(r[2].x(), r[2].z());
+            const Eigen::Vector2d p(at.x(), at.z());
+            const double det = (b - a).x() * (cc - a).y() - (b - a).y() * (cc - a).x();
+            const double u = ((p - a).x() * (cc - a).y() - (p - a).y() * (cc - a).x()) / det;
+            const double v = ((b - a).x() * (p - a).y() - (b - a).y() * (p - a).x()) / det;
+            if (u < -1e-9 || v < -1e-9 || u + v > 1 + 1e-9) continue;
+            found.facet = (current(t[1]) - current(t[0])).cross(current(t[2]) - current(t[0]));
+            found.facet.normalize();
+            found.smooth =
+                ((1 - u - v) * vertexNormal(t[0]).normalized() +
+                 u * vertexNormal(t[1]).normalized() + v * vertexNormal(t[2]).normalized())
+                    .normalized();
+            if (found.facet.dot(out) < 0) found.facet = -found.facet;
+            if (found.smooth.dot(out) < 0) found.smooth = -found.smooth;
+            break;
         }
-        if (!top) continue;
-        // Barycentric coordinates in the x-z plane.
-        const Eigen::Vector2d a(r[0].x(), r[0].z()), b(r[1].x(), r[1].z()), cc(r[2].x(), r[2].z());
-        const Eigen::Vector2d p(rest.x(), rest.z());
-        const double det = (b - a).x() * (cc - a).y() - (b - a).y() * (cc - a).x();
-        const double u = ((p - a).x() * (cc - a).y() - (p - a).y() * (cc - a).x()) / det;
-        const double v = ((b - a).x() * (p - a).y() - (b - a).y() * (p - a).x()) / det;
-        if (u < -1e-9 || v < -1e-9 || u + v > 1 + 1e-9) continue;
-        nNow = (c[1] - c[0]).cross(c[2] - c[0]).normalized();
-        if (nNow.dot(out) < 0) nNow = -nNow;
-        break;
-    }
-    ASSERT_GT(nNow.norm(), 0.5) << "no top triangle under the point";
-    EXPECT_LT((R * out - nNow).norm(), 1e-9);
-    const double tilt = std::acos(std::clamp(nNow.dot(out), -1.0, 1.0)) * 180 / 3.14159265358979;
-    std::cout << "element under the slope point tilted " << tilt << " degrees\n";
+        return found;
+    };
+    const auto degrees = [](const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+        return std::acos(std::clamp(a.normalized().dot(b.normalized()), -1.0, 1.0)) * 180 /
+               3.14159265358979;
+    };
+    const Normals here = normalsUnder(rest);
+    ASSERT_GT(here.facet.norm(), 0.5) << "no top triangle under the point";
+    const double tilt = degrees(here.smooth, out);
+    std::cout << "under the slope point: the surface tilted " << tilt << " degrees (the facet "
+              << degrees(here.facet, out) << "), the frame " << degrees(R * out, out)
+              << " degrees, " << degrees(R * out, here.smooth) << " from the surface's normal\n";
     EXPECT_GT(tilt, 2.0);  // a slope for the frame to undo
+    EXPECT_LT(degrees(R * out, here.smooth), 0.25 * tilt);
 
-    // A probe pressed along the element's inward normal: rays along the rest normal.
+    // Continuity: along a line of anchors across the slope's facets (0.1 mm apart in rest x),
+    // R turns by a small fraction of the jumps of the facets' normals under them (a frame per
+    // facet turned by those jumps).
+    double worst = 0, facetJump = 0;
+    Eigen::Matrix3d last = R;
+    Eigen::Vector3d lastFacet = here.facet;
+    for (int i = 1; i <= 60; ++i) {
+        const Eigen::Vector3d at = rest + mm(0.1 * i, 0, 0);
+        const Eigen::Vector3d y = body.currentFromRest(at);
+        ASSERT_TRUE(body.anchor(y + 0.5e-3 * out, out));
+        const Eigen::Matrix3d Ri = body.anchorRotation();
+        const Eigen::AngleAxisd turn(Ri * last.transpose());
+        worst = std::max(worst, std::abs(turn.angle()) * 180 / 3.14159265358979);
+        last = Ri;
+        const Eigen::Vector3d facet = normalsUnder(at).facet;
+        facetJump = std::max(facetJump, degrees(facet, lastFacet));
+        lastFacet = facet;
+    }
+    std::cout << "between anchors 0.1 mm apart the frame turns at most " << worst
+              << " degrees, the facet under them " << facetJump << " degrees\n";
+    EXPECT_GT(facetJump, 1.0);
+    EXPECT_LT(worst, 0.2 * facetJump);
+    ASSERT_TRUE(body.anchor(x + 0.5e-3 * out, out));
+
+    // A probe pressed along the frame's normal: rays along the rest normal.
+    const Eigen::Vector3d nFrame = R * out;
     CouplingParams p;
     p.mode = CouplingMode::AVC;
     p.source = RaySource::VolumeFirstHit;
     p.firstHit.threshold = 120;
     Coupling framed(ph.scene->volumeView(), nullptr, p), plain(ph.scene->volumeView(), nullptr, p);
     framed.setMaterialFrame(R);
-    const Eigen::Vector3d probe = x - 2e-3 * nNow, zero = Eigen::Vector3d::Zero();
-    const Eigen::Vector3d t1 = nNow.cross(Eigen::Vector3d::UnitZ()).normalized();
-    const Eigen::Vector3d t2 = nNow.cross(t1);
+    const Eigen::Vector3d probe = x - 2e-3 * nFrame, zero = Eigen::Vector3d::Zero();
+    const Eigen::Vector3d t1 = nFrame.cross(Eigen::Vector3d::UnitZ()).normalized();
+    const Eigen::Vector3d t2 = nFrame.cross(t1);
     CouplingOutput a, b;
     framed.compute(x, probe, zero, zero, t1, t2, a);
     plain.compute(x, probe, zero, zero, t1, t2, b);
@@ -224,9 +281,9 @@ TEST(DeformableMap, AnchorRotationIsTheContactElementsMaterialFrame) {
         return Eigen::Vector3d(bu.dx[0], bu.dy[0], bu.dz[0]);
     };
     EXPECT_LT((dir(framed.bundle()) + out).norm(), 1e-6);
-    EXPECT_LT((dir(plain.bundle()) + nNow).norm(), 1e-6);
+    EXPECT_LT((dir(plain.bundle()) + nFrame).norm(), 1e-6);
     // The force itself stays along the world's proxy->probe direction.
-    EXPECT_LT(a.force.normalized().cross(nNow).norm(), 1e-9);
+    EXPECT_LT(a.force.normalized().cross(nFrame).norm(), 1e-9);
 
     body.clearForce();
     EXPECT_TRUE(body.anchorRotation().isIdentity(0.0));

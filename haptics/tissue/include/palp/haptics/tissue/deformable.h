@@ -394,13 +394,19 @@ class DeformableBody {
     /// always true of a body that is not turned inside out). Volume rays on a deformable scene
     /// sample the scan here (docs/algorithms.md section 10). @par Real-time  bounded.
     Eigen::Vector3d restFromCurrent(const Eigen::Vector3d& current) const noexcept;
-    /// The rotation of the surface triangle the proxy is anchored on (anchor()), from rest to
-    /// now: the polar factor R of the map F that takes the triangle's rest edges and unit
-    /// normal to its current ones (R takes the rest normal exactly to the current one, and
-    /// ignores the stretch). Identity while the proxy is not anchored (free space, or
-    /// clearForce() since) or the triangle is degenerate. AVC/AVCEC rays on deformable tissue
-    /// are cast in this material frame (Coupling::setMaterialFrame): a dimple's slope does not
-    /// turn them (docs/algorithms.md section 10). @par Real-time  noexcept, allocation-free.
+    /// The material rotation at the anchored point (anchor()), from rest to now: each vertex of
+    /// the anchored triangle has the rotation that best takes its one-ring's rest edges and
+    /// normal to the current ones (least squares: the polar factor of their correlation, as an
+    /// as-rigid-as-possible local step), and these are blended with the anchor's barycentric
+    /// weights (clamped to the triangle) and taken to the nearest rotation. So R is continuous
+    /// as the anchor crosses an edge or a vertex (a per-triangle frame jumped there by twice the
+    /// facets' tilt, and at the bottom of a pressed dimple, where the proxy changes facet every
+    /// tick, AVCEC's spherical term flipped with it: a buzz, docs/algorithms.md section 3), and
+    /// it is the identity for a rigid translation and the rotation itself for a rigid rotation.
+    /// Identity while the proxy is not anchored (free space, or clearForce() since) or a ring is
+    /// degenerate. AVC/AVCEC rays on deformable tissue are cast in this material frame
+    /// (Coupling::setMaterialFrame): a dimple's slope does not turn them (docs/algorithms.md
+    /// section 10). @par Real-time  noexcept, allocation-free, O(the three vertices' rings).
     Eigen::Matrix3d anchorRotation() const noexcept;
     /// Largest displacement magnitude over the surface vertices after the last step, m.
     double maxSurfaceDisplacement() const noexcept { return mMaxSurfaceDisplacement; }
