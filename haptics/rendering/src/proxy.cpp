@@ -179,6 +179,12 @@ void Proxy::reset(const Eigen::Vector3d& position) noexcept {
     mState.queries = 0;
 }
 
+void Proxy::carry(const Eigen::Vector3d& position) noexcept {
+    mState.position = position;
+    mState.velocity.setZero();
+    mState.queries = 0;
+}
+
 void Proxy::restore(const ProxyState& state) noexcept {
     mState = state;
     mState.velocity.setZero();
@@ -187,12 +193,16 @@ void Proxy::restore(const ProxyState& state) noexcept {
 
 const ProxyState& Proxy::update(const Eigen::Vector3d& probe,
                                 const Eigen::Vector3d& tangentialForce, double stiffness, double dt,
-                                double stepStiffness) noexcept {
+                                double stepStiffness, double springStepStiffness) noexcept {
     if (!(stepStiffness > stiffness)) stepStiffness = stiffness;
+    if (!(springStepStiffness > 0) || springStepStiffness > stepStiffness)
+        springStepStiffness = stepStiffness;
+    springStepStiffness = std::max(springStepStiffness, stiffness);
     if (!probe.allFinite() || !tangentialForce.allFinite() || !std::isfinite(stiffness) ||
         !(stiffness > 0) || !std::isfinite(dt) || !(dt > 0))
         return mState;
     const Eigen::Vector3d start = mState.position;
+    const ProxyState before = mState;
     mState.sticking = false;
     mState.contactCount = 0;
     mState.queries = 0;
@@ -261,7 +271,8 @@ const ProxyState& Proxy::update(const Eigen::Vector3d& probe,
             frictionDone = true;
             const Eigen::Vector3d& n = plane.n;
             const Eigen::Vector3d ftExtra = tangentialForce - n.dot(tangentialForce) * n;
-            const Eigen::Vector3d f = stiffness * (probe - x) + ftExtra;
+            const Eigen::Vector3d spring = stiffness * (probe - x);
+            const Eigen::Vector3d f = spring + ftExtra;
             const double normal = std::max(-n.dot(f), 0.0);
             const Eigen::Vector3d ft = f - n.dot(f) * n;
             const double ftNorm = ft.norm();
@@ -269,12 +280,48 @@ const ProxyState& Proxy::update(const Eigen::Vector3d& probe,
                 mState.sticking = true;
                 break;
             }
-            const double slide =
-                std::max(ftNorm - mParams.dynamicFriction * normal, 0.0) / stepStiffness;
-            target = x + (slide / ftNorm) * ft;
+            // The damped step of the whole force, (k a + F_t) / k_step with a = f_spring,t / k
+            // the way to the probe's projection, plus (k / k_spring - k / k_step) a, so that the
+            // spring's pull moves the proxy as with k_spring (k: as in plain AVC) and the extra
+            // force (which varies quickly with position) is damped by k_step. Where the extra force
+            // opposes the pull, the rest only goes as far as the two balance along a (t* = |a| +
+            // F_t . a / (k |a|), none when t* <= 0): the step then still lowers the potential
+            // 1/2 k |x_pb - x|^2 - F_t . x, which adding all of a would not. Friction takes the
+            // same share of every part.
+            const double slip = std::max(ftNorm - mParams.dynamicFriction * normal, 0.0) / ftNorm;
+            const Eigen::Vector3d a = (spring - n.dot(spring) * n) / stiffness;
+            const double aNorm = a.norm();
+            const double along = aNorm > 0 ? ftExtra.dot(a) / (stiffness * aNorm) : 0.0;
+            const double rest = along >= 0 ? 1.0 : std::max(aNorm + along, 0.0) / aNorm;
+            const double damped = stiffness / stepStiffness;
+            const double springShare = stiffness / springStepStiffness;
+            target = x + slip * (damped * a + ftExtra / stepStiffness +
+                                 (springShare - damped) * rest * a);
             target += (plane.d - n.dot(target)) * n;  // onto the offset plane
         } else if (!closestFeasible(target, planes, m, target)) {
             break;
+        }
+    }
+
+    // A proxy that started in contact moves only where its potential, the spring's
+    // 1/2 k |x_pb - x|^2 less the extra force's work F_t . (x - start), is not higher than where
+    // it started. Every slide and projection above lowers it; what raises it is only the path
+    // through more facets than the three planes held: in a pit of four or more facets (the
+    // bottom of a pressed dimple on deformable tissue) each triple of offset planes meets at
+    // its own point, up to epsilon apart, and which triple a tick finds depends on the facet
+    // the first ray happens to cross, so a held proxy hopped between them every tick (a held
+    // press's force changed by 3 % a tick, at 250-500 Hz). It then stays, in its contact.
+    if (before.contactCount > 0) {
+        const double was = 0.5 * stiffness * (start - probe).squaredNorm();
+        const double now =
+            0.5 * stiffness * (x - probe).squaredNorm() - tangentialForce.dot(x - start);
+        if (!(now <= was)) {
+            const int queries = mState.queries;
+            mState = before;
+            mState.sticking = true;
+            mState.velocity.setZero();
+            mState.queries = queries;
+            return mState;
         }
     }
 

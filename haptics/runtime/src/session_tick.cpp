@@ -281,7 +281,12 @@ const ProxyState& Session::Impl::moveProxy(const Eigen::Vector3d& probe) noexcep
     }
     const CouplingParams& now = couplings[static_cast<std::size_t>(active)].params();
     const double k = lastStiffness > 0 ? lastStiffness : now.baseStiffness;
-    return proxy.update(probe, lastProxyForce, k, period, lastStepStiffness);
+    // On deformable tissue the spring's share of the slide is not damped (the proxy follows
+    // the probe as in AVC: a lag of tenths of a millimetre, against a coupling stretch D of
+    // 0.25-0.6 mm there, tilted d past the bone); on rigid scenes the whole slide stays damped
+    // (undamped, the AVC box edge's frictionless circles with accumulate gave the hand
+    // +0.35 mJ, above 5 % of AVC's +1.70: docs/algorithms.md section 3).
+    return proxy.update(probe, lastProxyForce, k, period, lastStepStiffness, body ? k : 0.0);
 }
 
 // Stage 2a' (AVCEC, a good sample, no cross-fade): the proxy may only move where the stored
@@ -479,7 +484,9 @@ void Session::Impl::publish(double timeSeconds, const ProxyState& ps, const Sent
 void Session::Impl::followSurface(bool anchored) noexcept {
     if (anchored) {
         const Eigen::Vector3d carried = body->anchoredPosition();
-        if (carried.allFinite()) proxy.reset(carried);
+        // carry(), not reset(): the proxy stays in contact, so AVCEC's downhill rule and the
+        // proxy's own potential rule act on tissue as on a rigid surface.
+        if (carried.allFinite()) proxy.carry(carried);
     } else if (body && !freeProxy && started) {
         const unsigned mask = proxy.params().surfaceMask;
         const Eigen::Vector3d p = proxy.state().position;

@@ -17,7 +17,8 @@
 ///    tangentialForce with its component along n removed. f_n = -f.n (pressing), f_t the rest.
 ///    |f_t| <= mu_s f_n: the proxy sticks (no motion, sticking = true). Otherwise it slides by
 ///    (|f_t| - mu_d f_n) / k along f_t, which never passes the goal x + f_t / k (the projection
-///    of the probe onto the plane, shifted by F_t / k); with mu = 0 it reaches the goal.
+///    of the probe onto the plane, shifted by F_t / k); with mu = 0 it reaches the goal. With a
+///    step stiffness above k (AVCEC) the F_t share of the slide is damped (update()).
 /// 4. Each further motion segment is traced again; a new hit advances to its offset plane and
 ///    adds it (at most three). The goal is then the point closest to the step-3 target in the
 ///    intersection of the half-spaces n_i.x >= d_i, i.e. a projection onto 1 plane, the line of
@@ -32,8 +33,14 @@
 ///    surfaceMask it did not start inside, up to single-precision ray tests: a proxy that free
 ///    motion leaves within float rounding (about 1e-9 m at centimetre coordinates) of a
 ///    surface has no reliable side, and may then stick to it or slip through it.
+/// 7. A proxy that started in contact keeps its state (sticking) when the move would raise its
+///    potential 1/2 k |x_pb - x|^2 - F_t . (x - x_start). Steps 3 and 4 lower it; a path
+///    through more facets than three planes hold can raise it: in a pit of four or more
+///    facets each triple of offset planes meets at its own point, and a held proxy hopped
+///    between them every tick (the bottom of a pressed dimple on deformable tissue).
 ///
-/// Constraint planes are found again every tick (nothing is carried over but the position), so
+/// Constraint planes are found again every tick (only the position and whether the proxy is in
+/// contact are carried over: reset() clears the contact, carry() keeps it), so
 /// moving or deforming surfaces and faceted curved surfaces need no special handling, and a
 /// proxy that slides past a convex edge leaves the face's plane when the probe is not under
 /// it. Active planes reported in ProxyState are those whose clearance shell holds the proxy
@@ -95,6 +102,11 @@ class Proxy {
     /// Puts the proxy at @p position with no contact (e.g. at start: the probe position).
     void reset(const Eigen::Vector3d& position) noexcept;
 
+    /// Moves the proxy to @p position with the surface it is in contact with (a deformable
+    /// surface that carried it), keeping its contact (planes, normals, tangents, sticking); the
+    /// velocity becomes zero, as reset() does. The next update() finds its planes again.
+    void carry(const Eigen::Vector3d& position) noexcept;
+
     /// Puts back a state this proxy had (e.g. state() before an update() whose move the caller
     /// rejects); the velocity becomes zero (the proxy did not move).
     void restore(const ProxyState& state) noexcept;
@@ -102,14 +114,23 @@ class Proxy {
     /// One tick. @p probe is x_pb (m). @p tangentialForce is an extra force on the proxy in the
     /// tangent plane (AVCEC's terms, N), added to the coupling's pull k (x_pb - x_py) in the
     /// friction test; @p stiffness is k (N/m, > 0), the spring of the friction test.
-    /// @p stepStiffness (N/m; ignored unless > stiffness) turns the slipping force into the
-    /// slide: (|f_t| - mu_d f_n) / stepStiffness, a damped (Levenberg-Marquardt) step where
-    /// the extra force varies quickly with position (AVCEC's stiffness gradients).
+    /// @p stepStiffness (N/m; ignored unless > stiffness) damps the slide, a
+    /// Levenberg-Marquardt step where the extra force varies quickly with position (AVCEC's
+    /// stiffness gradients), and @p springStepStiffness (N/m, clamped to [stiffness,
+    /// stepStiffness]; 0: stepStiffness) damps the spring's share of it: friction leaves the
+    /// fraction s = (|f_t| - mu_d f_n) / |f_t| of the tangential force and, with
+    /// a = f_spring,t / stiffness (the way to the probe's projection), the proxy slides by
+    /// s ((stiffness a + F_t) / stepStiffness + (stiffness / springStepStiffness - stiffness /
+    /// stepStiffness) r a). With springStepStiffness = stiffness the spring's pull moves the
+    /// proxy as in plain AVC and only F_t is damped. r = 1 unless F_t opposes a; then r a ends
+    /// where the two balance along a (r = 0 when F_t wins), so the step lowers the potential
+    /// (step 7 of the file's description).
     /// @p dt is the tick period (s) for the velocity estimate.
     /// Non-finite input, or a non-positive stiffness or dt, leaves the whole state unchanged.
     /// An empty or uncommitted scene: the proxy equals the probe.
     const ProxyState& update(const Eigen::Vector3d& probe, const Eigen::Vector3d& tangentialForce,
-                             double stiffness, double dt, double stepStiffness = 0) noexcept;
+                             double stiffness, double dt, double stepStiffness = 0,
+                             double springStepStiffness = 0) noexcept;
 
     const ProxyState& state() const noexcept { return mState; }
     /// Changes the parameters (validated by the caller); takes effect at the next update().
