@@ -3,39 +3,20 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
-#include <atomic>
 #include <cmath>
 #include <cstdlib>
 #include <iostream>
-#include <new>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "alloc_counter.h"
 #include "palp/base/error.h"
 #include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 #include "palp/fem/implicit_solver.h"
 #include "palp/fem/tled.h"
 #include "tled_fixtures.h"
-
-// A counting global operator new: the neo-Hookean step must not allocate.
-namespace {
-std::atomic<bool> gCountAllocations{false};
-std::atomic<long> gAllocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-    if (gCountAllocations.load(std::memory_order_relaxed)) gAllocations.fetch_add(1);
-    if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-    throw std::bad_alloc();
-}
-// GCC 12 flags free() of operator new's pointer, which is exactly what this pair is.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-#pragma GCC diagnostic pop
 
 namespace palp::fem {
 namespace {
@@ -326,16 +307,14 @@ TEST(Tled, NeoHookeanStepAllocatesNothingAndShortensItsSubstepUnderCompression) 
         for (int n : top)
             solver.setPrescribed(3 * n + 2, -0.004 * std::min(1.0, static_cast<double>(i) / 50));
     };
-    gAllocations = 0;
-    gCountAllocations = true;
+    const std::uint64_t before = palp::test::allocationCount();
     StepResult r;
     for (int i = 1; i <= 100; ++i) {
         press(s, i);
         r = s.step(1e-3);
     }
     (void)s.strainEnergy();
-    gCountAllocations = false;
-    EXPECT_EQ(gAllocations.load(), 0);
+    EXPECT_EQ(palp::test::allocationCount() - before, 0u);
     EXPECT_EQ(r.flags, kStepOk);
     std::cout << "[ TLED substep ] rest " << restDt << " s, at 40 % compression "
               << s.stableTimeStep() << " s\n";
