@@ -334,6 +334,12 @@ std::size_t AsyncRegions::watchedDisplacements(std::span<Eigen::Vector3d> out) c
     return count;
 }
 
+std::size_t AsyncRegions::watchedDisplacements(std::size_t first,
+                                               std::span<Eigen::Vector3d> out) const noexcept {
+    const Impl& m = *mImpl;
+    return m.primary.shownWatched(m.layout(), m.primary.shownFraction(), first, out);
+}
+
 const std::vector<int>& AsyncRegions::watchNodes() const { return mImpl->setup.options.watchNodes; }
 
 AsyncSecondaryStats AsyncRegions::secondaryStats() const {

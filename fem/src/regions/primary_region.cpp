@@ -643,49 +643,4 @@ void PrimaryRegion::readBorder(const Layout& L, double* out) const noexcept {
     for (std::size_t i = 0; i < L.borderDofs.size(); ++i) out[i] = mU[L.borderDofs[i]];
 }
 
-Eigen::Vector3d PrimaryRegion::shown(const Layout& L, int node, double frac) const noexcept {
-    const std::size_t n = sz(node);
-    if (L.isPrimary[n] || L.isGamma[n]) return mU.segment<3>(3 * node);
-    const int w = mSetup.watchIndex[n];
-    Eigen::Vector3d out = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
-    const bool active = mSetup.model.mesh().nodeActive()[n];
-    for (int k = 0; k < 3; ++k) {
-        const int d = 3 * node + k;
-        if (mSetup.fixed[sz(d)] || !active) {
-            out[k] = mU[d];
-        } else if (w >= 0) {
-            const std::size_t i = 3 * sz(w) + sz(k);
-            out[k] = mWPrev[i] + frac * (mWCur[i] - mWPrev[i]);
-        }
-    }
-    return out;
-}
-
-void PrimaryRegion::shownWatched(const Layout& L, double frac,
-                                 std::span<Eigen::Vector3d> out) const noexcept {
-    const std::size_t count = std::min(out.size(), mWPrev.size() / 3);
-    for (std::size_t i = 0; i < count; ++i) {
-        for (std::size_t k = 0; k < 3; ++k) {
-            const std::size_t j = 3 * i + k;
-            out[i][static_cast<Eigen::Index>(k)] = mWPrev[j] + frac * (mWCur[j] - mWPrev[j]);
-        }
-    }
-    for (const int j : mSetup.watchFixedDofs) {
-        const std::size_t i = sz(j / 3);
-        if (i < count) {
-            const int node = mSetup.options.watchNodes[i];
-            out[i][j % 3] = mU[3 * node + j % 3];
-        }
-    }
-    // P and Gamma show the primary's own state (all three components, as shown()).
-    const auto own = [&](const std::vector<int>& nodes) {
-        for (const int n : nodes) {
-            const int w = mSetup.watchIndex[sz(n)];
-            if (w >= 0 && sz(w) < count) out[sz(w)] = mU.segment<3>(3 * n);
-        }
-    };
-    own(L.primaryNodes);
-    own(L.gammaNodes);
-}
-
 }  // namespace palp::fem

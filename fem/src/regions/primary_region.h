@@ -88,6 +88,11 @@ class PrimaryRegion {
     /// their count): the secondary's interpolated values in one sweep, then the fixed dofs and
     /// the nodes of P and Gamma over them. @par Real-time  O(#watched + |P| + |Gamma|).
     void shownWatched(const Layout& L, double frac, std::span<Eigen::Vector3d> out) const noexcept;
+    /// shown() of the watched nodes @p first, @p first + 1, ... into @p out: one pass over the
+    /// interpolated values, each node's P / Gamma / fixed state looked up on the way. @return
+    /// the count written. @par Real-time  O(out.size()).
+    std::size_t shownWatched(const Layout& L, double frac, std::size_t first,
+                             std::span<Eigen::Vector3d> out) const noexcept;
     /// The interpolation fraction of the current secondary period.
     double shownFraction() const noexcept { return mSetup.periodFraction(mTime, mGammaStart); }
 

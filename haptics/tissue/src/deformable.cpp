@@ -278,6 +278,7 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
         mWatchIndex.assign(nodeCount, -1);
         for (std::size_t i = 0; i < watch.size(); ++i)
             mWatchIndex[static_cast<std::size_t>(watch[i])] = static_cast<int>(i);
+        mWatchShown.assign(3 * watch.size(), 0.0);
         const double period = 1.0 / (options.regions.secondaryRate * options.regions.tickSeconds);
         const auto ticks =
             static_cast<std::size_t>(std::max(1.0, std::floor(kSweepPeriods * period)));

@@ -54,10 +54,18 @@ bool DeformableBody::localFilter(FilterScan& scan) noexcept {
     return false;
 }
 
-void DeformableBody::refreshNode(int n) noexcept {
-    const Eigen::Vector3d d = mRegions->nodeDisplacement(n);
-    mU.segment<3>(3 * n) = d;
+void DeformableBody::refreshNode(int n, int w, const Eigen::Vector3d& d, bool skipStill) noexcept {
     mSweepMax2 = std::max(mSweepMax2, d.squaredNorm());
+    if (w >= 0) {
+        double* shown = &mWatchShown[3 * static_cast<std::size_t>(w)];
+        if (skipStill && std::abs(d[0] - shown[0]) < kStillMetres &&
+            std::abs(d[1] - shown[1]) < kStillMetres && std::abs(d[2] - shown[2]) < kStillMetres)
+            return;
+        shown[0] = d[0];
+        shown[1] = d[1];
+        shown[2] = d[2];
+    }
+    mU.segment<3>(3 * n) = d;
     const int v = mModel->vertexOfNode(n);
     if (v < 0) return;
     if (mMoved.size() < mMoved.capacity()) {
@@ -106,19 +114,29 @@ unsigned DeformableBody::refitSurfaces(bool onlyMoved) noexcept {
 }
 
 unsigned DeformableBody::sweepSurface() noexcept {
-    // Near the contact every tick: the primary region, Gamma and the loaded nodes.
+    // Near the contact every tick: the primary region, Gamma (those that moved) and the loaded
+    // nodes.
     const auto near = [this](const std::vector<int>& nodes) {
-        for (const int n : nodes)
-            if (mWatchIndex[static_cast<std::size_t>(n)] >= 0) refreshNode(n);
+        for (const int n : nodes) {
+            const int w = mWatchIndex[static_cast<std::size_t>(n)];
+            if (w >= 0) refreshNode(n, w, mRegions->nodeDisplacement(n), true);
+        }
     };
     near(mRegions->primaryNodes());
     near(mRegions->secondaryBorderNodes());
     for (std::size_t i = 0; i < mLoadedCount; ++i) refreshNode(mLoaded[i]);
-    // Elsewhere a slice of the round robin.
+    // Elsewhere a slice of the round robin, its values interpolated in one pass (mWatched is
+    // one per watched node, so it holds any slice); nodes that have not moved are skipped.
     const std::vector<int>& watch = mModel->watchNodes();
-    for (std::size_t c = 0; c < mSweepSlice; ++c) {
-        refreshNode(watch[mSweepNext]);
-        if (++mSweepNext == watch.size()) {
+    for (std::size_t left = mSweepSlice; left > 0;) {
+        const std::size_t first = mSweepNext;
+        const std::size_t count = mRegions->watchedDisplacements(
+            first, std::span<Eigen::Vector3d>(mWatched.data(), std::min(left, mWatched.size())));
+        for (std::size_t i = 0; i < count; ++i)
+            refreshNode(watch[first + i], static_cast<int>(first + i), mWatched[i], true);
+        left -= std::min(left, std::max<std::size_t>(count, 1));
+        mSweepNext += count;
+        if (mSweepNext >= watch.size()) {
             mSweepNext = 0;
             mSweepMaxPrev2 = mSweepMax2;
             mSweepMax2 = 0;

@@ -340,6 +340,12 @@ class AsyncRegions {
     /// nodeDisplacement() of every watched node, in watchNodes order, into @p out (at most
     /// out.size() entries). @return the number written. @par Real-time  O(#watched).
     std::size_t watchedDisplacements(std::span<Eigen::Vector3d> out) const noexcept;
+    /// nodeDisplacement() of the watched nodes @p first, @p first + 1, ... (watchNodes order)
+    /// into @p out, in one pass over the interpolated values (a slice of a surface sweep).
+    /// @return the number written (out.size(), fewer at the end of the list).
+    /// @par Real-time  O(out.size()), no per-node call. Servo thread.
+    std::size_t watchedDisplacements(std::size_t first,
+                                     std::span<Eigen::Vector3d> out) const noexcept;
     /// The watched nodes (options().watchNodes).
     const std::vector<int>& watchNodes() const;
 

@@ -443,7 +443,18 @@ class DeformableBody {
     /// (no contact before, the nearest node found too far): then the caller scans every node.
     bool localFilter(FilterScan& scan) noexcept;
     /// Regions: the surface node @p n's displacement into mU and its vertex's position.
-    void refreshNode(int n) noexcept;
+    void refreshNode(int n) noexcept {
+        refreshNode(n, mWatchIndex[static_cast<std::size_t>(n)], mRegions->nodeDisplacement(n),
+                    false);
+    }
+    /// refreshNode() of the node @p n with watch index @p w (-1: not watched) and the
+    /// displacement @p d already read; @p skipStill: a node that moved less than kStillMetres
+    /// (per axis) since its last refresh keeps its value and is not listed for the refit (the
+    /// swept far field, most of which barely moves). The test reads mWatchShown, in watch
+    /// order, not the lattice-sized mU.
+    void refreshNode(int n, int w, const Eigen::Vector3d& d, bool skipStill) noexcept;
+    /// A swept node that moved less than this per axis since its last refresh is left as it is.
+    static constexpr double kStillMetres = 1e-6;
     /// The rest of filterWeights(): normalisation, the nearest node's remainder.
     int finishFilter(int nearest, std::size_t nearestSlot, double total) noexcept;
     /// Regions on a big surface: the surface near the contact and a slice of the rest, then
@@ -469,17 +480,18 @@ class DeformableBody {
     std::vector<std::unique_ptr<kernels::RefitMesh>> mInclusions;  // one per embedded mesh
     std::vector<std::vector<float>> mInclusionPositions;           // #V by 3 each
     std::unique_ptr<kernels::EmbreeScene> mScene;
-    unsigned mGeom = 0;             // the geometry id hits on the surface report
-    std::vector<float> mRest;       // #V by 3, rest surface positions
-    std::vector<float> mPositions;  // #V by 3, deformed, as handed to the refit
-    std::vector<int> mLoaded;       // nodes loaded by the last applyContactForce
-    std::vector<double> mWeights;   // scratch, one per load node
-    std::vector<double> mLoadRest;  // 3 per load node: its rest position (filterWeights)
-    std::vector<int> mLoadIndex;    // per lattice node: its index in loadNodes(), or -1
-    std::vector<int> mWatchIndex;   // per lattice node: its index in watchNodes(), or -1
-    int mFilterHint = -1;           // the last filter's nearest node: where the next one looks
-    std::size_t mSweepNext = 0;     // swept surface: the next watched node of the round robin
-    std::size_t mSweepSlice = 0;    // swept surface: watched nodes a tick (0: no sweep)
+    unsigned mGeom = 0;               // the geometry id hits on the surface report
+    std::vector<float> mRest;         // #V by 3, rest surface positions
+    std::vector<float> mPositions;    // #V by 3, deformed, as handed to the refit
+    std::vector<int> mLoaded;         // nodes loaded by the last applyContactForce
+    std::vector<double> mWeights;     // scratch, one per load node
+    std::vector<double> mLoadRest;    // 3 per load node: its rest position (filterWeights)
+    std::vector<int> mLoadIndex;      // per lattice node: its index in loadNodes(), or -1
+    std::vector<int> mWatchIndex;     // per lattice node: its index in watchNodes(), or -1
+    std::vector<double> mWatchShown;  // swept surface: 3 per watched node, its value in mU
+    int mFilterHint = -1;             // the last filter's nearest node: where the next one looks
+    std::size_t mSweepNext = 0;       // swept surface: the next watched node of the round robin
+    std::size_t mSweepSlice = 0;      // swept surface: watched nodes a tick (0: no sweep)
     double mSweepMax2 = 0, mSweepMaxPrev2 = 0;  // swept surface: largest |u|^2 this and last sweep
     std::vector<std::uint32_t> mMoved;          // swept surface: vertices moved since the refit
     bool mMovedOverflow = false;                // mMoved ran out of room: refit them all
