@@ -16,6 +16,9 @@ struct Command {
 };
 
 Command addConvert(CLI::App& root);
+/// `palp convert-tree` (and `palp convert-tree merge`): a folder of scans converted in one
+/// process, with a manifest, --resume and --shard (convert/cmd_convert_tree.cpp).
+Command addConvertTree(CLI::App& root);
 Command addInfo(CLI::App& root);
 Command addPhantom(CLI::App& root);
 Command addBench(CLI::App& root);

@@ -23,10 +23,10 @@ int main(int argc, char** argv) {
     app.set_version_flag("--version", "palp 0.1.0");
     app.add_flag("-q,--quiet", palp::tool::globals().quiet, "No progress output");
     std::vector<palp::tool::Command> commands{
-        palp::tool::addConvert(app),   palp::tool::addInfo(app),    palp::tool::addPhantom(app),
-        palp::tool::addBench(app),     palp::tool::addPalpate(app), palp::tool::addServe(app),
-        palp::tool::addBridgeSim(app), palp::tool::addSweep(app),   palp::tool::addErrormap(app),
-        palp::tool::addStudy(app)};
+        palp::tool::addConvert(app),  palp::tool::addConvertTree(app), palp::tool::addInfo(app),
+        palp::tool::addPhantom(app),  palp::tool::addBench(app),       palp::tool::addPalpate(app),
+        palp::tool::addServe(app),    palp::tool::addBridgeSim(app),   palp::tool::addSweep(app),
+        palp::tool::addErrormap(app), palp::tool::addStudy(app)};
     palp::tool::refuseEmptyValues(app);
     try {
         app.parse(argc, argv);
