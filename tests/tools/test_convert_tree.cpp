@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "palp/volume/dicom.h"
+#include "palp/volume/find_scans.h"
 #include "palp/volume/load.h"
 #include "test_support.h"
 #include "tilted_series.h"
@@ -51,16 +52,18 @@ void writeSeries(const fs::path& dir, int cols, int rows, int slices, double til
     palp::volume::writeDicomSeries(st, dir, wo);
 }
 
-/// A 24 x 20 x 12 int16 NIfTI-1 file with 1 x 1.2 x 1.5 mm voxels and a shifted sform.
-void writeNifti(const fs::path& file) {
+/// A 24 x 20 x 12 int16 NIfTI-1 file with 1 x 1.2 x 1.5 mm voxels and a shifted sform, of
+/// @p nt time points.
+void writeNifti(const fs::path& file, int nt = 1) {
     constexpr int nx = 24, ny = 20, nz = 12;
     nifti_1_header h{};
     h.sizeof_hdr = 348;
-    h.dim[0] = 3;
+    h.dim[0] = nt > 1 ? 4 : 3;
     h.dim[1] = nx;
     h.dim[2] = ny;
     h.dim[3] = nz;
     for (int d = 4; d < 8; ++d) h.dim[d] = 1;
+    h.dim[4] = static_cast<short>(nt);
     h.datatype = DT_INT16;
     h.bitpix = 16;
     h.pixdim[0] = 1;
@@ -78,14 +81,16 @@ void writeNifti(const fs::path& file) {
     std::memcpy(h.magic, "n+1", 4);
     std::string bytes(352, '\0');
     std::memcpy(bytes.data(), &h, sizeof h);
-    for (int k = 0; k < nz; ++k)
-        for (int j = 0; j < ny; ++j)
-            for (int i = 0; i < nx; ++i) {
-                const auto v = static_cast<std::int16_t>((i * 7 + j * 3 + k * 11) % 400 + 5);
-                char two[2];
-                std::memcpy(two, &v, 2);
-                bytes.append(two, 2);
-            }
+    for (int t = 0; t < nt; ++t)
+        for (int k = 0; k < nz; ++k)
+            for (int j = 0; j < ny; ++j)
+                for (int i = 0; i < nx; ++i) {
+                    const auto v =
+                        static_cast<std::int16_t>((i * 7 + j * 3 + k * 11 + t * 50) % 400 + 5);
+                    char two[2];
+                    std::memcpy(two, &v, 2);
+                    bytes.append(two, 2);
+                }
     palp::test::writeFile(file, bytes);
 }
 
@@ -407,8 +412,12 @@ constexpr int kSignalSeries = 10;
 
 /// Ten series of 64 x 56 x 48, converted at 0.25 mm so that each takes a while.
 void writeSignalArchive(const fs::path& root) {
-    for (int i = 0; i < kSignalSeries; ++i)
-        writeSeries(root / ("s" + std::to_string(i)), 64, 56, 48, 0, "s" + std::to_string(i));
+    for (int i = 0; i < kSignalSeries; ++i) {
+        // Built by appending: GCC 12 reports a false -Wstringop-overflow for "s" + std::string.
+        std::string name(1, 's');
+        name += std::to_string(i);
+        writeSeries(root / name, 64, 56, 48, 0, name);
+    }
 }
 
 /// Interrupts a run with @p sig once a first series is listed; checks that what the manifest
@@ -472,6 +481,86 @@ TEST(ConvertTree, SigintStopsAfterTheSeriesInHandAndResumeConvertsTheRest) {
 
 TEST(ConvertTree, SigkillLeavesOnlyCompleteOutputsListedAndResumeConvertsTheRest) {
     interruptAndResume(SIGKILL);
+}
+
+/// A DICOM file cut inside its header, before its SeriesInstanceUID: its series cannot be told.
+fs::path cutBeforeTheSeriesUid(const fs::path& from, const fs::path& to) {
+    fs::create_directories(to.parent_path());
+    fs::copy_file(from, to);
+    fs::resize_file(to, 300);  // the preamble, "DICM" and part of the file meta information
+    return to;
+}
+
+TEST(ConvertTree, AFileWhoseSeriesCannotBeToldRefusesTheSeriesBesideIt) {
+    // As `palp convert FOLDER` refuses a folder with such a file, the tree refuses the series
+    // in its folder (naming the file) and converts the others; alone in a folder, the file is a
+    // scan of its own, refused with the reason.
+    TempDir tmp;
+    const fs::path in = tmp / "archive", out = tmp / "out";
+    writeSeries(in / "good", 30, 28, 8, 0, "good");
+    writeSeries(in / "tainted", 30, 28, 8, 0, "tainted");
+    const fs::path first = *fs::directory_iterator(in / "good");
+    const fs::path beside = cutBeforeTheSeriesUid(first, in / "tainted" / "cut.dcm");
+    const fs::path alone = cutBeforeTheSeriesUid(first, in / "lonely" / "cut.dcm");
+    const auto found = palp::volume::findScans(in);
+    ASSERT_EQ(found.size(), 3u);
+    EXPECT_EQ(found[0].folder, in / "good");
+    EXPECT_EQ(found[0].files.size(), 8u);
+    EXPECT_EQ(found[1].folder, in / "lonely");
+    EXPECT_TRUE(found[1].unreadable);
+    EXPECT_EQ(found[1].files, std::vector<fs::path>{alone});
+    EXPECT_EQ(found[2].folder, in / "tainted");
+    EXPECT_EQ(found[2].files.size(), 9u);
+    EXPECT_NE(std::find(found[2].files.begin(), found[2].files.end(), beside),
+              found[2].files.end());
+    // The same refusal as `palp convert` of the folder.
+    const auto alonePalp = runCommand(palpCommand() + " -q convert " + quoted(in / "tainted") +
+                                      " -o " + quoted(tmp / "x.vdb"));
+    EXPECT_EQ(alonePalp.exitCode, 1);
+    const auto r = runCommand(palpCommand() + " -q convert-tree " + quoted(in) + " " + quoted(out));
+    EXPECT_EQ(r.exitCode, 1) << r.output;
+    const auto rows = readRows(out / "manifest.tsv");
+    ASSERT_EQ(rows.size(), 3u);
+    EXPECT_EQ(rows[0].status, "done");
+    EXPECT_EQ(rows[1].output, "lonely/unreadable-dicom.vdb");
+    EXPECT_EQ(rows[1].status, "refused");
+    EXPECT_NE(rows[1].message.find(alone.string() + ": expected a complete DICOM header"),
+              std::string::npos)
+        << rows[1].message;
+    EXPECT_EQ(rows[2].input, "tainted");
+    EXPECT_EQ(rows[2].status, "refused");
+    EXPECT_NE(rows[2].message.find(beside.string()), std::string::npos) << rows[2].message;
+    EXPECT_NE(alonePalp.output.find(rows[2].message), std::string::npos)
+        << alonePalp.output << " vs " << rows[2].message;
+}
+
+TEST(ConvertTree, VolumeFlagReachesEveryScan) {
+    // A 4D NIfTI without --volume is refused with the flag to give; with --volume 1 it
+    // converts to what `palp convert --volume 1` gives.
+    TempDir tmp;
+    const fs::path in = tmp / "archive";
+    fs::create_directories(in);
+    writeNifti(in / "fmri.nii", 3);
+    auto r = runCommand(palpCommand() + " -q convert-tree " + quoted(in) + " " + quoted(tmp / "a"));
+    EXPECT_EQ(r.exitCode, 1) << r.output;
+    auto rows = readRows(tmp / "a" / "manifest.tsv");
+    ASSERT_EQ(rows.size(), 1u);
+    EXPECT_EQ(rows[0].status, "refused");
+    EXPECT_NE(rows[0].message.find("3 time points"), std::string::npos) << rows[0].message;
+    EXPECT_NE(rows[0].message.find("\\n(choose the time point with --volume N)"),
+              std::string::npos)
+        << rows[0].message;  // the message's newline, escaped in the manifest
+    r = runCommand(palpCommand() + " -q convert-tree --volume 1 " + quoted(in) + " " +
+                   quoted(tmp / "b"));
+    EXPECT_EQ(r.exitCode, 0) << r.output;
+    rows = readRows(tmp / "b" / "manifest.tsv");
+    ASSERT_EQ(rows.size(), 1u);
+    EXPECT_EQ(rows[0].status, "done");
+    ASSERT_EQ(runCommand(palpCommand() + " -q convert --volume 1 " + quoted(in / "fmri.nii") +
+                         " -o " + quoted(tmp / "ref.vdb"))
+                  .exitCode,
+              0);
+    expectSameGrid(tmp / "b" / "fmri.nii.vdb", tmp / "ref.vdb");
 }
 
 TEST(ConvertTree, RefusesAnOutputFolderThatIsTheInputAndAMissingInput) {
