@@ -334,10 +334,10 @@ Command addConvertTree(CLI::App& root) {
         "convert-tree",
         "Convert every DICOM series, NIfTI, NRRD and MetaImage file under a folder into .vdb "
         "volumes in one process, with a manifest (resumable, shardable for job arrays)");
-    app->add_option("in", args->in, "IN_DIR: folder of scans (searched recursively)");
-    app->add_option("out", args->out,
-                    "OUT_DIR: output folder (created): the .vdb of each series at a name derived "
-                    "from its input, and the manifest");
+    app->add_option("IN_DIR", args->in, "Folder of scans (searched recursively)");
+    app->add_option("OUT_DIR", args->out,
+                    "Output folder (created): the .vdb of each series at a name derived from its "
+                    "input, and the manifest");
     addConvertFlags(*app, args->flags);
     app->add_flag("--resume", args->resume,
                   "Keep the series a manifest in OUT_DIR lists as done whose output is complete "
@@ -348,7 +348,7 @@ Command addConvertTree(CLI::App& root) {
                     "$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)");
     CLI::App* merge = app->add_subcommand(
         "merge", "Merge the shard manifests of OUT_DIR into OUT_DIR/manifest.tsv");
-    merge->add_option("out", args->mergeDir, "OUT_DIR of the shards")->required();
+    merge->add_option("OUT_DIR", args->mergeDir, "Output folder of the shards")->required();
     return {app, [args, merge]() -> int {
                 if (merge->parsed()) return mergeManifests(args->mergeDir, globals().quiet);
                 return runTree(*args);
