@@ -196,26 +196,34 @@ VoxelizedMesh voxelizeVolume(const volume::Volume& volume, const VoxelizeOptions
         throw ValueError(s.str());
     }
 
-    // Sample the scan at every cell centre (trilinear, world coordinates).
+    // Sample the scan at every cell centre (world coordinates): trilinear, or the nearest
+    // voxel's value for a label volume (a blend of two labels is no label).
     const auto cellCount = static_cast<std::size_t>(cellTotal);
     std::vector<double> value(cellCount, 0.0);
     const openvdb::FloatGrid& grid = *volume.grid;
-    palp::parallelFor(tbb::blocked_range<int>(0, cells[2]), [&](const tbb::blocked_range<int>& r) {
-        openvdb::FloatGrid::ConstAccessor accessor = grid.getConstAccessor();
-        const openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor,
-                                          openvdb::tools::BoxSampler>
-            sampler(accessor, grid.transform());
-        for (int k = r.begin(); k != r.end(); ++k) {
-            for (int j = 0; j < cells[1]; ++j) {
-                for (int i = 0; i < cells[0]; ++i) {
-                    const openvdb::Vec3d p(lo.x() + (i + 0.5) * h, lo.y() + (j + 0.5) * h,
-                                           lo.z() + (k + 0.5) * h);
-                    value[static_cast<std::size_t>(i + cells[0] * (j + cells[1] * k))] =
-                        static_cast<double>(sampler.wsSample(p));
+    const auto sampleAll = [&]<class Sampler>(Sampler) {
+        palp::parallelFor(
+            tbb::blocked_range<int>(0, cells[2]), [&](const tbb::blocked_range<int>& r) {
+                openvdb::FloatGrid::ConstAccessor accessor = grid.getConstAccessor();
+                const openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, Sampler>
+                    sampler(accessor, grid.transform());
+                for (int k = r.begin(); k != r.end(); ++k) {
+                    for (int j = 0; j < cells[1]; ++j) {
+                        for (int i = 0; i < cells[0]; ++i) {
+                            const openvdb::Vec3d p(lo.x() + (i + 0.5) * h, lo.y() + (j + 0.5) * h,
+                                                   lo.z() + (k + 0.5) * h);
+                            value[static_cast<std::size_t>(i + cells[0] * (j + cells[1] * k))] =
+                                static_cast<double>(sampler.wsSample(p));
+                        }
+                    }
                 }
-            }
-        }
-    });
+            });
+    };
+    if (options.nearestValue) {
+        sampleAll(openvdb::tools::PointSampler{});
+    } else {
+        sampleAll(openvdb::tools::BoxSampler{});
+    }
 
     std::vector<std::uint8_t> tissue(cellCount, 0);
     for (std::size_t c = 0; c < cellCount; ++c)

@@ -9,6 +9,7 @@
 #include <string>
 
 #include "palp/base/error.h"
+#include "palp/base/validate.h"
 #include "palp/fem/async_regions.h"
 #include "palp/fem/explicit_solver.h"
 
@@ -57,13 +58,22 @@ SolverChoice chooseSolver(const fem::FemModel& model, const DeformableOptions& o
         fem::explicitSubstepsPerTick(model, options.solver.safetyFactor, options.tickSeconds);
     const double elements = model.mesh().elementCount();
     c.elementSubsteps = elements * substeps;
-    c.solver = c.elementSubsteps <= c.budget ? DeformableSolver::wholeMeshExplicit
-                                             : DeformableSolver::asyncRegions;
+    const bool within = c.elementSubsteps <= c.budget;
     char line[256];
-    std::snprintf(line, sizeof line, "%s: %.0f elements x %.0f substeps a tick = %.0f, %s %.0f",
-                  c.solver == DeformableSolver::wholeMeshExplicit ? "whole mesh" : "regions",
-                  elements, substeps, c.elementSubsteps,
-                  c.solver == DeformableSolver::wholeMeshExplicit ? "within" : "over", c.budget);
+    if (model.material().law == fem::MaterialLaw::neoHookean) {
+        // TLED runs on the whole mesh only: the regions' primary is linear.
+        c.solver = DeformableSolver::wholeMeshExplicit;
+        std::snprintf(line, sizeof line,
+                      "whole mesh: neo-Hookean (TLED runs on the whole-mesh explicit solver "
+                      "only); %.0f elements x %.0f substeps a tick = %.0f, %s %.0f%s",
+                      elements, substeps, c.elementSubsteps, within ? "within" : "over", c.budget,
+                      within ? "" : " (the tick may run late)");
+    } else {
+        c.solver = within ? DeformableSolver::wholeMeshExplicit : DeformableSolver::asyncRegions;
+        std::snprintf(line, sizeof line, "%s: %.0f elements x %.0f substeps a tick = %.0f, %s %.0f",
+                      within ? "whole mesh" : "regions", elements, substeps, c.elementSubsteps,
+                      within ? "within" : "over", c.budget);
+    }
     c.reason = line;
     return c;
 }
@@ -138,11 +148,20 @@ std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volum
                                                      const DeformableSetup& setup,
                                                      SolverChoice* choice) {
     DeformableOptions options = setup.options;
+    if (!setup.autoSolver && options.solverKind == DeformableSolver::asyncRegions &&
+        setup.material.law == fem::MaterialLaw::neoHookean)
+        throwExpected("deformable solver",
+                      "the whole-mesh explicit solver (or the automatic choice) with the "
+                      "neo-Hookean material law (TLED runs there only; the regions are linear)",
+                      "the asynchronous regions");
     if (setup.autoSolver) options.solverKind = DeformableSolver::wholeMeshExplicit;
     const bool autoLod = setup.options.regions.lod == 0;
     if (autoLod) options.regions.lod = 1;  // the lattice decides (below)
-    auto model = DeformableModel::fromVolume(volume, setup.voxelize, setup.material,
-                                             setup.supportFace, options);
+    fem::VoxelizeOptions voxelize = setup.voxelize;
+    fem::ElasticMaterial material = setup.material;
+    if (setup.materialTable) applyMaterialTable(setup.materialTable, voxelize, material);
+    auto model =
+        DeformableModel::fromVolume(volume, voxelize, material, setup.supportFace, options);
     if (setup.autoSolver) {
         const SolverChoice c = chooseSolver(model->model(), options);
         if (choice) *choice = c;
@@ -153,7 +172,9 @@ std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volum
     } else if (choice) {
         choice->solver = options.solverKind;
         choice->reason = options.solverKind == DeformableSolver::asyncRegions ? "regions: asked"
-                                                                              : "whole mesh: asked";
+                         : setup.material.law == fem::MaterialLaw::neoHookean
+                             ? "whole mesh: asked (neo-Hookean: TLED)"
+                             : "whole mesh: asked";
     }
     if (options.solverKind == DeformableSolver::asyncRegions && setup.slidePatch) {
         options.regions.slideNodes = skinNodesUnder(*model, *setup.slidePatch);

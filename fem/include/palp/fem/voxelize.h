@@ -30,15 +30,19 @@ enum class InsideBone {
 struct VoxelizeOptions {
     /// Element edge h, metres (> 0). Independent of the scan's voxel size.
     double elementSize = 5e-3;
-    /// A cell is tissue when the scan value sampled (trilinearly) at its centre is above this
-    /// (scan units, e.g. HU).
+    /// A cell is tissue when the scan value sampled at its centre (trilinearly, or the nearest
+    /// voxel's with nearestValue) is above this (scan units, e.g. HU).
     double tissueThreshold = -200.0;
     /// A tissue cell is bone when its centre value is above this; its nodes go to
     /// VoxelizedMesh::boneNodes. +infinity: no bone.
     double boneThreshold = std::numeric_limits<double>::infinity();
     /// Young's modulus in pascals (finite, > 0) of a tissue cell from its centre value.
-    /// Empty: a constant 5 kPa.
+    /// Empty: a constant 5 kPa. It may throw palp::ValueError (a value it has no modulus for):
+    /// voxelizeVolume() passes that on.
     std::function<double(double)> youngsFromValue;
+    /// A cell's centre value is the nearest voxel's (a label volume: a segmentation, whose
+    /// trilinear blend of labels 1 and 3 would read as label 2) instead of the trilinear one.
+    bool nearestValue = false;
     /// Tissue inside bone: kept (the default) or dropped (InsideBone::drop). Only matters with a
     /// finite boneThreshold.
     InsideBone insideBone = InsideBone::keep;

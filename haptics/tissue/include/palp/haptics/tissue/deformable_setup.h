@@ -15,6 +15,7 @@
 #include "palp/fem/material.h"
 #include "palp/fem/voxelize.h"
 #include "palp/haptics/tissue/deformable.h"
+#include "palp/haptics/tissue/material_table.h"
 #include "palp/kernels/embree_scene.h"
 #include "palp/volume/volume.h"
 
@@ -61,7 +62,9 @@ struct DeformableSetup {
         v.insideBone = fem::InsideBone::drop;
         return v;
     }();
-    /// The tissue (uniform unless voxelize.youngsFromValue is set).
+    /// The tissue (uniform unless voxelize.youngsFromValue or materialTable is set). With
+    /// material.law fem::MaterialLaw::neoHookean the body runs on the whole-mesh explicit
+    /// solver (TLED): autoSolver takes it, and asking for the regions is refused.
     fem::ElasticMaterial material = [] {
         fem::ElasticMaterial m;
         m.dampingAlpha = 60;
@@ -86,6 +89,10 @@ struct DeformableSetup {
     /// true: options.solverKind is chosen by chooseSolver() (`palp palpate --fem-solver auto`,
     /// the default there): the whole mesh where it makes the tick, the regions otherwise.
     bool autoSolver = false;
+    /// Materials from the scan (material_table.h): when set, makeDeformableModel() applies it
+    /// over voxelize.youngsFromValue and material's Poisson ratio, density and nominal modulus
+    /// (applyMaterialTable(), after the thresholds above).
+    std::shared_ptr<const MaterialTable> materialTable;
     /// With the regions: the skin the contact will slide over (skinNodesUnder() becomes
     /// options.regions.slideNodes, before the lod is chosen). Unset: the regions' default.
     std::optional<SlidePatch> slidePatch;
@@ -127,7 +134,9 @@ struct SolverChoice {
 inline constexpr double kWholeMeshElementSubsteps = 8000;
 
 /// The whole-mesh explicit solver when elements x substeps per tick (at its safety factor and
-/// tickSeconds) is within kWholeMeshElementSubsteps, else the asynchronous regions.
+/// tickSeconds) is within kWholeMeshElementSubsteps, else the asynchronous regions; always the
+/// whole mesh for a neo-Hookean material (TLED runs there only; the reason says so, and says
+/// when the tick is over the budget).
 SolverChoice chooseSolver(const fem::FemModel& model, const DeformableOptions& options);
 
 /// The face opposite the one a press along @p press (any non-zero vector; its largest
@@ -138,7 +147,8 @@ fem::BoxFace faceOpposite(const Eigen::Vector3d& press) noexcept;
 /// chosen by chooseSolver() when setup.autoSolver (reported in @p choice when given) and
 /// regions.lod 0 resolved by autoRegionsLod().
 /// @throw palp::ValueError naming the field (voxelisation, material, options, a body too stiff
-/// for its period, no fixed node).
+/// for its period, no fixed node, the regions asked for with a neo-Hookean material, a scan
+/// value no row of the material table covers); palp::Error from the material table.
 std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volume,
                                                      const DeformableSetup& setup,
                                                      SolverChoice* choice = nullptr);
