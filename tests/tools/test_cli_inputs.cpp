@@ -172,10 +172,10 @@ std::set<std::pair<std::string, std::string>> accepts(
 TEST(CliInputs, PalpateRefusesEveryBadNumberNamingTheOption) {
     palp::test::TempDir tmp;
     const std::string trace = (tmp / "t.csv").string(), map = (tmp / "m.png").string();
-    const std::set<std::string> fem = {"--fem-cell-mm",   "--young-kpa",    "--poisson",
-                                       "--fem-damping",   "--fem-beta",     "--filter-mm",
-                                       "--bone-hu",       "--tissue-hu",    "--fem-solver",
-                                       "--primary-nodes", "--secondary-hz", "--lod"};
+    const std::set<std::string> fem = {
+        "--fem-cell-mm",  "--young-kpa", "--poisson",   "--fem-damping",   "--fem-beta",
+        "--filter-mm",    "--bone-hu",   "--tissue-hu", "--fem-solver",    "--primary-nodes",
+        "--secondary-hz", "--lod",       "--material",  "--material-table"};
     auto baseFor = [&](const Option& o) {
         std::string scene = "avc";
         if (o.name == "--shape") scene = "avcec";

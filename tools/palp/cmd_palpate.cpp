@@ -327,6 +327,8 @@ void printJson(const PalpateArgs& a, const Report& r) {
                            {"filter_mm", a.filterMm},
                            {"cell_mm", a.femCellMm},
                            {"young_kpa", a.youngKpa},
+                           {"material", a.material},
+                           {"material_table", materialTableJson(a)},
                            {"solver", regions ? "regions" : "explicit"},
                            {"solver_asked", a.femSolver},
                            {"solver_reason", r.solver.reason},
@@ -421,10 +423,14 @@ void printText(const PalpateArgs& a, const Report& r) {
         const double maxDisp = maxDisplacement(snaps);
         std::printf(
             "deformable: %d nodes, %d elements, %zu surface triangles, %zu fixed "
-            "nodes (support + bone), filter %.1f mm, E %.1f kPa, %s; largest "
+            "nodes (support + bone), filter %.1f mm, %s, %s; largest "
             "surface displacement %.2f mm; set up in %.1f s, peak memory %.0f MiB\n",
             activeNodes(body->model().mesh()), body->model().mesh().elementCount(),
-            body->surface().triangles.size(), body->fixedNodes().size(), a.filterMm, a.youngKpa,
+            body->surface().triangles.size(), body->fixedNodes().size(), a.filterMm,
+            ((a.material == "neo-hookean" ? "neo-Hookean, " : "linear, ") +
+             (a.materialTable.empty() ? "E " + formatValue(a.youngKpa) + " kPa"
+                                      : "E from the table " + a.materialTable))
+                .c_str(),
             r.solver.reason.c_str(), maxDisp * 1e3, r.setupSeconds, peakRssMiB());
         if (!body->droppedPieces().empty()) {
             const fem::BodyPiece& p = body->droppedPieces().front();
@@ -538,8 +544,10 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
             // Say which options made the tissue (the library speaks of fields, not flags).
             throw ValueError(std::string(e.what()) + "\n(the tissue of --fem-cell-mm " +
                              formatValue(a.femCellMm) + ", --tissue-hu " + formatValue(a.tissueHu) +
-                             ", --bone-hu " + formatValue(a.boneHu) + ", --young-kpa " +
-                             formatValue(a.youngKpa) + ", --poisson " + formatValue(a.poisson) +
+                             ", --bone-hu " + formatValue(a.boneHu) + ", --material " + a.material +
+                             (a.materialTable.empty() ? ", --young-kpa " + formatValue(a.youngKpa) +
+                                                            ", --poisson " + formatValue(a.poisson)
+                                                      : ", --material-table " + a.materialTable) +
                              ", --fem-damping " + formatValue(a.femAlpha) + ", --fem-beta " +
                              formatValue(a.femBeta) + ", --filter-mm " + formatValue(a.filterMm) +
                              ")");

@@ -75,12 +75,29 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
             ->check(CLI::IsMember({"drop", "keep"})),
         app->add_option("--fem-solver", a.femSolver,
                         "deformable: 'auto' (default: the whole mesh where elements x substeps a "
-                        "tick is within 8,000, which makes the 1 kHz tick, else the regions; the "
-                        "report says which and why), 'explicit' (whole mesh every tick) or "
-                        "'regions' (asynchronous regions: explicit primary around the contact, "
-                        "implicit secondary; threaded with --realtime, synchronous and "
-                        "deterministic with --fast)")
+                        "tick is within 8,000, which makes the 1 kHz tick, else the regions; "
+                        "always the whole mesh with --material neo-hookean; the report says "
+                        "which and why), 'explicit' (whole mesh every tick) or 'regions' "
+                        "(asynchronous regions: explicit primary around the contact, implicit "
+                        "secondary; threaded with --realtime, synchronous and deterministic with "
+                        "--fast; linear material only)")
             ->check(CLI::IsMember({"auto", "explicit", "regions"})),
+        app->add_option("--material", a.material,
+                        "deformable: the tissue's law, 'linear' (default: small strain) or "
+                        "'neo-hookean' (compressible neo-Hookean at large strain with the same "
+                        "small-strain E and nu: TLED on the whole-mesh explicit solver; tissue "
+                        "stiffens as it is pressed)")
+            ->check(CLI::IsMember({"linear", "neo-hookean"})),
+        app->add_option("--material-table", a.materialTable,
+                        "deformable: each element's Young's modulus from the scan's value by a "
+                        "table (CSV: HU ranges or labels, with E, nu, density and sources; "
+                        "docs/algorithms.md 5.2), in place of --young-kpa and --poisson: 'ct' "
+                        "(the table palp ships: fat, soft tissue, a stiff lesion class) or a "
+                        "file")
+            ->check([](const std::string& s) -> std::string {
+                if (s == "ct") return {};
+                return CLI::ExistingFile(s);
+            }),
         app->add_option("--primary-nodes", a.primaryNodes,
                         "regions: seed nodes of the primary region (60)")
             ->check(integerIn(1, 100000)),
@@ -300,6 +317,21 @@ void checkInputOptions(const PalpateArgs& a, const CheckedOptions& o) {
                                  "scene");
         }
     }
+    if (a.material == "neo-hookean" && a.femSolver == "regions") {
+        throwExpected("--fem-solver",
+                      "'auto' or 'explicit' with --material neo-hookean (TLED runs on the "
+                      "whole-mesh explicit solver only; the regions are linear)",
+                      "'regions'");
+    }
+    if (!a.materialTable.empty()) {
+        for (CLI::Option* uniform : {o.youngKpa, o.poisson}) {
+            if (uniform->count() > 0)
+                throwExpected(uniform->get_name(),
+                              "no " + uniform->get_name() + " with --material-table (the table " +
+                                  "gives the tissue's moduli and Poisson ratio)",
+                              uniform->as<std::string>());
+        }
+    }
 }
 
 /// The device class named by --device. @throw palp::ValueError listing the known ones.
@@ -347,6 +379,8 @@ void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked
     checked.tissueHu = app->get_option("--tissue-hu");
     checked.boneHu = app->get_option("--bone-hu");
     checked.threshold = app->get_option("--threshold");
+    checked.youngKpa = app->get_option("--young-kpa");
+    checked.poisson = app->get_option("--poisson");
 }
 
 const haptics::DeviceSpec* checkPalpateOptions(const PalpateArgs& args,

@@ -73,6 +73,8 @@ struct PalpateArgs {
     double tissueHu = -200;
     std::string insideBone = "drop";  ///< --inside-bone: drop or keep tissue enclosed by bone
     std::string femSolver = "auto";
+    std::string material = "linear";  ///< --material: linear or neo-hookean
+    std::string materialTable;        ///< --material-table: "ct" or a file; empty: none
     int primaryNodes = 60;
     double secondaryHz = 100;
     int lod = 0;  ///< 0: haptics::autoRegionsLod (2 where the cell counts are even, else 1; 4 on
@@ -94,6 +96,8 @@ struct CheckedOptions {
     CLI::Option* noise = nullptr;
     CLI::Option* seed = nullptr;
     std::vector<CLI::Option*> fem;
+    /// The uniform tissue's modulus and ratio, which --material-table replaces.
+    CLI::Option *youngKpa = nullptr, *poisson = nullptr;
     CLI::Option* pressAxis = nullptr;  ///< given or left to palp (the skin's best side on a scan)
     /// Given or left to palp (a scan without HU takes scanDefaults()).
     CLI::Option *surfaceIso = nullptr, *tissueHu = nullptr, *boneHu = nullptr, *threshold = nullptr;
@@ -110,8 +114,9 @@ void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked
 void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority);
 
 /// Checks a FILE or a phantom, scene options only with their phantom, FEM options only with
-/// --deformable, the device class, output directories existing, usable depth, spacing and time;
-/// returns the device class named by --device (never null).
+/// --deformable, --material neo-hookean not on the regions, --material-table without
+/// --young-kpa or --poisson, the device class, output directories existing, usable depth, spacing
+/// and time; returns the device class named by --device (never null).
 /// @throw palp::ValueError naming the option; palp::IoError naming a missing directory.
 const haptics::DeviceSpec* checkPalpateOptions(const PalpateArgs& args,
                                                const CheckedOptions& checked);

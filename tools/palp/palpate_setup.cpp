@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <limits>
+#include <nlohmann/json.hpp>
 #include <numbers>
 
 #include "commands.h"
@@ -114,6 +115,32 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
     return cp;
 }
 
+std::shared_ptr<const haptics::MaterialTable> materialTableFromOptions(const PalpateArgs& a) {
+    if (a.materialTable.empty()) return nullptr;
+    try {
+        return haptics::MaterialTable::named(a.materialTable);
+    } catch (const Error& e) {
+        throw ValueError("--material-table " + a.materialTable + ": " + e.what());
+    }
+}
+
+/// What --json says of --material-table: the table, its rows and the body's nu and density.
+nlohmann::json materialTableJson(const PalpateArgs& a) {
+    const auto table = materialTableFromOptions(a);
+    if (!table) return "none";
+    nlohmann::json rows = nlohmann::json::array();
+    for (const haptics::MaterialRow& row : table->rows())
+        rows.push_back({{"name", row.name},
+                        {"lo", row.lo},
+                        {"hi", row.hi},
+                        {"youngs_kpa", row.youngsModulus * 1e-3}});
+    return {{"table", table->origin()},
+            {"kind", table->kind() == haptics::MaterialTableKind::labels ? "labels" : "ranges"},
+            {"poisson", table->poissonRatio()},
+            {"density_kg_m3", table->density()},
+            {"rows", rows}};
+}
+
 std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, const Input& in,
                                                          const Eigen::Vector3d& press,
                                                          const Eigen::Vector3d& pathCentre,
@@ -132,6 +159,9 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
     setup.material.poissonRatio = a.poisson;
     setup.material.dampingAlpha = a.femAlpha;
     setup.material.dampingBeta = a.femBeta;
+    setup.material.law =
+        a.material == "neo-hookean" ? fem::MaterialLaw::neoHookean : fem::MaterialLaw::linear;
+    setup.materialTable = materialTableFromOptions(a);
     setup.supportFace = haptics::faceOpposite(press);  // the face opposite the pressed one
     setup.options.filterWidth = a.filterMm * 1e-3;
     setup.setPeriod(period);
@@ -152,7 +182,7 @@ std::shared_ptr<const haptics::DeformableModel> makeBody(const PalpateArgs& a, c
         if (slide) setup.slidePatch = *slide;
     }
     const bool tumour = in.phantom && in.phantom->scene == volume::PhantomScene::Tumour;
-    if (tumour) {
+    if (tumour && !setup.materialTable) {  // a table gives the inclusion its own modulus
         // The inclusion is stiffer tissue (8x, between the soft tissue's HU and its own),
         // free to move: its surface is embedded in the elements and deforms with them.
         const double e = setup.material.youngsModulus;

@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 
@@ -18,6 +19,7 @@
 #include "palp/haptics/scene.h"
 #include "palp/haptics/tissue/deformable.h"
 #include "palp/haptics/tissue/deformable_setup.h"
+#include "palp/haptics/tissue/material_table.h"
 #include "palp/volume/phantom.h"
 #include "palp/volume/volume.h"
 #include "palpate_options.h"
@@ -42,8 +44,17 @@ Input loadInput(const PalpateArgs& a);
 /// @throw palp::ValueError naming the option.
 haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::CouplingParams cp);
 
-/// The deformable body of --deformable, supported on the face opposite the pressed one; the
-/// solver --fem-solver names (auto: haptics::chooseSolver) and why into @p choice.
+/// The table --material-table names ("ct": the one palp ships), or null without one.
+/// @throw palp::ValueError naming --material-table, the file and the row it refuses.
+std::shared_ptr<const haptics::MaterialTable> materialTableFromOptions(const PalpateArgs& a);
+
+/// What --json says of --material-table: "none", or the table, its rows and the body's nu and
+/// density. @throw as materialTableFromOptions().
+nlohmann::json materialTableJson(const PalpateArgs& a);
+
+/// The deformable body of --deformable, supported on the face opposite the pressed one, of the
+/// law --material names and the moduli of --material-table (or --young-kpa); the solver
+/// --fem-solver names (auto: haptics::chooseSolver) and why into @p choice.
 std::shared_ptr<const haptics::DeformableModel> makeBody(
     const PalpateArgs& a, const Input& in, const Eigen::Vector3d& press,
     const Eigen::Vector3d& pathCentre, double period, haptics::SolverChoice* choice,
