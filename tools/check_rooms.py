@@ -28,7 +28,7 @@ ROOMS = {
     'devices': ('haptics/devices/', r'palp/haptics/devices/'),
     'runtime': ('haptics/runtime/', r'palp/haptics/[a-z_]+\.h$'),
     'studies': ('haptics/studies/', r'palp/studies/'),
-    'capi': ('haptics/capi/', r'palp/palp\.h$'),
+    'capi': ('haptics/capi/', r'palp/palp(_[a-z]+)?\.h$'),
     'perception': ('haptics/perception/', r'palp/perception/'),
 }
 # What each room may include besides itself: the rooms below it that it builds on.

@@ -230,13 +230,32 @@ void bindSession(py::module_& m) {
                double bone, double youngs, double poisson, double alpha,
                std::optional<std::string> supportFace, double period, bool dropInsideBone,
                const std::string& solver, std::optional<Eigen::Vector3d> regionsCentre,
-               std::optional<haptics::SkinPatch> slidePatch) {
+               std::optional<haptics::SkinPatch> slidePatch, const std::string& material,
+               std::optional<std::string> materialTable) {
                 haptics::DeformableSetup s;
                 if (solver != "auto" && solver != "explicit" && solver != "regions")
                     throw ValueError(
                         "make_deformable solver: expected 'auto', 'explicit' or "
                         "'regions', found '" +
                         solver + "'");
+                if (material != "linear" && material != "neo-hookean")
+                    throw ValueError(
+                        "make_deformable material: expected 'linear' or 'neo-hookean', found '" +
+                        material + "'");
+                if (material == "neo-hookean" && solver == "regions")
+                    throw ValueError(
+                        "make_deformable solver: expected 'auto' or 'explicit' with material "
+                        "'neo-hookean' (it runs on the whole-mesh explicit solver only; the "
+                        "regions are linear), found 'regions'");
+                if (material == "neo-hookean") s.material.law = fem::MaterialLaw::neoHookean;
+                if (materialTable) {
+                    try {
+                        s.materialTable = haptics::MaterialTable::named(*materialTable);
+                    } catch (const Error& e) {
+                        throw ValueError("make_deformable material_table: " +
+                                         std::string(e.what()));
+                    }
+                }
                 s.autoSolver = solver == "auto";
                 if (solver == "regions")
                     s.options.solverKind = haptics::DeformableSolver::asyncRegions;
@@ -281,7 +300,8 @@ void bindSession(py::module_& m) {
             py::arg("damping_alpha") = 60.0, py::arg("support_face") = py::none(),
             py::arg("period") = 1e-3, py::arg("drop_inside_bone") = true,
             py::arg("solver") = "auto", py::arg("regions_centre") = py::none(),
-            py::arg("slide_patch") = py::none(),
+            py::arg("slide_patch") = py::none(), py::arg("material") = "linear",
+            py::arg("material_table") = py::none(),
             "Makes the scene deformable (palp palpate --deformable's body): sessions made "
             "afterwards build their own FEM body from it. bone_threshold inf: no bone. solver: "
             "'auto' (the whole mesh where it makes the 1 kHz tick, else the asynchronous "
@@ -289,7 +309,11 @@ void bindSession(py::module_& m) {
             "regions_centre (m; the free surface node nearest it starts the primary region: "
             "where the hand will press) and slide_patch (a SkinPatch, find_skin_patch(): the "
             "skin under it is what the contact slides over without a factorisation per move, "
-            "as palp palpate lays it under its path on a scan). Returns the solver "
+            "as palp palpate lays it under its path on a scan). material: 'linear' or "
+            "'neo-hookean' (large strain, TLED: the whole mesh only, 'auto' takes it). "
+            "material_table: 'ct' (the table palp ships) or a CSV file giving each element's "
+            "modulus from the volume's value, and nu and density, in place of youngs_modulus "
+            "and poisson_ratio (docs/algorithms.md 5.2). Returns the solver "
             "that runs and why: {'solver': 'explicit'|'regions', 'chosen': auto chose it, "
             "'element_substeps', 'budget' (auto only), 'lod', 'reason'}.")
         .def(

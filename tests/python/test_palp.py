@@ -376,6 +376,62 @@ class Sessions(unittest.TestCase):
                                        params).surface())
 
 
+    def test_neo_hookean_tissue_and_material_tables(self):
+        # make_deformable's material reaches the body: 'auto' takes the whole mesh for it and
+        # says why, the regions and unknown laws are refused, the CT table and a bad table's
+        # refusal (naming its row); the same press as `palp palpate --material neo-hookean`
+        # feels its force, and more than on linear tissue.
+        volume = palp.phantom("bone", voxel_size=2e-3)
+        lo, hi = volume.world_bounds
+        half = 0.5 * volume.voxel_size
+        centre = 0.5 * (np.asarray(lo) + np.asarray(hi))
+        top = lo[1] - half  # the face the press meets
+        scene = palp.Scene.from_volume(volume)
+        with self.assertRaises(palp.ValueError):
+            scene.make_deformable(volume, support_face="y_max", material="rubber")
+        with self.assertRaisesRegex(palp.ValueError, "solver: expected 'auto' or 'explicit'"):
+            scene.make_deformable(volume, support_face="y_max", material="neo-hookean",
+                                  solver="regions")
+        with tempfile.TemporaryDirectory() as tmp:
+            bad = os.path.join(tmp, "bad.csv")
+            with open(bad, "w") as f:
+                f.write("name,lo,hi,youngs_pa,poisson,density_kg_m3,source\n"
+                        "soft,-200,500,4000,0.5,1000,ref\n")
+            with self.assertRaisesRegex(palp.ValueError, "line 2 \\(row 'soft'\\) poisson"):
+                scene.make_deformable(volume, support_face="y_max", material_table=bad)
+        self.assertEqual(scene.make_deformable(volume, support_face="y_max",
+                                               material_table="ct")["solver"], "explicit")
+        depth, out = 0.006, 0.015  # palp palpate's press: 15 mm out at 100 mm/s
+        forces = {}
+        for material in ("linear", "neo-hookean"):
+            chosen = scene.make_deformable(volume, support_face="y_max", material=material)
+            self.assertEqual(chosen["solver"], "explicit")
+            if material == "neo-hookean":
+                self.assertIn("neo-Hookean", chosen["reason"])
+            trajectory = palp.PressTrajectory(
+                start=(centre[0], top - out, centre[2]), direction=(0, 1, 0), depth=depth + out,
+                press_seconds=(depth + out) / 0.1, hold_seconds=0.6)
+            params = vc_params(600)
+            params.proxy.static_friction = 0.5
+            params.proxy.dynamic_friction = 0.3
+            session = palp.Session(scene, palp.SimulatedDevice(trajectory), params)
+            trace = session.run(int(math.ceil((depth + out) / 0.1 / 1e-3)) + 600)
+            forces[material] = float(np.max(np.linalg.norm(trace["force"], axis=1)))
+        self.assertGreater(forces["neo-hookean"], forces["linear"])
+        tool = os.environ.get("PALP_TOOL")
+        if tool:
+            import json
+            import subprocess
+            run = subprocess.run(
+                [tool, "palpate", "--phantom", "bone", "--voxel-mm", "2", "--deformable",
+                 "--material", "neo-hookean", "--fast", "--trajectory", "press", "--hold", "0.6",
+                 "--mode", "vc", "--k-base", "600", "--depth", "6", "--json"],
+                capture_output=True, text=True, check=True)
+            cli = json.loads(run.stdout[run.stdout.index("{"):])["max_force_n"]
+            print("press 6 mm: Python linear %.4f N, neo-Hookean %.4f N; palp palpate %.4f N"
+                  % (forces["linear"], forces["neo-hookean"], cli))
+            self.assertAlmostEqual(forces["neo-hookean"], cli, delta=0.02 * cli)
+
     def test_error_estimate_of_the_regions(self):
         # palp's error table for the body's regions: the worst input over the table is at least
         # the error at a given input; 0 on the whole mesh; a rigid scene is refused.

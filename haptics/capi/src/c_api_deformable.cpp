@@ -81,6 +81,19 @@ ph::DeformableSetup toSetup(const palp_deformable_options& c) {
                       "PALP_FEM_WHOLE_MESH, PALP_FEM_REGIONS or PALP_FEM_AUTO (0..2)",
                       std::to_string(solver));
     }
+    const int law = rawEnum(c.material_law);
+    if (law != PALP_MATERIAL_LINEAR && law != PALP_MATERIAL_NEO_HOOKEAN) {
+        throwExpected(field("material_law"),
+                      "PALP_MATERIAL_LINEAR or PALP_MATERIAL_NEO_HOOKEAN (0, 1)",
+                      std::to_string(law));
+    }
+    if (law == PALP_MATERIAL_NEO_HOOKEAN && solver == PALP_FEM_REGIONS) {
+        throwExpected(field("solver"),
+                      "PALP_FEM_WHOLE_MESH or PALP_FEM_AUTO with material_law "
+                      "PALP_MATERIAL_NEO_HOOKEAN (it runs on the whole-mesh explicit solver "
+                      "only; the regions are linear)",
+                      "PALP_FEM_REGIONS");
+    }
     if (c.primary_nodes < 1 || c.primary_nodes > kMaxPrimaryNodes) {
         throwExpected(field("primary_nodes"), "1.." + std::to_string(kMaxPrimaryNodes),
                       std::to_string(c.primary_nodes));
@@ -108,6 +121,15 @@ ph::DeformableSetup toSetup(const palp_deformable_options& c) {
     s.material.density = c.density;
     s.material.dampingAlpha = c.damping_alpha;
     s.material.dampingBeta = c.damping_beta;
+    s.material.law =
+        law == PALP_MATERIAL_NEO_HOOKEAN ? fem::MaterialLaw::neoHookean : fem::MaterialLaw::linear;
+    if (c.material_table) {
+        try {
+            s.materialTable = ph::MaterialTable::named(c.material_table);
+        } catch (const palp::Error& e) {
+            throw palp::ValueError(field("material_table") + ": " + e.what());
+        }
+    }
     if (face != PALP_FACE_NONE) s.supportFace = static_cast<fem::BoxFace>(face - 1);
     s.options.filterWidth = c.filter_width;
     s.options.contactDampingRatio = c.contact_damping_ratio;
@@ -190,6 +212,8 @@ void palp_deformable_options_default(palp_deformable_options* options) {
     for (double& x : c.regions_centre) x = std::numeric_limits<double>::quiet_NaN();
     c.inside_bone = d.voxelize.insideBone == palp::fem::InsideBone::drop ? PALP_INSIDE_BONE_DROP
                                                                          : PALP_INSIDE_BONE_KEEP;
+    c.material_law = PALP_MATERIAL_LINEAR;
+    c.material_table = nullptr;
 }
 
 palp_status palp_scene_make_deformable(const palp_volume* volume, double hard_iso,

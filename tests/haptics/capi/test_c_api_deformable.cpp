@@ -9,7 +9,10 @@
 
 #include <cmath>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <limits>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -20,6 +23,7 @@
 #include "palp/haptics/tissue/error_table.h"
 #include "palp/palp.h"
 #include "palp/volume/phantom.h"
+#include "test_support.h"
 
 namespace {
 
@@ -46,7 +50,7 @@ struct DoubleField {
 };
 
 // When a field is added to palp.h, this size changes: add it to the tables below.
-static_assert(sizeof(palp_deformable_options) == 152,
+static_assert(sizeof(palp_deformable_options) == 160,
               "palp_deformable_options changed: update the table");
 
 #define PALP_DFIELD(f) \
@@ -206,6 +210,112 @@ TEST_F(CApiDeformable, EnumsCountsAndTheCentreAreRefusedByName) {
     EXPECT_EQ(palp_scene_make_deformable(sVolume, NAN, nullptr, &scene),
               PALP_ERROR_INVALID_ARGUMENT);
     EXPECT_EQ(scene, nullptr);
+}
+
+// material_law and material_table through the C API: the law and the table reach the body
+// (PALP_FEM_AUTO takes the whole mesh for neo-Hookean tissue and says why; the regions, a law
+// out of range and a bad table are refused by name), and the same press as `palp palpate
+// --deformable --material neo-hookean` on the same scene feels the CLI's force.
+TEST_F(CApiDeformable, TheMaterialLawAndTableReachTheBodyAsTheCliMakesIt) {
+    const auto make = [](auto&& edit, palp_scene** scene) {
+        palp_deformable_options o;
+        palp_deformable_options_default(&o);
+        EXPECT_EQ(o.material_law, PALP_MATERIAL_LINEAR);
+        EXPECT_EQ(o.material_table, nullptr);
+        edit(o);
+        return palp_scene_make_deformable(CApiDeformable::sVolume, NAN, &o, scene);
+    };
+    palp_scene* scene = nullptr;
+    for (const int v : {-1, 2}) {
+        const palp_status st =
+            make([&](palp_deformable_options& o) { std::memcpy(&o.material_law, &v, sizeof v); },
+                 &scene);
+        expectRefused(st, "material_law", std::to_string(v), "material_law " + std::to_string(v));
+    }
+    expectRefused(make(
+                      [](palp_deformable_options& o) {
+                          o.material_law = PALP_MATERIAL_NEO_HOOKEAN;
+                          o.solver = PALP_FEM_REGIONS;
+                      },
+                      &scene),
+                  "solver", "found PALP_FEM_REGIONS", "neo-Hookean on the regions");
+    palp::test::TempDir tmp;
+    const std::string bad = (tmp / "bad.csv").string();
+    {
+        std::ofstream(bad) << "name,lo,hi,youngs_pa,poisson,density_kg_m3,source\n"
+                              "soft,-200,500,-4000,0.45,1000,ref\n";
+    }
+    expectRefused(make([&](palp_deformable_options& o) { o.material_table = bad.c_str(); }, &scene),
+                  "material_table", bad + " line 2 (row 'soft') youngs_pa", "a bad table");
+    EXPECT_EQ(scene, nullptr);
+    ASSERT_EQ(make([](palp_deformable_options& o) { o.material_table = "ct"; }, &scene), PALP_OK)
+        << palp_last_error();
+    palp_scene_release(scene);
+
+    // The press `palp palpate` makes from the CLI's options below, through the C API.
+    constexpr double kDepth = 6e-3, kOut = 15e-3, kSpeed = 0.1, kHold = 0.6;
+    double force[2] = {0, 0};
+    for (const palp_material_law law : {PALP_MATERIAL_LINEAR, PALP_MATERIAL_NEO_HOOKEAN}) {
+        ASSERT_EQ(make([&](palp_deformable_options& o) { o.material_law = law; }, &scene), PALP_OK)
+            << palp_last_error();
+        palp_solver_choice choice{};
+        ASSERT_EQ(palp_scene_solver(scene, &choice), PALP_OK);
+        EXPECT_EQ(choice.solver, PALP_FEM_WHOLE_MESH);
+        EXPECT_EQ(choice.chosen, 1);
+        if (law == PALP_MATERIAL_NEO_HOOKEAN) {
+            EXPECT_NE(std::string(choice.reason).find("neo-Hookean"), std::string::npos)
+                << choice.reason;
+        }
+        palp_session_params p;
+        palp_session_params_default(&p);
+        p.mode = PALP_MODE_VC;
+        p.stiffness = 600;
+        p.max_stiffness = 2400;
+        p.damping = 0;
+        p.static_friction = 0.5;
+        p.dynamic_friction = 0.3;
+        p.device = "3D Systems Touch";
+        palp_trajectory t;
+        ASSERT_EQ(palp_trajectory_default(PALP_TRAJECTORY_PRESS, &t), PALP_OK);
+        t.centre[0] = sCentre[0];
+        // sCentre is 5 mm out of the active voxels' centres; palp palpate's face is half a
+        // voxel further out (the voxels' box) and its press starts 15 mm out of that.
+        t.centre[1] = sCentre[1] + 5e-3 - 0.5 * kVoxel - kOut;
+        t.centre[2] = sCentre[2];
+        t.direction[0] = 0;
+        t.direction[1] = 1;
+        t.direction[2] = 0;
+        t.depth = kDepth + kOut;
+        t.press_seconds = (kDepth + kOut) / kSpeed;
+        t.hold_seconds = kHold;
+        palp_session* session = nullptr;
+        ASSERT_EQ(palp_session_create_simulated(scene, &p, &t, &session), PALP_OK)
+            << palp_last_error();
+        const int ticks = static_cast<int>(std::ceil((t.press_seconds + kHold) / 1e-3));
+        double maxForce = 0;
+        for (int i = 0; i < ticks; ++i) {
+            palp_snapshot snap{};
+            ASSERT_EQ(palp_session_step(session, 1, &snap), PALP_OK);
+            maxForce = std::max(maxForce, std::hypot(snap.force[0], snap.force[1], snap.force[2]));
+        }
+        force[law == PALP_MATERIAL_NEO_HOOKEAN ? 1 : 0] = maxForce;
+        palp_session_release(session);
+        palp_scene_release(scene);
+    }
+    EXPECT_GT(force[1], force[0]);  // neo-Hookean tissue stiffens as it is pressed
+    if (!std::filesystem::exists(palp::test::palpTool()))
+        GTEST_SKIP() << "no palp tool (PALP_BUILD_TOOLS off) to compare with";
+    const auto r = palp::test::runCommand(
+        palp::test::palpTool().string() +
+        " palpate --phantom bone --voxel-mm 2 --deformable --material neo-hookean --fast "
+        "--trajectory press --hold 0.6 --mode vc --k-base 600 --depth 6 --json");
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')), nullptr, false);
+    ASSERT_FALSE(j.is_discarded()) << r.output;
+    const double cli = j["max_force_n"];
+    std::printf("press 6 mm: C API linear %.4f N, neo-Hookean %.4f N; palp palpate %.4f N\n",
+                force[0], force[1], cli);
+    EXPECT_NEAR(force[1], cli, 0.02 * cli);
 }
 
 // The C session and the C++ Session on the same body (the same volume, options and support),
