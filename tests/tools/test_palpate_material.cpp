@@ -125,6 +125,7 @@ TEST(PalpateMaterial, TheShippedCtTableRunsAndIsReported) {
     ASSERT_EQ(t["rows"].size(), 3u);
     EXPECT_EQ(t["rows"][2]["name"], "lesion");
     EXPECT_DOUBLE_EQ(t["rows"][2]["youngs_kpa"].get<double>(), 19.99);
+    EXPECT_TRUE(j["deformable"]["young_kpa"].is_null());  // the table's moduli, not --young-kpa
 }
 
 TEST(PalpateMaterial, BadValuesAndTablesAreRefusedNamingTheOptionFileAndRow) {

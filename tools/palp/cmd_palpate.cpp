@@ -326,7 +326,7 @@ void printJson(const PalpateArgs& a, const Report& r) {
                            {"fixed_nodes", body->fixedNodes().size()},
                            {"filter_mm", a.filterMm},
                            {"cell_mm", a.femCellMm},
-                           {"young_kpa", a.youngKpa},
+                           {"young_kpa", a.materialTable.empty() ? json(a.youngKpa) : json()},
                            {"material", a.material},
                            {"material_table", materialTableJson(a)},
                            {"solver", regions ? "regions" : "explicit"},
