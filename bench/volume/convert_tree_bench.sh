@@ -81,11 +81,6 @@ if [[ $(id -u) -ne 0 || ! -x /usr/sbin/slurmctld || ! -x /usr/sbin/munged ]]; th
   echo "slurm: skipped (needs root and slurm-wlm + munge: tools/setup.sh)"
   exit 0
 fi
-fail() {
-  echo "FAIL: $*"
-  for f in "$D"/log/*.log "$D"/out/*; do [[ -f $f ]] && { echo "--- $f"; tail -n 20 "$f"; }; done
-  exit 1
-}
 # shellcheck source=../../tests/cluster/one_node_slurm.sh
 source "$root/tests/cluster/one_node_slurm.sh"
 trap 'slurm_down; cleanup' EXIT

@@ -2,7 +2,8 @@
 # munged as the munge user on its own socket, slurmctld and slurmd with a slurm.conf in a temp
 # dir, no systemd (recipe in docs/error_analysis.md). After `slurm_up`, $D is the temp dir (with
 # log/ and out/), SLURM_CONF is exported and the node is idle; `slurm_down` stops the daemons
-# and removes $D, whatever state they are in. The caller sets its own traps and `fail`.
+# and removes $D, whatever state they are in; `fail MESSAGE` prints the message and the tail of
+# every log and output, and exits 1. The caller sets its own traps.
 
 slurm_check_tools() {
   for prog in /usr/sbin/munged /usr/sbin/slurmctld /usr/sbin/slurmd sbatch srun squeue \
@@ -11,6 +12,14 @@ slurm_check_tools() {
       "slurm-wlm, munge and openmpi-bin)"; exit 1; }
   done
   [[ $(id -u) -eq 0 ]] || { echo "FAIL: the one-node Slurm needs root (munged runs as munge)"; exit 1; }
+}
+
+fail() {
+  echo "FAIL: $*"
+  for f in "$D"/log/*.log "$D"/out/*; do
+    [[ -f $f ]] && { echo "--- $f"; tail -n 20 "$f"; }
+  done
+  exit 1
 }
 
 MUNGED_PID="" CTLD_PID="" SLURMD_PID=""

@@ -16,13 +16,6 @@ HERE=$(dirname "$(readlink -f "$0")")
 source "$HERE/one_node_slurm.sh"
 slurm_check_tools
 
-fail() {
-  echo "FAIL: $*"
-  for f in "$D"/log/*.log "$D"/out/*; do
-    [[ -f $f ]] && { echo "--- $f"; tail -n 20 "$f"; }
-  done
-  exit 1
-}
 trap slurm_down EXIT
 trap 'exit 130' INT TERM
 slurm_up 2

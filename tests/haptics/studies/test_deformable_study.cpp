@@ -65,6 +65,25 @@ const DeviceSpec& touch() {
     return *s;
 }
 
+// The bone phantom (bone position @p displacement) at 1 mm voxels with 10 HU of noise (seed
+// @p noiseSeed).
+volume::Volume bonePhantom(int displacement, std::uint64_t noiseSeed) {
+    volume::PhantomSpec spec;
+    spec.params.scene = volume::PhantomScene::Bone;
+    spec.params.displacement = displacement;
+    spec.voxelSize = 1e-3;
+    spec.noiseSigmaHu = 10;
+    spec.seed = noiseSeed;
+    return volume::makePhantomVolume(spec);
+}
+
+// The scene of @p vol with no iso-surface of its own: the proxy feels the FEM surface.
+std::shared_ptr<Scene> boneScene(const volume::Volume& vol) {
+    SceneOptions so;
+    so.surfaceIso = std::numeric_limits<double>::quiet_NaN();
+    return Scene::fromVolume(vol, so);
+}
+
 // The bone phantom with 10 HU noise (seed @p noiseSeed) as deformable tissue of mass damping
 // @p alpha (1/s) and contact damping @p contactDamping (ratio of critical), cells of @p cell
 // and a contact filter of width @p filter (m), cached.
@@ -76,16 +95,8 @@ std::shared_ptr<const Scene> boneTissue(int displacement, std::uint64_t noiseSee
         cache;
     const auto key = std::make_tuple(displacement, noiseSeed, alpha, contactDamping, cell, filter);
     if (auto it = cache.find(key); it != cache.end()) return it->second;
-    volume::PhantomSpec spec;
-    spec.params.scene = volume::PhantomScene::Bone;
-    spec.params.displacement = displacement;
-    spec.voxelSize = 1e-3;
-    spec.noiseSigmaHu = 10;
-    spec.seed = noiseSeed;
-    const volume::Volume vol = volume::makePhantomVolume(spec);
-    SceneOptions so;
-    so.surfaceIso = std::numeric_limits<double>::quiet_NaN();  // the proxy feels the FEM surface
-    std::shared_ptr<Scene> scene = Scene::fromVolume(vol, so);
+    const volume::Volume vol = bonePhantom(displacement, noiseSeed);
+    std::shared_ptr<Scene> scene = boneScene(vol);
     fem::VoxelizeOptions vo;
     vo.elementSize = cell;
     vo.tissueThreshold = -200;
@@ -115,16 +126,8 @@ std::shared_ptr<const Scene> toolTissue(int displacement, std::uint64_t noiseSee
     const auto key = std::make_tuple(displacement, noiseSeed, cell);
     auto it = cache.find(key);
     if (it == cache.end()) {
-        volume::PhantomSpec spec;
-        spec.params.scene = volume::PhantomScene::Bone;
-        spec.params.displacement = displacement;
-        spec.voxelSize = 1e-3;
-        spec.noiseSigmaHu = 10;
-        spec.seed = noiseSeed;
-        const volume::Volume vol = volume::makePhantomVolume(spec);
-        SceneOptions so;
-        so.surfaceIso = std::numeric_limits<double>::quiet_NaN();
-        std::shared_ptr<Scene> scene = Scene::fromVolume(vol, so);
+        const volume::Volume vol = bonePhantom(displacement, noiseSeed);
+        std::shared_ptr<Scene> scene = boneScene(vol);
         DeformableSetup setup;
         setup.voxelize.elementSize = cell;
         setup.supportFace = faceOpposite(Eigen::Vector3d::UnitY());
