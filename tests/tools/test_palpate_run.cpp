@@ -2,6 +2,7 @@
 // middle of an offline run keeps a valid trace and summary of the ticks done, and the MR of the
 // shared data (no HU, no bone) palpates deformably.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -88,6 +89,31 @@ TEST(PalpateRun, RealtimeSecondsAreWallClockSeconds) {
     // Periods elapsed: ticks + skipped deadlines, about 400 (+ the last tick's overrun).
     EXPECT_LE(ticks + skipped, 400u + 50u);
     EXPECT_GE(ticks + skipped, 350u);
+}
+
+// --mlock locks the process's memory before the servo loop starts and the summary says so: as
+// root (CI, and what CAP_IPC_LOCK allows) "memory locked", elsewhere the refusal with its
+// reason; without the flag "not asked". The run goes on either way.
+TEST(PalpateRun, MlockLocksTheMemoryOrSaysWhyNot) {
+    const auto realtimeOf = [](const std::string& flags) {
+        const auto r = runCommand(palp::test::palpTool().string() +
+                                  " palpate --phantom avc --realtime --seconds 0.2 --json " +
+                                  flags + " 2>/dev/null");
+        EXPECT_EQ(r.exitCode, 0) << r.output;
+        const nlohmann::json j = jsonOf(r.output);
+        return j.contains("servo") ? j["servo"]["realtime"].get<std::string>() : std::string();
+    };
+    const std::string locked = realtimeOf("--mlock");
+    std::printf("--mlock: %s\n", locked.c_str());
+    if (geteuid() == 0) {
+        EXPECT_NE(locked.find("memory locked"), std::string::npos) << locked;
+    } else {
+        EXPECT_TRUE(locked.find("memory locked") != std::string::npos ||
+                    locked.find("mlockall refused: ") != std::string::npos)
+            << locked;
+    }
+    const std::string plain = realtimeOf("");
+    EXPECT_NE(plain.find("memory not locked (not asked)"), std::string::npos) << plain;
 }
 
 // The overrun budget on a live run that cannot keep up: the bone phantom's whole mesh at 2.5 mm

@@ -590,6 +590,7 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
     sp.servo.periodSeconds = period;
     sp.servo.cpu = a.servoCpu;
     sp.servo.priority = a.noRealtimePriority ? 0 : a.servoPriority;
+    sp.servo.lockMemory = a.lockMemory;
     // Real time: every tick's snapshot is queued in the trace ring and drained below
     // (16 Ki snapshots: seconds of slack at servo rates before any is dropped).
     if (a.realtime) sp.traceCapacity = 1u << 14;

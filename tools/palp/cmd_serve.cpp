@@ -49,6 +49,7 @@ struct ServeArgs {
     int servoCpu = -1;
     int servoPriority = 80;
     bool noRealtimePriority = false;
+    bool lockMemory = false;
 };
 
 std::atomic<bool> gInterrupted{false};
@@ -209,6 +210,7 @@ int runServe(ServeArgs& a) {
     sp.servo.periodSeconds = period;
     sp.servo.cpu = a.servoCpu;
     sp.servo.priority = a.noRealtimePriority ? 0 : a.servoPriority;
+    sp.servo.lockMemory = a.lockMemory;
     sp.workspace.scale = a.scale;
     if (a.offsetMm.size() == 3)
         sp.workspace.offset = Eigen::Vector3d(a.offsetMm[0], a.offsetMm[1], a.offsetMm[2]) * 1e-3;
@@ -387,7 +389,7 @@ Command addServe(CLI::App& root) {
         ->check(integerIn(0, 65535));
     app->add_option("--igtl-rate", a.igtlRateHz, "OpenIGTLink frames per second (default 30)")
         ->check(within({0, 200, "Hz", true}));
-    addServoOptions(app, a.servoCpu, a.servoPriority, a.noRealtimePriority);
+    addServoOptions(app, a.servoCpu, a.servoPriority, a.noRealtimePriority, a.lockMemory);
     app->add_flag("--json", a.json, "Print the summary as JSON");
     return {app, [args]() -> int { return runServe(*args); }};
 }

@@ -228,7 +228,8 @@ void addPathOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
 
 }  // namespace
 
-void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority) {
+void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority,
+                     bool& lockMemory) {
     app->add_option("--servo-cpu", cpu,
                     "CPU to pin the servo thread to (default -1: the last one the process may "
                     "use)")
@@ -241,6 +242,10 @@ void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePri
     app->add_flag("--no-realtime-priority", noRealtimePriority,
                   "Run the servo thread at normal priority (as --servo-priority 0)")
         ->excludes(prio);
+    app->add_flag("--mlock", lockMemory,
+                  "Lock the process's memory (mlockall of all present and future pages) before "
+                  "the servo loop starts, so no tick waits on a page fault (reported; refused "
+                  "without CAP_IPC_LOCK or a large enough RLIMIT_MEMLOCK)");
 }
 
 namespace {
@@ -256,7 +261,7 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
                     "seconds (an overloaded servo loop that skips ticks still stops on time) "
                     "(default: until the path is done)")
         ->check(within(bounds::kPositiveDuration));
-    addServoOptions(app, a.servoCpu, a.servoPriority, a.noRealtimePriority);
+    addServoOptions(app, a.servoCpu, a.servoPriority, a.noRealtimePriority, a.lockMemory);
     app->add_option("--trace", a.trace, "Write a CSV trace of every tick");
     app->add_option("--map", a.map,
                     "Write a map over the palpated plane as a figure with axes in mm, patient "

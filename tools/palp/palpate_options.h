@@ -51,6 +51,7 @@ struct PalpateArgs {
     int servoCpu = -1;   // --servo-cpu: the servo thread's CPU (-1: the last allowed)
     int servoPriority = 80;           // --servo-priority: SCHED_FIFO 1..99 (0: none)
     bool noRealtimePriority = false;  // --no-realtime-priority: SCHED_OTHER (priority 0)
+    bool lockMemory = false;          // --mlock: mlockall before the servo loop starts
     std::string trace;
     std::string map;
     std::string mapQuantity = "stiffness";
@@ -110,8 +111,9 @@ void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked
 
 /// Registers --servo-cpu, --servo-priority and --no-realtime-priority (palpate and serve), bound
 /// to @p cpu, @p priority and @p noRealtimePriority; the servo thread's priority is then
-/// `noRealtimePriority ? 0 : priority`.
-void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority);
+/// `noRealtimePriority ? 0 : priority`. `--mlock` sets @p lockMemory (ServoConfig::lockMemory).
+void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority,
+                     bool& lockMemory);
 
 /// Checks a FILE or a phantom, scene options only with their phantom, FEM options only with
 /// --deformable, --material neo-hookean not on the regions, --material-table without
