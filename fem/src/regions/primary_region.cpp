@@ -174,7 +174,8 @@ void PrimaryRegion::acceptSolution(const Layout& L, const double* gamma, const d
         mBCur[k] = border[i];
     }
     if (watch != nullptr) {
-        if (frac >= 1.0) {
+        const double g = watchedFraction(frac);
+        if (g >= 1.0) {
             // The usual case (a solution taken at or after its period's end): the value shown
             // is the current one, so the buffers trade places and only the new one is copied
             // (the whole skin's watched values: 2 streams instead of 5 on a 2.5 mm head CT).
@@ -182,10 +183,11 @@ void PrimaryRegion::acceptSolution(const Layout& L, const double* gamma, const d
             std::copy(watch, watch + mWCur.size(), mWCur.begin());
         } else {
             for (std::size_t i = 0; i < mWPrev.size(); ++i) {
-                mWPrev[i] = mWPrev[i] + frac * (mWCur[i] - mWPrev[i]);
+                mWPrev[i] = mWPrev[i] + g * (mWCur[i] - mWPrev[i]);
                 mWCur[i] = watch[i];
             }
         }
+        mWBase = 0.0;
     }
     mGammaStart = mTime;
     ++mUsed;
@@ -295,23 +297,25 @@ void PrimaryRegion::seedWatched(const Layout& from) noexcept {
     // Called before restartCoupling() restarts the interpolation clock. Watched nodes the servo
     // showed (P and Gamma of the layout being left) start from those values: the secondary's
     // last solution has nothing (zero) for primary nodes. The others restart their
-    // interpolation from the value shown now (so they do not fall back to the previous
-    // solution when the clock restarts) towards the same newest solution.
-    const double frac = shownFraction();
-    const std::vector<int>& watch = mSetup.options.watchNodes;
-    for (std::size_t i = 0; i < watch.size(); ++i) {
-        const int n = watch[i];
-        const bool shownByServo = from.isPrimary[sz(n)] || from.isGamma[sz(n)];
-        for (std::size_t k = 0; k < 3; ++k) {
-            const std::size_t j = 3 * i + k;
-            if (shownByServo) {
+    // interpolation from the value shown now towards the same newest solution: shown = S0 +
+    // f' (cur - S0) with S0 = prev + g0 (cur - prev) is prev + (g0 + f' (1 - g0)) (cur - prev),
+    // so keeping g0 in mWBase (watchedFraction()) restarts them without touching their values:
+    // O(|P| + |Gamma|) at the swap instead of a pass over the whole skin's watched values (0.2-0.3
+    // ms on the 2.5 mm head CT).
+    mWBase = watchedFraction(shownFraction());
+    const auto own = [&](const std::vector<int>& nodes) {
+        for (const int n : nodes) {
+            const int w = mSetup.watchIndex[sz(n)];
+            if (w < 0) continue;
+            for (std::size_t k = 0; k < 3; ++k) {
+                const std::size_t j = 3 * sz(w) + k;
                 mWPrev[j] = mU[3 * n + static_cast<int>(k)];
                 mWCur[j] = mWPrev[j];
-            } else {
-                mWPrev[j] = mWPrev[j] + frac * (mWCur[j] - mWPrev[j]);
             }
         }
-    }
+    };
+    own(from.primaryNodes);
+    own(from.gammaNodes);
 }
 
 void PrimaryRegion::setSubstep(const Layout& L, int substeps, double dtNew) noexcept {

@@ -95,6 +95,10 @@ class PrimaryRegion {
                              std::span<Eigen::Vector3d> out) const noexcept;
     /// The interpolation fraction of the current secondary period.
     double shownFraction() const noexcept { return mSetup.periodFraction(mTime, mGammaStart); }
+    /// The watched values' fraction at the coupling fraction @p frac: a layout adopted
+    /// mid-period restarts the clock without a new solution, and the part of the way already
+    /// shown (mWBase) is kept here instead of being folded into every watched value.
+    double watchedFraction(double frac) const noexcept { return mWBase + (1.0 - mWBase) * frac; }
 
     const Eigen::VectorXd& u() const noexcept { return mU; }
     const Eigen::VectorXd& uPrev() const noexcept { return mUPrev; }
@@ -153,6 +157,9 @@ class PrimaryRegion {
     double mGammaStart = 0.0;           // coupling clock: time the interpolation started
     // Watched secondary values the interpolation runs between (3 per watched node).
     std::vector<double> mWPrev, mWCur;
+    // The fraction of the way from mWPrev to mWCur shown when the clock last restarted without
+    // a solution (seedWatched()); 0 once a solution arrives.
+    double mWBase = 0.0;
     // Force drive: loads on free primary dofs this tick, and the sum over the current period of
     // the loads on secondary nodes.
     Eigen::VectorXd mFExt, mFAcc;

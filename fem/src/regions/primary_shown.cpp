@@ -12,6 +12,7 @@ namespace palp::fem {
 
 Eigen::Vector3d PrimaryRegion::shown(const Layout& L, int node, double frac) const noexcept {
     const std::size_t n = sz(node);
+    const double g = watchedFraction(frac);
     if (L.isPrimary[n] || L.isGamma[n]) return mU.segment<3>(3 * node);
     const int w = mSetup.watchIndex[n];
     Eigen::Vector3d out = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
@@ -22,7 +23,7 @@ Eigen::Vector3d PrimaryRegion::shown(const Layout& L, int node, double frac) con
             out[k] = mU[d];
         } else if (w >= 0) {
             const std::size_t i = 3 * sz(w) + sz(k);
-            out[k] = mWPrev[i] + frac * (mWCur[i] - mWPrev[i]);
+            out[k] = mWPrev[i] + g * (mWCur[i] - mWPrev[i]);
         }
     }
     return out;
@@ -33,6 +34,7 @@ std::size_t PrimaryRegion::shownWatched(const Layout& L, double frac, std::size_
     const std::vector<int>& watch = mSetup.options.watchNodes;
     const std::size_t end = std::min(first + out.size(), watch.size());
     const std::vector<std::uint8_t>& active = mSetup.model.mesh().nodeActive();
+    const double g = watchedFraction(frac);
     for (std::size_t i = first; i < end; ++i) {
         const int n = watch[i];
         const std::size_t ni = sz(n);
@@ -45,7 +47,7 @@ std::size_t PrimaryRegion::shownWatched(const Layout& L, double frac, std::size_
             const std::size_t j = 3 * i + k;
             const int d = 3 * n + static_cast<int>(k);
             o[static_cast<Eigen::Index>(k)] =
-                mSetup.fixed[sz(d)] ? mU[d] : mWPrev[j] + frac * (mWCur[j] - mWPrev[j]);
+                mSetup.fixed[sz(d)] ? mU[d] : mWPrev[j] + g * (mWCur[j] - mWPrev[j]);
         }
     }
     return end > first ? end - first : 0;
@@ -54,10 +56,11 @@ std::size_t PrimaryRegion::shownWatched(const Layout& L, double frac, std::size_
 void PrimaryRegion::shownWatched(const Layout& L, double frac,
                                  std::span<Eigen::Vector3d> out) const noexcept {
     const std::size_t count = std::min(out.size(), mWPrev.size() / 3);
+    const double g = watchedFraction(frac);
     for (std::size_t i = 0; i < count; ++i) {
         for (std::size_t k = 0; k < 3; ++k) {
             const std::size_t j = 3 * i + k;
-            out[i][static_cast<Eigen::Index>(k)] = mWPrev[j] + frac * (mWCur[j] - mWPrev[j]);
+            out[i][static_cast<Eigen::Index>(k)] = mWPrev[j] + g * (mWCur[j] - mWPrev[j]);
         }
     }
     for (const int j : mSetup.watchFixedDofs) {
