@@ -204,6 +204,7 @@ ServoStats ServoLoop::stats() const noexcept {
     s.shedding = mShedding.load(std::memory_order_relaxed);
     s.sheds = mSheds.load(std::memory_order_relaxed);
     s.restores = mRestores.load(std::memory_order_relaxed);
+    s.unsettledWindows = mUnsettled.load(std::memory_order_relaxed);
     s.shedAtSeconds = mShedAt.load(std::memory_order_relaxed);
     return s;
 }
@@ -308,6 +309,7 @@ void ServoLoop::run(ServoTask* task) noexcept {
     mShedding.store(false, std::memory_order_relaxed);
     mSheds.store(0, std::memory_order_relaxed);
     mRestores.store(0, std::memory_order_relaxed);
+    mUnsettled.store(0, std::memory_order_relaxed);
     mShedAt.store(0, std::memory_order_relaxed);
     setUpThread();
     const bool abort = mConfig.requireRealtime && mStatus.failed;
@@ -391,8 +393,12 @@ void ServoLoop::run(ServoTask* task) noexcept {
                     mShedding.store(true, std::memory_order_relaxed);
                 }
             } else if (shedding && restoreNs > 0) {
-                calmNs =
-                    missed <= 0.25 * mConfig.overrunFraction ? calmNs + (end - windowStart) : 0;
+                if (missed <= 0.25 * mConfig.overrunFraction) {
+                    calmNs += end - windowStart;
+                } else {
+                    calmNs = 0;
+                    mUnsettled.fetch_add(1, std::memory_order_relaxed);
+                }
                 if (calmNs >= restoreNs) {
                     task->restore();
                     shedding = false;

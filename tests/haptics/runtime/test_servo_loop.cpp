@@ -517,9 +517,10 @@ TEST(ServoLoop, ALoopThatFallsBehindShedsFirstAndRestoresWhenCalm) {
                  restored = task.mRestoreAt.load(), shed2 = task.mShedAt[1].load();
     std::printf(
         "shed %.3f s after the first tick, restored %.3f s later, shed again %.3f s "
-        "after that; %llu sheds, %llu restores, overloaded %d\n",
+        "after that; %llu sheds, %llu restores, %llu unsettled windows, overloaded %d\n",
         shed1 - first, restored - shed1, shed2 - restored, static_cast<unsigned long long>(s.sheds),
-        static_cast<unsigned long long>(s.restores), s.overloaded ? 1 : 0);
+        static_cast<unsigned long long>(s.restores),
+        static_cast<unsigned long long>(s.unsettledWindows), s.overloaded ? 1 : 0);
     EXPECT_FALSE(s.overloaded);
     EXPECT_EQ(task.mOverloads.load(), 0);
     EXPECT_FALSE(s.fifoDropped);
@@ -528,9 +529,12 @@ TEST(ServoLoop, ALoopThatFallsBehindShedsFirstAndRestoresWhenCalm) {
     EXPECT_GE(s.restores, 1u);
     EXPECT_LE(shed1 - first, 0.4 + 0.05);  // one window (and slack)
     // Restored after the calm windows: at least 0.8 s, at most one window more (the shed
-    // window's own remainder is not calm).
+    // window's own remainder is not calm). A window the host disturbed while shed (more than a
+    // quarter of the budget missed; TSan on a loaded 2-core machine did) restarts the calm
+    // time: each such window can cost itself and the calm window before it.
+    const double unsettled = static_cast<double>(s.unsettledWindows);
     EXPECT_GE(restored - shed1, 0.8 - 0.01);
-    EXPECT_LE(restored - shed1, 0.8 + 0.4 + 0.05);
+    EXPECT_LE(restored - shed1, 0.8 + 0.4 + 0.05 + 2 * 0.4 * unsettled);
     EXPECT_LE(shed2 - restored, 2 * 0.4 + 0.05);  // the next window over the budget
     EXPECT_GT(s.shedAtSeconds, 0.0);
 

@@ -130,7 +130,10 @@ struct ServoStats {
     bool shedding = false;
     std::uint64_t sheds = 0;     ///< shed() calls that shed something, this run
     std::uint64_t restores = 0;  ///< restore() calls, this run
-    double shedAtSeconds = 0;    ///< the last shed, since the first deadline, s
+    /// Windows, while shed, that missed more than a quarter of the budget: each one restarts
+    /// the calm time restore() waits for (a busy host delays the restore by these).
+    std::uint64_t unsettledWindows = 0;
+    double shedAtSeconds = 0;  ///< the last shed, since the first deadline, s
 };
 
 /// Runs a ServoTask on its own thread.
@@ -175,7 +178,7 @@ class ServoLoop {
     std::atomic<bool> mOverloaded{false}, mFifoDropped{false};
     std::atomic<double> mOverloadedAt{0}, mMissedFraction{0};
     std::atomic<bool> mShedding{false};
-    std::atomic<std::uint64_t> mSheds{0}, mRestores{0};
+    std::atomic<std::uint64_t> mSheds{0}, mRestores{0}, mUnsettled{0};
     std::atomic<double> mShedAt{0};
 };
 
