@@ -2,7 +2,9 @@
 #include <pthread.h>
 #include <sched.h>
 
+#include <atomic>
 #include <cerrno>
+#include <chrono>
 #include <thread>
 
 #include "palp/base/thread.h"
@@ -48,6 +50,66 @@ TEST(Thread, NamesAreCutToTheKernelsLimit) {
     });
     t.join();
     EXPECT_EQ(errorText(EPERM), "Operation not permitted");
+}
+
+// A reservation takes the CPU from every other thread whose mask has it and another CPU,
+// threads started afterwards inherit the narrower mask, a thread pinned to that CPU alone stays,
+// and release() gives everyone back the mask they had (the late thread its parent's).
+TEST(Thread, ReservingACpuMovesTheOtherThreadsOffItUntilReleased) {
+    const std::vector<int> cpus = allowedCpus();
+    if (cpus.size() < 2) GTEST_SKIP() << "one CPU: nothing to move to";
+    const int kept = cpus.back();
+    std::vector<int> rest(cpus.begin(), cpus.end() - 1);
+    std::atomic<int> phase{0};
+    std::atomic<bool> pinnedReady{false};
+    std::vector<int> workerDuring, workerAfter, lateDuring, lateAfter, pinnedDuring;
+    std::thread worker([&] {  // the process's mask, like a TBB worker
+        while (phase.load() < 1) std::this_thread::yield();
+        workerDuring = allowedCpus();
+        std::thread late([&] {  // started while the CPU is reserved
+            lateDuring = allowedCpus();
+            while (phase.load() < 2) std::this_thread::yield();
+            lateAfter = allowedCpus();
+        });
+        while (phase.load() < 2) std::this_thread::yield();
+        late.join();
+        workerAfter = allowedCpus();
+    });
+    std::thread pinned([&] {  // another servo on the same CPU
+        EXPECT_EQ(pinCurrentThread(kept), 0);
+        pinnedReady = true;
+        while (phase.load() < 1) std::this_thread::yield();
+        pinnedDuring = allowedCpus();
+    });
+    std::size_t moved = 0;
+    std::vector<int> mainDuring;
+    std::thread keeper([&] {
+        EXPECT_EQ(pinCurrentThread(kept), 0);
+        while (!pinnedReady.load()) std::this_thread::yield();
+        CpuReservation r = CpuReservation::reserve(kept);
+        moved = r.threadsMoved();
+        EXPECT_EQ(r.cpu(), kept);
+        phase = 1;
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        r.release();
+        EXPECT_EQ(r.threadsMoved(), 0u);
+        r.release();  // idempotent
+        phase = 2;
+    });
+    // The main thread is moved too: read its mask while the keeper holds the CPU.
+    while (phase.load() < 1) std::this_thread::yield();
+    mainDuring = allowedCpus();
+    keeper.join();
+    worker.join();
+    pinned.join();
+    EXPECT_EQ(mainDuring, rest);
+    EXPECT_EQ(workerDuring, rest);
+    EXPECT_EQ(lateDuring, rest);
+    EXPECT_EQ(pinnedDuring, std::vector<int>{kept});
+    EXPECT_EQ(workerAfter, cpus);
+    EXPECT_EQ(lateAfter, cpus);
+    EXPECT_EQ(allowedCpus(), cpus);  // the main thread's mask is back
+    EXPECT_GE(moved, 2u);            // the main thread and the worker, at least
 }
 
 }  // namespace

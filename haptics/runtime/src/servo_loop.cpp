@@ -10,6 +10,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <new>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -180,6 +181,7 @@ void ServoLoop::start(ServoTask& task) {
     mReady.wait(false, std::memory_order_acquire);
     if (mConfig.requireRealtime && mStatus.failed) {
         mThread.join();  // the thread returns without ticking when it failed and must not run
+        mReservation.release();
         throw Error("servo loop: real-time set-up required but refused: " + mStatus.message);
     }
 }
@@ -187,6 +189,7 @@ void ServoLoop::start(ServoTask& task) {
 void ServoLoop::stop() noexcept {
     mStop.store(true, std::memory_order_relaxed);
     if (mThread.joinable()) mThread.join();
+    mReservation.release();  // the other threads may use the servo's CPU again
 }
 
 ServoStats ServoLoop::stats() const noexcept {
@@ -262,6 +265,15 @@ void ServoLoop::setUpThread() noexcept {
         st.failed = true;
         append("pinning to CPU " + std::to_string(cpu) + " refused: " + errorWithName(rc) +
                " (the process may use CPUs " + allowedText + ")");
+    }
+    if (st.pinned && mConfig.reserveCpu) {
+        try {
+            mReservation = CpuReservation::reserve(cpu);
+            st.threadsMovedOff = mReservation.threadsMoved();
+            append(std::to_string(st.threadsMovedOff) + " other threads moved off it");
+        } catch (const std::bad_alloc&) {
+            append("other threads not moved off it (out of memory)");
+        }
     }
     nameCurrentThread("palp-servo");  // best effort: only top, perf and gdb show it
 

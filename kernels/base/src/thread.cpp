@@ -1,10 +1,14 @@
 #include "palp/base/thread.h"
 
+#include <dirent.h>
 #include <pthread.h>
 #include <sched.h>
+#include <unistd.h>
 
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
+#include <utility>
 
 namespace palp {
 
@@ -76,6 +80,97 @@ std::string errorText(int err) {
     // GNU strerror_r returns the message, which may or may not be in buf.
     const char* text = strerror_r(err, buf, sizeof buf);
     return text;
+}
+
+namespace {
+
+/// Calls @p f(tid) for every thread of this process but the caller (none when /proc is absent).
+template <class F>
+void forOtherThreads(F&& f) noexcept {
+    DIR* dir = opendir("/proc/self/task");
+    if (!dir) return;
+    const pid_t self = gettid();
+    while (const dirent* entry = readdir(dir)) {
+        char* end = nullptr;
+        const long tid = std::strtol(entry->d_name, &end, 10);
+        if (end == entry->d_name || *end != '\0' || tid <= 0 || tid == self) continue;
+        f(static_cast<pid_t>(tid));
+    }
+    closedir(dir);
+}
+
+}  // namespace
+
+CpuReservation::CpuReservation(CpuReservation&& other) noexcept
+    : mCpu(std::exchange(other.mCpu, -1)), mMoved(std::move(other.mMoved)) {
+    other.mMoved.clear();
+}
+
+CpuReservation& CpuReservation::operator=(CpuReservation&& other) noexcept {
+    if (this != &other) {
+        release();
+        mCpu = std::exchange(other.mCpu, -1);
+        mMoved = std::move(other.mMoved);
+        other.mMoved.clear();
+    }
+    return *this;
+}
+
+CpuReservation CpuReservation::reserve(int cpu) {
+    CpuReservation r;
+    if (cpu < 0 || cpu >= CPU_SETSIZE) return r;
+    r.mCpu = cpu;
+    const auto index = static_cast<std::size_t>(cpu);
+    // Twice: a thread started during the first pass by a thread not yet moved is caught by the
+    // second (its parent's mask still held the CPU when it was created).
+    for (int pass = 0; pass < 2; ++pass) {
+        forOtherThreads([&](pid_t tid) {
+            cpu_set_t before;
+            CPU_ZERO(&before);
+            if (sched_getaffinity(tid, sizeof before, &before) != 0) return;  // exited
+            if (!CPU_ISSET(index, &before) || CPU_COUNT(&before) < 2) return;
+            cpu_set_t after = before;
+            CPU_CLR(index, &after);
+            if (sched_setaffinity(tid, sizeof after, &after) != 0) return;
+            r.mMoved.push_back({tid, before, after});
+        });
+    }
+    return r;
+}
+
+void CpuReservation::release() noexcept {
+    if (mMoved.empty()) {
+        mCpu = -1;
+        return;
+    }
+    forOtherThreads([&](pid_t tid) {
+        cpu_set_t now;
+        CPU_ZERO(&now);
+        if (sched_getaffinity(tid, sizeof now, &now) != 0) return;
+        // The thread itself if it was moved; else (started since) the first moved thread that
+        // was left with the same mask: its parent's, most likely.
+        const Moved* match = nullptr;
+        for (const Moved& m : mMoved) {
+            if (!CPU_EQUAL(&now, &m.after)) continue;
+            if (m.tid == tid) {
+                match = &m;
+                break;
+            }
+            if (!match) match = &m;
+        }
+        if (match) sched_setaffinity(tid, sizeof match->before, &match->before);
+    });
+    // The calling thread too, if it was moved (release() from a thread other than the keeper).
+    const pid_t self = gettid();
+    for (const Moved& m : mMoved) {
+        cpu_set_t now;
+        CPU_ZERO(&now);
+        if (m.tid == self && sched_getaffinity(0, sizeof now, &now) == 0 &&
+            CPU_EQUAL(&now, &m.after))
+            sched_setaffinity(0, sizeof m.before, &m.before);
+    }
+    mMoved.clear();
+    mCpu = -1;
 }
 
 }  // namespace palp

@@ -145,6 +145,7 @@ TEST(ServoLoop, RunsConsecutiveTicksAndReportsConsistentStats) {
     ServoConfig config;  // 1 ms, last CPU, SCHED_FIFO 80 when permitted
     ServoLoop loop(config);
     RecordingTask task;
+    const std::vector<int> cpus = allowedCpus();
     loop.start(task);
     EXPECT_TRUE(loop.running());
     const RealtimeStatus& rt = loop.realtime();
@@ -154,10 +155,17 @@ TEST(ServoLoop, RunsConsecutiveTicksAndReportsConsistentStats) {
     }
     if (rt.pinned) {
         EXPECT_GE(rt.cpu, 0);
+        // The servo's CPU is its own while it runs (reserveCpu): this thread lost it.
+        if (cpus.size() > 1) {
+            EXPECT_GE(rt.threadsMovedOff, 1u);
+            const std::vector<int> mine = allowedCpus();
+            EXPECT_EQ(std::count(mine.begin(), mine.end(), rt.cpu), 0) << cpuListText(mine);
+        }
     }
     EXPECT_THROW(loop.start(task), Error);  // already running
     std::this_thread::sleep_for(std::chrono::milliseconds(300));
     loop.stop();
+    EXPECT_EQ(allowedCpus(), cpus);  // and has it back
     EXPECT_FALSE(loop.running());
     loop.stop();  // idempotent
     EXPECT_FALSE(loop.running());

@@ -10,6 +10,8 @@
 #include <string>
 #include <thread>
 
+#include "palp/base/thread.h"
+
 namespace palp::haptics {
 
 /// Passed to the task each tick.
@@ -49,6 +51,12 @@ struct ServoConfig {
     bool requireRealtime = false;  ///< start() throws when pinning or SCHED_FIFO fails
     double spinSeconds = 0;        ///< busy-wait this long before each deadline (0: sleep only)
     bool lockMemory = false;       ///< mlockall(MCL_CURRENT | MCL_FUTURE) at start (reported)
+    /// While the loop runs, keep the process's other threads off its CPU (palp::CpuReservation:
+    /// their affinity masks lose it, and get it back at stop()); only when pinned and the
+    /// process may use another CPU. Without it a solver's or TBB's threads share the servo's
+    /// CPU: preempted, but their memory traffic leaves the servo's caches cold (the head CT at
+    /// 2.5 mm cells: 46 % of the servo CPU's time went to the regions' other threads).
+    bool reserveCpu = true;
     /// The overrun budget of a loop that got SCHED_FIFO (a SCHED_OTHER loop cannot starve its
     /// CPU: the scheduler shares it; its misses are not counted): when, in overrunWindows
     /// consecutive windows of this long, more than
@@ -81,6 +89,7 @@ struct RealtimeStatus {
     bool fifo = false;
     int priority = 0;
     bool memoryLocked = false;
+    std::size_t threadsMovedOff = 0;  ///< other threads reserveCpu moved off the servo's CPU
     /// Every outcome, "; "-separated, e.g. "pinned to CPU 1; SCHED_FIFO 80 refused: Operation
     /// not permitted (EPERM); memory not locked (not asked)". Never empty after start().
     std::string message;
@@ -180,6 +189,7 @@ class ServoLoop {
     std::atomic<bool> mShedding{false};
     std::atomic<std::uint64_t> mSheds{0}, mRestores{0}, mUnsettled{0};
     std::atomic<double> mShedAt{0};
+    CpuReservation mReservation;  // set up on the servo thread, released by stop()
 };
 
 }  // namespace palp::haptics

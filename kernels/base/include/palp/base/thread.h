@@ -9,6 +9,10 @@
 /// Failures are returned as error numbers, never thrown, so a caller decides whether a refused
 /// request is fatal and reports it in its own words (errorText()).
 
+#include <sched.h>
+#include <sys/types.h>
+
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -38,5 +42,43 @@ int nameCurrentThread(const char* name) noexcept;
 
 /// The message of error number @p err (strerror_r), e.g. `Operation not permitted`.
 std::string errorText(int err);
+
+/// A CPU kept for the calling thread: every other thread of the process whose affinity mask
+/// holds that CPU and at least one more loses it (threads they start later inherit the
+/// narrower mask), until release() or the destructor puts the masks back. A servo thread pinned
+/// to a CPU otherwise shares it with the process's other threads (TBB workers, a solver's
+/// threads): SCHED_FIFO preempts them, but their memory traffic leaves the servo's caches cold.
+/// Threads pinned to that CPU alone are left where they are.
+///
+/// @par Threading  reserve() on the thread that keeps the CPU; release() from any thread
+///      (it looks the threads up again, so a thread that exited meanwhile is skipped). Set-up
+///      calls, not real-time: each reads /proc/self/task.
+class CpuReservation {
+  public:
+    CpuReservation() = default;
+    ~CpuReservation() { release(); }
+    CpuReservation(CpuReservation&& other) noexcept;
+    CpuReservation& operator=(CpuReservation&& other) noexcept;
+    CpuReservation(const CpuReservation&) = delete;
+    CpuReservation& operator=(const CpuReservation&) = delete;
+
+    /// Moves the other threads off @p cpu (the calling thread should be pinned there already).
+    /// Nothing moves where @p cpu is the only CPU the process may use.
+    /// @throw std::bad_alloc (the list of threads moved).
+    static CpuReservation reserve(int cpu);
+    /// Restores the masks of the threads still narrowed as reserve() left them, and gives
+    /// threads started since with such a mask the mask their parent had. Idempotent.
+    void release() noexcept;
+    int cpu() const noexcept { return mCpu; }
+    std::size_t threadsMoved() const noexcept { return mMoved.size(); }
+
+  private:
+    struct Moved {
+        pid_t tid;
+        cpu_set_t before, after;
+    };
+    int mCpu = -1;
+    std::vector<Moved> mMoved;
+};
 
 }  // namespace palp
