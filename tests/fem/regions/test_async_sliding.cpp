@@ -261,6 +261,17 @@ struct FingerRun {
     int requests = 0, adopted = 0, maxDelay = 0;  // delay: request to adoption, ticks
 };
 
+/// The finger tests' regions: lod 2, the secondary at 50 Hz, the top face watched
+/// (DeformableBody's set-up); threaded: the secondary and layout builds on their own threads.
+AsyncRegionsOptions fingerOptions(const Problem& p, bool threaded = false) {
+    AsyncRegionsOptions o;
+    o.lod = 2;
+    o.secondaryRate = 50.0;
+    o.watchNodes = p.model.mesh().faceNodes(BoxFace::zMax);
+    o.threaded = threaded;
+    return o;
+}
+
 /// The whole mesh under the finger: ExplicitSolver::step(dt, spring) every tick.
 std::vector<double> fingerReference(const Problem& p, int moveTicks, int ticks, int startX,
                                     bool reflect = false) {
@@ -351,10 +362,7 @@ TEST(AsyncSliding, SlidingFingerIsFollowedAndMatchesTheWholeMesh) {
     // every request is adopted, and the force follows the whole mesh under the same spring
     // (the 33^3 bench: 1.9 % synchronous, 2.7-3.2 % threaded).
     const Problem p(17, 10.0);
-    AsyncRegionsOptions o;
-    o.lod = 2;
-    o.secondaryRate = 50.0;
-    o.watchNodes = p.model.mesh().faceNodes(BoxFace::zMax);
+    AsyncRegionsOptions o = fingerOptions(p);
     const int ticks = 1000, move = 100, lead = 25, start = 3;
     const std::vector<double> ref = fingerReference(p, move, ticks, start);
     const FingerRun r = fingerRun(p, o, move, ticks, lead, start);
@@ -379,10 +387,7 @@ TEST(AsyncSliding, FastFingerAtALowSecondaryRateStaysStable) {
     // after 3 s in bench_async threaded --size 17 --move 50 --f 50 --sync 1). Synchronous:
     // deterministic.
     const Problem p(17, 10.0);
-    AsyncRegionsOptions o;
-    o.lod = 2;
-    o.secondaryRate = 50.0;
-    o.watchNodes = p.model.mesh().faceNodes(BoxFace::zMax);
+    AsyncRegionsOptions o = fingerOptions(p);
     // bench_async's path: from the middle to x = 15 and back, the press rising to 3 mm and
     // released (the swaps while it is released grew fastest).
     const int ticks = 1000, move = 50, lead = 25, start = p.n / 2;
@@ -407,10 +412,7 @@ TEST(AsyncSliding, FingerAheadOfItsPrimaryStaysBounded) {
     // grew (4.3 N after 0.6 s, 32 N after 1 s); condensed (advance()) the force stays near the
     // whole mesh's (the rest is the coarse lod-2 far field under the finger).
     const Problem p(17, 10.0);
-    AsyncRegionsOptions o;
-    o.lod = 2;
-    o.secondaryRate = 50.0;
-    o.watchNodes = p.model.mesh().faceNodes(BoxFace::zMax);
+    AsyncRegionsOptions o = fingerOptions(p);
     const int ticks = 600, move = 100, lead = -300, start = p.n / 2;
     const std::vector<double> ref = fingerReference(p, move, ticks, start, true);
     const FingerRun r = fingerRun(p, o, move, ticks, lead, start, true);
@@ -433,11 +435,7 @@ TEST(AsyncSliding, ThreadedSlidingFingerIsFollowed) {
     GTEST_SKIP() << "a real-time run: ThreadSanitizer's slowdown lets the finger outrun layouts";
 #endif
     const Problem p(17, 10.0);
-    AsyncRegionsOptions o;
-    o.lod = 2;
-    o.secondaryRate = 50.0;
-    o.watchNodes = p.model.mesh().faceNodes(BoxFace::zMax);
-    o.threaded = true;
+    AsyncRegionsOptions o = fingerOptions(p, /*threaded=*/true);
     const int ticks = 1200, move = 200, lead = 25, start = 5;
     const std::vector<double> ref = fingerReference(p, move, ticks, start);
     const FingerRun r = fingerRun(p, o, move, ticks, lead, start);
@@ -464,11 +462,7 @@ TEST(AsyncSliding, ThreadedSwapKeepsTheWatchedSkinContinuous) {
     GTEST_SKIP() << "a real-time run: ThreadSanitizer's slowdown lets the finger outrun layouts";
 #endif
     const Problem p(17, 10.0);
-    AsyncRegionsOptions o;
-    o.lod = 2;
-    o.secondaryRate = 50.0;
-    o.watchNodes = p.model.mesh().faceNodes(BoxFace::zMax);
-    o.threaded = true;
+    AsyncRegionsOptions o = fingerOptions(p, /*threaded=*/true);
     o.drive = ContactDrive::force;
     const int ticks = 1200, move = 100, lead = 25, start = p.n / 2 - 3;
     Finger finger(p, move, start);
