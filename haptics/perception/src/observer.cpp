@@ -82,7 +82,7 @@ double WeberObserver::pCorrect(double increment) const {
     return mParams.lapseRate * 0.5 + (1 - mParams.lapseRate) * p;
 }
 
-double peakNormalisedGradient(const FeltProfile& profile) {
+double peakNormalisedGradient(const FeltProfile& profile, double windowM) {
     const auto& x = profile.positionM;
     const auto& k = profile.stiffnessNpm;
     if (x.size() != k.size())
@@ -101,12 +101,30 @@ double peakNormalisedGradient(const FeltProfile& profile) {
                           "a position > the one before, " + formatValue(x[i - 1]) + " m",
                           formatValue(x[i]));
     }
+    if (!(windowM >= 0 && std::isfinite(windowM)))
+        throwExpected("felt profile window", "a finite length >= 0 m", formatValue(windowM));
     const auto [lo, hi] = std::minmax_element(k.begin(), k.end());
     const double height = *hi - *lo;
     if (height <= 0) return 0;
     double peak = 0;
-    for (std::size_t i = 1; i < x.size(); ++i)
-        peak = std::max(peak, std::abs(k[i] - k[i - 1]) / (x[i] - x[i - 1]));
+    const double h = 0.5 * windowM;
+    if (h <= 0 || x.back() - x.front() <= windowM) {
+        if (h > 0) return std::abs(k.back() - k.front()) / (x.back() - x.front()) / height;
+        for (std::size_t i = 1; i < x.size(); ++i)
+            peak = std::max(peak, std::abs(k[i] - k[i - 1]) / (x[i] - x[i - 1]));
+        return peak / height;
+    }
+    // k at u by linear interpolation; j walks forward with u.
+    auto at = [&](double u, std::size_t& j) {
+        while (j + 2 < x.size() && x[j + 1] < u) ++j;
+        const double t = (u - x[j]) / (x[j + 1] - x[j]);
+        return k[j] + (k[j + 1] - k[j]) * t;
+    };
+    std::size_t jl = 0, jr = 0;
+    for (std::size_t i = 0; i < x.size(); ++i) {
+        if (x[i] - h < x.front() || x[i] + h > x.back()) continue;
+        peak = std::max(peak, std::abs(at(x[i] + h, jr) - at(x[i] - h, jl)) / windowM);
+    }
     return peak / height;
 }
 
@@ -122,6 +140,7 @@ GradientObserver::GradientObserver(const GradientObserverParams& params, std::ui
                       formatValue(params.maxWeber));
     weberNoiseSd(params.weberAtReference, params.criterionLevel);  // checks criterionLevel
     requireLapse("gradient observer lapseRate", params.lapseRate);
+    requireNonNegative("gradient observer windowM", params.windowM, "m");
 }
 
 double GradientObserver::weberFraction(double gradientPerM) const {
@@ -132,8 +151,8 @@ double GradientObserver::weberFraction(double gradientPerM) const {
 }
 
 int GradientObserver::chooseGreater(const FeltProfile& first, const FeltProfile& second) {
-    const double w1 = weberFraction(peakNormalisedGradient(first));
-    const double w2 = weberFraction(peakNormalisedGradient(second));
+    const double w1 = weberFraction(peakNormalisedGradient(first, mParams.windowM));
+    const double w2 = weberFraction(peakNormalisedGradient(second, mParams.windowM));
     const double k1 = *std::max_element(first.stiffnessNpm.begin(), first.stiffnessNpm.end());
     const double k2 = *std::max_element(second.stiffnessNpm.begin(), second.stiffnessNpm.end());
     requireFelt("gradient observer first profile's peak", k1);

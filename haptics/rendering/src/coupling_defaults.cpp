@@ -1,8 +1,38 @@
 #include "palp/haptics/rendering/coupling_defaults.h"
 
+#include <array>
+
 namespace palp::haptics {
 
 namespace {
+
+/// The stiffness boxes' rendered multiplier over soft (m0) and hard (m1) tissue.
+constexpr double kStiffSoftMultiplier = 1.25;
+constexpr double kStiffHardMultiplier = 3.25;
+constexpr double kStiffTauStop = 3;
+
+/// sigma(v) for the stiffness boxes: under the fat layer a column of value v stops an
+/// accumulate ray at L = d0 + tau / sigma(v), so sigma(v) = tau / (L_ref / m(v) - d0) makes the
+/// rendered k = k_s L_ref / L linear in v (m0 at soft, m1 at hard tissue): the box's stiffness
+/// field, not a surface of it. d0 is the fat's thickness plus half a voxel of trilinear blur.
+kernels::TransferFunction stiffnessFieldSigma(double referenceLength) {
+    const volume::PhantomParams phantom;
+    const volume::PhantomMaterials& m = phantom.materials;
+    const double d0 = phantom.fatThickness + 0.5e-3;
+    constexpr int kRamp = kernels::TransferFunction::kMaxNodes - 1;
+    std::array<std::array<float, 2>, kRamp + 1> nodes{};
+    // Below soft tissue the ramp falls to 0 halfway to fat, so fat stops nothing.
+    nodes[0] = {static_cast<float>(0.5 * (m.fatHu + m.softHu)), 0.0f};
+    for (int i = 0; i < kRamp; ++i) {
+        const double t = static_cast<double>(i) / (kRamp - 1);
+        const double mult =
+            kStiffSoftMultiplier + (kStiffHardMultiplier - kStiffSoftMultiplier) * t;
+        const double sigma = kStiffTauStop / (referenceLength / mult - d0);
+        nodes[static_cast<std::size_t>(i + 1)] = {
+            static_cast<float>(m.softHu + (m.hardHu - m.softHu) * t), static_cast<float>(sigma)};
+    }
+    return kernels::TransferFunction(nodes);
+}
 
 CouplingParams commonDefaults() {
     CouplingParams p;
@@ -42,6 +72,9 @@ CouplingParams sceneCouplingDefaults(volume::PhantomScene scene) {
             break;
         case volume::PhantomScene::Stiffness:
             p.mode = CouplingMode::AVC;
+            p.source = RaySource::VolumeAccumulate;
+            p.accumulate.sigma = stiffnessFieldSigma(p.referenceLength);
+            p.accumulate.tauStop = kStiffTauStop;
             p.firstHit.threshold = 200;
             break;
         case volume::PhantomScene::Tumour:

@@ -4,6 +4,7 @@
 // observer, feeling palp's phantom transition profiles, ranks tanh < cosine < linear.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -166,6 +167,25 @@ TEST(GradientObserver, PeakGradientOfTheProfiles) {
     EXPECT_EQ(peakNormalisedGradient({x, flat}), 0);
     GradientObserver o({}, 1);
     EXPECT_EQ(o.weberFraction(0), GradientObserverParams{}.maxWeber);
+
+    // Through a 4 mm window the ramp's inside slope is unchanged; a step of 50 N/m between two
+    // samples 0.5 mm apart reads 50 / 4 mm instead of 50 / 0.5 mm (noise is not a transition).
+    std::vector<double> xs, ramp, step;
+    for (int i = 0; i <= 60; ++i) {
+        xs.push_back(i * 0.5e-3);
+        ramp.push_back(100 + 10000 * std::clamp(xs.back() - 0.01, 0.0, 0.01));
+        step.push_back(i < 30 ? 100 : 150);
+    }
+    EXPECT_NEAR(peakNormalisedGradient({xs, ramp}, 4e-3), 100, 1e-9);
+    EXPECT_NEAR(peakNormalisedGradient({xs, step}), 2000, 1e-9);
+    EXPECT_NEAR(peakNormalisedGradient({xs, step}, 4e-3), 250, 1e-9);
+    // A profile shorter than the window: the slope between its ends.
+    EXPECT_NEAR(peakNormalisedGradient({x, k}, 0.05), 50, 1e-9);
+    test::expectThrowWith<ValueError>(
+        [&] {
+            peakNormalisedGradient({x, k}, -1e-3);
+        },
+        {"felt profile window", "-0.001"});
 }
 
 TEST(Observers, RefuseBadInputNamingTheField) {

@@ -134,6 +134,7 @@ StudyObserver readObserver(Fields& f, TouchMode touch) {
     o.gradient.exponent = f.number("exponent", 0.442, 0, 10);  // calibrated, algorithms.md 14
     o.gradient.minWeber = f.number("min_weber", 0.01, 1e-4, 10);
     o.gradient.maxWeber = f.number("max_weber", 1, 1e-4, 10);
+    o.gradient.windowM = f.number("window_mm", 2, 0, 20, "mm") * 1e-3;
     if (o.gradient.maxWeber < o.gradient.minWeber)
         f.fail("max_weber", ">= min_weber", std::to_string(o.gradient.maxWeber));
     o.gradient.criterionLevel = o.weber.criterionLevel;
@@ -280,6 +281,7 @@ StudySpec parseStudySpec(std::string_view text, const std::string& source) {
     if (device == nullptr)
         f.fail("device", "a device palp knows (palp info --devices)", inQuotes(s.device));
     s.voxelM = f.number("voxel_mm", 1, 0.25, 2, "mm") * 1e-3;
+    s.friction = f.number("friction", 0, 0, 2);
 
     // The procedure first: the conditions' checks need its largest level.
     if (!f.has("procedure")) f.fail("procedure", "an object", "nothing");

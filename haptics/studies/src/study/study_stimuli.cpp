@@ -55,15 +55,28 @@ CouplingParams StudyStimuli::coupling(double levelPercent) const {
     return c;
 }
 
+SessionParams StudyStimuli::sessionParams(double levelPercent) const {
+    SessionParams params;
+    params.coupling = coupling(levelPercent);
+    params.servo.periodSeconds = kPeriod;
+    params.proxy.staticFriction = mSpec.friction;
+    params.proxy.dynamicFriction = mSpec.friction;
+    return params;
+}
+
+std::shared_ptr<const Scene> StudyStimuli::sceneFor(int condition) {
+    if (condition < 0 || condition >= static_cast<int>(mSpec.conditions.size()))
+        throw ValueError("study stimuli: condition " + std::to_string(condition) + " out of range");
+    return scene(mSpec.conditions[static_cast<std::size_t>(condition)].profile);
+}
+
 IntervalFelt StudyStimuli::run(int condition, double levelPercent, std::vector<Snapshot>* trace) {
     const StudyCondition& c = mSpec.conditions[static_cast<std::size_t>(condition)];
     const TouchPath path = touchPath(c.touch, {c.depthM, c.speedMps});
     const DeviceSpec* device = findDeviceSpec(mSpec.device);
     if (device == nullptr)
         throw ValueError(mSpec.source + ": device: unknown '" + mSpec.device + "'");
-    SessionParams params;
-    params.coupling = coupling(levelPercent);
-    params.servo.periodSeconds = kPeriod;
+    const SessionParams params = sessionParams(levelPercent);
     SimulatedDevice hand(*device, path.trajectory, HandModel{}, kPeriod);
     Session session(scene(c.profile), hand, params);
     const auto ticks = static_cast<std::uint64_t>(std::ceil(path.seconds / kPeriod));

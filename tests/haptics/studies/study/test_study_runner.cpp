@@ -2,18 +2,22 @@
 // refits (by this test's own reading and its own staircase) to the thresholds the runner
 // reported; a study interrupted and resumed from its log gives the trial sequence of an
 // uninterrupted run; the touch modes rank as paper III found when the observers carry its
-// Weber fractions.
+// Weber fractions; the rendered stiffness follows the CL box's transition profiles, so a
+// gradient-sensitive observer ranks them as paper IV found.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <map>
 #include <memory>
 #include <sstream>
 
+#include "palp/perception/observer.h"
 #include "palp/perception/psychometric_fit.h"
 #include "palp/studies/study_runner.h"
 #include "palp/studies/study_stimuli.h"
+#include "palp/volume/phantom.h"
 #include "study_fixture.h"
 
 namespace palp::haptics {
@@ -248,6 +252,84 @@ TEST(StudyRunner, ObserversWithPaperIIIWeberFractionsRankTheTouchModesAsTheThesi
     EXPECT_LT(pooled[1].fitThreshold, pooled[2].fitThreshold);  // DP < lateral sweep
     EXPECT_LT(reversalMean[0], reversalMean[1]);
     EXPECT_LT(reversalMean[1], reversalMean[2]);
+}
+
+TEST(StudyRunner, TheRenderedSweepFollowsEachTransitionAndTheGradientObserverRanksThemAsPaperIV) {
+    // A lateral sweep across the CL box feels the stiffness the phantom's profile gives (the
+    // scene's accumulate rays read the field under the finger), so the peak normalised gradient
+    // felt is the profile's own through the observer's 2 mm window: about 1 / w (linear),
+    // pi / (2 w) (cosine) and a / (w tanh a) (tanh, a = 3), w = 10 mm. A first-hit surface at
+    // 200 HU felt all three as the same step (413 / 489 / 464 /m).
+    Json j = Json::parse(R"({
+      "study": "paper4", "seed": 7, "reference_stiffness": 100,
+      "procedure": {"start_level": 20, "step_sizes": [4, 2, 1], "min_level": 0.5,
+                    "max_level": 60, "max_trials": 80, "max_reversals": 0, "drop_first": 4},
+      "fit": {"bootstrap": 0},
+      "conditions": [
+        {"name": "tanh", "touch": "lateral-sweep", "profile": "tanh",
+         "observer": {"kind": "gradient"}},
+        {"name": "cosine", "touch": "lateral-sweep", "profile": "cosine",
+         "observer": {"kind": "gradient"}},
+        {"name": "linear", "touch": "lateral-sweep", "profile": "linear",
+         "observer": {"kind": "gradient"}}]})");
+    const fs::path d = tempDir("paper4");
+    spit(d / "s.json", j.dump());
+    const StudySpec spec = loadStudySpec(d / "s.json");
+    auto stimuli = std::make_shared<StudyStimuli>(spec);
+    const double window = spec.conditions[0].observer.gradient.windowM;
+    EXPECT_EQ(window, 2e-3);
+    const volume::TransitionProfile profiles[3] = {volume::TransitionProfile::Tanh,
+                                                   volume::TransitionProfile::Cosine,
+                                                   volume::TransitionProfile::Linear};
+    const double thesis[3] = {10.86, 14.7, 17.95};
+    double predicted[3] = {};
+    for (std::size_t c = 0; c < 3; ++c) {
+        const IntervalFelt& f = stimuli->feel(static_cast<int>(c), 0);
+        const auto [lo, hi] = std::minmax_element(f.profileNpm.begin(), f.profileNpm.end());
+        // Soft to hard tissue: 1.25 k_s to 3.25 k_s (coupling_defaults.h).
+        EXPECT_NEAR(*lo, 125, 15) << spec.conditions[c].name;
+        EXPECT_NEAR(*hi, 325, 30) << spec.conditions[c].name;
+        // The phantom's own profile over 30 mm, sampled every 0.05 mm, through the same window.
+        std::vector<double> xs, ks;
+        for (double x = -0.015; x <= 0.015; x += 5e-5) {
+            xs.push_back(x);
+            ks.push_back(volume::transitionProfile(profiles[c], x + 0.005, 0.010, 3));
+        }
+        const double truth = perception::peakNormalisedGradient({xs, ks}, window);
+        const double g = perception::peakNormalisedGradient({f.profileM, f.profileNpm}, window);
+        EXPECT_NEAR(g, truth, 0.1 * truth) << spec.conditions[c].name;
+        predicted[c] =
+            100 *
+            perception::GradientObserver(spec.conditions[c].observer.gradient, 0).weberFraction(g);
+        EXPECT_NEAR(predicted[c], thesis[c], 0.15 * thesis[c]) << spec.conditions[c].name;
+        // The comparison scales the whole field: same profile, k times (1 + level / 100).
+        const IntervalFelt& comp = stimuli->feel(static_cast<int>(c), 20);
+        EXPECT_NEAR(*std::max_element(comp.profileNpm.begin(), comp.profileNpm.end()), 1.2 * *hi,
+                    0.01 * *hi);
+    }
+    EXPECT_LT(predicted[0], predicted[1]);
+    EXPECT_LT(predicted[1], predicted[2]);
+
+    // Twelve simulated participants, pooled per condition: tanh < cosine < linear.
+    std::vector<TrialRecord> all;
+    for (int p = 0; p < 12; ++p) {
+        StudyRunner runner(spec, p);
+        char name[32];
+        std::snprintf(name, sizeof name, "p%d.csv", p);
+        StudyLog l = StudyLog::create(d / name, runner.logHeader());
+        runStudyTrials(runner, simulatedResponder(stimuli), l);
+        StudyLogHeader h;
+        const auto trials = readStudyLog(d / name, h);
+        all.insert(all.end(), trials.begin(), trials.end());
+    }
+    const auto pooled = analyseStudy(spec, all);
+    for (std::size_t c = 0; c < 3; ++c) {
+        std::printf("%s: predicted %.2f %%, pooled fit JND %.2f %% (thesis %.2f %%)\n",
+                    pooled[c].name.c_str(), predicted[c], pooled[c].fitThreshold, thesis[c]);
+        EXPECT_NEAR(pooled[c].fitThreshold, predicted[c], 0.25 * predicted[c]) << pooled[c].name;
+    }
+    EXPECT_LT(pooled[0].fitThreshold, pooled[1].fitThreshold);
+    EXPECT_LT(pooled[1].fitThreshold, pooled[2].fitThreshold);
 }
 
 }  // namespace

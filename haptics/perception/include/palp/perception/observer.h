@@ -85,6 +85,10 @@ struct GradientObserverParams {
     double maxWeber = 1;
     double criterionLevel = 0.70710678118654752;
     double lapseRate = 0;
+    /// The length over which the observer resolves a slope, m (>= 0): the gradient at x is
+    /// (k(x + h) - k(x - h)) / 2h with h = windowM / 2, so the scan's voxel noise between
+    /// neighbouring samples is not taken for a transition. 0: between neighbouring samples.
+    double windowM = 0;
 };
 
 /// A stiffness profile felt along a path: positions (m, increasing) and stiffness (N/m).
@@ -94,9 +98,12 @@ struct FeltProfile {
 };
 
 /// The peak of |dk/dx| / (max k - min k) over the profile's segments, 1/m (0 for a flat one).
+/// With @p windowM > 0 the slope at each sample x is (k(x + h) - k(x - h)) / 2h, h = windowM / 2,
+/// k linearly interpolated between samples, where both ends lie on the profile (a profile
+/// shorter than the window: the slope between its ends).
 /// @throw palp::ValueError for fewer than two samples, spans of different lengths,
-/// non-increasing positions or non-finite / negative stiffness.
-double peakNormalisedGradient(const FeltProfile& profile);
+/// non-increasing positions, non-finite / negative stiffness or a negative or non-finite window.
+double peakNormalisedGradient(const FeltProfile& profile, double windowM = 0);
 
 class GradientObserver {
   public:

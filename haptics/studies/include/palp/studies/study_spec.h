@@ -94,6 +94,10 @@ struct StudySpec {
     std::string device = "3D Systems Touch X";
     /// Phantom voxel, m.
     double voxelM = 1e-3;
+    /// The proxy's Coulomb friction (static = dynamic). 0 by default: with friction the proxy
+    /// lags the hand in a sweep and the AVC rays, cast from proxy to probe, lean ahead of it and
+    /// sample the field several millimetres in front of the finger (docs/studies.md).
+    double friction = 0;
     std::vector<StudyCondition> conditions;
     StudyProcedure procedure;
     StudyFit fit;

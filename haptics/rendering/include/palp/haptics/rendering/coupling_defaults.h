@@ -20,8 +20,15 @@ namespace palp::haptics {
 /// * Avcec: the plate (y 8-10 mm) is not obscured: VolumeFirstHit at 500 HU, L_max = 40 mm,
 ///   L_ref = 20 mm, so k = k_s over soft tissue and 2.5 k_s over the plate (L ~ 8 mm).
 /// * Bone: VolumeFirstHit at 500 HU, L_max = 40 mm, L_ref = 40 mm (slab top 25 mm +- 7 mm).
-/// * Stiffness: VolumeFirstHit at 200 HU (between soft 40 and hard 300), L_max = 40 mm,
-///   L_ref = 40 mm.
+/// * Stiffness: the boxes' stiffness field, not a surface of it: VolumeAccumulate, tau_stop 3,
+///   sigma(v) piecewise linear in the value (15 nodes), zero halfway between fat (-100 HU) and
+///   soft tissue (40 HU), then chosen so that a column of value v under the 2 mm fat layer stops
+///   the ray at L(v) = L_ref / m(v) with m(v) linear from 1.25 (soft, 40 HU) to 3.25 (hard,
+///   300 HU): k is linear in the value, 375-975 N/m at k_s 300, and a sweep across the CL box
+///   feels its linear, cosine or tanh profile (a first-hit threshold at 200 HU made all three
+///   one step). L_max = L_ref = 40 mm. Friction tilts the rays ahead of the hand in a sweep
+///   (they run from proxy to probe), so the field is read where the finger is only without it
+///   (`palp study` stimuli are frictionless by default).
 /// Common: k_s = 300 N/m, m_max = 8, k_max = 2400 N/m (clamp to the device with
 /// limitStiffnessToDevice()), step 0.5 mm (1 mm voxels and finer), no ring (ringCount 0), Sobel
 /// angle 0.1 rad and surface offset 1 mm (the stencils must straddle structures a few mm wide).
