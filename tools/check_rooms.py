@@ -43,7 +43,8 @@ BELOW = {
     'runtime': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering', 'devices'],
     'studies': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering', 'devices', 'runtime',
                 'perception'],
-    'capi': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering', 'devices', 'runtime'],
+    'capi': ['base', 'kernels', 'volume', 'fem', 'tissue', 'rendering', 'devices', 'runtime',
+             'studies', 'perception'],
     # Psychophysics beside the haptics rooms: maths on numbers, no session or device.
     'perception': ['base'],
 }

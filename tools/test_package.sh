@@ -49,7 +49,7 @@ done
 for h in palp/palp.h palp/haptics/session.h palp/haptics/devices/device.h \
   palp/haptics/rendering/coupling.h palp/haptics/tissue/deformable.h palp/studies/scalar_map.h \
   palp/volume/volume.h palp/fem/fem_model.h palp/kernels/volume_ray.h palp/base/error.h \
-  palp/perception/quest.h; do
+  palp/perception/quest.h palp/palp_study.h palp/studies/study_session.h; do
   [[ -f "$prefix/include/$h" ]] || fail "header $h not installed"
 done
 

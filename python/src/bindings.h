@@ -19,6 +19,7 @@ void bindDevices(py::module_& m);      // devices.cpp: specs, trajectories, simu
 void bindSession(py::module_& m);      // session.cpp: Scene, Session, Snapshot, traces
 void bindMaps(py::module_& m);         // maps.cpp: MapPlane, Map, bin_trace, studies' tools
 void bindBridge(py::module_& m);       // bridge.cpp: UdpDevice, UdpBridgeClient
+void bindStudy(py::module_& m);        // study.cpp: Study (a perception study for a viewer)
 
 /// Sets the attributes named by @p kwargs on @p object (a pybind11 instance of a bound class);
 /// an unknown name raises AttributeError, so keyword constructors refuse misspelt fields.

@@ -76,4 +76,5 @@ PYBIND11_MODULE(_palp, m) {
     bindSession(m);
     bindMaps(m);
     bindBridge(m);
+    bindStudy(m);
 }

@@ -228,5 +228,80 @@ class DisplacedBone(unittest.TestCase):
                                  palp.device_spec("3D Systems Touch").max_force + 1e-12)
 
 
+class StudyFromPython(unittest.TestCase):
+    """A viewer running a perception study (palp.Study): each interval rendered on its own
+    device (a Python object pressing the DP box), the person's answer the interval that rendered
+    stiffer; the log and the results follow, and a resumed study continues where it stopped."""
+
+    STUDY = """{"study": "python", "seed": 4, "reference_stiffness": 100,
+      "procedure": {"start_level": 20, "step_sizes": [4, 2, 1], "max_trials": 4},
+      "fit": {"bootstrap": 0},
+      "conditions": [{"name": "DP", "touch": "discontinuous-pressure"}]}"""
+
+    class Press:
+        """From 4 mm above the DP box (x = -50 mm) to 3 mm into it in 0.3 s, then held."""
+
+        def __init__(self):
+            self.tick = 0
+
+        def read(self):
+            t = self.tick * 1e-3
+            self.tick += 1
+            y = -0.004 + 0.007 * min(t / 0.3, 1.0)
+            v = 0.007 / 0.3 if t < 0.3 else 0.0
+            return (-0.05, y, 0.0), (0.0, v, 0.0)
+
+        def write(self, force):
+            pass
+
+    def felt(self, study, interval):
+        session = palp.Session(study.scene(), self.Press(), study.interval_params(interval),
+                               spec=study.device)
+        trace = session.run(500)
+        contact = trace["contact_count"] > 0
+        self.assertGreater(int(contact.sum()), 100)
+        return float(trace["stiffness"][contact].mean())
+
+    def test_a_viewer_renders_each_interval_and_logs_the_answers(self):
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "s.json")
+            with open(path, "w") as f:
+                f.write(self.STUDY)
+            log = os.path.join(d, "p.csv")
+            study = palp.Study(path, log=log, participant=0)
+            reference = None
+            for _ in range(2):
+                trial = study.next()
+                k = [self.felt(study, 1), self.felt(study, 2)]
+                c = trial["comparison_interval"] - 1
+                # The comparison renders the reference's stiffness times (1 + level / 100).
+                self.assertAlmostEqual(k[c] / k[1 - c], 1 + trial["level_percent"] / 100, 9)
+                self.assertEqual(trial["interval_stiffness"][c], 100 * (1 + trial["level_percent"] / 100))
+                reference = k[1 - c] if reference is None else reference
+                self.assertAlmostEqual(k[1 - c], reference, 9)
+                study.answer(1 + int(k[1] > k[0]), response_seconds=0.7)
+            del study
+            # Resumed from its log: the third trial is the one an uninterrupted run gives.
+            study = palp.Study(path, resume=log)
+            self.assertEqual(study.participant, 0)
+            while not study.finished:
+                trial = study.next()
+                k = [self.felt(study, 1), self.felt(study, 2)]
+                study.answer(1 + int(k[1] > k[0]))
+            results = study.results()
+            self.assertEqual(len(results), 1)
+            self.assertEqual(results[0]["trials"], 4)
+            with open(log) as f:
+                rows = [line.split(",") for line in f if line[0] not in "#s"]
+            self.assertEqual(len(rows), 4)
+            self.assertEqual([r[12] for r in rows], ["1"] * 4)  # every answer correct
+            self.assertEqual([float(r[5]) for r in rows], [20, 16, 12, 8])  # 1-up-1-down start
+            with self.assertRaises(palp.IoError) as e:
+                palp.Study(path, log=log)
+            self.assertIn("the study log exists", str(e.exception))
+            with self.assertRaises(palp.ValueError):
+                palp.Study(path)
+
+
 if __name__ == "__main__":
     unittest.main(verbosity=2)

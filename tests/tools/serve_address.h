@@ -13,9 +13,12 @@ namespace palp::test {
 
 /// Shell text that waits (up to 60 s: a loaded 2-core CI machine may be slow to start serve) for
 /// serve's "listening on udp" line in @p errFile and sets $addr to its HOST:PORT; when none
-/// comes it prints what serve wrote, kills the background job $serve and exits 99.
-inline std::string shellAwaitServeAddress(const std::string& errFile) {
-    return "addr=; i=0; while [ $i -lt 1200 ]; do addr=$(sed -n 's/^palp serve: listening on udp "
+/// comes it prints what serve wrote, kills the background job $serve and exits 99. @p who: the
+/// command that prints the line ("palp serve", "palp study").
+inline std::string shellAwaitServeAddress(const std::string& errFile,
+                                          const std::string& who = "palp serve") {
+    return "addr=; i=0; while [ $i -lt 1200 ]; do addr=$(sed -n 's/^" + who +
+           ": listening on udp "
            "//p' " +
            errFile +
            "); [ -n \"$addr\" ] && break; kill -0 $serve 2>/dev/null || break; sleep 0.05; "

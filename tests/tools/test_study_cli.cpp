@@ -5,11 +5,13 @@
 // modes over the stiffness phantom.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 
+#include "serve_address.h"
 #include "test_support.h"
 
 namespace {
@@ -94,6 +96,94 @@ TEST(StudyCli, ResumedEqualsUninterruptedAndTheLogRefitsToTheReport) {
     for (const char* ext : {".png", ".svg", ".pdf"}) {
         EXPECT_GT(fs::file_size(tmp / ("psy" + std::string(ext))), 1000u) << ext;
     }
+}
+
+/// The mean rendered stiffness over a trace's contact ticks (N/m) and their count.
+std::pair<double, int> contactStiffness(const fs::path& trace) {
+    std::istringstream in(slurp(trace));
+    std::string line;
+    std::getline(in, line);
+    int kCol = -1, contactCol = -1, col = 0;
+    std::istringstream head(line);
+    for (std::string name; std::getline(head, name, ','); ++col) {
+        if (name == "stiffness") kCol = col;
+        if (name == "contacts") contactCol = col;
+    }
+    double sum = 0;
+    int n = 0;
+    while (std::getline(in, line)) {
+        std::vector<std::string> c;
+        std::istringstream cells(line);
+        for (std::string v; std::getline(cells, v, ',');) c.push_back(v);
+        if (kCol < 0 || contactCol < 0 || c.size() <= static_cast<std::size_t>(kCol)) break;
+        if (std::stoi(c[static_cast<std::size_t>(contactCol)]) == 0) continue;
+        sum += std::stod(c[static_cast<std::size_t>(kCol)]);
+        ++n;
+    }
+    return {n ? sum / n : 0.0, n};
+}
+
+TEST(StudyCli, APersonsDeviceFeelsEachIntervalAndTheAnswersAreLogged) {
+    // The person: `palp bridge-sim` pressing the DP box again and again over UDP (a real
+    // socket, the servo thread on each interval), answering 1, 2, 1, 2 on stdin.
+    palp::test::TempDir tmp;
+    const fs::path study = tmp / "s.json";
+    std::ofstream(study) << R"({"study": "device", "seed": 3, "reference_stiffness": 100,
+      "procedure": {"start_level": 20, "step_sizes": [4, 2, 1], "max_trials": 4},
+      "fit": {"bootstrap": 0},
+      "conditions": [{"name": "DP", "touch": "discontinuous-pressure"}]})";
+    const std::string palp = palp::test::palpTool().string();
+    const std::string err = (tmp / "study.err").string();
+    const auto r = runCommand(
+        "printf '1\\n2\\n1\\n2\\n' | " + palp + " study " + study.string() + " --log " +
+        (tmp / "log.csv").string() +
+        " --responder terminal --device-listen 127.0.0.1:0 --interval-seconds 0.8 "
+        "--servo-priority 0 --trace-dir " +
+        tmp.path().string() + " --json > " + (tmp / "out.json").string() + " 2> " + err +
+        " & serve=$!; " + palp::test::shellAwaitServeAddress(err, "palp study") + palp +
+        " bridge-sim --connect $addr --from -50,-4,0 --depth 7 --press-seconds 0.15 --hold 0.3 "
+        "--rest 0.2 --seconds 9 --device '3D Systems Touch X' > /dev/null; wait $serve; s=$?; "
+        "cat " +
+        err + "; exit $s");
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    EXPECT_NE(r.output.find("interval 2: touch now"), std::string::npos) << r.output;
+    std::istringstream in(slurp(tmp / "log.csv"));
+    std::string line;
+    int trial = 0, reference = 0, comparison = 0;
+    std::vector<double> base;  // each contact interval's mean k / (1 + level / 100)
+    while (std::getline(in, line)) {
+        if (line.empty() || line[0] == '#' || line.rfind("study,", 0) == 0) continue;
+        std::vector<std::string> c;
+        std::istringstream cells(line);
+        for (std::string v; std::getline(cells, v, ',');) c.push_back(v);
+        ASSERT_EQ(c.size(), 16u) << line;
+        EXPECT_EQ(std::stoi(c[11]), trial % 2 + 1) << line;  // the answers typed
+        const double level = std::stod(c[5]);
+        const int comparisonInterval = std::stoi(c[6]);
+        const std::string traces = c[15];
+        const auto semi = traces.find(';');
+        ASSERT_NE(semi, std::string::npos) << line;
+        for (int i = 1; i <= 2; ++i) {
+            const auto [k, n] =
+                contactStiffness(i == 1 ? traces.substr(0, semi) : traces.substr(semi + 1));
+            if (n < 50) continue;  // the hand was pressed in when the interval began
+            const bool isComparison = i == comparisonInterval;
+            (isComparison ? comparison : reference) += 1;
+            base.push_back(k / (1 + (isComparison ? level : 0) / 100));
+            // The log's felt column is what the interval rendered.
+            EXPECT_NEAR(std::stod(c[i == 1 ? 9 : 10]), k, 1e-6 * k) << line;
+        }
+        ++trial;
+    }
+    EXPECT_EQ(trial, 4);
+    // The comparison renders the reference's stiffness times (1 + level / 100): every interval
+    // felt comes back to one reference stiffness (the DP box's 3.25 k_s, within the ray's
+    // rendering of it).
+    ASSERT_GE(reference, 1) << r.output;
+    ASSERT_GE(comparison, 1) << r.output;
+    const auto [lo, hi] = std::minmax_element(base.begin(), base.end());
+    EXPECT_LT(*hi / *lo, 1.01);
+    EXPECT_NEAR(*lo, 325, 20);
 }
 
 TEST(StudyCli, RefusalsNameTheFileAndFieldAndLeaveTheLog) {

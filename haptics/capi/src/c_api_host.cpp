@@ -113,6 +113,26 @@ void fromSpec(const ph::DeviceSpec& s, palp_device_spec& c) noexcept {
     put(s.workspace.max, c.workspace_max);
 }
 
+palp_session* makeHostSession(std::shared_ptr<const ph::Scene> scene, ph::SessionParams sp,
+                              const palp_session_params& cParams,
+                              const palp_device_callbacks& device) {
+    auto handle = std::make_unique<palp_session>();
+    handle->deviceName = device.name ? device.name : "host device";
+    const ph::DeviceSpec spec = toSpec(device.spec, handle->deviceName, "palp_device_callbacks");
+    const ph::WatchdogParams watch = toWatchdog(device.watchdog_timeout, device.watchdog_grace,
+                                                device.watchdog_resume, "palp_device_callbacks");
+    sp.faults = faultsLike(watch);  // the session's fault ramp as the watchdog's
+    handle->params = cParams;
+    handle->params.device = handle->deviceName.c_str();
+    handle->device = std::make_unique<CallbackDevice>(device, spec);
+    handle->watchdog =
+        std::make_unique<ph::WatchdogDevice>(*handle->device, watch, sp.servo.periodSeconds);
+    handle->session = std::make_unique<ph::Session>(std::move(scene), *handle->watchdog, sp);
+    handle->params.stiffness = handle->session->params().coupling.baseStiffness;
+    handle->params.max_stiffness = handle->session->params().coupling.maxStiffness;
+    return handle.release();
+}
+
 }  // namespace palp::capi
 
 using namespace palp::capi;
@@ -157,25 +177,9 @@ palp_status palp_session_create_host(palp_scene* scene, const palp_session_param
     }
     if (!out) return nullArgument("palp_session_create_host", "out");
     return guarded([&] {
-        auto handle = std::make_unique<palp_session>();
-        handle->deviceName = device->name ? device->name : "host device";
-        const ph::DeviceSpec spec =
-            toSpec(device->spec, handle->deviceName, "palp_device_callbacks");
-        const ph::WatchdogParams watch =
-            toWatchdog(device->watchdog_timeout, device->watchdog_grace, device->watchdog_resume,
-                       "palp_device_callbacks");
-        ph::SessionParams sp = toSession(*params);
-        sp.faults = faultsLike(watch);  // the session's fault ramp as the watchdog's
+        const ph::SessionParams sp = toSession(*params);
         checkScenePeriod(*scene, params->period, "palp_session_create_host");
-        handle->params = *params;
-        handle->params.device = handle->deviceName.c_str();
-        handle->device = std::make_unique<CallbackDevice>(*device, spec);
-        handle->watchdog =
-            std::make_unique<ph::WatchdogDevice>(*handle->device, watch, sp.servo.periodSeconds);
-        handle->session = std::make_unique<ph::Session>(scene->scene, *handle->watchdog, sp);
-        handle->params.stiffness = handle->session->params().coupling.baseStiffness;
-        handle->params.max_stiffness = handle->session->params().coupling.maxStiffness;
-        *out = handle.release();
+        *out = makeHostSession(scene->scene, sp, *params, *device);
         return PALP_OK;
     });
 }

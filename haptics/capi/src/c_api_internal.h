@@ -5,7 +5,7 @@
 // c_api_params.cpp: parameter, trajectory and snapshot conversions and defaults;
 // c_api_session.cpp: sessions; c_api_deformable.cpp: deformable scenes and their surface;
 // c_api_host.cpp: host devices (callbacks behind a watchdog); c_api_udp.cpp: remote devices
-// (UdpDevice, the device bridge).
+// (UdpDevice, the device bridge); c_api_study.cpp: perception studies (palp/palp_study.h).
 
 #include <Eigen/Core>
 #include <atomic>
@@ -140,5 +140,11 @@ void fromSpec(const haptics::DeviceSpec& s, palp_device_spec& c) noexcept;
 /// The session's fault ramp with the device watchdog's times (so a bad sample ramps alike in
 /// both; the force-step limit keeps its default).
 haptics::FaultParams faultsLike(const haptics::WatchdogParams& w) noexcept;
+/// A session on the host's @p device (its spec and watchdog checked, the session's fault ramp
+/// as the watchdog's) with @p sp; @p cParams is what palp_session_get_params reports.
+/// @throw palp::ValueError naming the C field.
+palp_session* makeHostSession(std::shared_ptr<const haptics::Scene> scene,
+                              haptics::SessionParams sp, const palp_session_params& cParams,
+                              const palp_device_callbacks& device);
 
 }  // namespace palp::capi

@@ -6,6 +6,7 @@
 
 #include "c_check.h"
 #include "palp/palp.h"
+#include "palp/palp_study.h"
 
 typedef struct callback_log {
     int calls;
@@ -43,6 +44,14 @@ static void test_errors(void) {
     CHECK(palp_volume_make_phantom("avc", 0, NULL, -1.0, &volume) == PALP_ERROR_INVALID_ARGUMENT);
     CHECK(palp_volume_load(NULL, 0.0, &volume) == PALP_ERROR_INVALID_ARGUMENT);
     CHECK(log.calls == 4);
+    /* palp_study.h is plain C too: a study file that does not exist is named. */
+    palp_study* study = NULL;
+    CHECK(palp_study_open("/nonexistent/palp-test/study.json", "/nonexistent/palp-test/log.csv",
+                          0, 0, &study) == PALP_ERROR_IO);
+    CHECK(study == NULL);
+    CHECK(strstr(palp_last_error(), "/nonexistent/palp-test/study.json") != NULL);
+    CHECK(palp_study_finished(NULL) == 0);
+    CHECK(log.calls == 5);
 
     palp_scene* scene = NULL;
     CHECK(palp_scene_create_empty(&scene) == PALP_OK);

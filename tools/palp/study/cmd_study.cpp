@@ -10,14 +10,17 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "../commands.h"
 #include "../option_checks.h"
 #include "palp/base/error.h"
+#include "palp/haptics/devices/udp_device.h"
 #include "palp/studies/psychometric_plot.h"
 #include "palp/studies/study_runner.h"
 #include "palp/studies/study_stimuli.h"
+#include "palp/studies/trace_csv.h"
 
 namespace palp::tool {
 
@@ -37,6 +40,9 @@ struct StudyArgs {
     std::string traceDir;
     std::string plot;
     bool json = false;
+    std::string deviceListen;    ///< a person's device over the bridge: the intervals rendered
+    double intervalSeconds = 4;  ///< how long each interval is rendered, s
+    int servoCpu = -1, servoPriority = 80;
 };
 
 #define PALP_STUDY_SAY(...)                                      \
@@ -44,18 +50,79 @@ struct StudyArgs {
         if (!globals().quiet) std::fprintf(stderr, __VA_ARGS__); \
     } while (false)
 
+/// Renders one interval on the person's device for @p seconds on the servo thread: @return what
+/// was rendered while in contact (the mean stiffness and force), its trace in @p trace.
+IntervalFelt renderInterval(StudyStimuli& stimuli, Device& device, const StudyArgs& a,
+                            int condition, double level, std::vector<Snapshot>& trace) {
+    SessionParams sp = stimuli.sessionParams(level);
+    limitStiffnessToDevice(sp.coupling, device.spec(), sp.servo.periodSeconds);
+    sp.servo.cpu = a.servoCpu;
+    sp.servo.priority = a.servoPriority;
+    sp.traceCapacity = 1u << 14;
+    Session session(stimuli.sceneFor(condition), device, sp);
+    trace.clear();
+    Snapshot s;
+    const auto drain = [&] {
+        while (session.popTrace(s)) trace.push_back(s);
+    };
+    const auto t0 = std::chrono::steady_clock::now();
+    session.start();
+    while (std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() <
+           a.intervalSeconds) {
+        drain();
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    session.stop();
+    drain();
+    IntervalFelt f;
+    for (const Snapshot& t : trace) {
+        if (t.contactCount == 0) continue;
+        f.meanStiffnessNpm += t.stiffness;
+        f.meanForceN += t.force.norm();
+        ++f.contactTicks;
+    }
+    if (f.contactTicks > 0) {
+        f.meanStiffnessNpm /= f.contactTicks;
+        f.meanForceN /= f.contactTicks;
+    }
+    return f;
+}
+
 /// A person at the terminal: the trial announced on stderr, the answer read from stdin (1 or
-/// 2; q stops the study, which --resume continues).
-StudyResponder terminalResponder() {
-    return [](const StudySpec& spec, const TrialPlan& plan) {
+/// 2; q stops the study, which --resume continues). With @p device (--device-listen) each
+/// interval is first rendered on it for --interval-seconds, announced as it starts; the log's
+/// felt columns then hold the mean stiffness rendered in contact (N/m; nan without contact).
+StudyResponder terminalResponder(std::shared_ptr<StudyStimuli> stimuli, Device* device,
+                                 const StudyArgs& args) {
+    return [stimuli, device, args](const StudySpec& spec, const TrialPlan& plan) {
         const StudyCondition& c = spec.conditions[static_cast<std::size_t>(plan.condition)];
+        TrialAnswer rendered;
+        if (device) {
+            std::vector<Snapshot> trace;
+            for (int i = 1; i <= 2; ++i) {
+                const double level = plan.comparisonInterval == i ? plan.levelPercent : 0.0;
+                std::fprintf(stderr, "trial %d (%s), interval %d: touch now (%.3g s)\n",
+                             plan.trial + 1, c.name.c_str(), i, args.intervalSeconds);
+                const IntervalFelt f =
+                    renderInterval(*stimuli, *device, args, plan.condition, level, trace);
+                (i == 1 ? rendered.felt1 : rendered.felt2) =
+                    f.contactTicks > 0 ? f.meanStiffnessNpm : NAN;
+                if (!args.traceDir.empty()) {
+                    char name[64];
+                    std::snprintf(name, sizeof name, "trial%05d-interval%d.csv", plan.trial, i);
+                    const fs::path p = fs::path(args.traceDir) / name;
+                    writeTraceCsv(p, trace);
+                    rendered.trace += (i == 1 ? "" : ";") + p.string();
+                }
+            }
+        }
         std::fprintf(stderr,
                      "trial %d (%s, %s, trial %d of the condition): which interval was stiffer? "
                      "[1/2, q stops] ",
                      plan.trial + 1, c.name.c_str(), touchModeName(c.touch),
                      plan.conditionTrial + 1);
         const auto start = std::chrono::steady_clock::now();
-        TrialAnswer a;
+        TrialAnswer a = rendered;
         std::string line;
         for (;;) {
             if (!std::getline(std::cin, line) || line == "q") {
@@ -157,6 +224,11 @@ int studyCommand(const StudyArgs& a) {
             std::to_string(given));
     if (!a.traceDir.empty() && !fs::is_directory(a.traceDir))
         throw ValueError("--trace-dir: expected an existing directory, found '" + a.traceDir + "'");
+    if (!a.deviceListen.empty() && a.responder != "terminal")
+        throw ValueError(
+            "--device-listen: expected --responder terminal (a person on the device), found "
+            "--responder " +
+            a.responder);
     if (a.traceDir.find(',') != std::string::npos || a.traceDir.find(';') != std::string::npos)
         throw ValueError(
             "--trace-dir: expected a path without ',' or ';' (the log's trace column "
@@ -199,8 +271,18 @@ int studyCommand(const StudyArgs& a) {
     }
     StudyResponder responder;
     std::shared_ptr<StudyStimuli> stimuli;
+    std::optional<UdpDevice> device;
+    if (!a.deviceListen.empty()) {
+        UdpDeviceParams dp;
+        dp.listen = a.deviceListen;
+        device.emplace(*findDeviceSpec(spec.device), dp);
+        // The bound address on a line of its own (the port chosen for port 0), for the device.
+        std::fprintf(stderr, "palp study: listening on udp %s\n", device->address().c_str());
+        std::fflush(stderr);
+    }
     if (a.responder == "terminal") {
-        responder = terminalResponder();
+        if (device) stimuli = std::make_shared<StudyStimuli>(spec);
+        responder = terminalResponder(stimuli, device ? &*device : nullptr, a);
     } else {
         stimuli = std::make_shared<StudyStimuli>(spec);
         responder = simulatedResponder(stimuli, a.traceDir);
@@ -215,10 +297,10 @@ int studyCommand(const StudyArgs& a) {
         trials = readStudyLog(logPath, h);
     }
     PALP_STUDY_SAY("palp study: %d trials in %.2f s%s\n", ran, wall,
-                   stimuli ? (", " + std::to_string(stimuli->sessionsRun()) +
-                              " palpation sessions run (felt figures cached per level)")
-                                 .c_str()
-                           : "");
+                   stimuli && !device ? (", " + std::to_string(stimuli->sessionsRun()) +
+                                         " palpation sessions run (felt figures cached per level)")
+                                            .c_str()
+                                      : "");
     const auto results = analyseStudy(spec, trials);
     if (!a.plot.empty())
         writePsychometricPlot(a.plot, results, "palp study " + spec.id, spec.fit.coverage);
@@ -259,6 +341,21 @@ Command addStudy(CLI::App& root) {
     app->add_option("--plot", args->plot,
                     "Psychometric plot: writes STEM.png, STEM.svg and STEM.pdf");
     app->add_flag("--json", args->json, "Results as JSON on stdout");
+    app->add_option("--device-listen", args->deviceListen,
+                    "With --responder terminal: render each interval on a person's haptic "
+                    "device that sends its state over UDP (bridge protocol, docs/device_bridge.md) "
+                    "to this host:port (port 0: any free one, printed)");
+    app->add_option("--interval-seconds", args->intervalSeconds,
+                    "With --device-listen: how long each interval is rendered, s")
+        ->check(CLI::Range(0.05, 600.0))
+        ->capture_default_str();
+    app->add_option("--servo-cpu", args->servoCpu,
+                    "With --device-listen: CPU of the servo thread (-1: the last one)")
+        ->check(integerIn(-1, 65535));
+    app->add_option("--servo-priority", args->servoPriority,
+                    "With --device-listen: SCHED_FIFO priority of the servo thread (0: none)")
+        ->check(integerIn(0, 99))
+        ->capture_default_str();
     return {app, [args]() -> int { return studyCommand(*args); }};
 }
 
