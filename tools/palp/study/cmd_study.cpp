@@ -54,7 +54,7 @@ struct StudyArgs {
 /// was rendered while in contact (the mean stiffness and force), its trace in @p trace.
 IntervalFelt renderInterval(StudyStimuli& stimuli, Device& device, const StudyArgs& a,
                             int condition, double level, std::vector<Snapshot>& trace) {
-    SessionParams sp = stimuli.sessionParams(level);
+    SessionParams sp = stimuli.sessionParams(condition, level);
     limitStiffnessToDevice(sp.coupling, device.spec(), sp.servo.periodSeconds);
     sp.servo.cpu = a.servoCpu;
     sp.servo.priority = a.servoPriority;

@@ -71,7 +71,8 @@ std::shared_ptr<const Scene> StudySession::scene() {
 }
 
 SessionParams StudySession::intervalParams(int interval) const {
-    return mImpl->stimuli.sessionParams(mImpl->level(interval));
+    const double level = mImpl->level(interval);
+    return mImpl->stimuli.sessionParams(mImpl->runner.next().condition, level);
 }
 
 TrialRecord StudySession::answer(const TrialAnswer& answer) {

@@ -163,6 +163,16 @@ StudyCondition readCondition(Fields& f) {
     }
     c.depthM = f.number("depth_mm", 0, 0, 20, "mm") * 1e-3;
     c.speedMps = f.number("speed_mm_s", 0, 0, 1000, "mm/s") * 1e-3;
+    const std::string mode = f.text("mode", "avc");
+    if (mode == "vc") {
+        c.mode = CouplingMode::VC;
+    } else if (mode == "avc") {
+        c.mode = CouplingMode::AVC;
+    } else if (mode == "avcec") {
+        c.mode = CouplingMode::AVCEC;
+    } else {
+        f.fail("mode", "vc, avc or avcec", inQuotes(mode));
+    }
     return c;
 }
 

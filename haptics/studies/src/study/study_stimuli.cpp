@@ -46,8 +46,9 @@ std::shared_ptr<const Scene> StudyStimuli::scene(volume::TransitionProfile profi
     return s;
 }
 
-CouplingParams StudyStimuli::coupling(double levelPercent) const {
+CouplingParams StudyStimuli::coupling(int condition, double levelPercent) const {
     CouplingParams c = sceneCouplingDefaults(volume::PhantomScene::Stiffness);
+    c.mode = mSpec.conditions.at(static_cast<std::size_t>(condition)).mode;
     const double factor = 1 + levelPercent / 100;
     c.baseStiffness = mSpec.referenceStiffnessNpm * factor;
     // The clamp scales with the stimulus so that it never flattens a difference.
@@ -55,9 +56,9 @@ CouplingParams StudyStimuli::coupling(double levelPercent) const {
     return c;
 }
 
-SessionParams StudyStimuli::sessionParams(double levelPercent) const {
+SessionParams StudyStimuli::sessionParams(int condition, double levelPercent) const {
     SessionParams params;
-    params.coupling = coupling(levelPercent);
+    params.coupling = coupling(condition, levelPercent);
     params.servo.periodSeconds = kPeriod;
     params.proxy.staticFriction = mSpec.friction;
     params.proxy.dynamicFriction = mSpec.friction;
@@ -76,7 +77,7 @@ IntervalFelt StudyStimuli::run(int condition, double levelPercent, std::vector<S
     const DeviceSpec* device = findDeviceSpec(mSpec.device);
     if (device == nullptr)
         throw ValueError(mSpec.source + ": device: unknown '" + mSpec.device + "'");
-    const SessionParams params = sessionParams(levelPercent);
+    const SessionParams params = sessionParams(condition, levelPercent);
     SimulatedDevice hand(*device, path.trajectory, HandModel{}, kPeriod);
     Session session(scene(c.profile), hand, params);
     const auto ticks = static_cast<std::uint64_t>(std::ceil(path.seconds / kPeriod));

@@ -41,6 +41,9 @@ TEST(StudySpec, TheSmallStudyLoadsWithItsDefaults) {
     EXPECT_DOUBLE_EQ(s.conditions[0].observer.weber.weberFraction, 0.0523);  // paper III
     EXPECT_DOUBLE_EQ(s.conditions[1].observer.weber.weberFraction, 0.1577);
     EXPECT_EQ(s.conditions[1].profile, volume::TransitionProfile::Tanh);
+    EXPECT_EQ(s.conditions[0].mode, CouplingMode::AVC);  // the stiffness scene's coupling
+    EXPECT_EQ(s.friction, 0.0);  // the rays read the field under the finger (docs/studies.md)
+    EXPECT_DOUBLE_EQ(s.conditions[1].observer.gradient.windowM, 2e-3);
     EXPECT_EQ(s.procedure.staircase.maxTrials, 40);
     EXPECT_NEAR(procedureTarget(s.procedure), std::sqrt(0.5), 1e-12);
     EXPECT_EQ(s.digest.size(), 16u);
@@ -66,6 +69,15 @@ TEST(StudySpec, RefusalsNameTheFileAndTheField) {
     j = smallStudy();
     j["conditions"][0]["wieght"] = 1;
     cases.push_back({"unknown condition field", j, "conditions[0].wieght: unknown field"});
+    j = smallStudy();
+    j["conditions"][0]["mode"] = "spring";
+    cases.push_back({"unknown coupling mode", j, "conditions[0].mode: expected vc, avc or avcec"});
+    j = smallStudy();
+    j["friction"] = -0.1;
+    cases.push_back({"negative friction", j, "friction: expected a number in [0, 2]"});
+    j = smallStudy();
+    j["conditions"][0]["observer"] = {{"kind", "gradient"}, {"window_mm", -1}};
+    cases.push_back({"negative observer window", j, "window_mm"});
     j = smallStudy();
     j["conditions"][1]["name"] = "CP";
     cases.push_back({"two conditions of one name", j, "conditions[1].name"});

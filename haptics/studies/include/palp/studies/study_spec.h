@@ -16,6 +16,7 @@
 #include <string_view>
 #include <vector>
 
+#include "palp/haptics/rendering/coupling.h"
 #include "palp/perception/observer.h"
 #include "palp/perception/psychometric.h"
 #include "palp/perception/quest.h"
@@ -51,6 +52,9 @@ struct StudyCondition {
     double depthM = 0;
     /// The hand's speed along the path, m/s (default: touchDefaults()).
     double speedMps = 0;
+    /// The coupling that renders the phantom: AVC (the scene's default), VC (k_s everywhere: no
+    /// field) or AVCEC (AVC with the energy terms).
+    CouplingMode mode = CouplingMode::AVC;
     StudyObserver observer;
 };
 

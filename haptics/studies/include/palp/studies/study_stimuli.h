@@ -52,11 +52,11 @@ class StudyStimuli {
     const IntervalFelt& feel(int condition, double levelPercent,
                              std::vector<Snapshot>* trace = nullptr);
 
-    /// The coupling an interval at @p levelPercent renders with.
-    CouplingParams coupling(double levelPercent) const;
-    /// The session parameters of an interval at @p levelPercent: coupling(), the study's
-    /// friction, 1 kHz; servo, workspace and device fields at their defaults for the host to set.
-    SessionParams sessionParams(double levelPercent) const;
+    /// The coupling an interval of condition @p condition at @p levelPercent renders with.
+    CouplingParams coupling(int condition, double levelPercent) const;
+    /// The session parameters of an interval: coupling(), the study's friction, 1 kHz; servo,
+    /// workspace and device fields at their defaults for the host to set.
+    SessionParams sessionParams(int condition, double levelPercent) const;
     /// The phantom condition @p condition is touched on (built on first use, then shared).
     /// @throw palp::ValueError for a condition out of range.
     std::shared_ptr<const Scene> sceneFor(int condition);
