@@ -101,6 +101,9 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
         }
         requireInRange("CalculiX export step.hhtAlpha", step.hhtAlpha, -1.0 / 3.0, 0.0);
     }
+    if (step.elementType != "C3D8" && step.elementType != "C3D8R")
+        throwExpected("CalculiX export step.elementType", "C3D8 or C3D8R",
+                      "'" + step.elementType + "'");
     if (!(step.staticIncrement > 0.0 && step.staticIncrement <= 1.0)) {
         throwExpected("CalculiX export step.staticIncrement", "a fraction in (0, 1]",
                       formatValue(step.staticIncrement));
@@ -127,7 +130,7 @@ void writeCalculixInput(const std::filesystem::path& inpPath, const FemModel& mo
     int g = 0;
     for (const auto& [e, cells] : groups) {
         ++g;
-        out << "*ELEMENT, TYPE=C3D8, ELSET=E" << g << "\n";
+        out << "*ELEMENT, TYPE=" << step.elementType << ", ELSET=E" << g << "\n";
         for (int c : cells) {
             const auto nodes = mesh.cellNodes(c);
             out << c + 1;

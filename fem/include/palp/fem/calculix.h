@@ -40,6 +40,10 @@ struct CalculixStep {
     /// step needs to converge).
     double staticIncrement = 1.0;
     bool printReactions = false;  ///< also print the nodal reaction forces (RF)
+    /// The element: "C3D8" (full 2x2x2 integration, palp's TledIntegration::gauss2x2x2 and the
+    /// linear element) or "C3D8R" (one point with ccx's hourglass control, the class of palp's
+    /// real-time TledIntegration::onePointHourglass).
+    std::string elementType = "C3D8";
 };
 
 /// Writes mesh (active nodes, active cells as C3D8; palp node n is CalculiX node n+1, cell c is
