@@ -17,7 +17,8 @@ else
            test_volume_checks test_volume_dicom test_volume_dicom_syntax test_volume_dicom_mosaic test_volume_dicom_enhanced test_volume_format_sniff test_volume_phantom test_volume_phantom_tumour test_volume_io
            test_volume_resample test_volume_resample_rows test_volume_lazy_load test_volume_vdb_write test_volume_cross_format test_volume_mesh test_volume_c_api test_c_api
            test_c_api_fields test_c_api_deformable test_c_api_deformable_c test_c_api_host
-           test_c_api_host_c test_c_api_udp_c test_volume_from_memory test_volume_lazy_formats)
+           test_c_api_host_c test_c_api_udp_c test_volume_from_memory test_volume_lazy_formats
+           test_c_api_study)
 fi
 # PALP_SANITIZE_STEP=build only builds (.ci/run builds in the background while the TSan tests
 # run), =run only runs an existing build; both by default.
