@@ -228,6 +228,18 @@ TEST(StudyCli, RefusalsNameTheFileAndFieldAndLeaveTheLog) {
               std::string::npos)
         << r.output;
     EXPECT_FALSE(fs::exists(tmp / "new.csv"));
+    // A device address that cannot be bound: refused before any log is created.
+    r = runCommand(palp + study.string() + " --log " + (tmp / "new.csv").string() +
+                   " --responder terminal --device-listen nonsense 2>&1");
+    EXPECT_EQ(r.exitCode, 1);
+    EXPECT_NE(r.output.find("listen address 'nonsense'"), std::string::npos) << r.output;
+    EXPECT_FALSE(fs::exists(tmp / "new.csv"));
+    r = runCommand(palp + study.string() + " --log " + (tmp / "new.csv").string() +
+                   " --device-listen 127.0.0.1:0 2>&1");  // the simulated responder
+    EXPECT_EQ(r.exitCode, 1);
+    EXPECT_NE(r.output.find("--device-listen: expected --responder terminal"), std::string::npos)
+        << r.output;
+    EXPECT_FALSE(fs::exists(tmp / "new.csv"));
 }
 
 TEST(PalpateTouchModes, RunOverTheStiffnessPhantomOnly) {

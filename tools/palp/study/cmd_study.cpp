@@ -258,6 +258,16 @@ int studyCommand(const StudyArgs& a) {
         report(a, spec, logged, results, a.analyse);
         return 0;
     }
+    // The device's socket before the log: a port in use leaves no new log behind.
+    std::optional<UdpDevice> device;
+    if (!a.deviceListen.empty()) {
+        UdpDeviceParams dp;
+        dp.listen = a.deviceListen;
+        device.emplace(*findDeviceSpec(spec.device), dp);
+        // The bound address on a line of its own (the port chosen for port 0), for the device.
+        std::fprintf(stderr, "palp study: listening on udp %s\n", device->address().c_str());
+        std::fflush(stderr);
+    }
     std::optional<StudyLog> log;
     if (!a.resume.empty()) {
         log.emplace(StudyLog::resume(a.resume, runner.logHeader(), trials));
@@ -271,15 +281,6 @@ int studyCommand(const StudyArgs& a) {
     }
     StudyResponder responder;
     std::shared_ptr<StudyStimuli> stimuli;
-    std::optional<UdpDevice> device;
-    if (!a.deviceListen.empty()) {
-        UdpDeviceParams dp;
-        dp.listen = a.deviceListen;
-        device.emplace(*findDeviceSpec(spec.device), dp);
-        // The bound address on a line of its own (the port chosen for port 0), for the device.
-        std::fprintf(stderr, "palp study: listening on udp %s\n", device->address().c_str());
-        std::fflush(stderr);
-    }
     if (a.responder == "terminal") {
         if (device) stimuli = std::make_shared<StudyStimuli>(spec);
         responder = terminalResponder(stimuli, device ? &*device : nullptr, a);
