@@ -117,6 +117,9 @@ const haptics::DeviceSpec& deviceSpec(const char* name);
 haptics::CouplingParams toCoupling(const palp_session_params& p);
 haptics::ProxyParams toProxy(const palp_session_params& p);
 haptics::SessionParams toSession(const palp_session_params& p);
+/// C++ -> C: @p d's fields that palp_session_params holds (device "3D Systems Touch X", the
+/// accumulate hardness 1e4 /m: a step the C struct can express; callers set what differs).
+void fromSession(const haptics::SessionParams& d, palp_session_params& p) noexcept;
 /// The fields a running session cannot change; the first that differs, or nullptr.
 const char* fixedFieldChanged(const palp_session_params& a, const palp_session_params& b);
 haptics::Trajectory toTrajectory(const palp_trajectory& c);

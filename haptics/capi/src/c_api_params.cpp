@@ -520,16 +520,7 @@ palp_latency toC(const ph::LatencySummary& l) noexcept {
     return c;
 }
 
-}  // namespace palp::capi
-
-using namespace palp::capi;
-
-extern "C" {
-
-void palp_session_params_default(palp_session_params* params) {
-    if (!params) return;
-    const ph::SessionParams d;
-    palp_session_params& p = *params;
+void fromSession(const ph::SessionParams& d, palp_session_params& p) noexcept {
     std::memset(&p, 0, sizeof p);
     p.mode = fromMode(d.coupling.mode);
     p.source = fromSource(d.coupling.source);
@@ -565,6 +556,17 @@ void palp_session_params_default(palp_session_params* params) {
     p.servo_cpu = d.servo.cpu;
     p.servo_priority = d.servo.priority;
     p.require_realtime = d.servo.requireRealtime ? 1 : 0;
+}
+
+}  // namespace palp::capi
+
+using namespace palp::capi;
+
+extern "C" {
+
+void palp_session_params_default(palp_session_params* params) {
+    if (!params) return;
+    fromSession(ph::SessionParams{}, *params);
 }
 
 palp_status palp_trajectory_default(palp_trajectory_kind kind, palp_trajectory* trajectory) {

@@ -83,19 +83,7 @@ palp_status palp_study_interval_session(palp_study* study, int interval,
     return guarded([&] {
         const ph::SessionParams sp = study->session.intervalParams(interval);
         palp_session_params c;
-        palp_session_params_default(&c);
-        c.mode = static_cast<palp_coupling_mode>(static_cast<int>(sp.coupling.mode));
-        c.source = static_cast<palp_ray_source>(static_cast<int>(sp.coupling.source));
-        c.stiffness = sp.coupling.baseStiffness;
-        c.max_stiffness = sp.coupling.maxStiffness;
-        c.reference_length = sp.coupling.referenceLength;
-        c.max_multiplier = sp.coupling.maxMultiplier;
-        c.ray_length = sp.coupling.bundle.length;
-        c.ray_step = sp.coupling.accumulate.step;
-        c.tau_stop = sp.coupling.accumulate.tauStop;
-        c.static_friction = sp.proxy.staticFriction;
-        c.dynamic_friction = sp.proxy.dynamicFriction;
-        c.period = sp.servo.periodSeconds;
+        fromSession(sp, c);  // what palp_session_get_params reports (not the sigma ramp)
         *out = makeHostSession(study->session.scene(), sp, c, *device);
         return PALP_OK;
     });
