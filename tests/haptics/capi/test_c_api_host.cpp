@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "alloc_counter.h"
+#include "host_bridge.h"
 #include "palp/base/error.h"
 #include "palp/haptics/devices/device.h"
 #include "palp/haptics/devices/simulated_device.h"
@@ -38,34 +39,9 @@ struct SceneHandle {
 
 double norm3(const double v[3]) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
 
-/// A C++ SimulatedDevice behind the C callbacks (what a host's bridge would do).
-struct Bridge {
-    ph::SimulatedDevice* device;
-    std::uint64_t sequence = 0;
-    bool silent = false;
-    bool nan = false;
-    int absurd = 0;  // 1: x = 20 km, 2: y = 1e300 m (finite, far beyond any device)
-};
-
-int bridgeRead(void* user, palp_device_state* s) {
-    auto* b = static_cast<Bridge*>(user);
-    if (b->silent) return 1;
-    const ph::DeviceState d = b->device->read();
-    for (int i = 0; i < 3; ++i) {
-        s->position[i] = b->nan ? std::numeric_limits<double>::quiet_NaN() : d.position[i];
-        s->velocity[i] = d.velocity[i];
-    }
-    if (b->absurd == 1) s->position[0] = 2e4;
-    if (b->absurd == 2) s->position[1] = 1e300;
-    s->buttons = d.buttons;
-    s->sequence = ++b->sequence;
-    s->timestamp = d.timestampSeconds;
-    return 0;
-}
-
-void bridgeWrite(void* user, const double f[3]) {
-    static_cast<Bridge*>(user)->device->write(Eigen::Vector3d(f[0], f[1], f[2]));
-}
+using palp::test::Bridge;
+using palp::test::bridgeRead;
+using palp::test::bridgeWrite;
 
 palp_trajectory pressPath() {
     palp_trajectory path;

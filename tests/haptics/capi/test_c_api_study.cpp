@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "host_bridge.h"
 #include "palp/haptics/devices/simulated_device.h"
 #include "palp/palp_study.h"
 #include "palp/studies/study_runner.h"
@@ -26,27 +27,9 @@ namespace fs = std::filesystem;
 
 namespace {
 
-struct Bridge {
-    ph::SimulatedDevice* device;
-    std::uint64_t sequence = 0;
-};
-
-int bridgeRead(void* user, palp_device_state* s) {
-    auto* b = static_cast<Bridge*>(user);
-    const ph::DeviceState d = b->device->read();
-    for (int i = 0; i < 3; ++i) {
-        s->position[i] = d.position[i];
-        s->velocity[i] = d.velocity[i];
-    }
-    s->buttons = d.buttons;
-    s->sequence = ++b->sequence;
-    s->timestamp = d.timestampSeconds;
-    return 0;
-}
-
-void bridgeWrite(void* user, const double f[3]) {
-    static_cast<Bridge*>(user)->device->write(Eigen::Vector3d(f[0], f[1], f[2]));
-}
+using palp::test::Bridge;
+using palp::test::bridgeRead;
+using palp::test::bridgeWrite;
 
 const char* kStudy = R"({"study": "capi", "seed": 11, "reference_stiffness": 100,
   "procedure": {"start_level": 20, "step_sizes": [4, 2, 1], "max_trials": 8,
