@@ -203,6 +203,24 @@ TEST(StudyRunner, AnInterruptedStudyResumesWithTheSameTrialSequence) {
     EXPECT_LT(comparisonFirst, 45);
 }
 
+/// Runs @p n simulated participants (0..n-1) of @p spec, each to its own log in @p dir; @return
+/// each participant's logged trials, read back from the log.
+std::vector<std::vector<TrialRecord>> runParticipants(const StudySpec& spec,
+                                                      const std::shared_ptr<StudyStimuli>& stimuli,
+                                                      const fs::path& dir, int n) {
+    std::vector<std::vector<TrialRecord>> out;
+    for (int p = 0; p < n; ++p) {
+        StudyRunner runner(spec, p);
+        char name[32];  // (not "p" + to_string: GCC 12 -O3 warns falsely on that concatenation)
+        std::snprintf(name, sizeof name, "p%d.csv", p);
+        StudyLog l = StudyLog::create(dir / name, runner.logHeader());
+        runStudyTrials(runner, simulatedResponder(stimuli), l);
+        StudyLogHeader h;
+        out.push_back(readStudyLog(dir / name, h));
+    }
+    return out;
+}
+
 TEST(StudyRunner, ObserversWithPaperIIIWeberFractionsRankTheTouchModesAsTheThesisFound) {
     // Six simulated participants (two whole Williams squares over three conditions), each
     // palpating the phantom in all three touch modes; the observers carry paper III's mean JNDs
@@ -223,15 +241,7 @@ TEST(StudyRunner, ObserversWithPaperIIIWeberFractionsRankTheTouchModesAsTheThesi
     std::vector<TrialRecord> all;
     std::vector<double> reversalMean(3, 0);
     constexpr int kParticipants = 12;
-    for (int p = 0; p < kParticipants; ++p) {
-        StudyRunner runner(spec, p);
-        char name[32];  // (not "p" + to_string: GCC 12 -O3 warns falsely on that concatenation)
-        std::snprintf(name, sizeof name, "p%d.csv", p);
-        const fs::path log = d / name;
-        StudyLog l = StudyLog::create(log, runner.logHeader());
-        runStudyTrials(runner, simulatedResponder(stimuli), l);
-        StudyLogHeader h;
-        const auto trials = readStudyLog(log, h);
+    for (const auto& trials : runParticipants(spec, stimuli, d, kParticipants)) {
         const auto r = analyseStudy(spec, trials);
         for (std::size_t c = 0; c < 3; ++c)
             reversalMean[c] += r[c].procedureThreshold / kParticipants;
@@ -312,16 +322,8 @@ TEST(StudyRunner, TheRenderedSweepFollowsEachTransitionAndTheGradientObserverRan
 
     // Twelve simulated participants, pooled per condition: tanh < cosine < linear.
     std::vector<TrialRecord> all;
-    for (int p = 0; p < 12; ++p) {
-        StudyRunner runner(spec, p);
-        char name[32];
-        std::snprintf(name, sizeof name, "p%d.csv", p);
-        StudyLog l = StudyLog::create(d / name, runner.logHeader());
-        runStudyTrials(runner, simulatedResponder(stimuli), l);
-        StudyLogHeader h;
-        const auto trials = readStudyLog(d / name, h);
+    for (const auto& trials : runParticipants(spec, stimuli, d, 12))
         all.insert(all.end(), trials.begin(), trials.end());
-    }
     const auto pooled = analyseStudy(spec, all);
     for (std::size_t c = 0; c < 3; ++c) {
         std::printf("%s: predicted %.2f %%, pooled fit JND %.2f %% (thesis %.2f %%)\n",
