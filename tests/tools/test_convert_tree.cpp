@@ -563,6 +563,61 @@ TEST(ConvertTree, VolumeFlagReachesEveryScan) {
     expectSameGrid(tmp / "b" / "fmri.nii.vdb", tmp / "ref.vdb");
 }
 
+TEST(ConvertTree, NativeVoxelSizeKeepsTheSeriesOwnSpacing) {
+    // --voxel-size native on a 0.5 x 0.5 x 1 mm series: one voxel per pixel above the CT
+    // threshold (not twice the voxels at 0.5 mm), recorded in the manifest's options and shown by
+    // `palp info`; a tilted series is refused by `palp convert` and listed as refused by
+    // convert-tree; a voxel size that is neither a length nor "native" is refused.
+    TempDir tmp;
+    const fs::path in = tmp / "archive";
+    const palp::volume::SliceStack st = palp::test::tiltedSeries(20, 16, 9, 0.5e-3, 1e-3, 0);
+    palp::volume::writeDicomSeries(st, in / "even");
+    std::uint64_t above = 0;
+    for (const auto& sl : st.slices)
+        for (const float v : sl.values) above += v >= -900.0f ? 1 : 0;
+    auto r = runCommand(palpCommand() + " convert " + quoted(in / "even") +
+                        " --voxel-size native -o " + quoted(tmp / "n.vdb"));
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    EXPECT_NE(r.output.find("voxel 0.5 x 0.5 x 1 mm, " + std::to_string(above) + " active voxels"),
+              std::string::npos)
+        << r.output;
+    r = runCommand(palpCommand() + " info --json " + quoted(tmp / "n.vdb"));
+    ASSERT_EQ(r.exitCode, 0) << r.output;
+    EXPECT_NE(r.output.find("\"voxel_sizes_mm\": [\n    0.5,\n    0.5,\n    1.0\n  ]"),
+              std::string::npos)
+        << r.output;
+    writeSeries(in / "tilted", 20, 16, 9, 12.0, "tilted");
+    r = runCommand(palpCommand() + " convert " + quoted(in / "tilted") +
+                   " --voxel-size native -o " + quoted(tmp / "t.vdb"));
+    EXPECT_EQ(r.exitCode, 1) << r.output;
+    // A tilted gantry tilts the slices' rows off the patient axes.
+    EXPECT_NE(r.output.find("expected rows, columns and slice normal along the patient axes"),
+              std::string::npos)
+        << r.output;
+    r = runCommand(palpCommand() + " -q convert-tree --voxel-size native " + quoted(in) + " " +
+                   quoted(tmp / "out"));
+    EXPECT_EQ(r.exitCode, 1) << r.output;
+    const std::vector<Row> rows = readRows(tmp / "out" / "manifest.tsv");
+    ASSERT_EQ(rows.size(), 2u);
+    for (const Row& row : rows) {
+        if (row.input == "tilted") {
+            EXPECT_EQ(row.status, "refused");
+            EXPECT_NE(row.message.find("along the patient axes"), std::string::npos) << row.message;
+        } else {
+            ASSERT_EQ(row.status, "done") << row.message;
+            expectSameGrid(tmp / "out" / row.output, tmp / "n.vdb");
+        }
+    }
+    std::ifstream manifest(tmp / "out" / "manifest.tsv");
+    const std::string text((std::istreambuf_iterator<char>(manifest)),
+                           std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("voxel-size=native"), std::string::npos) << text;
+    r = runCommand(palpCommand() + " convert " + quoted(in / "even") + " --voxel-size big -o " +
+                   quoted(tmp / "b.vdb"));
+    EXPECT_NE(r.exitCode, 0);
+    EXPECT_NE(r.output.find("mm or native, found 'big'"), std::string::npos) << r.output;
+}
+
 TEST(ConvertTree, RefusesAnOutputFolderThatIsTheInputAndAMissingInput) {
     TempDir tmp;
     fs::create_directories(tmp / "a");

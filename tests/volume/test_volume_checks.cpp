@@ -141,23 +141,38 @@ TEST(VdbChecks, NanValuesOrBackgroundInAStoredGridAreRefusedWithTheFileNamed) {
         {(tmp / "bg.vdb").string() + ": grid background", "found inf"});
 }
 
-TEST(VdbChecks, AStoredTransformMustBeUniformAndInBounds) {
+TEST(VdbChecks, AStoredTransformMustBeAxisAlignedOrCubicAndInBounds) {
     TempDir tmp;
     writeRawVdb(cube(100.0f, 1.0), tmp / "huge.vdb");
     expectThrowWith<palp::FormatError>(
         [&] { pv::loadVdb(tmp / "huge.vdb"); },
         {(tmp / "huge.vdb").string() + ": grid voxel size: expected a value in [0.001, 100] mm",
          "found 1000"});
+    // An axis-aligned scale (native spacing) is read as stored; load() re-grids it to cubic
+    // voxels of its smallest edge. A rotated one with non-cubic voxels is refused.
     auto grid = cube(100.0f, 1e-3);
     openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
     m.setToScale(openvdb::Vec3d(1e-3, 2e-3, 1e-3));
     grid->setTransform(openvdb::math::Transform::createLinearTransform(m));
     writeRawVdb(grid, tmp / "aniso.vdb");
+    const pv::Volume stored = pv::loadVdb(tmp / "aniso.vdb");
+    EXPECT_FALSE(stored.hasCubicVoxels());
+    EXPECT_EQ(stored.voxelSizes(), openvdb::Vec3d(1e-3, 2e-3, 1e-3));
+    const pv::Volume cubic = pv::load({tmp / "aniso.vdb"});
+    EXPECT_TRUE(cubic.hasCubicVoxels());
+    EXPECT_DOUBLE_EQ(cubic.voxelSize(), 1e-3);
+    pv::LoadOptions keep;
+    keep.resample.nativeSpacing = true;
+    EXPECT_EQ(pv::load({tmp / "aniso.vdb"}, keep).voxelSizes(), openvdb::Vec3d(1e-3, 2e-3, 1e-3));
+    m.preRotate(openvdb::math::Z_AXIS, 0.3);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(m));
+    writeRawVdb(grid, tmp / "rotated.vdb");
     expectThrowWith<palp::FormatError>(
-        [&] { pv::loadVdb(tmp / "aniso.vdb"); },
-        {(tmp / "aniso.vdb").string() +
-         ": grid transform: expected a linear transform with cubic voxels, found voxel (1 2 1) "
-         "mm"});
+        [&] { pv::loadVdb(tmp / "rotated.vdb"); },
+        {(tmp / "rotated.vdb").string() +
+             ": grid transform: expected a linear transform with cubic voxels, or an "
+             "axis-aligned scale, found voxel (",
+         ") mm (rotated)"});
 }
 
 TEST(VdbChecks, ResamplingAVolumeChecksTheVoxelSizeBeforeOpenVdb) {

@@ -77,7 +77,11 @@ json describeVolume(const volume::Volume& v, const fs::path& path) {
     json j;
     j["file"] = path.string();
     j["grid"] = g.getName();
+    // voxel_size_mm: the cubic edge (the smallest edge of native spacing's non-cubic voxels,
+    // which load() re-grids to); voxel_sizes_mm: the edges along index x, y, z as stored.
     j["voxel_size_mm"] = v.voxelSize() * 1e3;
+    const openvdb::Vec3d edges = v.voxelSizes();
+    j["voxel_sizes_mm"] = vec3(edges[0] * 1e3, edges[1] * 1e3, edges[2] * 1e3);
     j["active_voxels"] = n;
     j["memory_bytes"] = g.memUsage();
     j["background_value"] = g.background();
@@ -109,8 +113,16 @@ json describeVolume(const volume::Volume& v, const fs::path& path) {
 
 void printVolume(const json& j) {
     std::printf("%s\n", j["file"].get<std::string>().c_str());
-    std::printf("  grid            %s, voxel %.4g mm, %llu active voxels, %.1f MiB in memory\n",
-                j["grid"].get<std::string>().c_str(), j["voxel_size_mm"].get<double>(),
+    const auto& e = j["voxel_sizes_mm"];
+    char voxel[96];
+    if (e[0] == e[1] && e[1] == e[2]) {
+        std::snprintf(voxel, sizeof voxel, "%.4g", e[0].get<double>());
+    } else {
+        std::snprintf(voxel, sizeof voxel, "%.4g x %.4g x %.4g", e[0].get<double>(),
+                      e[1].get<double>(), e[2].get<double>());
+    }
+    std::printf("  grid            %s, voxel %s mm, %llu active voxels, %.1f MiB in memory\n",
+                j["grid"].get<std::string>().c_str(), voxel,
                 static_cast<unsigned long long>(j["active_voxels"].get<std::uint64_t>()),
                 static_cast<double>(j["memory_bytes"].get<std::uint64_t>()) / (1024.0 * 1024.0));
     if (j.contains("dimensions")) {

@@ -41,20 +41,30 @@ std::string readPrefix(const fs::path& path, std::size_t n) {
     return buf;
 }
 
-/// A stored grid palp can use: a uniform linear transform whose voxel is a voxel spacing
+/// A stored grid palp can use: a linear transform with cubic voxels, or (native spacing) an
+/// axis-aligned scale with a different edge per axis, each edge a voxel spacing
 /// (bounds::kSpacing), and finite values inside bounds::kVolumeValue (the background and every
 /// active value), so that nothing the file holds reaches the mesher or the kernels unchecked.
 /// @throw FormatError naming @p name.
 void checkStoredGrid(const std::string& name, const openvdb::FloatGrid& grid) try {
     const openvdb::math::Transform& xform = grid.transform();
     const openvdb::Vec3d voxel = xform.voxelSize();
-    if (!xform.isLinear() || !(voxel[0] == voxel[1] && voxel[1] == voxel[2])) {
-        throwExpected(name + ": grid transform", "a linear transform with cubic voxels",
+    const bool cubic = voxel[0] == voxel[1] && voxel[1] == voxel[2];
+    bool axisAligned = xform.isLinear();
+    if (axisAligned) {
+        const openvdb::Mat4d m = xform.baseMap()->getAffineMap()->getMat4();
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) axisAligned &= r == c || m(r, c) == 0.0;
+    }
+    if (!xform.isLinear() || (!cubic && !axisAligned)) {
+        throwExpected(name + ": grid transform",
+                      "a linear transform with cubic voxels, or an axis-aligned scale",
                       "voxel (" + formatValue(voxel[0] * 1e3) + " " + formatValue(voxel[1] * 1e3) +
                           " " + formatValue(voxel[2] * 1e3) + ") mm" +
-                          (xform.isLinear() ? "" : " (not linear)"));
+                          (xform.isLinear() ? " (rotated)" : " (not linear)"));
     }
-    requireWithin(name + ": grid voxel size", voxel[0], bounds::kSpacing, {1e3, "mm"});
+    for (int a = 0; a < 3; ++a)
+        requireWithin(name + ": grid voxel size", voxel[a], bounds::kSpacing, {1e3, "mm"});
     requireWithin(name + ": grid background", static_cast<double>(grid.background()),
                   bounds::kVolumeValue);
     const auto refuse = [&](const openvdb::Coord& c, float v) {

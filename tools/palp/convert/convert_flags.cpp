@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <string>
 
 #include "../option_checks.h"
 #include "palp/base/error.h"
@@ -10,9 +11,26 @@
 namespace palp::tool {
 
 void addConvertFlags(CLI::App& app, ConvertFlags& flags) {
-    app.add_option("--voxel-size", flags.voxelMm,
-                   "Isotropic voxel edge in mm (default: finest input spacing)")
-        ->check(within(bounds::kSpacing, kMm));
+    const CLI::Validator edge = within(bounds::kSpacing, kMm);
+    app.add_option_function<std::string>(
+           "--voxel-size",
+           [&flags](const std::string& text) {
+               flags.voxelNative = text == "native";
+               flags.voxelMm = flags.voxelNative ? 0 : std::stod(text);
+           },
+           "Isotropic voxel edge in mm (default: finest input spacing), or native: the "
+           "source's column x row x slice spacing (axis-aligned, evenly spaced slices only; "
+           "others are refused)")
+        ->check(CLI::Validator(
+            [edge](std::string& text) -> std::string {
+                if (text == "native") return {};
+                std::string checked = text;
+                std::string error = edge(checked);
+                const std::size_t found = error.find(", found ");
+                if (found != std::string::npos) error.insert(found, " or native");
+                return error;
+            },
+            "MM or native"));
     app.add_option("--volume", flags.volume, "0-based time point of a 4D series or file")
         ->check(integerIn(0, 1000000));
     app.add_option("--background", flags.background,
@@ -33,6 +51,7 @@ void addConvertFlags(CLI::App& app, ConvertFlags& flags) {
 volume::LoadOptions loadOptions(const ConvertFlags& flags) {
     volume::LoadOptions opt;
     if (flags.voxelMm > 0) opt.resample.voxelSize = flags.voxelMm * 1e-3;
+    opt.resample.nativeSpacing = flags.voxelNative;
     if (flags.volume >= 0) opt.timePoint = flags.volume;
     if (!std::isnan(flags.background))
         opt.resample.backgroundThreshold = static_cast<float>(flags.background);
@@ -72,7 +91,7 @@ std::string exactNumber(double v) {
 
 std::string describeConvertFlags(const ConvertFlags& flags) {
     std::string s = "voxel-size=";
-    s += flags.voxelMm > 0 ? exactNumber(flags.voxelMm) : "default";
+    s += flags.voxelNative ? "native" : flags.voxelMm > 0 ? exactNumber(flags.voxelMm) : "default";
     s += " volume=";
     s += flags.volume >= 0 ? std::to_string(flags.volume) : "default";
     s += " background=";
@@ -90,11 +109,18 @@ std::string describeConvertFlags(const ConvertFlags& flags) {
 
 std::string describeVolume(const volume::Volume& vol) {
     const auto b = vol.worldBounds();
-    char line[512];
+    const openvdb::Vec3d e = vol.voxelSizes() * 1e3;
+    char voxel[96];
+    if (vol.hasCubicVoxels()) {
+        std::snprintf(voxel, sizeof voxel, "%.4g", e[0]);
+    } else {
+        std::snprintf(voxel, sizeof voxel, "%.4g x %.4g x %.4g", e[0], e[1], e[2]);
+    }
+    char line[600];
     std::snprintf(line, sizeof line,
-                  "%s %s, voxel %.4g mm, %llu active voxels, world box (%.1f, %.1f, %.1f) - "
+                  "%s %s, voxel %s mm, %llu active voxels, world box (%.1f, %.1f, %.1f) - "
                   "(%.1f, %.1f, %.1f) mm",
-                  vol.info.sourceFormat.c_str(), vol.info.modality.c_str(), vol.voxelSize() * 1e3,
+                  vol.info.sourceFormat.c_str(), vol.info.modality.c_str(), voxel,
                   static_cast<unsigned long long>(vol.grid->activeVoxelCount()), b.min().x() * 1e3,
                   b.min().y() * 1e3, b.min().z() * 1e3, b.max().x() * 1e3, b.max().y() * 1e3,
                   b.max().z() * 1e3);

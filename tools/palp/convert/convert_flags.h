@@ -16,6 +16,7 @@ namespace palp::tool {
 /// The shared flags as the user gave them (0, -1, NaN or empty: not given).
 struct ConvertFlags {
     double voxelMm = 0;
+    bool voxelNative = false;  ///< --voxel-size native
     int volume = -1;
     double background = std::numeric_limits<double>::quiet_NaN();
     std::vector<double> cropMm;
@@ -32,13 +33,13 @@ volume::LoadOptions loadOptions(const ConvertFlags& flags);
 /// The save options the flags ask for.
 volume::SaveOptions saveOptions(const ConvertFlags& flags);
 
-/// The flags as one line of text, every value exact ("voxel-size=0.5 volume=default
+/// The flags as one line of text, every value exact ("voxel-size=0.5 (or native) volume=default
 /// background=default crop=none compression=mask"): what a manifest records so that a resumed
 /// run can tell whether it converts alike.
 std::string describeConvertFlags(const ConvertFlags& flags);
 
 /// A converted volume in words: "DICOM CT, voxel 0.5 mm, 1234 active voxels, world box (x, y,
-/// z) - (x, y, z) mm".
+/// z) - (x, y, z) mm" ("voxel 0.5 x 0.5 x 1 mm" for native spacing's non-cubic voxels).
 std::string describeVolume(const volume::Volume& vol);
 
 /// What the background threshold took away, in words: "no background threshold: no source

@@ -31,16 +31,21 @@ std::uint64_t deactivateBelow(openvdb::FloatGrid& grid, float threshold) {
 }
 
 Volume regridChecked(const Volume& source, const ResampleOptions& options) {
-    const bool regrid = options.voxelSize || options.crop;
+    const bool toCubic = !source.hasCubicVoxels() && !options.nativeSpacing;
+    const bool regrid = options.voxelSize || options.crop || toCubic;
     if (!regrid && !options.backgroundThreshold) return source;
     openvdb::FloatGrid::Ptr target;
     if (regrid) {
-        // Trilinear resample onto the requested lattice.
-        const double voxel = options.voxelSize.value_or(source.voxelSize());
-        palp::requireWithin("resample: voxel size", voxel, bounds::kSpacing, {1e3, "mm"});
+        // Trilinear resample onto the requested lattice (a native one keeps its transform).
         target = openvdb::FloatGrid::create(source.grid->background());
         target->setName(kScanGridName);
-        target->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
+        if (options.nativeSpacing) {
+            target->setTransform(source.grid->transform().copy());
+        } else {
+            const double voxel = options.voxelSize.value_or(source.voxelSize());
+            palp::requireWithin("resample: voxel size", voxel, bounds::kSpacing, {1e3, "mm"});
+            target->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
+        }
         openvdb::tools::resampleToMatch<openvdb::tools::BoxSampler>(*source.grid, *target);
         if (options.crop) {
             target->clipGrid(openvdb::BBoxd(openvdb::Vec3d(options.crop->min.data()),

@@ -134,9 +134,95 @@ double chooseVoxelSize(const StackGeometry& g, const StackSpacing& spacing,
     return voxel;
 }
 
-/// Bounds the pixel centres of every slice (plus one voxel of margin), crops and checks size.
-Lattice planLattice(const SliceStack& stack, const StackGeometry& g, double voxel,
-                    const ResampleOptions& options) {
+/// Index-to-world transform of a lattice: a uniform scale for equal steps (as before native
+/// spacing existed), else a per-axis scale; then a translation to @p lo (metres).
+openvdb::math::Transform::Ptr worldFromIndex(const Eigen::Vector3d& step,
+                                             const Eigen::Vector3d& lo) {
+    if (step.x() == step.y() && step.y() == step.z()) {
+        auto xform = openvdb::math::Transform::createLinearTransform(step.x());
+        xform->postTranslate(openvdb::Vec3d(lo.x(), lo.y(), lo.z()));
+        return xform;
+    }
+    return std::make_shared<openvdb::math::Transform>(
+        std::make_shared<openvdb::math::ScaleTranslateMap>(openvdb::Vec3d(step.data()),
+                                                           openvdb::Vec3d(lo.data())));
+}
+
+std::string mmStr(double metres) { return formatValue(metres * 1e3); }
+
+/// The world axis @p dir (a unit vector) lies along, or -1 when it is off every axis by more
+/// than kNativeAxisSin (sine of the angle).
+constexpr double kNativeAxisSin = 1e-5;
+int worldAxisOf(const Eigen::Vector3d& dir) {
+    int a = 0;
+    dir.cwiseAbs().maxCoeff(&a);
+    const double off = std::sqrt(std::max(0.0, 1.0 - dir[a] * dir[a]));
+    return off <= kNativeAxisSin ? a : -1;
+}
+
+/// The lattice steps (metres, along world x, y, z) of native spacing: the column step, the row
+/// step and the slice gap, each on the world axis it lies along. Single slices take the smaller
+/// in-plane step as their thickness.
+/// @throw ValueError when the slices' rows, columns or normal are off the world axes, the slices
+///        are stacked with a tilt (or shifted in plane), or their gaps are uneven (a slice more
+///        than kNativeGapTolerance of the mean gap off its even position).
+Eigen::Vector3d nativeSteps(const SliceStack& stack, const StackGeometry& g) {
+    const Slice& first = stack.slices[g.order.front()];
+    const std::string what = "resample: native spacing";
+    const int au = worldAxisOf(g.u.normalized()), av = worldAxisOf(g.v.normalized());
+    const int an = worldAxisOf(g.normal);
+    if (au < 0 || av < 0 || an < 0) {
+        throwExpected(what + " (" + first.source + ")",
+                      "rows, columns and slice normal along the patient axes (within 0.0006 "
+                      "degrees), or a voxel size to resample to",
+                      "column step " + vecStr(g.u) + " m, row step " + vecStr(g.v) + " m, normal " +
+                          vecStr(g.normal));
+    }
+    const std::size_t n = g.order.size();
+    Eigen::Vector3d step;
+    step[au] = g.u.norm();
+    step[av] = g.v.norm();
+    step[an] = std::min(g.u.norm(), g.v.norm());
+    if (n > 1) {
+        const double gap = (g.along.back() - g.along.front()) / static_cast<double>(n - 1);
+        const double inPlaneTol = 1e-3 * std::min(g.u.norm(), g.v.norm());
+        for (std::size_t k = 0; k < n; ++k) {
+            const Slice& s = stack.slices[g.order[k]];
+            const Eigen::Vector3d d = s.position - first.position;
+            const Eigen::Vector3d shift = d - d.dot(g.normal) * g.normal;
+            if (shift.norm() > inPlaneTol) {
+                throwExpected(
+                    what + " (" + s.source + ")",
+                    "slices stacked along their normal (no gantry tilt), or a voxel "
+                    "size to resample to",
+                    "a shift of " + mmStr(shift.norm()) + " mm in plane from " + first.source);
+            }
+            const double off = g.along[k] - (g.along.front() + static_cast<double>(k) * gap);
+            if (std::abs(off) > kNativeGapTolerance * gap) {
+                double lo = std::numeric_limits<double>::infinity(), hi = 0;
+                for (std::size_t i = 1; i < n; ++i) {
+                    lo = std::min(lo, g.along[i] - g.along[i - 1]);
+                    hi = std::max(hi, g.along[i] - g.along[i - 1]);
+                }
+                throwExpected(what + " (" + s.source + ")",
+                              "evenly spaced slices (each within 1 % of the mean gap of " +
+                                  mmStr(gap) + " mm), or a voxel size to resample to",
+                              "gaps from " + mmStr(lo) + " to " + mmStr(hi) + " mm, this slice " +
+                                  mmStr(off) + " mm off");
+            }
+        }
+        step[an] = gap;
+    }
+    for (int a = 0; a < 3; ++a)
+        palp::requireWithin(what + ": step", step[a], bounds::kSpacing, {1e3, "mm"});
+    return step;
+}
+
+/// Bounds the pixel centres of every slice, crops and checks size. An isotropic lattice gets a
+/// voxel of margin; a native one (@p native) none, so that its voxels are the pixels, and a crop
+/// keeps it on the pixel centres.
+Lattice planLattice(const SliceStack& stack, const StackGeometry& g, const Eigen::Vector3d& step,
+                    bool native, const ResampleOptions& options) {
     const std::size_t n = g.order.size();
     // World bounding box of all pixel centres.
     Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
@@ -151,18 +237,29 @@ Lattice planLattice(const SliceStack& stack, const StackGeometry& g, double voxe
             }
         }
     }
-    if (n == 1) {  // a single slice is a slab one voxel thick
-        lo -= 0.5 * voxel * g.normal.cwiseAbs();
-        hi += 0.5 * voxel * g.normal.cwiseAbs();
+    if (!native) {
+        const double voxel = step.x();
+        if (n == 1) {  // a single slice is a slab one voxel thick
+            lo -= 0.5 * voxel * g.normal.cwiseAbs();
+            hi += 0.5 * voxel * g.normal.cwiseAbs();
+        }
+        // One voxel of margin on every side, filled by extending the edge pixels, so that
+        // trilinear sampling of the grid is exact up to the outermost pixel centres (a lattice
+        // cell around a point on the data's edge has corners up to one voxel away along each
+        // axis). Shifting by a whole voxel keeps the lattice of an axis-aligned source on its
+        // pixel centres.
+        lo -= Eigen::Vector3d::Constant(voxel);
+        hi += Eigen::Vector3d::Constant(voxel);
     }
-    // One voxel of margin on every side, filled by extending the edge pixels, so that trilinear
-    // sampling of the grid is exact up to the outermost pixel centres (a lattice cell around a
-    // point on the data's edge has corners up to one voxel away along each axis). Shifting by a
-    // whole voxel keeps the lattice of an axis-aligned source on its pixel centres.
-    lo -= Eigen::Vector3d::Constant(voxel);
-    hi += Eigen::Vector3d::Constant(voxel);
     if (options.crop) {
-        lo = lo.cwiseMax(options.crop->min);
+        Eigen::Vector3d cropLo = options.crop->min;
+        if (native) {  // the first pixel centre inside the box
+            for (int a = 0; a < 3; ++a) {
+                const double k = std::ceil((cropLo[a] - lo[a]) / step[a] - 1e-6);
+                cropLo[a] = lo[a] + std::max(k, 0.0) * step[a];
+            }
+        }
+        lo = lo.cwiseMax(cropLo);
         hi = hi.cwiseMin(options.crop->max);
         if ((hi.array() < lo.array()).any()) {
             throw ValueError("resample: the crop box " + vecStr(options.crop->min) + " - " +
@@ -172,18 +269,22 @@ Lattice planLattice(const SliceStack& stack, const StackGeometry& g, double voxe
     }
     Lattice lat;
     lat.lo = lo;
-    lat.voxel = voxel;
+    lat.step = step;
     std::array<std::int64_t, 3>& dims = lat.dims;
     for (int a = 0; a < 3; ++a) {
         dims[static_cast<std::size_t>(a)] =
-            static_cast<std::int64_t>(std::floor((hi[a] - lo[a]) / voxel + 1e-6)) + 1;
+            static_cast<std::int64_t>(std::floor((hi[a] - lo[a]) / step[a] + 1e-6)) + 1;
     }
     const long double total = static_cast<long double>(dims[0]) * dims[1] * dims[2];
     if (total > static_cast<long double>(options.maxVoxels)) {
-        throw ValueError("resample: a voxel size of " + std::to_string(voxel * 1e3) + " mm gives " +
-                         std::to_string(dims[0]) + "x" + std::to_string(dims[1]) + "x" +
-                         std::to_string(dims[2]) + " voxels, more than the limit of " +
-                         std::to_string(options.maxVoxels) + "; choose a larger voxel size");
+        const std::string spacing =
+            native ? "native spacing (" + mmStr(step.x()) + " x " + mmStr(step.y()) + " x " +
+                         mmStr(step.z()) + " mm)"
+                   : "a voxel size of " + std::to_string(step.x() * 1e3) + " mm";
+        throw ValueError("resample: " + spacing + " gives " + std::to_string(dims[0]) + "x" +
+                         std::to_string(dims[1]) + "x" + std::to_string(dims[2]) +
+                         " voxels, more than the limit of " + std::to_string(options.maxVoxels) +
+                         "; choose a larger voxel size");
     }
     return lat;
 }
@@ -194,6 +295,10 @@ void checkResampleOptions(const ResampleOptions& options) {
     if (options.voxelSize) {
         palp::requireWithin("resample: voxel size", *options.voxelSize, bounds::kSpacing,
                             {1e3, "mm"});
+        if (options.nativeSpacing) {
+            throwExpected("resample: voxel size", "none with native spacing",
+                          formatValue(*options.voxelSize * 1e3) + " mm");
+        }
     }
     if (options.backgroundThreshold) {
         palp::requireWithin("resample: background threshold",
@@ -356,8 +461,10 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
     const StackGeometry g = analyse(stack, resident);
     const std::size_t n = g.order.size();
     const StackSpacing spacing = measureSpacing(stack, g);
-    const double voxel = chooseVoxelSize(g, spacing, options);
-    const Lattice lat = planLattice(stack, g, voxel, options);
+    const Eigen::Vector3d step =
+        options.nativeSpacing ? nativeSteps(stack, g)
+                              : Eigen::Vector3d::Constant(chooseVoxelSize(g, spacing, options));
+    const Lattice lat = planLattice(stack, g, step, options.nativeSpacing, options);
 
     const float threshold =
         options.backgroundThreshold.value_or(defaultBackgroundThreshold(stack.info));
@@ -365,11 +472,9 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
 
     auto grid = openvdb::FloatGrid::create(background);
     grid->setName(kScanGridName);
-    auto xform = openvdb::math::Transform::createLinearTransform(voxel);
-    xform->postTranslate(openvdb::Vec3d(lat.lo.x(), lat.lo.y(), lat.lo.z()));
-    grid->setTransform(xform);
+    grid->setTransform(worldFromIndex(step, lat.lo));
 
-    SliceSampler sampler(stack, g, voxel, threshold, resident);
+    SliceSampler sampler(stack, g, step, threshold, resident);
     const FillContext ctx{sampler, g, lat, threshold, background, referenceOnly, scalarRows};
     std::uint64_t below = 0;
     if (resident) {

@@ -191,11 +191,11 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                         DenseBlock& block) {
     const SliceSampler& sm = ctx.sampler;
     const std::vector<double>& along = ctx.g.along;
-    const double voxel = ctx.lat.voxel;
+    const Eigen::Vector3d& step = ctx.lat.step;
     const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
     const Eigen::Matrix<double, 2, 3>& M = sm.inPlaneFromWorld();
-    const Eigen::Vector3d ds = voxel * ctx.g.normal;
-    const Eigen::Matrix<double, 2, 3> dm = voxel * M;
+    const Eigen::Vector3d ds = step.cwiseProduct(ctx.g.normal);
+    const Eigen::Matrix<double, 2, 3> dm = M * step.asDiagonal();
     const double s0 = bmin.dot(ctx.g.normal);
     const Eigen::Vector2d m0 = M * bmin;
     const int n[3] = {static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[0] - origin.x())),
@@ -394,7 +394,8 @@ bool fillBlock(const FillContext& ctx, const openvdb::Coord& origin, DenseBlock&
             for (int k = 0; k < kLeafDim; ++k) {
                 const int z = origin.z() + k;
                 if (z >= dims[2]) break;
-                const Eigen::Vector3d p = ctx.lat.lo + ctx.lat.voxel * Eigen::Vector3d(x, y, z);
+                const Eigen::Vector3d p =
+                    ctx.lat.lo + ctx.lat.step.cwiseProduct(Eigen::Vector3d(x, y, z));
                 double v = 0;
                 if (!ctx.sampler.valueAt(p, v)) continue;
                 const auto fv = static_cast<float>(v);
@@ -415,7 +416,7 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
               const SliceWindowFn& window) {
     const SliceSampler& sm = ctx.sampler;
     const std::size_t n = sm.sliceCount();
-    const double voxel = ctx.lat.voxel;
+    const Eigen::Vector3d& step = ctx.lat.step;
     const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
     const auto bx = static_cast<std::size_t>((dims[0] + kLeafDim - 1) / kLeafDim);
     const auto by = static_cast<std::size_t>((dims[1] + kLeafDim - 1) / kLeafDim);
@@ -434,8 +435,8 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
     };
     const auto cornersOf = [&](const openvdb::Coord& origin, Eigen::Vector3d& bmin,
                                Eigen::Vector3d& bmax) {
-        bmin = ctx.lat.lo + voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z());
-        bmax = bmin + voxel * Eigen::Vector3d::Constant(kLeafDim - 1);
+        bmin = ctx.lat.lo + step.cwiseProduct(Eigen::Vector3d(origin.x(), origin.y(), origin.z()));
+        bmax = bmin + step * (kLeafDim - 1);
     };
 
     // Each block that may hold active voxels goes to the group of the first slice it reads

@@ -58,11 +58,12 @@ inline bool sampleSlice(const Slice& s, double c, double r, double& out, double 
     return inside;
 }
 
-/// The output lattice: voxel (x, y, z) is centred at lo + voxel * (x, y, z).
+/// The output lattice: voxel (x, y, z) is centred at lo + step .* (x, y, z) (metres; the steps
+/// along x, y, z are equal except for a native-spacing lattice).
 struct Lattice {
     Eigen::Vector3d lo;
     std::array<std::int64_t, 3> dims{};
-    double voxel = 0;
+    Eigen::Vector3d step = Eigen::Vector3d::Zero();
 };
 
 /// The sorted slices prepared for sampling at world points: in-plane coordinates are affine in
@@ -72,21 +73,23 @@ class SliceSampler {
   public:
     /// With @p resident false the slices' values are not there yet: each sorted slice k is
     /// made usable by sliceLoaded(k) once its values are (see fillTree's window).
-    SliceSampler(const SliceStack& stack, const StackGeometry& g, double voxel, float threshold,
-                 bool resident = true)
+    /// @p step: the lattice's step along x, y, z (metres).
+    SliceSampler(const SliceStack& stack, const StackGeometry& g, const Eigen::Vector3d& step,
+                 float threshold, bool resident = true)
         : mG(g), mN(g.order.size()), mThreshold(threshold) {
         const std::size_t n = mN;
         mLoAlong = g.along.front();
         mHiAlong = g.along.back();
-        mAlongTol = n == 1 ? 0.5 * voxel : voxel * g.normal.lpNorm<1>() + 1e-9;
+        const double alongStep = step.cwiseProduct(g.normal).lpNorm<1>();
+        mAlongTol = n == 1 ? 0.5 * alongStep : alongStep + 1e-9;
         Eigen::Matrix<double, 2, 3> uvT;
         uvT.row(0) = g.u.transpose();
         uvT.row(1) = g.v.transpose();
         mM = g.gramInverse * uvT;
         // In-plane margin in pixels: how far (in c and r) a lattice corner one voxel away can
         // reach.
-        mMc = voxel * mM.row(0).lpNorm<1>() + 1e-6;
-        mMr = voxel * mM.row(1).lpNorm<1>() + 1e-6;
+        mMc = mM.row(0).cwiseProduct(step.transpose()).lpNorm<1>() + 1e-6;
+        mMr = mM.row(1).cwiseProduct(step.transpose()).lpNorm<1>() + 1e-6;
         mInvGap.assign(n, 0.0);
         for (std::size_t k = 0; k + 1 < n; ++k) mInvGap[k] = 1.0 / (g.along[k + 1] - g.along[k]);
         mSorted.resize(n);

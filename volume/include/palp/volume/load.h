@@ -67,9 +67,11 @@ struct SaveOptions {
 /// @throw IoError naming the path when it cannot be written.
 void save(const Volume& volume, const std::filesystem::path& path, const SaveOptions& options = {});
 
-/// Reads a palp `.vdb` (the grid named "scan", or the first float grid). The grid must have a
-/// linear transform with cubic voxels inside bounds::kSpacing and finite values (background and
-/// active) inside bounds::kVolumeValue.
+/// Reads a palp `.vdb` (the grid named "scan", or the first float grid) as stored. The grid must
+/// have a linear transform with cubic voxels, or an axis-aligned scale (native spacing), with
+/// edges inside bounds::kSpacing and finite values (background and active) inside
+/// bounds::kVolumeValue. load() of a `.vdb` re-grids non-cubic voxels to cubic ones
+/// (resample(const Volume&)); loadVdb() does not.
 /// @throw IoError, FormatError naming the file (and what in it is refused).
 Volume loadVdb(const std::filesystem::path& path);
 

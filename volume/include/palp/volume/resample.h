@@ -20,10 +20,24 @@ struct WorldBox {
     Eigen::Vector3d max = Eigen::Vector3d::Zero();
 };
 
+/// How far (as a fraction of the mean gap) a slice may lie off its even position for native
+/// spacing to take the slices as evenly spaced.
+inline constexpr double kNativeGapTolerance = 0.01;
+
 struct ResampleOptions {
     /// Output voxel edge in metres; default: the finest input spacing (smallest of the in-plane
     /// steps and the smallest slice gap).
     std::optional<double> voxelSize;
+    /// Keep the source's own spacing instead of an isotropic lattice: voxels of the column step
+    /// x the row step x the slice gap, laid on the world axes the source's columns, rows and
+    /// normal lie along, one voxel per pixel (no margin), centred on the pixel centres (a
+    /// per-axis scale transform when the steps differ). For slices: needs columns, rows and
+    /// normal along the patient axes, no gantry tilt and evenly spaced slices (within
+    /// kNativeGapTolerance); otherwise resample() refuses (ValueError naming the slice and
+    /// what was found) and the caller chooses a voxel size. A single slice is one voxel thick
+    /// (the smaller in-plane step). For a stored volume: its grid is kept as stored (no
+    /// re-gridding to cubic voxels, see resample(const Volume&)). Not with voxelSize.
+    bool nativeSpacing = false;
     /// Values below this become inactive background; default -900 for CT, none
     /// (kNoBackgroundThreshold) for MR, so that no MR value (a field map's or a phase image's
     /// negative values) is lost, and 0 for a source of unknown modality. The source values below
@@ -36,7 +50,8 @@ struct ResampleOptions {
     ProgressFn progress;
 };
 
-/// Checks @p options against palp's bounds: voxelSize a voxel spacing (bounds::kSpacing),
+/// Checks @p options against palp's bounds: voxelSize a voxel spacing (bounds::kSpacing) and not
+/// with nativeSpacing,
 /// backgroundThreshold a volume value (bounds::kVolumeValue), the crop box's corners positions
 /// (bounds::kPosition) with min <= max, maxVoxels > 0. Both resample() overloads (and so load())
 /// call it first.
@@ -75,12 +90,15 @@ float defaultBackgroundThreshold(const VolumeInfo& info);
 Volume resample(const SliceStack& stack, const ResampleOptions& options = {});
 
 /// Re-grids a stored volume (a `.vdb`) with the same options: trilinear resampling onto an
-/// isotropic lattice of options.voxelSize (default: the volume's own) when a voxel size or crop
-/// is given, kept inside options.crop; with options.backgroundThreshold, active values below it
-/// (or equal to the background value) become inactive. The default threshold is not applied: a
-/// stored volume had its threshold applied when it was made (info.backgroundThreshold). With
-/// none of these the volume is returned as is, sharing its grid. The result's info (threshold)
-/// is written into its grid's metadata; progress reports 1 when done.
+/// isotropic lattice of options.voxelSize (default: the volume's own edge) when a voxel size or
+/// crop is given, kept inside options.crop. A volume of non-cubic voxels (native spacing) is
+/// re-gridded to cubic voxels of its smallest edge unless options.nativeSpacing keeps its
+/// lattice (a crop then keeps its transform), so every consumer of load() sees cubic voxels; with
+/// options.backgroundThreshold, active values below it (or equal to the background value) become
+/// inactive. The default threshold is not applied: a stored volume had its threshold applied when
+/// it was made (info.backgroundThreshold). With none of these the volume is returned as is, sharing
+/// its grid. The result's info (threshold) is written into its grid's metadata; progress reports 1
+/// when done.
 /// @throw ValueError for a volume without a grid, options checkResampleOptions() refuses, or an
 ///        error OpenVDB raises re-gridding it (named as such);
 ///        Error("resample: cancelled") when the progress callback returns false.

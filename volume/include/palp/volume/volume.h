@@ -4,6 +4,7 @@
 
 #include <openvdb/openvdb.h>
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <string>
@@ -41,7 +42,10 @@ struct VolumeInfo {
 
 /// A scan as a sparse grid. `grid` is named "scan"; its transform maps index space to world
 /// metres in the DICOM patient frame (LPS: +x left, +y posterior, +z superior). Voxels are
-/// isotropic and axis-aligned (a pure scale and translation). Inactive voxels hold the grid's
+/// axis-aligned (a scale and translation) and cubic, except for a grid made with native spacing
+/// (ResampleOptions::nativeSpacing), whose voxels may have a different edge along each axis;
+/// load() re-grids such a grid to cubic voxels unless asked to keep it, so the kernels, the
+/// mesher and the haptics only ever see cubic voxels. Inactive voxels hold the grid's
 /// background value (e.g. -1000 HU of air); active voxels hold values in `info.valueUnits`.
 ///
 /// @par Threading  Read-only use from many threads is safe if each thread has its own accessor.
@@ -49,8 +53,18 @@ struct Volume {
     openvdb::FloatGrid::Ptr grid;
     VolumeInfo info;
 
-    /// Edge length of a voxel in metres.
-    double voxelSize() const { return grid->transform().voxelSize()[0]; }
+    /// Edge length of a cubic voxel in metres; for non-cubic voxels, the smallest edge.
+    double voxelSize() const {
+        const openvdb::Vec3d v = grid->transform().voxelSize();
+        return std::min(v[0], std::min(v[1], v[2]));
+    }
+    /// Edge lengths of a voxel along index x, y, z in metres.
+    openvdb::Vec3d voxelSizes() const { return grid->transform().voxelSize(); }
+    /// Whether the voxels are cubic (the three edges equal, bit for bit).
+    bool hasCubicVoxels() const {
+        const openvdb::Vec3d v = grid->transform().voxelSize();
+        return v[0] == v[1] && v[1] == v[2];
+    }
     /// World box (metres) of the active voxels' centres; empty box for an empty grid.
     openvdb::BBoxd worldBounds() const;
 };
