@@ -48,6 +48,8 @@ install(TARGETS ${palp_export_targets} EXPORT palpTargets
   LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}
   ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
   RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
+# palp_volume's DICOM library, opened at run time from beside libpalp_volume.so (not linked).
+install(TARGETS palp_volume_dicom LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR})
 foreach(dir kernels/base kernels volume fem haptics/tissue haptics/rendering haptics/devices
     haptics/runtime haptics/studies haptics/capi haptics/perception)
   install(DIRECTORY ${PROJECT_SOURCE_DIR}/${dir}/include/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}

@@ -618,6 +618,26 @@ TEST(ConvertTree, NativeVoxelSizeKeepsTheSeriesOwnSpacing) {
     EXPECT_NE(r.output.find("mm or native, found 'big'"), std::string::npos) << r.output;
 }
 
+TEST(ConvertTree, OnlyADicomInputLoadsGdcm) {
+    // GDCM builds its dictionaries when it is loaded; palp_volume opens its DICOM library (and so
+    // GDCM) at the first DICOM only: `palp --version` and a NIfTI conversion never load it.
+    TempDir tmp;
+    writeNifti(tmp / "brain.nii");
+    writeSeries(tmp / "ct", 12, 10, 4, 0.0, "ct");
+    const auto loaded = [&](const std::string& args) {
+        const auto r = runCommand("LD_DEBUG=files " + palpCommand() + " " + args);
+        EXPECT_EQ(r.exitCode, 0) << args << "\n" << r.output;
+        return std::make_pair(r.output.find("libgdcmMSFF") != std::string::npos,
+                              r.output.find("libpalp_volume_dicom.so") != std::string::npos);
+    };
+    EXPECT_EQ(loaded("--version"), std::make_pair(false, false));
+    EXPECT_EQ(loaded("-q convert " + quoted(tmp / "brain.nii") + " -o " + quoted(tmp / "n.vdb")),
+              std::make_pair(false, false));
+    EXPECT_EQ(loaded("info " + quoted(tmp / "n.vdb")), std::make_pair(false, false));
+    EXPECT_EQ(loaded("-q convert " + quoted(tmp / "ct") + " -o " + quoted(tmp / "c.vdb")),
+              std::make_pair(true, true));
+}
+
 TEST(ConvertTree, RefusesAnOutputFolderThatIsTheInputAndAMissingInput) {
     TempDir tmp;
     fs::create_directories(tmp / "a");

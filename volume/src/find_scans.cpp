@@ -5,7 +5,7 @@
 #include <set>
 #include <utility>
 
-#include "dicom/dicom_scan.h"
+#include "dicom_plugin.h"
 #include "palp/base/error.h"
 
 namespace palp::volume {
@@ -80,68 +80,12 @@ TreeFiles listTree(const fs::path& root, const std::vector<fs::path>& skip) {
     return out;
 }
 
-/// The DICOM series of @p files, with their damaged and unparsable files placed as
-/// FoundScan::files says.
-std::vector<FoundScan> dicomScans(const std::vector<fs::path>& files) {
-    using namespace dicom;
-    const Scan scan = scanHeaders(files);
-    std::vector<FoundScan> out;
-    std::map<std::string, std::size_t> byUid;            // series UID -> index in out
-    std::map<fs::path, std::set<std::size_t>> byFolder;  // folder -> series with a file there
-    for (const SeriesGroup& g : groupSeries(scan)) {
-        FoundScan s;
-        s.format = Format::Dicom;
-        s.seriesUid = g.uid;
-        s.description = g.files.front()->text(kSeriesDescription);
-        s.modality = g.files.front()->text(kModality);
-        s.imageCount = static_cast<int>(g.images.size());
-        for (const Header* h : g.files) {
-            s.files.push_back(h->path);
-            byFolder[h->path.parent_path()].insert(out.size());
-        }
-        byUid[g.uid] = out.size();
-        out.push_back(std::move(s));
-    }
-    // Files of no series: by UID when it was read, else by folder.
-    std::map<std::pair<std::string, fs::path>, std::size_t> leftovers;
-    const auto place = [&](const fs::path& file, const std::string& uid, bool damaged) {
-        if (!uid.empty()) {
-            if (const auto at = byUid.find(uid); at != byUid.end()) {
-                out[at->second].files.push_back(file);
-                return;
-            }
-        } else if (damaged) {
-            // A damaged file whose series cannot be told taints every series beside it, as
-            // load() of their folder refuses them all.
-            if (const auto at = byFolder.find(file.parent_path()); at != byFolder.end()) {
-                for (const std::size_t i : at->second) out[i].files.push_back(file);
-                return;
-            }
-        }
-        const auto key = std::make_pair(uid, uid.empty() ? file.parent_path() : fs::path());
-        auto [slot, fresh] = leftovers.try_emplace(key, out.size());
-        if (fresh) {
-            FoundScan s;
-            s.format = Format::Dicom;
-            s.seriesUid = uid;
-            s.unreadable = true;
-            out.push_back(std::move(s));
-            if (!uid.empty()) byUid[uid] = slot->second;
-        }
-        out[slot->second].files.push_back(file);
-    };
-    for (const auto& [file, walk] : scan.damaged) place(file, walk.seriesUid, true);
-    for (const auto& [file, walk] : scan.unparsed) place(file, walk.seriesUid, false);
-    for (FoundScan& s : out) std::sort(s.files.begin(), s.files.end());
-    return out;
-}
-
 }  // namespace
 
 std::vector<FoundScan> findScans(const fs::path& root, const std::vector<fs::path>& skip) {
     TreeFiles tree = listTree(root, skip);
     std::vector<FoundScan> out;
-    if (!tree.dicom.empty()) out = dicomScans(tree.dicom);
+    if (!tree.dicom.empty()) out = detail::dicomPlugin().findScans(tree.dicom);
     for (FoundScan& s : tree.others) out.push_back(std::move(s));
     for (FoundScan& s : out) s.folder = commonFolder(s.files);
     std::sort(out.begin(), out.end(), [](const FoundScan& a, const FoundScan& b) {

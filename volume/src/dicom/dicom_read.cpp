@@ -16,6 +16,7 @@
 #include "dicom/dicom_mosaic.h"
 #include "dicom/dicom_pixels.h"
 #include "dicom/dicom_scan.h"
+#include "dicom/dicom_series.h"
 #include "dicom/dicom_slices.h"
 #include "dicom/dicom_walk.h"
 #include "lazy_stack.h"
@@ -135,11 +136,8 @@ SliceStack readMosaicSeries(const std::vector<const Header*>& images,
 }
 
 }  // namespace
-}  // namespace dicom
 
-using namespace dicom;
-
-std::vector<DicomSeriesInfo> scanDicom(const std::vector<fs::path>& inputs) {
+std::vector<DicomSeriesInfo> scanSeries(const std::vector<fs::path>& inputs) {
     const Scan scan = scanHeaders(inputs);
     if (scan.headers.empty()) throwNoDicom(scan);
     std::vector<DicomSeriesInfo> out;
@@ -147,9 +145,7 @@ std::vector<DicomSeriesInfo> scanDicom(const std::vector<fs::path>& inputs) {
     return out;
 }
 
-namespace detail {
-
-LazySliceStack openDicom(const std::vector<fs::path>& inputs, const ReadOptions& options) {
+detail::LazySliceStack openSeries(const std::vector<fs::path>& inputs, const ReadOptions& options) {
     // The headers stay alive with the decoder, which reads the chosen files through them.
     const auto scanned = std::make_shared<const Scan>(scanHeaders(inputs));
     const Scan& scan = *scanned;
@@ -229,7 +225,7 @@ LazySliceStack openDicom(const std::vector<fs::path>& inputs, const ReadOptions&
     checkMemory(name, first.integer(kColumns, 0), first.integer(kRows, 0), chosen.size(),
                 options.maxSourceBytes);
 
-    LazySliceStack lazy;
+    detail::LazySliceStack lazy;
     SliceStack& stack = lazy.stack;
     stack.slices.resize(chosen.size());
     for (std::size_t i = 0; i < chosen.size(); ++i) {
@@ -255,10 +251,8 @@ LazySliceStack openDicom(const std::vector<fs::path>& inputs, const ReadOptions&
     return lazy;
 }
 
-}  // namespace detail
-
-SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& options) {
-    detail::LazySliceStack lazy = detail::openDicom(inputs, options);
+SliceStack readSeries(const std::vector<fs::path>& inputs, const ReadOptions& options) {
+    detail::LazySliceStack lazy = openSeries(inputs, options);
     if (!lazy.decode) return std::move(lazy.stack);
     std::vector<Slice>& slices = lazy.stack.slices;
     // Files decoded in parallel; when several fail, the first file's error is reported, as a
@@ -279,4 +273,5 @@ SliceStack readDicom(const std::vector<fs::path>& inputs, const ReadOptions& opt
     return std::move(lazy.stack);
 }
 
+}  // namespace dicom
 }  // namespace palp::volume

@@ -10,6 +10,7 @@
 #include "dicom/dicom_header.h"
 #include "dicom/dicom_walk.h"
 #include "palp/volume/dicom.h"
+#include "palp/volume/find_scans.h"
 
 namespace palp::volume::dicom {
 
@@ -55,5 +56,9 @@ const SeriesGroup& chooseSeries(const Scan& scan, const std::vector<SeriesGroup>
 
 /// The inputs and the series description, for messages.
 std::string seriesName(const Scan& scan, const SeriesGroup& g);
+
+/// The DICOM series of @p files (find_scans' DICOM part), with their damaged and unparsable
+/// files placed as FoundScan::files says.
+std::vector<FoundScan> findScans(const std::vector<std::filesystem::path>& files);
 
 }  // namespace palp::volume::dicom

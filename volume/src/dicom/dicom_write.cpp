@@ -21,6 +21,7 @@
 #include <system_error>
 #include <vector>
 
+#include "dicom/dicom_series.h"
 #include "palp/base/atomic_file.h"
 #include "palp/base/error.h"
 #include "palp/base/validate.h"
@@ -238,8 +239,9 @@ void writeSlice(const SliceStack& stack, std::size_t k, const DicomWriteOptions&
 
 }  // namespace
 
-void writeDicomSeries(const SliceStack& stack, const fs::path& dir,
-                      const DicomWriteOptions& options) {
+namespace dicom {
+
+void writeSeries(const SliceStack& stack, const fs::path& dir, const DicomWriteOptions& options) {
     checkWritable(stack, options, dir.string());
     Cleanup cleanup;
     prepareDirectory(dir, cleanup);
@@ -272,4 +274,5 @@ void writeDicomSeries(const SliceStack& stack, const fs::path& dir,
     cleanup.armed = false;
 }
 
+}  // namespace dicom
 }  // namespace palp::volume
