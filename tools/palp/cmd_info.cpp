@@ -108,6 +108,9 @@ json describeVolume(const volume::Volume& v, const fs::path& path) {
         {"gantry_tilt_deg", i.gantryTiltDeg},
         {"time_point", i.timePoint},
         {"time_point_count", i.timePointCount}};
+    // As dcm2niix's sidecar names it; only GE EPI series have it.
+    if (!i.phaseEncodingPolarityGE.empty())
+        j["metadata"]["phase_encoding_polarity_ge"] = i.phaseEncodingPolarityGE;
     return j;
 }
 

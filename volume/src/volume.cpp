@@ -46,6 +46,10 @@ void writeInfo(const VolumeInfo& info, openvdb::GridBase& grid) {
     grid.insertMeta("palp:gantry_tilt_deg", openvdb::DoubleMetadata(info.gantryTiltDeg));
     grid.insertMeta("palp:time_point", openvdb::Int32Metadata(info.timePoint));
     grid.insertMeta("palp:time_point_count", openvdb::Int32Metadata(info.timePointCount));
+    if (!info.phaseEncodingPolarityGE.empty()) {
+        grid.insertMeta("palp:phase_encoding_polarity_ge",
+                        openvdb::StringMetadata(info.phaseEncodingPolarityGE));
+    }
     grid.insertMeta("palp:background_threshold", openvdb::FloatMetadata(info.backgroundThreshold));
     grid.insertMeta("palp:values_below_threshold",
                     openvdb::Int64Metadata(static_cast<std::int64_t>(info.valuesBelowThreshold)));
@@ -69,6 +73,7 @@ VolumeInfo readInfo(const openvdb::GridBase& grid) {
     info.gantryTiltDeg = metaOr(grid, "palp:gantry_tilt_deg", 0.0);
     info.timePoint = metaOr(grid, "palp:time_point", -1);
     info.timePointCount = metaOr(grid, "palp:time_point_count", 1);
+    info.phaseEncodingPolarityGE = metaOr<std::string>(grid, "palp:phase_encoding_polarity_ge", "");
     info.backgroundThreshold = metaOr(grid, "palp:background_threshold", -900.0f);
     info.valuesBelowThreshold = static_cast<std::uint64_t>(
         std::max<std::int64_t>(0, metaOr(grid, "palp:values_below_threshold", std::int64_t{0})));

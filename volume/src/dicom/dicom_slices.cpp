@@ -7,6 +7,7 @@
 #include <map>
 #include <utility>
 
+#include "dicom/dicom_ge.h"
 #include "palp/base/error.h"
 
 namespace palp::volume::dicom {
@@ -321,6 +322,7 @@ void fillInfo(VolumeInfo& info, const Header& first, const std::vector<fs::path>
     info.gantryTiltDeg = first.number(kGantryTilt).value_or(0.0);
     info.timePoint = timePointCount > 1 ? timePoint : -1;
     info.timePointCount = timePointCount;
+    if (info.modality == "MR") info.phaseEncodingPolarityGE = gePhaseEncodingPolarity(first.path);
 }
 
 }  // namespace palp::volume::dicom

@@ -33,6 +33,10 @@ struct VolumeInfo {
     double gantryTiltDeg = 0;     ///< angle between the slice normal and the stacking direction
     int timePoint = -1;           ///< 0-based volume index chosen from a 4D source, -1 for 3D
     int timePointCount = 1;       ///< number of volumes in the source
+    /// GE EPI phase-encoding polarity, "Flipped" or "Unflipped" as dcm2niix's JSON sidecar
+    /// writes PhaseEncodingPolarityGE; "" when not a GE EPI or not told. Recorded only: neither
+    /// palp nor dcm2niix changes a pixel for it (docs/volumes.md).
+    std::string phaseEncodingPolarityGE;
     float backgroundThreshold = -900;  ///< values below this became inactive background
     /// Source values (pixels of the slices read) below backgroundThreshold, other than the
     /// background value itself: values the grid no longer holds (they read as the background).
