@@ -3,11 +3,7 @@
 // way round) reads back exactly, agrees with dcm2niix on every voxel centre and value, and is
 // counted by scanDicom as `palp info` shows it.
 #include <gdcmAttribute.h>
-#include <gdcmImageWriter.h>
-#include <gdcmMediaStorage.h>
 #include <gdcmReader.h>
-#include <gdcmTrace.h>
-#include <gdcmUIDGenerator.h>
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
 #include <nifti2_io.h>
@@ -20,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "dicom_test_writer.h"
 #include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
@@ -81,14 +78,6 @@ std::string csaHeader(const std::vector<std::pair<std::string, std::vector<std::
     return out;
 }
 
-void setText(gdcm::DataSet& ds, std::uint16_t g, std::uint16_t e, gdcm::VR vr, std::string v) {
-    if (v.size() % 2) v.push_back(vr == gdcm::VR::UI ? '\0' : ' ');
-    gdcm::DataElement de(gdcm::Tag(g, e));
-    de.SetVR(vr);
-    de.SetByteValue(v.data(), static_cast<std::uint32_t>(v.size()));
-    ds.Replace(de);
-}
-
 std::string num(double v) {
     char buf[32];
     std::snprintf(buf, sizeof buf, "%.8f", v);
@@ -118,71 +107,47 @@ void writeMosaicFile(const Known& known, const MosaicSpec& spec, const fs::path&
                 pixels[static_cast<std::size_t>((r0 + r) * cols + c0 + c)] =
                     Known::value(c, r, k, t);
     }
-    gdcm::Trace::WarningOff();  // GDCM's writer warns of the Photometric Interpretation it sets
-    gdcm::ImageWriter writer;
-    gdcm::Image& image = writer.GetImage();
-    image.SetNumberOfDimensions(2);
-    image.SetDimension(0, static_cast<unsigned>(cols));
-    image.SetDimension(1, static_cast<unsigned>(rows));
-    image.SetPixelFormat(gdcm::PixelFormat(gdcm::PixelFormat::INT16));
-    image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
+    palp::test::DicomImage image;
+    image.cols = cols;
+    image.rows = rows;
+    image.pixels = palp::test::storedWords(pixels);
     const Eigen::Vector3d u = known.rowCosine(), v = known.columnCosine();
-    const double dir[6] = {u.x(), u.y(), u.z(), v.x(), v.y(), v.z()};
-    image.SetDirectionCosines(dir);
-    const double spacing[3] = {Known::kColSpacing, Known::kRowSpacing, Known::kSliceSpacing};
-    image.SetSpacing(spacing);
-    image.SetSpacing(2, Known::kSliceSpacing);  // written as Spacing Between Slices
+    image.cosines = {u.x(), u.y(), u.z(), v.x(), v.y(), v.z()};
+    // The third spacing is written as Spacing Between Slices.
+    image.spacingMm = {Known::kColSpacing, Known::kRowSpacing, Known::kSliceSpacing};
     // Image Position (Patient) of a mosaic: the corner of a tile-sized image centred on the
     // whole mosaic, i.e. the first slice's corner moved back by half the extra columns and rows.
     const Eigen::Vector3d ipp = known.firstMm -
                                 u * Known::kColSpacing * (cols - spec.tileCols) / 2.0 -
                                 v * Known::kRowSpacing * (rows - spec.tileRows) / 2.0;
-    const double origin[3] = {ipp.x(), ipp.y(), ipp.z()};
-    image.SetOrigin(origin);
-    image.SetOrigin(2, ipp.z());  // a 2D gdcm::Image keeps two components of the array
-    gdcm::DataElement pd(gdcm::Tag(0x7fe0, 0x0010));
-    pd.SetByteValue(reinterpret_cast<const char*>(pixels.data()),
-                    static_cast<std::uint32_t>(pixels.size() * 2));
-    image.SetDataElement(pd);
-    image.SetTransferSyntax(spec.syntax);
-    gdcm::File& f = writer.GetFile();
-    f.GetHeader().SetDataSetTransferSyntax(spec.syntax);
-    gdcm::DataSet& ds = f.GetDataSet();
-    setText(ds, 0x0008, 0x0016, gdcm::VR::UI,
-            gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage));
-    gdcm::UIDGenerator gen;
-    setText(ds, 0x0008, 0x0018, gdcm::VR::UI, gen.Generate());
-    setText(ds, 0x0008, 0x0008, gdcm::VR::CS, "ORIGINAL\\PRIMARY\\M\\ND\\MOSAIC");
-    setText(ds, 0x0008, 0x0060, gdcm::VR::CS, "MR");
-    setText(ds, 0x0008, 0x0070, gdcm::VR::LO, "SIEMENS");
-    setText(ds, 0x0008, 0x0032, gdcm::VR::TM, "1200" + std::to_string(10 + 2 * t) + ".000000");
-    setText(ds, 0x0008, 0x103e, gdcm::VR::LO, "ep2d_bold mosaic");
-    setText(ds, 0x0018, 0x0050, gdcm::VR::DS, "3");
-    setText(ds, 0x0018, 0x0088, gdcm::VR::DS, num(Known::kSliceSpacing));
-    setText(ds, 0x0020, 0x000d, gdcm::VR::UI, seriesUid + ".1");
-    setText(ds, 0x0020, 0x000e, gdcm::VR::UI, seriesUid);
-    setText(ds, 0x0020, 0x0011, gdcm::VR::IS, "5");
-    setText(ds, 0x0020, 0x0012, gdcm::VR::IS, std::to_string(t + 1));
-    setText(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(t + 1));
-    setText(ds, 0x0019, 0x0010, gdcm::VR::LO, "SIEMENS MR HEADER");
-    gdcm::DataElement count(gdcm::Tag(0x0019, 0x100a));
-    count.SetVR(gdcm::VR::US);
-    const auto n = static_cast<std::uint16_t>(spec.imagesInMosaic);
-    count.SetByteValue(reinterpret_cast<const char*>(&n), 2);
-    ds.Replace(count);
-    setText(ds, 0x0029, 0x0010, gdcm::VR::LO, "SIEMENS CSA HEADER");
-    const Eigen::Vector3d sn = sign * known.normal();
-    std::vector<std::pair<std::string, std::vector<std::string>>> csaTags;
-    if (spec.csaCount)
-        csaTags.push_back({"NumberOfImagesInMosaic", {std::to_string(spec.imagesInMosaic)}});
-    csaTags.push_back({"SliceNormalVector", {num(sn.x()), num(sn.y()), num(sn.z())}});
-    const std::string csa = csaHeader(csaTags);
-    gdcm::DataElement csaElement(gdcm::Tag(0x0029, 0x1010));
-    csaElement.SetVR(gdcm::VR::OB);
-    csaElement.SetByteValue(csa.data(), static_cast<std::uint32_t>(csa.size()));
-    ds.Replace(csaElement);
-    writer.SetFileName(file.c_str());
-    ASSERT_TRUE(writer.Write());
+    image.positionMm = {ipp.x(), ipp.y(), ipp.z()};
+    image.syntax = spec.syntax;
+    palp::test::writeDicomImage(file, image, [&](gdcm::DataSet& ds) {
+        using palp::test::setBytes;
+        using palp::test::setText;
+        setText(ds, 0x0008, 0x0008, gdcm::VR::CS, "ORIGINAL\\PRIMARY\\M\\ND\\MOSAIC");
+        setText(ds, 0x0008, 0x0070, gdcm::VR::LO, "SIEMENS");
+        setText(ds, 0x0008, 0x0032, gdcm::VR::TM, "1200" + std::to_string(10 + 2 * t) + ".000000");
+        setText(ds, 0x0008, 0x103e, gdcm::VR::LO, "ep2d_bold mosaic");
+        setText(ds, 0x0018, 0x0050, gdcm::VR::DS, "3");
+        setText(ds, 0x0018, 0x0088, gdcm::VR::DS, num(Known::kSliceSpacing));
+        setText(ds, 0x0020, 0x000d, gdcm::VR::UI, seriesUid + ".1");
+        setText(ds, 0x0020, 0x000e, gdcm::VR::UI, seriesUid);
+        setText(ds, 0x0020, 0x0011, gdcm::VR::IS, "5");
+        setText(ds, 0x0020, 0x0012, gdcm::VR::IS, std::to_string(t + 1));
+        setText(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(t + 1));
+        setText(ds, 0x0019, 0x0010, gdcm::VR::LO, "SIEMENS MR HEADER");
+        const auto n = static_cast<std::uint16_t>(spec.imagesInMosaic);
+        setBytes(ds, gdcm::Tag(0x0019, 0x100a), gdcm::VR::US,
+                 std::string(reinterpret_cast<const char*>(&n), 2));
+        setText(ds, 0x0029, 0x0010, gdcm::VR::LO, "SIEMENS CSA HEADER");
+        const Eigen::Vector3d sn = sign * known.normal();
+        std::vector<std::pair<std::string, std::vector<std::string>>> csaTags;
+        if (spec.csaCount)
+            csaTags.push_back({"NumberOfImagesInMosaic", {std::to_string(spec.imagesInMosaic)}});
+        csaTags.push_back({"SliceNormalVector", {num(sn.x()), num(sn.y()), num(sn.z())}});
+        setBytes(ds, gdcm::Tag(0x0029, 0x1010), gdcm::VR::OB, csaHeader(csaTags));
+    });
 }
 
 /// Writes time point @p t of the known volume as one MOSAIC file (7 slices of 6x5 in a 3x3 grid).

@@ -4,9 +4,8 @@
 // background threshold 0 deactivated every negative value (a public field map kept 28,515 of
 // 141,900 voxels). A threshold given explicitly still applies, and the values it takes away are
 // counted and reported by palp convert.
-#include <gdcmImageWriter.h>
 #include <gdcmMediaStorage.h>
-#include <gdcmTrace.h>
+#include <gdcmReader.h>
 #include <gdcmUIDGenerator.h>
 #include <gtest/gtest.h>
 
@@ -16,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "dicom_test_writer.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
 #include "palp/volume/resample.h"
@@ -28,14 +28,6 @@ using palp::test::TempDir;
 
 constexpr int kCols = 20, kRows = 16, kSlices = 6;
 constexpr double kMm = 2.0;  // pixel spacing and slice gap: the grid's voxels are the pixels
-
-void setText(gdcm::DataSet& ds, std::uint16_t g, std::uint16_t e, gdcm::VR vr, std::string v) {
-    if (v.size() % 2) v.push_back(vr == gdcm::VR::UI ? '\0' : ' ');
-    gdcm::DataElement de(gdcm::Tag(g, e));
-    de.SetVR(vr);
-    de.SetByteValue(v.data(), static_cast<std::uint32_t>(v.size()));
-    ds.Replace(de);
-}
 
 /// A field map in Hz: -250..250 over the volume, zero nowhere but at a few voxels.
 std::int16_t fieldMapHz(int c, int r, int k) {
@@ -57,46 +49,26 @@ void writeSeries(const fs::path& dir, const std::function<int(int, int, int)>& s
     gdcm::UIDGenerator gen;
     const std::string series = gen.Generate();
     for (int k = 0; k < kSlices; ++k) {
-        std::vector<std::uint16_t> pixels;  // the bits of int16 or uint16 values
+        palp::test::DicomImage image;
+        image.cols = kCols;
+        image.rows = kRows;
         for (int r = 0; r < kRows; ++r)
             for (int c = 0; c < kCols; ++c)
-                pixels.push_back(static_cast<std::uint16_t>(stored(c, r, k)));
-        gdcm::Trace::WarningOff();
-        gdcm::ImageWriter writer;
-        gdcm::Image& image = writer.GetImage();
-        image.SetNumberOfDimensions(2);
-        image.SetDimension(0, kCols);
-        image.SetDimension(1, kRows);
-        image.SetPixelFormat(storage.isSigned ? gdcm::PixelFormat(gdcm::PixelFormat::INT16)
-                                              : gdcm::PixelFormat(1, 16, 12, 11, 0));
-        image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
-        const double cosines[6] = {1, 0, 0, 0, 1, 0};
-        image.SetDirectionCosines(cosines);
-        const double spacing[3] = {kMm, kMm, kMm};
-        image.SetSpacing(spacing);
-        const double origin[3] = {-20.0, -16.0, kMm * k};
-        image.SetOrigin(origin);
-        image.SetOrigin(2, kMm * k);
-        gdcm::DataElement pd(gdcm::Tag(0x7fe0, 0x0010));
-        pd.SetByteValue(reinterpret_cast<const char*>(pixels.data()),
-                        static_cast<std::uint32_t>(pixels.size() * 2));
-        image.SetDataElement(pd);
-        gdcm::File& f = writer.GetFile();
-        f.GetHeader().SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-        gdcm::DataSet& ds = f.GetDataSet();
-        setText(ds, 0x0008, 0x0016, gdcm::VR::UI,
-                gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage));
-        setText(ds, 0x0008, 0x0018, gdcm::VR::UI, gen.Generate());
-        setText(ds, 0x0008, 0x0008, gdcm::VR::CS, "ORIGINAL\\PRIMARY\\B0 MAP");
-        setText(ds, 0x0008, 0x0060, gdcm::VR::CS, "MR");
-        setText(ds, 0x0008, 0x103e, gdcm::VR::LO, "field map Hz");
-        setText(ds, 0x0020, 0x000d, gdcm::VR::UI, series + ".1");
-        setText(ds, 0x0020, 0x000e, gdcm::VR::UI, series);
-        setText(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(k + 1));
-        setText(ds, 0x0028, 0x1052, gdcm::VR::DS, storage.intercept);
-        setText(ds, 0x0028, 0x1053, gdcm::VR::DS, storage.slope);
-        writer.SetFileName((dir / ("f" + std::to_string(k) + ".dcm")).c_str());
-        ASSERT_TRUE(writer.Write());
+                image.pixels.push_back(static_cast<std::uint16_t>(stored(c, r, k)));
+        if (!storage.isSigned) image.format = gdcm::PixelFormat(1, 16, 12, 11, 0);
+        image.spacingMm = {kMm, kMm, kMm};
+        image.positionMm = {-20.0, -16.0, kMm * k};
+        palp::test::writeDicomImage(
+            dir / ("f" + std::to_string(k) + ".dcm"), image, [&](gdcm::DataSet& ds) {
+                using palp::test::setText;
+                setText(ds, 0x0008, 0x0008, gdcm::VR::CS, "ORIGINAL\\PRIMARY\\B0 MAP");
+                setText(ds, 0x0008, 0x103e, gdcm::VR::LO, "field map Hz");
+                setText(ds, 0x0020, 0x000d, gdcm::VR::UI, series + ".1");
+                setText(ds, 0x0020, 0x000e, gdcm::VR::UI, series);
+                setText(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(k + 1));
+                setText(ds, 0x0028, 0x1052, gdcm::VR::DS, storage.intercept);
+                setText(ds, 0x0028, 0x1053, gdcm::VR::DS, storage.slope);
+            });
     }
 }
 
@@ -227,6 +199,54 @@ TEST(DicomSignedMr, ConvertReportsWhatTheThresholdTakes) {
     // The count travels with the file.
     EXPECT_EQ(palp::volume::loadVdb(tmp / "f.vdb").info.valuesBelowThreshold,
               static_cast<std::uint64_t>(negative));
+}
+
+TEST(DicomSignedMr, WriteDicomSeriesKeepsAnMrRescaleAndItsPlane) {
+    // GDCM turns a classic MR image with a rescale into an Enhanced MR one, its Image Position
+    // inside functional groups; writeDicomSeries() keeps MR Image Storage with the plane at the
+    // top level, and the series reads back exactly.
+    TempDir tmp;
+    palp::volume::SliceStack st;
+    st.info.modality = "MR";
+    for (int k = 0; k < 3; ++k) {
+        palp::volume::Slice s;
+        s.cols = 5;
+        s.rows = 4;
+        s.colStep = {1e-3, 0, 0};
+        s.rowStep = {0, 1.5e-3, 0};
+        s.position = {-2e-3, 3e-3, 2e-3 * k};
+        for (int i = 0; i < s.cols * s.rows; ++i)
+            s.values.push_back(static_cast<float>(2 * (i + 30 * k) - 100));
+        st.slices.push_back(s);
+    }
+    palp::volume::DicomWriteOptions wo;
+    wo.modality = "MR";
+    wo.rescaleSlope = 2;
+    wo.rescaleIntercept = -100;
+    palp::volume::writeDicomSeries(st, tmp / "mr", wo);
+    gdcm::Reader reader;
+    reader.SetFileName((tmp / "mr" / "IMG0002.dcm").c_str());
+    ASSERT_TRUE(reader.Read());
+    const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
+    const auto text = [&](std::uint16_t g, std::uint16_t e) {
+        const gdcm::Tag tag(g, e);
+        if (!ds.FindDataElement(tag) || !ds.GetDataElement(tag).GetByteValue())
+            return std::string();
+        const gdcm::ByteValue* bv = ds.GetDataElement(tag).GetByteValue();
+        std::string v(bv->GetPointer(), bv->GetLength());
+        while (!v.empty() && (v.back() == ' ' || v.back() == '\0')) v.pop_back();
+        return v;
+    };
+    EXPECT_EQ(text(0x0008, 0x0016),
+              gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage));
+    EXPECT_EQ(text(0x0020, 0x0032), "-2\\3\\2");
+    EXPECT_EQ(text(0x0028, 0x1053), "2");
+    const palp::volume::SliceStack back = palp::volume::readStack({tmp / "mr"}, {});
+    ASSERT_EQ(back.slices.size(), 3u);
+    for (std::size_t k = 0; k < 3; ++k) {
+        EXPECT_LE((back.slices[k].position - st.slices[k].position).norm(), 1e-9) << k;
+        EXPECT_EQ(back.slices[k].values, st.slices[k].values) << k;
+    }
 }
 
 }  // namespace

@@ -3,10 +3,6 @@
 // export (a b = 0 and a b = 1000 volume, Instance Numbers in acquisition order, Acquisition
 // Number not constant over a volume), of a series whose instance numbers restart with each
 // acquisition, and of one whose keys cannot tell the order at all.
-#include <gdcmImageWriter.h>
-#include <gdcmMediaStorage.h>
-#include <gdcmTrace.h>
-#include <gdcmUIDGenerator.h>
 #include <gtest/gtest.h>
 
 #include <cstdint>
@@ -15,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "dicom_test_writer.h"
 #include "palp/base/error.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
@@ -45,72 +42,35 @@ struct ImageKeys {
     std::string acquisitionTime = "101530.12";  // one for the whole series, as Philips gives it
 };
 
-void setText(gdcm::DataSet& ds, std::uint16_t g, std::uint16_t e, gdcm::VR vr, std::string v) {
-    if (v.size() % 2) v.push_back(vr == gdcm::VR::UI ? '\0' : ' ');
-    gdcm::DataElement de(gdcm::Tag(g, e));
-    de.SetVR(vr);
-    de.SetByteValue(v.data(), static_cast<std::uint32_t>(v.size()));
-    ds.Replace(de);
-}
-
-void setDoubles(gdcm::DataSet& ds, std::uint16_t g, std::uint16_t e, const std::vector<double>& v) {
-    gdcm::DataElement de(gdcm::Tag(g, e));
-    de.SetVR(gdcm::VR::FD);
-    de.SetByteValue(reinterpret_cast<const char*>(v.data()),
-                    static_cast<std::uint32_t>(v.size() * sizeof(double)));
-    ds.Replace(de);
-}
-
 /// Writes the image of position @p k, time point @p t, an axial 4x3 slice k x 3 mm up, with the
 /// time keys @p keys (explicit VR little endian, as the Philips files are).
 void writeImage(const fs::path& file, int k, int t, const ImageKeys& keys,
                 const std::string& seriesUid) {
-    std::vector<std::int16_t> pixels(kCols * kRows);
+    palp::test::DicomImage image;
+    image.cols = kCols;
+    image.rows = kRows;
     for (int r = 0; r < kRows; ++r)
         for (int c = 0; c < kCols; ++c)
-            pixels[static_cast<std::size_t>(r * kCols + c)] = value(c, r, k, t);
-    gdcm::Trace::WarningOff();
-    gdcm::ImageWriter writer;
-    gdcm::Image& image = writer.GetImage();
-    image.SetNumberOfDimensions(2);
-    image.SetDimension(0, kCols);
-    image.SetDimension(1, kRows);
-    image.SetPixelFormat(gdcm::PixelFormat(gdcm::PixelFormat::INT16));
-    image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
-    const double dir[6] = {1, 0, 0, 0, 1, 0};
-    image.SetDirectionCosines(dir);
-    const double spacing[3] = {kPixelMm, kPixelMm, kGapMm};
-    image.SetSpacing(spacing);
-    const double origin[3] = {-3.0, -2.0, kGapMm * k};
-    image.SetOrigin(origin);
-    image.SetOrigin(2, kGapMm * k);
-    gdcm::DataElement pd(gdcm::Tag(0x7fe0, 0x0010));
-    pd.SetByteValue(reinterpret_cast<const char*>(pixels.data()),
-                    static_cast<std::uint32_t>(pixels.size() * 2));
-    image.SetDataElement(pd);
-    gdcm::File& f = writer.GetFile();
-    f.GetHeader().SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-    gdcm::DataSet& ds = f.GetDataSet();
-    setText(ds, 0x0008, 0x0016, gdcm::VR::UI,
-            gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::MRImageStorage));
-    gdcm::UIDGenerator gen;
-    setText(ds, 0x0008, 0x0018, gdcm::VR::UI, gen.Generate());
-    setText(ds, 0x0008, 0x0008, gdcm::VR::CS, "ORIGINAL\\PRIMARY\\M_SE\\M\\SE");
-    setText(ds, 0x0008, 0x0060, gdcm::VR::CS, "MR");
-    setText(ds, 0x0008, 0x0070, gdcm::VR::LO, "Philips Medical Systems");
-    setText(ds, 0x0008, 0x0032, gdcm::VR::TM, keys.acquisitionTime);
-    setText(ds, 0x0008, 0x103e, gdcm::VR::LO, "DTI_low_iso");
-    setText(ds, 0x0018, 0x0050, gdcm::VR::DS, "3");
-    setText(ds, 0x0020, 0x000d, gdcm::VR::UI, seriesUid + ".1");
-    setText(ds, 0x0020, 0x000e, gdcm::VR::UI, seriesUid);
-    setText(ds, 0x0020, 0x0011, gdcm::VR::IS, "1001");
-    setText(ds, 0x0020, 0x0012, gdcm::VR::IS, std::to_string(keys.acquisition));
-    setText(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(keys.instance));
-    setText(ds, 0x0020, 0x0100, gdcm::VR::IS, "1");  // Temporal Position Identifier
-    setDoubles(ds, 0x0018, 0x9087, {keys.bValue});
-    setDoubles(ds, 0x0018, 0x9089, {keys.gradient[0], keys.gradient[1], keys.gradient[2]});
-    writer.SetFileName(file.c_str());
-    ASSERT_TRUE(writer.Write());
+            image.pixels.push_back(static_cast<std::uint16_t>(value(c, r, k, t)));
+    image.spacingMm = {kPixelMm, kPixelMm, kGapMm};
+    image.positionMm = {-3.0, -2.0, kGapMm * k};
+    palp::test::writeDicomImage(file, image, [&](gdcm::DataSet& ds) {
+        using palp::test::setDoubles;
+        using palp::test::setText;
+        setText(ds, 0x0008, 0x0008, gdcm::VR::CS, "ORIGINAL\\PRIMARY\\M_SE\\M\\SE");
+        setText(ds, 0x0008, 0x0070, gdcm::VR::LO, "Philips Medical Systems");
+        setText(ds, 0x0008, 0x0032, gdcm::VR::TM, keys.acquisitionTime);
+        setText(ds, 0x0008, 0x103e, gdcm::VR::LO, "DTI_low_iso");
+        setText(ds, 0x0018, 0x0050, gdcm::VR::DS, "3");
+        setText(ds, 0x0020, 0x000d, gdcm::VR::UI, seriesUid + ".1");
+        setText(ds, 0x0020, 0x000e, gdcm::VR::UI, seriesUid);
+        setText(ds, 0x0020, 0x0011, gdcm::VR::IS, "1001");
+        setText(ds, 0x0020, 0x0012, gdcm::VR::IS, std::to_string(keys.acquisition));
+        setText(ds, 0x0020, 0x0013, gdcm::VR::IS, std::to_string(keys.instance));
+        setText(ds, 0x0020, 0x0100, gdcm::VR::IS, "1");  // Temporal Position Identifier
+        setDoubles(ds, 0x0018, 0x9087, {keys.bValue});
+        setDoubles(ds, 0x0018, 0x9089, {keys.gradient[0], keys.gradient[1], keys.gradient[2]});
+    });
 }
 
 /// Writes a series of kPositions positions x 2 time points into @p dir, the keys of each image

@@ -4,6 +4,7 @@
 #include <gdcmDataSet.h>
 #include <gdcmFile.h>
 #include <gdcmImage.h>
+#include <gdcmImageHelper.h>
 #include <gdcmImageWriter.h>
 #include <gdcmMediaStorage.h>
 #include <gdcmPhotometricInterpretation.h>
@@ -149,6 +150,22 @@ struct SeriesIds {
     std::string date, time;  // one study and series date/time for every file (DA, TM)
 };
 
+/// Writes @p writer's file as the classic image its SOP class says. GDCM writes an MR image with
+/// a rescale (slope not 1 or intercept not 0) as an Enhanced MR image, its plane (Image Position,
+/// Orientation, Pixel Spacing) inside functional groups, unless told to keep the classic
+/// image's rescale (gdcmImageHelper.h, ForceRescaleInterceptSlope); the flag is process-wide,
+/// so it is set for this write only and restored.
+bool writeKeepingRescale(gdcm::ImageWriter& writer) {
+    struct Force {
+        const bool previous = gdcm::ImageHelper::GetForceRescaleInterceptSlope();
+        Force() { gdcm::ImageHelper::SetForceRescaleInterceptSlope(true); }
+        ~Force() { gdcm::ImageHelper::SetForceRescaleInterceptSlope(previous); }
+        Force(const Force&) = delete;
+        Force& operator=(const Force&) = delete;
+    } force;
+    return writer.Write();
+}
+
 /// Writes slice @p k of @p stack to @p finalPath through a temporary file; @p stored is scratch.
 /// @throw IoError naming the file.
 void writeSlice(const SliceStack& stack, std::size_t k, const DicomWriteOptions& options,
@@ -230,7 +247,7 @@ void writeSlice(const SliceStack& stack, std::size_t k, const DicomWriteOptions&
 
     AtomicFile out(finalPath, "DICOM file");
     writer.SetFileName(out.tempPath().string().c_str());
-    if (!writer.Write())
+    if (!writeKeepingRescale(writer))
         throw IoError(out.tempPath().string() +
                       ": expected to write a DICOM file, found a write failure");
     cleanup.paths.push_back(finalPath);
