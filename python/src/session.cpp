@@ -67,7 +67,7 @@ struct PySession {
 std::unique_ptr<PySession> makeSession(std::shared_ptr<Scene> scene, py::object device,
                                        std::optional<haptics::SessionParams> params,
                                        const std::string& spec, bool watchdog, int servoCpu,
-                                       int servoPriority) {
+                                       int servoPriority, bool servoReserveCpu) {
     if (!scene) throw ValueError("scene: expected a palp.Scene, found None");
     auto p = std::make_unique<PySession>();
     p->scene = std::move(scene);
@@ -75,6 +75,7 @@ std::unique_ptr<PySession> makeSession(std::shared_ptr<Scene> scene, py::object 
     haptics::SessionParams sp = params.value_or(haptics::SessionParams{});
     sp.servo.cpu = servoCpu;  // checked by Session (validateServoConfig), naming the field
     sp.servo.priority = servoPriority;
+    sp.servo.reserveCpu = servoReserveCpu;
     Device* inner = nullptr;
     if (py::isinstance<Device>(device)) {
         inner = device.cast<Device*>();
@@ -408,12 +409,14 @@ void bindSession(py::module_& m) {
         "timestamp[, sequence]]]) and write(force). Step it offline with step() / run(n); "
         "start() runs palp's own devices on the 1 kHz servo thread (never a Python device: the "
         "servo thread must not call into Python), pinned to servo_cpu (-1: the last CPU) at "
-        "SCHED_FIFO servo_priority (0: normal priority); a SCHED_FIFO loop that misses more than "
+        "SCHED_FIFO servo_priority (0: normal priority), the process's other threads kept off its "
+        "CPU while it runs unless servo_reserve_cpu=False; a SCHED_FIFO loop that misses more than "
         "half its deadlines in two windows of 0.4 s drops the priority and renders no force "
         "(stats()['overloaded']).")
         .def(py::init(&makeSession), py::arg("scene"), py::arg("device"),
              py::arg("params") = py::none(), py::kw_only(), py::arg("spec") = "3D Systems Touch",
-             py::arg("watchdog") = false, py::arg("servo_cpu") = -1, py::arg("servo_priority") = 80)
+             py::arg("watchdog") = false, py::arg("servo_cpu") = -1, py::arg("servo_priority") = 80,
+             py::arg("servo_reserve_cpu") = true)
         .def(
             "step",
             [](PySession& p) {

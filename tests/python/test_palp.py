@@ -312,6 +312,17 @@ class Sessions(unittest.TestCase):
         self.assertIn("SCHED_OTHER", stats["realtime"])
         self.assertGreater(stats["ticks"], 50)
         self.assertFalse(stats["overloaded"])
+        # The servo's CPU is reserved by default (when the process may use another CPU);
+        # servo_reserve_cpu=False leaves it shared.
+        if len(os.sched_getaffinity(0)) > 1:
+            self.assertIn("other threads moved off it", stats["realtime"])
+        shared = palp.Session(avc_scene(), palp.SimulatedDevice(press()), vc_params(),
+                              servo_cpu=0, servo_priority=0, servo_reserve_cpu=False)
+        shared.start()
+        time.sleep(0.05)
+        shared.stop()
+        self.assertIn("pinned to CPU 0", shared.stats()["realtime"])
+        self.assertNotIn("moved off", shared.stats()["realtime"])
         with self.assertRaisesRegex(palp.ValueError, "priority"):
             palp.Session(avc_scene(), palp.SimulatedDevice(press()), vc_params(),
                          servo_priority=100)

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
+#include <thread>
 
 #include "serve_address.h"
 #include "test_support.h"
@@ -94,6 +95,20 @@ TEST(Serve, ServoCpuAndPriorityAreTheOnesAskedFor) {
     EXPECT_NE(rt.find("pinned to CPU 0"), std::string::npos) << rt;
     EXPECT_NE(rt.find("SCHED_OTHER"), std::string::npos) << rt;
     EXPECT_FALSE(j["servo"]["overloaded"].get<bool>());
+    // The servo's CPU is reserved by default (the other threads moved off it, when the process
+    // may use another CPU); --servo-share-cpu leaves it shared.
+    if (std::thread::hardware_concurrency() > 1) {
+        EXPECT_NE(rt.find("other threads moved off it"), std::string::npos) << rt;
+    }
+    const auto shared = runCommand(palp::test::palpTool().string() +
+                                   " serve --phantom avc --mode vc --listen 127.0.0.1:0 "
+                                   "--seconds 0.2 --servo-cpu 0 --no-realtime-priority "
+                                   "--servo-share-cpu --json 2>/dev/null");
+    ASSERT_EQ(shared.exitCode, 0) << shared.output;
+    const auto js = nlohmann::json::parse(shared.output.substr(shared.output.find('{')));
+    const std::string rs = js["servo"]["realtime"].get<std::string>();
+    EXPECT_NE(rs.find("pinned to CPU 0"), std::string::npos) << rs;
+    EXPECT_EQ(rs.find("moved off"), std::string::npos) << rs;
     const auto both = runCommand(palp::test::palpTool().string() +
                                  " serve --phantom avc --servo-priority 10 --no-realtime-priority");
     EXPECT_NE(both.exitCode, 0);

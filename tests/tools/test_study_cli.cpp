@@ -232,7 +232,8 @@ TEST(StudyCli, RefusalsNameTheFileAndFieldAndLeaveTheLog) {
     r = runCommand(palp + study.string() + " --log " + (tmp / "new.csv").string() +
                    " --responder terminal --device-listen nonsense 2>&1");
     EXPECT_EQ(r.exitCode, 1);
-    EXPECT_NE(r.output.find("listen address 'nonsense'"), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("--device-listen 'nonsense': expected host:port"), std::string::npos)
+        << r.output;
     EXPECT_FALSE(fs::exists(tmp / "new.csv"));
     r = runCommand(palp + study.string() + " --log " + (tmp / "new.csv").string() +
                    " --device-listen 127.0.0.1:0 2>&1");  // the simulated responder

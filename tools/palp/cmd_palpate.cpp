@@ -588,9 +588,7 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
     }
     sp.passivityControl = a.passivityControl;
     sp.servo.periodSeconds = period;
-    sp.servo.cpu = a.servoCpu;
-    sp.servo.priority = a.noRealtimePriority ? 0 : a.servoPriority;
-    sp.servo.lockMemory = a.lockMemory;
+    a.servo.applyTo(sp.servo);
     // Real time: every tick's snapshot is queued in the trace ring and drained below
     // (16 Ki snapshots: seconds of slack at servo rates before any is dropped).
     if (a.realtime) sp.traceCapacity = 1u << 14;

@@ -46,10 +46,7 @@ struct ServeArgs {
     int igtlPort = -1;  ///< -1: no OpenIGTLink stream; 0: any free TCP port
     double igtlRateHz = 30;
     bool json = false;
-    int servoCpu = -1;
-    int servoPriority = 80;
-    bool noRealtimePriority = false;
-    bool lockMemory = false;
+    ServoArgs servo;
 };
 
 std::atomic<bool> gInterrupted{false};
@@ -168,20 +165,8 @@ int runServe(ServeArgs& a) {
     dp.watchdog.timeoutSeconds = a.watchdogMs * 1e-3;
     dp.watchdog.graceSeconds = a.graceMs * 1e-3;
     // The library names its field; the command line says --listen.
-    const auto asListen = [&](const palp::Error& e) {
-        std::string what = e.what();
-        const std::string field = "udp device listen address";
-        if (what.rfind(field, 0) == 0) what = "--listen" + what.substr(field.size());
-        return what;
-    };
     std::optional<haptics::UdpDevice> remote;
-    try {
-        remote.emplace(*spec, dp);
-    } catch (const IoError& e) {
-        throw IoError(asListen(e));
-    } catch (const ValueError& e) {
-        throw ValueError(asListen(e));
-    }
+    namingOption("udp device listen address", "--listen", [&] { remote.emplace(*spec, dp); });
     haptics::UdpDevice& device = *remote;
     // The bound address first, on a line of its own (the port the system chose for port 0), so
     // that a script or a test can connect to it: printed even with --quiet when it was chosen.
@@ -208,9 +193,7 @@ int runServe(ServeArgs& a) {
         std::isfinite(pa.muDynamic) ? pa.muDynamic : std::min(0.3, pa.muStatic);
     sp.passivityControl = pa.passivityControl;
     sp.servo.periodSeconds = period;
-    sp.servo.cpu = a.servoCpu;
-    sp.servo.priority = a.noRealtimePriority ? 0 : a.servoPriority;
-    sp.servo.lockMemory = a.lockMemory;
+    a.servo.applyTo(sp.servo);
     sp.workspace.scale = a.scale;
     if (a.offsetMm.size() == 3)
         sp.workspace.offset = Eigen::Vector3d(a.offsetMm[0], a.offsetMm[1], a.offsetMm[2]) * 1e-3;
@@ -389,7 +372,7 @@ Command addServe(CLI::App& root) {
         ->check(integerIn(0, 65535));
     app->add_option("--igtl-rate", a.igtlRateHz, "OpenIGTLink frames per second (default 30)")
         ->check(within({0, 200, "Hz", true}));
-    addServoOptions(app, a.servoCpu, a.servoPriority, a.noRealtimePriority, a.lockMemory);
+    addServoOptions(app, a.servo);
     app->add_flag("--json", a.json, "Print the summary as JSON");
     return {app, [args]() -> int { return runServe(*args); }};
 }

@@ -9,8 +9,11 @@
 
 #include <CLI/CLI.hpp>
 #include <cstdint>
+#include <string>
+#include <utility>
 
 #include "palp/base/bounds.h"
+#include "palp/base/error.h"
 
 namespace palp::tool {
 
@@ -26,5 +29,24 @@ CLI::Validator integerIn(std::int64_t lo, std::int64_t hi);
 /// Adds a refusal of empty text to every option of @p app and of its subcommands (recursively)
 /// that takes a value. Call after every option is registered.
 void refuseEmptyValues(CLI::App& app);
+
+/// Runs @p make(); a palp::IoError or palp::ValueError whose message starts with the library's
+/// name for a field (@p field, e.g. "udp device listen address") is thrown again, of the same
+/// type, starting with the option that set it (@p option, e.g. "--listen") instead.
+template <class Make>
+void namingOption(const std::string& field, const std::string& option, Make&& make) {
+    const auto renamed = [&](const Error& e) {
+        std::string what = e.what();
+        if (what.rfind(field, 0) == 0) what = option + what.substr(field.size());
+        return what;
+    };
+    try {
+        std::forward<Make>(make)();
+    } catch (const IoError& e) {
+        throw IoError(renamed(e));
+    } catch (const ValueError& e) {
+        throw ValueError(renamed(e));
+    }
+}
 
 }  // namespace palp::tool

@@ -228,24 +228,27 @@ void addPathOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
 
 }  // namespace
 
-void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority,
-                     bool& lockMemory) {
-    app->add_option("--servo-cpu", cpu,
+void addServoOptions(CLI::App* app, ServoArgs& servo) {
+    app->add_option("--servo-cpu", servo.cpu,
                     "CPU to pin the servo thread to (default -1: the last one the process may "
                     "use)")
         ->check(integerIn(-1, 65535));
-    auto* prio = app->add_option("--servo-priority", priority,
+    auto* prio = app->add_option("--servo-priority", servo.priority,
                                  "The servo thread's SCHED_FIFO priority 1..99, 0 for none "
                                  "(default 80; a loop that misses more than half its deadlines "
                                  "in two windows of 0.4 s drops it and renders no force, reported)")
                      ->check(integerIn(0, 99));
-    app->add_flag("--no-realtime-priority", noRealtimePriority,
+    app->add_flag("--no-realtime-priority", servo.noRealtimePriority,
                   "Run the servo thread at normal priority (as --servo-priority 0)")
         ->excludes(prio);
-    app->add_flag("--mlock", lockMemory,
+    app->add_flag("--mlock", servo.lockMemory,
                   "Lock the process's memory (mlockall of all present and future pages) before "
                   "the servo loop starts, so no tick waits on a page fault (reported; refused "
                   "without CAP_IPC_LOCK or a large enough RLIMIT_MEMLOCK)");
+    app->add_flag("--servo-share-cpu", servo.shareCpu,
+                  "Let the process's other threads (solver, TBB workers) run on the servo's CPU; "
+                  "by default, while the loop runs, their affinity masks lose it (reported as "
+                  "'N other threads moved off it')");
 }
 
 namespace {
@@ -261,7 +264,7 @@ void addRunOptions(CLI::App* app, PalpateArgs& a) {
                     "seconds (an overloaded servo loop that skips ticks still stops on time) "
                     "(default: until the path is done)")
         ->check(within(bounds::kPositiveDuration));
-    addServoOptions(app, a.servoCpu, a.servoPriority, a.noRealtimePriority, a.lockMemory);
+    addServoOptions(app, a.servo);
     app->add_option("--trace", a.trace, "Write a CSV trace of every tick");
     app->add_option("--map", a.map,
                     "Write a map over the palpated plane as a figure with axes in mm, patient "

@@ -9,8 +9,27 @@
 #include <vector>
 
 #include "palp/haptics/devices/device.h"
+#include "palp/haptics/servo_loop.h"
 
 namespace palp::tool {
+
+/// How the servo thread runs (palpate --realtime, serve, study --device-listen).
+struct ServoArgs {
+    int cpu = -1;                     // --servo-cpu: the servo thread's CPU (-1: the last allowed)
+    int priority = 80;                // --servo-priority: SCHED_FIFO 1..99 (0: none)
+    bool noRealtimePriority = false;  // --no-realtime-priority: SCHED_OTHER (priority 0)
+    bool lockMemory = false;          // --mlock: mlockall before the servo loop starts
+    bool shareCpu = false;            // --servo-share-cpu: other threads keep the servo's CPU
+
+    /// The servo thread's CPU, priority (`noRealtimePriority ? 0 : priority`), memory lock and
+    /// CPU reservation (ServoConfig::reserveCpu unless shareCpu) onto @p config.
+    void applyTo(haptics::ServoConfig& config) const {
+        config.cpu = cpu;
+        config.priority = noRealtimePriority ? 0 : priority;
+        config.lockMemory = lockMemory;
+        config.reserveCpu = !shareCpu;
+    }
+};
 
 /// Everything `palp palpate` reads from its command line (mm, mm/s, HU, N/m as the options say).
 struct PalpateArgs {
@@ -48,10 +67,7 @@ struct PalpateArgs {
     bool realtime = false;
     bool fast = false;
     double seconds = 0;  // offline: simulated s; --realtime: wall-clock s (0: the path's length)
-    int servoCpu = -1;   // --servo-cpu: the servo thread's CPU (-1: the last allowed)
-    int servoPriority = 80;           // --servo-priority: SCHED_FIFO 1..99 (0: none)
-    bool noRealtimePriority = false;  // --no-realtime-priority: SCHED_OTHER (priority 0)
-    bool lockMemory = false;          // --mlock: mlockall before the servo loop starts
+    ServoArgs servo;     // --servo-cpu, --servo-priority, --no-realtime-priority, --mlock, ...
     std::string trace;
     std::string map;
     std::string mapQuantity = "stiffness";
@@ -109,11 +125,9 @@ struct CheckedOptions {
 /// the parse.
 void addPalpateOptions(CLI::App* app, PalpateArgs& args, CheckedOptions& checked);
 
-/// Registers --servo-cpu, --servo-priority and --no-realtime-priority (palpate and serve), bound
-/// to @p cpu, @p priority and @p noRealtimePriority; the servo thread's priority is then
-/// `noRealtimePriority ? 0 : priority`. `--mlock` sets @p lockMemory (ServoConfig::lockMemory).
-void addServoOptions(CLI::App* app, int& cpu, int& priority, bool& noRealtimePriority,
-                     bool& lockMemory);
+/// Registers --servo-cpu, --servo-priority, --no-realtime-priority, --mlock and
+/// --servo-share-cpu (palpate and serve), bound to @p servo.
+void addServoOptions(CLI::App* app, ServoArgs& servo);
 
 /// Checks a FILE or a phantom, scene options only with their phantom, FEM options only with
 /// --deformable, --material neo-hookean not on the regions, --material-table without

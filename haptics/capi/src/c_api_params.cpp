@@ -400,6 +400,7 @@ ph::SessionParams toSession(const palp_session_params& p) {
     s.servo.cpu = p.servo_cpu;
     s.servo.priority = p.servo_priority;
     s.servo.requireRealtime = p.require_realtime != 0;
+    s.servo.reserveCpu = p.servo_reserve_cpu != 0;
     ph::validateSessionParams(s);
     return s;
 }
@@ -421,6 +422,7 @@ const char* fixedFieldChanged(const palp_session_params& a, const palp_session_p
     if (a.servo_cpu != b.servo_cpu) return "servo_cpu";
     if (a.servo_priority != b.servo_priority) return "servo_priority";
     if (a.require_realtime != b.require_realtime) return "require_realtime";
+    if ((a.servo_reserve_cpu != 0) != (b.servo_reserve_cpu != 0)) return "servo_reserve_cpu";
     return nullptr;
 }
 
@@ -556,6 +558,7 @@ void fromSession(const ph::SessionParams& d, palp_session_params& p) noexcept {
     p.servo_cpu = d.servo.cpu;
     p.servo_priority = d.servo.priority;
     p.require_realtime = d.servo.requireRealtime ? 1 : 0;
+    p.servo_reserve_cpu = d.servo.reserveCpu ? 1 : 0;
 }
 
 }  // namespace palp::capi

@@ -3,6 +3,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "c_check.h"
 #include "palp/palp.h"
@@ -195,6 +196,28 @@ static void test_press(void) {
     palp_realtime rt;
     CHECK(palp_session_realtime(session, &rt) == PALP_OK);
     CHECK(rt.message != NULL && strlen(rt.message) > 0);
+    /* The servo's CPU was reserved (the default) when the process may use another one. */
+    CHECK(params.servo_reserve_cpu == 1);
+    if (rt.pinned && sysconf(_SC_NPROCESSORS_ONLN) > 1)
+        CHECK(strstr(rt.message, "other threads moved off it") != NULL);
+    /* Fixed at creation: a set call that changes it is refused by name. */
+    CHECK(palp_session_get_params(session, &now) == PALP_OK);
+    now.servo_reserve_cpu = 0;
+    CHECK(palp_session_set_params(session, &now) == PALP_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(palp_last_error(), "servo_reserve_cpu") != NULL);
+
+    /* servo_reserve_cpu 0: the other threads keep the servo's CPU. */
+    palp_session_params sharedCpu = params;
+    sharedCpu.servo_reserve_cpu = 0;
+    palp_session* sharing = NULL;
+    CHECK(palp_session_create_simulated(scene, &sharedCpu, &path, &sharing) == PALP_OK);
+    if (sharing) {
+        CHECK(palp_session_start(sharing) == PALP_OK);
+        CHECK(palp_session_stop(sharing) == PALP_OK);
+        CHECK(palp_session_realtime(sharing, &rt) == PALP_OK);
+        CHECK(rt.message != NULL && strstr(rt.message, "moved off") == NULL);
+        palp_session_release(sharing);
+    }
 
     /* Reference counts: the session outlives its creator's scene reference. */
     palp_session* again = palp_session_retain(session);

@@ -50,7 +50,7 @@ struct Field {
     }
 
 // When a field is added to palp.h, these sizes change: add it to the tables below.
-static_assert(sizeof(palp_session_params) == 312, "palp_session_params changed: update the table");
+static_assert(sizeof(palp_session_params) == 320, "palp_session_params changed: update the table");
 static_assert(sizeof(palp_trajectory) == 272, "palp_trajectory changed: update the table");
 
 const std::vector<Field<palp_session_params>> kParamFields = {

@@ -15,6 +15,7 @@
 
 #include "../commands.h"
 #include "../option_checks.h"
+#include "../palpate_options.h"
 #include "palp/base/error.h"
 #include "palp/haptics/devices/udp_device.h"
 #include "palp/studies/psychometric_plot.h"
@@ -42,7 +43,7 @@ struct StudyArgs {
     bool json = false;
     std::string deviceListen;    ///< a person's device over the bridge: the intervals rendered
     double intervalSeconds = 4;  ///< how long each interval is rendered, s
-    int servoCpu = -1, servoPriority = 80;
+    ServoArgs servo;             ///< with --device-listen: how the servo thread runs
 };
 
 #define PALP_STUDY_SAY(...)                                      \
@@ -56,8 +57,7 @@ IntervalFelt renderInterval(StudyStimuli& stimuli, Device& device, const StudyAr
                             int condition, double level, std::vector<Snapshot>& trace) {
     SessionParams sp = stimuli.sessionParams(condition, level);
     limitStiffnessToDevice(sp.coupling, device.spec(), sp.servo.periodSeconds);
-    sp.servo.cpu = a.servoCpu;
-    sp.servo.priority = a.servoPriority;
+    a.servo.applyTo(sp.servo);
     sp.traceCapacity = 1u << 14;
     Session session(stimuli.sceneFor(condition), device, sp);
     trace.clear();
@@ -263,7 +263,8 @@ int studyCommand(const StudyArgs& a) {
     if (!a.deviceListen.empty()) {
         UdpDeviceParams dp;
         dp.listen = a.deviceListen;
-        device.emplace(*findDeviceSpec(spec.device), dp);
+        namingOption("udp device listen address", "--device-listen",
+                     [&] { device.emplace(*findDeviceSpec(spec.device), dp); });
         // The bound address on a line of its own (the port chosen for port 0), for the device.
         std::fprintf(stderr, "palp study: listening on udp %s\n", device->address().c_str());
         std::fflush(stderr);
@@ -350,13 +351,8 @@ Command addStudy(CLI::App& root) {
                     "With --device-listen: how long each interval is rendered, s")
         ->check(CLI::Range(0.05, 600.0))
         ->capture_default_str();
-    app->add_option("--servo-cpu", args->servoCpu,
-                    "With --device-listen: CPU of the servo thread (-1: the last one)")
-        ->check(integerIn(-1, 65535));
-    app->add_option("--servo-priority", args->servoPriority,
-                    "With --device-listen: SCHED_FIFO priority of the servo thread (0: none)")
-        ->check(integerIn(0, 99))
-        ->capture_default_str();
+    // With --device-listen: how the servo thread that renders each interval runs.
+    addServoOptions(app, args->servo);
     return {app, [args]() -> int { return studyCommand(*args); }};
 }
 

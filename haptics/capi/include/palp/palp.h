@@ -203,6 +203,10 @@ typedef struct palp_session_params {
     int servo_cpu;                /**< core to pin the servo thread to; -1: the last one */
     int servo_priority;           /**< SCHED_FIFO priority 1..99; 0: do not ask */
     int require_realtime;         /**< non-zero: start fails if pinning/SCHED_FIFO is refused */
+    /** non-zero (default): while the servo runs, the process's other threads are kept off its
+     *  CPU (their affinity masks lose it until stop; reported as "N other threads moved off
+     *  it"); 0: they share it */
+    int servo_reserve_cpu;
     /** AVC/AVCEC ring rays: width of their Gaussian weight exp(-alpha^2 / (2 sigma^2)) in the
      *  low-pass of k, rad (> 0 and <= pi/2 when ring_count > 0; default 0.1) */
     double ring_weight_sigma;
