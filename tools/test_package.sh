@@ -78,6 +78,17 @@ haptics="$libdir/libpalp_haptics.so.$version"
 [[ "$(loaded_haptics "$prefix/bin/palp")" == "$haptics" ]] ||
   fail "bin/palp does not load the installed libpalp_haptics"
 echo "  bin/palp --version: $got (RUNPATH \$ORIGIN/../lib)"
+# DICOM through the installed plugin (libpalp_volume_dicom.so, opened beside libpalp_volume at
+# the first DICOM): a generated series converts from the prefix alone.
+plugin="$libdir/libpalp_volume_dicom.so"
+[[ -f "$plugin" ]] || fail "$plugin missing"
+! grep -q "$PWD" <<<"$(readelf -d "$plugin")" || fail "$plugin refers to the build tree"
+env -u LD_LIBRARY_PATH "$prefix/bin/palp" --quiet phantom avc --dicom-dir "$tmp/series" \
+  >"$tmp/phantom.log" 2>&1 || { cat "$tmp/phantom.log" >&2; fail "bin/palp phantom --dicom"; }
+env -u LD_LIBRARY_PATH LD_DEBUG=files "$prefix/bin/palp" --quiet convert "$tmp/series" \
+  -o "$tmp/series.vdb" >"$tmp/convert.log" 2>&1 || { cat "$tmp/convert.log" >&2; fail "bin/palp convert of a DICOM series"; }
+grep -q "file=$prefix/.*/libpalp_volume_dicom.so .*dynamically loaded" "$tmp/convert.log" || fail "bin/palp convert did not open $plugin"
+echo "  bin/palp convert: a DICOM series through $(basename "$plugin") from the prefix"
 
 # The consumers with CMake.
 cmake -S tests/package -B "$tmp/consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release \
