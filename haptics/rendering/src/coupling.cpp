@@ -125,6 +125,7 @@ void Coupling::beginTick(double dtSeconds) noexcept {
     mKGain = mTicking ? -std::expm1(-dtSeconds / tau) : 1.0;
     mKStart = mKLast;
     mKStartValid = mKLastValid;
+    mEnergyForceStart = mEnergyForceLast;
 }
 
 double Coupling::filtered(double kRays) const noexcept {
@@ -138,7 +139,8 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
                        CouplingOutput& out) noexcept {
     out = CouplingOutput{};
     const CouplingParams& p = mParams;
-    mKLastValid = false;  // until this call computes a k (no contact restarts the filter)
+    mKLastValid = false;         // until this call computes a k (no contact restarts the filter)
+    mEnergyForceLast.setZero();  // until an AVCEC call computes the term
     if (!finite3(proxy) || !finite3(probe) || !finite3(proxyVelocity) || !finite3(probeVelocity) ||
         !finite3(tangent1) || !finite3(tangent2))
         return;
@@ -196,6 +198,10 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
         out.energyForce = mFrame * out.energyForce;
         out.proxyForce = mFrame * out.proxyForce;
     }
+    // Deformable tissue: the term the skin it pushes changes is low-passed as k is.
+    if (mTicking && mKStartValid)
+        out.energyForce = mEnergyForceStart + mKGain * (out.energyForce - mEnergyForceStart);
+    mEnergyForceLast = out.energyForce;
     out.force += out.energyForce;
     // The proxy's step is bounded by the rays' k as well as the filtered one (the field it
     // moves in is the rays').

@@ -50,11 +50,13 @@ struct CouplingParams {
     double minDistance = 1e-6;      ///< eps, m: no ray and no force below this D
     /// tau, s: on deformable tissue (a session that starts each tick with
     /// Coupling::beginTick()), k is low-passed over ticks, k_n = k_(n-1) + (1 - e^(-dt/tau))
-    /// (k_rays - k_(n-1)). The tissue carries the proxy, so k (a function of where the proxy
+    /// (k_rays - k_(n-1)), and so is AVCEC's spherical term (energyForce, the same filter on
+    /// the vector). The tissue carries the proxy, so k (a function of where the proxy
     /// sits) and the force that moves the tissue form a loop; with bone under a thin scalp it
-    /// alternated every tick (300 / 1,020 N/m, 0.35 / 2.3 N on the head CT). 5 ms passes what
-    /// a hand feels of k (a bone edge crossed at 100 mm/s: 0.5 mm). 0: none. Rigid scenes
-    /// (no beginTick()) use k_rays.
+    /// alternated every tick (300 / 1,020 N/m, 0.35 / 2.3 N on the head CT), and the spherical
+    /// term, unfiltered, switched on and off with the skin it pushed (the proxy's path 4.7x
+    /// the hand's). 5 ms passes what a hand feels of k (a bone edge crossed at 100 mm/s:
+    /// 0.5 mm). 0: none. Rigid scenes (no beginTick()) use k_rays and the raw term.
     double stiffnessTimeConstant = 5e-3;
 };
 
@@ -108,9 +110,10 @@ struct CouplingOutput {
 /// * AVCEC: all rays. g = sphericalSobel(k_r), gs = surfaceSobel(k_r) on the raw per-ray k (the
 ///   stencil centre is the centre ray's unfiltered k, not the low-passed k);
 ///   energyForce = -1/2 D (g1 e1 + g2 e2) is added to F_pb; proxyForce = -1/2 D^2 (gs1 t1 +
-///   gs2 t2) with e1, e2, t1, t2 from bundle(). With a ring the low-passed k and the raw-k
-///   gradient do not belong to one potential, so the closed-loop work is only ~0 without a ring
-///   (see test_coupling's energy test for the figures).
+///   gs2 t2) with e1, e2, t1, t2 from bundle(); on deformable tissue energyForce passes the
+///   stiffness filter (CouplingParams::stiffnessTimeConstant). With a ring the low-passed k
+///   and the raw-k gradient do not belong to one potential, so the closed-loop work is only ~0
+///   without a ring (see test_coupling's energy test for the figures).
 /// * energy = 1/2 k D^2 in every mode; the damping force is not in energy.
 ///
 /// @par Threading  One instance per servo loop; compute() from one thread at a time. The view
@@ -224,6 +227,9 @@ class Coupling {
     // compute()'s k (the next tick's start). Valid flags: a filter started and a k to start from.
     double mKStart = 0, mKGain = 1, mKLast = 0;
     bool mTicking = false, mKStartValid = false, mKLastValid = false;
+    // AVCEC's spherical term through the same filter (zero after a tick without it).
+    Eigen::Vector3d mEnergyForceStart = Eigen::Vector3d::Zero();
+    Eigen::Vector3d mEnergyForceLast = Eigen::Vector3d::Zero();
 };
 
 }  // namespace palp::haptics
