@@ -175,7 +175,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         const auto positions = framePositions("fuzz", frames);
         const std::size_t timePoints = positions.front().size();
         std::set<const Header*> seen;
-        const TimeOrder order(frames);
+        const TimeOrder order(frames, positions);
         const FileGeometry g0 = geometryOf(*frames.front());
         const Eigen::Vector3d normal = g0.rowCosine.cross(g0.columnCosine).normalized();
         double last = -1e300;
