@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "dicom_test_writer.h"
 #include "palp/volume/dicom.h"
 #include "palp/volume/load.h"
 #include "test_support.h"
@@ -22,6 +23,8 @@ namespace {
 
 namespace fs = std::filesystem;
 namespace pv = palp::volume;
+using palp::test::setBytes;
+using palp::test::setText;
 using palp::test::TempDir;
 
 /// GE's user data block (0043,102A): header at byte 100 of version @p version, the EPI flag
@@ -41,14 +44,6 @@ std::string userData(float version, bool epi, bool polarityBit, std::int16_t vie
     put16(hdr + 0x30, polarityBit ? 0x0004 : 0);
     put16(hdr + viewOrderAt, viewOrder);
     return b;
-}
-
-void setElement(gdcm::DataSet& ds, const gdcm::Tag& tag, gdcm::VR vr, std::string value) {
-    if (value.size() % 2) value.push_back(' ');
-    gdcm::DataElement de(tag);
-    de.SetVR(vr);
-    de.SetByteValue(value.data(), static_cast<std::uint32_t>(value.size()));
-    ds.Replace(de);
 }
 
 /// A 3-slice MR series in @p dir, every file with Manufacturer @p maker, the block @p block
@@ -79,13 +74,12 @@ void writeSeries(const fs::path& dir, const std::string& maker, const std::strin
         reader.SetFileName(e.path().c_str());
         ASSERT_TRUE(reader.Read());
         gdcm::DataSet& ds = reader.GetFile().GetDataSet();
-        setElement(ds, gdcm::Tag(0x0008, 0x0070), gdcm::VR::LO, maker);
+        setText(ds, 0x0008, 0x0070, gdcm::VR::LO, maker);
         if (!block.empty()) {
-            setElement(ds, gdcm::Tag(0x0043, 0x0010), gdcm::VR::LO, "GEMS_PARM_01");
-            setElement(ds, gdcm::Tag(0x0043, 0x102a), gdcm::VR::OB, block);
+            setText(ds, 0x0043, 0x0010, gdcm::VR::LO, "GEMS_PARM_01");
+            setBytes(ds, gdcm::Tag(0x0043, 0x102a), gdcm::VR::OB, block);
         }
-        if (!reordering.empty())
-            setElement(ds, gdcm::Tag(0x0018, 0x9034), gdcm::VR::CS, reordering);
+        if (!reordering.empty()) setText(ds, 0x0018, 0x9034, gdcm::VR::CS, reordering);
         gdcm::Writer writer;
         writer.SetFile(reader.GetFile());
         writer.SetFileName((dir / e.path().filename()).c_str());
