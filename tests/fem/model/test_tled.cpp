@@ -137,7 +137,8 @@ TEST(Tled, HomogeneousCompressionForcesAreThoseOfTheClosedFormStress) {
 
 TEST(Tled, RigidMotionGivesNoForceAndTheForcesAreObjective) {
     const double h = 1e-3;
-    const HexMesh mesh = HexMesh::box(Eigen::Vector3d::Constant(3 * h), {4, 4, 4}, kE,
+    // Rows of 6 cells: the one-point kernel's four-cell path and its one-by-one rest.
+    const HexMesh mesh = HexMesh::box(Eigen::Vector3d(6 * h, 3 * h, 3 * h), {7, 4, 4}, kE,
                                       Eigen::Vector3d(-0.002, 0.001, 0.0005));
     const FemModel model(mesh, neoHookeanTissue());
     const Eigen::Matrix3d q =
@@ -178,6 +179,88 @@ TEST(Tled, RigidMotionGivesNoForceAndTheForcesAreObjective) {
         // The energy is invariant too.
         EXPECT_NEAR(tled.strainEnergy(uRot.data()), tled.strainEnergy(u.data()),
                     1e-12 * tled.strainEnergy(u.data()));
+    }
+}
+
+/// The one-point element written out per cell as tled.h states it: F = I + sum_a u_a grad_a^T
+/// with grad_a = s_a / (4 h), f_a += h^3 P grad_a plus the hourglass springs
+/// kappa (K + 4/3 mu) h E on the four unit sign-product vectors of the cube, per component.
+Eigen::VectorXd onePointReference(const HexMesh& mesh, double nu, double kappa,
+                                  const Eigen::VectorXd& u) {
+    const double h = mesh.edge();
+    const NeoHookean unit = NeoHookean::fromYoungs(1.0, nu);
+    const double spring = kappa * (unit.bulk + 4.0 / 3.0 * unit.mu) * h;
+    Eigen::VectorXd f = Eigen::VectorXd::Zero(u.size());
+    const std::array<int, 3> cells = mesh.cellCounts();
+    for (int k = 0; k < cells[2]; ++k) {
+        for (int j = 0; j < cells[1]; ++j) {
+            for (int i = 0; i < cells[0]; ++i) {
+                const double e =
+                    mesh.cellYoungs()[static_cast<std::size_t>(i + cells[0] * (j + cells[1] * k))];
+                if (e == 0.0) continue;
+                int node[8];
+                Eigen::Vector3d sign[8];
+                Eigen::Matrix3d f0 = Eigen::Matrix3d::Identity();
+                for (int a = 0; a < 8; ++a) {
+                    node[a] = mesh.node(i + (a & 1), j + (a >> 1 & 1), k + (a >> 2 & 1));
+                    sign[a] = Eigen::Vector3d((a & 1) ? 1 : -1, (a & 2) ? 1 : -1, (a & 4) ? 1 : -1);
+                    f0 += u.segment<3>(3 * node[a]) * (sign[a] / (4.0 * h)).transpose();
+                }
+                const Eigen::Matrix3d p = NeoHookean{e * unit.mu, e * unit.bulk}.firstPiola(f0);
+                for (int mode = 0; mode < 4; ++mode) {
+                    Eigen::Vector3d q = Eigen::Vector3d::Zero();
+                    double g[8];
+                    for (int a = 0; a < 8; ++a) {
+                        const Eigen::Vector3d& s = sign[a];
+                        g[a] = (mode == 0   ? s.y() * s.z()
+                                : mode == 1 ? s.x() * s.z()
+                                : mode == 2 ? s.x() * s.y()
+                                            : s.x() * s.y() * s.z()) /
+                               std::sqrt(8.0);
+                        q += g[a] * u.segment<3>(3 * node[a]);
+                    }
+                    for (int a = 0; a < 8; ++a) f.segment<3>(3 * node[a]) += e * spring * g[a] * q;
+                }
+                for (int a = 0; a < 8; ++a)
+                    f.segment<3>(3 * node[a]) += h * h * h * p * (sign[a] / (4.0 * h));
+            }
+        }
+    }
+    return f;
+}
+
+TEST(Tled, OnePointForcesEqualTheElementWrittenOutOnRowsOfEveryLength) {
+    // The one-point kernel takes four cells of a lattice row at a time where the CPU allows
+    // (AVX2+FMA; `portable.fem_tled` runs this with PALP_SIMD=off) and the rest one by one:
+    // rows of 1 to 9 cells, a third of the cells void, moduli from 1x to 3x, 25 % strain plus
+    // jitter, against the element written out above.
+    std::mt19937 rng(361);
+    std::uniform_real_distribution<double> unit(-1.0, 1.0);
+    const double h = 2e-3;
+    for (int cx = 1; cx <= 9; ++cx) {
+        std::vector<double> youngs(static_cast<std::size_t>(cx * 3 * 2));
+        for (double& e : youngs) e = unit(rng) < -0.33 ? 0.0 : kE * (2.0 + unit(rng));
+        youngs[0] = kE;
+        const HexMesh mesh =
+            HexMesh::fromCells({cx + 1, 4, 3}, h, Eigen::Vector3d(0.01, 0, 0), youngs);
+        const FemModel model(mesh, neoHookeanTissue());
+        Eigen::Matrix3d a;
+        for (int i = 0; i < 9; ++i) a(i) = 0.25 * unit(rng);
+        Eigen::VectorXd u =
+            displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (x + a * x).eval(); });
+        for (int d = 0; d < u.size(); ++d) u[d] += 0.1 * h * unit(rng);
+        const TledForces tled(model, {TledIntegration::onePointHourglass, 0.1});
+        const Eigen::VectorXd f = internalForces(tled, u);
+        const Eigen::VectorXd ref = onePointReference(mesh, kNu, 0.1, u);
+        ASSERT_GT(ref.cwiseAbs().maxCoeff(), 1e-3 * kE * h * h) << "a deformed state";
+        EXPECT_LT((f - ref).cwiseAbs().maxCoeff(), 1e-12 * ref.cwiseAbs().maxCoeff())
+            << cx << " cells a row";
+        // Forces on no node that only void cells touch.
+        for (int n = 0; n < mesh.nodeCount(); ++n) {
+            if (ref.segment<3>(3 * n).isZero(0.0)) {
+                EXPECT_TRUE(f.segment<3>(3 * n).isZero(0.0)) << n;
+            }
+        }
     }
 }
 

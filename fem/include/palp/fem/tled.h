@@ -109,6 +109,7 @@ class TledForces {
     double mOmegaRest = 0.0;
     double mCellEMax = 0.0;
     NeoHookean mUnitLaw;  // the law for E = 1 Pa
+    bool mAvx2 = false;   // the one-point kernel's AVX2+FMA path (palp/base/simd.h)
     // Shape-function derivatives dN_a/dX_J times h (dimensionless) at the 8 Gauss points:
     // [point][node][axis].
     double mGaussGrad[8][8][3] = {};
