@@ -243,11 +243,6 @@ void bindSession(py::module_& m) {
                     throw ValueError(
                         "make_deformable material: expected 'linear' or 'neo-hookean', found '" +
                         material + "'");
-                if (material == "neo-hookean" && solver == "regions")
-                    throw ValueError(
-                        "make_deformable solver: expected 'auto' or 'explicit' with material "
-                        "'neo-hookean' (it runs on the whole-mesh explicit solver only; the "
-                        "regions are linear), found 'regions'");
                 if (material == "neo-hookean") s.material.law = fem::MaterialLaw::neoHookean;
                 if (materialTable) {
                     try {

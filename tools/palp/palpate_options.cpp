@@ -325,12 +325,6 @@ void checkInputOptions(const PalpateArgs& a, const CheckedOptions& o) {
                                  "scene");
         }
     }
-    if (a.material == "neo-hookean" && a.femSolver == "regions") {
-        throwExpected("--fem-solver",
-                      "'auto' or 'explicit' with --material neo-hookean (TLED runs on the "
-                      "whole-mesh explicit solver only; the regions are linear)",
-                      "'regions'");
-    }
     if (!a.materialTable.empty()) {
         for (CLI::Option* uniform : {o.youngKpa, o.poisson}) {
             if (uniform->count() > 0)

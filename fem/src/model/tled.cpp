@@ -10,16 +10,12 @@
 #include <numbers>
 
 #include "index_cast.h"
+#include "model/tled_avx2.h"
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/base/simd.h"
 #include "palp/base/validate.h"
 #include "palp/fem/hex_element.h"
-
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
-#include <immintrin.h>
-#define PALP_TLED_AVX2 1
-#endif
 
 namespace palp::fem {
 
@@ -174,201 +170,75 @@ struct CentreGradients {
 };
 constexpr CentreGradients kCentre{};
 
-#ifdef PALP_TLED_AVX2
-// The one-point element four cells at a time (docs/algorithms.md, "Large strain: TLED", "The
-// one-point kernel"): lanes are four neighbouring cells of a lattice row. The element's nodal
-// values and forces live on the 8-point sign basis of the cube (1, x, y, z, yz, xz, xy, xyz): a
-// Walsh-Hadamard butterfly of 23 additions per displacement component gives F's columns
-// (x, y, z) and the four hourglass amplitudes (yz, xz, xy, xyz) at once, and its transpose
-// turns the stress and hourglass coefficients back into the 8 nodal forces.
-
-/// Four nodes' xyz (12 consecutive doubles at @p p) as their x, y and z components.
-__attribute__((target("avx2,fma"))) inline void loadNodes4(const double* p, __m256d& x, __m256d& y,
-                                                           __m256d& z) noexcept {
-    const __m256d r0 = _mm256_loadu_pd(p), r1 = _mm256_loadu_pd(p + 4), r2 = _mm256_loadu_pd(p + 8);
-    // r0 = x0 y0 z0 x1, r1 = y1 z1 x2 y2, r2 = z2 x3 y3 z3.
-    x = _mm256_permute4x64_pd(_mm256_blend_pd(_mm256_blend_pd(r0, r1, 0b0100), r2, 0b0010),
-                              _MM_SHUFFLE(1, 2, 3, 0));
-    y = _mm256_permute4x64_pd(_mm256_blend_pd(_mm256_blend_pd(r0, r1, 0b1001), r2, 0b0100),
-                              _MM_SHUFFLE(2, 3, 0, 1));
-    z = _mm256_permute4x64_pd(_mm256_blend_pd(_mm256_blend_pd(r0, r1, 0b0010), r2, 0b1001),
-                              _MM_SHUFFLE(3, 0, 1, 2));
+/// acousticBound() of the undeformed state.
+inline double restAcousticBound(const NeoHookean& unitLaw) noexcept {
+    const double identity[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    return acousticBound(identity, unitLaw.mu, unitLaw.bulk);
 }
 
-/// Adds four nodes' forces, given as x, y and z components, to the 12 doubles at @p p.
-__attribute__((target("avx2,fma"))) inline void addNodes4(double* p, __m256d x, __m256d y,
-                                                          __m256d z) noexcept {
-    const __m256d xp = _mm256_permute4x64_pd(x, _MM_SHUFFLE(1, 2, 3, 0));  // x0 x3 x2 x1
-    const __m256d yp = _mm256_permute4x64_pd(y, _MM_SHUFFLE(2, 3, 0, 1));  // y1 y0 y3 y2
-    const __m256d zp = _mm256_permute4x64_pd(z, _MM_SHUFFLE(3, 0, 1, 2));  // z2 z1 z0 z3
-    const __m256d r0 = _mm256_blend_pd(_mm256_blend_pd(xp, yp, 0b0010), zp, 0b0100);
-    const __m256d r1 = _mm256_blend_pd(_mm256_blend_pd(yp, zp, 0b0010), xp, 0b0100);
-    const __m256d r2 = _mm256_blend_pd(_mm256_blend_pd(zp, xp, 0b0010), yp, 0b0100);
-    _mm256_storeu_pd(p, _mm256_add_pd(_mm256_loadu_pd(p), r0));
-    _mm256_storeu_pd(p + 4, _mm256_add_pd(_mm256_loadu_pd(p + 4), r1));
-    _mm256_storeu_pd(p + 8, _mm256_add_pd(_mm256_loadu_pd(p + 8), r2));
+/// How much stiffer than at rest the cell at @p ue (@p relE: its modulus over the largest) is:
+/// the neo-Hookean acoustic bound at its centre over the rest one (@p rest), times @p relE.
+/// Infinite for a NaN or an inverted cell (the step is then refused or capped).
+inline double cellStiffening(const double* ue, const NodeOffsets& off, double invH, double relE,
+                             const NeoHookean& unitLaw, double rest) noexcept {
+    double fm[3][3];
+    deformationGradient(ue, off, kCentre.g, invH, fm);
+    const double r = acousticBound(fm, unitLaw.mu, unitLaw.bulk) / rest;
+    return std::isnan(r) ? std::numeric_limits<double>::infinity() : relE * r;
 }
 
-/// One displacement component's sign-basis coefficients: sums of s_a v_a over the 8 nodes for
-/// the linear signs (F's columns) and the hourglass products.
-struct SignCoefficients {
-    __m256d x, y, z, yz, xz, xy, xyz;
-};
-
-/// The butterfly: @p v holds the component at the 8 nodes (x fastest).
-__attribute__((target("avx2,fma"))) inline SignCoefficients forwardSigns(
-    const __m256d (&v)[8]) noexcept {
-    const __m256d p0 = _mm256_add_pd(v[0], v[1]), m0 = _mm256_sub_pd(v[1], v[0]);
-    const __m256d p1 = _mm256_add_pd(v[2], v[3]), m1 = _mm256_sub_pd(v[3], v[2]);
-    const __m256d p2 = _mm256_add_pd(v[4], v[5]), m2 = _mm256_sub_pd(v[5], v[4]);
-    const __m256d p3 = _mm256_add_pd(v[6], v[7]), m3 = _mm256_sub_pd(v[7], v[6]);
-    const __m256d pp0 = _mm256_add_pd(p0, p1), pm0 = _mm256_sub_pd(p1, p0);
-    const __m256d pp1 = _mm256_add_pd(p2, p3), pm1 = _mm256_sub_pd(p3, p2);
-    const __m256d mp0 = _mm256_add_pd(m0, m1), mm0 = _mm256_sub_pd(m1, m0);
-    const __m256d mp1 = _mm256_add_pd(m2, m3), mm1 = _mm256_sub_pd(m3, m2);
-    return {_mm256_add_pd(mp0, mp1), _mm256_add_pd(pm0, pm1), _mm256_sub_pd(pp1, pp0),
-            _mm256_sub_pd(pm1, pm0), _mm256_sub_pd(mp1, mp0), _mm256_add_pd(mm0, mm1),
-            _mm256_sub_pd(mm1, mm0)};
-}
-
-/// The transpose of forwardSigns(): the nodal values sum_b c_b s_b(a) of coefficients @p c.
-__attribute__((target("avx2,fma"))) inline void inverseSigns(const SignCoefficients& c,
-                                                             __m256d (&v)[8]) noexcept {
-    const __m256d pm0 = _mm256_sub_pd(c.y, c.yz), pm1 = _mm256_add_pd(c.y, c.yz);
-    const __m256d mp0 = _mm256_sub_pd(c.x, c.xz), mp1 = _mm256_add_pd(c.x, c.xz);
-    const __m256d mm0 = _mm256_sub_pd(c.xy, c.xyz), mm1 = _mm256_add_pd(c.xy, c.xyz);
-    // pp0 = -z, pp1 = z.
-    const __m256d p0 = _mm256_sub_pd(_mm256_setzero_pd(), _mm256_add_pd(c.z, pm0));
-    const __m256d p1 = _mm256_sub_pd(pm0, c.z);
-    const __m256d p2 = _mm256_sub_pd(c.z, pm1), p3 = _mm256_add_pd(c.z, pm1);
-    const __m256d m0 = _mm256_sub_pd(mp0, mm0), m1 = _mm256_add_pd(mp0, mm0);
-    const __m256d m2 = _mm256_sub_pd(mp1, mm1), m3 = _mm256_add_pd(mp1, mm1);
-    v[0] = _mm256_sub_pd(p0, m0);
-    v[1] = _mm256_add_pd(p0, m0);
-    v[2] = _mm256_sub_pd(p1, m1);
-    v[3] = _mm256_add_pd(p1, m1);
-    v[4] = _mm256_sub_pd(p2, m2);
-    v[5] = _mm256_add_pd(p2, m2);
-    v[6] = _mm256_sub_pd(p3, m3);
-    v[7] = _mm256_add_pd(p3, m3);
-}
-
-/// x^(-1/3) of positive @p x: a first guess from the exponent bits, then four Newton steps
-/// y <- y (4 - x y^3) / 3 (the relative error e becomes 2 e^2: about 6e-2, 7e-3, 1e-4, 2e-8,
-/// 1e-15).
-__attribute__((target("avx2,fma"))) inline __m256d inverseCubeRoot(__m256d x) noexcept {
-    // The high 32 bits of x as a number, divided by 3 and taken from the magic constant's high
-    // word (the exponent's third, with the mantissa's linear approximation).
-    const __m256i hi = _mm256_srli_epi64(_mm256_castpd_si256(x), 32);
-    const __m128i packed = _mm256_castsi256_si128(
-        _mm256_permutevar8x32_epi32(hi, _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6)));
-    const __m256d guessHi = _mm256_fnmadd_pd(_mm256_cvtepi32_pd(packed), _mm256_set1_pd(1.0 / 3.0),
-                                             _mm256_set1_pd(1430187263.0));  // 0x553ef0ff
-    __m256d y = _mm256_castsi256_pd(
-        _mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_cvttpd_epi32(guessHi)), 32));
-    const __m256d third = _mm256_mul_pd(x, _mm256_set1_pd(1.0 / 3.0));
-    const __m256d fourThirds = _mm256_set1_pd(4.0 / 3.0);
-    for (int i = 0; i < 4; ++i) {
-        const __m256d y3 = _mm256_mul_pd(_mm256_mul_pd(y, y), y);
-        y = _mm256_mul_pd(y, _mm256_fnmadd_pd(third, y3, fourThirds));
+/// The one-point element's forces of one cell of modulus @p e (law @p mu, @p bulk) added to
+/// @p fe, @p ue and @p fe at the cell's node 0: F at the centre, `h^2 / 4 P s_a` per node plus
+/// the hourglass springs @p kHg (for E = 1) on the four modes.
+inline void onePointCell(const double* __restrict ue, double* __restrict fe, const NodeOffsets& off,
+                         double invH, double area, double kHg, double mu, double bulk,
+                         double e) noexcept {
+    double fm[3][3], p[3][3];
+    deformationGradient(ue, off, kCentre.g, invH, fm);
+    piola(fm, mu, bulk, p);
+    // Hourglass amplitudes q = G^T u per mode and component.
+    double q[4][3] = {};
+    for (int a = 0; a < 8; ++a) {
+        const double* ua = ue + off.o[a];
+        for (int al = 0; al < 4; ++al) {
+            for (int i = 0; i < 3; ++i) q[al][i] += kHourglass.g[al][a] * ua[i];
+        }
     }
-    return y;
-}
-
-/// a^2 + b^2 + c^2.
-__attribute__((target("avx2,fma"))) inline __m256d sumOfSquares(__m256d a, __m256d b,
-                                                                __m256d c) noexcept {
-    return _mm256_fmadd_pd(c, c, _mm256_fmadd_pd(b, b, _mm256_mul_pd(a, a)));
-}
-
-/// Row i of area P = area (a F + b cof F) into @p out (aa = area a, ba = area b).
-__attribute__((target("avx2,fma"))) inline void piolaRow(__m256d aa, __m256d ba, __m256d f0,
-                                                         __m256d f1, __m256d f2, __m256d k0,
-                                                         __m256d k1, __m256d k2,
-                                                         __m256d (&out)[3]) noexcept {
-    out[0] = _mm256_fmadd_pd(aa, f0, _mm256_mul_pd(ba, k0));
-    out[1] = _mm256_fmadd_pd(aa, f1, _mm256_mul_pd(ba, k1));
-    out[2] = _mm256_fmadd_pd(aa, f2, _mm256_mul_pd(ba, k2));
-}
-
-/// One component's force coefficients: the stress row @p p on the linear signs, the hourglass
-/// springs (@p hg = E kappa (K + 4/3 mu) h / 8 per lane) times the amplitudes of @p c.
-__attribute__((target("avx2,fma"))) inline SignCoefficients nodalCoefficients(
-    const SignCoefficients& c, __m256d hg, const __m256d (&p)[3]) noexcept {
-    return {p[0],
-            p[1],
-            p[2],
-            _mm256_mul_pd(hg, c.yz),
-            _mm256_mul_pd(hg, c.xz),
-            _mm256_mul_pd(hg, c.xy),
-            _mm256_mul_pd(hg, c.xyz)};
-}
-
-/// The one-point element's forces of cells 4 g .. 4 g + 3 of a lattice row, g < @p groups, added
-/// to @p f: @p ub is u at the row's first node, @p fb f there, @p rowE the cells' moduli (0:
-/// inactive, no force). @p gradScale = 1 / (4 h), @p area = h^2 / 4, @p mu1 and @p bulk1 the law
-/// for E = 1, @p hourglass8 the hourglass spring for E = 1 over 8.
-__attribute__((target("avx2,fma"))) void onePointRowAvx2(const double* __restrict ub,
-                                                         double* __restrict fb, const double* rowE,
-                                                         int groups, const NodeOffsets& off,
-                                                         double gradScale, double area, double mu1,
-                                                         double bulk1, double hourglass8) noexcept {
-    const __m256d one = _mm256_set1_pd(1.0), zero = _mm256_setzero_pd();
-    for (int g = 0; g < groups; ++g) {
-        const __m256d e = _mm256_loadu_pd(rowE + 4 * g);
-        const __m256d active = _mm256_cmp_pd(e, zero, _CMP_NEQ_OQ);
-        if (_mm256_movemask_pd(active) == 0) continue;
-        const double* u = ub + 12 * static_cast<std::ptrdiff_t>(g);
-        __m256d v[3][8];
-        for (int a = 0; a < 8; ++a) loadNodes4(u + off.o[a], v[0][a], v[1][a], v[2][a]);
-        const SignCoefficients c0 = forwardSigns(v[0]), c1 = forwardSigns(v[1]),
-                               c2 = forwardSigns(v[2]);
-        // F = I + grad u, grad u's row i from component i's x, y, z coefficients.
-        const __m256d s = _mm256_set1_pd(gradScale);
-        const __m256d f00 = _mm256_fmadd_pd(c0.x, s, one), f01 = _mm256_mul_pd(c0.y, s),
-                      f02 = _mm256_mul_pd(c0.z, s);
-        const __m256d f10 = _mm256_mul_pd(c1.x, s), f11 = _mm256_fmadd_pd(c1.y, s, one),
-                      f12 = _mm256_mul_pd(c1.z, s);
-        const __m256d f20 = _mm256_mul_pd(c2.x, s), f21 = _mm256_mul_pd(c2.y, s),
-                      f22 = _mm256_fmadd_pd(c2.z, s, one);
-        // cof F and J, as piola() computes them.
-        const __m256d k00 = _mm256_fmsub_pd(f11, f22, _mm256_mul_pd(f12, f21));
-        const __m256d k01 = _mm256_fmsub_pd(f12, f20, _mm256_mul_pd(f10, f22));
-        const __m256d k02 = _mm256_fmsub_pd(f10, f21, _mm256_mul_pd(f11, f20));
-        const __m256d k10 = _mm256_fmsub_pd(f02, f21, _mm256_mul_pd(f01, f22));
-        const __m256d k11 = _mm256_fmsub_pd(f00, f22, _mm256_mul_pd(f02, f20));
-        const __m256d k12 = _mm256_fmsub_pd(f01, f20, _mm256_mul_pd(f00, f21));
-        const __m256d k20 = _mm256_fmsub_pd(f01, f12, _mm256_mul_pd(f02, f11));
-        const __m256d k21 = _mm256_fmsub_pd(f02, f10, _mm256_mul_pd(f00, f12));
-        const __m256d k22 = _mm256_fmsub_pd(f00, f11, _mm256_mul_pd(f01, f10));
-        const __m256d jRaw =
-            _mm256_fmadd_pd(f02, k02, _mm256_fmadd_pd(f01, k01, _mm256_mul_pd(f00, k00)));
-        // Inactive lanes take J = 1 (no infinity or NaN) and lose their force below.
-        const __m256d j = _mm256_blendv_pd(one, jRaw, active);
-        const __m256d i1 =
-            _mm256_add_pd(_mm256_add_pd(sumOfSquares(f00, f01, f02), sumOfSquares(f10, f11, f12)),
-                          sumOfSquares(f20, f21, f22));
-        const __m256d j23 = inverseCubeRoot(_mm256_mul_pd(j, j));
-        const __m256d aCoef = _mm256_mul_pd(_mm256_mul_pd(e, _mm256_set1_pd(mu1)), j23);
-        const __m256d bCoef = _mm256_fmsub_pd(
-            _mm256_mul_pd(e, _mm256_set1_pd(bulk1)), _mm256_sub_pd(j, one),
-            _mm256_div_pd(_mm256_mul_pd(aCoef, i1), _mm256_mul_pd(_mm256_set1_pd(3.0), j)));
-        // area P = area (a F + b cof F), masked to the active lanes.
-        const __m256d aa = _mm256_and_pd(_mm256_mul_pd(aCoef, _mm256_set1_pd(area)), active);
-        const __m256d ba = _mm256_and_pd(_mm256_mul_pd(bCoef, _mm256_set1_pd(area)), active);
-        const __m256d hg = _mm256_and_pd(_mm256_mul_pd(e, _mm256_set1_pd(hourglass8)), active);
-        __m256d p[3][3];
-        piolaRow(aa, ba, f00, f01, f02, k00, k01, k02, p[0]);
-        piolaRow(aa, ba, f10, f11, f12, k10, k11, k12, p[1]);
-        piolaRow(aa, ba, f20, f21, f22, k20, k21, k22, p[2]);
-        inverseSigns(nodalCoefficients(c0, hg, p[0]), v[0]);
-        inverseSigns(nodalCoefficients(c1, hg, p[1]), v[1]);
-        inverseSigns(nodalCoefficients(c2, hg, p[2]), v[2]);
-        double* fg = fb + 12 * static_cast<std::ptrdiff_t>(g);
-        for (int a = 0; a < 8; ++a) addNodes4(fg + off.o[a], v[0][a], v[1][a], v[2][a]);
+    const double ke = e * kHg;
+    for (int a = 0; a < 8; ++a) {
+        double* fa = fe + off.o[a];
+        for (int i = 0; i < 3; ++i) {
+            double v = 0.0;
+            for (int jj = 0; jj < 3; ++jj) v += p[i][jj] * kSign[a][jj];
+            double hg = 0.0;
+            for (int al = 0; al < 4; ++al) hg += kHourglass.g[al][a] * q[al][i];
+            fa[i] += area * v + ke * hg;
+        }
     }
 }
-#endif
+
+/// The 2x2x2 element's forces of one cell (as onePointCell(); @p grad the Gauss points'
+/// gradients, @p w the Gauss weight times 1 / h).
+inline void gaussCell(const double* __restrict ue, double* __restrict fe, const NodeOffsets& off,
+                      double invH, double w, const double (*grad)[8][3], double mu,
+                      double bulk) noexcept {
+    double acc[8][3] = {};
+    for (int gp = 0; gp < 8; ++gp) {
+        double fm[3][3], p[3][3];
+        deformationGradient(ue, off, grad[gp], invH, fm);
+        piola(fm, mu, bulk, p);
+        for (int a = 0; a < 8; ++a) {
+            for (int i = 0; i < 3; ++i) {
+                acc[a][i] +=
+                    p[i][0] * grad[gp][a][0] + p[i][1] * grad[gp][a][1] + p[i][2] * grad[gp][a][2];
+            }
+        }
+    }
+    for (int a = 0; a < 8; ++a) {
+        double* fa = fe + off.o[a];
+        for (int i = 0; i < 3; ++i) fa[i] += w * acc[a][i];
+    }
+}
 
 }  // namespace
 
@@ -472,29 +342,7 @@ void TledForces::addInternalForcesSlab(const double* __restrict u, double* __res
         const double area = 0.25 * h * h;  // V |dN/dX| = h^3 / (4 h)
         const double kHg = hourglassStiffness(h);
         const auto cell = [&](double e, std::ptrdiff_t base) {
-            const double* ue = u + base;
-            double fm[3][3], p[3][3];
-            deformationGradient(ue, off, kCentre.g, invH, fm);
-            piola(fm, e * mu1, e * k1, p);
-            // Hourglass amplitudes q = G^T u per mode and component.
-            double q[4][3] = {};
-            for (int a = 0; a < 8; ++a) {
-                const double* ua = ue + off.o[a];
-                for (int al = 0; al < 4; ++al) {
-                    for (int i = 0; i < 3; ++i) q[al][i] += kHourglass.g[al][a] * ua[i];
-                }
-            }
-            const double ke = e * kHg;
-            for (int a = 0; a < 8; ++a) {
-                double* fa = f + base + off.o[a];
-                for (int i = 0; i < 3; ++i) {
-                    double v = 0.0;
-                    for (int jj = 0; jj < 3; ++jj) v += p[i][jj] * kSign[a][jj];
-                    double hg = 0.0;
-                    for (int al = 0; al < 4; ++al) hg += kHourglass.g[al][a] * q[al][i];
-                    fa[i] += area * v + ke * hg;
-                }
-            }
+            onePointCell(u + base, f + base, off, invH, area, kHg, e * mu1, e * k1, e);
         };
 #ifdef PALP_TLED_AVX2
         if (mAvx2) {
@@ -507,8 +355,8 @@ void TledForces::addInternalForcesSlab(const double* __restrict u, double* __res
                     const double* rowE = cellE + static_cast<std::ptrdiff_t>(cx) * (j + cy * k);
                     const std::ptrdiff_t rowBase =
                         3 * static_cast<std::ptrdiff_t>(nc[0]) * (j + nc[1] * k);
-                    onePointRowAvx2(u + rowBase, f + rowBase, rowE, groups, off, 0.25 * invH, area,
-                                    mu1, k1, kHg / 8.0);
+                    detail::onePointRowAvx2(u + rowBase, f + rowBase, rowE, groups, off.o,
+                                            0.25 * invH, area, mu1, k1, kHg / 8.0);
                     for (int i = 4 * groups; i < cx; ++i) {
                         if (rowE[i] != 0.0) cell(rowE[i], rowBase + 3 * i);
                     }
@@ -522,24 +370,47 @@ void TledForces::addInternalForcesSlab(const double* __restrict u, double* __res
     }
     const double w = 0.125 * h * h;  // (h^3 / 8) / h: Gauss weight times dN/dX's 1 / h
     forCells(mesh, kBegin, kEnd, [&](double e, std::ptrdiff_t base) {
-        const double* ue = u + base;
-        double fe[8][3] = {};
-        for (int gp = 0; gp < 8; ++gp) {
-            double fm[3][3], p[3][3];
-            deformationGradient(ue, off, mGaussGrad[gp], invH, fm);
-            piola(fm, e * mu1, e * k1, p);
-            for (int a = 0; a < 8; ++a) {
-                for (int i = 0; i < 3; ++i) {
-                    fe[a][i] += p[i][0] * mGaussGrad[gp][a][0] + p[i][1] * mGaussGrad[gp][a][1] +
-                                p[i][2] * mGaussGrad[gp][a][2];
-                }
-            }
-        }
-        for (int a = 0; a < 8; ++a) {
-            double* fa = f + base + off.o[a];
-            for (int i = 0; i < 3; ++i) fa[i] += w * fe[a][i];
-        }
+        gaussCell(u + base, f + base, off, invH, w, mGaussGrad, e * mu1, e * k1);
     });
+}
+
+void TledForces::addCellForces(const double* __restrict u, double* __restrict f,
+                               std::span<const std::array<int, 8>> cellDofs,
+                               std::span<const double> cellE) const noexcept {
+    const HexMesh& mesh = mModel.mesh();
+    const double h = mesh.edge(), invH = 1.0 / h;
+    const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
+    const NodeOffsets off(dy, dy * mesh.nodeCounts()[1]);
+    const double mu1 = mUnitLaw.mu, k1 = mUnitLaw.bulk;
+    const std::size_t n = std::min(cellDofs.size(), cellE.size());
+    if (mOptions.integration == TledIntegration::gauss2x2x2) {
+        const double w = 0.125 * h * h;
+        for (std::size_t c = 0; c < n; ++c) {
+            const double e = cellE[c];
+            if (e == 0.0) continue;
+            const std::ptrdiff_t base = cellDofs[c][0];
+            gaussCell(u + base, f + base, off, invH, w, mGaussGrad, e * mu1, e * k1);
+        }
+        return;
+    }
+    const double area = 0.25 * h * h, kHg = hourglassStiffness(h);
+    for (std::size_t c = 0; c < n;) {
+        const std::ptrdiff_t base = cellDofs[c][0];
+#ifdef PALP_TLED_AVX2
+        // Four cells one after the other in a lattice row (node 0 three dofs apart: a row's end
+        // jumps by more).
+        if (mAvx2 && c + 4 <= n && cellDofs[c + 1][0] == base + 3 &&
+            cellDofs[c + 2][0] == base + 6 && cellDofs[c + 3][0] == base + 9) {
+            detail::onePointRowAvx2(u + base, f + base, cellE.data() + c, 1, off.o, 0.25 * invH,
+                                    area, mu1, k1, kHg / 8.0);
+            c += 4;
+            continue;
+        }
+#endif
+        const double e = cellE[c];
+        if (e != 0.0) onePointCell(u + base, f + base, off, invH, area, kHg, e * mu1, e * k1, e);
+        ++c;
+    }
 }
 
 void TledForces::addInternalForces(const double* u, double* f) const noexcept {
@@ -596,20 +467,31 @@ double TledForces::frequencyBound(const double* u) const noexcept {
     const double invH = 1.0 / mesh.edge();
     const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
     const NodeOffsets off(dy, dy * mesh.nodeCounts()[1]);
-    const double mu = mUnitLaw.mu, bulk = mUnitLaw.bulk;
-    const double identity[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
-    const double rest = acousticBound(identity, mu, bulk);
+    const double rest = restAcousticBound(mUnitLaw);
     double worst = 0.0;
     forCells(mesh, 0, mesh.nodeCounts()[2] - 1, [&](double e, std::ptrdiff_t base) {
-        double fm[3][3];
-        deformationGradient(u + base, off, kCentre.g, invH, fm);
-        // A NaN or an inverted cell makes the bound infinite: the step is refused or capped.
-        const double r = acousticBound(fm, mu, bulk) / rest;
-        worst = std::max(
-            worst, std::isnan(r) ? std::numeric_limits<double>::infinity() : e / mCellEMax * r);
+        worst = std::max(worst, cellStiffening(u + base, off, invH, e / mCellEMax, mUnitLaw, rest));
     });
     // Below the rest state (tension) the bound is kept at the rest value: stiffness lost to
     // stretching is not counted on.
+    return mOmegaRest * std::sqrt(std::max(1.0, worst));
+}
+
+double TledForces::frequencyBoundCells(const double* u,
+                                       std::span<const std::array<int, 8>> cellDofs,
+                                       std::span<const double> cellE) const noexcept {
+    const HexMesh& mesh = mModel.mesh();
+    const double invH = 1.0 / mesh.edge();
+    const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
+    const NodeOffsets off(dy, dy * mesh.nodeCounts()[1]);
+    const double rest = restAcousticBound(mUnitLaw);
+    double worst = 0.0;
+    const std::size_t n = std::min(cellDofs.size(), cellE.size());
+    for (std::size_t c = 0; c < n; ++c) {
+        if (cellE[c] != 0.0)
+            worst = std::max(worst, cellStiffening(u + cellDofs[c][0], off, invH,
+                                                   cellE[c] / mCellEMax, mUnitLaw, rest));
+    }
     return mOmegaRest * std::sqrt(std::max(1.0, worst));
 }
 

@@ -49,11 +49,11 @@ AsyncSetup::AsyncSetup(const FemModel& m, const Constraints& c, const std::vecto
     const HexMesh& mesh = model.mesh();
     const int dofs = model.dofCount();
     if (c.dofCount() != dofs) fail("constraints", std::to_string(dofs) + " dofs", c.dofCount());
-    if (model.material().law != MaterialLaw::linear) {
-        throwExpected("asynchronous regions material law",
-                      "linear (the neo-Hookean law runs in the whole-mesh explicit solver only)",
-                      "neo-Hookean");
-    }
+    // A neo-Hookean model: TLED in the primary (large strain where the finger is), the linear
+    // small-strain stiffness in the secondary (the condensed coupling and the layouts need a
+    // linear far field).
+    if (model.material().law == MaterialLaw::neoHookean)
+        tled = std::make_shared<const TledForces>(model, o.tled);
     if (!bounds::kPeriod.contains(o.tickSeconds))
         fail("tick", describe(bounds::kPeriod), o.tickSeconds);
     // At least one solve an hour (the period stays an honest tick count), at most 1 kHz.

@@ -6,6 +6,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "palp/fem/async_regions.h"
@@ -48,6 +49,8 @@ struct AsyncSetup {
     double periodSeconds = 0.0;  // secondary period, s
     NewmarkCoefficients nm;      // secondary time scheme over one period
     double sK = 1.0, sM = 0.0;   // secondary system: sK K + sM M
+    // A neo-Hookean model's primary element (the secondary stays linear); null for linear.
+    std::shared_ptr<const TledForces> tled;
 };
 
 }  // namespace palp::fem

@@ -335,6 +335,18 @@ void LayoutBuilder::collectPrimaryDofs(const std::vector<std::uint8_t>& primaryC
         L.cellDofs.push_back(d);
         L.cellE.push_back(mesh.cellYoungs()[sz(c)]);
     }
+    if (mSetup.tled) {
+        for (std::size_t i = 0; i < L.cellDofs.size(); ++i) {
+            bool inside = true;
+            for (int d : L.cellDofs[i]) inside = inside && L.isPrimary[sz(d / 3)];
+            if (inside) {
+                L.tledCellDofs.push_back(L.cellDofs[i]);
+                L.tledCellE.push_back(L.cellE[i]);
+            } else {
+                L.linearCells.push_back(static_cast<int>(i));
+            }
+        }
+    }
     // P nodes by rows: the unit stencil where all eight cells are present with one modulus.
     const std::array<int, 3> cc = mesh.cellCounts();
     L.edgeCellStart.push_back(0);

@@ -147,4 +147,22 @@ void PrimaryRegion::internalForces(
     }
 }
 
+void PrimaryRegion::linearCellForces(
+    const Layout& L, const double* operand,
+    const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept {
+    // The linear element's forces of L.linearCells (a neo-Hookean primary's cells touching
+    // Gamma), all 8 nodes' rows.
+    for (int c : L.linearCells) {
+        const std::array<int, 8>& nd = L.cellDofs[sz(c)];
+        Eigen::Matrix<double, 24, 1> ue;
+        for (int a = 0; a < 8; ++a) {
+            for (int k = 0; k < 3; ++k) ue[3 * a + k] = operand[nd[sz(a)] + k];
+        }
+        const Eigen::Matrix<double, 24, 1> fe = L.cellE[sz(c)] * (K * ue);
+        for (int a = 0; a < 8; ++a) {
+            for (int k = 0; k < 3; ++k) mFInt[nd[sz(a)] + k] += fe[3 * a + k];
+        }
+    }
+}
+
 }  // namespace palp::fem

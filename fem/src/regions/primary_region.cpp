@@ -28,7 +28,12 @@ PrimaryRegion::PrimaryRegion(const AsyncSetup& setup, const Constraints& c,
     const int dofs = model.dofCount();
     const int nodes = model.mesh().nodeCount();
     // Central-difference coefficients (the same for every layout).
-    const double critical = o.safetyFactor * model.criticalTimeStep();
+    // TLED: the undeformed one-point element's bound (its hourglass springs included); the
+    // current state's shortens the substep in advance().
+    const double critical =
+        o.safetyFactor * (setup.tled
+                              ? setup.tled->criticalTimeStep(setup.tled->restFrequencyBound())
+                              : model.criticalTimeStep());
     mSubsteps =
         std::min(o.maxSubsteps, std::max(1, static_cast<int>(std::ceil(o.tickSeconds / critical))));
     mDtSub = o.tickSeconds / mSubsteps;
@@ -366,6 +371,7 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
     Eigen::Vector3d aOutside = Eigen::Vector3d::Zero();  // a(u) share of non-P, non-Gamma nodes
     int substeps = mBaseSubsteps;
     double dtNew = mBaseDt;
+    double springOmega2 = 0.0;  // the spring's k w^T M^-1 w on P, rad^2/s^2
     if (springOn) {
         const Eigen::VectorXd& mass = model.lumpedMass();
         const double frac0 = shownFraction();
@@ -389,8 +395,9 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
             result.flags |= kAsyncLoadsRefused;
             ++result.loadsRefused;
         }
+        springOmega2 = spring->stiffness * w2m;
         const double dtSpring =
-            mSetup.options.safetyFactor * criticalTimeStepWith(model, spring->stiffness * w2m);
+            mSetup.options.safetyFactor * criticalTimeStepWith(model, springOmega2);
         const double need = std::ceil(mSetup.options.tickSeconds / dtSpring);
         substeps = std::max(mBaseSubsteps, need < 1e9 ? static_cast<int>(need) : 1 << 30);
         if (substeps > mSetup.options.maxSubsteps) {
@@ -399,6 +406,26 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
             dtNew = dtSpring;
             result.flags |= kStepSubstepLimit;
         } else {
+            dtNew = mSetup.options.tickSeconds / substeps;
+        }
+    }
+    if (mSetup.tled) {
+        // As ExplicitSolver with TLED: the primary cells' current stiffness (compression raises
+        // it) with the spring's frequency sets the substep; the cap is flagged.
+        const double omega =
+            mSetup.tled->frequencyBoundCells(mU.data(), L.tledCellDofs, L.tledCellE);
+        const double dtTled =
+            mSetup.options.safetyFactor * mSetup.tled->criticalTimeStep(omega, springOmega2);
+        const double need = std::ceil(mSetup.options.tickSeconds / dtTled);
+        if (!(need <= static_cast<double>(mSetup.options.maxSubsteps))) {
+            // maxSubsteps substeps of the stable step (less time than a tick), or of a tick's
+            // share where the bound is not finite (an inverted cell), as ExplicitSolver.
+            substeps = mSetup.options.maxSubsteps;
+            const double cap = mSetup.options.tickSeconds / substeps;
+            dtNew = std::min(dtNew, std::isfinite(dtTled) && dtTled > 0.0 ? dtTled : cap);
+            result.flags |= kStepSubstepLimit;
+        } else if (static_cast<int>(need) > substeps) {
+            substeps = static_cast<int>(need);
             dtNew = mSetup.options.tickSeconds / substeps;
         }
     }
@@ -455,7 +482,15 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
             for (int d : L.touchedDofs) mWork[d] = mU[d] + b * (mU[d] - mUPrev[d]);
             operand = mWork.data();
         }
-        internalForces(L, operand, K);
+        if (mSetup.tled) {
+            // TLED on the cells inside P, the linear element on those touching Gamma; rows of P
+            // nodes are whole (P nodes touch primary cells only), the others are not read.
+            for (int d : L.touchedDofs) mFInt[d] = 0.0;
+            mSetup.tled->addCellForces(operand, mFInt.data(), L.tledCellDofs, L.tledCellE);
+            linearCellForces(L, operand, K);
+        } else {
+            internalForces(L, operand, K);
+        }
         // The contact damper (implicit, on the spring's free P dofs): a(u(n-1)) over them,
         // before the update overwrites u(n-1).
         const bool damperOn = springOn && spring->damping > 0.0;

@@ -121,6 +121,10 @@ class PrimaryRegion {
     void internalForces(
         const Layout& L, const double* operand,
         const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept;
+    /// Adds the linear element's forces of @p L's linearCells (all their nodes' rows) to mFInt.
+    void linearCellForces(
+        const Layout& L, const double* operand,
+        const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept;
     void enterFactored(const Layout& from, const Layout& to) noexcept;
     void setSubstep(const Layout& L, int substeps, double dt) noexcept;
     void addSecondaryLoad(int node, const Eigen::Vector3d& force) noexcept;

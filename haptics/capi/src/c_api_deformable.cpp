@@ -87,13 +87,6 @@ ph::DeformableSetup toSetup(const palp_deformable_options& c) {
                       "PALP_MATERIAL_LINEAR or PALP_MATERIAL_NEO_HOOKEAN (0, 1)",
                       std::to_string(law));
     }
-    if (law == PALP_MATERIAL_NEO_HOOKEAN && solver == PALP_FEM_REGIONS) {
-        throwExpected(field("solver"),
-                      "PALP_FEM_WHOLE_MESH or PALP_FEM_AUTO with material_law "
-                      "PALP_MATERIAL_NEO_HOOKEAN (it runs on the whole-mesh explicit solver "
-                      "only; the regions are linear)",
-                      "PALP_FEM_REGIONS");
-    }
     if (c.primary_nodes < 1 || c.primary_nodes > kMaxPrimaryNodes) {
         throwExpected(field("primary_nodes"), "1.." + std::to_string(kMaxPrimaryNodes),
                       std::to_string(c.primary_nodes));

@@ -60,20 +60,16 @@ SolverChoice chooseSolver(const fem::FemModel& model, const DeformableOptions& o
     c.elementSubsteps = elements * substeps;
     const bool within = c.elementSubsteps <= c.budget;
     char line[256];
-    if (model.material().law == fem::MaterialLaw::neoHookean) {
-        // TLED runs on the whole mesh only: the regions' primary is linear.
-        c.solver = DeformableSolver::wholeMeshExplicit;
-        std::snprintf(line, sizeof line,
-                      "whole mesh: neo-Hookean (TLED runs on the whole-mesh explicit solver "
-                      "only); %.0f elements x %.0f substeps a tick = %.0f, %s %.0f%s",
-                      elements, substeps, c.elementSubsteps, within ? "within" : "over", c.budget,
-                      within ? "" : " (the tick may run late)");
-    } else {
-        c.solver = within ? DeformableSolver::wholeMeshExplicit : DeformableSolver::asyncRegions;
-        std::snprintf(line, sizeof line, "%s: %.0f elements x %.0f substeps a tick = %.0f, %s %.0f",
-                      within ? "whole mesh" : "regions", elements, substeps, c.elementSubsteps,
-                      within ? "within" : "over", c.budget);
-    }
+    c.solver = within ? DeformableSolver::wholeMeshExplicit : DeformableSolver::asyncRegions;
+    // A neo-Hookean body runs TLED on the whole mesh, or in the regions' primary with a linear
+    // far field (the same budget decides).
+    const bool nh = model.material().law == fem::MaterialLaw::neoHookean;
+    std::snprintf(line, sizeof line, "%s: %.0f elements x %.0f substeps a tick = %.0f, %s %.0f%s",
+                  within ? "whole mesh" : "regions", elements, substeps, c.elementSubsteps,
+                  within ? "within" : "over", c.budget,
+                  !nh      ? ""
+                  : within ? " (neo-Hookean: TLED)"
+                           : " (neo-Hookean: TLED in the primary, linear far field)");
     c.reason = line;
     return c;
 }
@@ -148,12 +144,6 @@ std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volum
                                                      const DeformableSetup& setup,
                                                      SolverChoice* choice) {
     DeformableOptions options = setup.options;
-    if (!setup.autoSolver && options.solverKind == DeformableSolver::asyncRegions &&
-        setup.material.law == fem::MaterialLaw::neoHookean)
-        throwExpected("deformable solver",
-                      "the whole-mesh explicit solver (or the automatic choice) with the "
-                      "neo-Hookean material law (TLED runs there only; the regions are linear)",
-                      "the asynchronous regions");
     if (setup.autoSolver) options.solverKind = DeformableSolver::wholeMeshExplicit;
     const bool autoLod = setup.options.regions.lod == 0;
     if (autoLod) options.regions.lod = 1;  // the lattice decides (below)
@@ -172,9 +162,7 @@ std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volum
     } else if (choice) {
         choice->solver = options.solverKind;
         choice->reason = options.solverKind == DeformableSolver::asyncRegions ? "regions: asked"
-                         : setup.material.law == fem::MaterialLaw::neoHookean
-                             ? "whole mesh: asked (neo-Hookean: TLED)"
-                             : "whole mesh: asked";
+                                                                              : "whole mesh: asked";
     }
     if (options.solverKind == DeformableSolver::asyncRegions && setup.slidePatch) {
         options.regions.slideNodes = skinNodesUnder(*model, *setup.slidePatch);

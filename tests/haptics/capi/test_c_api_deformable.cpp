@@ -232,13 +232,6 @@ TEST_F(CApiDeformable, TheMaterialLawAndTableReachTheBodyAsTheCliMakesIt) {
                  &scene);
         expectRefused(st, "material_law", std::to_string(v), "material_law " + std::to_string(v));
     }
-    expectRefused(make(
-                      [](palp_deformable_options& o) {
-                          o.material_law = PALP_MATERIAL_NEO_HOOKEAN;
-                          o.solver = PALP_FEM_REGIONS;
-                      },
-                      &scene),
-                  "solver", "found PALP_FEM_REGIONS", "neo-Hookean on the regions");
     palp::test::TempDir tmp;
     const std::string bad = (tmp / "bad.csv").string();
     {

@@ -148,6 +148,7 @@
 #include "palp/fem/coupling_spring.h"
 #include "palp/fem/fem_model.h"
 #include "palp/fem/implicit_solver.h"
+#include "palp/fem/tled.h"
 
 namespace palp::fem {
 
@@ -230,10 +231,14 @@ struct AsyncRegionsOptions {
     int slideZoneMaxDofs = 3000;         ///< cap of the dense zone block (8 n^2 bytes, ~n^3 flops)
     double pcgRelativeTolerance = 1e-8;  ///< PCG: on ||r|| / ||b||
     int pcgMaxIterations = 2000;         ///< PCG: bound per secondary solve
-    double safetyFactor = 0.9;           ///< primary substep = safety * critical step, (0, 1]
-    int maxSubsteps = 64;                ///< bound on primary substeps per tick
-    bool threaded = false;               ///< secondary on its own thread (else synchronous)
-    int secondaryThreads = 1;            ///< concurrency of the secondary's tbb::task_arena
+    /// The primary's element with a neo-Hookean model (MaterialLaw::neoHookean): TLED over the
+    /// primary cells (palp/fem/tled.h), the secondary staying linear (the law's small-strain
+    /// stiffness); unused for a linear model.
+    TledOptions tled;
+    double safetyFactor = 0.9;  ///< primary substep = safety * critical step, (0, 1]
+    int maxSubsteps = 64;       ///< bound on primary substeps per tick
+    bool threaded = false;      ///< secondary on its own thread (else synchronous)
+    int secondaryThreads = 1;   ///< concurrency of the secondary's tbb::task_arena
     int secondaryCpu = -1;      ///< threaded: pin the secondary thread to this CPU (-1: no pinning)
     int maxPrimaryNodes = 0;    ///< > primaryNodes enables the adaptive primary (synchronous)
     int adaptiveLevels = 4;     ///< number of prepared layouts between the two sizes

@@ -8,6 +8,8 @@
 /// "Large strain: TLED", has the equations.
 
 #include <Eigen/Core>
+#include <array>
+#include <span>
 
 #include "palp/fem/fem_model.h"
 
@@ -80,6 +82,17 @@ class TledForces {
     void addInternalForcesSlab(const double* u, double* f, int kBegin, int kEnd) const noexcept;
     /// f = f_int(u) with TBB: slabs of even and then odd k in parallel (no write conflicts).
     void internalForcesParallel(const double* u, double* f) const;
+
+    /// f += f_int(u) over the listed cells only (the primary region of the asynchronous regions):
+    /// @p cellDofs holds `3 * node` of each cell's 8 nodes (HexMesh's corner order; cells of this
+    /// model's mesh), @p cellE their Young's moduli (0: no force), the same length. Four cells
+    /// adjacent in a lattice row and listed one after the other take the AVX2 path.
+    /// @par Real-time  noexcept, allocation-free, O(#cells).
+    void addCellForces(const double* u, double* f, std::span<const std::array<int, 8>> cellDofs,
+                       std::span<const double> cellE) const noexcept;
+    /// frequencyBound() over the listed cells only (as addCellForces()). @par Real-time
+    double frequencyBoundCells(const double* u, std::span<const std::array<int, 8>> cellDofs,
+                               std::span<const double> cellE) const noexcept;
 
     /// Strain energy of @p u (#dofs), joules: W at the integration points (plus the hourglass
     /// springs' energy for onePointHourglass). @par Real-time

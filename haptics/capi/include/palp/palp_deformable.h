@@ -40,8 +40,9 @@ typedef enum palp_fem_solver {
 /** The tissue's law (palp_deformable_options.material_law, `palp palpate --material`). */
 typedef enum palp_material_law {
     PALP_MATERIAL_LINEAR = 0,     /**< small strain (every solver) */
-    PALP_MATERIAL_NEO_HOOKEAN = 1 /**< large strain, the same small-strain E and nu (TLED): the
-                                       whole mesh only (AUTO takes it, REGIONS is refused) */
+    PALP_MATERIAL_NEO_HOOKEAN = 1 /**< large strain, the same small-strain E and nu (TLED): on
+                                       the whole mesh, or in the regions' primary with a linear
+                                       far field */
 } palp_material_law;
 
 /** What happens to tissue enclosed by bone (the brain inside a skull). */

@@ -63,8 +63,8 @@ struct DeformableSetup {
         return v;
     }();
     /// The tissue (uniform unless voxelize.youngsFromValue or materialTable is set). With
-    /// material.law fem::MaterialLaw::neoHookean the body runs on the whole-mesh explicit
-    /// solver (TLED): autoSolver takes it, and asking for the regions is refused.
+    /// material.law fem::MaterialLaw::neoHookean the whole-mesh explicit solver runs TLED, the
+    /// regions TLED in their primary with a linear far field.
     fem::ElasticMaterial material = [] {
         fem::ElasticMaterial m;
         m.dampingAlpha = 60;
@@ -134,9 +134,9 @@ struct SolverChoice {
 inline constexpr double kWholeMeshElementSubsteps = 8000;
 
 /// The whole-mesh explicit solver when elements x substeps per tick (at its safety factor and
-/// tickSeconds) is within kWholeMeshElementSubsteps, else the asynchronous regions; always the
-/// whole mesh for a neo-Hookean material (TLED runs there only; the reason says so, and says
-/// when the tick is over the budget).
+/// tickSeconds) is within kWholeMeshElementSubsteps, else the asynchronous regions, for either
+/// law (a neo-Hookean body: TLED on the whole mesh, or in the regions' primary with a linear
+/// far field; the reason says which).
 SolverChoice chooseSolver(const fem::FemModel& model, const DeformableOptions& options);
 
 /// The face opposite the one a press along @p press (any non-zero vector; its largest
@@ -147,7 +147,7 @@ fem::BoxFace faceOpposite(const Eigen::Vector3d& press) noexcept;
 /// chosen by chooseSolver() when setup.autoSolver (reported in @p choice when given) and
 /// regions.lod 0 resolved by autoRegionsLod().
 /// @throw palp::ValueError naming the field (voxelisation, material, options, a body too stiff
-/// for its period, no fixed node, the regions asked for with a neo-Hookean material, a scan
+/// for its period, no fixed node, a scan
 /// value no row of the material table covers); palp::Error from the material table.
 std::shared_ptr<DeformableModel> makeDeformableModel(const volume::Volume& volume,
                                                      const DeformableSetup& setup,
