@@ -356,7 +356,7 @@ void TledForces::addInternalForcesSlab(const double* __restrict u, double* __res
                     const std::ptrdiff_t rowBase =
                         3 * static_cast<std::ptrdiff_t>(nc[0]) * (j + nc[1] * k);
                     detail::onePointRowAvx2(u + rowBase, f + rowBase, rowE, groups, off.o,
-                                            0.25 * invH, area, mu1, k1, kHg / 8.0);
+                                            {0.25 * invH, area, mu1, k1, kHg / 8.0});
                     for (int i = 4 * groups; i < cx; ++i) {
                         if (rowE[i] != 0.0) cell(rowE[i], rowBase + 3 * i);
                     }
@@ -394,22 +394,47 @@ void TledForces::addCellForces(const double* __restrict u, double* __restrict f,
         return;
     }
     const double area = 0.25 * h * h, kHg = hourglassStiffness(h);
-    for (std::size_t c = 0; c < n;) {
-        const std::ptrdiff_t base = cellDofs[c][0];
 #ifdef PALP_TLED_AVX2
+    if (mAvx2) {
         // Four cells one after the other in a lattice row (node 0 three dofs apart: a row's end
-        // jumps by more).
-        if (mAvx2 && c + 4 <= n && cellDofs[c + 1][0] == base + 3 &&
-            cellDofs[c + 2][0] == base + 6 && cellDofs[c + 3][0] == base + 9) {
-            detail::onePointRowAvx2(u + base, f + base, cellE.data() + c, 1, off.o, 0.25 * invH,
-                                    area, mu1, k1, kHg / 8.0);
-            c += 4;
-            continue;
+        // jumps by more) in one row group; the other cells four at a time from anywhere, the
+        // last group padded with modulus 0.
+        const detail::OnePointConstants k{0.25 * invH, area, mu1, k1, kHg / 8.0};
+        std::ptrdiff_t bases[4];
+        double moduli[4];
+        int pending = 0;
+        for (std::size_t c = 0; c < n;) {
+            const std::ptrdiff_t base = cellDofs[c][0];
+            if (c + 4 <= n && cellDofs[c + 1][0] == base + 3 && cellDofs[c + 2][0] == base + 6 &&
+                cellDofs[c + 3][0] == base + 9) {
+                detail::onePointRowAvx2(u + base, f + base, cellE.data() + c, 1, off.o, k);
+                c += 4;
+                continue;
+            }
+            if (cellE[c] != 0.0) {
+                bases[pending] = base;
+                moduli[pending] = cellE[c];
+                if (++pending == 4) {
+                    detail::onePointCellsAvx2(u, f, bases, moduli, off.o, k);
+                    pending = 0;
+                }
+            }
+            ++c;
         }
+        if (pending > 0) {
+            for (int l = pending; l < 4; ++l) {
+                bases[l] = bases[0];
+                moduli[l] = 0.0;
+            }
+            detail::onePointCellsAvx2(u, f, bases, moduli, off.o, k);
+        }
+        return;
+    }
 #endif
+    for (std::size_t c = 0; c < n; ++c) {
+        const std::ptrdiff_t base = cellDofs[c][0];
         const double e = cellE[c];
         if (e != 0.0) onePointCell(u + base, f + base, off, invH, area, kHg, e * mu1, e * k1, e);
-        ++c;
     }
 }
 

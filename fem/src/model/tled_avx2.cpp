@@ -137,15 +137,99 @@ __attribute__((target("avx2,fma"))) inline SignCoefficients nodalCoefficients(
             _mm256_mul_pd(hg, c.xyz)};
 }
 
+/// The one-point element of four cells (lanes) in place: @p v holds their nodal displacements
+/// per component and corner on entry and their nodal forces on return; @p e their moduli,
+/// @p active the lanes with e != 0 (the others get J = 1 and zero forces).
+__attribute__((target("avx2,fma"))) inline void onePointLanes(__m256d (&v)[3][8], __m256d e,
+                                                              __m256d active,
+                                                              const OnePointConstants& k) noexcept {
+    const __m256d one = _mm256_set1_pd(1.0);
+    const double gradScale = k.gradScale, area = k.area, mu1 = k.mu1, bulk1 = k.bulk1,
+                 hourglass8 = k.hourglass8;
+    const SignCoefficients c0 = forwardSigns(v[0]), c1 = forwardSigns(v[1]),
+                           c2 = forwardSigns(v[2]);
+    // F = I + grad u, grad u's row i from component i's x, y, z coefficients.
+    const __m256d s = _mm256_set1_pd(gradScale);
+    const __m256d f00 = _mm256_fmadd_pd(c0.x, s, one), f01 = _mm256_mul_pd(c0.y, s),
+                  f02 = _mm256_mul_pd(c0.z, s);
+    const __m256d f10 = _mm256_mul_pd(c1.x, s), f11 = _mm256_fmadd_pd(c1.y, s, one),
+                  f12 = _mm256_mul_pd(c1.z, s);
+    const __m256d f20 = _mm256_mul_pd(c2.x, s), f21 = _mm256_mul_pd(c2.y, s),
+                  f22 = _mm256_fmadd_pd(c2.z, s, one);
+    // cof F and J, as piola() computes them.
+    const __m256d k00 = _mm256_fmsub_pd(f11, f22, _mm256_mul_pd(f12, f21));
+    const __m256d k01 = _mm256_fmsub_pd(f12, f20, _mm256_mul_pd(f10, f22));
+    const __m256d k02 = _mm256_fmsub_pd(f10, f21, _mm256_mul_pd(f11, f20));
+    const __m256d k10 = _mm256_fmsub_pd(f02, f21, _mm256_mul_pd(f01, f22));
+    const __m256d k11 = _mm256_fmsub_pd(f00, f22, _mm256_mul_pd(f02, f20));
+    const __m256d k12 = _mm256_fmsub_pd(f01, f20, _mm256_mul_pd(f00, f21));
+    const __m256d k20 = _mm256_fmsub_pd(f01, f12, _mm256_mul_pd(f02, f11));
+    const __m256d k21 = _mm256_fmsub_pd(f02, f10, _mm256_mul_pd(f00, f12));
+    const __m256d k22 = _mm256_fmsub_pd(f00, f11, _mm256_mul_pd(f01, f10));
+    const __m256d jRaw =
+        _mm256_fmadd_pd(f02, k02, _mm256_fmadd_pd(f01, k01, _mm256_mul_pd(f00, k00)));
+    // Inactive lanes take J = 1 (no infinity or NaN) and lose their force below.
+    const __m256d j = _mm256_blendv_pd(one, jRaw, active);
+    const __m256d i1 =
+        _mm256_add_pd(_mm256_add_pd(sumOfSquares(f00, f01, f02), sumOfSquares(f10, f11, f12)),
+                      sumOfSquares(f20, f21, f22));
+    const __m256d j23 = inverseCubeRoot(_mm256_mul_pd(j, j));
+    const __m256d aCoef = _mm256_mul_pd(_mm256_mul_pd(e, _mm256_set1_pd(mu1)), j23);
+    const __m256d bCoef = _mm256_fmsub_pd(
+        _mm256_mul_pd(e, _mm256_set1_pd(bulk1)), _mm256_sub_pd(j, one),
+        _mm256_div_pd(_mm256_mul_pd(aCoef, i1), _mm256_mul_pd(_mm256_set1_pd(3.0), j)));
+    // area P = area (a F + b cof F), masked to the active lanes.
+    const __m256d aa = _mm256_and_pd(_mm256_mul_pd(aCoef, _mm256_set1_pd(area)), active);
+    const __m256d ba = _mm256_and_pd(_mm256_mul_pd(bCoef, _mm256_set1_pd(area)), active);
+    const __m256d hg = _mm256_and_pd(_mm256_mul_pd(e, _mm256_set1_pd(hourglass8)), active);
+    __m256d p[3][3];
+    piolaRow(aa, ba, f00, f01, f02, k00, k01, k02, p[0]);
+    piolaRow(aa, ba, f10, f11, f12, k10, k11, k12, p[1]);
+    piolaRow(aa, ba, f20, f21, f22, k20, k21, k22, p[2]);
+    inverseSigns(nodalCoefficients(c0, hg, p[0]), v[0]);
+    inverseSigns(nodalCoefficients(c1, hg, p[1]), v[1]);
+    inverseSigns(nodalCoefficients(c2, hg, p[2]), v[2]);
+}
+
+/// Four nodes' xyz at @p p[0..3] (any places) as their x, y and z components.
+__attribute__((target("avx2,fma"))) inline void gatherNodes4(const double* const (&p)[4],
+                                                             __m256d& x, __m256d& y,
+                                                             __m256d& z) noexcept {
+    __m256d r[4];
+    for (int l = 0; l < 4; ++l)
+        r[l] = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p[l])),
+                                    _mm_load_sd(p[l] + 2), 1);  // x y z 0
+    const __m256d t0 = _mm256_unpacklo_pd(r[0], r[1]), t1 = _mm256_unpackhi_pd(r[0], r[1]);
+    const __m256d t2 = _mm256_unpacklo_pd(r[2], r[3]), t3 = _mm256_unpackhi_pd(r[2], r[3]);
+    x = _mm256_permute2f128_pd(t0, t2, 0x20);
+    z = _mm256_permute2f128_pd(t0, t2, 0x31);
+    y = _mm256_permute2f128_pd(t1, t3, 0x20);
+}
+
+/// Adds four nodes' forces (x, y and z components) to the xyz at @p p[0..3], one node after
+/// the other (two of them may be the same node).
+__attribute__((target("avx2,fma"))) inline void scatterAddNodes4(double* const (&p)[4], __m256d x,
+                                                                 __m256d y, __m256d z) noexcept {
+    const __m256d zero = _mm256_setzero_pd();
+    const __m256d lo = _mm256_permute2f128_pd(x, z, 0x20), hi = _mm256_permute2f128_pd(x, z, 0x31);
+    const __m256d y01 = _mm256_permute2f128_pd(y, zero, 0x20);
+    const __m256d y23 = _mm256_permute2f128_pd(y, zero, 0x31);
+    const __m256d r[4] = {_mm256_unpacklo_pd(lo, y01), _mm256_unpackhi_pd(lo, y01),
+                          _mm256_unpacklo_pd(hi, y23), _mm256_unpackhi_pd(hi, y23)};
+    for (int l = 0; l < 4; ++l) {
+        _mm_storeu_pd(p[l], _mm_add_pd(_mm_loadu_pd(p[l]), _mm256_castpd256_pd128(r[l])));
+        _mm_store_sd(p[l] + 2, _mm_add_sd(_mm_load_sd(p[l] + 2), _mm256_extractf128_pd(r[l], 1)));
+    }
+}
+
 }  // namespace
 
 __attribute__((target("avx2,fma"))) void onePointRowAvx2(const double* __restrict ub,
                                                          double* __restrict fb, const double* rowE,
                                                          int groups,
                                                          const std::ptrdiff_t (&offset)[8],
-                                                         double gradScale, double area, double mu1,
-                                                         double bulk1, double hourglass8) noexcept {
-    const __m256d one = _mm256_set1_pd(1.0), zero = _mm256_setzero_pd();
+                                                         const OnePointConstants& k) noexcept {
+    const __m256d zero = _mm256_setzero_pd();
     for (int g = 0; g < groups; ++g) {
         const __m256d e = _mm256_loadu_pd(rowE + 4 * g);
         const __m256d active = _mm256_cmp_pd(e, zero, _CMP_NEQ_OQ);
@@ -153,51 +237,32 @@ __attribute__((target("avx2,fma"))) void onePointRowAvx2(const double* __restric
         const double* u = ub + 12 * static_cast<std::ptrdiff_t>(g);
         __m256d v[3][8];
         for (int a = 0; a < 8; ++a) loadNodes4(u + offset[a], v[0][a], v[1][a], v[2][a]);
-        const SignCoefficients c0 = forwardSigns(v[0]), c1 = forwardSigns(v[1]),
-                               c2 = forwardSigns(v[2]);
-        // F = I + grad u, grad u's row i from component i's x, y, z coefficients.
-        const __m256d s = _mm256_set1_pd(gradScale);
-        const __m256d f00 = _mm256_fmadd_pd(c0.x, s, one), f01 = _mm256_mul_pd(c0.y, s),
-                      f02 = _mm256_mul_pd(c0.z, s);
-        const __m256d f10 = _mm256_mul_pd(c1.x, s), f11 = _mm256_fmadd_pd(c1.y, s, one),
-                      f12 = _mm256_mul_pd(c1.z, s);
-        const __m256d f20 = _mm256_mul_pd(c2.x, s), f21 = _mm256_mul_pd(c2.y, s),
-                      f22 = _mm256_fmadd_pd(c2.z, s, one);
-        // cof F and J, as piola() computes them.
-        const __m256d k00 = _mm256_fmsub_pd(f11, f22, _mm256_mul_pd(f12, f21));
-        const __m256d k01 = _mm256_fmsub_pd(f12, f20, _mm256_mul_pd(f10, f22));
-        const __m256d k02 = _mm256_fmsub_pd(f10, f21, _mm256_mul_pd(f11, f20));
-        const __m256d k10 = _mm256_fmsub_pd(f02, f21, _mm256_mul_pd(f01, f22));
-        const __m256d k11 = _mm256_fmsub_pd(f00, f22, _mm256_mul_pd(f02, f20));
-        const __m256d k12 = _mm256_fmsub_pd(f01, f20, _mm256_mul_pd(f00, f21));
-        const __m256d k20 = _mm256_fmsub_pd(f01, f12, _mm256_mul_pd(f02, f11));
-        const __m256d k21 = _mm256_fmsub_pd(f02, f10, _mm256_mul_pd(f00, f12));
-        const __m256d k22 = _mm256_fmsub_pd(f00, f11, _mm256_mul_pd(f01, f10));
-        const __m256d jRaw =
-            _mm256_fmadd_pd(f02, k02, _mm256_fmadd_pd(f01, k01, _mm256_mul_pd(f00, k00)));
-        // Inactive lanes take J = 1 (no infinity or NaN) and lose their force below.
-        const __m256d j = _mm256_blendv_pd(one, jRaw, active);
-        const __m256d i1 =
-            _mm256_add_pd(_mm256_add_pd(sumOfSquares(f00, f01, f02), sumOfSquares(f10, f11, f12)),
-                          sumOfSquares(f20, f21, f22));
-        const __m256d j23 = inverseCubeRoot(_mm256_mul_pd(j, j));
-        const __m256d aCoef = _mm256_mul_pd(_mm256_mul_pd(e, _mm256_set1_pd(mu1)), j23);
-        const __m256d bCoef = _mm256_fmsub_pd(
-            _mm256_mul_pd(e, _mm256_set1_pd(bulk1)), _mm256_sub_pd(j, one),
-            _mm256_div_pd(_mm256_mul_pd(aCoef, i1), _mm256_mul_pd(_mm256_set1_pd(3.0), j)));
-        // area P = area (a F + b cof F), masked to the active lanes.
-        const __m256d aa = _mm256_and_pd(_mm256_mul_pd(aCoef, _mm256_set1_pd(area)), active);
-        const __m256d ba = _mm256_and_pd(_mm256_mul_pd(bCoef, _mm256_set1_pd(area)), active);
-        const __m256d hg = _mm256_and_pd(_mm256_mul_pd(e, _mm256_set1_pd(hourglass8)), active);
-        __m256d p[3][3];
-        piolaRow(aa, ba, f00, f01, f02, k00, k01, k02, p[0]);
-        piolaRow(aa, ba, f10, f11, f12, k10, k11, k12, p[1]);
-        piolaRow(aa, ba, f20, f21, f22, k20, k21, k22, p[2]);
-        inverseSigns(nodalCoefficients(c0, hg, p[0]), v[0]);
-        inverseSigns(nodalCoefficients(c1, hg, p[1]), v[1]);
-        inverseSigns(nodalCoefficients(c2, hg, p[2]), v[2]);
+        onePointLanes(v, e, active, k);
         double* fg = fb + 12 * static_cast<std::ptrdiff_t>(g);
         for (int a = 0; a < 8; ++a) addNodes4(fg + offset[a], v[0][a], v[1][a], v[2][a]);
+    }
+}
+
+__attribute__((target("avx2,fma"))) void onePointCellsAvx2(const double* __restrict u,
+                                                           double* __restrict f,
+                                                           const std::ptrdiff_t (&base)[4],
+                                                           const double (&cellE)[4],
+                                                           const std::ptrdiff_t (&offset)[8],
+                                                           const OnePointConstants& k) noexcept {
+    const __m256d e = _mm256_loadu_pd(cellE);
+    const __m256d active = _mm256_cmp_pd(e, _mm256_setzero_pd(), _CMP_NEQ_OQ);
+    if (_mm256_movemask_pd(active) == 0) return;
+    __m256d v[3][8];
+    for (int a = 0; a < 8; ++a) {
+        const double* const p[4] = {u + base[0] + offset[a], u + base[1] + offset[a],
+                                    u + base[2] + offset[a], u + base[3] + offset[a]};
+        gatherNodes4(p, v[0][a], v[1][a], v[2][a]);
+    }
+    onePointLanes(v, e, active, k);
+    for (int a = 0; a < 8; ++a) {
+        double* const p[4] = {f + base[0] + offset[a], f + base[1] + offset[a],
+                              f + base[2] + offset[a], f + base[3] + offset[a]};
+        scatterAddNodes4(p, v[0][a], v[1][a], v[2][a]);
     }
 }
 

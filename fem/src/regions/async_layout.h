@@ -102,12 +102,15 @@ struct Layout {
     std::vector<double> cellE;                 // Young's modulus per primary cell
     std::vector<int> touchedDofs;              // dofs of all nodes of primary cells
     // A neo-Hookean model's primary: TLED on the cells whose eight nodes are all in P (their
-    // dofs and moduli), the linear element on the others (by index in cellDofs), which share
-    // Gamma nodes with the secondary: the forces across the border are the linear element's on
-    // both sides (the secondary sees those cells linear too), so nothing is created there.
+    // dofs and moduli), the linear element on the others (the seam), which share Gamma nodes
+    // with the secondary: the forces across the border are the linear element's on both sides
+    // (the secondary sees those cells linear too), so nothing is created there. The seam's
+    // rows on P nodes as edgeNodes' (the P nodes with a seam cell, and their seam cells).
     std::vector<std::array<int, 8>> tledCellDofs;
     std::vector<double> tledCellE;
-    std::vector<int> linearCells;
+    std::vector<int> seamNodes;
+    std::vector<int> seamCellStart;
+    std::vector<std::array<int, 2>> seamCells;
     // The primary's internal forces row by row on P nodes (the only rows read): a node whose
     // eight cells are all present with one modulus takes the lattice's assembled unit stencil
     // (27 3x3 blocks, 243 multiply-adds), the others (surface, inclusions) their cells' rows

@@ -335,7 +335,10 @@ void LayoutBuilder::collectPrimaryDofs(const std::vector<std::uint8_t>& primaryC
         L.cellDofs.push_back(d);
         L.cellE.push_back(mesh.cellYoungs()[sz(c)]);
     }
+    std::vector<std::uint8_t> seam;  // per primary cell (neo-Hookean model)
     if (mSetup.tled) {
+        seam.assign(L.cellDofs.size(), 0);
+        L.seamCellStart.push_back(0);
         for (std::size_t i = 0; i < L.cellDofs.size(); ++i) {
             bool inside = true;
             for (int d : L.cellDofs[i]) inside = inside && L.isPrimary[sz(d / 3)];
@@ -343,7 +346,7 @@ void LayoutBuilder::collectPrimaryDofs(const std::vector<std::uint8_t>& primaryC
                 L.tledCellDofs.push_back(L.cellDofs[i]);
                 L.tledCellE.push_back(L.cellE[i]);
             } else {
-                L.linearCells.push_back(static_cast<int>(i));
+                seam[i] = 1;
             }
         }
     }
@@ -370,6 +373,18 @@ void LayoutBuilder::collectPrimaryDofs(const std::vector<std::uint8_t>& primaryC
             const int index = cellIndex[sz(c)];
             cells[sz(count++)] = {index, 7 - corner};
             uniform = uniform && L.cellE[sz(index)] == L.cellE[sz(cells[0][0])];
+        }
+        if (mSetup.tled) {
+            bool any = false;
+            for (int i = 0; i < count; ++i) {
+                if (!seam[sz(cells[sz(i)][0])]) continue;
+                L.seamCells.push_back(cells[sz(i)]);
+                any = true;
+            }
+            if (any) {
+                L.seamNodes.push_back(n);
+                L.seamCellStart.push_back(static_cast<int>(L.seamCells.size()));
+            }
         }
         if (count == 8 && uniform) {
             L.stencilNodes.push_back(n);

@@ -113,9 +113,6 @@ void PrimaryRegion::internalForces(
     if (mStencilAvx2) {
         stencilRowsAvx2(L.stencilNodes.data(), L.stencilE.data(), L.stencilNodes.size(),
                         mStencil.data(), mStencilOffset.data(), operand, mFInt.data());
-        cellRowsAvx2(L.edgeNodes.data(), L.edgeNodes.size(), L.edgeCellStart.data(),
-                     L.edgeCells.data(), L.cellDofs.data(), L.cellE.data(), mCornerRows.data(),
-                     operand, mFInt.data());
         done = true;
     }
 #endif
@@ -132,10 +129,24 @@ void PrimaryRegion::internalForces(
         }
         mFInt.segment<3>(3 * n) = L.stencilE[i] * f.head<3>();
     }
-    for (std::size_t i = 0; !done && i < L.edgeNodes.size(); ++i) {
+    cellRows(L.edgeNodes, L.edgeCellStart, L.edgeCells, L, operand, K);
+}
+
+void PrimaryRegion::cellRows(
+    std::span<const int> nodes, std::span<const int> start,
+    std::span<const std::array<int, 2>> cells, const Layout& L, const double* operand,
+    const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept {
+#ifdef PALP_STENCIL_AVX2
+    if (mStencilAvx2) {
+        cellRowsAvx2(nodes.data(), nodes.size(), start.data(), cells.data(), L.cellDofs.data(),
+                     L.cellE.data(), mCornerRows.data(), operand, mFInt.data());
+        return;
+    }
+#endif
+    for (std::size_t i = 0; i < nodes.size(); ++i) {
         Eigen::Vector3d f = Eigen::Vector3d::Zero();
-        for (int e = L.edgeCellStart[i]; e < L.edgeCellStart[i + 1]; ++e) {
-            const std::array<int, 2>& cell = L.edgeCells[sz(e)];
+        for (int e = start[i]; e < start[i + 1]; ++e) {
+            const std::array<int, 2>& cell = cells[sz(e)];
             const std::array<int, 8>& nd = L.cellDofs[sz(cell[0])];
             Eigen::Matrix<double, 24, 1> ue;
             for (int a = 0; a < 8; ++a) {
@@ -143,25 +154,7 @@ void PrimaryRegion::internalForces(
             }
             f.noalias() += L.cellE[sz(cell[0])] * (K.middleRows<3>(3 * cell[1]) * ue);
         }
-        mFInt.segment<3>(3 * L.edgeNodes[i]) = f;
-    }
-}
-
-void PrimaryRegion::linearCellForces(
-    const Layout& L, const double* operand,
-    const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept {
-    // The linear element's forces of L.linearCells (a neo-Hookean primary's cells touching
-    // Gamma), all 8 nodes' rows.
-    for (int c : L.linearCells) {
-        const std::array<int, 8>& nd = L.cellDofs[sz(c)];
-        Eigen::Matrix<double, 24, 1> ue;
-        for (int a = 0; a < 8; ++a) {
-            for (int k = 0; k < 3; ++k) ue[3 * a + k] = operand[nd[sz(a)] + k];
-        }
-        const Eigen::Matrix<double, 24, 1> fe = L.cellE[sz(c)] * (K * ue);
-        for (int a = 0; a < 8; ++a) {
-            for (int k = 0; k < 3; ++k) mFInt[nd[sz(a)] + k] += fe[3 * a + k];
-        }
+        mFInt.segment<3>(3 * nodes[i]) = f;
     }
 }
 

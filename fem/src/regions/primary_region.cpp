@@ -486,8 +486,8 @@ void PrimaryRegion::advance(const Layout& L, const Eigen::Vector3d& target,
             // TLED on the cells inside P, the linear element on those touching Gamma; rows of P
             // nodes are whole (P nodes touch primary cells only), the others are not read.
             for (int d : L.touchedDofs) mFInt[d] = 0.0;
+            cellRows(L.seamNodes, L.seamCellStart, L.seamCells, L, operand, K);
             mSetup.tled->addCellForces(operand, mFInt.data(), L.tledCellDofs, L.tledCellE);
-            linearCellForces(L, operand, K);
         } else {
             internalForces(L, operand, K);
         }

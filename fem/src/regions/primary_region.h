@@ -121,9 +121,11 @@ class PrimaryRegion {
     void internalForces(
         const Layout& L, const double* operand,
         const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept;
-    /// Adds the linear element's forces of @p L's linearCells (all their nodes' rows) to mFInt.
-    void linearCellForces(
-        const Layout& L, const double* operand,
+    /// mFInt on @p nodes (P nodes) from their listed cells' rows of the linear element:
+    /// `cells[start[i] .. start[i + 1])` are node i's (index in L.cellDofs, its corner there).
+    void cellRows(
+        std::span<const int> nodes, std::span<const int> start,
+        std::span<const std::array<int, 2>> cells, const Layout& L, const double* operand,
         const Eigen::Map<const Eigen::Matrix<double, 24, 24>, Eigen::Aligned64>& K) noexcept;
     void enterFactored(const Layout& from, const Layout& to) noexcept;
     void setSubstep(const Layout& L, int substeps, double dt) noexcept;

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <iostream>
@@ -261,6 +263,65 @@ TEST(Tled, OnePointForcesEqualTheElementWrittenOutOnRowsOfEveryLength) {
                 EXPECT_TRUE(f.segment<3>(3 * n).isZero(0.0)) << n;
             }
         }
+    }
+}
+
+TEST(Tled, CellListForcesAddUpToTheWholeMeshsInAnyOrder) {
+    // addCellForces (the regions' primary: a list of cells, four-cell row runs and any other
+    // four at a time) over a random split of the cells, each half shuffled but for some runs
+    // kept in order, adds up to addInternalForces; both integrations, 25 % strain.
+    std::mt19937 rng(362);
+    std::uniform_real_distribution<double> unit(-1.0, 1.0);
+    const double h = 2e-3;
+    const std::array<int, 3> nodes{9, 5, 4};
+    std::vector<double> youngs(static_cast<std::size_t>(8 * 4 * 3));
+    for (double& e : youngs) e = unit(rng) < -0.5 ? 0.0 : kE * (2.0 + unit(rng));
+    youngs[0] = kE;
+    const HexMesh mesh = HexMesh::fromCells(nodes, h, Eigen::Vector3d::Zero(), youngs);
+    const FemModel model(mesh, neoHookeanTissue());
+    Eigen::Matrix3d a;
+    for (int i = 0; i < 9; ++i) a(i) = 0.25 * unit(rng);
+    Eigen::VectorXd u =
+        displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (x + a * x).eval(); });
+    for (int d = 0; d < u.size(); ++d) u[d] += 0.1 * h * unit(rng);
+    for (const TledIntegration integration : kBoth) {
+        const TledForces tled(model, {integration, 0.1});
+        const Eigen::VectorXd whole = internalForces(tled, u);
+        std::array<std::vector<std::array<int, 8>>, 2> dofs;
+        std::array<std::vector<double>, 2> moduli;
+        for (int c = 0; c < mesh.cellCount();) {
+            // Runs of 1 to 6 cells in order, each to a random half.
+            const int run = 1 + static_cast<int>(rng() % 6);
+            const std::size_t half = rng() % 2;
+            for (int r = 0; r < run && c < mesh.cellCount(); ++r, ++c) {
+                std::array<int, 8> d{};
+                const auto cn = mesh.cellNodes(c);
+                for (int k = 0; k < 8; ++k)
+                    d[static_cast<std::size_t>(k)] = 3 * cn[static_cast<std::size_t>(k)];
+                dofs[half].push_back(d);
+                moduli[half].push_back(youngs[static_cast<std::size_t>(c)]);
+            }
+        }
+        Eigen::VectorXd f = Eigen::VectorXd::Zero(u.size());
+        for (std::size_t half = 0; half < 2; ++half)
+            tled.addCellForces(u.data(), f.data(), dofs[half], moduli[half]);
+        EXPECT_LT((f - whole).cwiseAbs().maxCoeff(), 1e-12 * whole.cwiseAbs().maxCoeff());
+        // In reverse order (no runs: every cell through the four-anywhere path).
+        for (std::size_t half = 0; half < 2; ++half) {
+            std::reverse(dofs[half].begin(), dofs[half].end());
+            std::reverse(moduli[half].begin(), moduli[half].end());
+        }
+        f.setZero();
+        for (std::size_t half = 0; half < 2; ++half)
+            tled.addCellForces(u.data(), f.data(), dofs[half], moduli[half]);
+        EXPECT_LT((f - whole).cwiseAbs().maxCoeff(), 1e-12 * whole.cwiseAbs().maxCoeff());
+        // The frequency bound over all cells is the whole mesh's.
+        std::vector<std::array<int, 8>> all = dofs[0];
+        all.insert(all.end(), dofs[1].begin(), dofs[1].end());
+        std::vector<double> allE = moduli[0];
+        allE.insert(allE.end(), moduli[1].begin(), moduli[1].end());
+        EXPECT_NEAR(tled.frequencyBoundCells(u.data(), all, allE), tled.frequencyBound(u.data()),
+                    1e-12 * tled.frequencyBound(u.data()));
     }
 }
 
