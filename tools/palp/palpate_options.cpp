@@ -76,17 +76,17 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
         app->add_option("--fem-solver", a.femSolver,
                         "deformable: 'auto' (default: the whole mesh where elements x substeps a "
                         "tick is within 8,000, which makes the 1 kHz tick, else the regions; "
-                        "always the whole mesh with --material neo-hookean; the report says "
-                        "which and why), 'explicit' (whole mesh every tick) or 'regions' "
-                        "(asynchronous regions: explicit primary around the contact, implicit "
-                        "secondary; threaded with --realtime, synchronous and deterministic with "
-                        "--fast; linear material only)")
+                        "the report says which and why), 'explicit' (whole mesh every tick) or "
+                        "'regions' (asynchronous regions: explicit primary around the contact, "
+                        "implicit secondary; threaded with --realtime, synchronous and "
+                        "deterministic with --fast; with --material neo-hookean the primary is "
+                        "neo-Hookean and the far field linear)")
             ->check(CLI::IsMember({"auto", "explicit", "regions"})),
         app->add_option("--material", a.material,
                         "deformable: the tissue's law, 'linear' (default: small strain) or "
                         "'neo-hookean' (compressible neo-Hookean at large strain with the same "
-                        "small-strain E and nu: TLED on the whole-mesh explicit solver; tissue "
-                        "stiffens as it is pressed)")
+                        "small-strain E and nu: TLED on the whole mesh, or in the regions' "
+                        "primary; tissue stiffens as it is pressed)")
             ->check(CLI::IsMember({"linear", "neo-hookean"})),
         app->add_option("--material-table", a.materialTable,
                         "deformable: each element's Young's modulus from the scan's value by a "
