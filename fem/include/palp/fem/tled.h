@@ -85,8 +85,9 @@ class TledForces {
 
     /// f += f_int(u) over the listed cells only (the primary region of the asynchronous regions):
     /// @p cellDofs holds `3 * node` of each cell's 8 nodes (HexMesh's corner order; cells of this
-    /// model's mesh), @p cellE their Young's moduli (0: no force), the same length. Four cells
-    /// adjacent in a lattice row and listed one after the other take the AVX2 path.
+    /// model's mesh), @p cellE their Young's moduli (0: no force), the same length. With AVX2,
+    /// four cells adjacent in a lattice row and listed one after the other go as one row group,
+    /// the others four at a time from anywhere.
     /// @par Real-time  noexcept, allocation-free, O(#cells).
     void addCellForces(const double* u, double* f, std::span<const std::array<int, 8>> cellDofs,
                        std::span<const double> cellE) const noexcept;
