@@ -76,6 +76,11 @@ struct NodeOffsets {
     std::ptrdiff_t o[8];
     NodeOffsets(std::ptrdiff_t dy, std::ptrdiff_t dz)
         : o{0, 3, dy, dy + 3, dz, dz + 3, dy + dz, dy + dz + 3} {}
+    /// The offsets of @p mesh's lattice.
+    static NodeOffsets of(const HexMesh& mesh) {
+        const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
+        return {dy, dy * mesh.nodeCounts()[1]};
+    }
 };
 
 /// Largest and smallest eigenvalue of the symmetric 3x3 @p m (closed form, Smith 1961).
@@ -335,8 +340,7 @@ void TledForces::addInternalForcesSlab(const double* __restrict u, double* __res
                                        int kEnd) const noexcept {
     const HexMesh& mesh = mModel.mesh();
     const double h = mesh.edge(), invH = 1.0 / h;
-    const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
-    const NodeOffsets off(dy, dy * mesh.nodeCounts()[1]);
+    const NodeOffsets off = NodeOffsets::of(mesh);
     const double mu1 = mUnitLaw.mu, k1 = mUnitLaw.bulk;
     if (mOptions.integration == TledIntegration::onePointHourglass) {
         const double area = 0.25 * h * h;  // V |dN/dX| = h^3 / (4 h)
@@ -379,8 +383,7 @@ void TledForces::addCellForces(const double* __restrict u, double* __restrict f,
                                std::span<const double> cellE) const noexcept {
     const HexMesh& mesh = mModel.mesh();
     const double h = mesh.edge(), invH = 1.0 / h;
-    const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
-    const NodeOffsets off(dy, dy * mesh.nodeCounts()[1]);
+    const NodeOffsets off = NodeOffsets::of(mesh);
     const double mu1 = mUnitLaw.mu, k1 = mUnitLaw.bulk;
     const std::size_t n = std::min(cellDofs.size(), cellE.size());
     if (mOptions.integration == TledIntegration::gauss2x2x2) {
@@ -459,8 +462,7 @@ void TledForces::internalForcesParallel(const double* u, double* f) const {
 double TledForces::strainEnergy(const double* u) const noexcept {
     const HexMesh& mesh = mModel.mesh();
     const double h = mesh.edge(), invH = 1.0 / h, volume = h * h * h;
-    const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
-    const NodeOffsets off(dy, dy * mesh.nodeCounts()[1]);
+    const NodeOffsets off = NodeOffsets::of(mesh);
     const bool onePoint = mOptions.integration == TledIntegration::onePointHourglass;
     const double kHg = hourglassStiffness(h);
     double total = 0.0;
@@ -490,16 +492,13 @@ double TledForces::strainEnergy(const double* u) const noexcept {
 double TledForces::frequencyBound(const double* u) const noexcept {
     const HexMesh& mesh = mModel.mesh();
     const double invH = 1.0 / mesh.edge();
-    const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
-    const NodeOffsets off(dy, dy * mesh.nodeCounts()[1]);
+    const NodeOffsets off = NodeOffsets::of(mesh);
     const double rest = restAcousticBound(mUnitLaw);
     double worst = 0.0;
     forCells(mesh, 0, mesh.nodeCounts()[2] - 1, [&](double e, std::ptrdiff_t base) {
         worst = std::max(worst, cellStiffening(u + base, off, invH, e / mCellEMax, mUnitLaw, rest));
     });
-    // Below the rest state (tension) the bound is kept at the rest value: stiffness lost to
-    // stretching is not counted on.
-    return mOmegaRest * std::sqrt(std::max(1.0, worst));
+    return boundFromStiffening(worst);
 }
 
 double TledForces::frequencyBoundCells(const double* u,
@@ -507,8 +506,7 @@ double TledForces::frequencyBoundCells(const double* u,
                                        std::span<const double> cellE) const noexcept {
     const HexMesh& mesh = mModel.mesh();
     const double invH = 1.0 / mesh.edge();
-    const std::ptrdiff_t dy = 3 * static_cast<std::ptrdiff_t>(mesh.nodeCounts()[0]);
-    const NodeOffsets off(dy, dy * mesh.nodeCounts()[1]);
+    const NodeOffsets off = NodeOffsets::of(mesh);
     const double rest = restAcousticBound(mUnitLaw);
     double worst = 0.0;
     const std::size_t n = std::min(cellDofs.size(), cellE.size());
@@ -517,6 +515,12 @@ double TledForces::frequencyBoundCells(const double* u,
             worst = std::max(worst, cellStiffening(u + cellDofs[c][0], off, invH,
                                                    cellE[c] / mCellEMax, mUnitLaw, rest));
     }
+    return boundFromStiffening(worst);
+}
+
+double TledForces::boundFromStiffening(double worst) const noexcept {
+    // Below the rest state (tension) the bound is kept at the rest value: stiffness lost to
+    // stretching is not counted on.
     return mOmegaRest * std::sqrt(std::max(1.0, worst));
 }
 

@@ -62,6 +62,18 @@ Eigen::VectorXd displacementOf(const HexMesh& mesh, Map map) {
     return u;
 }
 
+/// A random deformed state of @p mesh: a random affine map of entries within +-@p strain plus
+/// a random nodal jitter of up to 0.1 h, drawn from @p rng in that order.
+Eigen::VectorXd randomDeformation(const HexMesh& mesh, double strain, std::mt19937& rng) {
+    std::uniform_real_distribution<double> unit(-1.0, 1.0);
+    Eigen::Matrix3d a;
+    for (int i = 0; i < 9; ++i) a(i) = strain * unit(rng);
+    Eigen::VectorXd u =
+        displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (x + a * x).eval(); });
+    for (int d = 0; d < u.size(); ++d) u[d] += 0.1 * mesh.edge() * unit(rng);
+    return u;
+}
+
 Eigen::VectorXd internalForces(const TledForces& t, const Eigen::VectorXd& u) {
     Eigen::VectorXd f = Eigen::VectorXd::Zero(u.size());
     t.addInternalForces(u.data(), f.data());
@@ -149,11 +161,7 @@ TEST(Tled, RigidMotionGivesNoForceAndTheForcesAreObjective) {
     std::mt19937 rng(36);
     std::uniform_real_distribution<double> unit(-1.0, 1.0);
     // A random deformed state: 15 % affine strain plus 0.1 h random nodal jitter.
-    Eigen::Matrix3d a;
-    for (int i = 0; i < 9; ++i) a(i) = 0.15 * unit(rng);
-    Eigen::VectorXd u =
-        displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (x + a * x).eval(); });
-    for (int d = 0; d < u.size(); ++d) u[d] += 0.1 * h * unit(rng);
+    Eigen::VectorXd u = randomDeformation(mesh, 0.15, rng);
     for (const TledIntegration integration : kBoth) {
         const TledForces tled(model, {integration, 0.1});
         const Eigen::VectorXd rigid =
@@ -246,11 +254,7 @@ TEST(Tled, OnePointForcesEqualTheElementWrittenOutOnRowsOfEveryLength) {
         const HexMesh mesh =
             HexMesh::fromCells({cx + 1, 4, 3}, h, Eigen::Vector3d(0.01, 0, 0), youngs);
         const FemModel model(mesh, neoHookeanTissue());
-        Eigen::Matrix3d a;
-        for (int i = 0; i < 9; ++i) a(i) = 0.25 * unit(rng);
-        Eigen::VectorXd u =
-            displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (x + a * x).eval(); });
-        for (int d = 0; d < u.size(); ++d) u[d] += 0.1 * h * unit(rng);
+        const Eigen::VectorXd u = randomDeformation(mesh, 0.25, rng);
         const TledForces tled(model, {TledIntegration::onePointHourglass, 0.1});
         const Eigen::VectorXd f = internalForces(tled, u);
         const Eigen::VectorXd ref = onePointReference(mesh, kNu, 0.1, u);
@@ -279,11 +283,7 @@ TEST(Tled, CellListForcesAddUpToTheWholeMeshsInAnyOrder) {
     youngs[0] = kE;
     const HexMesh mesh = HexMesh::fromCells(nodes, h, Eigen::Vector3d::Zero(), youngs);
     const FemModel model(mesh, neoHookeanTissue());
-    Eigen::Matrix3d a;
-    for (int i = 0; i < 9; ++i) a(i) = 0.25 * unit(rng);
-    Eigen::VectorXd u =
-        displacementOf(mesh, [&](const Eigen::Vector3d& x) { return (x + a * x).eval(); });
-    for (int d = 0; d < u.size(); ++d) u[d] += 0.1 * h * unit(rng);
+    const Eigen::VectorXd u = randomDeformation(mesh, 0.25, rng);
     for (const TledIntegration integration : kBoth) {
         const TledForces tled(model, {integration, 0.1});
         const Eigen::VectorXd whole = internalForces(tled, u);

@@ -117,6 +117,8 @@ class TledForces {
   private:
     /// The hourglass spring of each mode for E = 1 Pa and edge @p edge: kappa (K + 4/3 mu) h.
     double hourglassStiffness(double edge) const noexcept;
+    /// The frequency bound of the largest cell stiffening @p worst (cellStiffening in tled.cpp).
+    double boundFromStiffening(double worst) const noexcept;
 
     const FemModel& mModel;
     TledOptions mOptions;
