@@ -147,7 +147,9 @@ void addCouplingOptions(CLI::App* app, PalpateArgs& a) {
     app->add_option("--sigma-threshold", a.sigmaThreshold,
                     "accumulate: value from which sigma applies, HU (default 500)")
         ->check(within(bounds::kVolumeValue, {1, "HU"}));
-    app->add_option("--tau-stop", a.tauStop, "accumulate: tau_stop (default 3)")
+    app->add_option(
+           "--tau-stop", a.tauStop,
+           "accumulate: tau_stop (default 3; 1 on the avcec phantom, whose 2 mm plate gives tau 2)")
         ->check(within(bounds::kTauStop));
     app->add_option("--step", a.stepMm, "Ray sample spacing, mm (default 0.5)")
         ->check(within(bounds::kSpacing, kMm));

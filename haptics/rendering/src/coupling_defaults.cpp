@@ -10,6 +10,8 @@ namespace {
 constexpr double kStiffSoftMultiplier = 1.25;
 constexpr double kStiffHardMultiplier = 3.25;
 constexpr double kStiffTauStop = 3;
+/// The AVCEC plates' accumulate stop: half the 2 mm plate's optical depth.
+constexpr double kAvcecTauStop = 1;
 
 /// sigma(v) for the stiffness boxes: under the fat layer a column of value v stops an
 /// accumulate ray at L = d0 + tau / sigma(v), so sigma(v) = tau / (L_ref / m(v) - d0) makes the
@@ -66,6 +68,10 @@ CouplingParams sceneCouplingDefaults(volume::PhantomScene scene) {
         case volume::PhantomScene::Avcec:
             p.mode = CouplingMode::AVCEC;
             p.referenceLength = 0.020;
+            // The plate is the scene: 2 mm of sigma 1/mm give tau 2, so an accumulate ray with
+            // the common tau_stop 3 passed it and felt k_s everywhere (the raster's map showed
+            // nothing). 1 stops it 1 mm into the plate, as first-hit stops at its top.
+            p.accumulate.tauStop = kAvcecTauStop;
             break;
         case volume::PhantomScene::Bone:
             p.mode = CouplingMode::AVCEC;

@@ -84,9 +84,16 @@ std::vector<Case> edgeCases() {
         // The edge at +x, and for the triangle also its vertex at +z (the worst case).
         cases.push_back({std::string("avcec ") + volume::shapeName(shape) + " +x edge", p,
                          edgePoint(p, 0), RaySource::VolumeFirstHit});
-        if (shape == volume::PlateShape::Triangle)
+        if (shape == volume::PlateShape::Triangle) {
             cases.push_back(
                 {"avcec triangle vertex", p, edgePoint(p, 0.5 * M_PI), RaySource::VolumeFirstHit});
+            // Accumulate rays stop in the plate too (the scene's tau_stop): its worst corner.
+            cases.push_back({"avcec triangle vertex, accumulate", p, edgePoint(p, 0.5 * M_PI),
+                             RaySource::VolumeAccumulate});
+        }
+        if (shape == volume::PlateShape::Circle)
+            cases.push_back({"avcec circle +x edge, accumulate", p, edgePoint(p, 0),
+                             RaySource::VolumeAccumulate});
     }
     volume::PhantomParams avc;
     avc.scene = volume::PhantomScene::Avc;
