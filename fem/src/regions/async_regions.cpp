@@ -340,6 +340,15 @@ std::size_t AsyncRegions::watchedDisplacements(std::size_t first,
     return m.primary.shownWatched(m.layout(), m.primary.shownFraction(), first, out);
 }
 
+WatchedChanges AsyncRegions::watchedChanges(std::size_t first, std::size_t count,
+                                            std::span<const double> shown, double still,
+                                            std::span<std::uint32_t> index,
+                                            std::span<Eigen::Vector3d> out) const noexcept {
+    const Impl& m = *mImpl;
+    return m.primary.changedWatched(m.layout(), m.primary.shownFraction(), first, count, shown,
+                                    still, index, out);
+}
+
 const std::vector<int>& AsyncRegions::watchNodes() const { return mImpl->setup.options.watchNodes; }
 
 AsyncSecondaryStats AsyncRegions::secondaryStats() const {

@@ -112,10 +112,16 @@ AsyncSetup::AsyncSetup(const FemModel& m, const Constraints& c, const std::vecto
         fixed[sz(d)] = c.isFixed(d) ? 1 : 0;
         if (c.isFixed(d) && c.values()[d] != 0.0) nonZeroPrescribed[sz(d / 3)] = 1;
     }
-    for (std::size_t i = 0; i < o.watchNodes.size(); ++i)
-        for (int k = 0; k < 3; ++k)
-            if (fixed[sz(3 * o.watchNodes[i] + k)])
+    watchPlain.assign(o.watchNodes.size(), 1);
+    for (std::size_t i = 0; i < o.watchNodes.size(); ++i) {
+        if (!mesh.nodeActive()[sz(o.watchNodes[i])]) watchPlain[i] = 0;
+        for (int k = 0; k < 3; ++k) {
+            if (fixed[sz(3 * o.watchNodes[i] + k)]) {
                 watchFixedDofs.push_back(3 * static_cast<int>(i) + k);
+                watchPlain[i] = 0;
+            }
+        }
+    }
 
     period = std::max(1, static_cast<int>(std::lround(1.0 / (o.secondaryRate * o.tickSeconds))));
     periodSeconds = period * o.tickSeconds;

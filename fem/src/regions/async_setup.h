@@ -41,6 +41,7 @@ struct AsyncSetup {
     std::vector<int> watchIndex;                  // per fine node: index in watchNodes, or -1
     std::vector<std::uint8_t> fixed;              // per fine dof: constrained by the caller
     std::vector<int> watchFixedDofs;              // 3 * watch index + k of fixed watched dofs
+    std::vector<std::uint8_t> watchPlain;         // per watched node: active, no fixed dof (1)
     std::vector<std::uint8_t> nonZeroPrescribed;  // per fine node
     int lod = 1;
     std::array<int, 3> coarseCounts{};  // coarse nodes per axis

@@ -93,6 +93,12 @@ class PrimaryRegion {
     /// the count written. @par Real-time  O(out.size()).
     std::size_t shownWatched(const Layout& L, double frac, std::size_t first,
                              std::span<Eigen::Vector3d> out) const noexcept;
+    /// AsyncRegions::watchedChanges(): the watched nodes from @p first (at most @p count
+    /// examined) whose shown() may differ from @p shown by @p still or more.
+    WatchedChanges changedWatched(const Layout& L, double frac, std::size_t first,
+                                  std::size_t count, std::span<const double> shown, double still,
+                                  std::span<std::uint32_t> index,
+                                  std::span<Eigen::Vector3d> out) const noexcept;
     /// The interpolation fraction of the current secondary period.
     double shownFraction() const noexcept { return mSetup.periodFraction(mTime, mGammaStart); }
     /// The watched values' fraction at the coupling fraction @p frac: a layout adopted

@@ -3,6 +3,7 @@
 // watched values interpolated over the period; one node at a time, or a run of watched nodes in
 // one pass (a deformable body's swept surface, section 10).
 #include <algorithm>
+#include <cmath>
 #include <limits>
 
 #include "index_cast.h"
@@ -51,6 +52,58 @@ std::size_t PrimaryRegion::shownWatched(const Layout& L, double frac, std::size_
         }
     }
     return end > first ? end - first : 0;
+}
+
+WatchedChanges PrimaryRegion::changedWatched(const Layout& L, double frac, std::size_t first,
+                                             std::size_t count, std::span<const double> shown,
+                                             double still, std::span<std::uint32_t> index,
+                                             std::span<Eigen::Vector3d> out) const noexcept {
+    const std::vector<int>& watch = mSetup.options.watchNodes;
+    const std::size_t end =
+        std::min({first + std::min(count, watch.size()), watch.size(), shown.size() / 3});
+    const std::size_t room = std::min(index.size(), out.size());
+    const std::vector<std::uint8_t>& active = mSetup.model.mesh().nodeActive();
+    const double g = watchedFraction(frac);
+    WatchedChanges r;
+    std::size_t i = first;
+    for (; i < end; ++i) {
+        const int n = watch[i];
+        const std::size_t ni = sz(n);
+        const std::size_t j = 3 * i;
+        const bool own = L.isPrimary[ni] || L.isGamma[ni];
+        // A node shown from the secondary alone, both ends of its interpolation within @p still
+        // of what the caller shows: every value on the way between is too (g in [0, 1]).
+        if (!own && mSetup.watchPlain[i]) {
+            bool near = true;
+            double s2 = 0;
+            for (std::size_t k = 0; k < 3; ++k) {
+                const double s = shown[j + k];
+                near = near && std::abs(mWPrev[j + k] - s) < still &&
+                       std::abs(mWCur[j + k] - s) < still;
+                s2 += s * s;
+            }
+            if (near) {
+                r.skippedMax2 = std::max(r.skippedMax2, s2);
+                continue;
+            }
+        }
+        if (r.changed == room) break;  // examined up to here; the caller resumes at i
+        Eigen::Vector3d& o = out[r.changed];
+        if (own || !active[ni]) {  // as shown()
+            o = mU.segment<3>(3 * n);
+        } else {
+            for (std::size_t k = 0; k < 3; ++k) {
+                const int d = 3 * n + static_cast<int>(k);
+                o[static_cast<Eigen::Index>(k)] =
+                    mSetup.fixed[sz(d)] ? mU[d]
+                                        : mWPrev[j + k] + g * (mWCur[j + k] - mWPrev[j + k]);
+            }
+        }
+        index[r.changed] = static_cast<std::uint32_t>(i);
+        ++r.changed;
+    }
+    r.examined = i > first ? i - first : 0;
+    return r;
 }
 
 void PrimaryRegion::shownWatched(const Layout& L, double frac,

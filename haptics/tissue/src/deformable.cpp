@@ -233,6 +233,7 @@ DeformableBody::DeformableBody(std::shared_ptr<const DeformableModel> model)
                                                        std::vector<int>{mCentre}, o);
         mLoads.resize(nodes.size());
         mWatched.resize(mModel->watchNodes().size());
+        mChanged.resize(mWatched.size());
     } else {
         mSolver = std::make_unique<fem::ExplicitSolver>(mModel->model(), mModel->constraints(),
                                                         options.solver);

@@ -125,15 +125,20 @@ unsigned DeformableBody::sweepSurface() noexcept {
     near(mRegions->primaryNodes());
     near(mRegions->secondaryBorderNodes());
     for (std::size_t i = 0; i < mLoadedCount; ++i) refreshNode(mLoaded[i]);
-    // Elsewhere a slice of the round robin, its values interpolated in one pass (mWatched is
-    // one per watched node, so it holds any slice); nodes that have not moved are skipped.
+    // Elsewhere a slice of the round robin in one pass: the regions pass over the nodes that
+    // cannot have moved from what is shown (kStillMetres, as refreshNode skips them), and
+    // interpolate the others (mWatched and mChanged are one per watched node: any slice fits).
     const std::vector<int>& watch = mModel->watchNodes();
     for (std::size_t left = mSweepSlice; left > 0;) {
         const std::size_t first = mSweepNext;
-        const std::size_t count = mRegions->watchedDisplacements(
-            first, std::span<Eigen::Vector3d>(mWatched.data(), std::min(left, mWatched.size())));
-        for (std::size_t i = 0; i < count; ++i)
-            refreshNode(watch[first + i], static_cast<int>(first + i), mWatched[i], true);
+        const fem::WatchedChanges c = mRegions->watchedChanges(
+            first, left, std::span<const double>(mWatchShown), kStillMetres,
+            std::span<std::uint32_t>(mChanged), std::span<Eigen::Vector3d>(mWatched));
+        // A node passed over counts with its shown value (within kStillMetres of its own).
+        mSweepMax2 = std::max(mSweepMax2, c.skippedMax2);
+        for (std::size_t i = 0; i < c.changed; ++i)
+            refreshNode(watch[mChanged[i]], static_cast<int>(mChanged[i]), mWatched[i], true);
+        const std::size_t count = c.examined;
         left -= std::min(left, std::max<std::size_t>(count, 1));
         mSweepNext += count;
         if (mSweepNext >= watch.size()) {

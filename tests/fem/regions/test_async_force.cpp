@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <numbers>
+#include <random>
 #include <thread>
 
 #include "alloc_counter.h"
@@ -275,6 +276,101 @@ TEST(AsyncForce, WatchedValuesContinuousAcrossContactChange) {
         EXPECT_EQ(a.contactNodes()[0], p.top(6, 4));
         EXPECT_LT(worstStep, 0.02 * peak) << (threaded ? "threaded" : "synchronous");
     }
+}
+
+/// A sweep's step that passes over the unchanged (watchedChanges, the deformable body's swept
+/// surface): for every watched node (the top face, and bottom-face nodes with fixed dofs) and
+/// shown values exactly current, within and beyond the tolerance, or a period old, each node
+/// written out carries nodeDisplacement()'s value bit for bit, each node passed over is within
+/// the tolerance of what is shown, P, Gamma and fixed nodes are never passed over, and a
+/// sweep in small pieces finds the same nodes as one in a piece.
+TEST(AsyncForce, WatchedChangesPassOverOnlyWhatCannotHaveMoved) {
+    const Problem p(9, 150.0);
+    std::vector<int> watch;
+    for (int i = 0; i < 9; ++i)
+        for (int j = 0; j < 9; ++j) watch.push_back(p.top(i, j));
+    for (int i = 0; i < 9; i += 2) watch.push_back(p.model.mesh().node(i, 4, 0));  // fixed
+    AsyncRegionsOptions o = forceOptions();
+    o.watchNodes = watch;
+    AsyncRegions a(p.model, p.constraints, {p.contact}, o);
+    const std::size_t n = watch.size();
+    constexpr double kStill = 1e-6;
+    std::vector<Eigen::Vector3d> old(n), now(n), out(n);
+    std::vector<std::uint32_t> index(n);
+    std::vector<double> shown(3 * n);
+    std::mt19937 rng(7);
+    std::uniform_int_distribution<int> pick(0, 3);
+    int checked = 0, passedOver = 0;
+    for (int t = 1; t <= 400; ++t) {
+        // A press that changes until tick 250 (the surface moves every period), then held
+        // (the solutions repeat: the unchanged can be passed over), then creeping from tick 320
+        // (solutions a few micrometres apart: ends on both sides of the tolerance).
+        const double s = std::min(1.0, t / 150.0) * (1.0 + 0.02 * std::max(0, t - 320) / 80.0);
+        const double flick = t < 250 ? static_cast<double>(t % 37 < 20) : 0.0;
+        a.tick(std::vector<NodalLoad>{{p.top(4, 4), {0.01 * s, 0, -0.03 * s}},
+                                      {p.top(5, 4), {0, 0, -0.02 * s * flick}}});
+        if (t % 10 == 7) a.watchedDisplacements(old);
+        if (t < 160 || t % 13 != 3) continue;  // mid-period ticks, after the ramp
+        ASSERT_EQ(a.watchedDisplacements(now), n);
+        for (std::size_t i = 0; i < n; ++i) {
+            Eigen::Vector3d v = now[i];
+            switch (pick(rng)) {
+                case 0:
+                    break;  // as shown now
+                case 1:
+                    v += Eigen::Vector3d(0.4, -0.4, 0.2) * kStill;
+                    break;  // within
+                case 2:
+                    v.y() += 3 * kStill;
+                    break;  // beyond
+                default:
+                    v = old[i];
+                    break;  // a period old
+            }
+            for (int k = 0; k < 3; ++k) shown[3 * i + static_cast<std::size_t>(k)] = v[k];
+        }
+        const WatchedChanges c = a.watchedChanges(0, n, shown, kStill, index, out);
+        ASSERT_EQ(c.examined, n);
+        std::vector<bool> written(n, false);
+        for (std::size_t k = 0; k < c.changed; ++k) {
+            ASSERT_LT(index[k], n);
+            written[index[k]] = true;
+            EXPECT_EQ(out[k], now[index[k]]) << "watched node " << index[k];
+        }
+        const auto& prim = a.primaryNodes();
+        const auto& gamma = a.secondaryBorderNodes();
+        double max2 = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+            const Eigen::Vector3d v(shown[3 * i], shown[3 * i + 1], shown[3 * i + 2]);
+            const bool own = std::find(prim.begin(), prim.end(), watch[i]) != prim.end() ||
+                             std::find(gamma.begin(), gamma.end(), watch[i]) != gamma.end();
+            if (own || i >= 81) {
+                EXPECT_TRUE(written[i]) << "P, Gamma or fixed: node " << watch[i];
+            }
+            if (written[i]) continue;
+            ++passedOver;
+            EXPECT_LT((now[i] - v).cwiseAbs().maxCoeff(), kStill) << "node " << watch[i];
+            max2 = std::max(max2, v.squaredNorm());
+        }
+        EXPECT_EQ(c.skippedMax2, max2);
+        // The same sweep in pieces of at most 3 written nodes, resumed where each stopped.
+        std::vector<std::uint32_t> pieces;
+        for (std::size_t first = 0; first < n;) {
+            const WatchedChanges q =
+                a.watchedChanges(first, n - first, shown, kStill, std::span(index).first(3),
+                                 std::span(out).first(3));
+            ASSERT_GT(q.examined, 0u);
+            for (std::size_t k = 0; k < q.changed; ++k) pieces.push_back(index[k]);
+            first += q.examined;
+        }
+        std::vector<std::uint32_t> whole;
+        for (std::size_t i = 0; i < n; ++i)
+            if (written[i]) whole.push_back(static_cast<std::uint32_t>(i));
+        EXPECT_EQ(pieces, whole);
+        ++checked;
+    }
+    EXPECT_GE(checked, 15);
+    EXPECT_GT(passedOver, 100);  // it does pass over the unchanged (once the press is held)
 }
 
 /// The same with a load that keeps growing through the contact change (synchronous, so the

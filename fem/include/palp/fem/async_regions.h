@@ -246,6 +246,13 @@ struct AsyncRegionsOptions {
     double strainReferenceLength = 0.06;  ///< metres, divides |u_contact| to give the strain
 };
 
+/// What AsyncRegions::watchedChanges() found.
+struct WatchedChanges {
+    std::size_t examined = 0;  ///< watched nodes looked at, from the first asked for
+    std::size_t changed = 0;   ///< of them, written out (may differ from what is shown)
+    double skippedMax2 = 0;    ///< largest |shown|^2 (m^2) among those passed over
+};
+
 /// What one tick did.
 struct AsyncTickResult {
     /// Displacement drive: reaction at the contact, N. Force drive: the sum of the loads taken.
@@ -351,6 +358,21 @@ class AsyncRegions {
     /// @par Real-time  O(out.size()), no per-node call. Servo thread.
     std::size_t watchedDisplacements(std::size_t first,
                                      std::span<Eigen::Vector3d> out) const noexcept;
+    /// A sweep's step that passes over what has not changed: of the watched nodes @p first,
+    /// @p first + 1, ... (at most @p count examined), those whose nodeDisplacement() may
+    /// differ from @p shown (3 values per watched node, watchNodes order: what the caller shows
+    /// of them) by @p still (m) or more in a component: their watch index into @p index and
+    /// their nodeDisplacement() into @p out, in order, as many as both hold (the examination
+    /// stops before the first that does not fit). A node is passed over only when it is shown
+    /// from the secondary alone (not on P or Gamma, active, no fixed dof) and both ends of its
+    /// interpolation over the period lie within @p still of @p shown, so nodeDisplacement() is
+    /// within @p still of it now: a surface sweep that skips such nodes anyway shows the same
+    /// surface, without reading each node's state (9 in 10 nodes of the head CT's far skin).
+    /// @par Real-time  O(examined), no per-node call. Servo thread.
+    WatchedChanges watchedChanges(std::size_t first, std::size_t count,
+                                  std::span<const double> shown, double still,
+                                  std::span<std::uint32_t> index,
+                                  std::span<Eigen::Vector3d> out) const noexcept;
     /// The watched nodes (options().watchNodes).
     const std::vector<int>& watchNodes() const;
 

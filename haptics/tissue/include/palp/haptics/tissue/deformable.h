@@ -474,6 +474,7 @@ class DeformableBody {
     Eigen::VectorXd mU, mForce;                    // asyncRegions: surface displacement, loads
     std::vector<fem::NodalLoad> mLoads;            // asyncRegions: one per load node
     std::vector<Eigen::Vector3d> mWatched;         // asyncRegions: one per load node
+    std::vector<std::uint32_t> mChanged;           // swept surface: watch indices of mWatched
     int mCentre = -1;
     int mRecentres = 0;
     std::unique_ptr<kernels::RefitMesh> mSurface;  // declared before mScene: outlives it
