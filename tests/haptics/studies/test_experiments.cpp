@@ -198,15 +198,26 @@ bool insidePlate(const volume::Phantom& phantom, const Eigen::Vector3d& p) {
            0.5 * (phantom.params().materials.softHu + phantom.params().materials.rigidHu);
 }
 
-TEST(VirtualExperiment, AvcecRasterRecoversEachPlateSilhouette) {
+/// The AVCEC plates' map (2 mm pixels over 56 mm) and the raster over it.
+MapPlane plateMap() {
     MapPlane plane;
     plane.extentU = plane.extentV = 0.056;
     plane.pixelM = 0.002;
+    return plane;
+}
+
+RasterTrajectory plateRaster() {
     RasterTrajectory raster;
-    raster.extentU = raster.extentV = plane.extentU;
+    raster.extentU = raster.extentV = plateMap().extentU;
     raster.lineSpacingM = 0.001;  // two lines per pixel row: both sweep directions average
     raster.speedMps = 0.1;
     raster.depthM = 0.004;
+    return raster;
+}
+
+TEST(VirtualExperiment, AvcecRasterRecoversEachPlateSilhouette) {
+    const MapPlane plane = plateMap();
+    const RasterTrajectory raster = plateRaster();
     const double seconds = raster.durationSeconds() + 0.1;
     std::array<double, 2> meanIou{};
     for (volume::PlateShape shape :
@@ -264,14 +275,8 @@ TEST(VirtualExperiment, AvcecRasterRecoversEachPlateSilhouette) {
 // by what the hand feels: |F| binned where the probe was. With tau_stop 3 the rays passed the
 // plate and neither coupling mapped anything (IoU 0 by k, 0.16-0.40 by force).
 TEST(VirtualExperiment, AvcecRasterWithAccumulateRaysMapsEachPlateByTheHandsForce) {
-    MapPlane plane;
-    plane.extentU = plane.extentV = 0.056;
-    plane.pixelM = 0.002;
-    RasterTrajectory raster;
-    raster.extentU = raster.extentV = plane.extentU;
-    raster.lineSpacingM = 0.001;
-    raster.speedMps = 0.1;
-    raster.depthM = 0.004;
+    const MapPlane plane = plateMap();
+    const RasterTrajectory raster = plateRaster();
     const double seconds = raster.durationSeconds() + 0.1;
     std::array<double, 2> meanIou{};
     for (volume::PlateShape shape :
