@@ -57,7 +57,13 @@ foreach(dir kernels/base kernels volume fem haptics/tissue haptics/rendering hap
 endforeach()
 if(TARGET palp)
   set_target_properties(palp PROPERTIES INSTALL_RPATH "$ORIGIN/${palp_bin_to_lib}")
+  # The tool's own library and its commands module (tools/CMakeLists.txt), in the library
+  # folder: not part of the exported package, no headers.
+  set_target_properties(palp_tool PROPERTIES VERSION ${PROJECT_VERSION} SOVERSION ${PALP_SOVERSION}
+    INSTALL_RPATH "$ORIGIN")
+  set_target_properties(palp_tool_commands PROPERTIES INSTALL_RPATH "$ORIGIN")
   install(TARGETS palp RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
+  install(TARGETS palp_tool palp_tool_commands LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR})
 endif()
 install(FILES ${PROJECT_SOURCE_DIR}/LICENSE DESTINATION ${CMAKE_INSTALL_DOCDIR})
 

@@ -74,10 +74,25 @@ got="$(env -u LD_LIBRARY_PATH "$prefix/bin/palp" --version)" || fail "bin/palp -
 [[ "$got" == "palp $version" ]] || fail "bin/palp --version printed '$got', expected 'palp $version'"
 unresolved="$(env -u LD_LIBRARY_PATH ldd "$prefix/bin/palp" | grep 'not found' || true)"
 [[ -z "$unresolved" ]] || fail "bin/palp: $unresolved"
+# The executable links the volume stack alone; its other commands are a module beside
+# libpalp_tool.so (tools/CMakeLists.txt), which loads the installed libpalp_haptics.
+[[ -z "$(loaded_haptics "$prefix/bin/palp")" ]] ||
+  fail "bin/palp loads libpalp_haptics at start-up (convert and --version should not)"
+commands="$libdir/libpalp_tool_commands.so"
+[[ -f "$commands" ]] || fail "$commands missing"
+! grep -q "$PWD" <<<"$(readelf -d "$commands" "$libdir/libpalp_tool.so.$version")" ||
+  fail "the tool's libraries refer to the build tree"
 haptics="$libdir/libpalp_haptics.so.$version"
-[[ "$(loaded_haptics "$prefix/bin/palp")" == "$haptics" ]] ||
-  fail "bin/palp does not load the installed libpalp_haptics"
-echo "  bin/palp --version: $got (RUNPATH \$ORIGIN/../lib)"
+[[ "$(loaded_haptics "$commands")" == "$haptics" ]] ||
+  fail "$commands does not load the installed libpalp_haptics"
+echo "  bin/palp --version: $got (RUNPATH \$ORIGIN/../lib; libpalp_haptics not loaded)"
+# A command of the module runs from the prefix alone, through the installed module.
+env -u LD_LIBRARY_PATH LD_DEBUG=files "$prefix/bin/palp" --quiet palpate --phantom avc --fast \
+  --seconds 0.2 --trace "$tmp/palpate.csv" >"$tmp/palpate.log" 2>&1 ||
+  { cat "$tmp/palpate.log" >&2; fail "bin/palp palpate from the prefix"; }
+grep -q "file=$prefix/.*/libpalp_tool_commands.so .*dynamically loaded" "$tmp/palpate.log" ||
+  fail "bin/palp palpate did not open $commands"
+echo "  bin/palp palpate: through $(basename "$commands") from the prefix"
 # DICOM through the installed plugin (libpalp_volume_dicom.so, opened beside libpalp_volume at
 # the first DICOM): a generated series converts from the prefix alone.
 plugin="$libdir/libpalp_volume_dicom.so"

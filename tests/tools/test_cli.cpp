@@ -1,7 +1,9 @@
 #include <gtest/gtest.h>
 
+#include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "test_support.h"
 
@@ -38,6 +40,44 @@ TEST(Cli, UnwritableOutputDirectoryIsRefusedBeforeWork) {
     EXPECT_NE(r.exitCode, 0);
     EXPECT_NE(r.output.find("palp: error: "), std::string::npos) << r.output;
     EXPECT_NE(r.output.find("dir.vdb"), std::string::npos) << r.output;
+}
+
+// The executable links the volume stack alone and opens the commands module (palpate, bench,
+// serve, ...) only for those commands: --version and convert load neither the module nor the
+// haptics stack, palpate loads both; a module that cannot be found is named in the error, and
+// the volume commands still run without it.
+TEST(Cli, VolumeCommandsRunWithoutTheCommandsModuleTheOthersNameItWhenMissing) {
+    const std::string palp = palp::test::palpTool().string();
+    const auto version = runCommand("LD_DEBUG=files " + palp + " --version");
+    ASSERT_EQ(version.exitCode, 0) << version.output;
+    EXPECT_NE(version.output.find("palp 0.1.0"), std::string::npos) << version.output;
+    EXPECT_EQ(version.output.find("libpalp_tool_commands"), std::string::npos) << version.output;
+    EXPECT_EQ(version.output.find("libpalp_haptics"), std::string::npos) << version.output;
+    const auto help = runCommand("LD_DEBUG=files " + palp + " palpate --help");
+    ASSERT_EQ(help.exitCode, 0) << help.output;
+    EXPECT_NE(help.output.find("libpalp_tool_commands.so"), std::string::npos) << help.output;
+    EXPECT_NE(help.output.find("libpalp_haptics"), std::string::npos) << help.output;
+
+    // libpalp_tool.so copied alone into a folder that comes first on the library path: the
+    // executable looks for the module beside it, and it is not there.
+    palp::test::TempDir tmp;
+    const std::filesystem::path lib = palp::test::palpTool().parent_path() / "libpalp_tool.so.0.1";
+    ASSERT_TRUE(std::filesystem::exists(lib)) << lib;
+    std::filesystem::copy_file(std::filesystem::canonical(lib), tmp / "libpalp_tool.so.0.1");
+    const std::string env = "LD_LIBRARY_PATH=" + tmp.path().string() + " ";
+    const auto palpate = runCommand(env + palp + " palpate --phantom avc --fast --seconds 0.1");
+    EXPECT_EQ(palpate.exitCode, 1) << palpate.output;
+    EXPECT_NE(palpate.output.find("palp: error: " + (tmp / "libpalp_tool_commands.so").string() +
+                                  ": expected palp's commands library"),
+              std::string::npos)
+        << palpate.output;
+    EXPECT_NE(palpate.output.find("cannot be loaded"), std::string::npos) << palpate.output;
+    const auto phantom =
+        runCommand(env + palp + " --quiet phantom avc -o " + (tmp / "avc.vdb").string());
+    EXPECT_EQ(phantom.exitCode, 0) << phantom.output;
+    const auto info = runCommand(env + palp + " info " + (tmp / "avc.vdb").string());
+    EXPECT_EQ(info.exitCode, 0) << info.output;
+    EXPECT_EQ(runCommand(env + palp + " --version").exitCode, 0);
 }
 
 // A press reaches the surface only after the session's start-up gate (50 quiet ticks) has

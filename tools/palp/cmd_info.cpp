@@ -29,7 +29,7 @@ double mm(double v) { return std::round(v * 1e6) / 1e6; }
 
 json vec3(double a, double b, double c) { return json::array({mm(a), mm(b), mm(c)}); }
 
-json describeVolume(const volume::Volume& v, const fs::path& path) {
+json volumeJson(const volume::Volume& v, const fs::path& path) {
     const auto& g = *v.grid;
     const openvdb::CoordBBox ibox = g.evalActiveVoxelBoundingBox();
     const auto wb = v.worldBounds();
@@ -178,7 +178,7 @@ Command addInfo(CLI::App& root) {
                 const volume::Format f = volume::detectFormat(in);
                 json j;
                 if (f == volume::Format::Vdb) {
-                    j = describeVolume(volume::loadVdb(in), in);
+                    j = volumeJson(volume::loadVdb(in), in);
                     if (!args->json) printVolume(j);
                 } else if (f == volume::Format::Dicom) {
                     const auto series = volume::scanDicom({in});

@@ -600,11 +600,29 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
             ? std::chrono::duration<double>(std::chrono::steady_clock::now() - setupStart).count()
             : 0.0;
 
-    Report r{in.label, spec,   cp,          kMaxAsked,        frame, body, {}, {},  {},
-             NAN,      NAN,    skin,        plan.pressedFrom, 0,     {},   {}, NAN, NAN,
-             {},       solver, setupSeconds};
     // --seconds under --realtime is wall-clock time (the path's ticks otherwise).
-    r.run = a.realtime ? runRealtime(session, ticks, a.seconds) : runFast(session, ticks);
+    RunResult run = a.realtime ? runRealtime(session, ticks, a.seconds) : runFast(session, ticks);
+    Report r{in.label,
+             spec,
+             cp,
+             kMaxAsked,
+             frame,
+             body,
+             std::move(run),
+             {},
+             {},
+             NAN,
+             NAN,
+             skin,
+             plan.pressedFrom,
+             0,
+             {},
+             {},
+             NAN,
+             NAN,
+             {},
+             solver,
+             setupSeconds};
     if (r.run.snaps.empty()) {  // stopped before the first tick: nothing to write
         std::fprintf(stderr, "palp palpate: interrupted before the first tick; nothing written\n");
         return 128 + r.run.interrupted;

@@ -4,8 +4,10 @@
 
 #include <CLI/CLI.hpp>
 #include <Eigen/Core>
+#include <filesystem>
 #include <functional>
 #include <string>
+#include <vector>
 
 namespace palp::tool {
 
@@ -14,6 +16,16 @@ struct Command {
     CLI::App* app = nullptr;
     std::function<int()> run;
 };
+
+/// The commands of the module libpalp_tool_commands (palpate, bench, serve, bridge-sim, sweep,
+/// errormap, study), added to @p root and @p out by its entry point of this name and type; the
+/// executable holds convert, convert-tree, info and phantom itself.
+inline constexpr const char* kCommandsEntry = "palp_tool_add_commands";
+using AddCommandsFn = void (*)(CLI::App& root, std::vector<Command>& out);
+
+/// The folder of libpalp_tool.so as loaded (the build tree's tools/ or the installed library
+/// folder), where the commands module lies; empty when the loader cannot say.
+std::filesystem::path toolLibraryDir();
 
 Command addConvert(CLI::App& root);
 /// `palp convert-tree` (and `palp convert-tree merge`): a folder of scans converted in one

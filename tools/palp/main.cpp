@@ -1,8 +1,16 @@
-// The palp command: convert, inspect and generate volumes, benchmark ray bundles.
+// The palp command: convert, inspect and generate volumes here; palpate, benchmark, serve, sweep
+// and study through the commands module, opened only when one of those is asked for.
+#include <dlfcn.h>
+
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <cstdio>
 #include <exception>
+#include <filesystem>
+#include <iterator>
 #include <new>
+#include <string>
+#include <string_view>
 #include <vector>
 
 #include "commands.h"
@@ -10,12 +18,47 @@
 #include "palp/base/error.h"
 #include "progress.h"
 
-namespace palp::tool {
-Globals& globals() {
-    static Globals g;
-    return g;
+namespace {
+
+namespace fs = std::filesystem;
+
+/// Whether @p argv asks for a command of the commands module: the first word that is not an
+/// option names the command; with none, --version is answered here and anything else (--help,
+/// which lists every command, or a missing command, refused with that list) needs the module.
+bool wantsModule(int argc, char** argv) {
+    static constexpr std::string_view kHere[] = {"convert", "convert-tree", "info", "phantom"};
+    bool version = false;
+    for (int i = 1; i < argc; ++i) {
+        const std::string_view arg = argv[i];
+        if (arg.empty() || arg[0] != '-')
+            return std::find(std::begin(kHere), std::end(kHere), arg) == std::end(kHere);
+        if (arg == "-h" || arg == "--help") return true;
+        version = version || arg == "--version";
+    }
+    return !version;
 }
-}  // namespace palp::tool
+
+/// Opens the commands module beside libpalp_tool.so and adds its commands to @p app.
+/// @throw palp::IoError naming the file when it cannot be opened or lacks its entry point.
+void addModuleCommands(CLI::App& app, std::vector<palp::tool::Command>& commands) {
+    const fs::path path = palp::tool::toolLibraryDir() / PALP_TOOL_COMMANDS_FILE;
+    void* handle = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+    if (handle == nullptr) {
+        const char* why = dlerror();
+        throw palp::IoError(path.string() +
+                            ": expected palp's commands library (palpate, bench, serve, "
+                            "bridge-sim, sweep, errormap, study), found it cannot be loaded (" +
+                            (why ? why : "no reason given") + ")");
+    }
+    void* entry = dlsym(handle, palp::tool::kCommandsEntry);
+    if (entry == nullptr) {
+        throw palp::IoError(path.string() + ": expected palp's commands library with " +
+                            palp::tool::kCommandsEntry + ", found no such symbol");
+    }
+    reinterpret_cast<palp::tool::AddCommandsFn>(entry)(app, commands);
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
     CLI::App app{"palp: haptic volume palpation - convert scans, inspect volumes, make phantoms"};
@@ -23,10 +66,16 @@ int main(int argc, char** argv) {
     app.set_version_flag("--version", "palp 0.1.0");
     app.add_flag("-q,--quiet", palp::tool::globals().quiet, "No progress output");
     std::vector<palp::tool::Command> commands{
-        palp::tool::addConvert(app),  palp::tool::addConvertTree(app), palp::tool::addInfo(app),
-        palp::tool::addPhantom(app),  palp::tool::addBench(app),       palp::tool::addPalpate(app),
-        palp::tool::addServe(app),    palp::tool::addBridgeSim(app),   palp::tool::addSweep(app),
-        palp::tool::addErrormap(app), palp::tool::addStudy(app)};
+        palp::tool::addConvert(app), palp::tool::addConvertTree(app), palp::tool::addInfo(app),
+        palp::tool::addPhantom(app)};
+    if (wantsModule(argc, argv)) {
+        try {
+            addModuleCommands(app, commands);
+        } catch (const palp::Error& e) {
+            std::fprintf(stderr, "palp: error: %s\n", e.what());
+            return 1;
+        }
+    }
     palp::tool::refuseEmptyValues(app);
     try {
         app.parse(argc, argv);

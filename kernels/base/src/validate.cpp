@@ -2,6 +2,8 @@
 
 #include <cmath>
 #include <cstdio>
+#include <exception>
+#include <string>
 
 #include "palp/base/error.h"
 
@@ -61,6 +63,27 @@ void requireInRange(std::string_view what, double v, double lo, double hi, std::
             what,
             requirement("a value in [" + formatValue(lo) + ", " + formatValue(hi) + "]", unit),
             formatValue(v));
+}
+
+std::pair<std::int64_t, std::int64_t> parseShard(const std::string& text) {
+    const auto slash = text.find('/');
+    std::int64_t i = -1, n = -1;
+    try {
+        std::size_t a = 0, b = 0;
+        if (slash != std::string::npos) {
+            i = std::stoll(text.substr(0, slash), &a);
+            n = std::stoll(text.substr(slash + 1), &b);
+            if (a != slash || b != text.size() - slash - 1) i = n = -1;
+        }
+    } catch (const std::exception&) {
+        i = n = -1;
+    }
+    if (n < 1 || i < 0 || i >= n)
+        throw ValueError(
+            "--shard: expected i/n with integers 0 <= i < n (e.g. "
+            "$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT), found '" +
+            text + "'");
+    return {i, n};
 }
 
 }  // namespace palp

@@ -16,7 +16,7 @@
 #include "../volume_flags.h"
 #include "convert_flags.h"
 #include "palp/base/error.h"
-#include "palp/studies/sweep_store.h"
+#include "palp/base/validate.h"
 #include "palp/volume/find_scans.h"
 #include "tree_manifest.h"
 
@@ -230,7 +230,7 @@ int runTree(const TreeArgs& a) {
     const fs::path inDir = fs::path(a.in).lexically_normal();
     const fs::path outDir = fs::path(a.out).lexically_normal();
     std::int64_t shardIndex = 0, shardCount = 0;
-    if (!a.shard.empty()) std::tie(shardIndex, shardCount) = haptics::parseShard(a.shard);
+    if (!a.shard.empty()) std::tie(shardIndex, shardCount) = parseShard(a.shard);
     (void)loadOptions(a.flags);  // refuses a bad --crop before any work
     const std::string options = describeConvertFlags(a.flags);
     std::error_code ec;

@@ -176,27 +176,6 @@ SampleRange shardRange(const SweepSpec& spec, std::int64_t i, std::int64_t n) {
             std::min(spec.samples, g1 * spec.groupSize())};
 }
 
-std::pair<std::int64_t, std::int64_t> parseShard(const std::string& text) {
-    const auto slash = text.find('/');
-    std::int64_t i = -1, n = -1;
-    try {
-        std::size_t a = 0, b = 0;
-        if (slash != std::string::npos) {
-            i = std::stoll(text.substr(0, slash), &a);
-            n = std::stoll(text.substr(slash + 1), &b);
-            if (a != slash || b != text.size() - slash - 1) i = n = -1;
-        }
-    } catch (const std::exception&) {
-        i = n = -1;
-    }
-    if (n < 1 || i < 0 || i >= n)
-        throw ValueError(
-            "--shard: expected i/n with integers 0 <= i < n (e.g. "
-            "$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT), found '" +
-            text + "'");
-    return {i, n};
-}
-
 void prepareSweepDir(const fs::path& dir, const SweepSpec& spec) {
     std::error_code ec;
     fs::create_directories(dir / "shards", ec);

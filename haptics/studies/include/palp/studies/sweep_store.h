@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "palp/base/validate.h"
 #include "palp/studies/sweep_design.h"
 #include "palp/studies/sweep_run.h"
 
@@ -38,8 +39,8 @@ struct SampleRange {
 /// @throw palp::ValueError for n < 1 or i outside [0, n).
 SampleRange shardRange(const SweepSpec& spec, std::int64_t i, std::int64_t n);
 
-/// Parses "i/n" (as --shard takes it) into (i, n). @throw palp::ValueError naming the text.
-std::pair<std::int64_t, std::int64_t> parseShard(const std::string& text);
+/// Parses "i/n" as --shard takes it (palp/base/validate.h).
+using palp::parseShard;
 
 /// Writes `manifest.json` of @p spec into @p dir (created if missing), or checks the one there.
 /// @throw palp::ValueError when @p dir holds a manifest of another sweep (naming the file and

@@ -8,8 +8,10 @@
 /// formatValue() (`%g`: `1e+300`, `nan`, `-inf`), so a message shows the value the user gave.
 /// Not for the servo path: these throw.
 
+#include <cstdint>
 #include <string>
 #include <string_view>
+#include <utility>
 
 namespace palp {
 
@@ -31,5 +33,9 @@ void requireAtLeast(std::string_view what, double v, double min, std::string_vie
 /// Throws unless @p v is finite and in [@p lo, @p hi].
 void requireInRange(std::string_view what, double v, double lo, double hi,
                     std::string_view unit = {});
+
+/// Parses "i/n" (as --shard takes it: a job array's task of n) into (i, n).
+/// @throw palp::ValueError naming --shard and the text unless 0 <= i < n.
+std::pair<std::int64_t, std::int64_t> parseShard(const std::string& text);
 
 }  // namespace palp
