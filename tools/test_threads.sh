@@ -6,7 +6,6 @@
 # already installed the packages).
 #   bash tools/test_threads.sh            build/tsan, all the listed test executables
 #   bash tools/test_threads.sh test_session   only the named ones
-#   PALP_THREADS_STEP=build|run bash tools/test_threads.sh   only build, or only run a built tree
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ "$#" -gt 0 ]; then
@@ -17,15 +16,8 @@ else
            test_c_api_udp_c
            test_volume_lazy_load test_volume_lazy_formats)
 fi
-# PALP_THREADS_STEP=build only builds (.ci/run starts it in the background while the release
-# build and tests run), =run only runs an existing build; both by default.
-step="${PALP_THREADS_STEP:-all}"
-if [ "$step" != run ]; then
-  cmake --preset tsan >/dev/null
-  # Two jobs: CI has two cores (and the ASan build compiles beside it there).
-  cmake --build --preset tsan -j 2 --target "${targets[@]}"
-fi
-[ "$step" = build ] && exit 0
+cmake --preset tsan >/dev/null
+cmake --build --preset tsan --target "${targets[@]}"
 # halt_on_error: stop at the first report so its stacks are the last thing in the log.
 export TSAN_OPTIONS="suppressions=$PWD/tools/tsan.supp halt_on_error=1 second_deadlock_stack=1"
 # The ray batch (TBB workers over bundles) is its own executable, test_ray_batch, so the ray
