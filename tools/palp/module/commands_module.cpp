@@ -7,7 +7,7 @@
 extern "C" __attribute__((visibility("default"))) void palp_tool_add_commands(
     CLI::App& root, std::vector<palp::tool::Command>& out) {
     using namespace palp::tool;
-    for (Command (*add)(CLI::App&) : {addBench, addPalpate, addServe, addBridgeSim, addSweep,
-                                      addErrormap, addStudy})
+    for (Command (*add)(CLI::App&) :
+         {addBench, addPalpate, addServe, addBridgeSim, addSweep, addErrormap, addStudy})
         out.push_back(add(root));
 }
