@@ -48,8 +48,6 @@ class ChunkBytes {
         return at;
     }
     void append(const char* s, std::size_t n) { std::memcpy(grow(n), s, n); }
-    /// Gives back the last @p n bytes grown.
-    void shrink(std::size_t n) noexcept { mSize -= n; }
     const char* data() const noexcept { return mData.get(); }
     std::size_t size() const noexcept { return mSize; }
 
