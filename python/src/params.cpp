@@ -18,6 +18,7 @@ using haptics::CouplingMode;
 using haptics::CouplingParams;
 using haptics::ProxyParams;
 using haptics::RaySource;
+using haptics::RecontactParams;
 using haptics::SessionParams;
 using haptics::WorkspaceTransform;
 
@@ -106,6 +107,13 @@ void bindParams(py::module_& m) {
         .def_readwrite("rotation", &WorkspaceTransform::rotation)
         .def_readwrite("offset", &WorkspaceTransform::offset, "m");
 
+    py::class_<RecontactParams>(m, "RecontactParams",
+                                "Deformable tissue: the force's rise after the tissue springs "
+                                "back past the probe (seconds: the window, 0 = off; rise_nps).")
+        .def(py::init(&fromKwargs<RecontactParams>))
+        .def_readwrite("seconds", &RecontactParams::seconds, "s")
+        .def_readwrite("rise_nps", &RecontactParams::riseNps, "N/s");
+
     py::class_<SessionParams>(m, "SessionParams",
                               "Everything a Session is made with (coupling, proxy, workspace, "
                               "passivity control, start-up gate, servo period).")
@@ -117,6 +125,7 @@ void bindParams(py::module_& m) {
         .def_readwrite("startup_threshold", &SessionParams::startupThresholdN, "N")
         .def_readwrite("startup_quiet_ticks", &SessionParams::startupQuietTicks)
         .def_readwrite("cross_fade_seconds", &SessionParams::crossFadeSeconds)
+        .def_readwrite("recontact", &SessionParams::recontact)
         .def_property(
             "period", [](const SessionParams& p) { return p.servo.periodSeconds; },
             [](SessionParams& p, double s) { p.servo.periodSeconds = s; }, "servo period T, s")

@@ -194,6 +194,18 @@ class Sessions(unittest.TestCase):
         with self.assertRaises(palp.ValueError):
             a.start()  # the servo thread never calls into Python
 
+    def test_recontact_params_default_set_and_refused(self):
+        p = vc_params()
+        self.assertAlmostEqual(p.recontact.seconds, 0.015)
+        self.assertEqual(p.recontact.rise_nps, 100.0)
+        p.recontact = palp.RecontactParams(seconds=0.02, rise_nps=50)
+        p.validate()
+        self.assertAlmostEqual(p.recontact.seconds, 0.02)
+        p.recontact.rise_nps = 0  # in place: the nested struct is the params' own
+        with self.assertRaises(palp.ValueError) as e:
+            p.validate()
+        self.assertIn("recontact.riseNps", str(e.exception))
+
     def test_python_device_errors_surface_after_the_tick(self):
         class Broken:
             def read(self):

@@ -325,6 +325,8 @@ void printJson(const PalpateArgs& a, const Report& r) {
                            {"surface_triangles", body->surface().triangles.size()},
                            {"fixed_nodes", body->fixedNodes().size()},
                            {"filter_mm", a.filterMm},
+                           {"recontact_ms", a.recontactMs},
+                           {"recontact_rise_nps", a.recontactRiseNps},
                            {"cell_mm", a.femCellMm},
                            {"young_kpa", a.materialTable.empty() ? json(a.youngKpa) : json()},
                            {"material", a.material},
@@ -587,6 +589,8 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
                       formatValue(sp.proxy.dynamicFriction));
     }
     sp.passivityControl = a.passivityControl;
+    sp.recontact.seconds = 1e-3 * a.recontactMs;
+    sp.recontact.riseNps = a.recontactRiseNps;
     sp.servo.periodSeconds = period;
     a.servo.applyTo(sp.servo);
     // Real time: every tick's snapshot is queued in the trace ring and drained below

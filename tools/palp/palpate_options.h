@@ -86,6 +86,8 @@ struct PalpateArgs {
     double femAlpha = 60;
     double femBeta = 0;
     double filterMm = 3;
+    double recontactMs = 15;        // haptics::RecontactParams::seconds, in ms
+    double recontactRiseNps = 100;  // haptics::RecontactParams::riseNps
     double boneHu = 500;
     double tissueHu = -200;
     std::string insideBone = "drop";  ///< --inside-bone: drop or keep tissue enclosed by bone

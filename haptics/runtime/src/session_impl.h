@@ -88,6 +88,9 @@ struct Session::Impl {
                     p.servo.periodSeconds),
           maxForceStep(p.faults.maxForceStepN > 0 ? p.faults.maxForceStepN
                                                   : 0.5 * deviceIn.spec().maxForceN),
+          recontactTicks(
+              static_cast<std::uint32_t>(std::lround(p.recontact.seconds / p.servo.periodSeconds))),
+          recontactRise(p.recontact.riseNps * p.servo.periodSeconds),
           trace(p.traceCapacity),
           loop(p.servo) {
         limited.fill(stiffnessLimited);
@@ -193,6 +196,13 @@ struct Session::Impl {
     CouplingParams wanted;      // the coupling to restore (the newest asked for)
     bool wantedLimited = false;
     bool freeProxy = false;  // the probe started inside: the proxy follows it until outside
+    // Re-contact after the tissue sprang back past a free probe (followSurface, RecontactParams):
+    // the window's length, the largest rise a tick (N), the ticks left in the window, and the
+    // last magnitude let through.
+    std::uint32_t recontactTicks;
+    double recontactRise;
+    std::uint32_t recontactLeft = 0;
+    double recontactLast = 0;
     Eigen::Vector3d lastProxyForce{Eigen::Vector3d::Zero()};
     double lastStiffness = 0;
     double lastStepStiffness = 0;

@@ -226,6 +226,16 @@ void Session::Impl::tick(double timeSeconds) noexcept {
             coupleWithFade(*ps, hand);
         }
         force = blended.force;
+        if (recontactLeft > 0) {
+            // After the tissue sprang back past the free probe (followSurface): the magnitude
+            // rises by at most recontactRise a tick (the direction kept) while the dent forms
+            // again under the load the tissue receives (the force sent).
+            --recontactLeft;
+            const double n = force.norm();
+            const double cap = recontactLast + recontactRise;
+            if (n > cap) force *= cap / n;
+            recontactLast = std::min(n, cap);
+        }
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
     }
@@ -490,8 +500,11 @@ void Session::Impl::followSurface(bool anchored) noexcept {
     } else if (body && !freeProxy && started) {
         const unsigned mask = proxy.params().surfaceMask;
         const Eigen::Vector3d p = proxy.state().position;
-        if (insideBody(body->surfaces(), mask, p))
+        if (insideBody(body->surfaces(), mask, p)) {
             proxy.reset(nearestExit(body->surfaces(), mask, p, 2 * proxy.params().epsilon));
+            recontactLeft = recontactTicks;
+            recontactLast = 0;
+        }
     }
 }
 

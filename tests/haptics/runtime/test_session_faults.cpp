@@ -403,6 +403,16 @@ TEST_F(SessionTest, BadFaultParamsAreRefusedNamingTheField) {
     p = params(CouplingMode::VC);
     p.faults.maxForceStepN = -1;
     refused(p, "faults.maxForceStepN");
+    for (const double seconds : {-1e-3, 2.0, std::numeric_limits<double>::quiet_NaN()}) {
+        p = params(CouplingMode::VC);
+        p.recontact.seconds = seconds;
+        refused(p, "recontact.seconds");
+    }
+    for (const double rise : {0.0, -5.0, std::numeric_limits<double>::infinity()}) {
+        p = params(CouplingMode::VC);
+        p.recontact.riseNps = rise;
+        refused(p, "recontact.riseNps");
+    }
 }
 
 }  // namespace

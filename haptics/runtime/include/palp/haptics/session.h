@@ -48,6 +48,18 @@ struct FaultParams {
     double maxForceStepN = 0;
 };
 
+/// Re-contact after the tissue sprang back past a free probe (deformable scenes only). On soft
+/// tissue the contact can be lost for a tick or two while the tissue rings; released, the dent
+/// springs back millimetres in one FEM step, past the probe, and the proxy is put back on the
+/// surface with the probe 1.5-5 mm inside: the coupling spring's k D would kick the hand (on
+/// the head CT up to the device's 3.3 N, ~5 ticks in 8 s). For `seconds` after such a
+/// re-contact the force's magnitude may rise by at most `riseNps` (a fall is never slowed),
+/// while the dent forms again under the rising load (docs/algorithms.md, section 10).
+struct RecontactParams {
+    double seconds = 15e-3;  ///< s: the window after a re-contact (0: no limit; 0..1)
+    double riseNps = 100;    ///< N/s: the magnitude's largest rise in the window (> 0)
+};
+
 struct SessionParams {
     ProxyParams proxy;
     CouplingParams coupling;
@@ -60,7 +72,8 @@ struct SessionParams {
     /// Snapshots kept for popTrace() (every tick's, in order; rounded up to a power of two;
     /// 0: no trace). When the reader falls behind, new snapshots are dropped and counted.
     std::uint32_t traceCapacity = 0;
-    FaultParams faults;  ///< the session's own fault ramp and force-step limit
+    FaultParams faults;         ///< the session's own fault ramp and force-step limit
+    RecontactParams recontact;  ///< the force's rise after the tissue springs back past the probe
 };
 
 /// @throw palp::ValueError naming the field (through the parts' validators too).
