@@ -197,12 +197,14 @@ struct Session::Impl {
     bool wantedLimited = false;
     bool freeProxy = false;  // the probe started inside: the proxy follows it until outside
     // Re-contact after the tissue sprang back past a free probe (followSurface, RecontactParams):
-    // the window's length, the largest rise a tick (N), the ticks left in the window, and the
-    // last magnitude let through.
+    // the window's length, the largest rise a tick (N), the ticks left in the window, the last
+    // magnitude let through, and whether the limit is on (the window, then until the coupling's
+    // force is within the limit).
     std::uint32_t recontactTicks;
     double recontactRise;
     std::uint32_t recontactLeft = 0;
     double recontactLast = 0;
+    bool recontactLimiting = false;
     Eigen::Vector3d lastProxyForce{Eigen::Vector3d::Zero()};
     double lastStiffness = 0;
     double lastStepStiffness = 0;

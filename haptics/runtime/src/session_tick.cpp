@@ -226,15 +226,21 @@ void Session::Impl::tick(double timeSeconds) noexcept {
             coupleWithFade(*ps, hand);
         }
         force = blended.force;
-        if (recontactLeft > 0) {
+        if (recontactLimiting) {
             // After the tissue sprang back past the free probe (followSurface): the magnitude
             // rises by at most recontactRise a tick (the direction kept) while the dent forms
-            // again under the load the tissue receives (the force sent).
-            --recontactLeft;
+            // again under the load the tissue receives (the force sent). Past the window the
+            // limit holds until the coupling's force is within it, so its end is no step.
+            if (recontactLeft > 0) --recontactLeft;
             const double n = force.norm();
             const double cap = recontactLast + recontactRise;
-            if (n > cap) force *= cap / n;
-            recontactLast = std::min(n, cap);
+            if (n > cap) {
+                force *= cap / n;
+                recontactLast = cap;
+            } else {
+                recontactLast = n;
+                recontactLimiting = recontactLeft > 0;
+            }
         }
     } else {
         force.setConstant(std::numeric_limits<double>::quiet_NaN());
@@ -504,6 +510,7 @@ void Session::Impl::followSurface(bool anchored) noexcept {
             proxy.reset(nearestExit(body->surfaces(), mask, p, 2 * proxy.params().epsilon));
             recontactLeft = recontactTicks;
             recontactLast = 0;
+            recontactLimiting = recontactTicks > 0;
         }
     }
 }

@@ -54,7 +54,8 @@ struct FaultParams {
 /// surface with the probe 1.5-5 mm inside: the coupling spring's k D would kick the hand (on
 /// the head CT up to the device's 3.3 N, ~5 ticks in 8 s). For `seconds` after such a
 /// re-contact the force's magnitude may rise by at most `riseNps` (a fall is never slowed),
-/// while the dent forms again under the rising load (docs/algorithms.md, section 10).
+/// while the dent forms again under the rising load; past the window the limit holds until the
+/// coupling's force is within it, so the window's end is no step (docs/algorithms.md, 10).
 struct RecontactParams {
     double seconds = 15e-3;  ///< s: the window after a re-contact (0: no limit; 0..1)
     double riseNps = 100;    ///< N/s: the magnitude's largest rise in the window (> 0)
