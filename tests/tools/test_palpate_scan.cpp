@@ -290,6 +290,12 @@ TEST(PalpateScan, HeadCtDeformableReContactsStayBelowTheDeviceMaximum) {
         EXPECT_GE(contact, 0.9);
         EXPECT_GE(j["observer_energy_min_j"].get<double>(), 0.0);
         EXPECT_EQ(j["faulted_ticks"], 0);
+        // The regions as they ran: the secondary at its rate, layouts following the raster.
+        const auto& sec = j["deformable"]["secondary"];
+        const double asked = sec["rate_hz_asked"];
+        EXPECT_NEAR(sec["solves_per_s"].get<double>(), asked, 0.15 * asked);
+        EXPECT_GT(sec["used"].get<int>(), 0);
+        EXPECT_GT(sec["layouts_prepared"].get<int>(), 0);
     }
 }
 

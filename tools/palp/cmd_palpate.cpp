@@ -192,6 +192,7 @@ struct Report {
     PathFrame frame;
     std::shared_ptr<const haptics::DeformableModel> body;
     RunResult run;
+    std::optional<fem::AsyncSecondaryStats> secondary;  ///< the regions' secondary, after the run
     haptics::RunSummary sum;
     haptics::EnergyBudget budget;  ///< from the end of the approach on
     double mapLo = NAN, mapHi = NAN;
@@ -345,6 +346,20 @@ void printJson(const PalpateArgs& a, const Report& r) {
             // The skin the contact slides over without a factorisation per move (0: the
             // lattice face of the regions centre, a phantom's).
             j["deformable"]["slide_nodes"] = body->options().regions.slideNodes.size();
+            j["deformable"]["seeds"] = body->options().regions.primaryNodes;
+            // The secondary region as it ran: its rate asked and reached, its solves taken up
+            // by the primary, its longest solve, and the layouts prepared as the contact moved.
+            if (r.secondary) {
+                const fem::AsyncSecondaryStats& st = *r.secondary;
+                j["deformable"]["secondary"] = {
+                    {"rate_hz_asked", body->options().regions.secondaryRate},
+                    {"solves_per_s",
+                     sum.seconds > 0 ? static_cast<double>(st.solves) / sum.seconds : 0.0},
+                    {"solves", st.solves},
+                    {"used", st.used},
+                    {"max_solve_ms", 1e3 * st.maxSolveSeconds},
+                    {"layouts_prepared", st.layoutsPrepared}};
+            }
         }
     }
     if (body) j["error_budget"] = errorBudgetJson(r.error);
@@ -613,6 +628,7 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
              frame,
              body,
              std::move(run),
+             std::nullopt,
              {},
              {},
              NAN,
@@ -632,6 +648,8 @@ int runPalpate(PalpateArgs a, const CheckedOptions& o) {
         return 128 + r.run.interrupted;
     }
     r.sum = haptics::summarize(r.run.snaps);
+    if (const haptics::DeformableBody* db = session.deformable())
+        if (const fem::AsyncRegions* rg = db->regions()) r.secondary = rg->secondaryStats();
     r.contactAfterApproach = contactFrom(r.run.snaps, plan.pressedFrom);
     r.budget = haptics::energyBudget(r.run.snaps, plan.approach);
     r.error = errorBudgetReport(a, body.get(), r.run.snaps, press, period);
