@@ -80,6 +80,42 @@ TEST(Cli, VolumeCommandsRunWithoutTheCommandsModuleTheOthersNameItWhenMissing) {
     EXPECT_EQ(runCommand(env + palp + " --version").exitCode, 0);
 }
 
+// DICOM is read by a library of its own (GDCM behind it), opened the first time a DICOM input
+// is read: a NIfTI conversion loads neither it nor GDCM, and without it a DICOM conversion stops
+// naming the file palp looked for, writing nothing.
+TEST(Cli, NiftiConvertsWithoutTheDicomLibraryDicomNamesItWhenMissing) {
+    PALP_REQUIRE_DATA(nifti, "nifti-mr");
+    PALP_REQUIRE_DATA(dicom, "ct-ge-head-tilt");
+    const std::string palp = palp::test::palpTool().string();
+    palp::test::TempDir tmp;
+    const auto nii =
+        runCommand("LD_DEBUG=files " + palp + " --quiet convert " +
+                   (nifti / "anatomical.nii").string() + " -o " + (tmp / "anat.vdb").string());
+    ASSERT_EQ(nii.exitCode, 0) << nii.output;
+    EXPECT_EQ(nii.output.find("libpalp_volume_dicom"), std::string::npos) << nii.output;
+    EXPECT_EQ(nii.output.find("libgdcm"), std::string::npos) << nii.output;
+
+    // libpalp_volume.so copied alone into a folder that comes first on the library path: it
+    // looks for the DICOM library beside itself, and it is not there.
+    const std::filesystem::path lib =
+        palp::test::palpTool().parent_path().parent_path() / "volume" / "libpalp_volume.so.0.1";
+    ASSERT_TRUE(std::filesystem::exists(lib)) << lib;
+    std::filesystem::copy_file(std::filesystem::canonical(lib), tmp / "libpalp_volume.so.0.1");
+    const std::string env = "LD_LIBRARY_PATH=" + tmp.path().string() + " ";
+    const auto dcm = runCommand(env + palp + " --quiet convert " + dicom.string() + " -o " +
+                                (tmp / "head.vdb").string() + " --voxel-size 2");
+    EXPECT_EQ(dcm.exitCode, 1) << dcm.output;
+    EXPECT_NE(dcm.output.find("palp: error: " + (tmp / "libpalp_volume_dicom.so").string() +
+                              ": expected palp's DICOM library, found it cannot be loaded"),
+              std::string::npos)
+        << dcm.output;
+    EXPECT_FALSE(std::filesystem::exists(tmp / "head.vdb"));
+    const auto again =
+        runCommand(env + palp + " --quiet convert " + (nifti / "anatomical.nii").string() + " -o " +
+                   (tmp / "anat2.vdb").string());
+    EXPECT_EQ(again.exitCode, 0) << again.output;
+}
+
 // A press reaches the surface only after the session's start-up gate (50 quiet ticks) has
 // opened: a press that started 5 mm out met the surface 27 ms in at 300 mm/s (45 ms at the
 // default 100 mm/s on the head CT), the gate stayed shut under the force it then felt, and the

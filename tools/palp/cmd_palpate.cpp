@@ -1,7 +1,6 @@
 // palp palpate: palpate a scan or a thesis phantom with VC/AVC/AVCEC along a scripted path
 // (simulated hand and device), offline as fast as possible or on the real-time servo loop;
 // writes a CSV trace and a PNG map over the palpated plane.
-#include <sys/resource.h>
 
 #include <algorithm>
 #include <cctype>
@@ -206,25 +205,6 @@ struct Report {
     double setupSeconds = 0;                   ///< deformable: voxelise to first layout, s
     ErrorBudgetReport error{};                 ///< --error-budget: the choice and the estimate
 };
-
-/// Peak resident memory of the process so far, MiB.
-double peakRssMiB() {
-    rusage u{};
-    getrusage(RUSAGE_SELF, &u);
-    return static_cast<double>(u.ru_maxrss) / 1024.0;  // KiB on Linux
-}
-
-/// Cells of the pieces in @p pieces.
-long pieceCells(const std::vector<fem::BodyPiece>& pieces) {
-    long cells = 0;
-    for (const fem::BodyPiece& p : pieces) cells += p.cells;
-    return cells;
-}
-
-/// Active nodes of @p mesh (those its elements use).
-int activeNodes(const fem::HexMesh& mesh) {
-    return static_cast<int>(std::count(mesh.nodeActive().begin(), mesh.nodeActive().end(), 1));
-}
 
 /// Share of the ticks from @p from (s) on whose proxy is on a surface.
 double contactFrom(const std::vector<haptics::Snapshot>& snaps, double from) {

@@ -1,7 +1,5 @@
 // The palp command: convert, inspect and generate volumes here; palpate, benchmark, serve, sweep
 // and study through the commands module, opened only when one of those is asked for.
-#include <dlfcn.h>
-
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cstdio>
@@ -16,6 +14,7 @@
 #include "commands.h"
 #include "option_checks.h"
 #include "palp/base/error.h"
+#include "palp/base/shared_library.h"
 #include "progress.h"
 
 namespace {
@@ -41,20 +40,9 @@ bool wantsModule(int argc, char** argv) {
 /// Opens the commands module beside libpalp_tool.so and adds its commands to @p app.
 /// @throw palp::IoError naming the file when it cannot be opened or lacks its entry point.
 void addModuleCommands(CLI::App& app, std::vector<palp::tool::Command>& commands) {
-    const fs::path path = palp::tool::toolLibraryDir() / PALP_TOOL_COMMANDS_FILE;
-    void* handle = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
-    if (handle == nullptr) {
-        const char* why = dlerror();
-        throw palp::IoError(path.string() +
-                            ": expected palp's commands library (palpate, bench, serve, "
-                            "bridge-sim, sweep, errormap, study), found it cannot be loaded (" +
-                            (why ? why : "no reason given") + ")");
-    }
-    void* entry = dlsym(handle, palp::tool::kCommandsEntry);
-    if (entry == nullptr) {
-        throw palp::IoError(path.string() + ": expected palp's commands library with " +
-                            palp::tool::kCommandsEntry + ", found no such symbol");
-    }
+    void* entry = palp::openLibrarySymbol(
+        palp::tool::toolLibraryDir() / PALP_TOOL_COMMANDS_FILE, palp::tool::kCommandsEntry,
+        "palp's commands library (palpate, bench, serve, bridge-sim, sweep, errormap, study)");
     reinterpret_cast<palp::tool::AddCommandsFn>(entry)(app, commands);
 }
 

@@ -1,6 +1,7 @@
 #include "palpate_setup.h"
 
 #include <openvdb/tools/ValueTransformer.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <array>
@@ -125,6 +126,22 @@ std::shared_ptr<const haptics::MaterialTable> materialTableFromOptions(const Pal
 }
 
 /// What --json says of --material-table: the table, its rows and the body's nu and density.
+double peakRssMiB() {
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return static_cast<double>(u.ru_maxrss) / 1024.0;  // KiB on Linux
+}
+
+long pieceCells(const std::vector<fem::BodyPiece>& pieces) {
+    long cells = 0;
+    for (const fem::BodyPiece& p : pieces) cells += p.cells;
+    return cells;
+}
+
+int activeNodes(const fem::HexMesh& mesh) {
+    return static_cast<int>(std::count(mesh.nodeActive().begin(), mesh.nodeActive().end(), 1));
+}
+
 nlohmann::json materialTableJson(const PalpateArgs& a) {
     const auto table = materialTableFromOptions(a);
     if (!table) return "none";

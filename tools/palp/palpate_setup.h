@@ -48,6 +48,13 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
 /// @throw palp::ValueError naming --material-table, the file and the row it refuses.
 std::shared_ptr<const haptics::MaterialTable> materialTableFromOptions(const PalpateArgs& a);
 
+/// Peak resident memory of the process so far, MiB.
+double peakRssMiB();
+/// Cells of the pieces in @p pieces.
+long pieceCells(const std::vector<fem::BodyPiece>& pieces);
+/// Active nodes of @p mesh (those its elements use).
+int activeNodes(const fem::HexMesh& mesh);
+
 /// What --json says of --material-table: "none", or the table, its rows and the body's nu and
 /// density. @throw as materialTableFromOptions().
 nlohmann::json materialTableJson(const PalpateArgs& a);

@@ -1,10 +1,8 @@
 #include "dicom_plugin.h"
 
-#include <dlfcn.h>
-
 #include <string>
 
-#include "palp/base/error.h"
+#include "palp/base/shared_library.h"
 
 namespace palp::volume {
 
@@ -20,26 +18,13 @@ const int kAnchor = 0;
 /// The DICOM library beside this one (as loaded: the build tree's volume/ folder, or the
 /// installed library folder).
 fs::path pluginPath() {
-    Dl_info info{};
-    if (dladdr(&kAnchor, &info) == 0 || info.dli_fname == nullptr) return kDicomPluginFile;
-    return fs::path(info.dli_fname).parent_path() / kDicomPluginFile;
+    const fs::path dir = loadedFileDir(&kAnchor);
+    return dir.empty() ? fs::path(kDicomPluginFile) : dir / kDicomPluginFile;
 }
 
 const DicomPlugin* loadPlugin() {
-    const fs::path path = pluginPath();
-    void* handle = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
-    if (handle == nullptr) {
-        const char* why = dlerror();
-        throw IoError(path.string() +
-                      ": expected palp's DICOM library, found it cannot be loaded (" +
-                      (why ? why : "no reason given") + ")");
-    }
     using Entry = const DicomPlugin* (*)();
-    void* symbol = dlsym(handle, kDicomPluginSymbol);
-    if (symbol == nullptr) {
-        throw IoError(path.string() + ": expected palp's DICOM library with " + kDicomPluginSymbol +
-                      ", found no such symbol");
-    }
+    void* symbol = openLibrarySymbol(pluginPath(), kDicomPluginSymbol, "palp's DICOM library");
     return reinterpret_cast<Entry>(symbol)();
 }
 

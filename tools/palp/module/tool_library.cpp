@@ -1,8 +1,7 @@
 // The palp tool's shared library (libpalp_tool): the global flags, and where the library lies,
 // for the executable to find the commands module beside it.
-#include <dlfcn.h>
-
 #include "../commands.h"
+#include "palp/base/shared_library.h"
 
 namespace palp::tool {
 
@@ -18,10 +17,6 @@ Globals& globals() {
     return g;
 }
 
-std::filesystem::path toolLibraryDir() {
-    Dl_info info{};
-    if (dladdr(&kAnchor, &info) == 0 || info.dli_fname == nullptr) return {};
-    return std::filesystem::path(info.dli_fname).parent_path();
-}
+std::filesystem::path toolLibraryDir() { return loadedFileDir(&kAnchor); }
 
 }  // namespace palp::tool
