@@ -62,10 +62,10 @@ void addDeformableOptions(CLI::App* app, PalpateArgs& a, CheckedOptions& o) {
         app->add_option("--recontact-ms", a.recontactMs,
                         "deformable: after the tissue springs back past the probe, the force's "
                         "rise is limited for this long, ms (15; 0 = no limit)")
-            ->check(within({0, 1, "s"}, {1e3, "ms"})),
+            ->check(within(bounds::kWindow, {1e3, "ms"})),
         app->add_option("--recontact-rise", a.recontactRiseNps,
                         "deformable: the force's largest rise in that window, N/s (100)")
-            ->check(within({0, 1e6, "N/s", true})),
+            ->check(within(bounds::kForceRate)),
         app->add_option("--filter-mm", a.filterMm,
                         "deformable: Gaussian filter width sigma, mm (3; 0 = nearest node)")
             ->check(within(bounds::kSpan, kMm)),

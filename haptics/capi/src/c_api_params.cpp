@@ -303,7 +303,10 @@ constexpr std::array kParamFields = {
     ParamField{&palp_session_params::startup_threshold, "startup_threshold",
                &bounds::kPositiveForce},
     ParamField{&palp_session_params::cross_fade_seconds, "cross_fade_seconds", &bounds::kDuration},
-    ParamField{&palp_session_params::workspace_scale, "workspace_scale", &bounds::kScale}};
+    ParamField{&palp_session_params::workspace_scale, "workspace_scale", &bounds::kScale},
+    ParamField{&palp_session_params::recontact_seconds, "recontact_seconds", &bounds::kWindow},
+    ParamField{&palp_session_params::recontact_rise_nps, "recontact_rise_nps",
+               &bounds::kForceRate}};
 
 /// Most quiet start-up ticks asked for (a minute at 1 kHz).
 constexpr std::uint32_t kMaxStartupQuietTicks = 60000;
@@ -390,6 +393,8 @@ ph::SessionParams toSession(const palp_session_params& p) {
     s.startupThresholdN = p.startup_threshold;
     s.startupQuietTicks = p.startup_quiet_ticks;
     s.crossFadeSeconds = p.cross_fade_seconds;
+    s.recontact.seconds = p.recontact_seconds;
+    s.recontact.riseNps = p.recontact_rise_nps;
     s.workspace.scale = p.workspace_scale;
     for (int r = 0; r < 3; ++r) {
         for (int c = 0; c < 3; ++c) s.workspace.rotation(r, c) = p.workspace_rotation[3 * r + c];
@@ -549,6 +554,8 @@ void fromSession(const ph::SessionParams& d, palp_session_params& p) noexcept {
     p.startup_threshold = d.startupThresholdN;
     p.startup_quiet_ticks = d.startupQuietTicks;
     p.cross_fade_seconds = d.crossFadeSeconds;
+    p.recontact_seconds = d.recontact.seconds;
+    p.recontact_rise_nps = d.recontact.riseNps;
     p.workspace_scale = d.workspace.scale;
     for (int r = 0; r < 3; ++r) {
         for (int c = 0; c < 3; ++c) p.workspace_rotation[3 * r + c] = d.workspace.rotation(r, c);

@@ -66,8 +66,8 @@ void validateSessionParams(const SessionParams& params) {
     validateFaultRampTimes("session faults.", f.graceSeconds, f.timeoutSeconds, f.resumeSeconds);
     requireWithin("session faults.maxForceStepN (0: half the device's maxForceN)", f.maxForceStepN,
                   bounds::kForce);
-    requireWithin("session recontact.seconds", params.recontact.seconds, {0, 1, "s"});
-    requireWithin("session recontact.riseNps", params.recontact.riseNps, {0, 1e6, "N/s", true});
+    requireWithin("session recontact.seconds", params.recontact.seconds, bounds::kWindow);
+    requireWithin("session recontact.riseNps", params.recontact.riseNps, bounds::kForceRate);
     if (params.traceCapacity > kMaxTraceCapacity) {
         throwExpected("session traceCapacity", "<= " + std::to_string(kMaxTraceCapacity),
                       std::to_string(params.traceCapacity));

@@ -50,7 +50,7 @@ struct Field {
     }
 
 // When a field is added to palp.h, these sizes change: add it to the tables below.
-static_assert(sizeof(palp_session_params) == 320, "palp_session_params changed: update the table");
+static_assert(sizeof(palp_session_params) == 336, "palp_session_params changed: update the table");
 static_assert(sizeof(palp_trajectory) == 272, "palp_trajectory changed: update the table");
 
 const std::vector<Field<palp_session_params>> kParamFields = {
@@ -75,7 +75,9 @@ const std::vector<Field<palp_session_params>> kParamFields = {
     PALP_FIELD(palp_session_params, cross_fade_seconds),
     PALP_FIELD(palp_session_params, workspace_scale),
     PALP_ARRAY(palp_session_params, workspace_rotation, 9),
-    PALP_ARRAY(palp_session_params, workspace_offset, 3)};
+    PALP_ARRAY(palp_session_params, workspace_offset, 3),
+    PALP_FIELD(palp_session_params, recontact_seconds),
+    PALP_FIELD(palp_session_params, recontact_rise_nps)};
 
 const std::vector<Field<palp_trajectory>> kTrajectoryFields = {
     PALP_ARRAY(palp_trajectory, centre, 3),
@@ -173,6 +175,7 @@ TEST_F(CApiFields, EverySessionParameterRefusesBadNumbersNamingTheField) {
                                                                {"static_friction", 0.0},
                                                                {"dynamic_friction", 0.0},
                                                                {"cross_fade_seconds", 0.0},
+                                                               {"recontact_seconds", 0.0},
                                                                {"workspace_offset", -1.0},
                                                                {"workspace_offset", 0.0}};
     int refused = 0;

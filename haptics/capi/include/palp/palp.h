@@ -210,6 +210,11 @@ typedef struct palp_session_params {
     /** AVC/AVCEC ring rays: width of their Gaussian weight exp(-alpha^2 / (2 sigma^2)) in the
      *  low-pass of k, rad (> 0 and <= pi/2 when ring_count > 0; default 0.1) */
     double ring_weight_sigma;
+    /** Deformable tissue: after the tissue springs back past the free probe, the force's
+     *  magnitude may rise by at most recontact_rise_nps for this long (and then until the
+     *  coupling's force is within that limit), s (0..1; 0: no limit; default 0.015) */
+    double recontact_seconds;
+    double recontact_rise_nps; /**< N/s (> 0; default 100) */
 } palp_session_params;
 
 /** Fills @p params with palp's defaults (AVCEC, volume first-hit 300 HU, k_s 300 N/m, Touch X,

@@ -53,6 +53,8 @@ inline constexpr Bounds kSpacing{1e-6, 0.1, "m"};
 inline constexpr Bounds kDuration{0, 3600, "s"};
 /// A duration that must be positive (a press, an approach, a turn, a fade).
 inline constexpr Bounds kPositiveDuration{0, 3600, "s", true};
+/// A short window after an event (a re-contact's force limit): up to a second.
+inline constexpr Bounds kWindow{0, 1, "s"};
 /// A servo period: 10 us (100 kHz) to 0.1 s (10 Hz).
 inline constexpr Bounds kPeriod{1e-5, 0.1, "s"};
 /// A part of a servo period (a spin before the deadline, a simulated workload): up to 0.1 s.
@@ -79,6 +81,8 @@ inline constexpr Bounds kDamping{0, 1e4, "N s/m"};
 inline constexpr Bounds kForce{0, 1000, "N"};
 /// A force that must be positive (a threshold, a limit).
 inline constexpr Bounds kPositiveForce{0, 1000, "N", true};
+/// A rate of change of a force that must be positive (a limit on its rise).
+inline constexpr Bounds kForceRate{0, 1e6, "N/s", true};
 /// A mass (a hand, a tool): from a gram.
 inline constexpr Bounds kMass{1e-3, 1000, "kg"};
 /// Young's modulus: from the softest gel (1 Pa) to steel and beyond (1 TPa).
