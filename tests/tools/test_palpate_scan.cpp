@@ -199,6 +199,16 @@ TEST(PalpateScan, HeadCtWithTheDefaultsStaysOnTheSkinAndFeelsTheSkull) {
     EXPECT_LT(rho, -0.5);
 }
 
+/// The head CT in @p dicom converted at @p voxelMm into @p dir (its path; empty on failure).
+std::string convertHeadCt(const std::filesystem::path& dicom, const std::filesystem::path& dir,
+                          const std::string& voxelMm) {
+    const std::string vdb = (dir / ("head-" + voxelMm + ".vdb")).string();
+    const auto conv = runCommand(palp::test::palpTool().string() + " convert " + dicom.string() +
+                                 " -o " + vdb + " --voxel-size " + voxelMm);
+    EXPECT_EQ(conv.exitCode, 0) << conv.output;
+    return conv.exitCode == 0 ? vdb : std::string();
+}
+
 // The head CT deformable at the tool's defaults, offline (issues 32 and 34): the tissue carries
 // the proxy, and AVCEC's spherical term (a side ray of the stencil reaching bone under the thin
 // scalp) pushed the skin that carried it, which moved the stencil off that edge: the term
@@ -210,10 +220,8 @@ TEST(PalpateScan, HeadCtDeformableAvcecProxyFollowsTheHandAsAvcDoes) {
     PALP_REQUIRE_DATA(dicom, "ct-ge-head-tilt");
     palp::test::TempDir tmp;
     const std::string palp = palp::test::palpTool().string();
-    const std::string vdb = (tmp / "ge.vdb").string();
-    const auto conv =
-        runCommand(palp + " convert " + dicom.string() + " -o " + vdb + " --voxel-size 1");
-    ASSERT_EQ(conv.exitCode, 0) << conv.output;
+    const std::string vdb = convertHeadCt(dicom, tmp.path(), "1");
+    ASSERT_FALSE(vdb.empty());
     struct Run {
         double proxyMm = 0, probeMm = 0, buzz = 0, observerMin = 0;
     };
@@ -259,6 +267,15 @@ TEST(PalpateScan, HeadCtDeformableAvcecProxyFollowsTheHandAsAvcDoes) {
     EXPECT_LT(avcec.buzz, 0.05);
 }
 
+/// `palp palpate` with @p args and --json, parsed.
+nlohmann::json palpateJson(const std::string& args) {
+    const auto r = runCommand(palp::test::palpTool().string() + " palpate " + args + " --json");
+    EXPECT_EQ(r.exitCode, 0) << args << "\n" << r.output;
+    const auto brace = r.output.find('{');
+    if (brace == std::string::npos) return nlohmann::json::object();
+    return nlohmann::json::parse(r.output.substr(brace), nullptr, false);
+}
+
 // The head CT deformable at the tool's defaults (0.5 mm voxels, 5 mm cells), offline, 8 s
 // (issue 32): the contact is lost for a tick now and then while the tissue rings, the released
 // dent springs back past the probe, and the proxy put back on the skin left the probe 1.5-5 mm
@@ -269,19 +286,12 @@ TEST(PalpateScan, HeadCtDeformableAvcecProxyFollowsTheHandAsAvcDoes) {
 TEST(PalpateScan, HeadCtDeformableReContactsStayBelowTheDeviceMaximum) {
     PALP_REQUIRE_DATA(dicom, "ct-ge-head-tilt");
     palp::test::TempDir tmp;
-    const std::string palp = palp::test::palpTool().string();
-    const std::string vdb = (tmp / "head.vdb").string();
-    const auto conv =
-        runCommand(palp + " convert " + dicom.string() + " -o " + vdb + " --voxel-size 0.5");
-    ASSERT_EQ(conv.exitCode, 0) << conv.output;
+    const std::string vdb = convertHeadCt(dicom, tmp.path(), "0.5");
+    ASSERT_FALSE(vdb.empty());
     for (const std::string mode : {"avc", "avcec"}) {
         SCOPED_TRACE(mode);
-        const auto r = runCommand(palp + " palpate " + vdb + " --deformable --mode " + mode +
-                                  " --fast --seconds 8 --json");
-        ASSERT_EQ(r.exitCode, 0) << r.output;
-        const auto brace = r.output.find('{');
-        ASSERT_NE(brace, std::string::npos) << r.output;
-        const auto j = nlohmann::json::parse(r.output.substr(brace));
+        const auto j = palpateJson(vdb + " --deformable --mode " + mode + " --fast --seconds 8");
+        ASSERT_TRUE(j.contains("max_force_n")) << j.dump();
         const double maxForce = j["max_force_n"], contact = j["contact_fraction_after_approach"];
         std::printf("%s: clamped %d ticks, peak %.2f N, contact %.3f\n", mode.c_str(),
                     j["clamped_ticks"].get<int>(), maxForce, contact);
@@ -297,15 +307,6 @@ TEST(PalpateScan, HeadCtDeformableReContactsStayBelowTheDeviceMaximum) {
         EXPECT_GT(sec["used"].get<int>(), 0);
         EXPECT_GT(sec["layouts_prepared"].get<int>(), 0);
     }
-}
-
-/// `palp palpate` with @p args and --json, parsed.
-nlohmann::json palpateJson(const std::string& args) {
-    const auto r = runCommand(palp::test::palpTool().string() + " palpate " + args + " --json");
-    EXPECT_EQ(r.exitCode, 0) << args << "\n" << r.output;
-    const auto brace = r.output.find('{');
-    if (brace == std::string::npos) return nlohmann::json::object();
-    return nlohmann::json::parse(r.output.substr(brace), nullptr, false);
 }
 
 // The phantoms' skin is the flat face of their box (their iso-surface lies within a voxel of
