@@ -57,6 +57,7 @@ double* paramDouble(palp_session_params& p, unsigned i) {
                               &p.ring_half_angle,
                               &p.sobel_angle,
                               &p.surface_offset,
+                              &p.max_ray_tilt,
                               &p.threshold,
                               &p.ray_step,
                               &p.hardness,

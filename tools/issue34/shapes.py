@@ -2,8 +2,8 @@
 """Issue 34 diagnosis: the AVCEC plate-silhouette study (test_experiments.cpp's
 AvcecRasterRecoversEachPlateSilhouette) with chosen noise seeds, AVC vs AVCEC (MODES), the
 shapes in SHAPES, each line tagged with LABEL (all three from the environment). Observers: the project's
-(stiffness binned at the proxy, 2 mm pixels, fill_gaps(2), Otsu, IoU) and a hand observer
-(force magnitude binned at the probe, same pipeline).
+(stiffness binned at the proxy, 2 mm pixels, fill_gaps(2), Otsu, IoU) and two hand observers
+(force magnitude, and stiffness, binned at the probe, same pipeline).
 
 usage: LABEL=... python3 shapes.py SEED[,SEED...] [--spacing MM] [--source first-hit]
 prints one JSON line per (seed, shape, mode)."""
@@ -68,11 +68,14 @@ for seed in seeds:
             iou_k = otsu_iou(palp.bin_trace(tr, plane, quantity="stiffness"), truth)
             hand = dict(tr); hand["proxy"] = tr["probe"]
             iou_f = otsu_iou(palp.bin_trace(hand, plane, quantity="force"), truth)
+            iou_kp = otsu_iou(palp.bin_trace(hand, plane, quantity="stiffness"), truth)
             F = np.linalg.norm(tr["force"], axis=1)
             cc = tr["contact_count"] > 0
             rej = float(np.mean(tr["uphill_rejected"][cc])) if "uphill_rejected" in tr else -1.0
             print(json.dumps(dict(label=os.environ.get("LABEL", ""), source=(source or "first-hit") + (f"/tau{tau_stop:g}" if tau_stop else ""),
                                   seed=seed, shape=shape, mode=mode, iou_k=round(iou_k, 4),
-                                  iou_f=round(iou_f, 4), maxF=round(float(F.max()), 3),
+                                  iou_f=round(iou_f, 4), iou_kp=round(iou_kp, 4),
+                                  maxF=round(float(F.max()), 3),
+                                  maxD_mm=round(1e3 * float(np.max(tr["distance"])), 2),
                                   W_end=float(tr["observer_energy"][-1]), rejected=round(rej, 4),
                                   wall=round(wall, 1))), flush=True)

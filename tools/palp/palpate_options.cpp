@@ -165,6 +165,10 @@ void addCouplingOptions(CLI::App* app, PalpateArgs& a) {
     app->add_option("--sobel-angle", a.sobelAngle,
                     "AVCEC: spherical stencil spacing delta, rad (default per scene)")
         ->check(within(bounds::kAngle));
+    app->add_option("--max-ray-tilt", a.maxRayTilt,
+                    "AVCEC: the rays' largest tilt from the contact normal theta_c, rad (default "
+                    "0.05; pi/2: none, the rays along the proxy-probe direction)")
+        ->check(within(bounds::kRayTilt));
     app->add_option("--surface-offset", a.surfaceOffsetMm,
                     "AVCEC: surface stencil spacing h, mm (default per scene)")
         ->check(within(bounds::kSpacing, kMm));

@@ -46,7 +46,7 @@ struct PalpateArgs {
     double kBase = NAN, kMax = NAN, lMaxMm = NAN, lRefMm = NAN, mMax = NAN;
     double threshold = NAN, sigmaPerMm = NAN, sigmaThreshold = NAN, tauStop = NAN;
     double stepMm = NAN, damping = NAN;
-    double sobelAngle = NAN, surfaceOffsetMm = NAN;
+    double sobelAngle = NAN, surfaceOffsetMm = NAN, maxRayTilt = NAN;
     int ring = -1;
     double surfaceIso = -500;
     double muStatic = 0.5, muDynamic = NAN;  // NAN: 0.3, or --mu-static when lower

@@ -112,6 +112,7 @@ haptics::CouplingParams couplingFromOptions(const PalpateArgs& a, haptics::Coupl
     if (a.ring >= 0) cp.bundle.ringCount = a.ring;
     if (std::isfinite(a.sobelAngle)) cp.bundle.sobelAngle = a.sobelAngle;
     if (std::isfinite(a.surfaceOffsetMm)) cp.bundle.surfaceOffset = a.surfaceOffsetMm * 1e-3;
+    if (std::isfinite(a.maxRayTilt)) cp.maxRayTilt = a.maxRayTilt;
     if (std::isfinite(a.damping)) cp.damping = a.damping;
     return cp;
 }

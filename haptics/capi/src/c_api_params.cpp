@@ -305,8 +305,8 @@ constexpr std::array kParamFields = {
     ParamField{&palp_session_params::cross_fade_seconds, "cross_fade_seconds", &bounds::kDuration},
     ParamField{&palp_session_params::workspace_scale, "workspace_scale", &bounds::kScale},
     ParamField{&palp_session_params::recontact_seconds, "recontact_seconds", &bounds::kWindow},
-    ParamField{&palp_session_params::recontact_rise_nps, "recontact_rise_nps",
-               &bounds::kForceRate}};
+    ParamField{&palp_session_params::recontact_rise_nps, "recontact_rise_nps", &bounds::kForceRate},
+    ParamField{&palp_session_params::max_ray_tilt, "max_ray_tilt", &bounds::kRayTilt}};
 
 /// Most quiet start-up ticks asked for (a minute at 1 kHz).
 constexpr std::uint32_t kMaxStartupQuietTicks = 60000;
@@ -368,6 +368,7 @@ ph::CouplingParams toCoupling(const palp_session_params& p) {
     c.bundle.ringWeightSigma = p.ring_weight_sigma;
     c.bundle.sobelAngle = p.sobel_angle;
     c.bundle.surfaceOffset = p.surface_offset;
+    c.maxRayTilt = p.max_ray_tilt;
     c.firstHit.threshold = static_cast<float>(p.threshold);
     c.firstHit.step = p.ray_step;
     c.accumulate.step = p.ray_step;
@@ -542,6 +543,7 @@ void fromSession(const ph::SessionParams& d, palp_session_params& p) noexcept {
     p.ring_weight_sigma = d.coupling.bundle.ringWeightSigma;
     p.sobel_angle = d.coupling.bundle.sobelAngle;
     p.surface_offset = d.coupling.bundle.surfaceOffset;
+    p.max_ray_tilt = d.coupling.maxRayTilt;
     p.threshold = d.coupling.firstHit.threshold;
     p.ray_step = d.coupling.firstHit.step;
     p.hardness = 1e4;  // 1/m: tau reaches 1 within 0.1 mm of hard material (first-hit-like)

@@ -40,6 +40,73 @@ double tangentialCurvature(const kernels::RayBundle& b,
     return std::isfinite(c) ? c : 0.0;
 }
 
+/// Where AVCEC's rays leave and along what (docs/algorithms.md section 3, "The rays' tilt").
+/// Without a limit, or with the probe straight under the proxy: from x_py along d. With one,
+/// d's tilt theta from the contact's inward normal u (Coupling::inwardNormal) becomes
+/// f(theta) = theta_c tanh(theta / theta_c), in d's azimuth w, and the rays leave from the
+/// point of the contact plane whose ray along that axis passes through the probe,
+/// o = x_py + lambda w with lambda = D_t - D_n tan f(theta) (D_t, D_n: the probe's offset
+/// along w and u). A lagging proxy then turns the rays about the probe, as without a limit,
+/// but at most theta_c: they look under the probe, not ahead of it.
+struct RayAxis {
+    Eigen::Vector3d origin;
+    Eigen::Vector3d dir;
+    bool limited = false;
+    Eigen::Vector3d u{Eigen::Vector3d::Zero()}, w{Eigen::Vector3d::Zero()},
+        azimuth{Eigen::Vector3d::Zero()};
+    double axisTilt = 0, slope = 1, lambda = 0, Dt = 0, Dn = 0;
+};
+
+RayAxis rayAxis(const Eigen::Vector3d& proxy, const Eigen::Vector3d& delta, double D,
+                const Eigen::Vector3d& inward, double maxTilt) noexcept {
+    RayAxis a{proxy, delta / D};
+    if (!(maxTilt < kNoRayTiltLimit)) return a;
+    const double un = inward.norm();
+    if (!(un > 0.5)) return a;  // no contact frame
+    const Eigen::Vector3d u = inward / un;
+    const double Dn = delta.dot(u);
+    Eigen::Vector3d w = delta - Dn * u;
+    const double Dt = w.norm();
+    // Pulling out of the surface, or straight down (f(theta) = theta to 1e-7 there): along d.
+    if (!(Dn > 0) || !(Dt > 1e-3 * D)) return a;
+    w /= Dt;
+    const double th = std::tanh(std::atan2(Dt, Dn) / maxTilt);
+    a.axisTilt = maxTilt * th;
+    a.slope = 1 - th * th;  // f'(theta)
+    a.lambda = Dt - Dn * std::tan(a.axisTilt);
+    a.origin = proxy + a.lambda * w;
+    a.dir = std::cos(a.axisTilt) * u + std::sin(a.axisTilt) * w;
+    a.u = u;
+    a.w = w;
+    a.azimuth = u.cross(w);
+    a.Dt = Dt;
+    a.Dn = Dn;
+    a.limited = true;
+    return a;
+}
+
+/// grad_pb k with the tilt limit (RayAxis), k = k(o, axis): @p G is the spherical stencil's
+/// gradient (per radian, perpendicular to the axis: the rays turned about o), @p S the surface
+/// stencil's (per metre, in the contact plane: o moved), both in the world. The probe moves the
+/// axis's tilt by f'(theta) d theta, its azimuth by dx_a / D_t, and o by d lambda along w and
+/// lambda dx_a / D_t along the azimuth.
+Eigen::Vector3d limitedProbeGradient(const RayAxis& a, const Eigen::Vector3d& G,
+                                     const Eigen::Vector3d& S, double D) noexcept {
+    const double c = std::cos(a.axisTilt), sn = std::sin(a.axisTilt);
+    const Eigen::Vector3d axisPolar = -sn * a.u + c * a.w;
+    const double Gp = G.dot(axisPolar), Ga = G.dot(a.azimuth);
+    const double Sw = S.dot(a.w), Sa = S.dot(a.azimuth);
+    const double D2 = D * D, sec2 = 1 / (c * c);
+    // d theta / d D_t = D_n / D^2, d theta / d D_n = -D_t / D^2.
+    const double thetaDt = a.Dn / D2, thetaDn = -a.Dt / D2;
+    const double lambdaDt = 1 - a.Dn * sec2 * a.slope * thetaDt;
+    const double lambdaDn = -sn / c - a.Dn * sec2 * a.slope * thetaDn;
+    const double alongW = Gp * a.slope * thetaDt + Sw * lambdaDt;
+    const double alongU = Gp * a.slope * thetaDn + Sw * lambdaDn;
+    const double alongA = (Ga * sn + Sa * a.lambda) / a.Dt;
+    return alongW * a.w + alongU * a.u + alongA * a.azimuth;
+}
+
 }  // namespace
 
 void validateCouplingParams(const CouplingParams& p) {
@@ -61,6 +128,7 @@ void validateCouplingParams(const CouplingParams& p) {
                       formatValue(p.maxStiffness));
     requireWithin("coupling damping", p.damping, bounds::kDamping);
     requireWithin("coupling minDistance", p.minDistance, bounds::kSpacing);
+    requireWithin("coupling maxRayTilt", p.maxRayTilt, bounds::kRayTilt);
     if (!(std::isfinite(p.stiffnessTimeConstant) && p.stiffnessTimeConstant >= 0 &&
           p.stiffnessTimeConstant <= 1))
         throwExpected("coupling stiffnessTimeConstant", "a time in [0, 1] s",
@@ -153,11 +221,15 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
 
     // Deformable tissue: the rays leave in the material frame at the contact.
     const Eigen::Matrix3d Rt = mFrame.transpose();
-    const bool rays =
-        p.mode != CouplingMode::VC && sourceAvailable() &&
-        (mFramed ? kernels::generateBundle(proxy, Rt * d, Rt * tangent1, Rt * tangent2, p.bundle,
-                                           mBundle)
-                 : kernels::generateBundle(proxy, d, tangent1, tangent2, p.bundle, mBundle));
+    const RayAxis axis =
+        p.mode == CouplingMode::AVCEC && p.maxRayTilt < kNoRayTiltLimit
+            ? rayAxis(proxy, delta, D, inwardNormal(proxy, tangent1, tangent2), p.maxRayTilt)
+            : RayAxis{proxy, delta / D};
+    const bool rays = p.mode != CouplingMode::VC && sourceAvailable() &&
+                      (mFramed ? kernels::generateBundle(axis.origin, Rt * axis.dir, Rt * tangent1,
+                                                         Rt * tangent2, p.bundle, mBundle)
+                               : kernels::generateBundle(axis.origin, axis.dir, tangent1, tangent2,
+                                                         p.bundle, mBundle));
     if (!rays) {
         mBundle.count = 0;
         mBundle.valid = false;
@@ -198,6 +270,12 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
         out.energyForce = mFrame * out.energyForce;
         out.proxyForce = mFrame * out.proxyForce;
     }
+    if (axis.limited) {
+        // The probe moves the rays' origin as well as their axis (RayAxis).
+        const Eigen::Vector3d G = -2 / D * out.energyForce;
+        const Eigen::Vector3d S = -2 / (D * D) * out.proxyForce;
+        out.energyForce = -0.5 * D * D * limitedProbeGradient(axis, G, S, D);
+    }
     // Deformable tissue: the term the skin it pushes changes is low-passed as k is.
     if (mTicking && mKStartValid)
         out.energyForce = mEnergyForceStart + mKGain * (out.energyForce - mEnergyForceStart);
@@ -206,6 +284,31 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
     // The proxy's step is bounded by the rays' k as well as the filtered one (the field it
     // moves in is the rays').
     out.stepStiffness = std::max(out.stiffness, kRays) + tangentialCurvature(mBundle, k, D, out);
+}
+
+Eigen::Vector3d Coupling::inwardNormal(const Eigen::Vector3d& proxy,
+                                       const Eigen::Vector3d& tangent1,
+                                       const Eigen::Vector3d& tangent2) const noexcept {
+    const Eigen::Vector3d facet = -tangent1.cross(tangent2);
+    // A rigid scan: the normal of its iso-surface, continuous across the proxy mesh's facets
+    // (their normals jump by degrees between 0.5 mm facets, and a ray axis that jumps with
+    // them jumps k: the proxy then met walls of E at facet edges on the head CT and stuck,
+    // the force rising to the device's limit). The gradient of the trilinear volume by central
+    // differences two voxels apart, on the facet's side.
+    if (mVolume == nullptr || mDeformation != nullptr || mParams.source == RaySource::Mesh)
+        return facet;
+    const Eigen::Vector3d x = mVolume->indexFromWorld(proxy);
+    Eigen::Vector3d g;
+    for (int a = 0; a < 3; ++a) {
+        Eigen::Vector3d e = Eigen::Vector3d::Zero();
+        e[a] = 2;
+        const Eigen::Vector3d hi = x + e, lo = x - e;
+        g[a] = double(mVolume->sampleIndex(hi.x(), hi.y(), hi.z())) -
+               double(mVolume->sampleIndex(lo.x(), lo.y(), lo.z()));
+    }
+    const double gn = g.norm();
+    if (!(gn > 0) || !std::isfinite(gn) || !(g.dot(facet) > 0)) return facet;
+    return g / gn;
 }
 
 void Coupling::traceStiffness(kernels::RayBundle& bundle, int n,
@@ -314,10 +417,14 @@ double Coupling::storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3
     if (!std::isfinite(D) || !(D >= p.minDistance)) return 0;
     double k = std::min(p.baseStiffness, p.maxStiffness);
     const Eigen::Matrix3d Rt = mFrame.transpose();
+    const RayAxis axis =
+        p.mode == CouplingMode::AVCEC && p.maxRayTilt < kNoRayTiltLimit
+            ? rayAxis(proxy, delta, D, inwardNormal(proxy, tangent1, tangent2), p.maxRayTilt)
+            : RayAxis{proxy, delta / D};
     const bool rays = p.mode != CouplingMode::VC && sourceAvailable() &&
-                      (mFramed ? kernels::generateBundle(proxy, Rt * (delta / D), Rt * tangent1,
+                      (mFramed ? kernels::generateBundle(axis.origin, Rt * axis.dir, Rt * tangent1,
                                                          Rt * tangent2, p.bundle, mProbeBundle)
-                               : kernels::generateBundle(proxy, delta / D, tangent1, tangent2,
+                               : kernels::generateBundle(axis.origin, axis.dir, tangent1, tangent2,
                                                          p.bundle, mProbeBundle));
     if (rays) {
         std::array<double, kernels::kMaxBundleRays> perRay{};

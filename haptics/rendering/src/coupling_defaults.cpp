@@ -72,6 +72,11 @@ CouplingParams sceneCouplingDefaults(volume::PhantomScene scene) {
             // the common tau_stop 3 passed it and felt k_s everywhere (the raster's map showed
             // nothing). 1 stops it 1 mm into the plate, as first-hit stops at its top.
             p.accumulate.tauStop = kAvcecTauStop;
+            // The plates' surface stencil: with the rays leaving above the probe
+            // (maxRayTilt) the hand feels the surface term at an edge; over 2 mm it maps the
+            // plates as the 2 mm map resolves them (shapes: |F| IoU 0.83 -> 0.87 from 1 mm,
+            // the largest force 2.9 -> 2.1 N; docs/algorithms.md section 3).
+            p.bundle.surfaceOffset = 2e-3;
             break;
         case volume::PhantomScene::Bone:
             p.mode = CouplingMode::AVCEC;

@@ -50,7 +50,7 @@ struct Field {
     }
 
 // When a field is added to palp.h, these sizes change: add it to the tables below.
-static_assert(sizeof(palp_session_params) == 336, "palp_session_params changed: update the table");
+static_assert(sizeof(palp_session_params) == 344, "palp_session_params changed: update the table");
 static_assert(sizeof(palp_trajectory) == 272, "palp_trajectory changed: update the table");
 
 const std::vector<Field<palp_session_params>> kParamFields = {
@@ -77,7 +77,8 @@ const std::vector<Field<palp_session_params>> kParamFields = {
     PALP_ARRAY(palp_session_params, workspace_rotation, 9),
     PALP_ARRAY(palp_session_params, workspace_offset, 3),
     PALP_FIELD(palp_session_params, recontact_seconds),
-    PALP_FIELD(palp_session_params, recontact_rise_nps)};
+    PALP_FIELD(palp_session_params, recontact_rise_nps),
+    PALP_FIELD(palp_session_params, max_ray_tilt)};
 
 const std::vector<Field<palp_trajectory>> kTrajectoryFields = {
     PALP_ARRAY(palp_trajectory, centre, 3),

@@ -52,6 +52,9 @@ CouplingParams sceneParams(CouplingMode mode, RaySource source) {
     p.firstHit.threshold = palp::test::kIso;
     p.accumulate.sigma = palp::kernels::TransferFunction::step(palp::test::kIso, 1e9f);
     p.accumulate.tauStop = 1;
+    // The thesis's AVCEC: rays from the proxy along d (the analytic checks below assume it);
+    // the tilt limit is tested in test_coupling_tilt.cpp.
+    p.maxRayTilt = kNoRayTiltLimit;
     return p;
 }
 
@@ -583,26 +586,28 @@ TEST(Coupling, ComputeAllocatesNothingInAnyModeAndSource) {
     const palp::kernels::VolumeView view(grid);
     for (CouplingMode mode : {CouplingMode::VC, CouplingMode::AVC, CouplingMode::AVCEC})
         for (RaySource source :
-             {RaySource::Mesh, RaySource::VolumeFirstHit, RaySource::VolumeAccumulate}) {
-            CouplingParams p = sceneParams(mode, source);
-            p.bundle.ringCount = 4;
-            Coupling c(&view, &ms.scene, p);
-            CouplingOutput out;
-            double sum = 0;
-            const std::uint64_t before = palp::test::allocationCount();
-            for (int i = 0; i < 1000; ++i) {
-                const double phi = 0.01 * i;
-                const Vec probe(1e-3 * std::cos(phi), 3e-3, 1e-3 * std::sin(phi));
-                c.compute(kZero, probe, kZero, kZero, kT1, kT2, out);
-                sum += out.force.norm();
+             {RaySource::Mesh, RaySource::VolumeFirstHit, RaySource::VolumeAccumulate})
+            for (double tilt : {kNoRayTiltLimit, 0.05}) {  // AVCEC's tilt limit off and on
+                CouplingParams p = sceneParams(mode, source);
+                p.bundle.ringCount = 4;
+                p.maxRayTilt = tilt;
+                Coupling c(&view, &ms.scene, p);
+                CouplingOutput out;
+                double sum = 0;
+                const std::uint64_t before = palp::test::allocationCount();
+                for (int i = 0; i < 1000; ++i) {
+                    const double phi = 0.01 * i;
+                    const Vec probe(1e-3 * std::cos(phi), 3e-3, 1e-3 * std::sin(phi));
+                    c.compute(kZero, probe, kZero, kZero, kT1, kT2, out);
+                    sum += out.force.norm();
+                }
+                EXPECT_EQ(palp::test::allocationCount() - before, 0u)
+                    << static_cast<int>(mode) << " " << static_cast<int>(source) << " " << tilt;
+                EXPECT_GT(sum, 0);
+                if (mode != CouplingMode::VC) {
+                    EXPECT_GT(out.stiffness, p.baseStiffness);  // the plane was seen
+                }
             }
-            EXPECT_EQ(palp::test::allocationCount() - before, 0u)
-                << static_cast<int>(mode) << " " << static_cast<int>(source);
-            EXPECT_GT(sum, 0);
-            if (mode != CouplingMode::VC) {
-                EXPECT_GT(out.stiffness, p.baseStiffness);  // the plane was seen
-            }
-        }
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -219,7 +219,9 @@ TEST(VirtualExperiment, AvcecRasterRecoversEachPlateSilhouette) {
     const MapPlane plane = plateMap();
     const RasterTrajectory raster = plateRaster();
     const double seconds = raster.durationSeconds() + 0.1;
-    std::array<double, 2> meanIou{};
+    // Per coupling (0 AVC, 1 AVCEC): the stiffness binned at the proxy, and the force's
+    // magnitude binned at the probe (where the hand felt it).
+    std::array<double, 2> meanIou{}, meanHand{};
     for (volume::PlateShape shape :
          {volume::PlateShape::Circle, volume::PlateShape::Triangle, volume::PlateShape::Rectangle,
           volume::PlateShape::Hexagon, volume::PlateShape::Pentagon}) {
@@ -230,45 +232,52 @@ TEST(VirtualExperiment, AvcecRasterRecoversEachPlateSilhouette) {
         const Mask truth =
             rasterizeMask(plane, [&](const Eigen::Vector3d& p) { return insidePlate(phantom, p); });
         const auto scene = phantomScene(pp, 0);
-        std::array<double, 2> iou{};
+        std::array<double, 2> iou{}, hand{};
         std::array<double, 2> peakEnergy{};
         for (int withEnergy = 1; withEnergy >= 0; --withEnergy) {
+            const auto m = static_cast<std::size_t>(withEnergy);
             const CouplingMode mode = withEnergy ? CouplingMode::AVCEC : CouplingMode::AVC;
-            const std::vector<Snapshot> run =
+            std::vector<Snapshot> run =
                 runPath(scene, raster, studyParams(pp.scene, mode), seconds);
             ScalarMap k = binSnapshots(run, plane, MapQuantity::Stiffness);
             k.fillGaps(2);
-            iou[static_cast<std::size_t>(withEnergy)] =
-                intersectionOverUnion(thresholdMap(k, otsuThreshold(k)), truth);
+            iou[m] = intersectionOverUnion(thresholdMap(k, otsuThreshold(k)), truth);
             const ScalarMap e = binSnapshots(run, plane, MapQuantity::Energy);
             double eLo = 0, eHi = 0;
             e.range(eLo, eHi);
-            peakEnergy[static_cast<std::size_t>(withEnergy)] = eHi;
+            peakEnergy[m] = eHi;
+            for (Snapshot& sn : run) sn.proxy = sn.probe;
+            ScalarMap f = binSnapshots(run, plane, MapQuantity::Force);
+            f.fillGaps(2);
+            hand[m] = intersectionOverUnion(thresholdMap(f, otsuThreshold(f)), truth);
         }
         std::printf(
-            "AVCEC plate %-9s: stiffness-map IoU with energy terms (AVCEC) %.3f, without "
-            "(AVC) %.3f; largest pixel-mean energy-term force %.2f N (AVC %.2f N)\n",
-            volume::shapeName(shape), iou[1], iou[0], peakEnergy[1], peakEnergy[0]);
-        // Passive AVCEC (docs/algorithms.md section 3) keeps the proxy on the soft side of an
-        // edge until moving on lowers E, so the stiffness felt at the proxy maps the plate a
-        // little smaller than AVC does: 0.68-0.83 here (AVC 0.71-0.88). Before the whole-loop
-        // fix AVCEC reached 0.85-0.93 with energy forces above the device's limit (2.3 N).
-        EXPECT_GE(iou[1], 0.65) << volume::shapeName(shape);
+            "AVCEC plate %-9s: IoU by k at the proxy AVCEC %.3f, AVC %.3f; by |F| at the probe "
+            "AVCEC %.3f, AVC %.3f; largest pixel-mean energy-term force %.2f N (AVC %.2f N)\n",
+            volume::shapeName(shape), iou[1], iou[0], hand[1], hand[0], peakEnergy[1],
+            peakEnergy[0]);
+        // AVCEC's rays leave above the probe tilted at most 0.05 rad (CouplingParams::maxRayTilt):
+        // 0.84-0.94 by k, 0.80-0.91 by force (AVC 0.71-0.88 and 0.56-0.75). With the thesis's
+        // rays from the proxy along d the triangle fell to 0.68 / 0.72: the proxy, held back
+        // by the spherical term, tilted the rays past the plate's far side (docs/algorithms.md
+        // section 3).
+        EXPECT_GE(iou[1], 0.8) << volume::shapeName(shape);
+        EXPECT_GE(hand[1], 0.8) << volume::shapeName(shape);
         EXPECT_GE(iou[0], 0.7) << volume::shapeName(shape);
         EXPECT_EQ(peakEnergy[0], 0.0) << "AVC has no energy terms";
         EXPECT_GT(peakEnergy[1], 0.05) << "AVCEC's energy terms act on the plate";
-        meanIou[0] += iou[0] / 5;
-        meanIou[1] += iou[1] / 5;
+        for (std::size_t m = 0; m < 2; ++m) {
+            meanIou[m] += iou[m] / 5;
+            meanHand[m] += hand[m] / 5;
+        }
     }
-    // The thesis: shapes were identified more often with the energy terms (66 vs 28 %), a
-    // perceptual result about the gradient forces the automated map does not model; the map
-    // of the passive AVCEC is compared with AVC's, not required to beat it.
+    // The thesis: shapes were identified more often with the energy terms (66 vs 28 %).
     std::printf(
-        "AVCEC experiment: mean IoU over the five plates with energy terms %.3f, without "
-        "%.3f\n",
-        meanIou[1], meanIou[0]);
-    EXPECT_GE(meanIou[1], 0.75);
-    EXPECT_GE(meanIou[1], meanIou[0] - 0.06);
+        "AVCEC experiment: mean IoU over the five plates by k with energy terms %.3f, without "
+        "%.3f; by the hand's force %.3f, without %.3f\n",
+        meanIou[1], meanIou[0], meanHand[1], meanHand[0]);
+    EXPECT_GT(meanIou[1], meanIou[0]);
+    EXPECT_GT(meanHand[1], meanHand[0]);
 }
 
 // The same raster with accumulate rays (the scene's tau_stop stops them in the plate), judged
@@ -303,8 +312,8 @@ TEST(VirtualExperiment, AvcecRasterWithAccumulateRaysMapsEachPlateByTheHandsForc
         }
         std::printf("AVCEC plate %-9s, accumulate: force-map IoU AVCEC %.3f, AVC %.3f\n",
                     volume::shapeName(shape), iou[1], iou[0]);
-        // Seed 0: AVCEC 0.69-0.86, AVC 0.58-0.75 (the triangle lowest in both).
-        EXPECT_GE(iou[1], 0.65) << volume::shapeName(shape);
+        // Seed 0: AVCEC 0.84-0.91, AVC 0.58-0.75 (the triangle lowest in both).
+        EXPECT_GE(iou[1], 0.8) << volume::shapeName(shape);
         meanIou[0] += iou[0] / 5;
         meanIou[1] += iou[1] / 5;
     }

@@ -14,6 +14,7 @@
 #include <random>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "alloc_counter.h"
@@ -477,7 +478,10 @@ TEST(DeformableTumour, SweepFeelsTheInclusionAndAllocatesNothing) {
     p.coupling.referenceLength = 0.02;
     p.coupling.bundle.length = 0.04;
     Session session(scene, device, p);
-    double bestK = 0, bestX = 0, farK = 0;
+    // The stiffness felt along the sweep (x of the proxy, k), kept off the servo's count.
+    std::vector<std::pair<double, double>> felt;
+    felt.reserve(800);
+    double farK = 0;
     for (int i = 0; i < 20; ++i) session.step();
     const std::uint64_t before = test::allocationCount();
     for (int i = 20; i < 800; ++i) {
@@ -485,14 +489,22 @@ TEST(DeformableTumour, SweepFeelsTheInclusionAndAllocatesNothing) {
         ASSERT_TRUE(s.force.allFinite()) << "tick " << i;
         EXPECT_EQ(s.femFlags, 0u) << "tick " << i;
         if (i < 250 || i > 650 || s.contactCount == 0) continue;
-        if (s.stiffness > bestK) {
-            bestK = s.stiffness;
-            bestX = s.proxy.x();
-        }
+        felt.emplace_back(s.proxy.x(), s.stiffness);
         if (std::abs(s.proxy.x()) > 16e-3) farK = std::max(farK, s.stiffness);
     }
     EXPECT_EQ(test::allocationCount() - before, 0u);
-    EXPECT_NEAR(bestX, 0.0, 4e-3) << "peak stiffness " << bestK << " N/m";
+    // Where the stiffness felt peaks: the middle of the ticks within 5 % of the largest k (k
+    // saturates at k_max over the inclusion, so the single largest tick is anywhere on it).
+    double bestK = 0;
+    for (const auto& f : felt) bestK = std::max(bestK, f.second);
+    double sumX = 0, n = 0;
+    for (const auto& f : felt) {
+        if (f.second < 0.95 * bestK) continue;
+        sumX += f.first;
+        n += 1;
+    }
+    ASSERT_GT(n, 0);
+    EXPECT_NEAR(sumX / n, 0.0, 4e-3) << "peak stiffness " << bestK << " N/m";
     EXPECT_GT(bestK, 1.5 * farK) << "far from the inclusion: " << farK << " N/m";
 }
 }  // namespace

@@ -215,6 +215,9 @@ typedef struct palp_session_params {
      *  coupling's force is within that limit), s (0..1; 0: no limit; default 0.015) */
     double recontact_seconds;
     double recontact_rise_nps; /**< N/s (> 0; default 100) */
+    /** AVCEC: the rays' largest tilt from the contact normal, rad (0.01..pi/2; default 0.05;
+     *  pi/2: no limit, the rays along the proxy-probe direction as in the thesis) */
+    double max_ray_tilt;
 } palp_session_params;
 
 /** Fills @p params with palp's defaults (AVCEC, volume first-hit 300 HU, k_s 300 N/m, Touch X,

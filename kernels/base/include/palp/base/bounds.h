@@ -101,6 +101,8 @@ inline constexpr Bounds kFriction{0, 10, ""};
 // Rays and volumes.
 /// A stencil or cone angle (Sobel spacing, ring half-angle).
 inline constexpr Bounds kAngle{0, 1.5707963267948966, "rad", true};
+/// AVCEC's largest ray tilt theta_c from the contact normal (pi/2: no limit).
+inline constexpr Bounds kRayTilt{0.01, 1.5707963267948966, "rad"};
 /// A tilt from an axis (a gantry tilt, a slab's slope): within 80 degrees either way.
 inline constexpr Bounds kTiltAngle{-1.3962634015954636, 1.3962634015954636, "rad"};
 /// A stiffness multiplier m_max.

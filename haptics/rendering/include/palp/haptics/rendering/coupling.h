@@ -33,6 +33,9 @@ enum class RaySource {
 /// "mesh", "first-hit" or "accumulate". @par Real-time noexcept.
 const char* raySourceName(RaySource source) noexcept;
 
+/// CouplingParams::maxRayTilt that never limits the rays' direction.
+inline constexpr double kNoRayTiltLimit = 1.5707963267948966;
+
 /// Coupling settings. Validate with validateCouplingParams() at set-up; all switchable at run
 /// time through Coupling::setParams().
 struct CouplingParams {
@@ -58,6 +61,15 @@ struct CouplingParams {
     /// the hand's). 5 ms passes what a hand feels of k (a bone edge crossed at 100 mm/s:
     /// 0.5 mm). 0: none. Rigid scenes (no beginTick()) use k_rays and the raw term.
     double stiffnessTimeConstant = 5e-3;
+    /// theta_c, rad, AVCEC only: the rays' largest tilt from the contact's inward normal
+    /// -(t1 x t2). d's tilt theta becomes theta_c tanh(theta / theta_c), and the rays leave
+    /// from the contact plane's point whose ray along that axis passes through the probe (the
+    /// proxy itself when theta is small), so they look under the probe. Without it (pi / 2,
+    /// the thesis's rays from x_py along d) a proxy held back by the spherical term's reaction
+    /// tilts d 40-60 degrees, and the rays, 10-30 mm long, pass the far side of a narrow plate
+    /// or beside a bone before the probe does (docs/algorithms.md section 3, "The rays' tilt").
+    /// AVC keeps d: its hidden box is found by looking under the plate along the sweep.
+    double maxRayTilt = 0.05;
 };
 
 /// @throw palp::ValueError naming the field (non-finite or non-positive stiffness, lengths,
@@ -197,6 +209,11 @@ class Coupling {
     const kernels::RayBundle& bundle() const noexcept { return mBundle; }
 
   private:
+    /// The contact's inward unit normal for the rays' tilt limit: -(t1 x t2), or on a rigid
+    /// volume scene the scan's own (its values' gradient at the proxy, continuous across the
+    /// proxy mesh's facets), on the same side.
+    Eigen::Vector3d inwardNormal(const Eigen::Vector3d& proxy, const Eigen::Vector3d& tangent1,
+                                 const Eigen::Vector3d& tangent2) const noexcept;
     /// Traces the first @p n rays of @p bundle into per-ray stiffness @p k; the centre ray's
     /// length in @p centreLength.
     void traceStiffness(kernels::RayBundle& bundle, int n,
