@@ -379,6 +379,12 @@ class Sessions(unittest.TestCase):
         self.assertAlmostEqual(palp.CouplingParams().stiffness_time_constant, 0.005)
         with self.assertRaises(palp.ValueError):
             session.set_coupling(palp.CouplingParams(mode="avcec", stiffness_time_constant=2.0))
+        # AVCEC's rays' largest tilt: 0.05 rad by default, pi/2 the thesis's rays, 0 refused.
+        self.assertAlmostEqual(palp.CouplingParams().max_ray_tilt, 0.05)
+        session.set_coupling(palp.CouplingParams(mode="avcec", max_ray_tilt=np.pi / 2))
+        with self.assertRaises(palp.ValueError) as e:
+            session.set_coupling(palp.CouplingParams(mode="avcec", max_ray_tilt=0.0))
+        self.assertIn("maxRayTilt", str(e.exception))
 
     def test_deformable_press_dents_the_tissue(self):
         scene = palp.Scene.from_volume(avc_volume())

@@ -267,6 +267,7 @@ void printJson(const PalpateArgs& a, const Report& r) {
     j["k_max_asked_npm"] = kMaxAsked;
     j["l_max_mm"] = cp.bundle.length * 1e3;
     j["l_ref_mm"] = cp.referenceLength * 1e3;
+    if (cp.mode == haptics::CouplingMode::AVCEC) j["max_ray_tilt_rad"] = cp.maxRayTilt;
     j["realtime"] = a.realtime;
     j["ticks"] = sum.ticks;
     j["simulated_seconds"] = sum.seconds;
