@@ -13,7 +13,30 @@
 
 namespace palp::haptics {
 
+namespace detail {
+
+/// Where AVCEC's rays leave and along what (docs/algorithms.md section 3, "The rays' tilt").
+/// Without a limit, or with the probe straight under the proxy: from x_py along d. With one,
+/// d's tilt theta from the contact's inward normal u (Coupling::inwardNormal) becomes
+/// f(theta) = theta_c tanh(theta / theta_c), in d's azimuth w, and the rays leave from the
+/// point of the contact plane whose ray along that axis passes through the probe,
+/// o = x_py + lambda w with lambda = D_t - D_n tan f(theta) (D_t, D_n: the probe's offset
+/// along w and u). A lagging proxy then turns the rays about the probe, as without a limit,
+/// but at most theta_c: they look under the probe, not ahead of it.
+struct RayAxis {
+    Eigen::Vector3d origin;
+    Eigen::Vector3d dir;
+    bool limited = false;
+    Eigen::Vector3d u{Eigen::Vector3d::Zero()}, w{Eigen::Vector3d::Zero()},
+        azimuth{Eigen::Vector3d::Zero()};
+    double axisTilt = 0, slope = 1, lambda = 0, Dt = 0, Dn = 0;
+};
+
+}  // namespace detail
+
 namespace {
+
+using detail::RayAxis;
 
 bool finite3(const Eigen::Vector3d& v) noexcept {
     return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
@@ -39,23 +62,6 @@ double tangentialCurvature(const kernels::RayBundle& b,
                      std::hypot(out.sphere.g1, out.sphere.g2);
     return std::isfinite(c) ? c : 0.0;
 }
-
-/// Where AVCEC's rays leave and along what (docs/algorithms.md section 3, "The rays' tilt").
-/// Without a limit, or with the probe straight under the proxy: from x_py along d. With one,
-/// d's tilt theta from the contact's inward normal u (Coupling::inwardNormal) becomes
-/// f(theta) = theta_c tanh(theta / theta_c), in d's azimuth w, and the rays leave from the
-/// point of the contact plane whose ray along that axis passes through the probe,
-/// o = x_py + lambda w with lambda = D_t - D_n tan f(theta) (D_t, D_n: the probe's offset
-/// along w and u). A lagging proxy then turns the rays about the probe, as without a limit,
-/// but at most theta_c: they look under the probe, not ahead of it.
-struct RayAxis {
-    Eigen::Vector3d origin;
-    Eigen::Vector3d dir;
-    bool limited = false;
-    Eigen::Vector3d u{Eigen::Vector3d::Zero()}, w{Eigen::Vector3d::Zero()},
-        azimuth{Eigen::Vector3d::Zero()};
-    double axisTilt = 0, slope = 1, lambda = 0, Dt = 0, Dn = 0;
-};
 
 RayAxis rayAxis(const Eigen::Vector3d& proxy, const Eigen::Vector3d& delta, double D,
                 const Eigen::Vector3d& inward, double maxTilt) noexcept {
@@ -219,17 +225,8 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
     out.distance = D;
     const Eigen::Vector3d dampingForce = p.damping * (proxyVelocity - probeVelocity);
 
-    // Deformable tissue: the rays leave in the material frame at the contact.
-    const Eigen::Matrix3d Rt = mFrame.transpose();
-    const RayAxis axis =
-        p.mode == CouplingMode::AVCEC && p.maxRayTilt < kNoRayTiltLimit
-            ? rayAxis(proxy, delta, D, inwardNormal(proxy, tangent1, tangent2), p.maxRayTilt)
-            : RayAxis{proxy, delta / D};
-    const bool rays = p.mode != CouplingMode::VC && sourceAvailable() &&
-                      (mFramed ? kernels::generateBundle(axis.origin, Rt * axis.dir, Rt * tangent1,
-                                                         Rt * tangent2, p.bundle, mBundle)
-                               : kernels::generateBundle(axis.origin, axis.dir, tangent1, tangent2,
-                                                         p.bundle, mBundle));
+    RayAxis axis{proxy, d};
+    const bool rays = castRays(proxy, delta, D, tangent1, tangent2, axis, mBundle);
     if (!rays) {
         mBundle.count = 0;
         mBundle.valid = false;
@@ -284,6 +281,22 @@ void Coupling::compute(const Eigen::Vector3d& proxy, const Eigen::Vector3d& prob
     // The proxy's step is bounded by the rays' k as well as the filtered one (the field it
     // moves in is the rays').
     out.stepStiffness = std::max(out.stiffness, kRays) + tangentialCurvature(mBundle, k, D, out);
+}
+
+bool Coupling::castRays(const Eigen::Vector3d& proxy, const Eigen::Vector3d& delta, double D,
+                        const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2,
+                        RayAxis& axis, kernels::RayBundle& out) noexcept {
+    const CouplingParams& p = mParams;
+    axis = p.mode == CouplingMode::AVCEC && p.maxRayTilt < kNoRayTiltLimit
+               ? rayAxis(proxy, delta, D, inwardNormal(proxy, tangent1, tangent2), p.maxRayTilt)
+               : RayAxis{proxy, delta / D};
+    if (p.mode == CouplingMode::VC || !sourceAvailable()) return false;
+    // Deformable tissue: the rays leave in the material frame at the contact.
+    const Eigen::Matrix3d Rt = mFrame.transpose();
+    return mFramed
+               ? kernels::generateBundle(axis.origin, Rt * axis.dir, Rt * tangent1, Rt * tangent2,
+                                         p.bundle, out)
+               : kernels::generateBundle(axis.origin, axis.dir, tangent1, tangent2, p.bundle, out);
 }
 
 Eigen::Vector3d Coupling::inwardNormal(const Eigen::Vector3d& proxy,
@@ -416,16 +429,8 @@ double Coupling::storedEnergy(const Eigen::Vector3d& proxy, const Eigen::Vector3
     const double D = delta.norm();
     if (!std::isfinite(D) || !(D >= p.minDistance)) return 0;
     double k = std::min(p.baseStiffness, p.maxStiffness);
-    const Eigen::Matrix3d Rt = mFrame.transpose();
-    const RayAxis axis =
-        p.mode == CouplingMode::AVCEC && p.maxRayTilt < kNoRayTiltLimit
-            ? rayAxis(proxy, delta, D, inwardNormal(proxy, tangent1, tangent2), p.maxRayTilt)
-            : RayAxis{proxy, delta / D};
-    const bool rays = p.mode != CouplingMode::VC && sourceAvailable() &&
-                      (mFramed ? kernels::generateBundle(axis.origin, Rt * axis.dir, Rt * tangent1,
-                                                         Rt * tangent2, p.bundle, mProbeBundle)
-                               : kernels::generateBundle(axis.origin, axis.dir, tangent1, tangent2,
-                                                         p.bundle, mProbeBundle));
+    RayAxis axis{proxy, delta / D};
+    const bool rays = castRays(proxy, delta, D, tangent1, tangent2, axis, mProbeBundle);
     if (rays) {
         std::array<double, kernels::kMaxBundleRays> perRay{};
         double centreLength = 0;

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "alloc_counter.h"
+#include "coupling_test_scene.h"
 #include "palp/base/error.h"
 #include "palp/haptics/rendering/coupling.h"
 #include "palp/kernels/triangle_mesh.h"
@@ -29,34 +30,13 @@ namespace {
 
 using namespace palp::haptics;
 using palp::kernels::TriangleMesh;
+using palp::test::kT1;
+using palp::test::kT2;
 using palp::test::kVoxel;
+using palp::test::kZero;
+using palp::test::MeshScene;
+using palp::test::sceneParams;
 using Vec = Eigen::Vector3d;
-
-const Vec kT1 = Vec::UnitX();
-const Vec kT2 = Vec::UnitZ();
-const Vec kZero = Vec::Zero();
-
-/// Parameters for a scene whose hard structures lie within 40 mm: L_ref = 30 mm, so that depths
-/// of 4 to 30 mm give distinct stiffnesses (300 N/m at the surface, up to 2400 N/m).
-CouplingParams sceneParams(CouplingMode mode, RaySource source) {
-    CouplingParams p;
-    p.mode = mode;
-    p.source = source;
-    p.bundle.length = 40e-3;
-    p.bundle.ringCount = 0;
-    p.referenceLength = 30e-3;
-    p.baseStiffness = 300;
-    p.maxMultiplier = 8;
-    p.maxStiffness = 2400;
-    p.hardMask = palp::kernels::kMaskPlate;
-    p.firstHit.threshold = palp::test::kIso;
-    p.accumulate.sigma = palp::kernels::TransferFunction::step(palp::test::kIso, 1e9f);
-    p.accumulate.tauStop = 1;
-    // The thesis's AVCEC: rays from the proxy along d (the analytic checks below assume it);
-    // the tilt limit is tested in test_coupling_tilt.cpp.
-    p.maxRayTilt = kNoRayTiltLimit;
-    return p;
-}
 
 /// The stiffness the spec gives for a ray of length @p L.
 double expectedStiffness(const CouplingParams& p, double L) {
@@ -82,15 +62,6 @@ TriangleMesh planeMesh(const Vec& n, const Vec& c, double s) {
     palp::kernels::orthonormalBasis(n, u, v);
     return quadMesh(c - s * u - s * v, c + s * u - s * v, c + s * u + s * v, c - s * u + s * v);
 }
-
-/// One committed scene holding @p mesh as a plate.
-struct MeshScene {
-    palp::kernels::EmbreeScene scene;
-    explicit MeshScene(const TriangleMesh& mesh) {
-        scene.addRigidMesh(mesh, palp::kernels::kMaskPlate);
-        scene.commit();
-    }
-};
 
 // ---------------------------------------------------------------------------------------------
 // 1. VC

@@ -15,39 +15,23 @@
 #include <string>
 #include <vector>
 
+#include "coupling_test_scene.h"
 #include "mesh_test_shapes.h"
 #include "palp/haptics/rendering/coupling.h"
 
 namespace {
 
 using namespace palp::haptics;
+using palp::test::kT1;
+using palp::test::kT2;
+using palp::test::kZero;
+using palp::test::MeshScene;
 using palp::test::planeMesh;
+using palp::test::sceneParams;
 using Vec = Eigen::Vector3d;
 
-const Vec kT1 = Vec::UnitX();
-const Vec kT2 = Vec::UnitZ();
-const Vec kZero = Vec::Zero();
-
-/// One committed scene holding @p mesh as a plate.
-struct PlateScene {
-    palp::kernels::EmbreeScene scene;
-    explicit PlateScene(const palp::kernels::TriangleMesh& mesh) {
-        scene.addRigidMesh(mesh, palp::kernels::kMaskPlate);
-        scene.commit();
-    }
-};
-
 CouplingParams meshParams(CouplingMode mode, double maxRayTilt) {
-    CouplingParams p;
-    p.mode = mode;
-    p.source = RaySource::Mesh;
-    p.hardMask = palp::kernels::kMaskPlate;
-    p.bundle.length = 40e-3;
-    p.bundle.ringCount = 0;
-    p.referenceLength = 30e-3;
-    p.baseStiffness = 300;
-    p.maxMultiplier = 8;
-    p.maxStiffness = 2400;
+    CouplingParams p = sceneParams(mode, RaySource::Mesh);
     p.maxRayTilt = maxRayTilt;
     return p;
 }
@@ -68,7 +52,7 @@ Vec centreAxis(const palp::kernels::RayBundle& b) { return Vec(b.dx[0], b.dy[0],
 // proxy along d.
 TEST(CouplingTilt, RaysLeaveAboveTheProbeTiltedAtMostThetaC) {
     const double L0 = 8e-3, D = 2e-3, thetaC = 0.1;
-    PlateScene plate(planeMesh(-Vec::UnitY(), Vec(0, L0, 0), 0.1));
+    MeshScene plate(planeMesh(-Vec::UnitY(), Vec(0, L0, 0), 0.1));
     Coupling limited(nullptr, &plate.scene, meshParams(CouplingMode::AVCEC, thetaC));
     Coupling thesis(nullptr, &plate.scene, meshParams(CouplingMode::AVCEC, kNoRayTiltLimit));
     Coupling avc(nullptr, &plate.scene, meshParams(CouplingMode::AVC, thetaC));
@@ -113,7 +97,7 @@ TEST(CouplingTilt, RaysLeaveAboveTheProbeTiltedAtMostThetaC) {
 TEST(CouplingTilt, ForcesAreTheGradientsOfThePotential) {
     const Vec n = Vec(0.3, 1.0, -0.2).normalized();
     const double L0 = 8e-3, D = 2.5e-3;
-    PlateScene plate(planeMesh(-n, L0 * n, 0.1));
+    MeshScene plate(planeMesh(-n, L0 * n, 0.1));
     CouplingParams p = meshParams(CouplingMode::AVCEC, 0.2);
     p.bundle.sobelAngle = 0.01;
     p.bundle.surfaceOffset = 0.05e-3;

@@ -132,6 +132,10 @@ struct CouplingOutput {
 ///      and scene must outlive it and must not change while compute() runs.
 /// @par Real-time  compute() is noexcept, allocation-free, lock-free and bounded by the
 ///      bundle's ray count times kernels::kMaxSamplesPerRay.
+namespace detail {
+struct RayAxis;  // where a tick's rays leave and along what (coupling.cpp)
+}  // namespace detail
+
 class Coupling {
   public:
     /// @p volume is needed for the volume sources, @p hardMeshes for the mesh source (either
@@ -214,6 +218,12 @@ class Coupling {
     /// proxy mesh's facets), on the same side.
     Eigen::Vector3d inwardNormal(const Eigen::Vector3d& proxy, const Eigen::Vector3d& tangent1,
                                  const Eigen::Vector3d& tangent2) const noexcept;
+    /// The rays' origin and axis for the proxy and the probe @p delta (D = |delta|) from it:
+    /// AVCEC's tilt limit, or x_py along d, into @p axis; and the bundle cast from them into
+    /// @p out. False when no rays are cast (VC, no source, a degenerate direction).
+    bool castRays(const Eigen::Vector3d& proxy, const Eigen::Vector3d& delta, double D,
+                  const Eigen::Vector3d& tangent1, const Eigen::Vector3d& tangent2,
+                  detail::RayAxis& axis, kernels::RayBundle& out) noexcept;
     /// Traces the first @p n rays of @p bundle into per-ray stiffness @p k; the centre ray's
     /// length in @p centreLength.
     void traceStiffness(kernels::RayBundle& bundle, int n,
