@@ -62,13 +62,14 @@ struct CouplingParams {
     /// 0.5 mm). 0: none. Rigid scenes (no beginTick()) use k_rays and the raw term.
     double stiffnessTimeConstant = 5e-3;
     /// theta_c, rad, AVCEC only: the rays' largest tilt from the contact's inward normal
-    /// -(t1 x t2). d's tilt theta becomes theta_c tanh(theta / theta_c), and the rays leave
-    /// from the contact plane's point whose ray along that axis passes through the probe (the
-    /// proxy itself when theta is small), so they look under the probe. Without it (pi / 2,
-    /// the thesis's rays from x_py along d) a proxy held back by the spherical term's reaction
-    /// tilts d 40-60 degrees, and the rays, 10-30 mm long, pass the far side of a narrow plate
-    /// or beside a bone before the probe does (docs/algorithms.md section 3, "The rays' tilt").
-    /// AVC keeps d: its hidden box is found by looking under the plate along the sweep.
+    /// (-(t1 x t2); on a rigid scan the scan's own, its gradient). d's tilt theta becomes theta_c
+    /// tanh(theta / theta_c), and the rays leave from the contact plane's point whose ray along
+    /// that axis passes through the probe (the proxy itself when theta is small), so they look
+    /// under the probe. Without it (pi / 2, the thesis's rays from x_py along d) a proxy held back
+    /// by the spherical term's reaction tilts d 40-60 degrees, and the rays, 10-30 mm long, pass
+    /// the far side of a narrow plate or beside a bone before the probe does (docs/algorithms.md
+    /// section 3, "The rays' tilt"). AVC keeps d: its hidden box is found by looking under the
+    /// plate along the sweep.
     double maxRayTilt = 0.05;
 };
 
@@ -109,6 +110,10 @@ struct CouplingOutput {
     int rays = 0;                      ///< rays cast this tick
 };
 
+namespace detail {
+struct RayAxis;  // where a tick's rays leave and along what (coupling.cpp)
+}  // namespace detail
+
 /// Computes the coupling force each tick. Holds the bundle and hit buffers, so a tick
 /// allocates nothing.
 ///
@@ -125,17 +130,16 @@ struct CouplingOutput {
 ///   gs2 t2) with e1, e2, t1, t2 from bundle(); on deformable tissue energyForce passes the
 ///   stiffness filter (CouplingParams::stiffnessTimeConstant). With a ring the low-passed k
 ///   and the raw-k gradient do not belong to one potential, so the closed-loop work is only ~0
-///   without a ring (see test_coupling's energy test for the figures).
+///   without a ring (see test_coupling's energy test for the figures). With
+///   CouplingParams::maxRayTilt below pi/2 (the default) the bundle leaves from the contact
+///   plane's point above the probe along the limited axis, and energyForce is E's gradient
+///   through that axis and origin (docs/algorithms.md section 3, "The rays' tilt").
 /// * energy = 1/2 k D^2 in every mode; the damping force is not in energy.
 ///
 /// @par Threading  One instance per servo loop; compute() from one thread at a time. The view
 ///      and scene must outlive it and must not change while compute() runs.
 /// @par Real-time  compute() is noexcept, allocation-free, lock-free and bounded by the
 ///      bundle's ray count times kernels::kMaxSamplesPerRay.
-namespace detail {
-struct RayAxis;  // where a tick's rays leave and along what (coupling.cpp)
-}  // namespace detail
-
 class Coupling {
   public:
     /// @p volume is needed for the volume sources, @p hardMeshes for the mesh source (either
