@@ -70,7 +70,7 @@ void bindParams(py::module_& m) {
         .def_readwrite("stiffness_time_constant", &CouplingParams::stiffnessTimeConstant,
                        "tau, s: k low-passed over ticks on deformable tissue (0: none)")
         .def_readwrite("max_ray_tilt", &CouplingParams::maxRayTilt,
-                       "theta_max, rad: the rays' largest tilt from the contact's inward "
+                       "theta_c, rad (AVCEC): the rays' largest tilt from the contact's inward "
                        "normal (pi/2: none)")
         .def_readwrite("hard_mask", &CouplingParams::hardMask, "mesh source targets (bits)");
     using kernels::AccumulateParams;
