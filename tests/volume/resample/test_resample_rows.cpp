@@ -9,7 +9,9 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <optional>
 #include <string>
+#include <tuple>
 
 #include "memory_use.h"
 #include "palp/volume/resample.h"
@@ -176,6 +178,43 @@ TEST(ResampleRows, VectorRowsGiveTheScalarRowsBitForBit) {
             EXPECT_GT(fast.grid->activeVoxelCount(), voxel < 1e-3 ? 10000u : 1000u);
             EXPECT_EQ(fast.grid->activeVoxelCount(), scalar.grid->activeVoxelCount());
             EXPECT_EQ(voxelsDiffering(fast, scalar), 0);
+        }
+    }
+}
+
+TEST(ResampleRows, RowsOfBlocksGiveTheBlockByBlockRowsBitForBit) {
+    // An axial series with and without gantry tilt: every slice at the same column coordinates,
+    // so rows of blocks along x interpolate each pixel row's columns once (fillBlockRow); block
+    // by block is the reference. Sagittal slices put the rows along another axis (block by
+    // block both ways). A partial last block along every axis (the dimensions are not multiples
+    // of 8), a crop, and voxels of 0.45 to 1.6 mm.
+    const SliceStack tilted = palp::test::tiltedSeries(48, 40, 14, 0.7e-3, 1.3e-3, 17.0);
+    const SliceStack straight = palp::test::tiltedSeries(37, 29, 9, 0.8e-3, 2.1e-3, 0.0);
+    const SliceStack sagittal =
+        rotated(tilted, Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix());
+    // A crop inside the slices along every axis: the lattice's last block along x ends inside
+    // the slices' columns.
+    palp::volume::WorldBox inside;
+    inside.min = Eigen::Vector3d(5.1e-3, 4.3e-3, 3.2e-3);
+    inside.max = Eigen::Vector3d(26.3e-3, 20.1e-3, 14.2e-3);
+    const std::optional<palp::volume::WorldBox> whole;
+    for (const auto& [name, st, crop] :
+         {std::tuple{"tilted", tilted, whole}, std::tuple{"straight", straight, whole},
+          std::tuple{"sagittal", sagittal, whole},
+          std::tuple{"tilted, cropped", tilted, std::optional{inside}}}) {
+        for (const double voxel : {0.45e-3, 0.7e-3, 1.6e-3}) {
+            SCOPED_TRACE(std::string(name) + ", voxel " + std::to_string(voxel * 1e3) + " mm");
+            palp::volume::ResampleOptions opt;
+            opt.voxelSize = voxel;
+            opt.crop = crop;
+            const Volume rows = palp::volume::resample(st, opt);
+            const Volume perBlock = palp::volume::detail::resamplePerBlockRows(st, opt);
+            const Volume scalar = palp::volume::detail::resampleScalarRows(st, opt);
+            EXPECT_GT(rows.grid->activeVoxelCount(), voxel < 1e-3 ? 5000u : 500u);
+            EXPECT_EQ(rows.grid->activeVoxelCount(), perBlock.grid->activeVoxelCount());
+            EXPECT_EQ(rows.grid->tree().leafCount(), perBlock.grid->tree().leafCount());
+            EXPECT_EQ(voxelsDiffering(rows, perBlock), 0);
+            EXPECT_EQ(voxelsDiffering(rows, scalar), 0);
         }
     }
 }

@@ -454,9 +454,10 @@ class LazyWindow {
 };
 
 /// resample() of @p stack; with @p lazy (whose stack is @p stack) the values are decoded as
-/// the blocks reach them. @p referenceOnly and @p scalarRows: see FillContext.
+/// the blocks reach them. @p referenceOnly, @p scalarRows and @p perBlockRows: see FillContext.
 Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, bool referenceOnly,
-                       LazySliceStack* lazy = nullptr, bool scalarRows = false) {
+                       LazySliceStack* lazy = nullptr, bool scalarRows = false,
+                       bool perBlockRows = false) {
     const bool resident = lazy == nullptr || !lazy->decode;
     const StackGeometry g = analyse(stack, resident);
     const std::size_t n = g.order.size();
@@ -475,7 +476,8 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
     grid->setTransform(worldFromIndex(step, lat.lo));
 
     SliceSampler sampler(stack, g, step, threshold, resident);
-    const FillContext ctx{sampler, g, lat, threshold, background, referenceOnly, scalarRows};
+    const FillContext ctx{sampler,       g,          lat,         threshold, background,
+                          referenceOnly, scalarRows, perBlockRows};
     std::uint64_t below = 0;
     if (resident) {
         fillTree(ctx, options.progress, grid->tree());
@@ -549,6 +551,11 @@ Volume resampleVoxelByVoxel(const SliceStack& stack, const ResampleOptions& opti
 Volume resampleScalarRows(const SliceStack& stack, const ResampleOptions& options) {
     checkResampleOptions(options);
     return resampleChecked(stack, options, false, nullptr, true);
+}
+
+Volume resamplePerBlockRows(const SliceStack& stack, const ResampleOptions& options) {
+    checkResampleOptions(options);
+    return resampleChecked(stack, options, false, nullptr, false, true);
 }
 
 }  // namespace detail

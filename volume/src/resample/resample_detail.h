@@ -15,4 +15,9 @@ Volume resampleVoxelByVoxel(const SliceStack& stack, const ResampleOptions& opti
 /// AVX2): the vector rows must give the same grid, bit for bit.
 Volume resampleScalarRows(const SliceStack& stack, const ResampleOptions& options = {});
 
+/// resample(SliceStack) with every block filled by itself, never by whole rows of blocks
+/// (fillBlockRow, which interpolates each pixel row's columns once per row of blocks): the rows
+/// of blocks must give the same grid, bit for bit.
+Volume resamplePerBlockRows(const SliceStack& stack, const ResampleOptions& options = {});
+
 }  // namespace palp::volume::detail

@@ -18,6 +18,7 @@
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/base/simd.h"
+#include "resample/block_rows.h"
 #include "resample/slice_sampler.h"
 
 namespace palp::volume::detail {
@@ -410,6 +411,21 @@ bool fillBlock(const FillContext& ctx, const openvdb::Coord& origin, DenseBlock&
     return any;
 }
 
+/// Sets @p mask to the voxels of the block @p values (leaf order) that differ from
+/// @p background (==, as the kernels compare: NaN differs from everything); returns whether any
+/// does.
+bool activeMask(const float* values, float background, LeafT::NodeMaskType& mask) noexcept {
+    std::uint64_t any = 0;
+    for (openvdb::Index w = 0; w < LeafT::NodeMaskType::WORD_COUNT; ++w) {
+        std::uint64_t bits = 0;
+        const float* row = values + w * 64;
+        for (unsigned i = 0; i < 64; ++i) bits |= std::uint64_t{!(row[i] == background)} << i;
+        mask.getWord<std::uint64_t>(w) = bits;
+        any |= bits;
+    }
+    return any != 0;
+}
+
 }  // namespace
 
 void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree,
@@ -438,18 +454,24 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
         bmin = ctx.lat.lo + step.cwiseProduct(Eigen::Vector3d(origin.x(), origin.y(), origin.z()));
         bmax = bmin + step * (kLeafDim - 1);
     };
+    // The units of work: single blocks, or whole rows of blocks along x where every voxel row
+    // of such a row can be set up once (fillBlockRow); unit u is the row of block u * bx.
+    const bool byRows = blockRowsApply(ctx);
+    const std::size_t units = byRows ? by * bz : blocks;
+    const std::size_t unitStride = byRows ? bx : 1;
 
-    // Each block that may hold active voxels goes to the group of the first slice it reads
-    // (blocks wholly outside the slices hold none); the last slice it reads bounds the
+    // Each unit that may hold active voxels goes to the group of the first slice it reads
+    // (units wholly outside the slices hold none); the last slice it reads bounds the
     // group's band. One slice of margin either side covers the rounding of the voxel-by-voxel
-    // path's normal coordinates against the corners'.
+    // path's normal coordinates against the corners'. (A row of blocks has the normal range of
+    // each of its blocks.)
     constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
-    std::vector<std::uint32_t> groupOf(blocks), lastOf(blocks);
+    std::vector<std::uint32_t> groupOf(units), lastOf(units);
     palp::parallelForEach(
-        std::size_t{0}, blocks,
+        std::size_t{0}, units,
         [&](std::size_t i) {
             Eigen::Vector3d bmin, bmax;
-            cornersOf(originOf(i), bmin, bmax);
+            cornersOf(originOf(i * unitStride), bmin, bmax);
             double smin = 0, smax = 0;
             sm.blockAlong(bmin, bmax, smin, smax);
             if (sm.outsideAlong(smin, smax)) {
@@ -463,7 +485,7 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
         std::size_t{4096});
     const std::size_t groups = (n + kSlicesPerGroup - 1) / kSlicesPerGroup;
     std::vector<std::size_t> start(groups + 1, 0), bandEnd(groups, 0);
-    for (std::size_t i = 0; i < blocks; ++i) {
+    for (std::size_t i = 0; i < units; ++i) {
         if (groupOf[i] == kNone) continue;
         ++start[groupOf[i] + 1];
         bandEnd[groupOf[i]] = std::max<std::size_t>(bandEnd[groupOf[i]], lastOf[i]);
@@ -473,7 +495,7 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
     std::vector<std::uint32_t> order(start.back());
     {
         std::vector<std::size_t> next(start.begin(), start.end() - 1);
-        for (std::size_t i = 0; i < blocks; ++i)
+        for (std::size_t i = 0; i < units; ++i)
             if (groupOf[i] != kNone) order[next[groupOf[i]]++] = static_cast<std::uint32_t>(i);
     }
     groupOf = {};
@@ -481,6 +503,75 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
     tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
     tbb::enumerable_thread_specific<DenseBlock> scratch;
     tbb::enumerable_thread_specific<std::unique_ptr<LeafT>> spareLeaf;
+    tbb::enumerable_thread_specific<BlockRowScratch> rowScratch;
+    // The leaf a block fills: the spare one (its buffer allocated, not filled), made on demand.
+    const auto spare = [&](const openvdb::Coord& origin) -> std::unique_ptr<LeafT>& {
+        std::unique_ptr<LeafT>& leaf = spareLeaf.local();
+        if (!leaf) {
+            leaf = std::make_unique<LeafT>(openvdb::PartialCreate(), origin, ctx.background, false);
+            leaf->allocate();
+        }
+        return leaf;
+    };
+    // One block by the per-block kernel (or voxel by voxel outside the slices' bracket).
+    const auto fillOne = [&](const openvdb::Coord& origin, const Eigen::Vector3d& bmin,
+                             std::size_t bracket, std::size_t bracketEnd) {
+        std::unique_ptr<LeafT>& leaf = spare(origin);
+        DenseBlock& block = scratch.local();
+        block.values = leaf->buffer().data();
+        std::fill_n(block.values, LeafT::SIZE, ctx.background);
+        block.mask.setOff();
+        const bool any = bracket < n && !ctx.referenceOnly
+                             ? fillBracketedBlock(ctx, origin, bmin, bracket, bracketEnd, block)
+                             : fillBlock(ctx, origin, block);
+        if (!any) return;  // the leaf stays spare for the next block
+        leaf->setOrigin(origin);
+        leaf->setValueMask(block.mask);
+        made.local().push_back(std::move(leaf));
+    };
+    // A row of blocks: its candidate blocks through fillBlockRow, each with an active voxel
+    // copied into a leaf.
+    const auto fillRow = [&](std::size_t u) {
+        BlockRowScratch& rs = rowScratch.local();
+        const int byi = static_cast<int>(u % by), bzi = static_cast<int>(u / by);
+        int first = -1, last = -1;
+        std::size_t bracket = n, bracketEnd = n;
+        std::vector<char>& candidate = rs.candidate;
+        candidate.assign(bx, 0);
+        for (std::size_t b = 0; b < bx; ++b) {
+            Eigen::Vector3d bmin, bmax;
+            cornersOf(originOf(u * bx + b), bmin, bmax);
+            if (!sm.blockMayBeActive(bmin, bmax, bracket, bracketEnd)) continue;
+            candidate[b] = 1;
+            if (first < 0) first = static_cast<int>(b);
+            last = static_cast<int>(b);
+        }
+        if (first < 0) return;
+        if (bracket >= n) {
+            for (int b = first; b <= last; ++b) {
+                if (!candidate[static_cast<std::size_t>(b)]) continue;
+                const openvdb::Coord origin = originOf(u * bx + static_cast<std::size_t>(b));
+                Eigen::Vector3d bmin, bmax;
+                cornersOf(origin, bmin, bmax);
+                fillOne(origin, bmin, n, n);
+            }
+            return;
+        }
+        fillBlockRow(ctx, byi, bzi, first, last, bracket, bracketEnd, rs);
+        for (int b = first; b <= last; ++b) {
+            if (!candidate[static_cast<std::size_t>(b)]) continue;
+            const float* values =
+                rs.values.data() + static_cast<std::size_t>(b - first) * LeafT::SIZE;
+            LeafT::NodeMaskType mask;
+            if (!activeMask(values, ctx.background, mask)) continue;
+            const openvdb::Coord origin = originOf(u * bx + static_cast<std::size_t>(b));
+            std::unique_ptr<LeafT>& leaf = spare(origin);
+            std::copy_n(values, LeafT::SIZE, leaf->buffer().data());
+            leaf->setOrigin(origin);
+            leaf->setValueMask(mask);
+            made.local().push_back(std::move(leaf));
+        }
+    };
     for (std::size_t g = 0; g < groups; ++g) {
         if (start[g] < start[g + 1]) {
             if (window) {
@@ -488,34 +579,19 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
                 window(lo, lo, std::min(bandEnd[g] + 1, n - 1));
             }
             palp::parallelFor(
-                tbb::blocked_range<std::size_t>(start[g], start[g + 1], 16),
+                tbb::blocked_range<std::size_t>(start[g], start[g + 1], byRows ? 1 : 16),
                 [&](const tbb::blocked_range<std::size_t>& r) {
-                    auto& mine = made.local();
                     for (std::size_t b = r.begin(); b != r.end(); ++b) {
+                        if (byRows) {
+                            fillRow(order[b]);
+                            continue;
+                        }
                         const openvdb::Coord origin = originOf(order[b]);
                         Eigen::Vector3d bmin, bmax;
                         cornersOf(origin, bmin, bmax);
                         std::size_t bracket = n, bracketEnd = n;
                         if (!sm.blockMayBeActive(bmin, bmax, bracket, bracketEnd)) continue;
-                        std::unique_ptr<LeafT>& leaf = spareLeaf.local();
-                        if (!leaf) {
-                            // Its buffer is allocated without being filled: the block fills it.
-                            leaf = std::make_unique<LeafT>(openvdb::PartialCreate(), origin,
-                                                           ctx.background, false);
-                            leaf->allocate();
-                        }
-                        DenseBlock& block = scratch.local();
-                        block.values = leaf->buffer().data();
-                        std::fill_n(block.values, LeafT::SIZE, ctx.background);
-                        block.mask.setOff();
-                        const bool any =
-                            bracket < n && !ctx.referenceOnly
-                                ? fillBracketedBlock(ctx, origin, bmin, bracket, bracketEnd, block)
-                                : fillBlock(ctx, origin, block);
-                        if (!any) continue;  // the leaf stays spare for the next block
-                        leaf->setOrigin(origin);
-                        leaf->setValueMask(block.mask);
-                        mine.push_back(std::move(leaf));
+                        fillOne(origin, bmin, bracket, bracketEnd);
                     }
                 });
             for (auto& list : made) {

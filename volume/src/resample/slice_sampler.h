@@ -288,6 +288,7 @@ struct FillContext {
     float background;
     bool referenceOnly = false;  // every block voxel by voxel through valueAt (for tests)
     bool scalarRows = false;     // the row kernel without its AVX2 rows (for tests)
+    bool perBlockRows = false;   // block by block, never whole rows of blocks (for tests)
 };
 
 /// Called by fillTree before each group of blocks it fills: sorted slices [lo, hi] must hold

@@ -1,0 +1,212 @@
+// The resampler's row kernel over whole rows of leaf blocks (see block_rows.h).
+#include "resample/block_rows.h"
+
+#if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
+#include <immintrin.h>
+#define PALP_ROWS_AVX2 1
+#endif
+
+#include <algorithm>
+#include <cstddef>
+
+#include "palp/base/simd.h"
+
+namespace palp::volume::detail {
+
+namespace {
+
+constexpr int kBlockValues = kLeafDim * kLeafDim * kLeafDim;
+/// Cache slots: pixel row mod 16 by slice mod 4. A row of blocks spans 8 voxel rows along y
+/// and 8 along z, which read ~10 pixel rows of each of two or three slices; a collision only
+/// recomputes.
+constexpr int kCacheSlots = 64;
+
+/// A voxel row of a row of blocks: lane x blends the column interpolations of the lower
+/// slice's pixel rows (lo0, lo1) by frLo, the upper slice's (hi0, hi1) by frHi, then the two
+/// slices by f, in the per-block kernel's operations and order; it stores the value, or the
+/// background where the voxel is not active, at out[(x / 8) * 512 + (x % 8) * 64].
+struct VoxelRow {
+    const double *lo0, *lo1, *hi0, *hi1;
+    double frLo, frHi, f;
+    const std::uint32_t* inside;
+    int width;
+    float* out;
+};
+
+inline std::ptrdiff_t outIndex(int x) {
+    return static_cast<std::ptrdiff_t>(x / kLeafDim) * kBlockValues +
+           static_cast<std::ptrdiff_t>(x % kLeafDim) * (kLeafDim * kLeafDim);
+}
+
+void voxelRowScalar(const VoxelRow& r, float threshold, float background) noexcept {
+    const double gLo = 1 - r.frLo, gHi = 1 - r.frHi, g = 1 - r.f;
+    for (int x = 0; x < r.width; ++x) {
+        const double va = r.lo0[x] * gLo + r.lo1[x] * r.frLo;
+        const double vb = r.hi0[x] * gHi + r.hi1[x] * r.frHi;
+        const auto fv = static_cast<float>(va * g + vb * r.f);
+        const bool keep = r.inside[x] != 0 && !(fv < threshold) && !(fv == background);
+        r.out[outIndex(x)] = keep ? fv : background;
+    }
+}
+
+#ifdef PALP_ROWS_AVX2
+/// voxelRowScalar four voxels at a time (every operation the scalar one in double, no FMA).
+/// The width is a whole number of blocks, so four lanes never straddle two blocks.
+__attribute__((target("avx2"))) void voxelRowAvx2(const VoxelRow& r, float threshold,
+                                                  float background) noexcept {
+    const __m256d gLo = _mm256_set1_pd(1 - r.frLo), fLo = _mm256_set1_pd(r.frLo);
+    const __m256d gHi = _mm256_set1_pd(1 - r.frHi), fHi = _mm256_set1_pd(r.frHi);
+    const __m256d g = _mm256_set1_pd(1 - r.f), f = _mm256_set1_pd(r.f);
+    const __m128 thr = _mm_set1_ps(threshold), bg = _mm_set1_ps(background);
+    constexpr std::ptrdiff_t kLane = kLeafDim * kLeafDim;
+    for (int x = 0; x < r.width; x += 4) {
+        const __m256d va = _mm256_add_pd(_mm256_mul_pd(_mm256_loadu_pd(r.lo0 + x), gLo),
+                                         _mm256_mul_pd(_mm256_loadu_pd(r.lo1 + x), fLo));
+        const __m256d vb = _mm256_add_pd(_mm256_mul_pd(_mm256_loadu_pd(r.hi0 + x), gHi),
+                                         _mm256_mul_pd(_mm256_loadu_pd(r.hi1 + x), fHi));
+        const __m128 fv =
+            _mm256_cvtpd_ps(_mm256_add_pd(_mm256_mul_pd(va, g), _mm256_mul_pd(vb, f)));
+        // keep: inside, !(fv < threshold), !(fv == background) (NaN kept, as the scalar rows).
+        const __m128 in =
+            _mm_castsi128_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(r.inside + x)));
+        const __m128 keep = _mm_and_ps(
+            in, _mm_and_ps(_mm_cmp_ps(fv, thr, _CMP_NLT_UQ), _mm_cmp_ps(fv, bg, _CMP_NEQ_UQ)));
+        alignas(16) float v[4];
+        _mm_store_ps(v, _mm_blendv_ps(bg, fv, keep));
+        float* o = r.out + outIndex(x);
+        o[0] = v[0];
+        o[kLane] = v[1];
+        o[2 * kLane] = v[2];
+        o[3 * kLane] = v[3];
+    }
+}
+#endif
+
+}  // namespace
+
+bool blockRowsApply(const FillContext& ctx) {
+    if (ctx.referenceOnly || ctx.perBlockRows) return false;
+    const SliceSampler& sm = ctx.sampler;
+    const Eigen::Matrix<double, 2, 3> dm = sm.inPlaneFromWorld() * ctx.lat.step.asDiagonal();
+    const Eigen::Vector3d ds = ctx.lat.step.cwiseProduct(ctx.g.normal);
+    // x rows: the normal and the row coordinate constant along x, the column coordinate
+    // constant along y and z; every slice at the same column offset.
+    if (ds[0] != 0.0 || dm(1, 0) != 0.0 || dm(0, 1) != 0.0 || dm(0, 2) != 0.0) return false;
+    for (std::size_t k = 1; k < sm.sliceCount(); ++k)
+        if (sm.inPlaneOffset(k).x() != sm.inPlaneOffset(0).x()) return false;
+    return sm.sliceCount() > 1;
+}
+
+void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, std::size_t bracket,
+                  std::size_t bracketEnd, BlockRowScratch& s) {
+    const SliceSampler& sm = ctx.sampler;
+    const std::vector<double>& along = ctx.g.along;
+    const Eigen::Vector3d& step = ctx.lat.step;
+    const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
+    const Eigen::Matrix<double, 2, 3>& M = sm.inPlaneFromWorld();
+    const Eigen::Vector3d ds = step.cwiseProduct(ctx.g.normal);
+    const Eigen::Matrix<double, 2, 3> dm = M * step.asDiagonal();
+    const int cols = sm.sliceCols(), rows = sm.sliceRows();
+    const double cmax = cols - 1, rmax = rows - 1;
+    const double mc = sm.marginCols(), mr = sm.marginRows();
+    const int c0max = std::max(cols - 2, 0), r0max = std::max(rows - 2, 0);
+    const std::ptrdiff_t dc1 = cols > 1 ? 1 : 0;
+    const std::ptrdiff_t dr1 = rows > 1 ? cols : 0;
+    const float threshold = ctx.threshold, background = ctx.background;
+    const int width = (last - first + 1) * kLeafDim;
+    const auto w = static_cast<std::size_t>(width);
+    const auto cornerOf = [&](int bx) {
+        return Eigen::Vector3d(ctx.lat.lo + step.cwiseProduct(Eigen::Vector3d(
+                                                bx * kLeafDim, by * kLeafDim, bz * kLeafDim)));
+    };
+
+    // Each voxel's column, from its own block's corner as the per-block kernel finds it.
+    s.ci.resize(w);
+    s.fc.resize(w);
+    s.gc.resize(w);
+    s.inside.resize(w);
+    const double offC = sm.inPlaneOffset(bracket).x();
+    for (int bx = first; bx <= last; ++bx) {
+        const Eigen::Vector2d m0 = M * cornerOf(bx);
+        const auto nx = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[0] - bx * kLeafDim));
+        for (int t = 0; t < kLeafDim; ++t) {
+            const auto x = static_cast<std::size_t>((bx - first) * kLeafDim + t);
+            double cc = m0.x() + dm(0, 0) * t + offC;
+            s.inside[x] = t < nx && cc >= -mc && cc <= cmax + mc ? ~std::uint32_t{0} : 0;
+            cc = std::clamp(cc, 0.0, cmax);
+            s.ci[x] = std::min(static_cast<int>(cc), c0max);
+            s.fc[x] = cc - s.ci[x];
+            s.gc[x] = 1 - s.fc[x];
+        }
+    }
+    s.values.assign(w / kLeafDim * kBlockValues, background);
+    s.cache.resize(kCacheSlots * w);
+    s.tags.assign(kCacheSlots, nullptr);
+    // A pixel row's column interpolation across the row of blocks (cached by slot).
+    const auto interpolated = [&](const float* pixels, int pixelRow, std::size_t slice) {
+        const int slot = (pixelRow & 15) | static_cast<int>((slice & 3u) << 4);
+        double* out = s.cache.data() + static_cast<std::size_t>(slot) * w;
+        if (s.tags[static_cast<std::size_t>(slot)] == pixels)
+            return static_cast<const double*>(out);
+        s.tags[static_cast<std::size_t>(slot)] = pixels;
+        for (std::size_t x = 0; x < w; ++x) {
+            const float* p = pixels + s.ci[x];
+            out[x] = static_cast<double>(p[0]) * s.gc[x] + static_cast<double>(p[dc1]) * s.fc[x];
+        }
+        return static_cast<const double*>(out);
+    };
+    struct Rows {
+        const float* p0;
+        int ri;
+        double fr;
+        bool insideR;
+    };
+    const auto pixelRows = [&](std::size_t k, double rr) {
+        Rows pr{};
+        pr.insideR = rr >= -mr && rr <= rmax + mr;
+        rr = std::clamp(rr, 0.0, rmax);
+        pr.ri = std::min(static_cast<int>(rr), r0max);
+        pr.fr = rr - pr.ri;
+        pr.p0 = sm.sliceData(k) + static_cast<std::ptrdiff_t>(pr.ri) * cols;
+        return pr;
+    };
+#ifdef PALP_ROWS_AVX2
+    const auto kernel = palp::avx2Enabled() && !ctx.scalarRows ? voxelRowAvx2 : voxelRowScalar;
+#else
+    const auto kernel = voxelRowScalar;
+#endif
+
+    // The normal and row coordinates of a voxel row do not depend on x: every block of the row
+    // of blocks has the first one's.
+    const Eigen::Vector3d bmin = cornerOf(first);
+    const double s0 = bmin.dot(ctx.g.normal);
+    const Eigen::Vector2d m0 = M * bmin;
+    const int ny = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[1] - by * kLeafDim));
+    const int nz = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[2] - bz * kLeafDim));
+    const int next = dr1 != 0 ? 1 : 0;
+    std::size_t ka = bracket;
+    for (int oy = 0; oy < ny; ++oy) {
+        for (int oz = 0; oz < nz; ++oz) {
+            const double sp = s0 + ds[1] * oy + ds[2] * oz;
+            const double yRow = m0.y() + dm(1, 1) * oy + dm(1, 2) * oz;
+            while (ka + 1 < bracketEnd && along[ka + 1] <= sp) ++ka;
+            while (ka > bracket && along[ka] > sp) --ka;
+            const Rows lo = pixelRows(ka, yRow + sm.inPlaneOffset(ka).y());
+            const Rows hi = pixelRows(ka + 1, yRow + sm.inPlaneOffset(ka + 1).y());
+            if (!lo.insideR && !hi.insideR) continue;
+            const VoxelRow row{interpolated(lo.p0, lo.ri, ka),
+                               interpolated(lo.p0 + dr1, lo.ri + next, ka),
+                               interpolated(hi.p0, hi.ri, ka + 1),
+                               interpolated(hi.p0 + dr1, hi.ri + next, ka + 1),
+                               lo.fr,
+                               hi.fr,
+                               (sp - along[ka]) * sm.inverseGap(ka),
+                               s.inside.data(),
+                               width,
+                               s.values.data() + kLeafDim * oy + oz};
+            kernel(row, threshold, background);
+        }
+    }
+}
+
+}  // namespace palp::volume::detail
