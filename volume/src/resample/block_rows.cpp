@@ -100,7 +100,6 @@ bool blockRowsApply(const FillContext& ctx) {
 void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, std::size_t bracket,
                   std::size_t bracketEnd, BlockRowScratch& s) {
     const SliceSampler& sm = ctx.sampler;
-    const std::vector<double>& along = ctx.g.along;
     const Eigen::Vector3d& step = ctx.lat.step;
     const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
     const Eigen::Matrix<double, 2, 3>& M = sm.inPlaneFromWorld();
@@ -189,18 +188,19 @@ void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, s
         for (int oz = 0; oz < nz; ++oz) {
             const double sp = s0 + ds[1] * oy + ds[2] * oz;
             const double yRow = m0.y() + dm(1, 1) * oy + dm(1, 2) * oz;
-            while (ka + 1 < bracketEnd && along[ka + 1] <= sp) ++ka;
-            while (ka > bracket && along[ka] > sp) --ka;
-            const Rows lo = pixelRows(ka, yRow + sm.inPlaneOffset(ka).y());
-            const Rows hi = pixelRows(ka + 1, yRow + sm.inPlaneOffset(ka + 1).y());
+            std::size_t k0 = 0, k1 = 0;
+            double f = 0;
+            if (!sm.blendAt(sp, bracket, bracketEnd, ka, k0, k1, f)) continue;
+            const Rows lo = pixelRows(k0, yRow + sm.inPlaneOffset(k0).y());
+            const Rows hi = pixelRows(k1, yRow + sm.inPlaneOffset(k1).y());
             if (!lo.insideR && !hi.insideR) continue;
-            const VoxelRow row{interpolated(lo.p0, lo.ri, ka),
-                               interpolated(lo.p0 + dr1, lo.ri + next, ka),
-                               interpolated(hi.p0, hi.ri, ka + 1),
-                               interpolated(hi.p0 + dr1, hi.ri + next, ka + 1),
+            const VoxelRow row{interpolated(lo.p0, lo.ri, k0),
+                               interpolated(lo.p0 + dr1, lo.ri + next, k0),
+                               interpolated(hi.p0, hi.ri, k1),
+                               interpolated(hi.p0 + dr1, hi.ri + next, k1),
                                lo.fr,
                                hi.fr,
-                               (sp - along[ka]) * sm.inverseGap(ka),
+                               f,
                                s.inside.data(),
                                width,
                                s.values.data() + kLeafDim * oy + oz};

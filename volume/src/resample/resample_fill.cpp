@@ -191,7 +191,6 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                         const Eigen::Vector3d& bmin, std::size_t bracket, std::size_t bracketEnd,
                         DenseBlock& block) {
     const SliceSampler& sm = ctx.sampler;
-    const std::vector<double>& along = ctx.g.along;
     const Eigen::Vector3d& step = ctx.lat.step;
     const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
     const Eigen::Matrix<double, 2, 3>& M = sm.inPlaneFromWorld();
@@ -232,17 +231,15 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
         return inside;
     };
 
-    // The bracketing pair cached by its lower index.
-    std::size_t cached = std::numeric_limits<std::size_t>::max();
+    // The blended pair (or a slice alone, k0 == k1, past the first or last) cached by index.
+    std::size_t cached0 = std::numeric_limits<std::size_t>::max(), cached1 = cached0;
     SliceView lo, hi;
-    double loAlong = 0, invGap = 0;
-    const auto use = [&](std::size_t ka) {
-        if (ka == cached) return;
-        cached = ka;
-        lo = {sm.sliceData(ka), sm.inPlaneOffset(ka).x(), sm.inPlaneOffset(ka).y()};
-        hi = {sm.sliceData(ka + 1), sm.inPlaneOffset(ka + 1).x(), sm.inPlaneOffset(ka + 1).y()};
-        loAlong = along[ka];
-        invGap = sm.inverseGap(ka);
+    const auto use = [&](std::size_t k0, std::size_t k1) {
+        if (k0 == cached0 && k1 == cached1) return;
+        cached0 = k0;
+        cached1 = k1;
+        lo = {sm.sliceData(k0), sm.inPlaneOffset(k0).x(), sm.inPlaneOffset(k0).y()};
+        hi = {sm.sliceData(k1), sm.inPlaneOffset(k1).x(), sm.inPlaneOffset(k1).y()};
     };
 
     const float threshold = ctx.threshold, background = ctx.background;
@@ -304,11 +301,10 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
             const double yRow = m0.y() + dm(1, b) * ob + dm(1, c) * oc;
             int offset = kStride[b] * ob + kStride[c] * oc;
             if (planarRows) {
-                const double sp = sRow;
-                while (ka + 1 < bracketEnd && along[ka + 1] <= sp) ++ka;
-                while (ka > bracket && along[ka] > sp) --ka;
-                use(ka);
-                const double f = (sp - loAlong) * invGap;
+                std::size_t k0 = 0, k1 = 0;
+                double f = 0;
+                if (!sm.blendAt(sRow, bracket, bracketEnd, ka, k0, k1, f)) continue;
+                use(k0, k1);
                 const PixelRows rowsLo = pixelRows(lo, yRow + lo.offR);
                 const PixelRows rowsHi = pixelRows(hi, yRow + hi.offR);
                 if (!rowsLo.insideR && !rowsHi.insideR) continue;
@@ -362,17 +358,16 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                 continue;
             }
             for (int t = 0; t < n[a]; ++t, offset += kStride[a]) {
-                const double sp = sRow + ds[a] * t;
-                while (ka + 1 < bracketEnd && along[ka + 1] <= sp) ++ka;
-                while (ka > bracket && along[ka] > sp) --ka;
-                use(ka);
+                std::size_t k0 = 0, k1 = 0;
+                double f = 0;
+                if (!sm.blendAt(sRow + ds[a] * t, bracket, bracketEnd, ka, k0, k1, f)) continue;
+                use(k0, k1);
                 const double px = xRow + dm(0, a) * t;
                 const double py = yRow + dm(1, a) * t;
                 double va = 0, vb = 0;
                 const bool ina = sample(lo.data, px + lo.offC, py + lo.offR, va);
                 const bool inb = sample(hi.data, px + hi.offC, py + hi.offR, vb);
                 if (!ina && !inb) continue;
-                const double f = (sp - loAlong) * invGap;
                 any = storeBlend(block, offset, va, vb, f, threshold, background) || any;
             }
         }

@@ -129,9 +129,9 @@ class SliceSampler {
     double marginCols() const { return mMc; }
     double marginRows() const { return mMr; }
 
-    /// Whether a block with corners @p bmin, @p bmax may hold active voxels. When the whole
-    /// block lies within the slices' range along the normal, sets [bracket, bracketEnd] to the
-    /// slices that enclose it (else bracket = slice count).
+    /// Whether a block with corners @p bmin, @p bmax may hold active voxels. Sets [bracket,
+    /// bracketEnd] to the slices whose pairs its voxels blend (blendAt), or bracket = slice
+    /// count for a single slice.
     /// The normal coordinates [smin, smax] the corners of the block [bmin, bmax] span.
     void blockAlong(const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax, double& smin,
                     double& smax) const {
@@ -176,7 +176,7 @@ class SliceSampler {
             crMax = crMax.cwiseMax(mp);
         }
         const auto [first, last] = slicesSpanned(smin, smax);
-        if (n > 1 && smin >= mLoAlong && smax <= mHiAlong) {
+        if (n > 1) {
             bracket = std::min(first, n - 2);
             bracketEnd = std::max(last, bracket + 1);
         }
@@ -184,6 +184,27 @@ class SliceSampler {
             if (tilesMayBeActive(k, crMin + mCrOffset[k], crMax + mCrOffset[k])) return true;
         }
         return false;
+    }
+
+    /// The slices a voxel at normal coordinate @p sp blends, as valueAt() chooses them: the
+    /// pair around it, blended by @p f, or the first or last slice alone (k0 == k1, f = 0) within
+    /// the tolerance beyond it. @p ka: the pair's lower slice, searched from its last value
+    /// within [bracket, bracketEnd] (blockMayBeActive). False when @p sp lies outside.
+    bool blendAt(double sp, std::size_t bracket, std::size_t bracketEnd, std::size_t& ka,
+                 std::size_t& k0, std::size_t& k1, double& f) const {
+        if (sp < mLoAlong - mAlongTol || sp > mHiAlong + mAlongTol) return false;
+        if (sp < mLoAlong || sp > mHiAlong) {
+            k0 = k1 = sp < mLoAlong ? 0 : mN - 1;
+            f = 0;
+            return true;
+        }
+        const std::vector<double>& along = mG.along;
+        while (ka + 1 < bracketEnd && along[ka + 1] <= sp) ++ka;
+        while (ka > bracket && along[ka] > sp) --ka;
+        k0 = ka;
+        k1 = ka + 1;
+        f = (sp - along[ka]) * mInvGap[ka];
+        return true;
     }
 
     /// The value at world point @p p (slices bracketing it along the normal, each sampled
