@@ -49,6 +49,24 @@ void voxelRowScalar(const VoxelRow& r, float threshold, float background) noexce
     }
 }
 
+/// A pixel row's column interpolation at every voxel of a row of blocks: out[x] = p[ci] (1 - fc)
+/// + p[ci + dc1] fc, in double, as the per-block kernel computes each voxel's.
+struct ColumnRow {
+    const float* pixels;
+    const int* ci;
+    const double *fc, *gc;
+    std::ptrdiff_t dc1;
+    int width;
+    double* out;
+};
+
+void columnRowScalar(const ColumnRow& c) noexcept {
+    for (int x = 0; x < c.width; ++x) {
+        const float* p = c.pixels + c.ci[x];
+        c.out[x] = static_cast<double>(p[0]) * c.gc[x] + static_cast<double>(p[c.dc1]) * c.fc[x];
+    }
+}
+
 #ifdef PALP_ROWS_AVX2
 /// voxelRowScalar four voxels at a time (every operation the scalar one in double, no FMA).
 /// The width is a whole number of blocks, so four lanes never straddle two blocks.
@@ -138,6 +156,12 @@ void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, s
             s.gc[x] = 1 - s.fc[x];
         }
     }
+#ifdef PALP_ROWS_AVX2
+    const bool simd = palp::avx2Enabled() && !ctx.scalarRows;
+    const auto kernel = simd ? voxelRowAvx2 : voxelRowScalar;
+#else
+    const auto kernel = voxelRowScalar;
+#endif
     s.values.assign(w / kLeafDim * kBlockValues, background);
     s.cache.resize(kCacheSlots * w);
     s.tags.assign(kCacheSlots, nullptr);
@@ -148,10 +172,9 @@ void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, s
         if (s.tags[static_cast<std::size_t>(slot)] == pixels)
             return static_cast<const double*>(out);
         s.tags[static_cast<std::size_t>(slot)] = pixels;
-        for (std::size_t x = 0; x < w; ++x) {
-            const float* p = pixels + s.ci[x];
-            out[x] = static_cast<double>(p[0]) * s.gc[x] + static_cast<double>(p[dc1]) * s.fc[x];
-        }
+        // Scalar: AVX2 gathers of the two pixels were slower here (0.051 -> 0.058 s resampling
+        // the head CT at 0.5 mm on a 2-vCPU AMD EPYC).
+        columnRowScalar({pixels, s.ci.data(), s.fc.data(), s.gc.data(), dc1, width, out});
         return static_cast<const double*>(out);
     };
     struct Rows {
@@ -169,11 +192,6 @@ void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, s
         pr.p0 = sm.sliceData(k) + static_cast<std::ptrdiff_t>(pr.ri) * cols;
         return pr;
     };
-#ifdef PALP_ROWS_AVX2
-    const auto kernel = palp::avx2Enabled() && !ctx.scalarRows ? voxelRowAvx2 : voxelRowScalar;
-#else
-    const auto kernel = voxelRowScalar;
-#endif
 
     // The normal and row coordinates of a voxel row do not depend on x: every block of the row
     // of blocks has the first one's.

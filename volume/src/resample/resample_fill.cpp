@@ -8,6 +8,10 @@
 #define PALP_FILL_AVX2 1
 #endif
 
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
 #include <algorithm>
 #include <array>
 #include <cstdint>
@@ -414,7 +418,16 @@ bool activeMask(const float* values, float background, LeafT::NodeMaskType& mask
     for (openvdb::Index w = 0; w < LeafT::NodeMaskType::WORD_COUNT; ++w) {
         std::uint64_t bits = 0;
         const float* row = values + w * 64;
+#ifdef __SSE2__
+        const __m128 bg = _mm_set1_ps(background);
+        for (unsigned j = 0; j < 16; ++j) {
+            const auto equal =
+                static_cast<unsigned>(_mm_movemask_ps(_mm_cmpeq_ps(_mm_loadu_ps(row + 4 * j), bg)));
+            bits |= std::uint64_t{~equal & 0xFu} << (4 * j);
+        }
+#else
         for (unsigned i = 0; i < 64; ++i) bits |= std::uint64_t{!(row[i] == background)} << i;
+#endif
         mask.getWord<std::uint64_t>(w) = bits;
         any |= bits;
     }
