@@ -5,6 +5,7 @@
 #include <string>
 
 #include "c_api_internal.h"
+#include "palp/base/validate.h"
 #include "palp/palp_study.h"
 #include "palp/studies/study_session.h"
 

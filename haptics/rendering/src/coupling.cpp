@@ -1,5 +1,6 @@
 #include "palp/haptics/rendering/coupling.h"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <span>

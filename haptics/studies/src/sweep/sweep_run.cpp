@@ -183,7 +183,12 @@ std::string sweepRow(const SweepSampleResult& r) {
         s += buf;
     };
     for (double v : r.x) add(v);
-    s += "," + std::to_string(r.contactNode) + "," + std::to_string(r.primaryFreeNodes);
+    // Appended piece by piece: GCC 12 at -O3 reports a false -Wrestrict overlap in
+    // `"," + std::to_string(...)` when this file is compiled alone (not in a unity batch).
+    s += ',';
+    s += std::to_string(r.contactNode);
+    s += ',';
+    s += std::to_string(r.primaryFreeNodes);
     add(r.forceN);
     add(r.errPeak);
     add(r.errRms);
