@@ -521,7 +521,8 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
         }
         return leaf;
     };
-    // One block by the per-block kernel (or voxel by voxel outside the slices' bracket).
+    // One block by the per-block kernel (voxel by voxel for a single slice, and for the tests'
+    // reference).
     const auto fillOne = [&](const openvdb::Coord& origin, const Eigen::Vector3d& bmin,
                              std::size_t bracket, std::size_t bracketEnd) {
         std::unique_ptr<LeafT>& leaf = spare(origin);
@@ -555,7 +556,7 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
             last = static_cast<int>(b);
         }
         if (first < 0) return;
-        if (bracket >= n) {
+        if (bracket >= n) {  // no pair to blend (rows of blocks need two slices): as a block
             for (int b = first; b <= last; ++b) {
                 if (!candidate[static_cast<std::size_t>(b)]) continue;
                 const openvdb::Coord origin = originOf(u * bx + static_cast<std::size_t>(b));

@@ -129,9 +129,6 @@ class SliceSampler {
     double marginCols() const { return mMc; }
     double marginRows() const { return mMr; }
 
-    /// Whether a block with corners @p bmin, @p bmax may hold active voxels. Sets [bracket,
-    /// bracketEnd] to the slices whose pairs its voxels blend (blendAt), or bracket = slice
-    /// count for a single slice.
     /// The normal coordinates [smin, smax] the corners of the block [bmin, bmax] span.
     void blockAlong(const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax, double& smin,
                     double& smax) const {
@@ -161,6 +158,9 @@ class SliceSampler {
         return {first, std::min(last, mN - 1)};
     }
 
+    /// Whether a block with corners @p bmin, @p bmax may hold active voxels. Sets [bracket,
+    /// bracketEnd] to the slices whose pairs its voxels blend (blendAt), or bracket = slice
+    /// count for a single slice.
     bool blockMayBeActive(const Eigen::Vector3d& bmin, const Eigen::Vector3d& bmax,
                           std::size_t& bracket, std::size_t& bracketEnd) const {
         const std::size_t n = mN;
