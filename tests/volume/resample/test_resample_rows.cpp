@@ -34,6 +34,20 @@ SliceStack rotated(SliceStack s, const Eigen::Matrix3d& R) {
     return s;
 }
 
+/// The stack with world axes permuted exactly: a vector v becomes (v[k], v[k + 1], v[k + 2])
+/// (indices mod 3), so with @p k = 1 the x of every vector moves to z.
+SliceStack permuted(SliceStack s, int k) {
+    const auto perm = [k](const Eigen::Vector3d& v) {
+        return Eigen::Vector3d(v[k % 3], v[(k + 1) % 3], v[(k + 2) % 3]);
+    };
+    for (Slice& sl : s.slices) {
+        sl.position = perm(sl.position);
+        sl.colStep = perm(sl.colStep);
+        sl.rowStep = perm(sl.rowStep);
+    }
+    return s;
+}
+
 /// The documented interpolation evaluated directly at world point @p p: the two slices that
 /// bracket p along the normal, each sampled bilinearly (edge pixels extended) at p's foot on its
 /// plane, blended linearly by distance along the normal. Only for p strictly inside the slices'
@@ -184,23 +198,30 @@ TEST(ResampleRows, VectorRowsGiveTheScalarRowsBitForBit) {
 
 TEST(ResampleRows, RowsOfBlocksGiveTheBlockByBlockRowsBitForBit) {
     // An axial series with and without gantry tilt: every slice at the same column coordinates,
-    // so rows of blocks along x interpolate each pixel row's columns once (fillBlockRow); block
-    // by block is the reference. Sagittal slices put the rows along another axis (block by
-    // block both ways). A partial last block along every axis (the dimensions are not multiples
-    // of 8), a crop, and voxels of 0.45 to 1.6 mm.
+    // so rows of blocks interpolate each pixel row's columns once (fillBlockRow); block by block
+    // is the reference. The rows run along x, y or z with the slices' columns. A partial last
+    // block along every axis (the dimensions are not multiples of 8), crops, and voxels of 0.45
+    // to 1.6 mm.
     const SliceStack tilted = palp::test::tiltedSeries(48, 40, 14, 0.7e-3, 1.3e-3, 17.0);
     const SliceStack straight = palp::test::tiltedSeries(37, 29, 9, 0.8e-3, 2.1e-3, 0.0);
-    const SliceStack sagittal =
-        rotated(tilted, Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix());
+    // The tilted series with its axes permuted exactly (no rounding, unlike a rotation): the
+    // slices' columns run along y, then along z, so the rows of blocks run along y, then z.
+    const SliceStack alongY = permuted(tilted, 2);
+    const SliceStack alongZ = permuted(tilted, 1);
     // A crop inside the slices along every axis: the lattice's last block along x ends inside
     // the slices' columns.
     palp::volume::WorldBox inside;
     inside.min = Eigen::Vector3d(5.1e-3, 4.3e-3, 3.2e-3);
     inside.max = Eigen::Vector3d(26.3e-3, 20.1e-3, 14.2e-3);
+    palp::volume::WorldBox insideZ;  // the same box with its axes permuted as alongZ's
+    insideZ.min = Eigen::Vector3d(inside.min.y(), inside.min.z(), inside.min.x());
+    insideZ.max = Eigen::Vector3d(inside.max.y(), inside.max.z(), inside.max.x());
     const std::optional<palp::volume::WorldBox> whole;
     for (const auto& [name, st, crop] :
          {std::tuple{"tilted", tilted, whole}, std::tuple{"straight", straight, whole},
-          std::tuple{"sagittal", sagittal, whole},
+          std::tuple{"columns along y", alongY, whole},
+          std::tuple{"columns along z", alongZ, whole},
+          std::tuple{"columns along z, cropped", alongZ, std::optional{insideZ}},
           std::tuple{"tilted, cropped", tilted, std::optional{inside}}}) {
         for (const double voxel : {0.45e-3, 0.7e-3, 1.6e-3}) {
             SCOPED_TRACE(std::string(name) + ", voxel " + std::to_string(voxel * 1e3) + " mm");

@@ -7,6 +7,7 @@
 #endif
 
 #include <algorithm>
+#include <cmath>
 #include <cstddef>
 
 #include "palp/base/simd.h"
@@ -30,12 +31,13 @@ struct VoxelRow {
     double frLo, frHi, f;
     const std::uint32_t* inside;
     int width;
+    std::ptrdiff_t lane;  // leaf-order stride of a step along the row (64, 8 or 1)
     float* out;
 };
 
-inline std::ptrdiff_t outIndex(int x) {
+inline std::ptrdiff_t outIndex(int x, std::ptrdiff_t lane) {
     return static_cast<std::ptrdiff_t>(x / kLeafDim) * kBlockValues +
-           static_cast<std::ptrdiff_t>(x % kLeafDim) * (kLeafDim * kLeafDim);
+           static_cast<std::ptrdiff_t>(x % kLeafDim) * lane;
 }
 
 void voxelRowScalar(const VoxelRow& r, float threshold, float background) noexcept {
@@ -45,7 +47,7 @@ void voxelRowScalar(const VoxelRow& r, float threshold, float background) noexce
         const double vb = r.hi0[x] * gHi + r.hi1[x] * r.frHi;
         const auto fv = static_cast<float>(va * g + vb * r.f);
         const bool keep = r.inside[x] != 0 && !(fv < threshold) && !(fv == background);
-        r.out[outIndex(x)] = keep ? fv : background;
+        r.out[outIndex(x, r.lane)] = keep ? fv : background;
     }
 }
 
@@ -76,7 +78,7 @@ __attribute__((target("avx2"))) void voxelRowAvx2(const VoxelRow& r, float thres
     const __m256d gHi = _mm256_set1_pd(1 - r.frHi), fHi = _mm256_set1_pd(r.frHi);
     const __m256d g = _mm256_set1_pd(1 - r.f), f = _mm256_set1_pd(r.f);
     const __m128 thr = _mm_set1_ps(threshold), bg = _mm_set1_ps(background);
-    constexpr std::ptrdiff_t kLane = kLeafDim * kLeafDim;
+    const std::ptrdiff_t lane = r.lane;
     for (int x = 0; x < r.width; x += 4) {
         const __m256d va = _mm256_add_pd(_mm256_mul_pd(_mm256_loadu_pd(r.lo0 + x), gLo),
                                          _mm256_mul_pd(_mm256_loadu_pd(r.lo1 + x), fLo));
@@ -91,32 +93,38 @@ __attribute__((target("avx2"))) void voxelRowAvx2(const VoxelRow& r, float thres
             in, _mm_and_ps(_mm_cmp_ps(fv, thr, _CMP_NLT_UQ), _mm_cmp_ps(fv, bg, _CMP_NEQ_UQ)));
         alignas(16) float v[4];
         _mm_store_ps(v, _mm_blendv_ps(bg, fv, keep));
-        float* o = r.out + outIndex(x);
+        float* o = r.out + outIndex(x, lane);
         o[0] = v[0];
-        o[kLane] = v[1];
-        o[2 * kLane] = v[2];
-        o[3 * kLane] = v[3];
+        o[lane] = v[1];
+        o[2 * lane] = v[2];
+        o[3 * lane] = v[3];
     }
 }
 #endif
 
 }  // namespace
 
-bool blockRowsApply(const FillContext& ctx) {
-    if (ctx.referenceOnly || ctx.perBlockRows) return false;
+int blockRowAxis(const FillContext& ctx) {
+    if (ctx.referenceOnly || ctx.perBlockRows) return -1;
     const SliceSampler& sm = ctx.sampler;
+    if (sm.sliceCount() < 2) return -1;
     const Eigen::Matrix<double, 2, 3> dm = sm.inPlaneFromWorld() * ctx.lat.step.asDiagonal();
     const Eigen::Vector3d ds = ctx.lat.step.cwiseProduct(ctx.g.normal);
-    // x rows: the normal and the row coordinate constant along x, the column coordinate
-    // constant along y and z; every slice at the same column offset.
-    if (ds[0] != 0.0 || dm(1, 0) != 0.0 || dm(0, 1) != 0.0 || dm(0, 2) != 0.0) return false;
+    // The per-block kernel's row axis (fillBracketedBlock): the normal changes least along it.
+    int a = 0;
+    for (int axis = 1; axis < 3; ++axis)
+        if (std::abs(ds[axis]) < std::abs(ds[a])) a = axis;
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    // Rows along a keep the normal and the row coordinate; the column coordinate does not
+    // change across rows; every slice at the same column offset.
+    if (ds[a] != 0.0 || dm(1, a) != 0.0 || dm(0, b) != 0.0 || dm(0, c) != 0.0) return -1;
     for (std::size_t k = 1; k < sm.sliceCount(); ++k)
-        if (sm.inPlaneOffset(k).x() != sm.inPlaneOffset(0).x()) return false;
-    return sm.sliceCount() > 1;
+        if (sm.inPlaneOffset(k).x() != sm.inPlaneOffset(0).x()) return -1;
+    return a;
 }
 
-void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, std::size_t bracket,
-                  std::size_t bracketEnd, BlockRowScratch& s) {
+void fillBlockRow(const FillContext& ctx, int a, int rowB, int rowC, int first, int last,
+                  std::size_t bracket, std::size_t bracketEnd, BlockRowScratch& s) {
     const SliceSampler& sm = ctx.sampler;
     const Eigen::Vector3d& step = ctx.lat.step;
     const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
@@ -132,9 +140,15 @@ void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, s
     const float threshold = ctx.threshold, background = ctx.background;
     const int width = (last - first + 1) * kLeafDim;
     const auto w = static_cast<std::size_t>(width);
-    const auto cornerOf = [&](int bx) {
-        return Eigen::Vector3d(ctx.lat.lo + step.cwiseProduct(Eigen::Vector3d(
-                                                bx * kLeafDim, by * kLeafDim, bz * kLeafDim)));
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    constexpr std::ptrdiff_t kStride[3] = {kLeafDim * kLeafDim, kLeafDim, 1};
+    // The corner of block @p ba of the row (the lattice index of its first voxel, in metres).
+    const auto cornerOf = [&](int ba) {
+        Eigen::Vector3d index;
+        index[a] = ba * kLeafDim;
+        index[b] = rowB * kLeafDim;
+        index[c] = rowC * kLeafDim;
+        return Eigen::Vector3d(ctx.lat.lo + step.cwiseProduct(index));
     };
 
     // Each voxel's column, from its own block's corner as the per-block kernel finds it.
@@ -143,13 +157,14 @@ void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, s
     s.gc.resize(w);
     s.inside.resize(w);
     const double offC = sm.inPlaneOffset(bracket).x();
-    for (int bx = first; bx <= last; ++bx) {
-        const Eigen::Vector2d m0 = M * cornerOf(bx);
-        const auto nx = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[0] - bx * kLeafDim));
+    for (int ba = first; ba <= last; ++ba) {
+        const Eigen::Vector2d m0 = M * cornerOf(ba);
+        const auto na = static_cast<int>(
+            std::min<std::int64_t>(kLeafDim, dims[static_cast<std::size_t>(a)] - ba * kLeafDim));
         for (int t = 0; t < kLeafDim; ++t) {
-            const auto x = static_cast<std::size_t>((bx - first) * kLeafDim + t);
-            double cc = m0.x() + dm(0, 0) * t + offC;
-            s.inside[x] = t < nx && cc >= -mc && cc <= cmax + mc ? ~std::uint32_t{0} : 0;
+            const auto x = static_cast<std::size_t>((ba - first) * kLeafDim + t);
+            double cc = m0.x() + dm(0, a) * t + offC;
+            s.inside[x] = t < na && cc >= -mc && cc <= cmax + mc ? ~std::uint32_t{0} : 0;
             cc = std::clamp(cc, 0.0, cmax);
             s.ci[x] = std::min(static_cast<int>(cc), c0max);
             s.fc[x] = cc - s.ci[x];
@@ -193,19 +208,21 @@ void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, s
         return pr;
     };
 
-    // The normal and row coordinates of a voxel row do not depend on x: every block of the row
-    // of blocks has the first one's.
+    // The normal and row coordinates of a voxel row do not change along a: every block of the
+    // row of blocks has the first one's.
     const Eigen::Vector3d bmin = cornerOf(first);
     const double s0 = bmin.dot(ctx.g.normal);
     const Eigen::Vector2d m0 = M * bmin;
-    const int ny = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[1] - by * kLeafDim));
-    const int nz = static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[2] - bz * kLeafDim));
+    const int nb = static_cast<int>(
+        std::min<std::int64_t>(kLeafDim, dims[static_cast<std::size_t>(b)] - rowB * kLeafDim));
+    const int nc = static_cast<int>(
+        std::min<std::int64_t>(kLeafDim, dims[static_cast<std::size_t>(c)] - rowC * kLeafDim));
     const int next = dr1 != 0 ? 1 : 0;
     std::size_t ka = bracket;
-    for (int oy = 0; oy < ny; ++oy) {
-        for (int oz = 0; oz < nz; ++oz) {
-            const double sp = s0 + ds[1] * oy + ds[2] * oz;
-            const double yRow = m0.y() + dm(1, 1) * oy + dm(1, 2) * oz;
+    for (int ob = 0; ob < nb; ++ob) {
+        for (int oc = 0; oc < nc; ++oc) {
+            const double sp = s0 + ds[b] * ob + ds[c] * oc;
+            const double yRow = m0.y() + dm(1, b) * ob + dm(1, c) * oc;
             std::size_t k0 = 0, k1 = 0;
             double f = 0;
             if (!sm.blendAt(sp, bracket, bracketEnd, ka, k0, k1, f)) continue;
@@ -221,7 +238,8 @@ void fillBlockRow(const FillContext& ctx, int by, int bz, int first, int last, s
                                f,
                                s.inside.data(),
                                width,
-                               s.values.data() + kLeafDim * oy + oz};
+                               kStride[a],
+                               s.values.data() + kStride[b] * ob + kStride[c] * oc};
             kernel(row, threshold, background);
         }
     }

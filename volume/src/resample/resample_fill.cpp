@@ -462,11 +462,23 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
         bmin = ctx.lat.lo + step.cwiseProduct(Eigen::Vector3d(origin.x(), origin.y(), origin.z()));
         bmax = bmin + step * (kLeafDim - 1);
     };
-    // The units of work: single blocks, or whole rows of blocks along x where every voxel row
-    // of such a row can be set up once (fillBlockRow); unit u is the row of block u * bx.
-    const bool byRows = blockRowsApply(ctx);
-    const std::size_t units = byRows ? by * bz : blocks;
-    const std::size_t unitStride = byRows ? bx : 1;
+    // The units of work: single blocks, or whole rows of blocks along axis ra where every
+    // voxel row of such a row can be set up once (fillBlockRow). Row unit u is the row at block
+    // u % (blocks along rb), u / (blocks along rb) along the next two axes rb, rc.
+    const int rowAxis = blockRowAxis(ctx);
+    const bool byRows = rowAxis >= 0;
+    const std::array<std::size_t, 3> nBlocks{bx, by, bz};
+    const std::size_t ra = byRows ? static_cast<std::size_t>(rowAxis) : 0, rb = (ra + 1) % 3,
+                      rc = (ra + 2) % 3;
+    const std::size_t units = byRows ? nBlocks[rb] * nBlocks[rc] : blocks;
+    // The linear index of block k along the row of row unit u.
+    const auto rowBlock = [&](std::size_t u, std::size_t k) {
+        std::array<std::size_t, 3> at{};
+        at[ra] = k;
+        at[rb] = u % nBlocks[rb];
+        at[rc] = u / nBlocks[rb];
+        return at[0] + bx * (at[1] + by * at[2]);
+    };
 
     // Each unit that may hold active voxels goes to the group of the first slice it reads
     // (units wholly outside the slices hold none); the last slice it reads bounds the
@@ -479,7 +491,7 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
         std::size_t{0}, units,
         [&](std::size_t i) {
             Eigen::Vector3d bmin, bmax;
-            cornersOf(originOf(i * unitStride), bmin, bmax);
+            cornersOf(originOf(byRows ? rowBlock(i, 0) : i), bmin, bmax);
             double smin = 0, smax = 0;
             sm.blockAlong(bmin, bmax, smin, smax);
             if (sm.outsideAlong(smin, smax)) {
@@ -542,38 +554,39 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
     // copied into a leaf.
     const auto fillRow = [&](std::size_t u) {
         BlockRowScratch& rs = rowScratch.local();
-        const int byi = static_cast<int>(u % by), bzi = static_cast<int>(u / by);
+        const std::size_t along = nBlocks[ra];
         int first = -1, last = -1;
         std::size_t bracket = n, bracketEnd = n;
         std::vector<char>& candidate = rs.candidate;
-        candidate.assign(bx, 0);
-        for (std::size_t b = 0; b < bx; ++b) {
+        candidate.assign(along, 0);
+        for (std::size_t k = 0; k < along; ++k) {
             Eigen::Vector3d bmin, bmax;
-            cornersOf(originOf(u * bx + b), bmin, bmax);
+            cornersOf(originOf(rowBlock(u, k)), bmin, bmax);
             if (!sm.blockMayBeActive(bmin, bmax, bracket, bracketEnd)) continue;
-            candidate[b] = 1;
-            if (first < 0) first = static_cast<int>(b);
-            last = static_cast<int>(b);
+            candidate[k] = 1;
+            if (first < 0) first = static_cast<int>(k);
+            last = static_cast<int>(k);
         }
         if (first < 0) return;
         if (bracket >= n) {  // no pair to blend (rows of blocks need two slices): as a block
-            for (int b = first; b <= last; ++b) {
-                if (!candidate[static_cast<std::size_t>(b)]) continue;
-                const openvdb::Coord origin = originOf(u * bx + static_cast<std::size_t>(b));
+            for (int k = first; k <= last; ++k) {
+                if (!candidate[static_cast<std::size_t>(k)]) continue;
+                const openvdb::Coord origin = originOf(rowBlock(u, static_cast<std::size_t>(k)));
                 Eigen::Vector3d bmin, bmax;
                 cornersOf(origin, bmin, bmax);
                 fillOne(origin, bmin, n, n);
             }
             return;
         }
-        fillBlockRow(ctx, byi, bzi, first, last, bracket, bracketEnd, rs);
-        for (int b = first; b <= last; ++b) {
-            if (!candidate[static_cast<std::size_t>(b)]) continue;
+        fillBlockRow(ctx, rowAxis, static_cast<int>(u % nBlocks[rb]),
+                     static_cast<int>(u / nBlocks[rb]), first, last, bracket, bracketEnd, rs);
+        for (int k = first; k <= last; ++k) {
+            if (!candidate[static_cast<std::size_t>(k)]) continue;
             const float* values =
-                rs.values.data() + static_cast<std::size_t>(b - first) * LeafT::SIZE;
+                rs.values.data() + static_cast<std::size_t>(k - first) * LeafT::SIZE;
             LeafT::NodeMaskType mask;
             if (!activeMask(values, ctx.background, mask)) continue;
-            const openvdb::Coord origin = originOf(u * bx + static_cast<std::size_t>(b));
+            const openvdb::Coord origin = originOf(rowBlock(u, static_cast<std::size_t>(k)));
             std::unique_ptr<LeafT>& leaf = spare(origin);
             std::copy_n(values, LeafT::SIZE, leaf->buffer().data());
             leaf->setOrigin(origin);
