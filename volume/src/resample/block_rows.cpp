@@ -108,12 +108,11 @@ int blockRowAxis(const FillContext& ctx) {
     if (ctx.referenceOnly || ctx.perBlockRows) return -1;
     const SliceSampler& sm = ctx.sampler;
     if (sm.sliceCount() < 2) return -1;
-    const Eigen::Matrix<double, 2, 3> dm = sm.inPlaneFromWorld() * ctx.lat.step.asDiagonal();
-    const Eigen::Vector3d ds = ctx.lat.step.cwiseProduct(ctx.g.normal);
     // The per-block kernel's row axis (fillBracketedBlock): the normal changes least along it.
-    int a = 0;
-    for (int axis = 1; axis < 3; ++axis)
-        if (std::abs(ds[axis]) < std::abs(ds[a])) a = axis;
+    const LatticeSteps steps = latticeSteps(ctx);
+    const Eigen::Vector3d& ds = steps.ds;
+    const Eigen::Matrix<double, 2, 3>& dm = steps.dm;
+    const int a = steps.rowAxis;
     const int b = (a + 1) % 3, c = (a + 2) % 3;
     // Rows along a keep the normal and the row coordinate; the column coordinate does not
     // change across rows; every slice at the same column offset.
@@ -129,14 +128,10 @@ void fillBlockRow(const FillContext& ctx, int a, int rowB, int rowC, int first, 
     const Eigen::Vector3d& step = ctx.lat.step;
     const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
     const Eigen::Matrix<double, 2, 3>& M = sm.inPlaneFromWorld();
-    const Eigen::Vector3d ds = step.cwiseProduct(ctx.g.normal);
-    const Eigen::Matrix<double, 2, 3> dm = M * step.asDiagonal();
-    const int cols = sm.sliceCols(), rows = sm.sliceRows();
-    const double cmax = cols - 1, rmax = rows - 1;
-    const double mc = sm.marginCols(), mr = sm.marginRows();
-    const int c0max = std::max(cols - 2, 0), r0max = std::max(rows - 2, 0);
-    const std::ptrdiff_t dc1 = cols > 1 ? 1 : 0;
-    const std::ptrdiff_t dr1 = rows > 1 ? cols : 0;
+    const LatticeSteps steps = latticeSteps(ctx);
+    const Eigen::Vector3d& ds = steps.ds;
+    const Eigen::Matrix<double, 2, 3>& dm = steps.dm;
+    const auto [cols, rows, cmax, rmax, mc, mr, c0max, r0max, dc1, dr1] = pixelGrid(sm);
     const float threshold = ctx.threshold, background = ctx.background;
     const int width = (last - first + 1) * kLeafDim;
     const auto w = static_cast<std::size_t>(width);

@@ -195,29 +195,22 @@ bool fillBracketedBlock(const FillContext& ctx, const openvdb::Coord& origin,
                         const Eigen::Vector3d& bmin, std::size_t bracket, std::size_t bracketEnd,
                         DenseBlock& block) {
     const SliceSampler& sm = ctx.sampler;
-    const Eigen::Vector3d& step = ctx.lat.step;
     const std::array<std::int64_t, 3>& dims = ctx.lat.dims;
     const Eigen::Matrix<double, 2, 3>& M = sm.inPlaneFromWorld();
-    const Eigen::Vector3d ds = step.cwiseProduct(ctx.g.normal);
-    const Eigen::Matrix<double, 2, 3> dm = M * step.asDiagonal();
+    const LatticeSteps steps = latticeSteps(ctx);
+    const Eigen::Vector3d& ds = steps.ds;
+    const Eigen::Matrix<double, 2, 3>& dm = steps.dm;
+    const auto [cols, rows, cmax, rmax, mc, mr, c0max, r0max, dc1, dr1] = pixelGrid(sm);
     const double s0 = bmin.dot(ctx.g.normal);
     const Eigen::Vector2d m0 = M * bmin;
     const int n[3] = {static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[0] - origin.x())),
                       static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[1] - origin.y())),
                       static_cast<int>(std::min<std::int64_t>(kLeafDim, dims[2] - origin.z()))};
     // Inner axis: the one along which the normal coordinate changes least.
-    int a = 0;
-    for (int axis = 1; axis < 3; ++axis)
-        if (std::abs(ds[axis]) < std::abs(ds[a])) a = axis;
+    const int a = steps.rowAxis;
     const int b = (a + 1) % 3, c = (a + 2) % 3;
     constexpr int kStride[3] = {kLeafDim * kLeafDim, kLeafDim, 1};
 
-    const int cols = sm.sliceCols(), rows = sm.sliceRows();
-    const double cmax = cols - 1, rmax = rows - 1;
-    const double mc = sm.marginCols(), mr = sm.marginRows();
-    const int c0max = std::max(cols - 2, 0), r0max = std::max(rows - 2, 0);
-    const std::ptrdiff_t dc1 = cols > 1 ? 1 : 0;
-    const std::ptrdiff_t dr1 = rows > 1 ? cols : 0;
     const auto sample = [&](const float* data, double cc, double rr, double& out) {
         const bool inside = cc >= -mc && cc <= cmax + mc && rr >= -mr && rr <= rmax + mr;
         cc = std::clamp(cc, 0.0, cmax);

@@ -312,6 +312,47 @@ struct FillContext {
     bool perBlockRows = false;   // block by block, never whole rows of blocks (for tests)
 };
 
+/// The lattice's steps as the row kernels use them: per voxel step along each axis, the change
+/// of the normal coordinate (ds) and of the in-plane coordinates (dm), and the axis the rows run
+/// along (the first along which the normal coordinate changes least).
+struct LatticeSteps {
+    Eigen::Vector3d ds;
+    Eigen::Matrix<double, 2, 3> dm;
+    int rowAxis;
+};
+
+inline LatticeSteps latticeSteps(const FillContext& ctx) {
+    LatticeSteps out{ctx.lat.step.cwiseProduct(ctx.g.normal),
+                     ctx.sampler.inPlaneFromWorld() * ctx.lat.step.asDiagonal(), 0};
+    for (int axis = 1; axis < 3; ++axis)
+        if (std::abs(out.ds[axis]) < std::abs(out.ds[out.rowAxis])) out.rowAxis = axis;
+    return out;
+}
+
+/// The slices' pixel grid as the row kernels clamp it: the last column and row, the margins
+/// within which a sample still counts as inside, the last pixel an interpolation starts from,
+/// and the offsets to the next column and row (0 where there is a single one).
+struct PixelGrid {
+    int cols, rows;
+    double cmax, rmax, mc, mr;
+    int c0max, r0max;
+    std::ptrdiff_t dc1, dr1;
+};
+
+inline PixelGrid pixelGrid(const SliceSampler& sm) {
+    const int cols = sm.sliceCols(), rows = sm.sliceRows();
+    return {cols,
+            rows,
+            static_cast<double>(cols - 1),
+            static_cast<double>(rows - 1),
+            sm.marginCols(),
+            sm.marginRows(),
+            std::max(cols - 2, 0),
+            std::max(rows - 2, 0),
+            cols > 1 ? 1 : 0,
+            rows > 1 ? cols : 0};
+}
+
 /// Called by fillTree before each group of blocks it fills: sorted slices [lo, hi] must hold
 /// their values (and SliceSampler::sliceLoaded must have run for each) when it returns; sorted
 /// slices below @p releaseBelow are not used again and may be released. Called from the
