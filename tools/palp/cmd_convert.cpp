@@ -17,18 +17,6 @@ namespace palp::tool {
 
 namespace fs = std::filesystem;
 
-namespace {
-
-/// @p v moved to the heap and never freed (reachable through a static pointer, so LeakSanitizer
-/// does not count it); a second call replaces nothing, it keeps both.
-const volume::Volume& keepUntilExit(volume::Volume&& v) {
-    static std::vector<volume::Volume*> kept;
-    kept.push_back(new volume::Volume(std::move(v)));
-    return *kept.back();
-}
-
-}  // namespace
-
 Command addConvert(CLI::App& root) {
     struct Args {
         std::vector<std::string> inputs;
@@ -57,13 +45,9 @@ Command addConvert(CLI::App& root) {
                 if (!args->series.empty()) opt.seriesUid = args->series;
                 opt.resample.progress = progressLine("palp convert: resampling");
                 std::vector<fs::path> inputs(args->inputs.begin(), args->inputs.end());
-                // Held to the end of the process: the grid is left to the kernel at exit. Freeing
-                // its leaves one by one (73,636 of them, each with its buffer, for the head CT at
-                // 0.5 mm) was ~3 % of convert's CPU samples, for memory the process returns anyway.
-                const volume::Volume& vol =
-                    keepUntilExit(withVolumeFlags([&] { return volume::load(inputs, opt); }));
+                const volume::ConvertSummary vol = withVolumeFlags(
+                    [&] { return volume::convert(inputs, out, opt, saveOptions(args->flags)); });
                 endProgress();
-                volume::save(vol, out, saveOptions(args->flags));
                 if (!globals().quiet) {
                     std::printf("palp convert: wrote %s: %s\n", out.c_str(),
                                 describeVolume(vol).c_str());

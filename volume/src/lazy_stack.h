@@ -15,6 +15,8 @@
 
 namespace palp::volume::detail {
 
+class PackedLeaves;
+
 struct LazySliceStack {
     /// The slices with their geometry, size (cols, rows) and source; values empty while
     /// @ref decode is set.
@@ -31,10 +33,12 @@ struct LazySliceStack {
 /// is decoded (in parallel, a band at a time) when the first block that reads it comes and
 /// released when the last has passed; slices no block reads (outside a crop) are decoded and
 /// checked at the end, so a damaged file is refused whatever the crop. Leaves @p lazy's values
-/// released.
+/// released. With @p packed, the leaves go there instead (FillContext::packed) and the grid
+/// has none.
 /// @throw what decode throws (within a band, the lowest slice's error first); FormatError
 ///        naming the slice for a value checkStackValues() refuses; what resample() throws.
-Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options);
+Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options,
+                    PackedLeaves* packed = nullptr);
 
 /// Checks slice @p k of a stack as checkStackValues() does.
 /// @throw ValueError as checkStackValues().

@@ -19,6 +19,7 @@
 #include "palp/base/validate.h"
 #include "palp/volume/dicom.h"
 #include "vdb/vdb_errors.h"
+#include "vdb/vdb_packed.h"
 #include "vdb/vdb_read.h"
 #include "vdb/vdb_write.h"
 
@@ -244,7 +245,12 @@ SliceStack readStack(const std::vector<fs::path>& inputs, const ReadOptions& opt
     return stack;
 }
 
-Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
+namespace {
+
+/// load(); with @p packed, a source that is resampled has its leaves packed there and its grid
+/// has none (*@p packedUsed then set true).
+Volume loadPacking(const std::vector<fs::path>& inputs, const LoadOptions& options,
+                   detail::PackedLeaves* packed, bool* packedUsed) {
     initialize();
     checkResampleOptions(options.resample);
     const std::string what = inputs.empty() ? std::string("load") : inputs.front().string();
@@ -255,12 +261,13 @@ Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
             if (detectFormat(inputs.front()) == Format::Vdb)
                 return resample(loadVdb(inputs.front()), options.resample);
         }
+        if (packedUsed) *packedUsed = packed != nullptr;
         if (!inputs.empty() && detectFormat(inputs.front()) == Format::Dicom) {
             // Decoded as the resampler reaches each slice and released behind it: the whole
             // series is never held (readStack() would hold it beside the grid).
             for (const fs::path& p : inputs) requireExists(p);
             detail::LazySliceStack lazy = detail::openDicom(inputs, options);
-            return detail::resampleLazy(lazy, options.resample);
+            return detail::resampleLazy(lazy, options.resample, packed);
         }
         if (inputs.size() == 1) {
             // Likewise a NIfTI, NRRD or MetaImage volume: read (or converted from the stored
@@ -278,12 +285,20 @@ Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
                     lazy = detail::openMetaImage(in, options);
                     break;
                 default:
+                    // An unknown format: readStack() says what the file is.
                     return resample(readStack(inputs, options), options.resample);
             }
-            return detail::resampleLazy(lazy, options.resample);
+            return detail::resampleLazy(lazy, options.resample, packed);
         }
+        // Several non-DICOM inputs: readStack() refuses them.
         return resample(readStack(inputs, options), options.resample);
     });
+}
+
+}  // namespace
+
+Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
+    return loadPacking(inputs, options, nullptr, nullptr);
 }
 
 namespace {
@@ -387,6 +402,32 @@ void save(const Volume& volume, const fs::path& path, const SaveOptions& options
                       ": expected a writable location, found an error: " + e.what());
     }
     out.commit();
+}
+
+ConvertSummary convert(const std::vector<fs::path>& inputs, const fs::path& output,
+                       const LoadOptions& options, const SaveOptions& saveOptions) {
+    const auto summarise = [](const Volume& v) {
+        return ConvertSummary{v.info, v.grid->activeVoxelCount(), v.worldBounds(), v.voxelSizes(),
+                              v.grid->background()};
+    };
+    if (saveOptions.compression != Compression::ActiveMask) {
+        const Volume v = load(inputs, options);
+        save(v, output, saveOptions);
+        return summarise(v);
+    }
+    detail::PackedLeaves packed;
+    bool packedUsed = false;
+    const Volume v = loadPacking(inputs, options, &packed, &packedUsed);
+    if (!packedUsed) {
+        save(v, output, saveOptions);
+        return summarise(v);
+    }
+    v.grid->setName(kScanGridName);
+    const detail::PackedStats stats = detail::writePackedVdb(*v.grid, packed, output);
+    ConvertSummary out{v.info, stats.activeVoxels, openvdb::BBoxd(), v.voxelSizes(),
+                       v.grid->background()};
+    if (!stats.box.empty()) out.worldBounds = v.grid->transform().indexToWorld(stats.box);
+    return out;
 }
 
 }  // namespace palp::volume

@@ -1,10 +1,13 @@
-// save() compresses leaves in parallel: the file must be the one OpenVDB's serial writer makes.
+// save() compresses leaves in parallel, convert() writes packed leaves without a grid: each
+// file must be the one OpenVDB's serial writer makes.
 #include <gtest/gtest.h>
 #include <openvdb/io/File.h>
+#include <tbb/parallel_for.h>
 
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <random>
 #include <vector>
 
 #include "palp/volume/load.h"
@@ -12,6 +15,7 @@
 #include "resample/grid_copy.h"
 #include "test_support.h"
 #include "tilted_series.h"
+#include "vdb/vdb_packed.h"
 
 namespace {
 
@@ -21,6 +25,24 @@ using palp::volume::Compression;
 std::vector<char> bytesOf(const fs::path& p) {
     std::ifstream in(p, std::ios::binary);
     return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+/// Expects files @p a and @p b to have the same bytes but for the UUID in the header (36
+/// characters within the first 64 bytes).
+void expectSameButUuid(const fs::path& a, const fs::path& b) {
+    const std::vector<char> x = bytesOf(a), y = bytesOf(b);
+    ASSERT_EQ(x.size(), y.size());
+    std::size_t first = x.size(), last = 0;
+    for (std::size_t i = 0; i < x.size(); ++i) {
+        if (x[i] != y[i]) {
+            first = std::min(first, i);
+            last = i;
+        }
+    }
+    if (first < x.size()) {
+        EXPECT_LT(last, 64u) << "bytes differ past the header, from byte " << first;
+        EXPECT_LT(last - first, 36u);
+    }
 }
 
 TEST(VdbWrite, ParallelSaveWritesTheSerialWritersBytes) {
@@ -96,6 +118,139 @@ TEST(VdbWrite, ParallelSaveWritesTheSerialWritersBytes) {
             EXPECT_EQ(back.grid->tree().leafCount(), vol->grid->tree().leafCount());
         }
     }
+}
+
+/// Writes @p grid as save() would have OpenVDB write it (active-mask compression, the file's
+/// creator), through OpenVDB's own serial writer.
+void writeWithOpenVdb(const openvdb::FloatGrid::Ptr& grid, const fs::path& path) {
+    openvdb::io::File file(path.string());
+    file.setCompression(openvdb::io::COMPRESS_ACTIVE_MASK);
+    openvdb::MetaMap meta;
+    meta.insertMeta("creator", openvdb::StringMetadata("palp"));
+    file.write({grid}, meta);
+    file.close();
+}
+
+TEST(VdbWrite, PackedLeavesWriteTheSerialWritersBytes) {
+    palp::volume::initialize();
+    using LeafT = openvdb::FloatTree::LeafNodeType;
+    // Leaves in several top nodes (4096 voxels a side) and lower nodes (128), at negative
+    // coordinates too, each with its own random mask: one voxel, a full leaf, and the rest;
+    // every inactive value the background, as the resampler leaves them.
+    const float background = -1000.0f;
+    std::vector<openvdb::Coord> origins = {
+        {0, 0, 0},    {8, 0, 0},       {0, 8, 0},       {0, 0, 8},     {120, 0, 0},
+        {128, 0, 0},  {0, 128, 0},     {0, 0, 128},     {-8, 0, 0},    {0, -8, -4096},
+        {4096, 0, 0}, {4088, 4096, 8}, {-4104, 16, 24}, {0, 4096, -8}, {4096, -128, 16}};
+    std::mt19937 rng(7);
+    std::uniform_int_distribution<int> pick(-300, 300);
+    for (int i = 0; i < 400; ++i) origins.emplace_back(8 * pick(rng), 8 * pick(rng), 8 * pick(rng));
+    std::sort(origins.begin(), origins.end());
+    origins.erase(std::unique(origins.begin(), origins.end()), origins.end());
+    auto grid = openvdb::FloatGrid::create(background);
+    grid->setName(palp::volume::kScanGridName);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(0.5e-3));
+    grid->insertMeta("palp:modality", openvdb::StringMetadata("CT"));
+    std::vector<std::vector<float>> values(origins.size(), std::vector<float>(LeafT::SIZE));
+    std::vector<LeafT::NodeMaskType> masks(origins.size());
+    std::uniform_real_distribution<float> value(-900.0f, 3000.0f);
+    std::uniform_int_distribution<int> fill(0, 99);
+    for (std::size_t i = 0; i < origins.size(); ++i) {
+        const int percent = i == 0 ? -1 : i == 1 ? 100 : fill(rng);
+        for (openvdb::Index k = 0; k < LeafT::SIZE; ++k) {
+            const bool on = i == 0 ? k == 200 : fill(rng) < percent;
+            values[i][k] = on ? value(rng) : background;
+            if (on) masks[i].setOn(k);
+        }
+        auto* leaf = new LeafT(origins[i], background);
+        for (openvdb::Index k = 0; k < LeafT::SIZE; ++k) leaf->setValueOnly(k, values[i][k]);
+        leaf->setValueMask(masks[i]);
+        grid->tree().addLeaf(leaf);
+    }
+    // Packed from several threads, in no particular order.
+    palp::volume::detail::PackedLeaves packed;
+    tbb::parallel_for(std::size_t{0}, origins.size(), [&](std::size_t j) {
+        const std::size_t i = origins.size() - 1 - j;
+        packed.add(origins[i], masks[i], values[i].data());
+    });
+    const palp::test::TempDir dir;
+    const fs::path mine = dir / "packed.vdb", theirs = dir / "openvdb.vdb";
+    const palp::volume::detail::PackedStats stats =
+        palp::volume::detail::writePackedVdb(*grid, packed, mine);
+    writeWithOpenVdb(grid, theirs);
+    expectSameButUuid(mine, theirs);
+    EXPECT_EQ(stats.activeVoxels, grid->activeVoxelCount());
+    EXPECT_EQ(stats.box, grid->evalActiveVoxelBoundingBox());
+
+    // No leaf at all.
+    auto empty = openvdb::FloatGrid::create(background);
+    empty->setName(palp::volume::kScanGridName);
+    const palp::volume::detail::PackedLeaves none;
+    const palp::volume::detail::PackedStats zero =
+        palp::volume::detail::writePackedVdb(*empty, none, mine);
+    writeWithOpenVdb(empty, theirs);
+    expectSameButUuid(mine, theirs);
+    EXPECT_EQ(zero.activeVoxels, 0u);
+    EXPECT_TRUE(zero.box.empty());
+}
+
+/// convert() of @p inputs writes what save(load()) writes; returns the convert() summary.
+palp::volume::ConvertSummary expectConvertIsSaveOfLoad(const std::vector<fs::path>& inputs,
+                                                       const palp::volume::LoadOptions& opt) {
+    const palp::test::TempDir dir;
+    const fs::path converted = dir / "convert.vdb", saved = dir / "save.vdb";
+    const palp::volume::ConvertSummary s = palp::volume::convert(inputs, converted, opt);
+    const palp::volume::Volume v = palp::volume::load(inputs, opt);
+    palp::volume::save(v, saved);
+    expectSameButUuid(converted, saved);
+    EXPECT_EQ(s.activeVoxels, v.grid->activeVoxelCount());
+    const openvdb::BBoxd a = s.worldBounds, b = v.worldBounds();
+    EXPECT_EQ(a.min(), b.min());
+    EXPECT_EQ(a.max(), b.max());
+    EXPECT_EQ(s.voxelSizes, v.voxelSizes());
+    EXPECT_EQ(s.background, v.grid->background());
+    EXPECT_EQ(s.info.valuesBelowThreshold, v.info.valuesBelowThreshold);
+    return s;
+}
+
+TEST(VdbWrite, ConvertWritesWhatSaveOfLoadWrites) {
+    palp::volume::initialize();
+    const palp::test::TempDir tmp;
+    // A generated NRRD (oblique axes: the per-block kernel), at the finest spacing and coarser.
+    std::vector<float> field;
+    for (int k = 0; k < 21; ++k)
+        for (int j = 0; j < 27; ++j)
+            for (int i = 0; i < 31; ++i)
+                field.push_back(static_cast<float>((i * 7 + j * 3 + k * 11) % 400 - 40));
+    palp::test::writeFile(tmp / "a.nrrd",
+                          "NRRD0004\ndimension: 3\nsizes: 31 27 21\ntype: float\n"
+                          "space: left-posterior-superior\nspace origin: (3,-4,5)\n"
+                          "space directions: (1.2,0,0) (0,0.8,0.1) (0,-0.2,1.4)\n"
+                          "endian: little\nencoding: raw\n\n" +
+                              palp::test::floatsLE(field));
+    palp::volume::LoadOptions opt;
+    expectConvertIsSaveOfLoad({tmp / "a.nrrd"}, opt);
+    opt.resample.voxelSize = 1.7e-3;
+    opt.resample.backgroundThreshold = 100.0f;
+    expectConvertIsSaveOfLoad({tmp / "a.nrrd"}, opt);
+    // Everything below the threshold: a file without leaves.
+    opt.resample.backgroundThreshold = 1000.0f;
+    EXPECT_EQ(expectConvertIsSaveOfLoad({tmp / "a.nrrd"}, opt).activeVoxels, 0u);
+}
+
+TEST(VdbWrite, ConvertOfRealScansWritesWhatSaveOfLoadWrites) {
+    PALP_REQUIRE_DATA(head, "ct-ge-head-tilt");
+    PALP_REQUIRE_DATA(mr, "nifti-mr");
+    palp::volume::initialize();
+    // The tilted head CT by rows of blocks, at 1 mm and cropped to a box at 0.5 mm.
+    palp::volume::LoadOptions opt;
+    opt.resample.voxelSize = 1e-3;
+    expectConvertIsSaveOfLoad({head}, opt);
+    opt.resample.voxelSize = 0.5e-3;
+    opt.resample.crop = palp::volume::WorldBox{{-0.05, -0.04, -0.03}, {0.04, 0.05, 0.06}};
+    expectConvertIsSaveOfLoad({head}, opt);
+    // A big-endian NIfTI MR, its default threshold and spacing.
+    expectConvertIsSaveOfLoad({mr / "anatomical.nii"}, {});
 }
 
 }  // namespace

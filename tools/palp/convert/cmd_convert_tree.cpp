@@ -145,8 +145,8 @@ ManifestRow convertOne(const PlannedScan& p, const fs::path& outDir, const Conve
                           ": expected a folder for the output, could not create it" +
                           (ec ? ": " + ec.message() : std::string()));
         }
-        const volume::Volume vol = withVolumeFlags([&] { return volume::load(s.files, opt); });
-        volume::save(vol, out, saveOptions(flags));
+        const volume::ConvertSummary vol =
+            withVolumeFlags([&] { return volume::convert(s.files, out, opt, saveOptions(flags)); });
         r.bytes = fs::file_size(out);
         r.status = TreeStatus::Done;
         r.message = describeVolume(vol) + "; " + describeBackground(vol);

@@ -107,9 +107,9 @@ std::string describeConvertFlags(const ConvertFlags& flags) {
     return s;
 }
 
-std::string describeVolume(const volume::Volume& vol) {
-    const auto b = vol.worldBounds();
-    const openvdb::Vec3d e = vol.voxelSizes() * 1e3;
+std::string describeVolume(const volume::ConvertSummary& vol) {
+    const auto& b = vol.worldBounds;
+    const openvdb::Vec3d e = vol.voxelSizes * 1e3;
     char voxel[96];
     if (vol.hasCubicVoxels()) {
         std::snprintf(voxel, sizeof voxel, "%.4g", e[0]);
@@ -121,13 +121,13 @@ std::string describeVolume(const volume::Volume& vol) {
                   "%s %s, voxel %s mm, %llu active voxels, world box (%.1f, %.1f, %.1f) - "
                   "(%.1f, %.1f, %.1f) mm",
                   vol.info.sourceFormat.c_str(), vol.info.modality.c_str(), voxel,
-                  static_cast<unsigned long long>(vol.grid->activeVoxelCount()), b.min().x() * 1e3,
+                  static_cast<unsigned long long>(vol.activeVoxels), b.min().x() * 1e3,
                   b.min().y() * 1e3, b.min().z() * 1e3, b.max().x() * 1e3, b.max().y() * 1e3,
                   b.max().z() * 1e3);
     return line;
 }
 
-std::string describeBackground(const volume::Volume& vol) {
+std::string describeBackground(const volume::ConvertSummary& vol) {
     if (vol.info.backgroundThreshold <= volume::kNoBackgroundThreshold)
         return "no background threshold: no source value deactivated";
     char line[256];
@@ -136,7 +136,7 @@ std::string describeBackground(const volume::Volume& vol) {
                   "background %.6g",
                   static_cast<double>(vol.info.backgroundThreshold),
                   static_cast<unsigned long long>(vol.info.valuesBelowThreshold),
-                  static_cast<double>(vol.grid->background()));
+                  static_cast<double>(vol.background));
     return line;
 }
 

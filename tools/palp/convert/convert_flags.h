@@ -40,11 +40,11 @@ std::string describeConvertFlags(const ConvertFlags& flags);
 
 /// A converted volume in words: "DICOM CT, voxel 0.5 mm, 1234 active voxels, world box (x, y,
 /// z) - (x, y, z) mm" ("voxel 0.5 x 0.5 x 1 mm" for native spacing's non-cubic voxels).
-std::string describeVolume(const volume::Volume& vol);
+std::string describeVolume(const volume::ConvertSummary& vol);
 
 /// What the background threshold took away, in words: "no background threshold: no source
 /// value deactivated", or the threshold, the count of source values below it and the
 /// background they now read as (issue 37: nothing is lost without a word).
-std::string describeBackground(const volume::Volume& vol);
+std::string describeBackground(const volume::ConvertSummary& vol);
 
 }  // namespace palp::tool

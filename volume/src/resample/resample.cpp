@@ -457,7 +457,7 @@ class LazyWindow {
 /// the blocks reach them. @p referenceOnly, @p scalarRows and @p perBlockRows: see FillContext.
 Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, bool referenceOnly,
                        LazySliceStack* lazy = nullptr, bool scalarRows = false,
-                       bool perBlockRows = false) {
+                       bool perBlockRows = false, PackedLeaves* packed = nullptr) {
     const bool resident = lazy == nullptr || !lazy->decode;
     const StackGeometry g = analyse(stack, resident);
     const std::size_t n = g.order.size();
@@ -476,8 +476,8 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
     grid->setTransform(worldFromIndex(step, lat.lo));
 
     SliceSampler sampler(stack, g, step, threshold, resident);
-    const FillContext ctx{sampler,       g,          lat,         threshold, background,
-                          referenceOnly, scalarRows, perBlockRows};
+    const FillContext ctx{sampler,       g,          lat,          threshold, background,
+                          referenceOnly, scalarRows, perBlockRows, packed};
     std::uint64_t below = 0;
     if (resident) {
         fillTree(ctx, options.progress, grid->tree());
@@ -529,7 +529,7 @@ Volume resample(const SliceStack& stack, const ResampleOptions& options) {
 
 namespace detail {
 
-Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options) {
+Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options, PackedLeaves* packed) {
     checkResampleOptions(options);
     if (!lazy.decode) {
         try {
@@ -539,7 +539,7 @@ Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options) {
         }
     }
     return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build", [&] {
-        return resampleChecked(lazy.stack, options, false, &lazy);
+        return resampleChecked(lazy.stack, options, false, &lazy, false, false, packed);
     });
 }
 

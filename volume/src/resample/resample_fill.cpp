@@ -18,12 +18,14 @@
 #include <limits>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/base/simd.h"
 #include "resample/block_rows.h"
 #include "resample/slice_sampler.h"
+#include "vdb/vdb_packed.h"
 
 namespace palp::volume::detail {
 
@@ -39,6 +41,7 @@ constexpr std::size_t kSlicesPerGroup = 16;
 struct DenseBlock {
     float* values = nullptr;
     LeafT::NodeMaskType mask;
+    std::vector<float> own;  // the values when they go packed, not to a leaf's buffer
 };
 
 /// One slice's bilinear sample at (c, r) for the row kernel: the pixel centres clamped as in
@@ -526,25 +529,38 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
         }
         return leaf;
     };
+    // A packed leaf goes to ctx.packed, not to the tree.
+    const auto pack = [&](const openvdb::Coord& origin, const LeafT::NodeMaskType& mask,
+                          const float* values) { ctx.packed->add(origin, mask, values); };
     // One block by the per-block kernel (voxel by voxel for a single slice, and for the tests'
-    // reference).
+    // reference), filled in the spare leaf's buffer (or the thread's own values when packed).
     const auto fillOne = [&](const openvdb::Coord& origin, const Eigen::Vector3d& bmin,
                              std::size_t bracket, std::size_t bracketEnd) {
-        std::unique_ptr<LeafT>& leaf = spare(origin);
         DenseBlock& block = scratch.local();
-        block.values = leaf->buffer().data();
+        std::unique_ptr<LeafT>* leaf = nullptr;
+        if (ctx.packed) {
+            block.own.resize(LeafT::SIZE);
+            block.values = block.own.data();
+        } else {
+            leaf = &spare(origin);
+            block.values = (*leaf)->buffer().data();
+        }
         std::fill_n(block.values, LeafT::SIZE, ctx.background);
         block.mask.setOff();
         const bool any = bracket < n && !ctx.referenceOnly
                              ? fillBracketedBlock(ctx, origin, bmin, bracket, bracketEnd, block)
                              : fillBlock(ctx, origin, block);
         if (!any) return;  // the leaf stays spare for the next block
-        leaf->setOrigin(origin);
-        leaf->setValueMask(block.mask);
-        made.local().push_back(std::move(leaf));
+        if (ctx.packed) {
+            pack(origin, block.mask, block.values);
+            return;
+        }
+        (*leaf)->setOrigin(origin);
+        (*leaf)->setValueMask(block.mask);
+        made.local().push_back(std::move(*leaf));
     };
     // A row of blocks: its candidate blocks through fillBlockRow, each with an active voxel
-    // copied into a leaf.
+    // copied into a leaf (or packed).
     const auto fillRow = [&](std::size_t u) {
         BlockRowScratch& rs = rowScratch.local();
         const std::size_t along = nBlocks[ra];
@@ -580,6 +596,10 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
             LeafT::NodeMaskType mask;
             if (!activeMask(values, ctx.background, mask)) continue;
             const openvdb::Coord origin = originOf(rowBlock(u, static_cast<std::size_t>(k)));
+            if (ctx.packed) {
+                pack(origin, mask, values);
+                continue;
+            }
             std::unique_ptr<LeafT>& leaf = spare(origin);
             std::copy_n(values, LeafT::SIZE, leaf->buffer().data());
             leaf->setOrigin(origin);

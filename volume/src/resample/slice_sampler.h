@@ -20,6 +20,8 @@
 
 namespace palp::volume::detail {
 
+class PackedLeaves;
+
 using LeafT = openvdb::FloatTree::LeafNodeType;
 constexpr int kLeafDim = static_cast<int>(LeafT::DIM);
 
@@ -310,6 +312,9 @@ struct FillContext {
     bool referenceOnly = false;  // every block voxel by voxel through valueAt (for tests)
     bool scalarRows = false;     // the row kernel without its AVX2 rows (for tests)
     bool perBlockRows = false;   // block by block, never whole rows of blocks (for tests)
+    /// Where set, the leaves go here, packed as the file stores them, and the tree gets none:
+    /// palp convert's grid is never held.
+    PackedLeaves* packed = nullptr;
 };
 
 /// The lattice's steps as the row kernels use them: per voxel step along each axis, the change
