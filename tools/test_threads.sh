@@ -14,7 +14,7 @@ else
   targets=(test_base test_servo_loop test_session test_c_api test_c_api_deformable_c test_haptics test_async_regions test_async_force
            test_async_spring test_deformable_async test_deformable_head test_ray_batch test_udp_device
            test_c_api_udp_c
-           test_volume_lazy_load test_volume_lazy_formats)
+           test_volume_lazy_load test_volume_lazy_formats test_volume_vdb_write)
 fi
 cmake --preset tsan >/dev/null
 cmake --build --preset tsan --target "${targets[@]}"
@@ -28,12 +28,14 @@ export TSAN_OPTIONS="suppressions=$PWD/tools/tsan.supp halt_on_error=1 second_de
 # synchronous physics cases step both regions on the test's thread, and took most of the
 # executable's 150 s under TSan; the release suite runs them) and the spring's threaded tick. The lazy loads decode slices on TBB workers (DICOM
 # through GDCM, one reader per file; NIfTI, NRRD and MetaImage by pread or from the kept stored
-# bytes) while the resampler fills the grid. test_deformable_head: the shared head CT on the
+# bytes) while the resampler fills the grid. test_volume_vdb_write: leaves packed from TBB workers (the
+# resampler's convert() and a parallel_for) and written once they have joined. test_deformable_head: the shared head CT on the
 # threaded regions (the servo's ticks against the secondary and layout threads).
 declare -A filter=([test_deformable_async]='DeformableAsync.TicksAllocateNothing:DeformableAsync.RejectsBadOptions*:DeformableAsync.AnAllocationFailure*'
                    [test_async_spring]='AsyncSpring.Threaded*'
                    [test_async_force]='AsyncForce.StalledSecondary*:AsyncForce.TicksAllocateNothing'
-                   [test_async_regions]='AsyncRegions.StalledSecondary*:AsyncRegions.Threaded*:AsyncRegions.RejectsBadInput')
+                   [test_async_regions]='AsyncRegions.StalledSecondary*:AsyncRegions.Threaded*:AsyncRegions.RejectsBadInput'
+                   [test_volume_vdb_write]='VdbWrite.PackedLeaves*:VdbWrite.ConvertWrites*')
 failed=()
 for t in "${targets[@]}"; do
   exe=$(find build/tsan/tests -type f -name "$t" -perm -u+x | head -n 1)

@@ -2,7 +2,6 @@
 // file must be the one OpenVDB's serial writer makes.
 #include <gtest/gtest.h>
 #include <openvdb/io/File.h>
-#include <tbb/parallel_for.h>
 
 #include <filesystem>
 #include <fstream>
@@ -10,6 +9,7 @@
 #include <random>
 #include <vector>
 
+#include "palp/base/parallel.h"
 #include "palp/volume/load.h"
 #include "palp/volume/resample.h"
 #include "resample/grid_copy.h"
@@ -167,12 +167,16 @@ TEST(VdbWrite, PackedLeavesWriteTheSerialWritersBytes) {
         leaf->setValueMask(masks[i]);
         grid->tree().addLeaf(leaf);
     }
-    // Packed from several threads, in no particular order.
+    // Packed from several threads, in no particular order (palp::parallelForEach: the fork and
+    // join ThreadSanitizer sees).
     palp::volume::detail::PackedLeaves packed;
-    tbb::parallel_for(std::size_t{0}, origins.size(), [&](std::size_t j) {
-        const std::size_t i = origins.size() - 1 - j;
-        packed.add(origins[i], masks[i], values[i].data());
-    });
+    palp::parallelForEach(
+        std::size_t{0}, origins.size(),
+        [&](std::size_t j) {
+            const std::size_t i = origins.size() - 1 - j;
+            packed.add(origins[i], masks[i], values[i].data());
+        },
+        std::size_t{8});
     const palp::test::TempDir dir;
     const fs::path mine = dir / "packed.vdb", theirs = dir / "openvdb.vdb";
     const palp::volume::detail::PackedStats stats =

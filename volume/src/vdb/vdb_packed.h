@@ -32,7 +32,8 @@ class PackedLeaves {
     PackedLeaves(const PackedLeaves&) = delete;
     PackedLeaves& operator=(const PackedLeaves&) = delete;
 
-    /// Packs the leaf at @p origin with value mask @p mask and 512 values @p values.
+    /// Packs the leaf at @p origin (a multiple of 8 on each axis, each origin once) with value
+    /// mask @p mask and 512 values @p values.
     void add(const openvdb::Coord& origin, const openvdb::util::NodeMask<3>& mask,
              const float* values);
 
