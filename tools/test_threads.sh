@@ -28,8 +28,8 @@ export TSAN_OPTIONS="suppressions=$PWD/tools/tsan.supp halt_on_error=1 second_de
 # synchronous physics cases step both regions on the test's thread, and took most of the
 # executable's 150 s under TSan; the release suite runs them) and the spring's threaded tick. The lazy loads decode slices on TBB workers (DICOM
 # through GDCM, one reader per file; NIfTI, NRRD and MetaImage by pread or from the kept stored
-# bytes) while the resampler fills the grid. test_volume_vdb_write: leaves packed from TBB workers (the
-# resampler's convert() and a parallel_for) and written once they have joined. test_deformable_head: the shared head CT on the
+# bytes) while the resampler fills the grid. test_volume_vdb_write: leaves packed on TBB workers (by
+# convert()'s resampler and by palp::parallelForEach), written once they have joined. test_deformable_head: the shared head CT on the
 # threaded regions (the servo's ticks against the secondary and layout threads).
 declare -A filter=([test_deformable_async]='DeformableAsync.TicksAllocateNothing:DeformableAsync.RejectsBadOptions*:DeformableAsync.AnAllocationFailure*'
                    [test_async_spring]='AsyncSpring.Threaded*'

@@ -15,7 +15,7 @@
 
 namespace palp::volume::detail {
 
-/// Packed leaves'  active voxels and their index-space box (empty for none).
+/// The packed leaves' active voxels and their index-space box (empty for none).
 struct PackedStats {
     std::uint64_t activeVoxels = 0;
     openvdb::CoordBBox box;
