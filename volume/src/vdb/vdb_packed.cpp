@@ -11,10 +11,11 @@
 
 #include <algorithm>
 #include <bit>
+#include <boost/uuid/random_generator.hpp>
+#include <boost/uuid/uuid_io.hpp>
 #include <cerrno>
 #include <climits>
 #include <cstring>
-#include <random>
 #include <sstream>
 #include <type_traits>
 
@@ -80,28 +81,6 @@ void addLeafStats(const std::uint64_t (&words)[8], const openvdb::Coord& origin,
     stats.box.expand(openvdb::CoordBBox(
         origin + openvdb::Coord(xLo, std::countr_zero(ys), std::countr_zero(zs)),
         origin + openvdb::Coord(xHi, 31 - std::countl_zero(ys), 31 - std::countl_zero(zs))));
-}
-
-/// A random (version 4) UUID in the 36-character form OpenVDB's header carries.
-std::string randomUuid() {
-    std::random_device device;
-    std::mt19937_64 gen((std::uint64_t{device()} << 32) ^ device());
-    unsigned char b[16];
-    for (int i = 0; i < 16; i += 8) {
-        const std::uint64_t r = gen();
-        std::memcpy(b + i, &r, 8);
-    }
-    b[6] = static_cast<unsigned char>((b[6] & 0x0F) | 0x40);
-    b[8] = static_cast<unsigned char>((b[8] & 0x3F) | 0x80);
-    static constexpr char kHex[] = "0123456789abcdef";
-    std::string out;
-    out.reserve(36);
-    for (int i = 0; i < 16; ++i) {
-        if (i == 4 || i == 6 || i == 8 || i == 10) out += '-';
-        out += kHex[b[i] >> 4];
-        out += kHex[b[i] & 15];
-    }
-    return out;
 }
 
 template <typename T>
@@ -238,7 +217,7 @@ std::string filePrefix(const openvdb::FloatGrid& grid, const Topology& topology,
     writeRaw(os, std::uint32_t{openvdb::OPENVDB_LIBRARY_MAJOR_VERSION});
     writeRaw(os, std::uint32_t{openvdb::OPENVDB_LIBRARY_MINOR_VERSION});
     writeRaw(os, char{1});
-    os << randomUuid();
+    os << boost::uuids::to_string(boost::uuids::random_generator()());  // as OpenVDB: random
     openvdb::MetaMap fileMeta;
     fileMeta.insertMeta("creator", openvdb::StringMetadata("palp"));
     fileMeta.writeMeta(os);
