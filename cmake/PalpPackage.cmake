@@ -27,7 +27,7 @@ endif()
 # CMake's absolute build RUNPATHs; as in every CMake project that installs, they end in ':' (room
 # for the in-place rewrite at install), an empty entry the loader reads as the current directory.
 file(RELATIVE_PATH palp_bin_to_lib /${CMAKE_INSTALL_BINDIR} /${CMAKE_INSTALL_LIBDIR})
-set(palp_modules base kernels volume fem tissue rendering devices haptics studies capi perception)
+set(palp_modules base kernels volume_core volume fem tissue rendering devices haptics studies capi perception)
 set(palp_export_targets)
 foreach(module ${palp_modules})
   set_target_properties(palp_${module} PROPERTIES
@@ -41,7 +41,7 @@ endforeach()
 add_library(palp_umbrella INTERFACE)
 set_target_properties(palp_umbrella PROPERTIES EXPORT_NAME palp)
 target_link_libraries(palp_umbrella INTERFACE palp_capi palp_studies palp_perception palp_haptics
-  palp_devices palp_rendering palp_tissue palp_fem palp_volume palp_kernels palp_base)
+  palp_devices palp_rendering palp_tissue palp_fem palp_volume palp_volume_core palp_kernels palp_base)
 list(APPEND palp_export_targets palp_umbrella)
 
 install(TARGETS ${palp_export_targets} EXPORT palpTargets

@@ -35,7 +35,7 @@ libdir="$(dirname "$(find "$prefix" -name palp.pc -path '*/pkgconfig/*' | head -
 libdir="$(cd "$libdir" && pwd)"
 
 # Every module: a versioned file, its SONAME, the development symlink, RUNPATH $ORIGIN.
-for m in base kernels volume fem tissue rendering devices haptics studies capi perception; do
+for m in base kernels volume_core volume fem tissue rendering devices haptics studies capi perception; do
   lib="$libdir/libpalp_$m.so.$version"
   [[ -f "$lib" && ! -L "$lib" ]] || fail "$lib missing"
   [[ "$(readlink "$libdir/libpalp_$m.so")" == "libpalp_$m.so.$soversion" ]] ||
@@ -74,7 +74,7 @@ got="$(env -u LD_LIBRARY_PATH "$prefix/bin/palp" --version)" || fail "bin/palp -
 [[ "$got" == "palp $version" ]] || fail "bin/palp --version printed '$got', expected 'palp $version'"
 unresolved="$(env -u LD_LIBRARY_PATH ldd "$prefix/bin/palp" | grep 'not found' || true)"
 [[ -z "$unresolved" ]] || fail "bin/palp: $unresolved"
-# The executable links the volume stack alone; its other commands are a module beside
+# The executable links palp_volume_core alone; its other commands are a module beside
 # libpalp_tool.so (tools/CMakeLists.txt), which loads the installed libpalp_haptics.
 [[ -z "$(loaded_haptics "$prefix/bin/palp")" ]] ||
   fail "bin/palp loads libpalp_haptics at start-up (convert and --version should not)"
@@ -93,8 +93,10 @@ env -u LD_LIBRARY_PATH LD_DEBUG=files "$prefix/bin/palp" --quiet palpate --phant
 grep -q "file=$prefix/.*/libpalp_tool_commands.so .*dynamically loaded" "$tmp/palpate.log" ||
   fail "bin/palp palpate did not open $commands"
 echo "  bin/palp palpate: through $(basename "$commands") from the prefix"
-# DICOM through the installed plugin (libpalp_volume_dicom.so, opened beside libpalp_volume at
-# the first DICOM): a generated series converts from the prefix alone.
+# DICOM through the installed plugin (libpalp_volume_dicom.so, opened beside
+# libpalp_volume_core at the first DICOM): a generated series converts from the prefix alone,
+# without loading OpenVDB's library; a Blosc-compressed output opens the installed
+# libpalp_volume (and so OpenVDB) for load() and save().
 plugin="$libdir/libpalp_volume_dicom.so"
 [[ -f "$plugin" ]] || fail "$plugin missing"
 ! grep -q "$PWD" <<<"$(readelf -d "$plugin")" || fail "$plugin refers to the build tree"
@@ -103,7 +105,14 @@ env -u LD_LIBRARY_PATH "$prefix/bin/palp" --quiet phantom avc --dicom-dir "$tmp/
 env -u LD_LIBRARY_PATH LD_DEBUG=files "$prefix/bin/palp" --quiet convert "$tmp/series" \
   -o "$tmp/series.vdb" >"$tmp/convert.log" 2>&1 || { cat "$tmp/convert.log" >&2; fail "bin/palp convert of a DICOM series"; }
 grep -q "file=$prefix/.*/libpalp_volume_dicom.so .*dynamically loaded" "$tmp/convert.log" || fail "bin/palp convert did not open $plugin"
-echo "  bin/palp convert: a DICOM series through $(basename "$plugin") from the prefix"
+! grep -q "file=.*libopenvdb" "$tmp/convert.log" || fail "bin/palp convert of a DICOM series loaded libopenvdb"
+env -u LD_LIBRARY_PATH LD_DEBUG=files "$prefix/bin/palp" --quiet convert "$tmp/series" \
+  -o "$tmp/series_blosc.vdb" --compression blosc >"$tmp/convert_blosc.log" 2>&1 ||
+  { cat "$tmp/convert_blosc.log" >&2; fail "bin/palp convert --compression blosc"; }
+grep -q "file=$prefix/.*/libpalp_volume.so.$soversion .*dynamically loaded" "$tmp/convert_blosc.log" ||
+  fail "bin/palp convert --compression blosc did not open the installed libpalp_volume"
+echo "  bin/palp convert: a DICOM series through $(basename "$plugin") from the prefix, no libopenvdb"
+echo "  bin/palp convert --compression blosc: through the installed libpalp_volume"
 
 # The consumers with CMake.
 cmake -S tests/package -B "$tmp/consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release \

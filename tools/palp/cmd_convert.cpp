@@ -8,8 +8,7 @@
 #include "commands.h"
 #include "convert/convert_flags.h"
 #include "palp/base/error.h"
-#include "palp/volume/load.h"
-#include "palp/volume/resample.h"
+#include "palp/volume/convert.h"
 #include "progress.h"
 #include "volume_flags.h"
 

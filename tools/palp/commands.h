@@ -17,9 +17,9 @@ struct Command {
     std::function<int()> run;
 };
 
-/// The commands of the module libpalp_tool_commands (palpate, bench, serve, bridge-sim, sweep,
-/// errormap, study), added to @p root and @p out by its entry point of this name and type; the
-/// executable holds convert, convert-tree, info and phantom itself.
+/// The commands of the module libpalp_tool_commands (info, phantom, palpate, bench, serve,
+/// bridge-sim, sweep, errormap, study), added to @p root and @p out by its entry point of this
+/// name and type; the executable holds convert and convert-tree itself.
 inline constexpr const char* kCommandsEntry = "palp_tool_add_commands";
 using AddCommandsFn = void (*)(CLI::App& root, std::vector<Command>& out);
 

@@ -1,5 +1,5 @@
-// The palp command: convert, inspect and generate volumes here; palpate, benchmark, serve, sweep
-// and study through the commands module, opened only when one of those is asked for.
+// The palp command: convert scans here; inspect and generate volumes, palpate, benchmark, serve,
+// sweep and study through the commands module, opened only when one of those is asked for.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cstdio>
@@ -25,7 +25,7 @@ namespace fs = std::filesystem;
 /// option names the command; with none, --version is answered here and anything else (--help,
 /// which lists every command, or a missing command, refused with that list) needs the module.
 bool wantsModule(int argc, char** argv) {
-    static constexpr std::string_view kHere[] = {"convert", "convert-tree", "info", "phantom"};
+    static constexpr std::string_view kHere[] = {"convert", "convert-tree"};
     bool version = false;
     for (int i = 1; i < argc; ++i) {
         const std::string_view arg = argv[i];
@@ -42,7 +42,8 @@ bool wantsModule(int argc, char** argv) {
 void addModuleCommands(CLI::App& app, std::vector<palp::tool::Command>& commands) {
     void* entry = palp::openLibrarySymbol(
         palp::tool::toolLibraryDir() / PALP_TOOL_COMMANDS_FILE, palp::tool::kCommandsEntry,
-        "palp's commands library (palpate, bench, serve, bridge-sim, sweep, errormap, study)");
+        "palp's commands library (info, phantom, palpate, bench, serve, bridge-sim, sweep, "
+        "errormap, study)");
     reinterpret_cast<palp::tool::AddCommandsFn>(entry)(app, commands);
 }
 
@@ -53,9 +54,8 @@ int main(int argc, char** argv) {
     app.require_subcommand(1);
     app.set_version_flag("--version", "palp 0.1.0");
     app.add_flag("-q,--quiet", palp::tool::globals().quiet, "No progress output");
-    std::vector<palp::tool::Command> commands{
-        palp::tool::addConvert(app), palp::tool::addConvertTree(app), palp::tool::addInfo(app),
-        palp::tool::addPhantom(app)};
+    std::vector<palp::tool::Command> commands{palp::tool::addConvert(app),
+                                              palp::tool::addConvertTree(app)};
     if (wantsModule(argc, argv)) {
         try {
             addModuleCommands(app, commands);

@@ -4,7 +4,7 @@
 
 #include <string>
 
-#include "palp/volume/resample.h"
+#include "palp/volume/resample_options.h"
 
 namespace palp::tool {
 

@@ -1,21 +1,20 @@
 #pragma once
 /// @file
-/// Internal to palp_volume (and its tests): a slice stack whose pixels are decoded as the
-/// resampler reaches them, so that load() of a DICOM series never holds the whole series: its
-/// peak is the output grid plus a band of slices along the normal.
+/// Internal to palp_volume_core (and palp_volume, and their tests): a slice stack whose pixels are
+/// decoded as the resampler reaches them, so that load() of a DICOM series never holds the whole
+/// series: its peak is the output grid plus a band of slices along the normal.
 
 #include <cstddef>
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <vector>
 
 #include "palp/volume/read_options.h"
-#include "palp/volume/resample.h"
+#include "palp/volume/resample_options.h"
 #include "palp/volume/slice_stack.h"
 
 namespace palp::volume::detail {
-
-class PackedLeaves;
 
 struct LazySliceStack {
     /// The slices with their geometry, size (cols, rows) and source; values empty while
@@ -29,16 +28,19 @@ struct LazySliceStack {
     std::function<bool(std::size_t index, Slice& slice)> decode;
 };
 
-/// resample() of @p lazy, the same grid as resample(SliceStack) of the decoded stack. Each slice
-/// is decoded (in parallel, a band at a time) when the first block that reads it comes and
-/// released when the last has passed; slices no block reads (outside a crop) are decoded and
-/// checked at the end, so a damaged file is refused whatever the crop. Leaves @p lazy's values
-/// released. With @p packed, the leaves go there instead (FillContext::packed) and the grid
-/// has none.
-/// @throw what decode throws (within a band, the lowest slice's error first); FormatError
-///        naming the slice for a value checkStackValues() refuses; what resample() throws.
-Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options,
-                    PackedLeaves* packed = nullptr);
+/// @throw IoError "<p>: expected an existing file or directory, found nothing".
+void requireExists(const std::filesystem::path& p);
+
+/// The stack of @p inputs read lazily: a DICOM series (openDicom()), or one NIfTI, NRRD or
+/// MetaImage file (formats.h); std::nullopt for anything else (a `.vdb`, a file of unknown
+/// format, several files that are not DICOM), which readStack() refuses or load() re-grids.
+/// @throw what the readers' open functions throw.
+std::optional<LazySliceStack> openLazy(const std::vector<std::filesystem::path>& inputs,
+                                       const ReadOptions& options);
+
+/// Checks @p lazy's values when they are there already (no decode) as readStack() does.
+/// @throw FormatError naming the slice (the file is at fault).
+void checkLazyValues(const LazySliceStack& lazy);
 
 /// Checks slice @p k of a stack as checkStackValues() does.
 /// @throw ValueError as checkStackValues().

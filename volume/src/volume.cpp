@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <mutex>
+#include <type_traits>
+
+#include "volume_info_fields.h"
 
 namespace palp::volume {
 
@@ -27,32 +30,18 @@ openvdb::BBoxd Volume::worldBounds() const {
 }
 
 void writeInfo(const VolumeInfo& info, openvdb::GridBase& grid) {
-    grid.insertMeta("palp:modality", openvdb::StringMetadata(info.modality));
-    grid.insertMeta("palp:value_units", openvdb::StringMetadata(info.valueUnits));
-    grid.insertMeta("palp:source_format", openvdb::StringMetadata(info.sourceFormat));
-    grid.insertMeta("palp:source_description", openvdb::StringMetadata(info.sourceDescription));
-    grid.insertMeta("palp:series_uid", openvdb::StringMetadata(info.seriesUid));
-    grid.insertMeta("palp:original_dims",
-                    openvdb::Vec3IMetadata(openvdb::Vec3i(static_cast<int>(info.originalDims[0]),
-                                                          static_cast<int>(info.originalDims[1]),
-                                                          static_cast<int>(info.originalDims[2]))));
-    grid.insertMeta("palp:original_spacing_m", openvdb::Vec3DMetadata(openvdb::Vec3d(
-                                                   info.originalSpacing[0], info.originalSpacing[1],
-                                                   info.originalSpacing[2])));
-    grid.insertMeta("palp:min_slice_gap_m", openvdb::DoubleMetadata(info.minSliceGap));
-    grid.insertMeta("palp:max_slice_gap_m", openvdb::DoubleMetadata(info.maxSliceGap));
-    grid.insertMeta("palp:rescale_slope", openvdb::DoubleMetadata(info.rescaleSlope));
-    grid.insertMeta("palp:rescale_intercept", openvdb::DoubleMetadata(info.rescaleIntercept));
-    grid.insertMeta("palp:gantry_tilt_deg", openvdb::DoubleMetadata(info.gantryTiltDeg));
-    grid.insertMeta("palp:time_point", openvdb::Int32Metadata(info.timePoint));
-    grid.insertMeta("palp:time_point_count", openvdb::Int32Metadata(info.timePointCount));
-    if (!info.phaseEncodingPolarityGE.empty()) {
-        grid.insertMeta("palp:phase_encoding_polarity_ge",
-                        openvdb::StringMetadata(info.phaseEncodingPolarityGE));
-    }
-    grid.insertMeta("palp:background_threshold", openvdb::FloatMetadata(info.backgroundThreshold));
-    grid.insertMeta("palp:values_below_threshold",
-                    openvdb::Int64Metadata(static_cast<std::int64_t>(info.valuesBelowThreshold)));
+    detail::forEachInfoField(info, [&](const char* name, const auto& value) {
+        using T = std::decay_t<decltype(value)>;
+        if constexpr (std::is_same_v<T, std::array<std::int32_t, 3>>) {
+            grid.insertMeta(name,
+                            openvdb::Vec3IMetadata(openvdb::Vec3i(value[0], value[1], value[2])));
+        } else if constexpr (std::is_same_v<T, std::array<double, 3>>) {
+            grid.insertMeta(name,
+                            openvdb::Vec3DMetadata(openvdb::Vec3d(value[0], value[1], value[2])));
+        } else {
+            grid.insertMeta(name, openvdb::TypedMetadata<T>(value));
+        }
+    });
 }
 
 VolumeInfo readInfo(const openvdb::GridBase& grid) {

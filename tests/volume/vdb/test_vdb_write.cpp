@@ -135,10 +135,6 @@ TEST(VdbWrite, PackedLeavesWriteTheSerialWritersBytes) {
     for (int i = 0; i < 400; ++i) origins.emplace_back(8 * pick(rng), 8 * pick(rng), 8 * pick(rng));
     std::sort(origins.begin(), origins.end());
     origins.erase(std::unique(origins.begin(), origins.end()), origins.end());
-    auto grid = openvdb::FloatGrid::create(background);
-    grid->setName(palp::volume::kScanGridName);
-    grid->setTransform(openvdb::math::Transform::createLinearTransform(0.5e-3));
-    grid->insertMeta("palp:modality", openvdb::StringMetadata("CT"));
     std::vector<std::vector<float>> values(origins.size(), std::vector<float>(LeafT::SIZE));
     std::vector<LeafT::NodeMaskType> masks(origins.size());
     std::uniform_real_distribution<float> value(-900.0f, 3000.0f);
@@ -150,40 +146,67 @@ TEST(VdbWrite, PackedLeavesWriteTheSerialWritersBytes) {
             values[i][k] = on ? value(rng) : background;
             if (on) masks[i].setOn(k);
         }
-        auto* leaf = new LeafT(origins[i], background);
-        for (openvdb::Index k = 0; k < LeafT::SIZE; ++k) leaf->setValueOnly(k, values[i][k]);
-        leaf->setValueMask(masks[i]);
-        grid->tree().addLeaf(leaf);
     }
-    // Packed from several threads, in no particular order (palp::parallelForEach: the fork and
-    // join ThreadSanitizer sees).
-    palp::volume::detail::PackedLeaves packed;
-    palp::parallelForEach(
-        std::size_t{0}, origins.size(),
-        [&](std::size_t j) {
-            const std::size_t i = origins.size() - 1 - j;
-            packed.add(origins[i], masks[i], values[i].data());
-        },
-        std::size_t{8});
+    palp::volume::VolumeInfo info;
+    info.modality = "CT";
+    info.valueUnits = "HU";
+    info.originalDims = {512, 512, 300};
+    info.originalSpacing = {0.48e-3, 0.48e-3, 0.6e-3};
+    info.phaseEncodingPolarityGE = "Flipped";
+    info.valuesBelowThreshold = 12345;
     const palp::test::TempDir dir;
     const fs::path mine = dir / "packed.vdb", theirs = dir / "openvdb.vdb";
-    const palp::volume::detail::PackedStats stats =
-        palp::volume::detail::writePackedVdb(*grid, packed, mine);
-    writeWithOpenVdb(grid, theirs);
-    expectSameButUuid(mine, theirs);
-    EXPECT_EQ(stats.activeVoxels, grid->activeVoxelCount());
-    EXPECT_EQ(stats.box, grid->evalActiveVoxelBoundingBox());
-
-    // No leaf at all.
-    auto empty = openvdb::FloatGrid::create(background);
-    empty->setName(palp::volume::kScanGridName);
-    const palp::volume::detail::PackedLeaves none;
-    const palp::volume::detail::PackedStats zero =
-        palp::volume::detail::writePackedVdb(*empty, none, mine);
-    writeWithOpenVdb(empty, theirs);
-    expectSameButUuid(mine, theirs);
-    EXPECT_EQ(zero.activeVoxels, 0u);
-    EXPECT_TRUE(zero.box.empty());
+    // The first n leaves: none, one, 60 (the delayed-load masks stored raw, and padded for
+    // Blosc) and all; on a uniform scale with a translation (the resampler's cubic voxels) and
+    // on a per-axis scale (native spacing).
+    struct Lattice {
+        Eigen::Vector3d step, lo;
+    };
+    for (const Lattice& lat : {Lattice{Eigen::Vector3d::Constant(0.5e-3), {0.01, -0.02, 0.03}},
+                               Lattice{{0.48e-3, 0.5e-3, 1.25e-3}, {-0.1, 0.2, -0.3}}}) {
+        for (const std::size_t n :
+             {std::size_t{0}, std::size_t{1}, std::size_t{60}, origins.size()}) {
+            SCOPED_TRACE("leaves " + std::to_string(n) + ", step x " +
+                         std::to_string(lat.step.x()) + " y " + std::to_string(lat.step.y()));
+            // OpenVDB's grid of those leaves, as resample() makes it.
+            auto grid = openvdb::FloatGrid::create(background);
+            grid->setName(palp::volume::kScanGridName);
+            const openvdb::Vec3d lo(lat.lo.data()), step(lat.step.data());
+            if (lat.step.x() == lat.step.y()) {
+                grid->setTransform(openvdb::math::Transform::createLinearTransform(step.x()));
+                grid->transform().postTranslate(lo);
+            } else {
+                grid->setTransform(std::make_shared<openvdb::math::Transform>(
+                    std::make_shared<openvdb::math::ScaleTranslateMap>(step, lo)));
+            }
+            palp::volume::writeInfo(info, *grid);
+            for (std::size_t i = 0; i < n; ++i) {
+                auto* leaf = new LeafT(origins[i], background);
+                for (openvdb::Index k = 0; k < LeafT::SIZE; ++k)
+                    leaf->setValueOnly(k, values[i][k]);
+                leaf->setValueMask(masks[i]);
+                grid->tree().addLeaf(leaf);
+            }
+            // Packed from several threads, in no particular order (palp::parallelForEach: the
+            // fork and join ThreadSanitizer sees).
+            palp::volume::detail::PackedLeaves packed;
+            palp::parallelForEach(
+                std::size_t{0}, n,
+                [&](std::size_t j) {
+                    const std::size_t i = n - 1 - j;
+                    packed.add(origins[i], masks[i], values[i].data());
+                },
+                std::size_t{8});
+            const palp::volume::detail::PackedGrid header{info, lat.step, lat.lo, background};
+            const palp::volume::detail::PackedStats stats =
+                palp::volume::detail::writePackedVdb(header, packed, mine);
+            writeWithOpenVdb(grid, theirs);
+            expectSameButUuid(mine, theirs);
+            EXPECT_EQ(stats.activeVoxels, grid->activeVoxelCount());
+            EXPECT_EQ(stats.box, grid->evalActiveVoxelBoundingBox());
+            EXPECT_EQ(stats.box.empty(), n == 0);
+        }
+    }
 }
 
 /// convert() of @p inputs writes what save(load()) writes; returns the convert() summary.
@@ -233,6 +256,7 @@ TEST(VdbWrite, ConvertWritesWhatSaveOfLoadWrites) {
 TEST(VdbWrite, ConvertOfRealScansWritesWhatSaveOfLoadWrites) {
     PALP_REQUIRE_DATA(head, "ct-ge-head-tilt");
     PALP_REQUIRE_DATA(mr, "nifti-mr");
+    PALP_REQUIRE_DATA(formats, "mr-one-volume-many-formats");
     palp::volume::initialize();
     // The tilted head CT by rows of blocks, at 1 mm and cropped to a box at 0.5 mm.
     palp::volume::LoadOptions opt;
@@ -243,6 +267,13 @@ TEST(VdbWrite, ConvertOfRealScansWritesWhatSaveOfLoadWrites) {
     expectConvertIsSaveOfLoad({head}, opt);
     // A big-endian NIfTI MR, its default threshold and spacing.
     expectConvertIsSaveOfLoad({mr / "anatomical.nii"}, {});
+    // Native spacing: the MetaImage MR's 3.437 x 3.438 x 3.8 mm voxels, a per-axis scale whose
+    // stored value OpenVDB's transform rounds (storedMap()), and the NIfTI's cubic 2 mm ones.
+    palp::volume::LoadOptions native;
+    native.resample.nativeSpacing = true;
+    const palp::volume::ConvertSummary s = expectConvertIsSaveOfLoad({formats / "mha.mha"}, native);
+    EXPECT_FALSE(s.hasCubicVoxels());
+    EXPECT_TRUE(expectConvertIsSaveOfLoad({mr / "anatomical.nii"}, native).hasCubicVoxels());
 }
 
 }  // namespace

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "palp/volume/load.h"
+#include "palp/volume/convert.h"
 
 namespace palp::tool {
 

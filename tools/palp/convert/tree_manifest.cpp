@@ -8,7 +8,7 @@
 
 #include "palp/base/atomic_file.h"
 #include "palp/base/error.h"
-#include "palp/volume/load.h"
+#include "palp/volume/convert.h"
 
 namespace palp::tool {
 

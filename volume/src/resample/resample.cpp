@@ -1,7 +1,3 @@
-#include "palp/volume/resample.h"
-
-#include <openvdb/tools/Prune.h>
-
 #include <Eigen/Dense>
 #include <algorithm>
 #include <array>
@@ -18,9 +14,9 @@
 #include "palp/base/error.h"
 #include "palp/base/parallel.h"
 #include "palp/base/validate.h"
-#include "resample/resample_detail.h"
+#include "palp/volume/resample_options.h"
+#include "resample/leaf_sink.h"
 #include "resample/slice_sampler.h"
-#include "vdb/vdb_errors.h"
 
 namespace palp::volume {
 
@@ -132,20 +128,6 @@ double chooseVoxelSize(const StackGeometry& g, const StackSpacing& spacing,
     if (options.voxelSize) voxel = *options.voxelSize;
     palp::requireWithin("resample: voxel size", voxel, bounds::kSpacing, {1e3, "mm"});
     return voxel;
-}
-
-/// Index-to-world transform of a lattice: a uniform scale for equal steps (as before native
-/// spacing existed), else a per-axis scale; then a translation to @p lo (metres).
-openvdb::math::Transform::Ptr worldFromIndex(const Eigen::Vector3d& step,
-                                             const Eigen::Vector3d& lo) {
-    if (step.x() == step.y() && step.y() == step.z()) {
-        auto xform = openvdb::math::Transform::createLinearTransform(step.x());
-        xform->postTranslate(openvdb::Vec3d(lo.x(), lo.y(), lo.z()));
-        return xform;
-    }
-    return std::make_shared<openvdb::math::Transform>(
-        std::make_shared<openvdb::math::ScaleTranslateMap>(openvdb::Vec3d(step.data()),
-                                                           openvdb::Vec3d(lo.data())));
 }
 
 std::string mmStr(double metres) { return formatValue(metres * 1e3); }
@@ -307,7 +289,9 @@ void checkResampleOptions(const ResampleOptions& options) {
     }
     if (options.crop) {
         for (int a = 0; a < 3; ++a) {
-            const std::string axis = "[" + std::to_string(a) + "]";
+            std::string axis = "[";  // appended, not "[" + ... (GCC 12's -Wrestrict misfires)
+            axis += std::to_string(a);
+            axis += ']';
             palp::requireWithin("resample: crop min" + axis, options.crop->min[a],
                                 bounds::kPosition, {1e3, "mm"});
             palp::requireWithin("resample: crop max" + axis, options.crop->max[a],
@@ -453,11 +437,21 @@ class LazyWindow {
     std::size_t mReleased = 0;
 };
 
-/// resample() of @p stack; with @p lazy (whose stack is @p stack) the values are decoded as
-/// the blocks reach them. @p referenceOnly, @p scalarRows and @p perBlockRows: see FillContext.
-Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, bool referenceOnly,
-                       LazySliceStack* lazy = nullptr, bool scalarRows = false,
-                       bool perBlockRows = false, PackedLeaves* packed = nullptr) {
+}  // namespace
+
+namespace detail {
+
+void checkLazyValues(const LazySliceStack& lazy) {
+    if (lazy.decode) return;
+    try {
+        checkStackValues(lazy.stack);
+    } catch (const ValueError& e) {
+        throw FormatError(e.what());  // the file is at fault, as readStack() says
+    }
+}
+
+VolumeInfo resampleInto(const SliceStack& stack, const ResampleOptions& options, LeafSink& sink,
+                        const FillPaths& paths, LazySliceStack* lazy) {
     const bool resident = lazy == nullptr || !lazy->decode;
     const StackGeometry g = analyse(stack, resident);
     const std::size_t n = g.order.size();
@@ -470,17 +464,21 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
     const float threshold =
         options.backgroundThreshold.value_or(defaultBackgroundThreshold(stack.info));
     const float background = backgroundValueFor(stack.info, threshold);
-
-    auto grid = openvdb::FloatGrid::create(background);
-    grid->setName(kScanGridName);
-    grid->setTransform(worldFromIndex(step, lat.lo));
+    sink.start(step, lat.lo, background);
 
     SliceSampler sampler(stack, g, step, threshold, resident);
-    const FillContext ctx{sampler,       g,          lat,          threshold, background,
-                          referenceOnly, scalarRows, perBlockRows, packed};
+    const FillContext ctx{sampler,
+                          g,
+                          lat,
+                          threshold,
+                          background,
+                          paths.referenceOnly,
+                          paths.scalarRows,
+                          paths.perBlockRows,
+                          sink};
     std::uint64_t below = 0;
     if (resident) {
-        fillTree(ctx, options.progress, grid->tree());
+        fillTree(ctx, options.progress);
         std::vector<std::uint64_t> perSlice(stack.slices.size(), 0);
         palp::parallelForEach(
             std::size_t{0}, perSlice.size(),
@@ -491,7 +489,7 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
         below = std::accumulate(perSlice.begin(), perSlice.end(), std::uint64_t{0});
     } else {
         LazyWindow window(*lazy, sampler, threshold, background);
-        fillTree(ctx, options.progress, grid->tree(),
+        fillTree(ctx, options.progress,
                  [&](std::size_t releaseBelow, std::size_t lo, std::size_t hi) {
                      window(releaseBelow, lo, hi);
                  });
@@ -499,63 +497,20 @@ Volume resampleChecked(const SliceStack& stack, const ResampleOptions& options, 
         below = window.below();
     }
 
-    Volume out;
-    out.grid = grid;
-    out.info = stack.info;
-    out.info.backgroundThreshold = threshold;
-    out.info.valuesBelowThreshold = below;
-    out.info.minSliceGap = spacing.minGap;
-    out.info.maxSliceGap = spacing.maxGap;
-    out.info.originalSpacing = {g.u.norm(), g.v.norm(), spacing.medianGap};
-    if (out.info.originalDims[0] == 0) {
-        out.info.originalDims = {stack.slices.front().cols, stack.slices.front().rows,
-                                 static_cast<std::int64_t>(n)};
+    VolumeInfo info = stack.info;
+    info.backgroundThreshold = threshold;
+    info.valuesBelowThreshold = below;
+    info.minSliceGap = spacing.minGap;
+    info.maxSliceGap = spacing.maxGap;
+    info.originalSpacing = {g.u.norm(), g.v.norm(), spacing.medianGap};
+    if (info.originalDims[0] == 0) {
+        info.originalDims = {stack.slices.front().cols, stack.slices.front().rows,
+                             static_cast<std::int64_t>(n)};
     }
     // The geometry gives the angle; a DICOM Gantry/Detector Tilt (0018,1120) gives its sign,
     // which the metadata keeps as the tag says.
-    out.info.gantryTiltDeg = stack.info.gantryTiltDeg < 0 ? -spacing.tiltDeg : spacing.tiltDeg;
-    writeInfo(out.info, *grid);
-    return out;
-}
-
-}  // namespace
-
-Volume resample(const SliceStack& stack, const ResampleOptions& options) {
-    checkResampleOptions(options);
-    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build", [&] {
-        return resampleChecked(stack, options, false);
-    });
-}
-
-namespace detail {
-
-Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options, PackedLeaves* packed) {
-    checkResampleOptions(options);
-    if (!lazy.decode) {
-        try {
-            checkStackValues(lazy.stack);
-        } catch (const ValueError& e) {
-            throw FormatError(e.what());  // the file is at fault, as readStack() says
-        }
-    }
-    return detail::withVdbErrors<ValueError>("resample", "a grid OpenVDB can build", [&] {
-        return resampleChecked(lazy.stack, options, false, &lazy, false, false, packed);
-    });
-}
-
-Volume resampleVoxelByVoxel(const SliceStack& stack, const ResampleOptions& options) {
-    checkResampleOptions(options);
-    return resampleChecked(stack, options, true);
-}
-
-Volume resampleScalarRows(const SliceStack& stack, const ResampleOptions& options) {
-    checkResampleOptions(options);
-    return resampleChecked(stack, options, false, nullptr, true);
-}
-
-Volume resamplePerBlockRows(const SliceStack& stack, const ResampleOptions& options) {
-    checkResampleOptions(options);
-    return resampleChecked(stack, options, false, nullptr, false, true);
+    info.gantryTiltDeg = stack.info.gantryTiltDeg < 0 ? -spacing.tiltDeg : spacing.tiltDeg;
+    return info;
 }
 
 }  // namespace detail

@@ -2,9 +2,19 @@
 /// @file
 /// Internal to palp_volume (and its tests): the resampler's reference path.
 
+#include "lazy_stack.h"
 #include "palp/volume/resample.h"
 
 namespace palp::volume::detail {
+
+/// resample() of @p lazy, the same grid as resample(SliceStack) of the decoded stack. Each slice
+/// is decoded (in parallel, a band at a time) when the first block that reads it comes and
+/// released when the last has passed; slices no block reads (outside a crop) are decoded and
+/// checked at the end, so a damaged file is refused whatever the crop. Leaves @p lazy's values
+/// released.
+/// @throw what decode throws (within a band, the lowest slice's error first); FormatError
+///        naming the slice for a value checkStackValues() refuses; what resample() throws.
+Volume resampleLazy(LazySliceStack& lazy, const ResampleOptions& options);
 
 /// resample(SliceStack) with every block filled voxel by voxel through the world-point
 /// evaluation (bracketing slices found by search, in-plane coordinates by a matrix product),

@@ -25,7 +25,6 @@
 #include "palp/base/simd.h"
 #include "resample/block_rows.h"
 #include "resample/slice_sampler.h"
-#include "vdb/vdb_packed.h"
 
 namespace palp::volume::detail {
 
@@ -35,13 +34,12 @@ namespace {
 /// many plus the slices one block spans along the normal.
 constexpr std::size_t kSlicesPerGroup = 16;
 
-/// Values of one leaf block (the buffer of a leaf not yet in the tree) and its active mask,
+/// Values of one leaf block (the sink's memory for the thread's next leaf) and its active mask,
 /// filled densely by one thread; a block that stays inactive leaves its leaf to the next block,
 /// so it costs no allocation, and an active one's values are filled in place, not copied.
 struct DenseBlock {
-    float* values = nullptr;
+    float* values = nullptr;  // the sink's (LeafSink::values())
     LeafT::NodeMaskType mask;
-    std::vector<float> own;  // the values when they go packed, not to a leaf's buffer
 };
 
 /// One slice's bilinear sample at (c, r) for the row kernel: the pixel centres clamped as in
@@ -432,8 +430,7 @@ bool activeMask(const float* values, float background, LeafT::NodeMaskType& mask
 
 }  // namespace
 
-void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree,
-              const SliceWindowFn& window) {
+void fillTree(const FillContext& ctx, const ProgressFn& progress, const SliceWindowFn& window) {
     const SliceSampler& sm = ctx.sampler;
     const std::size_t n = sm.sliceCount();
     const Eigen::Vector3d& step = ctx.lat.step;
@@ -516,51 +513,23 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
     }
     groupOf = {};
 
-    tbb::enumerable_thread_specific<std::vector<std::unique_ptr<LeafT>>> made;
     tbb::enumerable_thread_specific<DenseBlock> scratch;
-    tbb::enumerable_thread_specific<std::unique_ptr<LeafT>> spareLeaf;
     tbb::enumerable_thread_specific<BlockRowScratch> rowScratch;
-    // The leaf a block fills: the spare one (its buffer allocated, not filled), made on demand.
-    const auto spare = [&](const openvdb::Coord& origin) -> std::unique_ptr<LeafT>& {
-        std::unique_ptr<LeafT>& leaf = spareLeaf.local();
-        if (!leaf) {
-            leaf = std::make_unique<LeafT>(openvdb::PartialCreate(), origin, ctx.background, false);
-            leaf->allocate();
-        }
-        return leaf;
-    };
-    // A packed leaf goes to ctx.packed, not to the tree.
-    const auto pack = [&](const openvdb::Coord& origin, const LeafT::NodeMaskType& mask,
-                          const float* values) { ctx.packed->add(origin, mask, values); };
     // One block by the per-block kernel (voxel by voxel for a single slice, and for the tests'
-    // reference), filled in the spare leaf's buffer (or the thread's own values when packed).
+    // reference), filled in the sink's values for the thread's next leaf.
     const auto fillOne = [&](const openvdb::Coord& origin, const Eigen::Vector3d& bmin,
                              std::size_t bracket, std::size_t bracketEnd) {
         DenseBlock& block = scratch.local();
-        std::unique_ptr<LeafT>* leaf = nullptr;
-        if (ctx.packed) {
-            block.own.resize(LeafT::SIZE);
-            block.values = block.own.data();
-        } else {
-            leaf = &spare(origin);
-            block.values = (*leaf)->buffer().data();
-        }
+        block.values = ctx.sink.values();
         std::fill_n(block.values, LeafT::SIZE, ctx.background);
         block.mask.setOff();
         const bool any = bracket < n && !ctx.referenceOnly
                              ? fillBracketedBlock(ctx, origin, bmin, bracket, bracketEnd, block)
                              : fillBlock(ctx, origin, block);
-        if (!any) return;  // the leaf stays spare for the next block
-        if (ctx.packed) {
-            pack(origin, block.mask, block.values);
-            return;
-        }
-        (*leaf)->setOrigin(origin);
-        (*leaf)->setValueMask(block.mask);
-        made.local().push_back(std::move(*leaf));
+        if (any) ctx.sink.take(origin, block.mask, block.values);
     };
     // A row of blocks: its candidate blocks through fillBlockRow, each with an active voxel
-    // copied into a leaf (or packed).
+    // given to the sink.
     const auto fillRow = [&](std::size_t u) {
         BlockRowScratch& rs = rowScratch.local();
         const std::size_t along = nBlocks[ra];
@@ -591,20 +560,10 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
                      static_cast<int>(u / nBlocks[rb]), first, last, bracket, bracketEnd, rs);
         for (int k = first; k <= last; ++k) {
             if (!candidate[static_cast<std::size_t>(k)]) continue;
-            const float* values =
-                rs.values.data() + static_cast<std::size_t>(k - first) * LeafT::SIZE;
+            float* values = rs.values.data() + static_cast<std::size_t>(k - first) * LeafT::SIZE;
             LeafT::NodeMaskType mask;
             if (!activeMask(values, ctx.background, mask)) continue;
-            const openvdb::Coord origin = originOf(rowBlock(u, static_cast<std::size_t>(k)));
-            if (ctx.packed) {
-                pack(origin, mask, values);
-                continue;
-            }
-            std::unique_ptr<LeafT>& leaf = spare(origin);
-            std::copy_n(values, LeafT::SIZE, leaf->buffer().data());
-            leaf->setOrigin(origin);
-            leaf->setValueMask(mask);
-            made.local().push_back(std::move(leaf));
+            ctx.sink.take(originOf(rowBlock(u, static_cast<std::size_t>(k))), mask, values);
         }
     };
     for (std::size_t g = 0; g < groups; ++g) {
@@ -629,10 +588,7 @@ void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::Float
                         fillOne(origin, bmin, bracket, bracketEnd);
                     }
                 });
-            for (auto& list : made) {
-                for (auto& leaf : list) tree.addLeaf(leaf.release());  // the tree takes ownership
-                list.clear();
-            }
+            ctx.sink.groupDone();
         }
         if (progress && !progress(static_cast<double>(g + 1) / static_cast<double>(groups))) {
             throw Error("resample: cancelled");

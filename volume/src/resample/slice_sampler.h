@@ -1,10 +1,10 @@
 #pragma once
 /// @file
-/// Internal to palp_volume: the resampler's geometry (slices sorted along their normal, the
+/// Internal to palp_volume_core: the resampler's geometry (slices sorted along their normal, the
 /// output lattice) and its sampler, shared by resample.cpp (planning) and resample_fill.cpp
 /// (filling the grid's leaves).
 
-#include <openvdb/openvdb.h>
+#include <openvdb/tree/LeafNode.h>
 
 #include <Eigen/Dense>
 #include <algorithm>
@@ -15,14 +15,13 @@
 #include <vector>
 
 #include "palp/base/parallel.h"
-#include "palp/volume/resample.h"
+#include "palp/volume/resample_options.h"
 #include "palp/volume/slice_stack.h"
+#include "resample/leaf_sink.h"
 
 namespace palp::volume::detail {
 
-class PackedLeaves;
-
-using LeafT = openvdb::FloatTree::LeafNodeType;
+using LeafT = openvdb::tree::LeafNode<float, 3>;
 constexpr int kLeafDim = static_cast<int>(LeafT::DIM);
 
 /// Geometry shared by all slices plus each slice's offset, prepared once per resample.
@@ -312,9 +311,8 @@ struct FillContext {
     bool referenceOnly = false;  // every block voxel by voxel through valueAt (for tests)
     bool scalarRows = false;     // the row kernel without its AVX2 rows (for tests)
     bool perBlockRows = false;   // block by block, never whole rows of blocks (for tests)
-    /// Where set, the leaves go here, packed as the file stores them, and the tree gets none:
-    /// palp convert's grid is never held.
-    PackedLeaves* packed = nullptr;
+    /// Where the filled leaves go (a grid's tree, or packed file bytes for palp convert).
+    LeafSink& sink;
 };
 
 /// The lattice's steps as the row kernels use them: per voxel step along each axis, the change
@@ -364,12 +362,11 @@ inline PixelGrid pixelGrid(const SliceSampler& sm) {
 /// calling thread, with @p releaseBelow and @p hi non-decreasing from call to call.
 using SliceWindowFn = std::function<void(std::size_t releaseBelow, std::size_t lo, std::size_t hi)>;
 
-/// Fills @p tree block by block, in groups of blocks ordered along the slice normal (each group
+/// Fills ctx.sink block by block, in groups of blocks ordered along the slice normal (each group
 /// the blocks whose first slice lies in a run of kSlicesPerGroup sorted slices), each group in
 /// parallel; so the slices a group reads are a bounded band, which @p window (when set) makes
 /// resident before the group. Reports progress after each group.
 /// @throw Error("resample: cancelled") when the progress callback asks to stop.
-void fillTree(const FillContext& ctx, const ProgressFn& progress, openvdb::FloatTree& tree,
-              const SliceWindowFn& window = {});
+void fillTree(const FillContext& ctx, const ProgressFn& progress, const SliceWindowFn& window = {});
 
 }  // namespace palp::volume::detail

@@ -1,33 +1,40 @@
 // Leaves packed as a mask-compressed .vdb stores them, and the file written from them.
 #include "vdb/vdb_packed.h"
 
+#include <blosc.h>
 #include <fcntl.h>
-#include <openvdb/io/DelayedLoadMetadata.h>
-#include <openvdb/io/GridDescriptor.h>
-#include <openvdb/io/io.h>
+#include <openvdb/io/Compression.h>
+#include <openvdb/tree/Tree.h>
+#include <openvdb/version.h>
 #include <sys/uio.h>
 #include <tbb/parallel_sort.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <boost/uuid/random_generator.hpp>
 #include <boost/uuid/uuid_io.hpp>
 #include <cerrno>
 #include <climits>
+#include <cmath>
 #include <cstring>
-#include <sstream>
+#include <limits>
+#include <map>
 #include <type_traits>
+#include <utility>
 
 #include "palp/base/atomic_file.h"
 #include "palp/base/error.h"
-#include "vdb/vdb_write.h"
+#include "volume_info_fields.h"
 
 namespace palp::volume::detail {
 
 namespace {
 
-using LeafT = openvdb::FloatTree::LeafNodeType;
+/// OpenVDB's FloatTree (openvdb.h, which palp_volume_core does not include).
+using FloatTree = openvdb::tree::Tree4<float, 5, 4, 3>::Type;
+using LeafT = FloatTree::LeafNodeType;
 
 /// Bytes a thread reserves at a time for its packed leaves, and what stays free past the last
 /// leaf (packLeafBuffers may store one value past its end).
@@ -83,9 +90,89 @@ void addLeafStats(const std::uint64_t (&words)[8], const openvdb::Coord& origin,
         origin + openvdb::Coord(xHi, 31 - std::countl_zero(ys), 31 - std::countl_zero(zs))));
 }
 
-template <typename T>
-void writeRaw(std::ostream& os, const T& value) {
-    os.write(reinterpret_cast<const char*>(&value), sizeof value);
+/// Bytes appended as OpenVDB's writers stream them: values as they lie in memory (little
+/// endian), strings as io::writeString (a 32-bit length, then the characters).
+struct Bytes {
+    std::string out;
+
+    template <typename T>
+    void raw(const T& value) {
+        static_assert(std::is_trivially_copyable_v<T>);
+        out.append(reinterpret_cast<const char*>(&value), sizeof value);
+    }
+    void bytes(const void* data, std::size_t n) { out.append(static_cast<const char*>(data), n); }
+    void string(const std::string& s) {
+        raw(static_cast<std::uint32_t>(s.size()));
+        out.append(s);
+    }
+};
+
+/// A grid's metadata as MetaMap::writeMeta writes it: by name (a std::map's order), each its
+/// name, its type's name and its value (a 32-bit size, then the bytes).
+class MetaBytes {
+  public:
+    template <typename T>
+    void add(const std::string& name, const T& value) {
+        if constexpr (std::is_same_v<T, std::string>) {
+            put(name, "string", value.data(), value.size());
+        } else if constexpr (std::is_same_v<T, std::array<std::int32_t, 3>>) {
+            put(name, "vec3i", value.data(), sizeof value);
+        } else if constexpr (std::is_same_v<T, std::array<double, 3>>) {
+            put(name, "vec3d", value.data(), sizeof value);
+        } else if constexpr (std::is_same_v<T, double>) {
+            put(name, "double", &value, sizeof value);
+        } else if constexpr (std::is_same_v<T, float>) {
+            put(name, "float", &value, sizeof value);
+        } else if constexpr (std::is_same_v<T, std::int32_t>) {
+            put(name, "int32", &value, sizeof value);
+        } else {
+            static_assert(std::is_same_v<T, std::int64_t>);
+            put(name, "int64", &value, sizeof value);
+        }
+    }
+    void put(const std::string& name, const char* type, const void* value, std::size_t n) {
+        mMeta[name] = {type, std::string(static_cast<const char*>(value), n)};
+    }
+    void write(Bytes& b) const {
+        b.raw(static_cast<std::uint32_t>(mMeta.size()));
+        for (const auto& [name, typed] : mMeta) {
+            b.string(name);
+            b.string(typed.first);
+            b.string(typed.second);  // Metadata::write: size, then value
+        }
+    }
+
+  private:
+    std::map<std::string, std::pair<std::string, std::string>> mMeta;
+};
+
+/// io::DelayedLoadMetadata's value for @p leafCount leaves whose metadata byte is
+/// NO_MASK_OR_INACTIVE_VALS, no compressed sizes: the count, then the mask bytes as
+/// compression::bloscCompress compresses them (LZ4 through Blosc at level 9, shuffled as 4-byte
+/// values, one block; inputs of 48 bytes or less stored raw, shorter than 128 zero-padded to
+/// it, and raw where Blosc does not make them smaller), then UINT32_MAX (no sizes); nothing
+/// for no leaves.
+std::string delayedLoadValue(std::size_t leafCount) {
+    if (leafCount == 0) return {};
+    constexpr std::size_t kMinimum = 48, kPad = 128;
+    std::string mask(leafCount, static_cast<char>(openvdb::io::NO_MASK_OR_INACTIVE_VALS));
+    std::string packed;
+    if (leafCount > kMinimum) {
+        std::string input = mask;
+        if (input.size() < kPad) input.resize(kPad, '\0');
+        packed.resize(input.size() + BLOSC_MAX_OVERHEAD);
+        const int n =
+            blosc_compress_ctx(9, 1, sizeof(float), input.size(), input.data(), packed.data(),
+                               packed.size(), BLOSC_LZ4_COMPNAME, input.size(), 1);
+        packed.resize(n > 0 && static_cast<std::size_t>(n) < leafCount ? static_cast<std::size_t>(n)
+                                                                       : 0);
+    }
+    Bytes b;
+    b.raw(static_cast<std::uint32_t>(leafCount));
+    b.raw(static_cast<std::uint32_t>(packed.size()));
+    b.out.append(packed.empty() ? mask : packed);
+    b.raw(std::numeric_limits<std::uint32_t>::max());
+    return std::move(b.out);
 }
 
 /// Writes the bytes of @p rest to @p fd in order, through short writes and interruptions.
@@ -125,8 +212,8 @@ std::uint64_t internalNodeBytes() {
 }
 
 Topology topologyOf(const std::vector<PackedLeaves::Leaf>& leaves, float background) {
-    using Node4 = openvdb::FloatTree::RootNodeType::ChildNodeType::ChildNodeType;
-    using Node5 = openvdb::FloatTree::RootNodeType::ChildNodeType;
+    using Node4 = FloatTree::RootNodeType::ChildNodeType::ChildNodeType;
+    using Node5 = FloatTree::RootNodeType::ChildNodeType;
     constexpr std::size_t kLeafMask = LeafT::NodeMaskType::WORD_COUNT * sizeof(std::uint64_t);
     std::size_t tops = 0, lowers = 0;
     for (std::size_t i = 0; i < leaves.size(); ++i) {
@@ -192,7 +279,7 @@ Topology topologyOf(const std::vector<PackedLeaves::Leaf>& leaves, float backgro
     }
     // tools::memUsage: the tree and its root, each internal node's table and masks and origin,
     // each leaf with its buffer.
-    t.memUsage = sizeof(openvdb::FloatTree) + sizeof(openvdb::FloatTree::RootNodeType) +
+    t.memUsage = sizeof(FloatTree) + sizeof(FloatTree::RootNodeType) +
                  tops * internalNodeBytes<Node5>() + lowers * internalNodeBytes<Node4>() +
                  leaves.size() * (sizeof(LeafT) + LeafT::SIZE * sizeof(float));
     return t;
@@ -202,68 +289,104 @@ Topology topologyOf(const std::vector<PackedLeaves::Leaf>& leaves, float backgro
 /// header, file metadata, the grid's descriptor (its three stream positions included: the
 /// buffers, @p bufferBytes of them, follow the topology), compression, metadata, transform and
 /// @p topology.
-std::string filePrefix(const openvdb::FloatGrid& grid, const Topology& topology,
-                       const PackedStats& stats, std::size_t leafCount, std::uint64_t bufferBytes) {
+std::string filePrefix(const PackedGrid& grid, const Topology& topology, const PackedStats& stats,
+                       std::size_t leafCount, std::uint64_t bufferBytes) {
     namespace io = openvdb::io;
-    std::ostringstream os(std::ios::binary);
-    const std::uint32_t compression = io::COMPRESS_ACTIVE_MASK;
-    auto streamMeta = std::make_shared<io::StreamMetadata>();
-    io::setStreamMetadataPtr(os, streamMeta, /*transfer=*/false);
-    io::setDataCompression(os, compression);
-    io::setWriteGridStatsMetadata(os, true);
+    Bytes b;
+    constexpr std::uint32_t kCompression = io::COMPRESS_ACTIVE_MASK;
     // Archive::writeHeader: magic, file format and library versions, "has grid offsets", UUID.
-    writeRaw(os, std::int64_t{openvdb::OPENVDB_MAGIC});
-    writeRaw(os, std::uint32_t{openvdb::OPENVDB_FILE_VERSION});
-    writeRaw(os, std::uint32_t{openvdb::OPENVDB_LIBRARY_MAJOR_VERSION});
-    writeRaw(os, std::uint32_t{openvdb::OPENVDB_LIBRARY_MINOR_VERSION});
-    writeRaw(os, char{1});
-    os << boost::uuids::to_string(boost::uuids::random_generator()());  // as OpenVDB: random
-    openvdb::MetaMap fileMeta;
-    fileMeta.insertMeta("creator", openvdb::StringMetadata("palp"));
-    fileMeta.writeMeta(os);
-    writeRaw(os, std::int32_t{1});
-    // Archive::writeGrid, for a grid whose name is unique and whose values are not halved.
-    io::GridDescriptor gd(grid.getName(), grid.type(), false);
-    gd.writeHeader(os);
-    const auto offsetPos = static_cast<std::size_t>(os.tellp());
-    gd.writeStreamPos(os);
-    gd.setGridPos(os.tellp());
-    writeRaw(os, compression);  // setGridCompression: no ZIP to take away
-    // The metadata OpenVDB adds: delayed-load masks (every leaf's metadata byte, the same
-    // for every packed leaf), the file statistics and the compression in words.
-    openvdb::MetaMap meta(static_cast<const openvdb::MetaMap&>(grid));
-    io::DelayedLoadMetadata delayed;
-    if (leafCount > 0) {
-        delayed.resizeMask(leafCount);
-        for (std::size_t i = 0; i < leafCount; ++i)
-            delayed.setMask(
-                i, static_cast<io::DelayedLoadMetadata::MaskType>(io::NO_MASK_OR_INACTIVE_VALS));
-    }
-    meta.insertMeta(openvdb::GridBase::META_FILE_DELAYED_LOAD, delayed);
+    b.raw(std::int64_t{openvdb::OPENVDB_MAGIC});
+    b.raw(std::uint32_t{openvdb::OPENVDB_FILE_VERSION});
+    b.raw(std::uint32_t{openvdb::OPENVDB_LIBRARY_MAJOR_VERSION});
+    b.raw(std::uint32_t{openvdb::OPENVDB_LIBRARY_MINOR_VERSION});
+    b.raw(char{1});
+    b.out += boost::uuids::to_string(boost::uuids::random_generator()());  // as OpenVDB: random
+    MetaBytes fileMeta;
+    fileMeta.add("creator", std::string("palp"));
+    fileMeta.write(b);
+    b.raw(std::int32_t{1});  // one grid
+    // Archive::writeGrid, for a grid whose name is unique and whose values are not halved:
+    // GridDescriptor::writeHeader (name, type, no instance parent), then its stream positions
+    // (grid, buffers, end), known once the topology's size is.
+    b.string(kScanGridName);
+    b.string("Tree_float_5_4_3");
+    b.string("");
+    const std::size_t offsetPos = b.out.size();
+    b.out.append(3 * sizeof(std::int64_t), '\0');
+    const auto gridPos = static_cast<std::int64_t>(b.out.size());
+    b.raw(kCompression);  // setGridCompression: no ZIP to take away
+    // The grid's metadata (its name, its VolumeInfo), then what OpenVDB adds: the delayed-load
+    // masks, the file statistics and the compression in words.
+    MetaBytes meta;
+    meta.add("name", std::string(kScanGridName));
+    forEachInfoField(grid.info,
+                     [&](const char* name, const auto& value) { meta.add(name, value); });
+    const std::string delayed = delayedLoadValue(leafCount);
+    meta.put("file_delayed_load", "__delayedload", delayed.data(), delayed.size());
     const openvdb::CoordBBox& box = stats.box;
-    meta.insertMeta(openvdb::GridBase::META_FILE_BBOX_MIN,
-                    openvdb::Vec3IMetadata(box.min().asVec3i()));
-    meta.insertMeta(openvdb::GridBase::META_FILE_BBOX_MAX,
-                    openvdb::Vec3IMetadata(box.max().asVec3i()));
-    meta.insertMeta(openvdb::GridBase::META_FILE_MEM_BYTES,
-                    openvdb::Int64Metadata(static_cast<std::int64_t>(topology.memUsage)));
-    meta.insertMeta(openvdb::GridBase::META_FILE_VOXEL_COUNT,
-                    openvdb::Int64Metadata(static_cast<std::int64_t>(stats.activeVoxels)));
-    meta.insertMeta(openvdb::GridBase::META_FILE_COMPRESSION,
-                    openvdb::StringMetadata(io::compressionToString(compression)));
-    meta.writeMeta(os);
-    grid.writeTransform(os);
-    os.write(topology.bytes.data(), static_cast<std::streamsize>(topology.bytes.size()));
-    gd.setBlockPos(os.tellp());
-    gd.setEndPos(gd.getBlockPos() + static_cast<std::int64_t>(bufferBytes));
-    std::string prefix = std::move(os).str();
-    std::ostringstream pos(std::ios::binary);
-    gd.writeStreamPos(pos);
-    prefix.replace(offsetPos, 3 * sizeof(std::int64_t), std::move(pos).str());
-    return prefix;
+    meta.add("file_bbox_min",
+             std::array<std::int32_t, 3>{box.min().x(), box.min().y(), box.min().z()});
+    meta.add("file_bbox_max",
+             std::array<std::int32_t, 3>{box.max().x(), box.max().y(), box.max().z()});
+    meta.add("file_mem_bytes", static_cast<std::int64_t>(topology.memUsage));
+    meta.add("file_voxel_count", static_cast<std::int64_t>(stats.activeVoxels));
+    meta.add("file_compression", std::string("active values"));  // io::compressionToString
+    meta.write(b);
+    // Transform::write: the map's type, then ScaleTranslateMap::write (translation, scale,
+    // voxel size, inverse scale, its square, half of it), as its constructor computes them.
+    const StoredMap map = storedMap(grid.step, grid.lo);
+    b.string(map.uniform ? "UniformScaleTranslateMap" : "ScaleTranslateMap");
+    const auto vec = [&](const auto& f) {
+        for (int a = 0; a < 3; ++a) b.raw(static_cast<double>(f(a)));
+    };
+    vec([&](int a) { return map.translation[a]; });
+    vec([&](int a) { return map.scale[a]; });
+    vec([&](int a) { return std::abs(map.scale[a]); });
+    vec([&](int a) { return 1.0 / map.scale[a]; });
+    vec([&](int a) { return (1.0 / map.scale[a]) * (1.0 / map.scale[a]); });
+    vec([&](int a) { return (1.0 / map.scale[a]) / 2; });
+    b.out += topology.bytes;
+    const std::int64_t positions[3] = {gridPos, static_cast<std::int64_t>(b.out.size()),
+                                       static_cast<std::int64_t>(b.out.size() + bufferBytes)};
+    std::memcpy(b.out.data() + offsetPos, positions, sizeof positions);
+    return std::move(b.out);
 }
 
 }  // namespace
+
+StoredMap storedMap(const Eigen::Vector3d& step, const Eigen::Vector3d& lo) {
+    StoredMap m{true, step, lo};
+    if (step.x() == step.y() && step.y() == step.z()) return m;  // no simplification
+    // simplify(AffineMap): translation = (0, 0, 0) * matrix, scale = (1, 1, 1) * matrix minus
+    // it (Mat4's row-vector product: 1 * s + 1 * 0 + 1 * 0 + t), each as double arithmetic.
+    for (int a = 0; a < 3; ++a) m.scale[a] = (step[a] + lo[a]) - lo[a];
+    const auto near = [](double x, double y) { return !(std::abs(x - y) > 1e-15); };
+    m.uniform = near(m.scale[0], m.scale[1]) && near(m.scale[0], m.scale[2]);
+    if (m.uniform) m.scale = Eigen::Vector3d::Constant(m.scale[0]);
+    return m;
+}
+
+char* packLeafBuffers(const std::uint64_t (&words)[8], const float* values, char* dst) noexcept {
+    std::memcpy(dst, words, sizeof words);
+    dst += sizeof words;
+    *dst++ = static_cast<char>(openvdb::io::NO_MASK_OR_INACTIVE_VALS);
+    for (unsigned w = 0; w < 8; ++w) {
+        const float* row = values + w * 64;
+        const std::uint64_t on = words[w];
+        if (on == ~std::uint64_t{0}) {
+            std::memcpy(dst, row, 64 * sizeof(float));
+            dst += 64 * sizeof(float);
+        } else if (on != 0) {
+            // Every value stored, the pointer advanced past the active ones only: no branch per
+            // value (the last stores land in the slack past the leaf or on values written next).
+            for (unsigned i = 0; i < 64; ++i) {
+                std::memcpy(dst, row + i, sizeof(float));
+                dst += ((on >> i) & 1u) * sizeof(float);
+            }
+        }
+    }
+    return dst;
+}
 
 void PackedLeaves::add(const openvdb::Coord& origin, const openvdb::util::NodeMask<3>& mask,
                        const float* values) {
@@ -311,12 +434,12 @@ std::vector<PackedLeaves::Leaf> PackedLeaves::inTreeOrder() const {
     return all;
 }
 
-PackedStats writePackedVdb(const openvdb::FloatGrid& grid, const PackedLeaves& packed,
+PackedStats writePackedVdb(const PackedGrid& grid, const PackedLeaves& packed,
                            const std::filesystem::path& path) {
     const std::vector<PackedLeaves::Leaf> leaves = packed.inTreeOrder();
     std::uint64_t bufferBytes = 0;
     for (const PackedLeaves::Leaf& leaf : leaves) bufferBytes += leaf.size;
-    const Topology topology = topologyOf(leaves, grid.background());
+    const Topology topology = topologyOf(leaves, grid.background);
     const PackedStats stats = packed.stats();
     const std::string prefix = filePrefix(grid, topology, stats, leaves.size(), bufferBytes);
 

@@ -21,32 +21,8 @@
 namespace palp::volume::detail {
 
 namespace {
+
 using LeafT = openvdb::FloatTree::LeafNodeType;
-}  // namespace
-
-char* packLeafBuffers(const std::uint64_t (&words)[8], const float* values, char* dst) noexcept {
-    std::memcpy(dst, words, sizeof words);
-    dst += sizeof words;
-    *dst++ = static_cast<char>(openvdb::io::NO_MASK_OR_INACTIVE_VALS);
-    for (unsigned w = 0; w < 8; ++w) {
-        const float* row = values + w * 64;
-        const std::uint64_t on = words[w];
-        if (on == ~std::uint64_t{0}) {
-            std::memcpy(dst, row, 64 * sizeof(float));
-            dst += 64 * sizeof(float);
-        } else if (on != 0) {
-            // Every value stored, the pointer advanced past the active ones only: no branch per
-            // value (the last stores land in the slack past the leaf or on values written next).
-            for (unsigned i = 0; i < 64; ++i) {
-                std::memcpy(dst, row + i, sizeof(float));
-                dst += ((on >> i) & 1u) * sizeof(float);
-            }
-        }
-    }
-    return dst;
-}
-
-namespace {
 
 /// A chunk's bytes: grown without initialising what is appended (a std::string's resize()
 /// zero-fills the bytes the leaf's values then overwrite), reused from batch to batch (cleared,

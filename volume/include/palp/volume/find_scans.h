@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "palp/volume/load.h"
+#include "palp/volume/convert.h"
 
 namespace palp::volume {
 

@@ -4,11 +4,12 @@
 /// world geometry, so gantry tilt and uneven spacing are represented exactly.
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
 
-#include "palp/volume/volume.h"
+#include "palp/volume/volume_info.h"
 
 namespace palp::volume {
 
