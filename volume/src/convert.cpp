@@ -266,8 +266,9 @@ ConvertFn loadAndSave() {
         const fs::path dir = loadedFileDir(&kAnchor);
         const fs::path file =
             dir.empty() ? fs::path(PALP_VOLUME_LIBRARY_FILE) : dir / PALP_VOLUME_LIBRARY_FILE;
-        return reinterpret_cast<ConvertFn>(
-            openLibrarySymbol(file, kLoadAndSaveEntry, "palp's volume library (load and save)"));
+        using Entry = ConvertFn (*)();
+        return reinterpret_cast<Entry>(
+            openLibrarySymbol(file, kLoadAndSaveEntry, "palp's volume library (load and save)"))();
     }();
     return fn;
 }

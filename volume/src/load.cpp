@@ -181,15 +181,23 @@ void save(const Volume& volume, const fs::path& path, const SaveOptions& options
 
 }  // namespace palp::volume
 
-/// convert()'s way through load() and save() (kLoadAndSaveEntry), for palp_volume_core.
-extern "C" __attribute__((visibility("default"))) palp::volume::ConvertSummary
-palp_volume_load_and_save(const std::vector<std::filesystem::path>& inputs,
-                          const std::filesystem::path& output,
-                          const palp::volume::LoadOptions& options,
-                          const palp::volume::SaveOptions& saveOptions) {
+namespace {
+
+palp::volume::ConvertSummary loadAndSave(const std::vector<std::filesystem::path>& inputs,
+                                         const std::filesystem::path& output,
+                                         const palp::volume::LoadOptions& options,
+                                         const palp::volume::SaveOptions& saveOptions) {
     using namespace palp::volume;
     const Volume v = load(inputs, options);
     save(v, output, saveOptions);
     return ConvertSummary{v.info, v.grid->activeVoxelCount(), v.worldBounds(), v.voxelSizes(),
                           v.grid->background()};
+}
+
+}  // namespace
+
+/// convert()'s way through load() and save(), for palp_volume_core (kLoadAndSaveEntry).
+extern "C" __attribute__((visibility("default"))) palp::volume::ConvertFn
+palp_volume_load_and_save() {
+    return &loadAndSave;
 }

@@ -84,11 +84,12 @@ ConvertSummary convert(const std::vector<std::filesystem::path>& inputs,
                        const std::filesystem::path& output, const LoadOptions& options = {},
                        const SaveOptions& saveOptions = {});
 
-/// The symbol libpalp_volume exports for convert() (dlsym): a function of type ConvertFn that
-/// converts through load() and save().
-inline constexpr const char* kLoadAndSaveEntry = "palp_volume_load_and_save";
+/// convert() as load() then save(), which libpalp_volume exports for palp_volume_core's
+/// convert(): the symbol kLoadAndSaveEntry (dlsym) is an `extern "C"` function taking nothing
+/// and returning it.
 using ConvertFn = ConvertSummary (*)(const std::vector<std::filesystem::path>& inputs,
                                      const std::filesystem::path& output,
                                      const LoadOptions& options, const SaveOptions& saveOptions);
+inline constexpr const char* kLoadAndSaveEntry = "palp_volume_load_and_save";
 
 }  // namespace palp::volume
