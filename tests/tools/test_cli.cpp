@@ -65,9 +65,11 @@ TEST(Cli, ConvertRunsWithoutTheCommandsModuleOrOpenVdbTheOthersNameItWhenMissing
                           "space directions: (1,0,0) (0,1,0) (0,0,2)\n"
                           "endian: little\nencoding: raw\n\n" +
                               palp::test::floatsLE(values));
-    const auto convert = runCommand("LD_DEBUG=files " + palp + " --quiet convert " +
+    const auto convert = runCommand("LD_DEBUG=files " + palp + " convert " +
                                     (tmp / "a.nrrd").string() + " -o " + (tmp / "a.vdb").string());
     ASSERT_EQ(convert.exitCode, 0) << convert.output;
+    // A NRRD says no modality: the line names the format alone.
+    EXPECT_NE(convert.output.find(": NRRD, voxel 1 mm, "), std::string::npos) << convert.output;
     EXPECT_EQ(convert.output.find("libopenvdb"), std::string::npos) << convert.output;
     EXPECT_EQ(convert.output.find("libpalp_volume.so"), std::string::npos) << convert.output;
     EXPECT_EQ(convert.output.find("libpalp_tool_commands"), std::string::npos) << convert.output;

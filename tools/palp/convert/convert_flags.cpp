@@ -116,14 +116,17 @@ std::string describeVolume(const volume::ConvertSummary& vol) {
     } else {
         std::snprintf(voxel, sizeof voxel, "%.4g x %.4g x %.4g", e[0], e[1], e[2]);
     }
+    // "DICOM CT", or "NIfTI-1" alone where the source does not say its modality.
+    const std::string source = vol.info.modality.empty()
+                                   ? vol.info.sourceFormat
+                                   : vol.info.sourceFormat + " " + vol.info.modality;
     char line[600];
     std::snprintf(line, sizeof line,
-                  "%s %s, voxel %s mm, %llu active voxels, world box (%.1f, %.1f, %.1f) - "
+                  "%s, voxel %s mm, %llu active voxels, world box (%.1f, %.1f, %.1f) - "
                   "(%.1f, %.1f, %.1f) mm",
-                  vol.info.sourceFormat.c_str(), vol.info.modality.c_str(), voxel,
-                  static_cast<unsigned long long>(vol.activeVoxels), b.min().x() * 1e3,
-                  b.min().y() * 1e3, b.min().z() * 1e3, b.max().x() * 1e3, b.max().y() * 1e3,
-                  b.max().z() * 1e3);
+                  source.c_str(), voxel, static_cast<unsigned long long>(vol.activeVoxels),
+                  b.min().x() * 1e3, b.min().y() * 1e3, b.min().z() * 1e3, b.max().x() * 1e3,
+                  b.max().y() * 1e3, b.max().z() * 1e3);
     return line;
 }
 
