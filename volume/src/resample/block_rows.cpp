@@ -131,7 +131,12 @@ void fillBlockRow(const FillContext& ctx, int a, int rowB, int rowC, int first, 
     const LatticeSteps steps = latticeSteps(ctx);
     const Eigen::Vector3d& ds = steps.ds;
     const Eigen::Matrix<double, 2, 3>& dm = steps.dm;
-    const auto [cols, rows, cmax, rmax, mc, mr, c0max, r0max, dc1, dr1] = pixelGrid(sm);
+    // Named copies, not a structured binding: the lambdas below use them, and clang before 16
+    // (Debian's 14, the fuzz preset) refuses to capture structured bindings.
+    const PixelGrid pix = pixelGrid(sm);
+    const int cols = pix.cols, c0max = pix.c0max, r0max = pix.r0max;
+    const double cmax = pix.cmax, rmax = pix.rmax, mc = pix.mc, mr = pix.mr;
+    const std::ptrdiff_t dc1 = pix.dc1, dr1 = pix.dr1;
     const float threshold = ctx.threshold, background = ctx.background;
     const int width = (last - first + 1) * kLeafDim;
     const auto w = static_cast<std::size_t>(width);
