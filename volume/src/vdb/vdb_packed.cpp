@@ -100,7 +100,6 @@ struct Bytes {
         static_assert(std::is_trivially_copyable_v<T>);
         out.append(reinterpret_cast<const char*>(&value), sizeof value);
     }
-    void bytes(const void* data, std::size_t n) { out.append(static_cast<const char*>(data), n); }
     void string(const std::string& s) {
         raw(static_cast<std::uint32_t>(s.size()));
         out.append(s);
