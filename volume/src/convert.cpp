@@ -179,7 +179,9 @@ namespace detail {
 
 std::optional<LazySliceStack> openLazy(const std::vector<fs::path>& inputs,
                                        const ReadOptions& options) {
-    if (!inputs.empty() && detectFormat(inputs.front()) == Format::Dicom) {
+    // The first input's format, sniffed once (its first bytes read).
+    const Format format = inputs.empty() ? Format::Unknown : detectFormat(inputs.front());
+    if (format == Format::Dicom) {
         // Decoded as the resampler reaches each slice and released behind it: the whole
         // series is never held (readStack() would hold it beside the grid).
         for (const fs::path& p : inputs) requireExists(p);
@@ -189,7 +191,7 @@ std::optional<LazySliceStack> openLazy(const std::vector<fs::path>& inputs,
     // Likewise a NIfTI, NRRD or MetaImage volume: read (or converted from the stored bytes) a
     // slice at a time, never held as float beside the grid.
     const fs::path& in = inputs.front();
-    switch (detectFormat(in)) {
+    switch (format) {
         case Format::Nifti:
             return openNifti(in, options);
         case Format::Nrrd:
@@ -280,12 +282,12 @@ ConvertSummary convert(const std::vector<fs::path>& inputs, const fs::path& outp
     if (saveOptions.compression == Compression::ActiveMask) {
         checkResampleOptions(options.resample);
         if (inputs.size() == 1) detail::requireExists(inputs.front());
-        // A stored grid has no slices: load() re-grids it as a volume.
-        if (inputs.size() != 1 || detectFormat(inputs.front()) != Format::Vdb) {
-            if (std::optional<detail::LazySliceStack> lazy = detail::openLazy(inputs, options))
-                return convertPacked(*lazy, output, options.resample);
-            (void)readStack(inputs, options);  // an unknown format or several files: refused
-        }
+        if (std::optional<detail::LazySliceStack> lazy = detail::openLazy(inputs, options))
+            return convertPacked(*lazy, output, options.resample);
+        // A stored grid has no slices: load() re-grids it as a volume. Anything else (an
+        // unknown format, several files that are not DICOM): readStack() refuses it.
+        if (inputs.size() != 1 || detectFormat(inputs.front()) != Format::Vdb)
+            (void)readStack(inputs, options);
     }
     return loadAndSave()(inputs, output, options, saveOptions);
 }

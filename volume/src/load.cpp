@@ -99,14 +99,12 @@ Volume load(const std::vector<fs::path>& inputs, const LoadOptions& options) {
     checkResampleOptions(options.resample);
     const std::string what = inputs.empty() ? std::string("load") : inputs.front().string();
     return detail::withVdbErrors<FormatError>(what, "a scan OpenVDB can grid", [&] {
-        if (inputs.size() == 1) {
-            detail::requireExists(inputs.front());
-            // A stored grid has no slices: it is re-gridded as a volume, with the same options.
-            if (detectFormat(inputs.front()) == Format::Vdb)
-                return resample(loadVdb(inputs.front()), options.resample);
-        }
+        if (inputs.size() == 1) detail::requireExists(inputs.front());
         if (std::optional<detail::LazySliceStack> lazy = detail::openLazy(inputs, options))
             return detail::resampleLazy(*lazy, options.resample);
+        // A stored grid has no slices: it is re-gridded as a volume, with the same options.
+        if (inputs.size() == 1 && detectFormat(inputs.front()) == Format::Vdb)
+            return resample(loadVdb(inputs.front()), options.resample);
         // An unknown format or several non-DICOM inputs: readStack() says what is wrong.
         return resample(readStack(inputs, options), options.resample);
     });
